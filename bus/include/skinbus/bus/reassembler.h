@@ -1,0 +1,123 @@
+// skinbus/bus/reassembler.h: frames in, whole messages out, in bounded memory.
+//
+// One Reassembler serves one bus (all nodes, all classes). Frames may arrive shuffled,
+// duplicated, dropped or stale; a message is emitted only when all its parts are present and
+// its CRC matches, so a complete message is never lost and a corrupt one never emitted.
+//
+// Memory: `Config::slots` slots of kMaxPayloadLen bytes each plus a fixed per-sender table,
+// all allocated in the constructor. `feed` never allocates, never throws, and costs O(slots in
+// use) for the slot look-up plus O(payload) when a message completes.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "skinbus/bus/can_frame.h"
+#include "skinbus/bus/codec.h"
+#include "skinbus/bus/protocol.h"
+
+namespace skinbus::bus {
+
+struct ReassemblyStats {
+  uint64_t frames = 0;              // frames fed
+  uint64_t messages = 0;            // valid messages emitted, all classes
+  uint64_t samples = 0;             // of which samples
+  uint64_t integrity_failures = 0;  // complete payloads that failed the CRC or held bad values
+  uint64_t gaps = 0;                // messages missing between two emitted ones (per sender, class)
+  uint64_t duplicates = 0;          // frames carrying a part already held or already emitted
+  uint64_t reorders = 0;            // parts after a later part, or messages after a later message
+  uint64_t stale_parts = 0;         // parts dropped because their message timed out incomplete
+  uint64_t evictions = 0;           // incomplete messages dropped because every slot was busy
+  uint64_t conflicts = 0;           // a part seen twice with different bytes (message dropped)
+  uint64_t rejected = 0;            // frames parse_frame refused (any reason but kForeign)
+  uint64_t foreign = 0;             // frames of other protocols (extended, RTR, error frames)
+  std::array<uint64_t, kDecodeErrorCount> by_error{};  // rejected + foreign, by DecodeError
+};
+
+enum class FeedStatus : uint8_t {
+  kMessage,           // `message` holds a complete, valid message
+  kPending,           // part stored, message not complete yet
+  kDuplicate,         // dropped: already held or already emitted
+  kRejected,          // dropped: `error` says why (kForeign for other protocols)
+  kIntegrityFailure,  // a message completed but failed its CRC or value checks; dropped
+};
+
+struct FeedResult {
+  FeedStatus status = FeedStatus::kPending;
+  DecodeError error = DecodeError::kNone;
+  const Message* message = nullptr;  // valid until the next call to feed()
+  uint32_t missing_before = 0;       // kMessage: messages of this sender+class lost just before it
+};
+
+class Reassembler {
+ public:
+  struct Config {
+    std::size_t slots = 64;      // incomplete messages held at once (all senders)
+    uint32_t timeout_us = 50000;  // an incomplete message older than this is dropped as stale
+  };
+
+  Reassembler() : Reassembler(Config{}) {}
+  explicit Reassembler(const Config& config);
+
+  // Feeds one frame received at `rx_time_us` (host monotonic clock; must not go backwards by
+  // more than the timeout). See FeedResult.
+  FeedResult feed(const CanFrame& frame, uint64_t rx_time_us);
+
+  // Drops incomplete messages older than the timeout at `now_us`. feed() calls this as needed;
+  // call it yourself when the bus goes quiet so stale parts are counted.
+  void expire(uint64_t now_us);
+
+  // Forgets every incomplete message and the per-sender sequence history (statistics stay).
+  void reset();
+
+  const ReassemblyStats& stats() const { return stats_; }
+  std::size_t slots_in_use() const { return in_use_; }
+
+ private:
+  struct Slot {
+    bool used = false;
+    MessageClass message_class = MessageClass::kSample;
+    uint8_t node = 0;
+    uint8_t seq = 0;
+    FrameKind kind = FrameKind::kFd;
+    uint8_t part_count = 0;
+    uint8_t highest_part = 0;
+    uint32_t have = 0;  // bit i: part i present
+    uint64_t first_rx_us = 0;
+    std::array<uint8_t, kMaxPayloadLen> payload{};
+  };
+  // Per (sender, class): the sequence history used for gap, reorder and duplicate detection.
+  // A repeat is recognised by (sequence, payload CRC) among the last kRecent messages, so a
+  // node that restarts its sequence after a reboot is not mistaken for a duplicate.
+  static constexpr std::size_t kRecent = 16;
+  struct Sender {
+    bool valid = false;
+    uint8_t last_seq = 0;
+    uint8_t ring_pos = 0;
+    uint64_t last_rx_us = 0;
+    std::array<uint8_t, kRecent> recent_seq{};
+    std::array<uint16_t, kRecent> recent_crc{};
+    std::array<bool, kRecent> recent_used{};
+  };
+
+  FeedResult complete(MessageClass c, uint8_t node, uint8_t seq, FrameKind kind,
+                      const uint8_t* payload, std::size_t len, uint64_t rx_time_us);
+  Slot* find_slot(MessageClass c, uint8_t node, uint8_t seq, FrameKind kind);
+  Slot* allocate_slot(uint64_t rx_time_us);
+  void release(Slot& s, bool stale);
+  Sender& sender(MessageClass c, uint8_t node) {
+    return senders_[static_cast<std::size_t>(node) * kMessageClassCount + static_cast<std::size_t>(c)];
+  }
+
+  Config config_;
+  std::vector<Slot> slots_;
+  std::vector<Sender> senders_;
+  std::size_t in_use_ = 0;
+  uint64_t last_expire_us_ = 0;
+  Message out_;
+  ReassemblyStats stats_;
+};
+
+}  // namespace skinbus::bus

@@ -1,0 +1,176 @@
+#include "skinbus/bus/reassembler.h"
+
+#include <bit>
+#include <cstring>
+
+namespace skinbus::bus {
+
+Reassembler::Reassembler(const Config& config)
+    : config_(config),
+      slots_(config.slots == 0 ? 1 : config.slots),
+      senders_(static_cast<std::size_t>(kNodeMask + 1) * kMessageClassCount) {}
+
+void Reassembler::reset() {
+  for (Slot& s : slots_) s.used = false;
+  for (Sender& s : senders_) s = Sender{};
+  in_use_ = 0;
+}
+
+Reassembler::Slot* Reassembler::find_slot(MessageClass c, uint8_t node, uint8_t seq, FrameKind kind) {
+  if (in_use_ == 0) return nullptr;
+  for (Slot& s : slots_) {
+    if (s.used && s.node == node && s.seq == seq && s.message_class == c && s.kind == kind) return &s;
+  }
+  return nullptr;
+}
+
+void Reassembler::release(Slot& s, bool stale) {
+  if (stale) stats_.stale_parts += static_cast<uint64_t>(std::popcount(s.have));
+  s.used = false;
+  --in_use_;
+}
+
+Reassembler::Slot* Reassembler::allocate_slot(uint64_t rx_time_us) {
+  if (in_use_ == slots_.size()) expire(rx_time_us);
+  Slot* oldest = nullptr;
+  for (Slot& s : slots_) {
+    if (!s.used) {
+      s.used = true;
+      ++in_use_;
+      return &s;
+    }
+    if (oldest == nullptr || s.first_rx_us < oldest->first_rx_us) oldest = &s;
+  }
+  // Every slot busy with a message still inside its timeout: drop the oldest, loudly.
+  ++stats_.evictions;
+  stats_.stale_parts += static_cast<uint64_t>(std::popcount(oldest->have));
+  return oldest;  // stays used; the caller re-initialises it
+}
+
+void Reassembler::expire(uint64_t now_us) {
+  last_expire_us_ = now_us;
+  if (in_use_ == 0) return;
+  for (Slot& s : slots_) {
+    if (s.used && now_us > s.first_rx_us && now_us - s.first_rx_us > config_.timeout_us) {
+      release(s, /*stale=*/true);
+    }
+  }
+}
+
+FeedResult Reassembler::complete(MessageClass c, uint8_t node, uint8_t seq, FrameKind kind,
+                                 const uint8_t* payload, std::size_t len, uint64_t rx_time_us) {
+  FeedResult r;
+  const DecodeError e = deserialize_payload(c, {payload, len}, &out_.body);
+  if (e != DecodeError::kNone) {
+    ++stats_.integrity_failures;
+    ++stats_.by_error[static_cast<std::size_t>(e)];
+    r.status = FeedStatus::kIntegrityFailure;
+    r.error = e;
+    return r;
+  }
+  out_.node = node;
+  out_.seq = seq;
+  out_.kind = kind;
+
+  // The CRC the payload carries (multi-part) or one computed over it (single frame).
+  const uint16_t crc = is_multi_part(c) ? static_cast<uint16_t>(payload[len - 2] | payload[len - 1] << 8)
+                                        : crc16_ccitt({payload, len});
+  Sender& snd = sender(c, node);
+  for (std::size_t i = 0; i < kRecent; ++i) {
+    if (snd.recent_used[i] && snd.recent_seq[i] == seq && snd.recent_crc[i] == crc) {
+      ++stats_.duplicates;
+      r.status = FeedStatus::kDuplicate;
+      return r;
+    }
+  }
+  if (snd.valid) {
+    const auto ahead = static_cast<uint8_t>(seq - snd.last_seq);
+    if (ahead == 0) {
+      snd.last_seq = seq;  // same sequence, other content: a restart or a wrap while quiet
+    } else if (ahead < 128) {
+      r.missing_before = ahead - 1u;
+      stats_.gaps += ahead - 1u;
+      snd.last_seq = seq;
+    } else {
+      ++stats_.reorders;  // an older message completed late: emitted, history unchanged
+    }
+  } else {
+    snd.valid = true;
+    snd.last_seq = seq;
+  }
+  if (snd.last_seq == seq) snd.last_rx_us = rx_time_us;
+  snd.recent_seq[snd.ring_pos] = seq;
+  snd.recent_crc[snd.ring_pos] = crc;
+  snd.recent_used[snd.ring_pos] = true;
+  snd.ring_pos = static_cast<uint8_t>((snd.ring_pos + 1) % kRecent);
+
+  ++stats_.messages;
+  if (c == MessageClass::kSample) ++stats_.samples;
+  r.status = FeedStatus::kMessage;
+  r.message = &out_;
+  return r;
+}
+
+FeedResult Reassembler::feed(const CanFrame& frame, uint64_t rx_time_us) {
+  ++stats_.frames;
+  if (rx_time_us - last_expire_us_ > config_.timeout_us / 4 && rx_time_us > last_expire_us_) {
+    expire(rx_time_us);
+  }
+
+  FrameView v;
+  if (DecodeError e = parse_frame(frame, &v); e != DecodeError::kNone) {
+    ++stats_.by_error[static_cast<std::size_t>(e)];
+    if (e == DecodeError::kForeign) {
+      ++stats_.foreign;
+    } else {
+      ++stats_.rejected;
+    }
+    return FeedResult{FeedStatus::kRejected, e, nullptr, 0};
+  }
+
+  const MessageClass c = v.message_class;
+  const uint8_t seq = v.header.seq;
+  if (v.part_count == 1) {
+    return complete(c, v.node, seq, v.kind, v.part_data, v.part_len, rx_time_us);
+  }
+
+  Slot* s = find_slot(c, v.node, seq, v.kind);
+  if (s == nullptr) {
+    // A stray repeat of one part of a message already emitted opens a slot that goes stale;
+    // dropping it here by sequence alone could drop a restarted node's new message.
+    s = allocate_slot(rx_time_us);
+    s->message_class = c;
+    s->node = v.node;
+    s->seq = seq;
+    s->kind = v.kind;
+    s->part_count = v.part_count;
+    s->highest_part = v.header.part;
+    s->have = 0;
+    s->first_rx_us = rx_time_us;
+  }
+
+  const uint32_t bit = 1u << v.header.part;
+  uint8_t* dst = s->payload.data() + v.payload_offset;
+  if (s->have & bit) {
+    if (std::memcmp(dst, v.part_data, v.part_len) == 0) {
+      ++stats_.duplicates;
+      return FeedResult{FeedStatus::kDuplicate, DecodeError::kNone, nullptr, 0};
+    }
+    // Two different parts under one (sender, class, sequence): the message cannot be trusted.
+    ++stats_.conflicts;
+    ++stats_.integrity_failures;
+    release(*s, /*stale=*/false);
+    return FeedResult{FeedStatus::kIntegrityFailure, DecodeError::kBadCrc, nullptr, 0};
+  }
+  if (v.header.part < s->highest_part) ++stats_.reorders;
+  if (v.header.part > s->highest_part) s->highest_part = v.header.part;
+  std::memcpy(dst, v.part_data, v.part_len);
+  s->have |= bit;
+  if (s->have != (1u << s->part_count) - 1u) return FeedResult{};
+
+  FeedResult r = complete(c, v.node, seq, v.kind, s->payload.data(), payload_len(c), rx_time_us);
+  release(*s, /*stale=*/false);
+  return r;
+}
+
+}  // namespace skinbus::bus
