@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Builds the libFuzzer targets with clang (ASan + UBSan) and runs each for a bounded time,
+# starting from the corpus checked in under tests/fuzz/corpus/. New inputs the fuzzer finds go
+# to a scratch folder (pass --update-corpus to merge them into the checked-in corpus).
+#
+#   scripts/fuzz.sh                 # 20 s per target
+#   SKINBUS_FUZZ_SECONDS=300 scripts/fuzz.sh --update-corpus
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seconds=${SKINBUS_FUZZ_SECONDS:-20}
+update=0
+[[ ${1:-} == --update-corpus ]] && update=1
+build=${SKINBUS_FUZZ_BUILD_DIR:-build-fuzz}
+
+command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ missing: run scripts/setup.sh" >&2; exit 1; }
+cmake -S . -B "$build" -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DSKINBUS_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
+cmake --build "$build" -j2
+
+scratch=$(mktemp -d)
+trap 'rm -rf "$scratch"' EXIT
+status=0
+for target in frame_decoder reassembler candump; do
+  mkdir -p "$scratch/$target"
+  echo "fuzz: $target for ${seconds}s"
+  if ! "$build/tests/fuzz/fuzz_$target" -max_total_time="$seconds" -print_final_stats=1 \
+      -artifact_prefix="$scratch/$target-" "$scratch/$target" "tests/fuzz/corpus/$target" \
+      >"$scratch/$target.log" 2>&1; then
+    echo "fuzz: $target FAILED; last lines of its log:" >&2
+    tail -40 "$scratch/$target.log" >&2
+    mkdir -p fuzz-artifacts && cp "$scratch/$target"-* fuzz-artifacts/ 2>/dev/null || true
+    status=1
+    continue
+  fi
+  grep -E "stat::number_of_executed_units|stat::new_units_added" "$scratch/$target.log" | sed "s/^/  /"
+  if ((update)); then
+    "$build/tests/fuzz/fuzz_$target" -merge=1 "tests/fuzz/corpus/$target" "$scratch/$target" >/dev/null 2>&1
+  fi
+done
+exit $status
