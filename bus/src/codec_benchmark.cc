@@ -59,7 +59,7 @@ void BM_Encode(benchmark::State& state) {
   }
   set_counters(state, kind, frames, start);
 }
-BENCHMARK(BM_Encode)->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
+BENCHMARK(BM_Encode)->ArgName("fd")->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
 
 void BM_DecodeReassemble(benchmark::State& state) {
   const auto kind = static_cast<FrameKind>(state.range(0));
@@ -86,7 +86,7 @@ void BM_DecodeReassemble(benchmark::State& state) {
   set_counters(state, kind, static_cast<double>(state.iterations()), start);
   state.counters["samples"] = emitted;
 }
-BENCHMARK(BM_DecodeReassemble)->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
+BENCHMARK(BM_DecodeReassemble)->ArgName("fd")->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
 
 // The whole host-side path a frame takes in a log replay: parse a candump line, reassemble.
 void BM_CandumpParseReassemble(benchmark::State& state) {
@@ -137,7 +137,7 @@ void BM_RoundTrip(benchmark::State& state) {
   }
   set_counters(state, kind, frames, start);
 }
-BENCHMARK(BM_RoundTrip)->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
+BENCHMARK(BM_RoundTrip)->ArgName("fd")->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
 
 }  // namespace
 }  // namespace skinbus::bus
