@@ -8,7 +8,8 @@ namespace skinbus {
 namespace {
 
 Result<int> parse_positive(int x) {
-  if (x <= 0) return make_error(ErrorCode::kOutOfRange, "x must be positive, got " + std::to_string(x));
+  if (x <= 0)
+    return make_error(ErrorCode::kOutOfRange, "x must be positive, got " + std::to_string(x));
   return x;
 }
 

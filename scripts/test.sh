@@ -7,6 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
 scripts/can_vm.sh --prepare
+scripts/format.sh
 scripts/build.sh
 ctest --test-dir build -j2 --output-on-failure
 SKINBUS_FUZZ_SECONDS=${SKINBUS_FUZZ_SECONDS:-20} scripts/fuzz.sh

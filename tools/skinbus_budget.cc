@@ -14,7 +14,9 @@ namespace {
 using namespace skinbus::bus;
 
 void print_table() {
-  std::printf("| bus | bit rates | mode | frames/sample | sample time (us) | frames/s per patch | load per patch | max patches (<=70%%) |\n");
+  std::printf(
+      "| bus | bit rates | mode | frames/sample | sample time (us) | frames/s per patch | load per "
+      "patch | max patches (<=70%%) |\n");
   std::printf("|---|---|---|---|---|---|---|---|\n");
   struct Row {
     const char* bus;
@@ -22,10 +24,8 @@ void print_table() {
     const char* rates;
   };
   const Row rows[] = {
-      {"CAN FD", {true, 1e6, 5e6}, "1 M / 5 M"},
-      {"CAN FD", {true, 500e3, 2e6}, "500 k / 2 M"},
-      {"CAN FD", {true, 1e6, 8e6}, "1 M / 8 M"},
-      {"classic", {false, 1e6, 1e6}, "1 M"},
+      {"CAN FD", {true, 1e6, 5e6}, "1 M / 5 M"},   {"CAN FD", {true, 500e3, 2e6}, "500 k / 2 M"},
+      {"CAN FD", {true, 1e6, 8e6}, "1 M / 8 M"},   {"classic", {false, 1e6, 1e6}, "1 M"},
       {"classic", {false, 500e3, 500e3}, "500 k"},
   };
   struct Mode {
@@ -36,8 +36,9 @@ void print_table() {
   for (const Row& r : rows) {
     for (const Mode& m : modes) {
       const BudgetResult b = compute_budget(r.t, PatchTraffic{41.7, m.active, 1.0}, 1, 0.7);
-      std::printf("| %s | %s | %s | %.0f | %.1f | %.1f | %.3f%% | %d |\n", r.bus, r.rates, m.name, b.sample_frames,
-                  b.sample_time_us, b.frames_per_s_per_patch, 100 * b.load_per_patch, b.max_patches);
+      std::printf("| %s | %s | %s | %.0f | %.1f | %.1f | %.3f%% | %d |\n", r.bus, r.rates, m.name,
+                  b.sample_frames, b.sample_time_us, b.frames_per_s_per_patch,
+                  100 * b.load_per_patch, b.max_patches);
     }
   }
 }
@@ -57,14 +58,26 @@ int main(int argc, char** argv) {
   int patches = 16;
   double rate_hz = 41.7, active = 1.0, nominal = 1e6, data = 5e6, limit = 0.7, hb = 1.0;
   bool classic = false, table = false;
-  app.add_option("-n,--patches", patches, "patches on the bus")->capture_default_str()->check(CLI::Range(0, 125));
-  app.add_option("-r,--rate", rate_hz, "sample rate per patch, Hz")->capture_default_str()->check(CLI::Range(0.0, 10000.0));
-  app.add_option("-a,--active", active, "share of time a patch streams (1 = stream mode)")->capture_default_str()->check(CLI::Range(0.0, 1.0));
+  app.add_option("-n,--patches", patches, "patches on the bus")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 125));
+  app.add_option("-r,--rate", rate_hz, "sample rate per patch, Hz")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 10000.0));
+  app.add_option("-a,--active", active, "share of time a patch streams (1 = stream mode)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
   app.add_option("--heartbeat-hz", hb, "heartbeat rate per patch, Hz")->capture_default_str();
   app.add_flag("--classic", classic, "classic CAN (8-byte frames) instead of CAN FD");
-  app.add_option("--nominal-bitrate", nominal, "arbitration bit rate, bit/s")->capture_default_str()->check(CLI::Range(10e3, 1e6));
-  app.add_option("--data-bitrate", data, "CAN FD data bit rate, bit/s")->capture_default_str()->check(CLI::Range(10e3, 12e6));
-  app.add_option("--load-limit", limit, "largest acceptable bus load for the patch count (0..1)")->capture_default_str()->check(CLI::Range(0.01, 1.0));
+  app.add_option("--nominal-bitrate", nominal, "arbitration bit rate, bit/s")
+      ->capture_default_str()
+      ->check(CLI::Range(10e3, 1e6));
+  app.add_option("--data-bitrate", data, "CAN FD data bit rate, bit/s")
+      ->capture_default_str()
+      ->check(CLI::Range(10e3, 12e6));
+  app.add_option("--load-limit", limit, "largest acceptable bus load for the patch count (0..1)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 1.0));
   app.add_flag("--table", table, "print the standard budget table (Markdown) and exit");
   CLI11_PARSE(app, argc, argv);
 
@@ -74,13 +87,18 @@ int main(int argc, char** argv) {
   }
   const BusTiming t{!classic, nominal, classic ? nominal : data};
   const BudgetResult b = compute_budget(t, PatchTraffic{rate_hz, active, hb}, patches, limit);
-  std::printf("bus              %s, %.0f bit/s%s\n", classic ? "classic CAN" : "CAN FD", nominal,
-              classic ? "" : (" / " + std::to_string(static_cast<long>(data)) + " bit/s data").c_str());
-  std::printf("sample message   %.0f frames, %.1f us on the wire\n", b.sample_frames, b.sample_time_us);
+  std::printf(
+      "bus              %s, %.0f bit/s%s\n", classic ? "classic CAN" : "CAN FD", nominal,
+      classic ? "" : (" / " + std::to_string(static_cast<long>(data)) + " bit/s data").c_str());
+  std::printf("sample message   %.0f frames, %.1f us on the wire\n", b.sample_frames,
+              b.sample_time_us);
   std::printf("heartbeat        %.1f us on the wire\n", b.heartbeat_time_us);
-  std::printf("per patch        %.1f frames/s, %.3f%% of the bus\n", b.frames_per_s_per_patch, 100 * b.load_per_patch);
-  std::printf("%3d patches      %.1f%% of the bus%s\n", patches, 100 * b.load_total, b.load_total > limit ? "  (OVER the limit)" : "");
+  std::printf("per patch        %.1f frames/s, %.3f%% of the bus\n", b.frames_per_s_per_patch,
+              100 * b.load_per_patch);
+  std::printf("%3d patches      %.1f%% of the bus%s\n", patches, 100 * b.load_total,
+              b.load_total > limit ? "  (OVER the limit)" : "");
   std::printf("max patches      %d under %.0f%% load\n", b.max_patches, 100 * limit);
-  std::printf("full bus         %.0f frames/s of %s frames\n", b.full_bus_frames_per_s, classic ? "8-byte" : "64-byte");
+  std::printf("full bus         %.0f frames/s of %s frames\n", b.full_bus_frames_per_s,
+              classic ? "8-byte" : "64-byte");
   return b.load_total > 1.0 ? 2 : 0;
 }

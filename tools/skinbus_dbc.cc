@@ -18,7 +18,8 @@ int main(int argc, char** argv) {
       "(only some 32/64-bit fields of classic frames) is named in a comment instead.\n"};
   std::string nodes = "1-16", out_path;
   bool classic = false;
-  app.add_option("--nodes", nodes, "patch node IDs to describe, a range N-M")->capture_default_str();
+  app.add_option("--nodes", nodes, "patch node IDs to describe, a range N-M")
+      ->capture_default_str();
   app.add_flag("--classic", classic, "describe classic CAN (8-byte) frames instead of CAN FD");
   app.add_option("-o,--output", out_path, "output file (default: standard output)");
   CLI11_PARSE(app, argc, argv);
@@ -27,8 +28,9 @@ int main(int argc, char** argv) {
     for (std::size_t i = 1; i < ids.size(); ++i) {
       if (ids[i] != ids[i - 1] + 1) throw std::invalid_argument("--nodes must be one range N-M");
     }
-    const std::string dbc = bus::generate_dbc(classic ? bus::FrameKind::kClassic : bus::FrameKind::kFd,
-                                              static_cast<uint8_t>(ids.front()), static_cast<uint8_t>(ids.back()));
+    const std::string dbc =
+        bus::generate_dbc(classic ? bus::FrameKind::kClassic : bus::FrameKind::kFd,
+                          static_cast<uint8_t>(ids.front()), static_cast<uint8_t>(ids.back()));
     std::FILE* out = out_path.empty() ? stdout : std::fopen(out_path.c_str(), "w");
     if (!out) throw std::runtime_error("cannot write '" + out_path + "'");
     std::fwrite(dbc.data(), 1, dbc.size(), out);

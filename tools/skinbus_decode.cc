@@ -7,8 +7,8 @@
 
 #include <cerrno>
 #include <cinttypes>
-#include <cstring>
 #include <cstdio>
+#include <cstring>
 #include <map>
 #include <memory>
 #include <set>
@@ -52,15 +52,21 @@ class Decoder {
       ++bus_errors_;
       return;
     }
-    if (opt_.frames && selected_frame(f) && !opt_.quiet) print_prefixed(rx_us, iface, ("frame " + describe_frame(f)).c_str());
+    if (opt_.frames && selected_frame(f) && !opt_.quiet)
+      print_prefixed(rx_us, iface, ("frame " + describe_frame(f)).c_str());
     const FeedResult r = reasm_.feed(f, rx_us);
     switch (r.status) {
-      case FeedStatus::kMessage: on_message(*r.message, r.missing_before, rx_us, iface); break;
+      case FeedStatus::kMessage:
+        on_message(*r.message, r.missing_before, rx_us, iface);
+        break;
       case FeedStatus::kRejected:
         if (r.error != DecodeError::kForeign) report(rx_us, where, f, decode_error_name(r.error));
         break;
-      case FeedStatus::kIntegrityFailure: report(rx_us, where, f, "integrity failure (CRC) on reassembly"); break;
-      default: break;
+      case FeedStatus::kIntegrityFailure:
+        report(rx_us, where, f, "integrity failure (CRC) on reassembly");
+        break;
+      default:
+        break;
     }
   }
 
@@ -70,8 +76,8 @@ class Decoder {
     print_suppressed();
     while (!text.empty() && (text.back() == '\n' || text.back() == '\r')) text.remove_suffix(1);
     std::fprintf(stderr, "skinbus-decode: %s:%" PRIu64 ": %s: '%.*s'\n", source_.c_str(), line,
-                 std::string(candump_error_name(e)).c_str(), static_cast<int>(std::min<std::size_t>(text.size(), 200)),
-                 text.data());
+                 std::string(candump_error_name(e)).c_str(),
+                 static_cast<int>(std::min<std::size_t>(text.size(), 200)), text.data());
   }
 
   void set_source(std::string s) { source_ = std::move(s); }
@@ -81,25 +87,30 @@ class Decoder {
   void print_stats(std::FILE* out) const {
     const ReassemblyStats& s = reasm_.stats();
     std::fprintf(out, "# skinbus-decode statistics\n");
-    std::fprintf(out, "frames %" PRIu64 " messages %" PRIu64 " samples %" PRIu64 " integrity_failures %" PRIu64
-                      " gaps %" PRIu64 " duplicates %" PRIu64 " reorders %" PRIu64 " stale_parts %" PRIu64
-                      " evictions %" PRIu64 " conflicts %" PRIu64 " rejected %" PRIu64 " foreign %" PRIu64
-                      " bad_lines %" PRIu64 " bus_errors %" PRIu64 "\n",
-                 s.frames, s.messages, s.samples, s.integrity_failures, s.gaps, s.duplicates, s.reorders, s.stale_parts,
-                 s.evictions, s.conflicts, s.rejected, s.foreign, bad_lines_, bus_errors_);
+    std::fprintf(
+        out,
+        "frames %" PRIu64 " messages %" PRIu64 " samples %" PRIu64 " integrity_failures %" PRIu64
+        " gaps %" PRIu64 " duplicates %" PRIu64 " reorders %" PRIu64 " stale_parts %" PRIu64
+        " evictions %" PRIu64 " conflicts %" PRIu64 " rejected %" PRIu64 " foreign %" PRIu64
+        " bad_lines %" PRIu64 " bus_errors %" PRIu64 "\n",
+        s.frames, s.messages, s.samples, s.integrity_failures, s.gaps, s.duplicates, s.reorders,
+        s.stale_parts, s.evictions, s.conflicts, s.rejected, s.foreign, bad_lines_, bus_errors_);
     for (int e = 1; e < kDecodeErrorCount; ++e) {
       if (s.by_error[e]) {
-        std::fprintf(out, "rejected %s %" PRIu64 "\n", std::string(decode_error_name(static_cast<DecodeError>(e))).c_str(),
+        std::fprintf(out, "rejected %s %" PRIu64 "\n",
+                     std::string(decode_error_name(static_cast<DecodeError>(e))).c_str(),
                      s.by_error[e]);
       }
     }
-    std::fprintf(out, "%-6s %10s %10s %8s %6s %8s\n", "node", "samples", "heartbeats", "acks", "infos", "missing");
+    std::fprintf(out, "%-6s %10s %10s %8s %6s %8s\n", "node", "samples", "heartbeats", "acks",
+                 "infos", "missing");
     for (const auto& [node, c] : per_patch_) {
-      std::fprintf(out, "%-6d %10" PRIu64 " %10" PRIu64 " %8" PRIu64 " %6" PRIu64 " %8" PRIu64 "\n", node, c.samples,
-                   c.heartbeats, c.acks, c.infos, c.missing);
+      std::fprintf(out, "%-6d %10" PRIu64 " %10" PRIu64 " %8" PRIu64 " %6" PRIu64 " %8" PRIu64 "\n",
+                   node, c.samples, c.heartbeats, c.acks, c.infos, c.missing);
     }
     if (limiter_.total_suppressed()) {
-      std::fprintf(out, "(%" PRIu64 " error reports suppressed by rate limiting)\n", limiter_.total_suppressed());
+      std::fprintf(out, "(%" PRIu64 " error reports suppressed by rate limiting)\n",
+                   limiter_.total_suppressed());
     }
   }
 
@@ -107,20 +118,31 @@ class Decoder {
   bool selected_node(int node) const { return opt_.patches.empty() || opt_.patches.count(node); }
   bool selected_frame(const CanFrame& f) const {
     return selected_node(can_id_node(f.id)) &&
-           (opt_.classes.empty() || opt_.classes.count(static_cast<MessageClass>(can_id_class(f.id))));
+           (opt_.classes.empty() ||
+            opt_.classes.count(static_cast<MessageClass>(can_id_class(f.id))));
   }
 
   void on_message(const Message& m, uint32_t missing, uint64_t rx_us, std::string_view iface) {
     PatchCounts& c = per_patch_[m.node];
     c.missing += missing;
     switch (m.message_class()) {
-      case MessageClass::kSample: ++c.samples; break;
-      case MessageClass::kHeartbeat: ++c.heartbeats; break;
-      case MessageClass::kAck: ++c.acks; break;
-      case MessageClass::kInfo: ++c.infos; break;
-      default: break;
+      case MessageClass::kSample:
+        ++c.samples;
+        break;
+      case MessageClass::kHeartbeat:
+        ++c.heartbeats;
+        break;
+      case MessageClass::kAck:
+        ++c.acks;
+        break;
+      case MessageClass::kInfo:
+        ++c.infos;
+        break;
+      default:
+        break;
     }
-    if (!selected_node(m.node) || (!opt_.classes.empty() && !opt_.classes.count(m.message_class()))) return;
+    if (!selected_node(m.node) || (!opt_.classes.empty() && !opt_.classes.count(m.message_class())))
+      return;
     if (done()) return;
     ++printed_;
     if (!opt_.quiet) print_prefixed(rx_us, iface, format_message(m).c_str());
@@ -137,7 +159,8 @@ class Decoder {
 
   void print_suppressed() {
     if (limiter_.suppressed()) {
-      std::fprintf(stderr, "skinbus-decode: (%" PRIu64 " similar errors suppressed)\n", limiter_.suppressed());
+      std::fprintf(stderr, "skinbus-decode: (%" PRIu64 " similar errors suppressed)\n",
+                   limiter_.suppressed());
     }
   }
 
@@ -146,7 +169,8 @@ class Decoder {
     print_suppressed();
     char text[kCandumpLineMax];
     format_frame_text(f, text);
-    std::fprintf(stderr, "skinbus-decode: %s: frame %s: %.*s\n", where, text, static_cast<int>(why.size()), why.data());
+    std::fprintf(stderr, "skinbus-decode: %s: frame %s: %.*s\n", where, text,
+                 static_cast<int>(why.size()), why.data());
   }
 
   Options opt_;
@@ -194,10 +218,14 @@ int run_live(Decoder& dec, const std::vector<std::string>& ifaces, bool fd, doub
     ports.push_back(std::move(port).value());
   }
   const uint64_t start = monotonic_now_us();
-  const uint64_t end = duration_s > 0 ? start + static_cast<uint64_t>(duration_s * 1e6) : UINT64_MAX;
+  const uint64_t end =
+      duration_s > 0 ? start + static_cast<uint64_t>(duration_s * 1e6) : UINT64_MAX;
   while (!tools::stop_requested() && !dec.done() && monotonic_now_us() < end) {
     auto r = poller.poll(
-        50, [&](SocketCanPort& port, const CanFrame& f, const RxMeta& meta) { dec.on_frame(f, meta.timestamp_us, port.name(), port.name().c_str()); },
+        50,
+        [&](SocketCanPort& port, const CanFrame& f, const RxMeta& meta) {
+          dec.on_frame(f, meta.timestamp_us, port.name(), port.name().c_str());
+        },
         [&](SocketCanPort& port, const Error& e) {
           std::fprintf(stderr, "skinbus-decode: %s: %s\n", port.name().c_str(), e.message.c_str());
         });
@@ -206,9 +234,11 @@ int run_live(Decoder& dec, const std::vector<std::string>& ifaces, bool fd, doub
   dec.finish(realtime_now_us());
   for (const auto& p : ports) {
     const PortStats& s = p->stats();
-    std::fprintf(stderr, "# %s: rx_frames %" PRIu64 " kernel_drops %" PRIu64 " error_frames %" PRIu64 " bus_off %" PRIu64
-                         " error_passive %" PRIu64 " restarted %" PRIu64 "\n",
-                 p->name().c_str(), s.rx_frames, s.rx_kernel_drops, s.error_frames, s.bus_off, s.error_passive, s.restarted);
+    std::fprintf(stderr,
+                 "# %s: rx_frames %" PRIu64 " kernel_drops %" PRIu64 " error_frames %" PRIu64
+                 " bus_off %" PRIu64 " error_passive %" PRIu64 " restarted %" PRIu64 "\n",
+                 p->name().c_str(), s.rx_frames, s.rx_kernel_drops, s.error_frames, s.bus_off,
+                 s.error_passive, s.restarted);
   }
   return 0;
 }
@@ -218,9 +248,11 @@ int run_live(Decoder& dec, const std::vector<std::string>& ifaces, bool fd, doub
 int main(int argc, char** argv) {
   CLI::App app{
       "skinbus-decode: print skinbus CAN traffic, one readable line per message.\n\n"
-      "Reads `candump -L` / `candump -l` lines from standard input or from log files, or listens on\n"
+      "Reads `candump -L` / `candump -l` lines from standard input or from log files, or listens "
+      "on\n"
       "live SocketCAN interfaces (-i). Multi-part messages are reassembled and checked (CRC);\n"
-      "bad lines and bad frames are reported on stderr with their line number (at most 10 a second)\n"
+      "bad lines and bad frames are reported on stderr with their line number (at most 10 a "
+      "second)\n"
       "and counted, and decoding goes on.\n\n"
       "Examples:\n"
       "  candump -L can0 | skinbus-decode\n"
@@ -233,18 +265,24 @@ int main(int argc, char** argv) {
   double duration_s = 0;
   uint64_t count = 0;
   uint32_t timeout_us = 50000;
-  app.add_option("files", files, "candump log files to read ('-' = standard input; default: standard input)");
+  app.add_option("files", files,
+                 "candump log files to read ('-' = standard input; default: standard input)");
   app.add_option("-i,--interface", ifaces, "listen on this SocketCAN interface (repeatable)");
   app.add_option("-p,--patch", patches, "only these patch node IDs, e.g. 3 or 1-4,9");
-  app.add_option("-c,--class", classes, "only these classes: sync,command,ack,sample,info,heartbeat (comma-separated)");
-  app.add_flag("-f,--frames", frames, "also print every frame as decoded on its own, before reassembly");
+  app.add_option("-c,--class", classes,
+                 "only these classes: sync,command,ack,sample,info,heartbeat (comma-separated)");
+  app.add_flag("-f,--frames", frames,
+               "also print every frame as decoded on its own, before reassembly");
   app.add_flag("-t,--timestamps", timestamps, "prefix lines with the receive time and interface");
   app.add_flag("-s,--stats", stats, "print a statistics summary on stderr at the end");
   app.add_flag("-q,--quiet", quiet, "print no message lines (use with --stats)");
   app.add_flag("--classic-only", classic, "live interfaces: do not enable CAN FD frames");
-  app.add_option("--duration", duration_s, "live interfaces: stop after this many seconds (default: until Ctrl-C)");
+  app.add_option("--duration", duration_s,
+                 "live interfaces: stop after this many seconds (default: until Ctrl-C)");
   app.add_option("-n,--count", count, "stop after printing this many messages");
-  app.add_option("--timeout-us", timeout_us, "reassembly timeout for incomplete messages, microseconds")->capture_default_str();
+  app.add_option("--timeout-us", timeout_us,
+                 "reassembly timeout for incomplete messages, microseconds")
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   try {

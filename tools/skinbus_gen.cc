@@ -11,9 +11,9 @@
 #include <algorithm>
 #include <cerrno>
 #include <cinttypes>
-#include <cstring>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <random>
 #include <string>
@@ -38,7 +38,8 @@ struct Pattern {
 };
 
 // Synthetic field for `node_index` of `node_count` at time t (tared values, uT -> LSB).
-Sample make_sample(const Pattern& p, int node_index, int node_count, double t_s, std::mt19937_64& rng) {
+Sample make_sample(const Pattern& p, int node_index, int node_count, double t_s,
+                   std::mt19937_64& rng) {
   Sample s;
   s.timestamp_us = static_cast<uint32_t>(static_cast<uint64_t>(t_s * 1e6 + node_index * 997.0));
   s.flags = sample_flags::kTared;
@@ -82,18 +83,27 @@ int main(int argc, char** argv) {
   std::string out_path, iface, expect_path, log_iface = "can0";
   Pattern pattern;
   app.add_option("--nodes", nodes, "patch node IDs, e.g. 1-4,9")->capture_default_str();
-  app.add_option("--rate", rate_hz, "sample rate per patch, Hz")->capture_default_str()->check(CLI::Range(0.1, 1000.0));
-  app.add_option("--duration", duration_s, "seconds of traffic")->capture_default_str()->check(CLI::Range(0.0, 86400.0));
-  app.add_option("--heartbeat-hz", heartbeat_hz, "heartbeat rate per patch, Hz (0: none)")->capture_default_str();
+  app.add_option("--rate", rate_hz, "sample rate per patch, Hz")
+      ->capture_default_str()
+      ->check(CLI::Range(0.1, 1000.0));
+  app.add_option("--duration", duration_s, "seconds of traffic")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 86400.0));
+  app.add_option("--heartbeat-hz", heartbeat_hz, "heartbeat rate per patch, Hz (0: none)")
+      ->capture_default_str();
   app.add_flag("--classic", classic, "classic CAN frames (8 bytes) instead of CAN FD");
   app.add_option("--seed", seed, "random seed of the noise")->capture_default_str();
-  app.add_option("--noise-ut", pattern.noise_ut, "noise standard deviation, uT")->capture_default_str();
+  app.add_option("--noise-ut", pattern.noise_ut, "noise standard deviation, uT")
+      ->capture_default_str();
   app.add_option("-o,--output", out_path, "write the candump log here instead of standard output");
-  app.add_option("-i,--interface", iface, "send on this SocketCAN interface instead of writing a log");
+  app.add_option("-i,--interface", iface,
+                 "send on this SocketCAN interface instead of writing a log");
   app.add_flag("--fast", fast, "with -i: send as fast as the bus takes it instead of in real time");
   app.add_flag("--realtime", realtime, "log output: pace lines in real time (for live pipes)");
-  app.add_option("--log-interface", log_iface, "interface name written in log lines")->capture_default_str();
-  app.add_option("--expect", expect_path, "also write each message as skinbus-decode prints it, in send order");
+  app.add_option("--log-interface", log_iface, "interface name written in log lines")
+      ->capture_default_str();
+  app.add_option("--expect", expect_path,
+                 "also write each message as skinbus-decode prints it, in send order");
   CLI11_PARSE(app, argc, argv);
 
   try {
@@ -109,18 +119,22 @@ int main(int argc, char** argv) {
       if (!p.ok()) throw std::runtime_error(p.error().message);
       port = std::move(p).value();
       if (!classic && !port->fd_enabled()) {
-        throw std::runtime_error("'" + iface + "' is a classic CAN interface: use --classic or `ip link set " + iface + " mtu 72`");
+        throw std::runtime_error("'" + iface +
+                                 "' is a classic CAN interface: use --classic or `ip link set " +
+                                 iface + " mtu 72`");
       }
     }
     std::FILE* out = stdout;
     if (!out_path.empty() && !port) {
       out = std::fopen(out_path.c_str(), "w");
-      if (!out) throw std::runtime_error("cannot write '" + out_path + "': " + std::strerror(errno));
+      if (!out)
+        throw std::runtime_error("cannot write '" + out_path + "': " + std::strerror(errno));
     }
     std::FILE* expect = nullptr;
     if (!expect_path.empty()) {
       expect = std::fopen(expect_path.c_str(), "w");
-      if (!expect) throw std::runtime_error("cannot write '" + expect_path + "': " + std::strerror(errno));
+      if (!expect)
+        throw std::runtime_error("cannot write '" + expect_path + "': " + std::strerror(errno));
     }
 
     std::mt19937_64 rng(seed);
@@ -181,7 +195,8 @@ int main(int argc, char** argv) {
         next_hb += hb_dt;
       } else {
         for (std::size_t i = 0; i < node_ids.size(); ++i) {
-          const Sample s = make_sample(pattern, static_cast<int>(i), static_cast<int>(node_ids.size()), t, rng);
+          const Sample s =
+              make_sample(pattern, static_cast<int>(i), static_cast<int>(node_ids.size()), t, rng);
           emit(Message{static_cast<uint8_t>(node_ids[i]), sample_seq[i]++, kind, s}, t);
         }
         next_sample += sample_dt;
@@ -190,9 +205,12 @@ int main(int argc, char** argv) {
     if (out != stdout) std::fclose(out);
     if (expect) std::fclose(expect);
     std::fflush(stdout);
-    std::fprintf(stderr, "skinbus-gen: %" PRIu64 " messages in %" PRIu64 " %s frames from %zu patches%s\n", messages,
-                 frames_sent, classic ? "classic" : "FD", node_ids.size(),
-                 port ? (" on " + iface + (port->stats().tx_queued ? " (some sends waited for room)" : "")).c_str() : "");
+    std::fprintf(
+        stderr, "skinbus-gen: %" PRIu64 " messages in %" PRIu64 " %s frames from %zu patches%s\n",
+        messages, frames_sent, classic ? "classic" : "FD", node_ids.size(),
+        port ? (" on " + iface + (port->stats().tx_queued ? " (some sends waited for room)" : ""))
+                   .c_str()
+             : "");
   } catch (const std::exception& e) {
     std::fprintf(stderr, "skinbus-gen: %s\n", e.what());
     return 1;

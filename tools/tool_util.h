@@ -17,7 +17,8 @@ inline std::vector<int> parse_id_list(const std::string& text, int lo, int hi) {
   std::size_t pos = 0;
   while (pos <= text.size()) {
     const std::size_t comma = text.find(',', pos);
-    const std::string part = text.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
+    const std::string part =
+        text.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
     if (part.empty()) throw std::invalid_argument("empty entry in ID list '" + text + "'");
     const std::size_t dash = part.find('-');
     int a = 0, b = 0;
@@ -35,7 +36,8 @@ inline std::vector<int> parse_id_list(const std::string& text, int lo, int hi) {
       throw std::invalid_argument("bad ID list entry '" + part + "' (expected N or N-M)");
     }
     if (a < lo || b > hi || a > b) {
-      throw std::invalid_argument("ID range '" + part + "' outside " + std::to_string(lo) + "-" + std::to_string(hi));
+      throw std::invalid_argument("ID range '" + part + "' outside " + std::to_string(lo) + "-" +
+                                  std::to_string(hi));
     }
     for (int i = a; i <= b; ++i) out.push_back(i);
     if (comma == std::string::npos) break;

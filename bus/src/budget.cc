@@ -19,9 +19,15 @@ double message_time_us(const BusTiming& t, MessageClass c, double* frames) {
   m.node = kNodeMin;
   m.kind = t.fd ? FrameKind::kFd : FrameKind::kClassic;
   switch (c) {
-    case MessageClass::kSample: m.body = Sample{}; break;
-    case MessageClass::kHeartbeat: m.body = Heartbeat{}; break;
-    default: m.body = Info{}; break;
+    case MessageClass::kSample:
+      m.body = Sample{};
+      break;
+    case MessageClass::kHeartbeat:
+      m.body = Heartbeat{};
+      break;
+    default:
+      m.body = Info{};
+      break;
   }
   CanFrame out[kMaxParts];
   const EncodeResult r = encode(m, out);
@@ -51,19 +57,23 @@ double frame_time_us(const BusTiming& t, std::size_t len) {
   const std::size_t crc = len > 16 ? 21 : 17;
   const std::size_t fixed = 4 + crc;
   const std::size_t data_bits = dyn + stuff_bits(dyn) + fixed + (fixed + 3) / 4;
-  return static_cast<double>(nominal_bits) * 1e6 / t.nominal_bps + static_cast<double>(data_bits) * 1e6 / t.data_bps;
+  return static_cast<double>(nominal_bits) * 1e6 / t.nominal_bps +
+         static_cast<double>(data_bits) * 1e6 / t.data_bps;
 }
 
-BudgetResult compute_budget(const BusTiming& t, const PatchTraffic& traffic, int patches, double load_limit) {
+BudgetResult compute_budget(const BusTiming& t, const PatchTraffic& traffic, int patches,
+                            double load_limit) {
   BudgetResult r;
   double hb_frames = 0;
   r.sample_time_us = message_time_us(t, MessageClass::kSample, &r.sample_frames);
   r.heartbeat_time_us = message_time_us(t, MessageClass::kHeartbeat, &hb_frames);
   const double sample_msgs = traffic.sample_rate_hz * std::clamp(traffic.active_fraction, 0.0, 1.0);
   r.frames_per_s_per_patch = sample_msgs * r.sample_frames + traffic.heartbeat_hz * hb_frames;
-  r.load_per_patch = (sample_msgs * r.sample_time_us + traffic.heartbeat_hz * r.heartbeat_time_us) * 1e-6;
+  r.load_per_patch =
+      (sample_msgs * r.sample_time_us + traffic.heartbeat_hz * r.heartbeat_time_us) * 1e-6;
   r.load_total = r.load_per_patch * patches;
-  r.max_patches = r.load_per_patch > 0 ? static_cast<int>(std::floor(load_limit / r.load_per_patch)) : kNodeMax;
+  r.max_patches =
+      r.load_per_patch > 0 ? static_cast<int>(std::floor(load_limit / r.load_per_patch)) : kNodeMax;
   r.max_patches = std::min<int>(r.max_patches, kNodeMax);
   r.full_bus_frames_per_s = 1e6 / frame_time_us(t, t.fd ? kFdMaxLen : kClassicMaxLen);
   return r;

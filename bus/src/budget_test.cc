@@ -21,7 +21,8 @@ TEST(BudgetTest, IdlePatchesAreNearlySilent) {
   EXPECT_EQ(idle.max_patches, kNodeMax);
   EXPECT_GT(stream.load_total, 0.7);  // 64 streaming patches do not fit one 1/5 Mbit/s bus
   EXPECT_LT(stream.max_patches, 64);
-  const BudgetResult classic = compute_budget(BusTiming{false, 1e6, 1e6}, PatchTraffic{41.7, 1.0, 1.0}, 1, 0.7);
+  const BudgetResult classic =
+      compute_budget(BusTiming{false, 1e6, 1e6}, PatchTraffic{41.7, 1.0, 1.0}, 1, 0.7);
   EXPECT_EQ(classic.sample_frames, 18);
   EXPECT_GT(classic.load_per_patch, stream.load_per_patch);
 }

@@ -7,15 +7,24 @@ namespace skinbus::bus {
 
 std::string_view candump_error_name(CandumpError e) {
   switch (e) {
-    case CandumpError::kNone: return "none";
-    case CandumpError::kEmpty: return "empty";
-    case CandumpError::kBadTimestamp: return "bad_timestamp";
-    case CandumpError::kMissingIface: return "missing_interface";
-    case CandumpError::kBadId: return "bad_identifier";
-    case CandumpError::kMissingHash: return "missing_hash";
-    case CandumpError::kBadData: return "bad_data";
-    case CandumpError::kBadFlags: return "bad_fd_flags";
-    case CandumpError::kUnsupported: return "unsupported";
+    case CandumpError::kNone:
+      return "none";
+    case CandumpError::kEmpty:
+      return "empty";
+    case CandumpError::kBadTimestamp:
+      return "bad_timestamp";
+    case CandumpError::kMissingIface:
+      return "missing_interface";
+    case CandumpError::kBadId:
+      return "bad_identifier";
+    case CandumpError::kMissingHash:
+      return "missing_hash";
+    case CandumpError::kBadData:
+      return "bad_data";
+    case CandumpError::kBadFlags:
+      return "bad_fd_flags";
+    case CandumpError::kUnsupported:
+      return "unsupported";
   }
   return "unknown";
 }
@@ -29,7 +38,9 @@ int hex_value(char c) {
   return -1;
 }
 
-bool is_space(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\n'; }
+bool is_space(char c) {
+  return c == ' ' || c == '\t' || c == '\r' || c == '\n';
+}
 
 std::string_view trim(std::string_view s) {
   while (!s.empty() && is_space(s.front())) s.remove_prefix(1);
@@ -161,7 +172,8 @@ CandumpError parse_candump_line(std::string_view line, CandumpRecord* record) {
   std::string_view frame_text = next_token(&s);
   if (frame_text.empty()) return CandumpError::kMissingIface;
   std::string_view tail = next_token(&s);
-  if (!(tail.empty() || tail == "R" || tail == "T") || !trim(s).empty()) return CandumpError::kBadData;
+  if (!(tail.empty() || tail == "R" || tail == "T") || !trim(s).empty())
+    return CandumpError::kBadData;
   return parse_frame_text(frame_text, &record->frame);
 }
 
@@ -195,8 +207,8 @@ std::size_t format_frame_text(const CanFrame& f, std::span<char> out) {
   return pos;
 }
 
-std::size_t format_candump_line(const CanFrame& frame, uint64_t timestamp_us, std::string_view iface,
-                                std::span<char> out) {
+std::size_t format_candump_line(const CanFrame& frame, uint64_t timestamp_us,
+                                std::string_view iface, std::span<char> out) {
   if (out.size() < kCandumpLineMax || iface.size() > 32) return 0;
   const int n = std::snprintf(out.data(), out.size(), "(%010llu.%06llu) %.*s ",
                               static_cast<unsigned long long>(timestamp_us / 1000000),
@@ -207,12 +219,15 @@ std::size_t format_candump_line(const CanFrame& frame, uint64_t timestamp_us, st
   return m == 0 ? 0 : pos + m;
 }
 
-std::string format_candump_line(const CanFrame& frame, uint64_t timestamp_us, std::string_view iface) {
+std::string format_candump_line(const CanFrame& frame, uint64_t timestamp_us,
+                                std::string_view iface) {
   char buf[kCandumpLineMax];
   return std::string(buf, format_candump_line(frame, timestamp_us, iface, buf));
 }
 
-CandumpReader::~CandumpReader() { std::free(buf_); }
+CandumpReader::~CandumpReader() {
+  std::free(buf_);
+}
 
 CandumpReader::Status CandumpReader::next(CandumpRecord* record) {
   for (;;) {
@@ -222,7 +237,8 @@ CandumpReader::Status CandumpReader::next(CandumpRecord* record) {
       return Status::kEof;
     }
     ++line_number_;
-    const CandumpError e = parse_candump_line(std::string_view(buf_, static_cast<std::size_t>(len_)), record);
+    const CandumpError e =
+        parse_candump_line(std::string_view(buf_, static_cast<std::size_t>(len_)), record);
     if (e == CandumpError::kEmpty) continue;
     if (e != CandumpError::kNone) {
       error_ = e;

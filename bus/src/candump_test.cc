@@ -13,7 +13,8 @@ namespace {
 
 TEST(CandumpTest, ParsesEveryFrameForm) {
   CandumpRecord r;
-  ASSERT_EQ(parse_candump_line("(1436509052.249713) vcan0 044#2A366C2BBA\n", &r), CandumpError::kNone);
+  ASSERT_EQ(parse_candump_line("(1436509052.249713) vcan0 044#2A366C2BBA\n", &r),
+            CandumpError::kNone);
   EXPECT_EQ(r.timestamp_us, 1436509052249713ull);
   EXPECT_EQ(r.iface, "vcan0");
   EXPECT_EQ(r.frame.id, 0x044u);
@@ -27,7 +28,8 @@ TEST(CandumpTest, ParsesEveryFrameForm) {
   EXPECT_EQ(r.frame.id, 0x1F334455u);
   EXPECT_EQ(r.timestamp_us, 1000001u);
 
-  ASSERT_EQ(parse_candump_line("(1.5) can0 5A1##100112233445566778899AABBCCDDEEFF00112233", &r), CandumpError::kNone);
+  ASSERT_EQ(parse_candump_line("(1.5) can0 5A1##100112233445566778899AABBCCDDEEFF00112233", &r),
+            CandumpError::kNone);
   EXPECT_TRUE(r.frame.fd);
   EXPECT_TRUE(r.frame.brs);
   EXPECT_FALSE(r.frame.esi);
@@ -43,7 +45,8 @@ TEST(CandumpTest, ParsesEveryFrameForm) {
   ASSERT_EQ(parse_candump_line("(1.000000) can0 123#R3", &r), CandumpError::kNone);
   EXPECT_EQ(r.frame.len, 3);
 
-  ASSERT_EQ(parse_candump_line("(1.000000) can0 20000004#0004000000000000", &r), CandumpError::kNone);
+  ASSERT_EQ(parse_candump_line("(1.000000) can0 20000004#0004000000000000", &r),
+            CandumpError::kNone);
   EXPECT_TRUE(r.frame.error);
   EXPECT_EQ(r.frame.id, 0x4u);
 
@@ -57,7 +60,8 @@ TEST(CandumpTest, RejectsWithAReason) {
   EXPECT_EQ(parse_candump_line("", &r), CandumpError::kEmpty);
   EXPECT_EQ(parse_candump_line("   # comment", &r), CandumpError::kEmpty);
   EXPECT_EQ(parse_candump_line("1436509052.249713 vcan0 044#2A", &r), CandumpError::kBadTimestamp);
-  EXPECT_EQ(parse_candump_line("(14365x9052.249713) vcan0 044#2A", &r), CandumpError::kBadTimestamp);
+  EXPECT_EQ(parse_candump_line("(14365x9052.249713) vcan0 044#2A", &r),
+            CandumpError::kBadTimestamp);
   EXPECT_EQ(parse_candump_line("(1.0)", &r), CandumpError::kMissingIface);
   EXPECT_EQ(parse_candump_line("(1.0) can0", &r), CandumpError::kMissingIface);
   EXPECT_EQ(parse_candump_line("(1.0) can0 44#2A", &r), CandumpError::kBadId);
@@ -66,8 +70,10 @@ TEST(CandumpTest, RejectsWithAReason) {
   EXPECT_EQ(parse_candump_line("(1.0) can0 0442A", &r), CandumpError::kMissingHash);
   EXPECT_EQ(parse_candump_line("(1.0) can0 044#2", &r), CandumpError::kBadData);
   EXPECT_EQ(parse_candump_line("(1.0) can0 044#2G", &r), CandumpError::kBadData);
-  EXPECT_EQ(parse_candump_line("(1.0) can0 044#112233445566778899", &r), CandumpError::kBadData);  // 9 bytes
-  EXPECT_EQ(parse_candump_line("(1.0) can0 044##1112233445566778899", &r), CandumpError::kBadData);  // FD len 9
+  EXPECT_EQ(parse_candump_line("(1.0) can0 044#112233445566778899", &r),
+            CandumpError::kBadData);  // 9 bytes
+  EXPECT_EQ(parse_candump_line("(1.0) can0 044##1112233445566778899", &r),
+            CandumpError::kBadData);  // FD len 9
   EXPECT_EQ(parse_candump_line("(1.0) can0 044##", &r), CandumpError::kBadFlags);
   EXPECT_EQ(parse_candump_line("(1.0) can0 044##X00", &r), CandumpError::kBadFlags);
   EXPECT_EQ(parse_candump_line("(1.0) can0 044###00", &r), CandumpError::kUnsupported);
@@ -77,9 +83,11 @@ TEST(CandumpTest, RejectsWithAReason) {
 TEST(CandumpTest, FormatsLikeCandump) {
   CanFrame f;
   ASSERT_EQ(parse_frame_text("185##1202A", &f), CandumpError::kNone);
-  EXPECT_EQ(format_candump_line(f, 1436509052249713ull, "can0"), "(1436509052.249713) can0 185##1202A");
+  EXPECT_EQ(format_candump_line(f, 1436509052249713ull, "can0"),
+            "(1436509052.249713) can0 185##1202A");
   ASSERT_EQ(parse_frame_text("1F334455#DE.AD.BE.EF", &f), CandumpError::kNone);
-  EXPECT_EQ(format_candump_line(f, 1000001, "vcan0"), "(0000000001.000001) vcan0 1F334455#DEADBEEF");
+  EXPECT_EQ(format_candump_line(f, 1000001, "vcan0"),
+            "(0000000001.000001) vcan0 1F334455#DEADBEEF");
   ASSERT_EQ(parse_frame_text("123#R", &f), CandumpError::kNone);
   EXPECT_EQ(format_candump_line(f, 0, "x"), "(0000000000.000000) x 123#R");
 }
@@ -92,7 +100,8 @@ TEST(CandumpTest, RandomRoundTrip) {
     f.extended = kind == 1;
     f.fd = kind == 2;
     f.error = kind == 3;
-    f.id = static_cast<uint32_t>(rng() & (f.extended || f.error ? kExtendedIdMask & ~kCanErrFlag : kStandardIdMask));
+    f.id = static_cast<uint32_t>(
+        rng() & (f.extended || f.error ? kExtendedIdMask & ~kCanErrFlag : kStandardIdMask));
     if (f.fd) {
       f.brs = rng() % 2;
       f.esi = rng() % 2;

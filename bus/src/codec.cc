@@ -12,15 +12,24 @@ using namespace internal;  // NOLINT: byte-order helpers
 
 std::string_view decode_error_name(DecodeError e) {
   switch (e) {
-    case DecodeError::kNone: return "none";
-    case DecodeError::kForeign: return "foreign";
-    case DecodeError::kUnknownClass: return "unknown_class";
-    case DecodeError::kBadNode: return "bad_node";
-    case DecodeError::kBadVersion: return "bad_version";
-    case DecodeError::kBadPart: return "bad_part";
-    case DecodeError::kBadLength: return "bad_length";
-    case DecodeError::kBadCrc: return "bad_crc";
-    case DecodeError::kBadValue: return "bad_value";
+    case DecodeError::kNone:
+      return "none";
+    case DecodeError::kForeign:
+      return "foreign";
+    case DecodeError::kUnknownClass:
+      return "unknown_class";
+    case DecodeError::kBadNode:
+      return "bad_node";
+    case DecodeError::kBadVersion:
+      return "bad_version";
+    case DecodeError::kBadPart:
+      return "bad_part";
+    case DecodeError::kBadLength:
+      return "bad_length";
+    case DecodeError::kBadCrc:
+      return "bad_crc";
+    case DecodeError::kBadValue:
+      return "bad_value";
   }
   return "unknown";
 }
@@ -31,7 +40,8 @@ constexpr std::array<uint16_t, 256> make_crc_table() {
   std::array<uint16_t, 256> t{};
   for (int i = 0; i < 256; ++i) {
     uint16_t crc = static_cast<uint16_t>(i << 8);
-    for (int b = 0; b < 8; ++b) crc = static_cast<uint16_t>((crc & 0x8000) ? (crc << 1) ^ 0x1021 : crc << 1);
+    for (int b = 0; b < 8; ++b)
+      crc = static_cast<uint16_t>((crc & 0x8000) ? (crc << 1) ^ 0x1021 : crc << 1);
     t[i] = crc;
   }
   return t;
@@ -50,12 +60,15 @@ uint16_t crc16_ccitt(std::span<const uint8_t> bytes) {
 
 bool node_allowed(MessageClass c, uint8_t node) {
   switch (c) {
-    case MessageClass::kSync: return node == kNodeBroadcast;
-    case MessageClass::kCommand: return is_patch_node(node) || node == kNodeBroadcast;
+    case MessageClass::kSync:
+      return node == kNodeBroadcast;
+    case MessageClass::kCommand:
+      return is_patch_node(node) || node == kNodeBroadcast;
     case MessageClass::kAck:
     case MessageClass::kSample:
     case MessageClass::kInfo:
-    case MessageClass::kHeartbeat: return is_patch_node(node) || node == kNodeUnassigned;
+    case MessageClass::kHeartbeat:
+      return is_patch_node(node) || node == kNodeUnassigned;
   }
   return false;
 }
@@ -146,7 +159,8 @@ std::size_t serialize_payload(const MessageBody& body, std::span<uint8_t> out) {
   return std::visit(Serializer{out.data()}, body);
 }
 
-DecodeError deserialize_payload(MessageClass c, std::span<const uint8_t> payload, MessageBody* body) {
+DecodeError deserialize_payload(MessageClass c, std::span<const uint8_t> payload,
+                                MessageBody* body) {
   if (payload.size() < payload_len(c)) return DecodeError::kBadLength;
   payload = payload.first(payload_len(c));
   if (is_multi_part(c) && !crc_ok(payload)) return DecodeError::kBadCrc;
@@ -251,13 +265,15 @@ EncodeResult encode(const Message& msg, std::span<CanFrame> out) {
     f.data[1] = msg.seq;
     std::memcpy(f.data.data() + kHeaderLen, payload + off, n);
     const std::size_t used = kHeaderLen + n;
-    f.len = static_cast<uint8_t>(f.fd ? round_up_fd_len(used) : used);  // data[] is zeroed: padding 0
+    f.len =
+        static_cast<uint8_t>(f.fd ? round_up_fd_len(used) : used);  // data[] is zeroed: padding 0
   }
   return {parts, EncodeError::kNone};
 }
 
 DecodeError parse_frame(const CanFrame& frame, FrameView* view) {
-  if (frame.extended || frame.rtr || frame.error || frame.id > kStandardIdMask) return DecodeError::kForeign;
+  if (frame.extended || frame.rtr || frame.error || frame.id > kStandardIdMask)
+    return DecodeError::kForeign;
   if (!frame.fd && frame.len > kClassicMaxLen) return DecodeError::kBadLength;
   if (frame.len > kFdMaxLen) return DecodeError::kBadLength;
   const uint8_t cls = can_id_class(frame.id);

@@ -28,7 +28,8 @@ std::vector<Message> samples(FrameKind kind, int n) {
   std::mt19937_64 rng(42);
   std::vector<Message> out;
   for (int i = 0; i < n; ++i) {
-    out.push_back(testing::random_message(rng, MessageClass::kSample, kind, static_cast<uint8_t>(1 + i % 64),
+    out.push_back(testing::random_message(rng, MessageClass::kSample, kind,
+                                          static_cast<uint8_t>(1 + i % 64),
                                           static_cast<uint8_t>(i / 64)));
   }
   return out;
@@ -59,7 +60,10 @@ void BM_Encode(benchmark::State& state) {
   }
   set_counters(state, kind, frames, start);
 }
-BENCHMARK(BM_Encode)->ArgName("fd")->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
+BENCHMARK(BM_Encode)
+    ->ArgName("fd")
+    ->Arg(static_cast<int>(FrameKind::kFd))
+    ->Arg(static_cast<int>(FrameKind::kClassic));
 
 void BM_DecodeReassemble(benchmark::State& state) {
   const auto kind = static_cast<FrameKind>(state.range(0));
@@ -86,14 +90,18 @@ void BM_DecodeReassemble(benchmark::State& state) {
   set_counters(state, kind, static_cast<double>(state.iterations()), start);
   state.counters["samples"] = emitted;
 }
-BENCHMARK(BM_DecodeReassemble)->ArgName("fd")->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
+BENCHMARK(BM_DecodeReassemble)
+    ->ArgName("fd")
+    ->Arg(static_cast<int>(FrameKind::kFd))
+    ->Arg(static_cast<int>(FrameKind::kClassic));
 
 // The whole host-side path a frame takes in a log replay: parse a candump line, reassemble.
 void BM_CandumpParseReassemble(benchmark::State& state) {
   const auto msgs = samples(FrameKind::kFd, 256);
   std::vector<std::string> lines;
   for (const Message& m : msgs) {
-    for (const CanFrame& f : testing::encode_frames(m)) lines.push_back(format_candump_line(f, 1000000, "can0"));
+    for (const CanFrame& f : testing::encode_frames(m))
+      lines.push_back(format_candump_line(f, 1000000, "can0"));
   }
   Reassembler r;
   uint64_t t = 0;
@@ -137,7 +145,10 @@ void BM_RoundTrip(benchmark::State& state) {
   }
   set_counters(state, kind, frames, start);
 }
-BENCHMARK(BM_RoundTrip)->ArgName("fd")->Arg(static_cast<int>(FrameKind::kFd))->Arg(static_cast<int>(FrameKind::kClassic));
+BENCHMARK(BM_RoundTrip)
+    ->ArgName("fd")
+    ->Arg(static_cast<int>(FrameKind::kFd))
+    ->Arg(static_cast<int>(FrameKind::kClassic));
 
 }  // namespace
 }  // namespace skinbus::bus

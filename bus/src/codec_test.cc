@@ -22,7 +22,8 @@ Message golden_sample(FrameKind kind) {
   Sample s;
   s.timestamp_us = 0x01020304;
   s.flags = sample_flags::kContact | sample_flags::kTared;
-  for (int ch = 0; ch < kChannelCount; ++ch) s.field_lsb[ch] = static_cast<int16_t>(ch * 100 - 2400);
+  for (int ch = 0; ch < kChannelCount; ++ch)
+    s.field_lsb[ch] = static_cast<int16_t>(ch * 100 - 2400);
   return Message{5, 42, kind, s};
 }
 
@@ -67,11 +68,12 @@ TEST(CodecTest, CrcCheckValue) {
 }
 
 TEST(CodecTest, GoldenSampleFd) {
-  EXPECT_EQ(frames_text(encode_frames(golden_sample(FrameKind::kFd))),
-            "185##1202A04030201090000000000A0F604F768F7CCF730F894F8F8F85CF9C0F924FA88FAECFA50FBB4FB18"
-            "FC7CFCE0FC44FDA8FD0CFE70FED4FE38FF9CFF00006400 "
-            "185##1212AC8002C019001F4015802BC0220038403E8034C04B00414057805DC054006A40608076C07D00734"
-            "089808FC084232");
+  EXPECT_EQ(
+      frames_text(encode_frames(golden_sample(FrameKind::kFd))),
+      "185##1202A04030201090000000000A0F604F768F7CCF730F894F8F8F85CF9C0F924FA88FAECFA50FBB4FB18"
+      "FC7CFCE0FC44FDA8FD0CFE70FED4FE38FF9CFF00006400 "
+      "185##1212AC8002C019001F4015802BC0220038403E8034C04B00414057805DC054006A40608076C07D00734"
+      "089808FC084232");
 }
 
 TEST(CodecTest, GoldenSampleClassic) {
@@ -100,14 +102,19 @@ TEST(CodecTest, GoldenInfo) {
 
 TEST(CodecTest, GoldenCommandsAcksSync) {
   Command rate{Opcode::kSetRate, {0x4A, 0x10, 0, 0, 0}};
-  EXPECT_EQ(frames_text(encode_frames(Message{12, 7, FrameKind::kClassic, rate})), "08C#2007034A10000000");
-  EXPECT_EQ(frames_text(encode_frames(Message{kNodeBroadcast, 8, FrameKind::kFd, Command{Opcode::kTare, {}}})),
+  EXPECT_EQ(frames_text(encode_frames(Message{12, 7, FrameKind::kClassic, rate})),
+            "08C#2007034A10000000");
+  EXPECT_EQ(frames_text(encode_frames(
+                Message{kNodeBroadcast, 8, FrameKind::kFd, Command{Opcode::kTare, {}}})),
             "0FF##12008010000000000");
-  EXPECT_EQ(frames_text(encode_frames(Message{12, 7, FrameKind::kClassic, Ack{3, AckStatus::kOk, 4170}})),
-            "10C#200703004A100000");
-  EXPECT_EQ(frames_text(encode_frames(Message{12, 9, FrameKind::kClassic, Ack{0x42, AckStatus::kUnknownOpcode, 0}})),
+  EXPECT_EQ(
+      frames_text(encode_frames(Message{12, 7, FrameKind::kClassic, Ack{3, AckStatus::kOk, 4170}})),
+      "10C#200703004A100000");
+  EXPECT_EQ(frames_text(encode_frames(
+                Message{12, 9, FrameKind::kClassic, Ack{0x42, AckStatus::kUnknownOpcode, 0}})),
             "10C#2009420100000000");
-  EXPECT_EQ(frames_text(encode_frames(Message{kNodeBroadcast, 1, FrameKind::kClassic, Sync{0x12345678, 0x0102}})),
+  EXPECT_EQ(frames_text(encode_frames(
+                Message{kNodeBroadcast, 1, FrameKind::kClassic, Sync{0x12345678, 0x0102}})),
             "07F#2001785634120201");
 }
 
@@ -140,23 +147,38 @@ TEST(CodecTest, FieldTablesMatchTheCodec) {
 
   auto read = [](const uint8_t* p, const FieldDesc& f) -> int64_t {
     switch (f.type) {
-      case FieldType::kU8: return p[f.offset];
-      case FieldType::kU16: return internal::get_u16(p + f.offset);
-      case FieldType::kI16: return internal::get_i16(p + f.offset);
-      case FieldType::kU32: return internal::get_u32(p + f.offset);
-      case FieldType::kU64: return static_cast<int64_t>(internal::get_u64(p + f.offset));
+      case FieldType::kU8:
+        return p[f.offset];
+      case FieldType::kU16:
+        return internal::get_u16(p + f.offset);
+      case FieldType::kI16:
+        return internal::get_i16(p + f.offset);
+      case FieldType::kU32:
+        return internal::get_u32(p + f.offset);
+      case FieldType::kU64:
+        return static_cast<int64_t>(internal::get_u64(p + f.offset));
     }
     return 0;
   };
   const Heartbeat h = golden_heartbeat();
-  std::map<std::string, int64_t> expect = {
-      {"state", 1}, {"mode", 2}, {"rate", 4170}, {"uptime", 3600},
-      {"hardware_uid", 0x0123456789ABCDEF}, {"fw_major", 1}, {"fw_minor", 2}, {"fw_patch", 3},
-      {"status", h.status}, {"fault_mask", 2}, {"i2c_errors", 7}, {"can_errors", 1},
-      {"saturation_count", 9}, {"temperature", 3150}};
+  std::map<std::string, int64_t> expect = {{"state", 1},
+                                           {"mode", 2},
+                                           {"rate", 4170},
+                                           {"uptime", 3600},
+                                           {"hardware_uid", 0x0123456789ABCDEF},
+                                           {"fw_major", 1},
+                                           {"fw_minor", 2},
+                                           {"fw_patch", 3},
+                                           {"status", h.status},
+                                           {"fault_mask", 2},
+                                           {"i2c_errors", 7},
+                                           {"can_errors", 1},
+                                           {"saturation_count", 9},
+                                           {"temperature", 3150}};
   uint8_t buf[kMaxPayloadLen];
   ASSERT_EQ(serialize_payload(h, buf), kHeartbeatPayloadLen);
-  for (const FieldDesc* f = fields_begin(MessageClass::kHeartbeat); f != fields_end(MessageClass::kHeartbeat); ++f) {
+  for (const FieldDesc* f = fields_begin(MessageClass::kHeartbeat);
+       f != fields_end(MessageClass::kHeartbeat); ++f) {
     if (expect.count(f->name)) {
       EXPECT_EQ(read(buf, *f), expect[f->name]) << f->name;
     }
@@ -164,7 +186,8 @@ TEST(CodecTest, FieldTablesMatchTheCodec) {
   const Message s = golden_sample(FrameKind::kFd);
   ASSERT_EQ(serialize_payload(s.body, buf), kSamplePayloadLen);
   int ch = 0;
-  for (const FieldDesc* f = fields_begin(MessageClass::kSample); f != fields_end(MessageClass::kSample); ++f) {
+  for (const FieldDesc* f = fields_begin(MessageClass::kSample);
+       f != fields_end(MessageClass::kSample); ++f) {
     if (f->name[0] == 's' && f->name[3] == '_') {
       EXPECT_EQ(read(buf, *f), ch * 100 - 2400) << f->name;
       ++ch;
@@ -193,8 +216,8 @@ TEST(CodecTest, RandomRoundTrip) {
   for (int i = 0; i < 5000; ++i) {
     const auto c = static_cast<MessageClass>(rng() % kMessageClassCount);
     const FrameKind kind = rng() % 2 ? FrameKind::kFd : FrameKind::kClassic;
-    const Message m = testing::random_message(rng, c, kind, static_cast<uint8_t>(rng() % kNodeMax + 1),
-                                              static_cast<uint8_t>(rng()));
+    const Message m = testing::random_message(
+        rng, c, kind, static_cast<uint8_t>(rng() % kNodeMax + 1), static_cast<uint8_t>(rng()));
     const auto frames = encode_frames(m);
     ASSERT_EQ(frames.size(), part_count(c, kind));
     uint8_t payload[kMaxPayloadLen] = {};
@@ -223,27 +246,33 @@ CanFrame frame_of(const char* text) {
 
 TEST(CodecTest, RejectsWithAReason) {
   FrameView v;
-  EXPECT_EQ(parse_frame(frame_of("1F334455#2001"), &v), DecodeError::kForeign);      // extended
-  EXPECT_EQ(parse_frame(frame_of("10C#R"), &v), DecodeError::kForeign);              // remote
+  EXPECT_EQ(parse_frame(frame_of("1F334455#2001"), &v), DecodeError::kForeign);  // extended
+  EXPECT_EQ(parse_frame(frame_of("10C#R"), &v), DecodeError::kForeign);          // remote
   EXPECT_EQ(parse_frame(frame_of("30C#2007034A10000000"), &v), DecodeError::kUnknownClass);
   EXPECT_EQ(parse_frame(frame_of("08C#4007034A10000000"), &v), DecodeError::kBadVersion);
   EXPECT_EQ(parse_frame(frame_of("08C#0007034A10000000"), &v), DecodeError::kBadVersion);
   EXPECT_EQ(parse_frame(frame_of("080#2007034A10000000"), &v), DecodeError::kBadNode);  // host ID
-  EXPECT_EQ(parse_frame(frame_of("00C#2001785634120201"), &v), DecodeError::kBadNode);  // SYNC unicast
+  EXPECT_EQ(parse_frame(frame_of("00C#2001785634120201"), &v),
+            DecodeError::kBadNode);  // SYNC unicast
   EXPECT_EQ(parse_frame(frame_of("08C#2007034A"), &v), DecodeError::kBadLength);
   EXPECT_EQ(parse_frame(frame_of("08C#20"), &v), DecodeError::kBadLength);
   EXPECT_EQ(parse_frame(frame_of("185##1322A00"), &v), DecodeError::kBadPart);  // part 18 of 2
-  EXPECT_EQ(parse_frame(frame_of("185#312A9808"), &v), DecodeError::kBadLength);  // part 17 carries 6
-  EXPECT_EQ(parse_frame(frame_of("185#322A040302010900"), &v), DecodeError::kBadPart);  // part 18 of 0..17
-  EXPECT_EQ(parse_frame(frame_of("185##1202A0403"), &v), DecodeError::kBadLength);  // FD part 0 short
+  EXPECT_EQ(parse_frame(frame_of("185#312A9808"), &v),
+            DecodeError::kBadLength);  // part 17 carries 6
+  EXPECT_EQ(parse_frame(frame_of("185#322A040302010900"), &v),
+            DecodeError::kBadPart);  // part 18 of 0..17
+  EXPECT_EQ(parse_frame(frame_of("185##1202A0403"), &v),
+            DecodeError::kBadLength);  // FD part 0 short
 
   Message m;
-  EXPECT_EQ(decode_single(frame_of("10C#2007030F4A100000"), &m), DecodeError::kBadValue);  // ack status 15
+  EXPECT_EQ(decode_single(frame_of("10C#2007030F4A100000"), &m),
+            DecodeError::kBadValue);  // ack status 15
   EXPECT_EQ(decode_single(frame_of("185#202A040302010900"), &m), DecodeError::kBadPart);
   EXPECT_EQ(decode_single(frame_of("08C#2007034A10000000"), &m), DecodeError::kNone);
   EXPECT_EQ(std::get<Command>(m.body).opcode, Opcode::kSetRate);
-  EXPECT_EQ(decode_single(frame_of("08C#2007424A10000000"), &m), DecodeError::kNone);  // unknown opcode
-  EXPECT_EQ(static_cast<int>(std::get<Command>(m.body).opcode), 0x42);               // passes to the NACK
+  EXPECT_EQ(decode_single(frame_of("08C#2007424A10000000"), &m),
+            DecodeError::kNone);                                        // unknown opcode
+  EXPECT_EQ(static_cast<int>(std::get<Command>(m.body).opcode), 0x42);  // passes to the NACK
 
   uint8_t bad_hb[kHeartbeatPayloadLen] = {};
   bad_hb[0] = 9;  // no such state

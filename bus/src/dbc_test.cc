@@ -58,13 +58,16 @@ std::map<uint32_t, std::vector<Signal>> parse_dbc(const std::string& text) {
   return msgs;
 }
 
-std::map<std::string, double> decode_with_dbc(const std::map<uint32_t, std::vector<Signal>>& dbc, const CanFrame& f) {
+std::map<std::string, double> decode_with_dbc(const std::map<uint32_t, std::vector<Signal>>& dbc,
+                                              const CanFrame& f) {
   std::map<std::string, double> out;
   const auto& sigs = dbc.at(f.id);
   auto raw = [&](const Signal& s) {
     uint64_t v = 0;
-    for (int b = 0; b < s.len; ++b) v |= static_cast<uint64_t>((f.data[(s.start + b) / 8] >> ((s.start + b) % 8)) & 1) << b;
-    if (s.is_signed && (v >> (s.len - 1)) & 1) return static_cast<double>(static_cast<int64_t>(v | (~0ull << s.len)));
+    for (int b = 0; b < s.len; ++b)
+      v |= static_cast<uint64_t>((f.data[(s.start + b) / 8] >> ((s.start + b) % 8)) & 1) << b;
+    if (s.is_signed && (v >> (s.len - 1)) & 1)
+      return static_cast<double>(static_cast<int64_t>(v | (~0ull << s.len)));
     return static_cast<double>(v);
   };
   int mux = -1;
@@ -81,11 +84,12 @@ TEST(DbcTest, DecodesGoldenFramesThroughTheFile) {
   const auto dbc = parse_dbc(generate_dbc(FrameKind::kFd, 1, 16));
   ASSERT_EQ(dbc.size(), 16u * 5 + 2);
   CanFrame f;
-  ASSERT_EQ(parse_frame_text(
-                "185##1202A04030201090000000000A0F604F768F7CCF730F894F8F8F85CF9C0F924FA88FAECFA50FBB4FB18"
-                "FC7CFCE0FC44FDA8FD0CFE70FED4FE38FF9CFF00006400",
-                &f),
-            CandumpError::kNone);
+  ASSERT_EQ(
+      parse_frame_text(
+          "185##1202A04030201090000000000A0F604F768F7CCF730F894F8F8F85CF9C0F924FA88FAECFA50FBB4FB18"
+          "FC7CFCE0FC44FDA8FD0CFE70FED4FE38FF9CFF00006400",
+          &f),
+      CandumpError::kNone);
   auto v = decode_with_dbc(dbc, f);
   EXPECT_EQ(v["part"], 0);
   EXPECT_EQ(v["seq"], 42);
@@ -106,7 +110,8 @@ TEST(DbcTest, EverySampleChannelOfEveryPartDecodes) {
   for (FrameKind kind : {FrameKind::kFd, FrameKind::kClassic}) {
     const auto dbc = parse_dbc(generate_dbc(kind, 1, 3));
     for (int i = 0; i < 20; ++i) {
-      const Message m = testing::random_message(rng, MessageClass::kSample, kind, 2, static_cast<uint8_t>(i));
+      const Message m =
+          testing::random_message(rng, MessageClass::kSample, kind, 2, static_cast<uint8_t>(i));
       std::map<std::string, double> all;
       for (const CanFrame& f : testing::encode_frames(m)) {
         for (const auto& [k, x] : decode_with_dbc(dbc, f)) all[k] = x;
@@ -128,12 +133,15 @@ TEST(DbcTest, ShippedFilesAreCurrent) {
   const char* src = std::getenv("SKINBUS_SOURCE_DIR");
   ASSERT_NE(src, nullptr) << "run through ctest (sets SKINBUS_SOURCE_DIR)";
   for (FrameKind kind : {FrameKind::kFd, FrameKind::kClassic}) {
-    const std::string path = std::string(src) + (kind == FrameKind::kFd ? "/docs/dbc/skinbus_fd.dbc" : "/docs/dbc/skinbus_classic.dbc");
+    const std::string path =
+        std::string(src) +
+        (kind == FrameKind::kFd ? "/docs/dbc/skinbus_fd.dbc" : "/docs/dbc/skinbus_classic.dbc");
     std::ifstream in(path);
     ASSERT_TRUE(in) << "missing " << path << "; regenerate with skinbus-dbc (see docs/protocol.md)";
     std::stringstream ss;
     ss << in.rdbuf();
-    EXPECT_EQ(ss.str(), generate_dbc(kind, 1, 16)) << path << " is stale; regenerate with skinbus-dbc";
+    EXPECT_EQ(ss.str(), generate_dbc(kind, 1, 16))
+        << path << " is stale; regenerate with skinbus-dbc";
   }
 }
 

@@ -13,7 +13,9 @@ template <typename... Args>
 void appendf(std::string* s, const char* fmt, Args... args) {
   char buf[256];
   const int n = std::snprintf(buf, sizeof buf, fmt, args...);
-  s->append(buf, n < 0 ? 0 : static_cast<std::size_t>(n < static_cast<int>(sizeof buf) ? n : sizeof buf - 1));
+  s->append(
+      buf,
+      n < 0 ? 0 : static_cast<std::size_t>(n < static_cast<int>(sizeof buf) ? n : sizeof buf - 1));
 }
 
 std::string join_bits(unsigned bits, const char* const* names, int count) {
@@ -33,20 +35,34 @@ std::string heartbeat_status_text(uint8_t status) {
 
 struct Formatter {
   std::string* s;
-  void operator()(const Sync& m) const { appendf(s, " counter=%u host_time_us=%" PRIu32, m.counter, m.host_time_us); }
+  void operator()(const Sync& m) const {
+    appendf(s, " counter=%u host_time_us=%" PRIu32, m.counter, m.host_time_us);
+  }
   void operator()(const Command& m) const {
     appendf(s, " op=%s", std::string(opcode_name(m.opcode)).c_str());
     if (opcode_name(m.opcode) == "unknown") appendf(s, "(0x%02X)", static_cast<unsigned>(m.opcode));
     const uint32_t arg32 = internal::get_u32(m.arg.data());
     switch (m.opcode) {
       case Opcode::kSetMode:
-        appendf(s, " mode=%s", m.arg[0] < kPatchModeCount ? std::string(patch_mode_name(static_cast<PatchMode>(m.arg[0]))).c_str() : "invalid");
+        appendf(s, " mode=%s",
+                m.arg[0] < kPatchModeCount
+                    ? std::string(patch_mode_name(static_cast<PatchMode>(m.arg[0]))).c_str()
+                    : "invalid");
         break;
-      case Opcode::kSetRate: appendf(s, " rate_hz=%.2f", internal::get_u16(m.arg.data()) / 100.0); break;
-      case Opcode::kSyncMode: appendf(s, " enable=%u", m.arg[0]); break;
-      case Opcode::kIdentify: appendf(s, " seconds=%u", m.arg[0]); break;
-      case Opcode::kReboot: appendf(s, " magic=%08" PRIX32, arg32); break;
-      default: break;
+      case Opcode::kSetRate:
+        appendf(s, " rate_hz=%.2f", internal::get_u16(m.arg.data()) / 100.0);
+        break;
+      case Opcode::kSyncMode:
+        appendf(s, " enable=%u", m.arg[0]);
+        break;
+      case Opcode::kIdentify:
+        appendf(s, " seconds=%u", m.arg[0]);
+        break;
+      case Opcode::kReboot:
+        appendf(s, " magic=%08" PRIX32, arg32);
+        break;
+      default:
+        break;
     }
     appendf(s, " arg=%02X%02X%02X%02X%02X", m.arg[0], m.arg[1], m.arg[2], m.arg[3], m.arg[4]);
   }
@@ -54,7 +70,8 @@ struct Formatter {
     const std::string op(opcode_name(static_cast<Opcode>(m.opcode)));
     appendf(s, " op=%s", op.c_str());
     if (op == "unknown") appendf(s, "(0x%02X)", m.opcode);
-    appendf(s, " status=%s value=%" PRIu32, std::string(ack_status_name(m.status)).c_str(), m.value);
+    appendf(s, " status=%s value=%" PRIu32, std::string(ack_status_name(m.status)).c_str(),
+            m.value);
   }
   void operator()(const Sample& m) const {
     appendf(s, " t_us=%" PRIu32 " flags=%s fault=%04X sat=%04X field_ut=", m.timestamp_us,
@@ -64,19 +81,23 @@ struct Formatter {
     }
   }
   void operator()(const Info& m) const {
-    appendf(s, " uid=%016" PRIx64 " fw=%u.%u.%u proto=%u sensors=%ux%u gain=%u res=%02X osr=%u filt=%u", m.hardware_uid,
-            m.fw_major, m.fw_minor, m.fw_patch, m.protocol_version, m.sensor_count, m.axis_count, m.gain_sel,
-            m.resolution, m.oversampling, m.digital_filter);
-    appendf(s, " rate_hz=%.2f max_rate_hz=%.2f conv_us=%u lsb_nt=%u", m.rate_chz / 100.0, m.max_rate_chz / 100.0,
-            m.conversion_time_us, m.field_lsb_nt);
+    appendf(
+        s, " uid=%016" PRIx64 " fw=%u.%u.%u proto=%u sensors=%ux%u gain=%u res=%02X osr=%u filt=%u",
+        m.hardware_uid, m.fw_major, m.fw_minor, m.fw_patch, m.protocol_version, m.sensor_count,
+        m.axis_count, m.gain_sel, m.resolution, m.oversampling, m.digital_filter);
+    appendf(s, " rate_hz=%.2f max_rate_hz=%.2f conv_us=%u lsb_nt=%u", m.rate_chz / 100.0,
+            m.max_rate_chz / 100.0, m.conversion_time_us, m.field_lsb_nt);
   }
   void operator()(const Heartbeat& m) const {
-    appendf(s, " state=%s mode=%s rate_hz=%.2f uptime_s=%" PRIu32 " uid=%016" PRIx64 " fw=%u.%u.%u status=%s",
-            std::string(patch_state_name(m.state)).c_str(), std::string(patch_mode_name(m.mode)).c_str(),
-            m.rate_chz / 100.0, m.uptime_s, m.hardware_uid, m.fw_major, m.fw_minor, m.fw_patch,
+    appendf(s,
+            " state=%s mode=%s rate_hz=%.2f uptime_s=%" PRIu32 " uid=%016" PRIx64
+            " fw=%u.%u.%u status=%s",
+            std::string(patch_state_name(m.state)).c_str(),
+            std::string(patch_mode_name(m.mode)).c_str(), m.rate_chz / 100.0, m.uptime_s,
+            m.hardware_uid, m.fw_major, m.fw_minor, m.fw_patch,
             heartbeat_status_text(m.status).c_str());
-    appendf(s, " fault=%04X i2c_err=%u can_err=%u sat=%u temp_c=%.2f", m.fault_mask, m.i2c_errors, m.can_errors,
-            m.saturation_count, m.temperature_cdeg / 100.0);
+    appendf(s, " fault=%04X i2c_err=%u can_err=%u sat=%u temp_c=%.2f", m.fault_mask, m.i2c_errors,
+            m.can_errors, m.saturation_count, m.temperature_cdeg / 100.0);
   }
 };
 
@@ -84,7 +105,7 @@ struct Formatter {
 
 std::string format_sample_flags(uint16_t flags) {
   static const char* const kNames[] = {"contact", "saturated", "tare_active", "tared",
-                                       "fault", "synced", "event_tail", "drift_tracking"};
+                                       "fault",   "synced",    "event_tail",  "drift_tracking"};
   return join_bits(flags, kNames, 8);
 }
 
@@ -100,7 +121,8 @@ std::string describe_frame(const CanFrame& frame) {
   const DecodeError e = parse_frame(frame, &v);
   std::string s;
   if (e != DecodeError::kNone) {
-    appendf(&s, "invalid id=%03X len=%u: %s", frame.id, frame.len, std::string(decode_error_name(e)).c_str());
+    appendf(&s, "invalid id=%03X len=%u: %s", frame.id, frame.len,
+            std::string(decode_error_name(e)).c_str());
     return s;
   }
   if (v.part_count == 1 && !is_multi_part(v.message_class)) {
@@ -108,14 +130,16 @@ std::string describe_frame(const CanFrame& frame) {
     if (decode_single(frame, &m) == DecodeError::kNone) return format_message(m);
   }
   s = std::string(message_class_name(v.message_class));
-  appendf(&s, " node=%u seq=%u part=%u/%u bytes=%u..%u", v.node, v.header.seq, v.header.part + 1u, v.part_count,
-          v.payload_offset, v.payload_offset + v.part_len - 1u);
+  appendf(&s, " node=%u seq=%u part=%u/%u bytes=%u..%u", v.node, v.header.seq, v.header.part + 1u,
+          v.part_count, v.payload_offset, v.payload_offset + v.part_len - 1u);
   for (const FieldDesc* f = fields_begin(v.message_class); f != fields_end(v.message_class); ++f) {
     const std::size_t size = field_size(f->type);
     if (f->offset < v.payload_offset || f->offset + size > v.payload_offset + v.part_len) continue;
     const uint8_t* p = v.part_data + (f->offset - v.payload_offset);
     switch (f->type) {
-      case FieldType::kU8: appendf(&s, " %s=%u", f->name, p[0]); break;
+      case FieldType::kU8:
+        appendf(&s, " %s=%u", f->name, p[0]);
+        break;
       case FieldType::kU16:
         if (f->scale != 1) {
           appendf(&s, " %s=%g", f->name, internal::get_u16(p) * f->scale);
@@ -123,9 +147,15 @@ std::string describe_frame(const CanFrame& frame) {
           appendf(&s, " %s=%u", f->name, internal::get_u16(p));
         }
         break;
-      case FieldType::kI16: appendf(&s, " %s=%g", f->name, internal::get_i16(p) * f->scale); break;
-      case FieldType::kU32: appendf(&s, " %s=%" PRIu32, f->name, internal::get_u32(p)); break;
-      case FieldType::kU64: appendf(&s, " %s=%016" PRIx64, f->name, internal::get_u64(p)); break;
+      case FieldType::kI16:
+        appendf(&s, " %s=%g", f->name, internal::get_i16(p) * f->scale);
+        break;
+      case FieldType::kU32:
+        appendf(&s, " %s=%" PRIu32, f->name, internal::get_u32(p));
+        break;
+      case FieldType::kU64:
+        appendf(&s, " %s=%016" PRIx64, f->name, internal::get_u64(p));
+        break;
     }
   }
   return s;

@@ -29,21 +29,27 @@ TEST(FormatTest, MessagesOnOneLine) {
   h.temperature_cdeg = -550;
   m.body = h;
   EXPECT_EQ(format_message(m),
-            "heartbeat node=12 seq=7 state=degraded mode=event rate_hz=41.70 uptime_s=0 uid=0000000000abcdef fw=0.0.0 "
+            "heartbeat node=12 seq=7 state=degraded mode=event rate_hz=41.70 uptime_s=0 "
+            "uid=0000000000abcdef fw=0.0.0 "
             "status=tared fault=0000 i2c_err=0 can_err=0 sat=0 temp_c=-5.50");
   Sample s;
   s.flags = sample_flags::kContact | sample_flags::kSaturated;
   s.field_lsb[0] = -12345;
   m.body = s;
   const std::string line = format_message(m);
-  EXPECT_EQ(line.rfind("sample node=12 seq=7 t_us=0 flags=contact,saturated fault=0000 sat=0000 field_ut=-1234.5,0.0,", 0), 0u)
+  EXPECT_EQ(line.rfind("sample node=12 seq=7 t_us=0 flags=contact,saturated fault=0000 sat=0000 "
+                       "field_ut=-1234.5,0.0,",
+                       0),
+            0u)
       << line;
 }
 
 TEST(FormatTest, DescribesALoneFrame) {
   // Part 2 of 2 of the golden FD sample (codec_test.cc): channels 26..47 and the CRC.
-  const std::string d = describe_frame(frame_of(
-      "185##1212AC8002C019001F4015802BC0220038403E8034C04B00414057805DC054006A40608076C07D00734089808FC084232"));
+  const std::string d =
+      describe_frame(frame_of("185##"
+                              "1212AC8002C019001F4015802BC0220038403E8034C04B00414057805DC054006A40"
+                              "608076C07D00734089808FC084232"));
   EXPECT_EQ(d.rfind("sample node=5 seq=42 part=2/2 bytes=62..107 s08_z=20 s09_x=30", 0), 0u) << d;
   EXPECT_NE(d.find("s15_z=230"), std::string::npos) << d;
   EXPECT_NE(d.find("crc=12866"), std::string::npos) << d;  // 0x3242

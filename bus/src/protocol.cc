@@ -7,57 +7,84 @@ namespace skinbus::bus {
 
 std::string_view message_class_name(MessageClass c) {
   switch (c) {
-    case MessageClass::kSync: return "sync";
-    case MessageClass::kCommand: return "command";
-    case MessageClass::kAck: return "ack";
-    case MessageClass::kSample: return "sample";
-    case MessageClass::kInfo: return "info";
-    case MessageClass::kHeartbeat: return "heartbeat";
+    case MessageClass::kSync:
+      return "sync";
+    case MessageClass::kCommand:
+      return "command";
+    case MessageClass::kAck:
+      return "ack";
+    case MessageClass::kSample:
+      return "sample";
+    case MessageClass::kInfo:
+      return "info";
+    case MessageClass::kHeartbeat:
+      return "heartbeat";
   }
   return "unknown";
 }
 
 std::string_view patch_state_name(PatchState s) {
   switch (s) {
-    case PatchState::kBooting: return "booting";
-    case PatchState::kRunning: return "running";
-    case PatchState::kDegraded: return "degraded";
-    case PatchState::kFault: return "fault";
+    case PatchState::kBooting:
+      return "booting";
+    case PatchState::kRunning:
+      return "running";
+    case PatchState::kDegraded:
+      return "degraded";
+    case PatchState::kFault:
+      return "fault";
   }
   return "unknown";
 }
 
 std::string_view patch_mode_name(PatchMode m) {
   switch (m) {
-    case PatchMode::kOff: return "off";
-    case PatchMode::kStream: return "stream";
-    case PatchMode::kEvent: return "event";
+    case PatchMode::kOff:
+      return "off";
+    case PatchMode::kStream:
+      return "stream";
+    case PatchMode::kEvent:
+      return "event";
   }
   return "unknown";
 }
 
 std::string_view opcode_name(Opcode op) {
   switch (op) {
-    case Opcode::kTare: return "tare";
-    case Opcode::kSetMode: return "set_mode";
-    case Opcode::kSetRate: return "set_rate";
-    case Opcode::kSyncMode: return "sync_mode";
-    case Opcode::kIdentify: return "identify";
-    case Opcode::kReboot: return "reboot";
-    case Opcode::kGetInfo: return "get_info";
+    case Opcode::kTare:
+      return "tare";
+    case Opcode::kSetMode:
+      return "set_mode";
+    case Opcode::kSetRate:
+      return "set_rate";
+    case Opcode::kSyncMode:
+      return "sync_mode";
+    case Opcode::kIdentify:
+      return "identify";
+    case Opcode::kReboot:
+      return "reboot";
+    case Opcode::kGetInfo:
+      return "get_info";
   }
   return "unknown";
 }
 
 std::string_view ack_status_name(AckStatus s) {
   switch (s) {
-    case AckStatus::kOk: return "ok";
-    case AckStatus::kUnknownOpcode: return "unknown_opcode";
-    case AckStatus::kBadArgument: return "bad_argument";
-    case AckStatus::kBadLength: return "bad_length";
-    case AckStatus::kBusy: return "busy";
-    case AckStatus::kVersionMismatch: return "version_mismatch";
-    case AckStatus::kNotPermitted: return "not_permitted";
+    case AckStatus::kOk:
+      return "ok";
+    case AckStatus::kUnknownOpcode:
+      return "unknown_opcode";
+    case AckStatus::kBadArgument:
+      return "bad_argument";
+    case AckStatus::kBadLength:
+      return "bad_length";
+    case AckStatus::kBusy:
+      return "busy";
+    case AckStatus::kVersionMismatch:
+      return "version_mismatch";
+    case AckStatus::kNotPermitted:
+      return "not_permitted";
   }
   return "unknown";
 }
@@ -70,12 +97,9 @@ constexpr FieldDesc kSyncFields[] = {
 };
 
 constexpr FieldDesc kCommandFields[] = {
-    {"opcode", 0, FieldType::kU8, 1, ""},
-    {"arg0", 1, FieldType::kU8, 1, ""},
-    {"arg1", 2, FieldType::kU8, 1, ""},
-    {"arg2", 3, FieldType::kU8, 1, ""},
-    {"arg3", 4, FieldType::kU8, 1, ""},
-    {"arg4", 5, FieldType::kU8, 1, ""},
+    {"opcode", 0, FieldType::kU8, 1, ""}, {"arg0", 1, FieldType::kU8, 1, ""},
+    {"arg1", 2, FieldType::kU8, 1, ""},   {"arg2", 3, FieldType::kU8, 1, ""},
+    {"arg3", 4, FieldType::kU8, 1, ""},   {"arg4", 5, FieldType::kU8, 1, ""},
 };
 
 constexpr FieldDesc kAckFields[] = {
@@ -132,8 +156,10 @@ const std::vector<FieldDesc>& sample_fields() {
         {"saturation_mask", 8, FieldType::kU16, 1, ""},
     };
     for (int ch = 0; ch < kChannelCount; ++ch) {
-      std::snprintf(names[ch], sizeof names[ch], "s%02d_%c", ch / kAxisCount, "xyz"[ch % kAxisCount]);
-      f.push_back({names[ch], static_cast<uint16_t>(10 + 2 * ch), FieldType::kI16, kFieldUtPerLsb, "uT"});
+      std::snprintf(names[ch], sizeof names[ch], "s%02d_%c", ch / kAxisCount,
+                    "xyz"[ch % kAxisCount]);
+      f.push_back(
+          {names[ch], static_cast<uint16_t>(10 + 2 * ch), FieldType::kI16, kFieldUtPerLsb, "uT"});
     }
     f.push_back({"crc", static_cast<uint16_t>(10 + 2 * kChannelCount), FieldType::kU16, 1, ""});
     return f;
@@ -148,11 +174,16 @@ constexpr std::pair<const FieldDesc*, const FieldDesc*> range(const FieldDesc (&
 
 std::pair<const FieldDesc*, const FieldDesc*> fields_of(MessageClass c) {
   switch (c) {
-    case MessageClass::kSync: return range(kSyncFields);
-    case MessageClass::kCommand: return range(kCommandFields);
-    case MessageClass::kAck: return range(kAckFields);
-    case MessageClass::kInfo: return range(kInfoFields);
-    case MessageClass::kHeartbeat: return range(kHeartbeatFields);
+    case MessageClass::kSync:
+      return range(kSyncFields);
+    case MessageClass::kCommand:
+      return range(kCommandFields);
+    case MessageClass::kAck:
+      return range(kAckFields);
+    case MessageClass::kInfo:
+      return range(kInfoFields);
+    case MessageClass::kHeartbeat:
+      return range(kHeartbeatFields);
     case MessageClass::kSample: {
       const auto& f = sample_fields();
       return {f.data(), f.data() + f.size()};
@@ -163,7 +194,11 @@ std::pair<const FieldDesc*, const FieldDesc*> fields_of(MessageClass c) {
 
 }  // namespace
 
-const FieldDesc* fields_begin(MessageClass c) { return fields_of(c).first; }
-const FieldDesc* fields_end(MessageClass c) { return fields_of(c).second; }
+const FieldDesc* fields_begin(MessageClass c) {
+  return fields_of(c).first;
+}
+const FieldDesc* fields_end(MessageClass c) {
+  return fields_of(c).second;
+}
 
 }  // namespace skinbus::bus

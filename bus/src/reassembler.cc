@@ -16,10 +16,12 @@ void Reassembler::reset() {
   in_use_ = 0;
 }
 
-Reassembler::Slot* Reassembler::find_slot(MessageClass c, uint8_t node, uint8_t seq, FrameKind kind) {
+Reassembler::Slot* Reassembler::find_slot(MessageClass c, uint8_t node, uint8_t seq,
+                                          FrameKind kind) {
   if (in_use_ == 0) return nullptr;
   for (Slot& s : slots_) {
-    if (s.used && s.node == node && s.seq == seq && s.message_class == c && s.kind == kind) return &s;
+    if (s.used && s.node == node && s.seq == seq && s.message_class == c && s.kind == kind)
+      return &s;
   }
   return nullptr;
 }
@@ -73,8 +75,9 @@ FeedResult Reassembler::complete(MessageClass c, uint8_t node, uint8_t seq, Fram
   out_.kind = kind;
 
   // The CRC the payload carries (multi-part) or one computed over it (single frame).
-  const uint16_t crc = is_multi_part(c) ? static_cast<uint16_t>(payload[len - 2] | payload[len - 1] << 8)
-                                        : crc16_ccitt({payload, len});
+  const uint16_t crc = is_multi_part(c)
+                           ? static_cast<uint16_t>(payload[len - 2] | payload[len - 1] << 8)
+                           : crc16_ccitt({payload, len});
   Sender& snd = sender(c, node);
   for (std::size_t i = 0; i < kRecent; ++i) {
     if (snd.recent_used[i] && snd.recent_seq[i] == seq && snd.recent_crc[i] == crc) {

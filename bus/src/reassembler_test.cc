@@ -40,7 +40,8 @@ TEST(ReassemblerTest, CountsGapsReordersAndDuplicates) {
   Reassembler r;
   auto send = [&](uint8_t seq, uint64_t t) {
     FeedResult last;
-    for (const CanFrame& f : encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, seq))) {
+    for (const CanFrame& f :
+         encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, seq))) {
       last = r.feed(f, t);
     }
     return last;
@@ -69,7 +70,8 @@ TEST(ReassemblerTest, CountsGapsReordersAndDuplicates) {
 TEST(ReassemblerTest, StalePartsTimeOut) {
   std::mt19937_64 rng(3);
   Reassembler r(Reassembler::Config{8, 50000});
-  const auto frames = encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kClassic, 3, 1));
+  const auto frames =
+      encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kClassic, 3, 1));
   for (std::size_t i = 0; i + 1 < frames.size(); ++i) r.feed(frames[i], 0);
   EXPECT_EQ(r.slots_in_use(), 1u);
   r.expire(50001);
@@ -98,8 +100,10 @@ TEST(ReassemblerTest, MixedUpPartsAreCaughtByTheCrc) {
 TEST(ReassemblerTest, ConflictingPartDropsTheMessage) {
   std::mt19937_64 rng(5);
   Reassembler r;
-  const auto a = encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kClassic, 3, 5));
-  const auto b = encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kClassic, 3, 5));
+  const auto a =
+      encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kClassic, 3, 5));
+  const auto b =
+      encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kClassic, 3, 5));
   r.feed(a[0], 0);
   EXPECT_EQ(r.feed(b[0], 1).status, FeedStatus::kIntegrityFailure);
   EXPECT_EQ(r.stats().conflicts, 1u);
@@ -110,7 +114,8 @@ TEST(ReassemblerTest, BoundedSlotsEvictTheOldest) {
   std::mt19937_64 rng(6);
   Reassembler r(Reassembler::Config{4, 1000000});
   for (uint8_t node = 1; node <= 6; ++node) {
-    r.feed(encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kFd, node, 0))[0], node);
+    r.feed(encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kFd, node, 0))[0],
+           node);
   }
   EXPECT_EQ(r.slots_in_use(), 4u);
   EXPECT_EQ(r.stats().evictions, 2u);
@@ -125,10 +130,13 @@ TEST(ReassemblerTest, RestartedSenderIsNotADuplicate) {
     for (const CanFrame& f : encode_frames(m)) last = r.feed(f, t);
     return last.status;
   };
-  for (uint8_t s = 0; s < 5; ++s) send(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, s), s);
+  for (uint8_t s = 0; s < 5; ++s)
+    send(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, s), s);
   // The node reboots and starts again at sequence 0 with new content.
-  EXPECT_EQ(send(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, 0), 10), FeedStatus::kMessage);
-  EXPECT_EQ(send(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, 1), 11), FeedStatus::kMessage);
+  EXPECT_EQ(send(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, 0), 10),
+            FeedStatus::kMessage);
+  EXPECT_EQ(send(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, 1), 11),
+            FeedStatus::kMessage);
 }
 
 // The property the protocol promises: frames shuffled (within a window), dropped and duplicated;

@@ -56,14 +56,19 @@ void from_kernel(const canfd_frame& k, bool fd, CanFrame* f) {
     f->brs = k.flags & CANFD_BRS;
     f->esi = k.flags & CANFD_ESI;
   }
-  f->len = static_cast<uint8_t>(k.len > (fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN) ? (fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN) : k.len);
+  f->len = static_cast<uint8_t>(
+      k.len > (fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN) ? (fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN) : k.len);
   std::memcpy(f->data.data(), k.data, f->len);
 }
 
 }  // namespace
 
-uint64_t realtime_now_us() { return clock_us(CLOCK_REALTIME); }
-uint64_t monotonic_now_us() { return clock_us(CLOCK_MONOTONIC); }
+uint64_t realtime_now_us() {
+  return clock_us(CLOCK_REALTIME);
+}
+uint64_t monotonic_now_us() {
+  return clock_us(CLOCK_MONOTONIC);
+}
 
 BusErrorEvent decode_error_frame(const CanFrame& f) {
   BusErrorEvent e;
@@ -113,7 +118,8 @@ std::string describe_bus_error(const BusErrorEvent& e) {
   return s.empty() ? "error frame" : s;
 }
 
-Result<std::unique_ptr<SocketCanPort>> SocketCanPort::open(std::string_view ifname, const SocketCanOptions& options) {
+Result<std::unique_ptr<SocketCanPort>> SocketCanPort::open(std::string_view ifname,
+                                                           const SocketCanOptions& options) {
   const std::string name(ifname);
   if (name.empty() || name.size() >= IFNAMSIZ) {
     return make_error(ErrorCode::kInvalidArgument, "bad CAN interface name '" + name + "'");
@@ -124,9 +130,10 @@ Result<std::unique_ptr<SocketCanPort>> SocketCanPort::open(std::string_view ifna
   port->fd_ = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
   if (port->fd_ < 0) {
     if (errno == EAFNOSUPPORT || errno == EPROTONOSUPPORT) {
-      return make_error(ErrorCode::kUnsupported,
-                        "this kernel has no SocketCAN (CONFIG_CAN / can-raw missing): cannot open '" + name +
-                            "'; replay a candump log instead, or run in the CAN test VM (scripts/can_vm.sh)");
+      return make_error(
+          ErrorCode::kUnsupported,
+          "this kernel has no SocketCAN (CONFIG_CAN / can-raw missing): cannot open '" + name +
+              "'; replay a candump log instead, or run in the CAN test VM (scripts/can_vm.sh)");
     }
     return errno_error("socket(PF_CAN) for '" + name + "'");
   }
@@ -135,14 +142,16 @@ Result<std::unique_ptr<SocketCanPort>> SocketCanPort::open(std::string_view ifna
   ifreq ifr{};
   std::memcpy(ifr.ifr_name, name.c_str(), name.size() + 1);
   if (::ioctl(fd, SIOCGIFINDEX, &ifr) < 0) {
-    return make_error(ErrorCode::kNotFound, "no CAN interface '" + name + "' (see `ip link show`): " + std::strerror(errno));
+    return make_error(ErrorCode::kNotFound, "no CAN interface '" + name +
+                                                "' (see `ip link show`): " + std::strerror(errno));
   }
   port->ifindex_ = ifr.ifr_ifindex;
   if (::ioctl(fd, SIOCGIFMTU, &ifr) < 0) return errno_error("SIOCGIFMTU on '" + name + "'");
   const bool iface_fd = ifr.ifr_mtu == static_cast<int>(CANFD_MTU);
   if (ifr.ifr_mtu != static_cast<int>(CANFD_MTU) && ifr.ifr_mtu != static_cast<int>(CAN_MTU)) {
-    return make_error(ErrorCode::kUnsupported,
-                      "'" + name + "' has MTU " + std::to_string(ifr.ifr_mtu) + ": not a CAN interface");
+    return make_error(
+        ErrorCode::kUnsupported,
+        "'" + name + "' has MTU " + std::to_string(ifr.ifr_mtu) + ": not a CAN interface");
   }
   if (options.fd && iface_fd) {
     const int on = 1;
@@ -154,8 +163,10 @@ Result<std::unique_ptr<SocketCanPort>> SocketCanPort::open(std::string_view ifna
 
   if (!options.filters.empty()) {
     std::vector<can_filter> kf;
-    for (const CanIdFilter& f : options.filters) kf.push_back({f.id, f.mask | CAN_EFF_FLAG | CAN_RTR_FLAG});
-    if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, kf.data(), static_cast<socklen_t>(kf.size() * sizeof(can_filter))) < 0) {
+    for (const CanIdFilter& f : options.filters)
+      kf.push_back({f.id, f.mask | CAN_EFF_FLAG | CAN_RTR_FLAG});
+    if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, kf.data(),
+                     static_cast<socklen_t>(kf.size() * sizeof(can_filter))) < 0) {
       return errno_error("CAN_RAW_FILTER on '" + name + "'");
     }
   }
@@ -220,12 +231,15 @@ Status SocketCanPort::write_now(const CanFrame& frame, bool* would_block) {
 
 Status SocketCanPort::send(const CanFrame& frame) {
   if (frame.fd && !fd_enabled_) {
-    return make_error(ErrorCode::kUnsupported, "'" + name_ +
-                                                   "' is not in CAN FD mode (MTU 16): cannot send an FD frame; "
-                                                   "use classic frames or `ip link set " + name_ + " mtu 72`");
+    return make_error(ErrorCode::kUnsupported,
+                      "'" + name_ +
+                          "' is not in CAN FD mode (MTU 16): cannot send an FD frame; "
+                          "use classic frames or `ip link set " +
+                          name_ + " mtu 72`");
   }
   if (frame.len > (frame.fd ? kFdMaxLen : kClassicMaxLen)) {
-    return make_error(ErrorCode::kInvalidArgument, "frame length " + std::to_string(frame.len) + " too long");
+    return make_error(ErrorCode::kInvalidArgument,
+                      "frame length " + std::to_string(frame.len) + " too long");
   }
   flush();  // keep order: older queued frames first
   if (tx_queue_.empty()) {
@@ -236,7 +250,8 @@ Status SocketCanPort::send(const CanFrame& frame) {
   if (tx_queue_.size() >= tx_limit_) {
     ++stats_.tx_dropped;
     return make_error(ErrorCode::kUnavailable, "transmit queue of '" + name_ + "' full (" +
-                                                   std::to_string(tx_limit_) + " frames): frame dropped");
+                                                   std::to_string(tx_limit_) +
+                                                   " frames): frame dropped");
   }
   tx_queue_.push_back(frame);
   ++stats_.tx_queued;
@@ -250,7 +265,8 @@ Status SocketCanPort::send_blocking(const CanFrame& frame, int timeout_ms) {
   while (!tx_queue_.empty()) {
     const uint64_t now = monotonic_now_us();
     if (now >= deadline) {
-      return make_error(ErrorCode::kUnavailable, "'" + name_ + "' still busy after " + std::to_string(timeout_ms) + " ms");
+      return make_error(ErrorCode::kUnavailable,
+                        "'" + name_ + "' still busy after " + std::to_string(timeout_ms) + " ms");
     }
     pollfd p{fd_, POLLOUT, 0};
     // A full qdisc does not always wake POLLOUT on CAN sockets: wait in short steps.
@@ -291,7 +307,8 @@ SocketCanPort::RecvStatus SocketCanPort::receive(CanFrame* frame, RxMeta* meta) 
     return RecvStatus::kError;
   }
   if (n != static_cast<ssize_t>(CAN_MTU) && n != static_cast<ssize_t>(CANFD_MTU)) {
-    error_ = make_error(ErrorCode::kIo, "'" + name_ + "' gave a " + std::to_string(n) + "-byte frame");
+    error_ =
+        make_error(ErrorCode::kIo, "'" + name_ + "' gave a " + std::to_string(n) + "-byte frame");
     return RecvStatus::kError;
   }
   from_kernel(k, n == static_cast<ssize_t>(CANFD_MTU), frame);
@@ -304,16 +321,19 @@ SocketCanPort::RecvStatus SocketCanPort::receive(CanFrame* frame, RxMeta* meta) 
       scm_timestamping ts;
       std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
       if (ts.ts[2].tv_sec || ts.ts[2].tv_nsec) {
-        meta->timestamp_us = static_cast<uint64_t>(ts.ts[2].tv_sec) * 1000000u + static_cast<uint64_t>(ts.ts[2].tv_nsec) / 1000u;
+        meta->timestamp_us = static_cast<uint64_t>(ts.ts[2].tv_sec) * 1000000u +
+                             static_cast<uint64_t>(ts.ts[2].tv_nsec) / 1000u;
         meta->source = TimestampSource::kHardware;
       } else if (ts.ts[0].tv_sec || ts.ts[0].tv_nsec) {
-        meta->timestamp_us = static_cast<uint64_t>(ts.ts[0].tv_sec) * 1000000u + static_cast<uint64_t>(ts.ts[0].tv_nsec) / 1000u;
+        meta->timestamp_us = static_cast<uint64_t>(ts.ts[0].tv_sec) * 1000000u +
+                             static_cast<uint64_t>(ts.ts[0].tv_nsec) / 1000u;
         meta->source = TimestampSource::kKernelSoftware;
       }
     } else if (c->cmsg_type == SO_TIMESTAMP) {
       timeval tv;
       std::memcpy(&tv, CMSG_DATA(c), sizeof tv);
-      meta->timestamp_us = static_cast<uint64_t>(tv.tv_sec) * 1000000u + static_cast<uint64_t>(tv.tv_usec);
+      meta->timestamp_us =
+          static_cast<uint64_t>(tv.tv_sec) * 1000000u + static_cast<uint64_t>(tv.tv_usec);
       meta->source = TimestampSource::kKernelSoftware;
     } else if (c->cmsg_type == SO_RXQ_OVFL) {
       uint32_t drops;
@@ -346,12 +366,14 @@ Status CanPoller::add(SocketCanPort* port) {
   epoll_event ev{};
   ev.events = EPOLLIN;
   ev.data.u64 = ports_.size();
-  if (::epoll_ctl(epfd_, EPOLL_CTL_ADD, port->fd(), &ev) < 0) return errno_error("epoll_ctl add " + port->name());
+  if (::epoll_ctl(epfd_, EPOLL_CTL_ADD, port->fd(), &ev) < 0)
+    return errno_error("epoll_ctl add " + port->name());
   ports_.push_back(port);
   return Status::Ok();
 }
 
-Result<std::size_t> CanPoller::poll(int timeout_ms, const FrameHandler& on_frame, const ErrorHandler& on_error) {
+Result<std::size_t> CanPoller::poll(int timeout_ms, const FrameHandler& on_frame,
+                                    const ErrorHandler& on_error) {
   bool pending = false;
   for (SocketCanPort* p : ports_) pending |= p->flush() > 0;
   if (pending && (timeout_ms < 0 || timeout_ms > 1)) timeout_ms = 1;  // retry queued sends soon

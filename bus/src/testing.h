@@ -22,12 +22,14 @@ inline uint64_t test_seed(const char* test_name) {
   } else {
     seed = (static_cast<uint64_t>(std::random_device{}()) << 32) ^ std::random_device{}();
   }
-  std::printf("[ seed     ] %s: SKINBUS_TEST_SEED=%llu\n", test_name, static_cast<unsigned long long>(seed));
+  std::printf("[ seed     ] %s: SKINBUS_TEST_SEED=%llu\n", test_name,
+              static_cast<unsigned long long>(seed));
   return seed;
 }
 
 // A valid message of class `c` with random field values, for node `node` (or broadcast for SYNC).
-inline Message random_message(std::mt19937_64& rng, MessageClass c, FrameKind kind, uint8_t node, uint8_t seq) {
+inline Message random_message(std::mt19937_64& rng, MessageClass c, FrameKind kind, uint8_t node,
+                              uint8_t seq) {
   auto u = [&](uint64_t max) { return std::uniform_int_distribution<uint64_t>(0, max)(rng); };
   Message m;
   m.kind = kind;

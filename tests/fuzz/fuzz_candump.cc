@@ -16,9 +16,11 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
     CandumpRecord rec;
     if (parse_candump_line(text.substr(start, end - start), &rec) == CandumpError::kNone) {
       char line[kCandumpLineMax];
-      const std::size_t n = format_candump_line(rec.frame, rec.timestamp_us % 100000000000000000ull, "can0", line);
+      const std::size_t n =
+          format_candump_line(rec.frame, rec.timestamp_us % 100000000000000000ull, "can0", line);
       CandumpRecord again;
-      if (n == 0 || parse_candump_line(std::string_view(line, n), &again) != CandumpError::kNone) std::abort();
+      if (n == 0 || parse_candump_line(std::string_view(line, n), &again) != CandumpError::kNone)
+        std::abort();
       if (!(again.frame == rec.frame)) std::abort();
     }
     start = end + 1;

@@ -24,7 +24,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
       // A decoded single frame re-encodes to the same payload bytes.
       CanFrame out[kMaxParts];
       const EncodeResult r = encode(m, out);
-      if (r.frames != 1 || std::memcmp(out[0].data.data(), f.data.data(), kHeaderLen + payload_len(m.message_class()))) {
+      if (r.frames != 1 || std::memcmp(out[0].data.data(), f.data.data(),
+                                       kHeaderLen + payload_len(m.message_class()))) {
         std::abort();
       }
     }

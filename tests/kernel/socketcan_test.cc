@@ -56,7 +56,8 @@ TEST(SocketCanTest, FdSamplesCrossTheKernelIntact) {
   std::vector<Message> sent;
   std::vector<CanFrame> frames;
   for (int i = 0; i < 50; ++i) {
-    sent.push_back(testing::random_message(rng, MessageClass::kSample, FrameKind::kFd, static_cast<uint8_t>(1 + i % 5),
+    sent.push_back(testing::random_message(rng, MessageClass::kSample, FrameKind::kFd,
+                                           static_cast<uint8_t>(1 + i % 5),
                                            static_cast<uint8_t>(i)));
     for (const CanFrame& f : testing::encode_frames(sent.back())) frames.push_back(f);
   }
@@ -89,14 +90,16 @@ TEST(SocketCanTest, ClassicInterfaceCarriesClassicAndRefusesFd) {
   ASSERT_TRUE(tx && rx);
   EXPECT_FALSE(tx->fd_enabled());
   std::mt19937_64 rng(7);
-  const Message m = testing::random_message(rng, MessageClass::kHeartbeat, FrameKind::kClassic, 9, 1);
+  const Message m =
+      testing::random_message(rng, MessageClass::kHeartbeat, FrameKind::kClassic, 9, 1);
   const auto frames = testing::encode_frames(m);
   for (const CanFrame& f : frames) ASSERT_TRUE(tx->send(f).ok());
   const auto got = receive_n(*rx, frames.size());
   ASSERT_EQ(got.size(), frames.size());
   for (std::size_t i = 0; i < got.size(); ++i) EXPECT_EQ(got[i], frames[i]);
 
-  const Status s = tx->send(testing::encode_frames(testing::random_message(rng, MessageClass::kSample, FrameKind::kFd, 9, 2))[0]);
+  const Status s = tx->send(testing::encode_frames(
+      testing::random_message(rng, MessageClass::kSample, FrameKind::kFd, 9, 2))[0]);
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().code, ErrorCode::kUnsupported);
   EXPECT_NE(s.error().message.find("mtu 72"), std::string::npos) << s.error().message;
@@ -108,7 +111,8 @@ TEST(SocketCanTest, FdSocketStillSendsClassicFrames) {
   classic_only.fd = false;
   auto rx = open_or_die(kFdIface, classic_only);  // a reader that did not ask for FD
   ASSERT_TRUE(tx && rx);
-  CanFrame cmd = testing::encode_frames(Message{12, 7, FrameKind::kClassic, Command{Opcode::kTare, {}}})[0];
+  CanFrame cmd =
+      testing::encode_frames(Message{12, 7, FrameKind::kClassic, Command{Opcode::kTare, {}}})[0];
   CanFrame fd = cmd;
   fd.fd = true;
   ASSERT_TRUE(tx->send(fd).ok());   // not delivered to a classic-only socket
@@ -131,7 +135,8 @@ TEST(SocketCanTest, FiltersSelectOnePatchOrOneClass) {
   int node3_frames = 0, sample_frames = 0;
   for (uint8_t node = 1; node <= 5; ++node) {
     for (MessageClass c : {MessageClass::kSample, MessageClass::kHeartbeat, MessageClass::kAck}) {
-      for (const CanFrame& f : testing::encode_frames(testing::random_message(rng, c, FrameKind::kFd, node, 0))) {
+      for (const CanFrame& f :
+           testing::encode_frames(testing::random_message(rng, c, FrameKind::kFd, node, 0))) {
         ASSERT_TRUE(tx->send_blocking(f, 1000).ok());
         node3_frames += node == 3;
         sample_frames += c == MessageClass::kSample;
@@ -143,7 +148,8 @@ TEST(SocketCanTest, FiltersSelectOnePatchOrOneClass) {
   EXPECT_EQ(a.size(), static_cast<std::size_t>(node3_frames));
   for (const CanFrame& f : a) EXPECT_EQ(can_id_node(f.id), 3);
   EXPECT_EQ(b.size(), static_cast<std::size_t>(sample_frames));
-  for (const CanFrame& f : b) EXPECT_EQ(can_id_class(f.id), static_cast<uint8_t>(MessageClass::kSample));
+  for (const CanFrame& f : b)
+    EXPECT_EQ(can_id_class(f.id), static_cast<uint8_t>(MessageClass::kSample));
 }
 
 // A receiver that does not read while its queue overflows: every frame is either delivered or
@@ -156,7 +162,8 @@ TEST(SocketCanTest, KernelDropsAreCounted) {
   auto rx = open_or_die(kFdIface, small);
   ASSERT_TRUE(tx && rx);
   const int n = 2000;
-  CanFrame f = testing::encode_frames(Message{4, 0, FrameKind::kFd, Command{Opcode::kGetInfo, {}}})[0];
+  CanFrame f =
+      testing::encode_frames(Message{4, 0, FrameKind::kFd, Command{Opcode::kGetInfo, {}}})[0];
   for (int i = 0; i < n; ++i) {
     f.data[1] = static_cast<uint8_t>(i);
     ASSERT_TRUE(tx->send_blocking(f, 1000).ok());
@@ -167,7 +174,8 @@ TEST(SocketCanTest, KernelDropsAreCounted) {
   const auto last = receive_n(*rx, 1, 1000);
   ASSERT_EQ(last.size(), 1u);
   EXPECT_GT(rx->stats().rx_kernel_drops, 0u);
-  EXPECT_EQ(got.size() + last.size() + rx->stats().rx_kernel_drops, static_cast<std::size_t>(n) + 1);
+  EXPECT_EQ(got.size() + last.size() + rx->stats().rx_kernel_drops,
+            static_cast<std::size_t>(n) + 1);
 }
 
 TEST(SocketCanTest, ErrorFramesAreSurfaced) {
@@ -200,7 +208,8 @@ TEST(SocketCanTest, MissingInterfaceIsAClearError) {
   EXPECT_NE(p.error().message.find("nocan7"), std::string::npos);
   auto lo = SocketCanPort::open("lo", {});
   ASSERT_FALSE(lo.ok());
-  EXPECT_NE(lo.error().message.find("not a CAN interface"), std::string::npos) << lo.error().message;
+  EXPECT_NE(lo.error().message.find("not a CAN interface"), std::string::npos)
+      << lo.error().message;
 }
 
 TEST(SocketCanTest, InterfaceDownAndUpAgain) {
@@ -208,7 +217,8 @@ TEST(SocketCanTest, InterfaceDownAndUpAgain) {
   auto tx = open_or_die("vcantmp");
   auto rx = open_or_die("vcantmp");
   ASSERT_TRUE(tx && rx);
-  const CanFrame f = testing::encode_frames(Message{4, 0, FrameKind::kFd, Command{Opcode::kTare, {}}})[0];
+  const CanFrame f =
+      testing::encode_frames(Message{4, 0, FrameKind::kFd, Command{Opcode::kTare, {}}})[0];
   ASSERT_EQ(std::system("ip link set vcantmp down"), 0);
   const Status down = tx->send(f);
   EXPECT_FALSE(down.ok());
@@ -223,8 +233,9 @@ TEST(SocketCanTest, InterfaceDownAndUpAgain) {
   CanPoller poller;
   ASSERT_TRUE(poller.add(rx.get()).ok());
   for (int i = 0; i < 20 && got.empty(); ++i) {
-    auto r = poller.poll(20, [&](SocketCanPort&, const CanFrame& fr, const RxMeta&) { got.push_back(fr); },
-                         [&](SocketCanPort&, const Error&) { saw_error = true; });
+    auto r = poller.poll(
+        20, [&](SocketCanPort&, const CanFrame& fr, const RxMeta&) { got.push_back(fr); },
+        [&](SocketCanPort&, const Error&) { saw_error = true; });
     ASSERT_TRUE(r.ok());
   }
   EXPECT_TRUE(saw_error);

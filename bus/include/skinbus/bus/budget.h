@@ -32,9 +32,9 @@ struct PatchTraffic {
 };
 
 struct BudgetResult {
-  double sample_frames = 0;          // frames per sample message
-  double sample_time_us = 0;         // wire time of one sample message
-  double heartbeat_time_us = 0;      // wire time of one heartbeat
+  double sample_frames = 0;      // frames per sample message
+  double sample_time_us = 0;     // wire time of one sample message
+  double heartbeat_time_us = 0;  // wire time of one heartbeat
   double frames_per_s_per_patch = 0;
   double load_per_patch = 0;         // fraction of the bus, 0..1
   double load_total = 0;             // for `patches`
@@ -43,6 +43,7 @@ struct BudgetResult {
 };
 
 // Bus load of `patches` patches with the given traffic. `load_limit` (0..1] sets max_patches.
-BudgetResult compute_budget(const BusTiming& timing, const PatchTraffic& traffic, int patches, double load_limit);
+BudgetResult compute_budget(const BusTiming& timing, const PatchTraffic& traffic, int patches,
+                            double load_limit);
 
 }  // namespace skinbus::bus

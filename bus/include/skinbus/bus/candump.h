@@ -34,14 +34,14 @@ struct CandumpRecord {
 
 enum class CandumpError : uint8_t {
   kNone = 0,
-  kEmpty,           // blank line or a comment (#...): skip, not an error
-  kBadTimestamp,    // "(sec.usec)" malformed
-  kMissingIface,    // no interface field
-  kBadId,           // identifier not 3 or 8 hex digits, or out of range
-  kMissingHash,     // no '#' after the identifier
-  kBadData,         // odd number of hex digits, non-hex character, or too many bytes
-  kBadFlags,        // CAN FD flags digit missing or not hex
-  kUnsupported,     // valid can-utils syntax this protocol does not carry (CAN XL)
+  kEmpty,         // blank line or a comment (#...): skip, not an error
+  kBadTimestamp,  // "(sec.usec)" malformed
+  kMissingIface,  // no interface field
+  kBadId,         // identifier not 3 or 8 hex digits, or out of range
+  kMissingHash,   // no '#' after the identifier
+  kBadData,       // odd number of hex digits, non-hex character, or too many bytes
+  kBadFlags,      // CAN FD flags digit missing or not hex
+  kUnsupported,   // valid can-utils syntax this protocol does not carry (CAN XL)
 };
 std::string_view candump_error_name(CandumpError e);
 
@@ -54,9 +54,10 @@ CandumpError parse_frame_text(std::string_view text, CanFrame* frame);
 // Writes `frame` in `candump -L` form without a newline into `out` (256 bytes always suffice).
 // Returns the number of characters written (0 if `out` is too small).
 inline constexpr std::size_t kCandumpLineMax = 256;
-std::size_t format_candump_line(const CanFrame& frame, uint64_t timestamp_us, std::string_view iface,
-                                std::span<char> out);
-std::string format_candump_line(const CanFrame& frame, uint64_t timestamp_us, std::string_view iface);
+std::size_t format_candump_line(const CanFrame& frame, uint64_t timestamp_us,
+                                std::string_view iface, std::span<char> out);
+std::string format_candump_line(const CanFrame& frame, uint64_t timestamp_us,
+                                std::string_view iface);
 
 // Writes the cansend syntax of `frame` ("183##1AABB..."); returns characters written.
 std::size_t format_frame_text(const CanFrame& frame, std::span<char> out);

@@ -46,8 +46,8 @@ std::string_view decode_error_name(DecodeError e);
 
 enum class EncodeError : uint8_t {
   kNone = 0,
-  kBadNode,          // node not allowed for this class (see docs/protocol.md, identifiers)
-  kBufferTooSmall,   // `out` has fewer frames than part_count(class, kind)
+  kBadNode,         // node not allowed for this class (see docs/protocol.md, identifiers)
+  kBufferTooSmall,  // `out` has fewer frames than part_count(class, kind)
 };
 
 struct EncodeResult {
@@ -63,7 +63,8 @@ bool node_allowed(MessageClass c, uint8_t node);
 std::size_t serialize_payload(const MessageBody& body, std::span<uint8_t> out);
 
 // Decodes a whole payload of class `c` (CRC checked for multi-part classes) into `body`.
-DecodeError deserialize_payload(MessageClass c, std::span<const uint8_t> payload, MessageBody* body);
+DecodeError deserialize_payload(MessageClass c, std::span<const uint8_t> payload,
+                                MessageBody* body);
 
 // Encodes `msg` into part_count(class, msg.kind) frames in `out`. FD frames have BRS set and are
 // zero-padded to the next valid FD length; classic frames are not padded.
@@ -76,8 +77,8 @@ struct FrameView {
   FrameHeader header;
   FrameKind kind = FrameKind::kFd;
   uint8_t part_count = 1;
-  uint16_t payload_offset = 0;  // where this part's bytes sit in the payload
-  uint8_t part_len = 0;         // payload bytes this part carries (padding excluded)
+  uint16_t payload_offset = 0;         // where this part's bytes sit in the payload
+  uint8_t part_len = 0;                // payload bytes this part carries (padding excluded)
   const uint8_t* part_data = nullptr;  // points into the frame passed to parse_frame
 };
 

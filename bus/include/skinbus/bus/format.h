@@ -2,7 +2,8 @@
 //
 // The line formats are stable (tests compare them) and documented in docs/protocol.md:
 //   sample node=5 seq=42 t_us=16909060 flags=contact,tared fault=0000 sat=0000 field_ut=-240.0,...
-//   heartbeat node=5 seq=9 state=running mode=event rate_hz=41.70 uptime_s=3600 uid=0123456789abcdef ...
+//   heartbeat node=5 seq=9 state=running mode=event rate_hz=41.70 uptime_s=3600
+//   uid=0123456789abcdef ...
 // These allocate (they build strings): use them at tool edges, not on hot paths.
 #pragma once
 

@@ -30,9 +30,9 @@ inline constexpr uint8_t kProtocolVersion = 1;  // 3 bits on the wire; 0 is neve
 
 // ---- Identifiers -----------------------------------------------------------------------------
 
-inline constexpr uint8_t kNodeHost = 0;        // reserved: the host never sends with its own ID
-inline constexpr uint8_t kNodeMin = 1;         // first patch node ID
-inline constexpr uint8_t kNodeMax = 125;       // last patch node ID (125 patches per bus)
+inline constexpr uint8_t kNodeHost = 0;          // reserved: the host never sends with its own ID
+inline constexpr uint8_t kNodeMin = 1;           // first patch node ID
+inline constexpr uint8_t kNodeMax = 125;         // last patch node ID (125 patches per bus)
 inline constexpr uint8_t kNodeUnassigned = 126;  // a node that has no ID configured yet
 inline constexpr uint8_t kNodeBroadcast = 127;   // commands and SYNC addressed to every patch
 inline constexpr uint32_t kNodeBits = 7;
@@ -50,27 +50,37 @@ enum class MessageClass : uint8_t {
 };
 inline constexpr int kMessageClassCount = 6;
 
-constexpr bool is_known_class(uint8_t c) { return c < kMessageClassCount; }
+constexpr bool is_known_class(uint8_t c) {
+  return c < kMessageClassCount;
+}
 constexpr uint32_t make_can_id(MessageClass c, uint8_t node) {
   return (static_cast<uint32_t>(c) << kNodeBits) | (node & kNodeMask);
 }
-constexpr uint8_t can_id_node(uint32_t id) { return static_cast<uint8_t>(id & kNodeMask); }
-constexpr uint8_t can_id_class(uint32_t id) { return static_cast<uint8_t>((id >> kNodeBits) & 0xF); }
-constexpr bool is_patch_node(uint8_t node) { return node >= kNodeMin && node <= kNodeMax; }
+constexpr uint8_t can_id_node(uint32_t id) {
+  return static_cast<uint8_t>(id & kNodeMask);
+}
+constexpr uint8_t can_id_class(uint32_t id) {
+  return static_cast<uint8_t>((id >> kNodeBits) & 0xF);
+}
+constexpr bool is_patch_node(uint8_t node) {
+  return node >= kNodeMin && node <= kNodeMax;
+}
 
 std::string_view message_class_name(MessageClass c);  // "sync", "command", ...
 
 // ---- Frame header and segmentation -----------------------------------------------------------
 
 inline constexpr std::size_t kHeaderLen = 2;
-inline constexpr std::size_t kFdPartLen = 64 - kHeaderLen;       // 62 payload bytes a part
-inline constexpr std::size_t kClassicPartLen = 8 - kHeaderLen;   // 6 payload bytes a part
-inline constexpr std::size_t kMaxParts = 32;                     // 5-bit part index
+inline constexpr std::size_t kFdPartLen = 64 - kHeaderLen;      // 62 payload bytes a part
+inline constexpr std::size_t kClassicPartLen = 8 - kHeaderLen;  // 6 payload bytes a part
+inline constexpr std::size_t kMaxParts = 32;                    // 5-bit part index
 inline constexpr std::size_t kCrcLen = 2;
 
 enum class FrameKind : uint8_t { kClassic, kFd };
 
-constexpr std::size_t part_len(FrameKind k) { return k == FrameKind::kFd ? kFdPartLen : kClassicPartLen; }
+constexpr std::size_t part_len(FrameKind k) {
+  return k == FrameKind::kFd ? kFdPartLen : kClassicPartLen;
+}
 
 struct FrameHeader {
   uint8_t version = kProtocolVersion;
@@ -86,18 +96,18 @@ constexpr uint8_t header_byte0(uint8_t version, uint8_t part) {
 inline constexpr int kSensorCount = 16;  // 4 x 4 grid, row-major from the patch's -x,-y corner
 inline constexpr int kAxisCount = 3;
 inline constexpr int kChannelCount = kSensorCount * kAxisCount;
-inline constexpr double kFieldUtPerLsb = 0.1;  // wire unit of magnetic field: 0.1 uT
-inline constexpr int16_t kFieldMaxLsb = 32767;   // +-3276.7 uT; clipped values set saturation
+inline constexpr double kFieldUtPerLsb = 0.1;   // wire unit of magnetic field: 0.1 uT
+inline constexpr int16_t kFieldMaxLsb = 32767;  // +-3276.7 uT; clipped values set saturation
 
 // Sample flags (Sample::flags).
 namespace sample_flags {
-inline constexpr uint16_t kContact = 1u << 0;      // the patch's gate sees a contact
-inline constexpr uint16_t kSaturated = 1u << 1;    // at least one channel saturated
-inline constexpr uint16_t kTareActive = 1u << 2;   // a tare (baseline capture) is in progress
-inline constexpr uint16_t kTared = 1u << 3;        // field values are baseline-subtracted
-inline constexpr uint16_t kSensorFault = 1u << 4;  // at least one sensor faulty (fault_mask)
-inline constexpr uint16_t kSynced = 1u << 5;       // sampled on a host SYNC
-inline constexpr uint16_t kEventTail = 1u << 6;    // event mode: post-contact tail sample
+inline constexpr uint16_t kContact = 1u << 0;        // the patch's gate sees a contact
+inline constexpr uint16_t kSaturated = 1u << 1;      // at least one channel saturated
+inline constexpr uint16_t kTareActive = 1u << 2;     // a tare (baseline capture) is in progress
+inline constexpr uint16_t kTared = 1u << 3;          // field values are baseline-subtracted
+inline constexpr uint16_t kSensorFault = 1u << 4;    // at least one sensor faulty (fault_mask)
+inline constexpr uint16_t kSynced = 1u << 5;         // sampled on a host SYNC
+inline constexpr uint16_t kEventTail = 1u << 6;      // event mode: post-contact tail sample
 inline constexpr uint16_t kDriftTracking = 1u << 7;  // baseline is following slow drift
 inline constexpr uint16_t kAll = 0x00FF;
 }  // namespace sample_flags
@@ -110,7 +120,8 @@ struct Sample {
   std::array<int16_t, kChannelCount> field_lsb{};  // sensor-major x,y,z; kFieldUtPerLsb units
   bool operator==(const Sample&) const = default;
 };
-inline constexpr std::size_t kSamplePayloadLen = 4 + 2 + 2 + 2 + 2 * kChannelCount + kCrcLen;  // 108
+inline constexpr std::size_t kSamplePayloadLen =
+    4 + 2 + 2 + 2 + 2 * kChannelCount + kCrcLen;  // 108
 
 enum class PatchState : uint8_t { kBooting = 0, kRunning = 1, kDegraded = 2, kFault = 3 };
 enum class PatchMode : uint8_t { kOff = 0, kStream = 1, kEvent = 2 };
@@ -130,14 +141,14 @@ inline constexpr uint8_t kSimulated = 1u << 3;  // the sensor source is the simu
 struct Heartbeat {
   PatchState state = PatchState::kBooting;
   PatchMode mode = PatchMode::kOff;
-  uint16_t rate_chz = 0;       // sample rate, centihertz (4170 = 41.70 Hz)
-  uint32_t uptime_s = 0;       // seconds since the node started
-  uint64_t hardware_uid = 0;   // unique per board
+  uint16_t rate_chz = 0;      // sample rate, centihertz (4170 = 41.70 Hz)
+  uint32_t uptime_s = 0;      // seconds since the node started
+  uint64_t hardware_uid = 0;  // unique per board
   uint8_t fw_major = 0, fw_minor = 0, fw_patch = 0;
-  uint8_t status = 0;          // heartbeat_status::*
-  uint16_t fault_mask = 0;     // bit i: sensor i faulty
-  uint16_t i2c_errors = 0;     // saturating counters since start
-  uint16_t can_errors = 0;     // transmit errors and dropped frames
+  uint8_t status = 0;             // heartbeat_status::*
+  uint16_t fault_mask = 0;        // bit i: sensor i faulty
+  uint16_t i2c_errors = 0;        // saturating counters since start
+  uint16_t can_errors = 0;        // transmit errors and dropped frames
   uint16_t saturation_count = 0;  // samples with a saturated channel
   int16_t temperature_cdeg = 0;   // board temperature, 0.01 degC
   bool operator==(const Heartbeat&) const = default;
@@ -197,12 +208,12 @@ struct Info {
   uint8_t protocol_version = kProtocolVersion;
   uint8_t sensor_count = kSensorCount;
   uint8_t axis_count = kAxisCount;
-  uint8_t gain_sel = 0;        // MLX90393 GAIN_SEL
-  uint8_t resolution = 0;      // RES_X | RES_Y << 2 | RES_Z << 4
-  uint8_t oversampling = 0;    // OSR
-  uint8_t digital_filter = 0;  // DIG_FILT
-  uint16_t rate_chz = 0;       // current sample rate, centihertz
-  uint16_t max_rate_chz = 0;   // fastest rate the sensor configuration allows
+  uint8_t gain_sel = 0;             // MLX90393 GAIN_SEL
+  uint8_t resolution = 0;           // RES_X | RES_Y << 2 | RES_Z << 4
+  uint8_t oversampling = 0;         // OSR
+  uint8_t digital_filter = 0;       // DIG_FILT
+  uint16_t rate_chz = 0;            // current sample rate, centihertz
+  uint16_t max_rate_chz = 0;        // fastest rate the sensor configuration allows
   uint16_t conversion_time_us = 0;  // one XYZ conversion, as configured
   uint16_t field_lsb_nt = 100;      // wire field unit in nT (v1: always 100)
   bool operator==(const Info&) const = default;
@@ -212,12 +223,18 @@ inline constexpr std::size_t kInfoPayloadLen = 26 + kCrcLen;  // 28
 // Payload length of a class (multi-part classes include the trailing CRC).
 constexpr std::size_t payload_len(MessageClass c) {
   switch (c) {
-    case MessageClass::kSync: return kSyncPayloadLen;
-    case MessageClass::kCommand: return kCommandPayloadLen;
-    case MessageClass::kAck: return kAckPayloadLen;
-    case MessageClass::kSample: return kSamplePayloadLen;
-    case MessageClass::kInfo: return kInfoPayloadLen;
-    case MessageClass::kHeartbeat: return kHeartbeatPayloadLen;
+    case MessageClass::kSync:
+      return kSyncPayloadLen;
+    case MessageClass::kCommand:
+      return kCommandPayloadLen;
+    case MessageClass::kAck:
+      return kAckPayloadLen;
+    case MessageClass::kSample:
+      return kSamplePayloadLen;
+    case MessageClass::kInfo:
+      return kInfoPayloadLen;
+    case MessageClass::kHeartbeat:
+      return kHeartbeatPayloadLen;
   }
   return 0;
 }
@@ -237,11 +254,16 @@ inline constexpr std::size_t kMaxPayloadLen = kSamplePayloadLen;
 enum class FieldType : uint8_t { kU8, kU16, kU32, kU64, kI16 };
 constexpr std::size_t field_size(FieldType t) {
   switch (t) {
-    case FieldType::kU8: return 1;
-    case FieldType::kU16: return 2;
-    case FieldType::kI16: return 2;
-    case FieldType::kU32: return 4;
-    case FieldType::kU64: return 8;
+    case FieldType::kU8:
+      return 1;
+    case FieldType::kU16:
+      return 2;
+    case FieldType::kI16:
+      return 2;
+    case FieldType::kU32:
+      return 4;
+    case FieldType::kU64:
+      return 8;
   }
   return 0;
 }

@@ -54,7 +54,7 @@ struct FeedResult {
 class Reassembler {
  public:
   struct Config {
-    std::size_t slots = 64;      // incomplete messages held at once (all senders)
+    std::size_t slots = 64;       // incomplete messages held at once (all senders)
     uint32_t timeout_us = 50000;  // an incomplete message older than this is dropped as stale
   };
 
@@ -108,7 +108,8 @@ class Reassembler {
   Slot* allocate_slot(uint64_t rx_time_us);
   void release(Slot& s, bool stale);
   Sender& sender(MessageClass c, uint8_t node) {
-    return senders_[static_cast<std::size_t>(node) * kMessageClassCount + static_cast<std::size_t>(c)];
+    return senders_[static_cast<std::size_t>(node) * kMessageClassCount +
+                    static_cast<std::size_t>(c)];
   }
 
   Config config_;

@@ -35,16 +35,20 @@ struct CanIdFilter {
   uint32_t mask = 0;
 };
 // The filters `candump can0,<id>:<mask>` would use for one patch or one message class.
-constexpr CanIdFilter filter_for_node(uint8_t node) { return {node, kNodeMask}; }
-constexpr CanIdFilter filter_for_class(MessageClass c) { return {make_can_id(c, 0), kClassMask}; }
+constexpr CanIdFilter filter_for_node(uint8_t node) {
+  return {node, kNodeMask};
+}
+constexpr CanIdFilter filter_for_class(MessageClass c) {
+  return {make_can_id(c, 0), kClassMask};
+}
 
 struct SocketCanOptions {
-  bool fd = true;                   // accept and send CAN FD frames if the interface MTU allows
+  bool fd = true;                    // accept and send CAN FD frames if the interface MTU allows
   std::vector<CanIdFilter> filters;  // empty: every standard frame (extended frames too)
-  bool error_frames = true;         // receive controller error frames
-  bool receive_own = false;         // also receive frames this socket sent (CAN_RAW_RECV_OWN_MSGS)
+  bool error_frames = true;          // receive controller error frames
+  bool receive_own = false;          // also receive frames this socket sent (CAN_RAW_RECV_OWN_MSGS)
   std::size_t tx_queue_frames = 256;  // bounded queue behind a full kernel queue
-  int rcvbuf_bytes = 0;             // SO_RCVBUF; 0 keeps the kernel default
+  int rcvbuf_bytes = 0;               // SO_RCVBUF; 0 keeps the kernel default
 };
 
 enum class TimestampSource : uint8_t { kHardware, kKernelSoftware, kUserspace };
@@ -64,7 +68,7 @@ struct BusErrorEvent {
   bool tx_timeout = false;
   bool lost_arbitration = false;
   bool protocol_violation = false;
-  bool no_ack = false;          // nobody acknowledged (alone on the bus?)
+  bool no_ack = false;  // nobody acknowledged (alone on the bus?)
   bool transceiver = false;
   uint8_t tx_error_count = 0;  // when the driver reports counters (CAN_ERR_CNT)
   uint8_t rx_error_count = 0;
@@ -76,9 +80,9 @@ std::string describe_bus_error(const BusErrorEvent& e);
 
 struct PortStats {
   uint64_t rx_frames = 0;
-  uint64_t tx_frames = 0;       // accepted by the kernel
-  uint64_t tx_queued = 0;       // sends that had to wait in the transmit queue
-  uint64_t tx_dropped = 0;      // sends refused because the transmit queue was full
+  uint64_t tx_frames = 0;        // accepted by the kernel
+  uint64_t tx_queued = 0;        // sends that had to wait in the transmit queue
+  uint64_t tx_dropped = 0;       // sends refused because the transmit queue was full
   uint64_t rx_kernel_drops = 0;  // frames the kernel dropped (SO_RXQ_OVFL)
   uint64_t error_frames = 0;
   uint64_t bus_off = 0;
@@ -90,7 +94,8 @@ class SocketCanPort {
  public:
   // Opens and binds a raw socket on `ifname`. Errors name the interface and say what to do:
   // kUnsupported when the kernel has no CAN, kNotFound when the interface does not exist.
-  static Result<std::unique_ptr<SocketCanPort>> open(std::string_view ifname, const SocketCanOptions& options);
+  static Result<std::unique_ptr<SocketCanPort>> open(std::string_view ifname,
+                                                     const SocketCanOptions& options);
   ~SocketCanPort();
   SocketCanPort(const SocketCanPort&) = delete;
   SocketCanPort& operator=(const SocketCanPort&) = delete;
@@ -142,11 +147,13 @@ class CanPoller {
 
   Status add(SocketCanPort* port);  // not owned; must outlive the poller
 
-  using FrameHandler = std::function<void(SocketCanPort& port, const CanFrame& frame, const RxMeta& meta)>;
+  using FrameHandler =
+      std::function<void(SocketCanPort& port, const CanFrame& frame, const RxMeta& meta)>;
   using ErrorHandler = std::function<void(SocketCanPort& port, const Error& error)>;
   // Waits up to `timeout_ms` (-1: forever) for traffic, delivers every frame waiting on every
   // ready port, and flushes transmit queues. Returns the number of frames delivered.
-  Result<std::size_t> poll(int timeout_ms, const FrameHandler& on_frame, const ErrorHandler& on_error);
+  Result<std::size_t> poll(int timeout_ms, const FrameHandler& on_frame,
+                           const ErrorHandler& on_error);
 
  private:
   int epfd_ = -1;

@@ -12,7 +12,8 @@ namespace skinbus {
 class RateLimiter {
  public:
   // At most `burst` reports in any `window_us` window.
-  RateLimiter(uint32_t burst = 10, uint64_t window_us = 1000000) : burst_(burst), window_us_(window_us) {}
+  RateLimiter(uint32_t burst = 10, uint64_t window_us = 1000000)
+      : burst_(burst), window_us_(window_us) {}
 
   // True if a report at `now_us` may be printed. When it returns true, `suppressed()` holds the
   // number of reports held back since the last one printed (print it, then it resets).

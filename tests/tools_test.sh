@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Behaviour of the command-line tools at their edges: bad input is reported with line numbers
+# and never stops the stream; bad options fail with a message naming them; --help explains.
+set -uo pipefail
+bin=${1:?usage: tools_test.sh BUILD_DIR}/tools
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+pass=0
+fail=0
+ok() { echo "PASS $1"; pass=$((pass + 1)); }
+bad() { echo "FAIL $1"; fail=$((fail + 1)); }
+
+# A log with good traffic and, in the middle, junk lines, a corrupted frame, a truncated frame
+# and a frame of another protocol version.
+"$bin/skinbus-gen" --nodes 1-2 --duration 0.2 --expect "$work/expect.txt" -o "$work/good.log" 2>/dev/null
+head -8 "$work/good.log" >"$work/mixed.log"
+printf '%s\n' "this is not candump" "(1.0) can0 185##1202A" "(1.0) can0 08C#4007034A10000000" \
+  "(1.0) can0 185##1202A0403" >>"$work/mixed.log"
+sed -n '9,$p' "$work/good.log" >>"$work/mixed.log"
+"$bin/skinbus-decode" --stats "$work/mixed.log" >"$work/out.txt" 2>"$work/err.txt"
+rc=$?
+[[ $rc == 0 ]] && ok "decoder exits 0 on bad lines" || bad "decoder exit $rc on bad lines"
+diff -q "$work/expect.txt" "$work/out.txt" >/dev/null && ok "no message lost around bad input" || bad "messages lost around bad input"
+grep -q "mixed.log:9: bad_identifier\|mixed.log:9: missing_hash\|mixed.log:9: bad_timestamp" "$work/err.txt" && ok "unparsable line reported with its number" || { bad "line number not reported"; cat "$work/err.txt"; }
+grep -q "mixed.log:11: frame 08C#4007034A10000000: bad_version" "$work/err.txt" && ok "bad version reported" || bad "bad version not reported"
+grep -q "bad_lines 1 " "$work/err.txt" && ok "bad lines counted" || bad "bad lines not counted"
+
+# Rate limiting: 1000 bad lines print at most 10 reports, then a count of the rest.
+for i in $(seq 1000); do echo "junk $i"; done | "$bin/skinbus-decode" --stats >/dev/null 2>"$work/flood.txt"
+n=$(grep -c "bad_timestamp" "$work/flood.txt")
+[[ $n -le 10 ]] && grep -q "bad_lines 1000 " "$work/flood.txt" && ok "error reports rate-limited ($n printed, 1000 counted)" || bad "rate limit ($n printed)"
+
+# Bad options and missing files: non-zero exit, a message naming the problem.
+"$bin/skinbus-decode" /nonexistent.log 2>"$work/e1.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "/nonexistent.log" "$work/e1.txt" && ok "missing file named" || bad "missing file"
+"$bin/skinbus-gen" --nodes 0-3 2>"$work/e2.txt" >/dev/null; rc=$?
+[[ $rc != 0 ]] && grep -q "outside 1-125" "$work/e2.txt" && ok "bad node range named" || bad "bad node range"
+"$bin/skinbus-decode" -i nocan0 2>"$work/e3.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "nocan0" "$work/e3.txt" && ok "missing interface named" || bad "missing interface"
+for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc; do
+  "$bin/$t" --help | grep -q "Examples:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
+done
+
+echo "$pass passed, $fail failed"
+((fail == 0))
