@@ -1,0 +1,582 @@
+#!/usr/bin/env bash
+# Run a command with real SocketCAN (vcan, can-raw, CAN FD) on a machine whose own
+# kernel is built without CAN.
+#
+# How: boot Debian's own kernel under QEMU (TCG) with a tiny busybox initramfs, share
+# the host root file system into the guest read-only over 9p and chroot into it, so
+# the guest runs the host's binaries (test build, can-utils, iproute2) unchanged.
+# A second, writable 9p share carries the per-run scripts in and the command's
+# stdout, stderr, exit status and result files out, so the output reaching the
+# caller is never mixed with kernel console noise.
+#
+# The kernel package is fetched with `apt-get download` and unpacked into a cache;
+# it is never installed into /boot.
+set -euo pipefail
+
+readonly PROG=${0##*/}
+readonly META_PKG=linux-image-amd64
+
+# virtio and 9p modules the initramfs needs to mount the shares; each needs the
+# ones before it, and busybox insmod does not resolve dependencies.
+readonly BOOT_MODULES=(virtio_ring virtio virtio_pci_modern_dev virtio_pci_legacy_dev
+                       virtio_pci netfs fscache 9pnet 9pnet_virtio 9p)
+# Modules loaded in every guest (modprobe pulls in can and can-dev).
+readonly CAN_MODULES=(can-raw vcan)
+
+# Where the guest sees things inside the chroot (on its private tmpfs /tmp).
+readonly GUEST_DIR=/tmp/skinbus-vm
+readonly GUEST_OUT=$GUEST_DIR/out       # writable, copied out by --out-dir
+readonly GUEST_KROOT=$GUEST_DIR/kernel  # unpacked kernel package, for modprobe -d
+
+# Larger 9p messages make reading binaries over the share much faster than the
+# 8 KiB default.
+readonly MSIZE=262144
+
+# Debian packages this script relies on (can-utils only for the usual tests).
+readonly HOST_PACKAGES="qemu-system-x86 busybox-static kmod iproute2 xz-utils can-utils"
+
+# Host variables passed through to the command (glob patterns), besides --env.
+readonly PASS_ENV=(PATH LD_LIBRARY_PATH HOME USER LOGNAME LANG LANGUAGE 'LC_*' TZ
+                   'SKINBUS_*' 'GTEST_*' 'CYCLONEDDS_*' ASAN_OPTIONS UBSAN_OPTIONS
+                   LSAN_OPTIONS TSAN_OPTIONS)
+
+usage() {
+    cat <<EOF
+Usage:
+  $PROG [OPTIONS] -- COMMAND [ARGS...]
+  $PROG --prepare
+  $PROG --help
+
+Runs COMMAND as root inside a QEMU guest that boots Debian's kernel, which has
+SocketCAN. The guest sees the host's root file system read-only, so host binaries
+(the test build, can-utils) run unchanged, in the caller's working directory.
+COMMAND is run as an argument vector (no shell); for shell syntax use
+  $PROG -- sh -c 'candump -L any & sleep 0.5; cansend vcan0 123#DEADBEEF; kill \$!'
+
+Options:
+  --timeout SECONDS    kill the guest after this long (default 300); exit 124
+  --fd-ifaces N        CAN FD interfaces vcan0..vcan<N-1>, mtu 72 (default 1)
+  --classic-ifaces N   classic CAN interfaces vcanc0..vcanc<N-1>, mtu 16 (default 1)
+  --modules LIST       extra kernel modules to load, comma separated
+                       (e.g. can-isotp,can-gw,can-j1939,vxcan,can-bcm)
+  --env NAME           also pass the host variable NAME (repeatable)
+  --out-dir DIR        after the run, copy the files the command wrote into
+                       \$SKINBUS_VM_OUT to DIR on the host (created if missing)
+  --memory MB          guest memory (default 512; /tmp gets half of it)
+  --verbose            show the guest's kernel console log on stderr afterwards
+  --prepare            only fetch and unpack the kernel and build the initramfs
+  --help               show this help
+
+Inside the guest:
+  - Everything except /tmp, /run and /dev/shm is read-only: the build tree cannot
+    be written. /tmp is an empty tmpfs (except the working directory, when it lies
+    under the host's /tmp: it stays visible, read-only); other host paths under /tmp
+    are not visible. Result files meant for the host go into
+    \$SKINBUS_VM_OUT (see --out-dir).
+  - Passed from the host: PATH (plus the sbin directories), LD_LIBRARY_PATH,
+    HOME, USER, LOGNAME, LANG, LANGUAGE, LC_*, TZ, SKINBUS_*, GTEST_*,
+    CYCLONEDDS_*, {A,UB,L,T}SAN_OPTIONS, and those named with --env.
+  - Also set: SKINBUS_VM=1, SKINBUS_VM_OUT=$GUEST_OUT,
+    SKINBUS_VM_MODROOT=$GUEST_KROOT, so more modules load with
+      modprobe -d "\$SKINBUS_VM_MODROOT" MODULE
+    (plain modprobe cannot find them: the host has no /lib/modules for this kernel).
+  - stdin is /dev/null; the loopback interface is up; there is no other network.
+
+The command's stdout and stderr reach the caller's after the guest powers off, and
+the exit status is the command's. 124 means the timeout hit, 125 that the guest
+failed to boot or set up (the console log tail is printed).
+
+Cache: \${SKINBUS_CACHE_DIR:-\$HOME/.cache/skinbus}/can-vm (about 450 MB), refreshed
+when the candidate of Debian's $META_PKG package changes.
+Host packages needed: $HOST_PACKAGES.
+EOF
+}
+
+die() {
+    echo "$PROG: $*" >&2
+    exit 125
+}
+
+note() {
+    echo "$PROG: $*" >&2
+}
+
+# Quote a string for POSIX sh: wrap in single quotes, each ' becomes '\''.
+shquote() {
+    printf "'%s'" "${1//\'/\'\\\'\'}"
+}
+
+is_count() {
+    [[ $1 =~ ^[0-9]+$ ]] && (( 10#$1 <= 256 ))
+}
+
+# depmod and modprobe live in /usr/sbin, which a non-root PATH may lack.
+find_tool() {
+    PATH="$PATH:/usr/sbin:/sbin" command -v "$1" 2>/dev/null
+}
+
+check_host_tools() {
+    local missing=() tool
+    for tool in qemu-system-x86_64 timeout flock dpkg apt-get apt-cache sha256sum; do
+        command -v "$tool" >/dev/null || missing+=("$tool")
+    done
+    # depmod runs here; modprobe and ip run in the guest, from this file system.
+    for tool in depmod modprobe ip; do
+        find_tool "$tool" >/dev/null || missing+=("$tool")
+    done
+    # The initramfs has no libc, so busybox must be the static build.
+    if [[ $(dpkg-query -W -f='${db:Status-Status}' busybox-static 2>/dev/null) != installed ]]; then
+        missing+=("busybox-static")
+    fi
+    if (( ${#missing[@]} )); then
+        die "missing on this host: ${missing[*]}
+Run the project's setup script, scripts/setup.sh, which installs them
+(Debian packages used here: $HOST_PACKAGES)."
+    fi
+}
+
+# ---------------------------------------------------------------------------
+# Cache: unpacked kernel package and initramfs
+# ---------------------------------------------------------------------------
+
+# Sets KPKG and KVER from the candidate of the kernel metapackage
+# (e.g. linux-image-6.1.0-56-amd64 6.1.192-2). Fails when apt has no lists.
+resolve_kernel() {
+    local dep
+    dep=$(apt-cache show --no-all-versions "$META_PKG" 2>/dev/null |
+          sed -n 's/^Depends: *\(linux-image-[^ ,]*\) *(= *\([^)]*\)).*/\1 \2/p' |
+          head -n1) || true
+    [[ -n $dep ]] || return 1
+    read -r KPKG KVER <<<"$dep"
+    # Remember the answer (see want_kernel); rename so readers never see half.
+    echo "$KPKG $KVER" >"$CACHE/resolved.$$"
+    mv "$CACHE/resolved.$$" "$CACHE/resolved"
+}
+
+apt_update() {
+    if (( EUID != 0 )); then
+        die "apt has no package lists for $META_PKG; run 'apt-get update' as root"
+    fi
+    note "apt package lists missing or stale; running apt-get update"
+    apt-get update -q >"$CACHE/apt.log" 2>&1 || { cat "$CACHE/apt.log" >&2; die "apt-get update failed"; }
+}
+
+# Download and unpack $KPKG=$KVER into $CACHE/kernel, with a modules.dep (the
+# package leaves that to its maintainer scripts, which we do not run).
+fetch_kernel() {
+    local tmp deb
+    tmp=$(mktemp -d "$CACHE/tmp.fetch.XXXXXX")
+    # The download dir must be ours; apt warns if its _apt user cannot write it.
+    if ! (cd "$tmp" && apt-get download -q=2 "$KPKG=$KVER") >"$CACHE/apt.log" 2>&1; then
+        rm -rf "$tmp"
+        return 1
+    fi
+    deb=$(echo "$tmp"/*.deb)
+    mkdir "$tmp/root"
+    dpkg -x "$deb" "$tmp/root"
+    rm -f "$deb"
+    local kv
+    kv=$(ls "$tmp/root/lib/modules")
+    [[ -f $tmp/root/boot/vmlinuz-$kv ]] || die "no boot/vmlinuz-$kv in $KPKG"
+    "$(find_tool depmod)" -b "$tmp/root" "$kv"
+    echo "$KPKG $KVER" >"$tmp/root/stamp"
+    rm -rf "$CACHE/kernel"
+    mv "$tmp/root" "$CACHE/kernel"
+    rmdir "$tmp"
+}
+
+# Under TCG, decompressing the xz bzImage takes about 3 s of every boot. Debian's
+# kernel has CONFIG_PVH, so QEMU can boot the uncompressed ELF vmlinux directly
+# (no real-mode setup, no decompressor): unpack it once. On any surprise, write
+# a marker instead and keep booting the bzImage.
+extract_vmlinux() {
+    local kdir=$1 kv=$2 off
+    local bz=$kdir/boot/vmlinuz-$kv out=$kdir/vmlinux
+    if grep -q '^CONFIG_PVH=y' "$kdir/boot/config-$kv" &&
+       grep -q '^CONFIG_KERNEL_XZ=y' "$kdir/boot/config-$kv"; then
+        # The payload is an xz stream somewhere inside; try each xz magic.
+        for off in $(LC_ALL=C grep -obUaP '\xfd7zXZ\x00' "$bz" | cut -d: -f1 | head -n 4); do
+            # xz stops after the stream, so tail may die of SIGPIPE: ignore that.
+            if { tail -c +$((off + 1)) "$bz" || true; } | xz -dcq --single-stream >"$out.tmp" 2>/dev/null &&
+               [[ $(head -c 4 "$out.tmp") == $'\x7fELF' ]]; then
+                mv "$out.tmp" "$out"
+                return 0
+            fi
+        done
+    fi
+    rm -f "$out.tmp"
+    note "cannot unpack vmlinux from $bz; booting the compressed kernel (slower)"
+    touch "$kdir/vmlinux.none"
+}
+
+# The initramfs /init: load virtio + 9p, mount the per-run share and run the
+# guest.sh the host wrote there. Kept generic so runs need no rebuild.
+init_script() {
+    cat <<EOF
+#!/bin/busybox sh
+/bin/busybox --install -s /bin
+export PATH=/bin
+mount -t devtmpfs devtmpfs /dev
+# The cpio has no /dev/console (creating one needs root), so attach it here.
+exec </dev/console >/dev/console 2>&1
+mount -t proc proc /proc
+mount -t sysfs sysfs /sys
+for m in ${BOOT_MODULES[*]}; do
+    insmod /lib/modules/\$m.ko || { echo "can_vm: insmod \$m failed"; poweroff -f; }
+done
+if mount -t 9p -o trans=virtio,version=9p2000.L,msize=$MSIZE share /share; then
+    sh /share/guest.sh || echo "can_vm: guest setup failed (\$?)"
+    umount /share
+else
+    echo "can_vm: cannot mount the run share"
+fi
+sync
+poweroff -f
+EOF
+}
+
+# Decompress a module if the distribution compressed it (busybox insmod only
+# takes plain ELF). Debian's 6.1 kernels ship them uncompressed.
+copy_module() {
+    local src=$1 dst=$2
+    case $src in
+        *.ko)     cp "$src" "$dst" ;;
+        *.ko.xz)  xz -dc "$src" >"$dst" ;;
+        *.ko.zst) zstd -qdc "$src" >"$dst" ;;
+        *.ko.gz)  gzip -dc "$src" >"$dst" ;;
+    esac
+}
+
+build_initramfs() {
+    local kv=$1 stamp=$2 tmp m src
+    tmp=$(mktemp -d "$CACHE/tmp.initramfs.XXXXXX")
+    mkdir -p "$tmp/root"/{bin,dev,proc,sys,mnt,share,kroot,lib/modules}
+    cp /bin/busybox "$tmp/root/bin/busybox"
+    for m in "${BOOT_MODULES[@]}"; do
+        src=$(find "$CACHE/kernel/lib/modules/$kv/kernel" -name "$m.ko" -o -name "$m.ko.*" | head -n1)
+        [[ -n $src ]] || die "module $m not found in $KPKG"
+        copy_module "$src" "$tmp/root/lib/modules/$m.ko"
+    done
+    init_script >"$tmp/root/init"
+    chmod 755 "$tmp/root/init"
+    # Uncompressed: it is small (~3 MB) and the kernel unpacks it faster.
+    (cd "$tmp/root" && find . | busybox cpio -o -H newc -R 0:0 2>/dev/null) >"$tmp/initramfs.cpio"
+    mv "$tmp/initramfs.cpio" "$CACHE/initramfs.cpio"
+    echo "$stamp" >"$CACHE/initramfs.stamp"
+    rm -rf "$tmp"
+}
+
+# Sets KPKG and KVER to the kernel the cache should hold. Skips apt-cache (half
+# a second per run) while apt's lists are unchanged since the last look.
+want_kernel() {
+    local have=$1 lists
+    # apt-get update renames fresh lists into this directory, touching its mtime.
+    lists=$(apt-config shell lists Dir::State::Lists/d | sed -n "s/^lists='\(.*\)'$/\1/p") || true
+    if [[ -n $have && -f $CACHE/resolved && -d $lists && $CACHE/resolved -nt $lists ]]; then
+        read -r KPKG KVER <"$CACHE/resolved"
+        return 0
+    fi
+    resolve_kernel && return 0
+    # No apt lists (offline machine): keep using what is cached.
+    [[ -n $have ]] || return 1
+    read -r KPKG KVER <<<"$have"
+}
+
+cached_kernel() {
+    cat "$CACHE/kernel/stamp" 2>/dev/null || true
+}
+
+# Identifies the initramfs: kernel package plus the text of /init.
+initramfs_stamp() {
+    echo "$KPKG $KVER $(init_script | sha256sum | cut -c1-16)"
+}
+
+cache_is_current() {
+    [[ $(cached_kernel) == "$KPKG $KVER" ]] &&
+    [[ -f $CACHE/kernel/vmlinux || -f $CACHE/kernel/vmlinux.none ]] &&
+    [[ -f $CACHE/initramfs.cpio ]] &&
+    [[ $(cat "$CACHE/initramfs.stamp" 2>/dev/null) == "$(initramfs_stamp)" ]]
+}
+
+# Bring the cache up to date; the caller holds the exclusive lock.
+update_cache() {
+    local have kv
+    # Leftovers of an interrupted build (nobody else builds while we hold the lock).
+    rm -rf "$CACHE"/tmp.*
+    have=$(cached_kernel)
+    if ! want_kernel "$have"; then
+        apt_update
+        resolve_kernel || die "apt cannot resolve $META_PKG to a kernel package"
+    fi
+    if [[ $have != "$KPKG $KVER" ]]; then
+        note "fetching $KPKG $KVER into $CACHE"
+        if ! fetch_kernel; then
+            # A missing or outdated list makes the download 404; refresh and retry.
+            apt_update
+            resolve_kernel || die "apt cannot resolve $META_PKG to a kernel package"
+            fetch_kernel || { cat "$CACHE/apt.log" >&2; die "cannot download $KPKG=$KVER"; }
+        fi
+    fi
+    kv=$(ls "$CACHE/kernel/lib/modules")
+    if [[ ! -f $CACHE/kernel/vmlinux && ! -f $CACHE/kernel/vmlinux.none ]]; then
+        extract_vmlinux "$CACHE/kernel" "$kv"
+    fi
+    if [[ ! -f $CACHE/initramfs.cpio ||
+          $(cat "$CACHE/initramfs.stamp" 2>/dev/null) != "$(initramfs_stamp)" ]]; then
+        build_initramfs "$kv" "$(initramfs_stamp)"
+    fi
+}
+
+# Make the cache current and set KERNEL_IMAGE and INITRD. Runs hold a shared
+# lock on the cache for as long as their guest uses it (QEMU inherits the fd);
+# rebuilding takes the exclusive lock, so it waits for running guests and runs
+# never see a half-built cache, while parallel runs do not block each other.
+prepare() {
+    mkdir -p "$CACHE"
+    exec 9>"$CACHE/.lock"
+    flock -s 9
+    if ! { want_kernel "$(cached_kernel)" && cache_is_current; }; then
+        # flock converts by unlocking first, so two converting runs cannot
+        # deadlock; the second one finds the cache current and does nothing.
+        flock -x 9
+        update_cache
+        flock -s 9
+    fi
+    local kv
+    kv=$(ls "$CACHE/kernel/lib/modules")
+    if [[ -f $CACHE/kernel/vmlinux ]]; then
+        KERNEL_IMAGE=$CACHE/kernel/vmlinux
+    else
+        KERNEL_IMAGE=$CACHE/kernel/boot/vmlinuz-$kv
+    fi
+    INITRD=$CACHE/initramfs.cpio
+}
+
+# ---------------------------------------------------------------------------
+# One run
+# ---------------------------------------------------------------------------
+
+# guest.sh: run by the initramfs busybox sh. Mounts the host root and builds the
+# chroot around it, then runs setup.sh and run.sh in there and records the
+# command's exit status.
+write_guest_script() {
+    cat >"$SHARE/guest.sh" <<EOF
+set -u
+export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
+r=/mnt
+# cache=loose: the guest keeps what it read in its page cache, which makes
+# loading binaries and libraries several times faster than uncached 9p. Fine for
+# a read-only view that lives for one run. The run share stays uncached, so
+# everything written there is on the host when the guest powers off.
+mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=$MSIZE host \$r || exit 1
+mount -t proc proc \$r/proc
+mount -t sysfs sysfs \$r/sys
+mount -t devtmpfs devtmpfs \$r/dev
+mkdir -p \$r/dev/pts \$r/dev/shm
+mount -t devpts devpts \$r/dev/pts
+mount -t tmpfs tmpfs \$r/dev/shm
+mount -t tmpfs tmpfs \$r/run
+# Stage the kernel dir before the tmpfs on /tmp can hide it (the cache may
+# live under the host's /tmp).
+mount --bind \$r$(shquote "$CACHE/kernel") /kroot || exit 1
+# A caller working under the host's /tmp (a CI checkout, say) keeps its working
+# directory: stage it the same way and put it back at its own path, read-only.
+$(if [[ $PWD == /tmp/* ]]; then
+    echo "mkdir -p /cwd && mount --bind \$r$(shquote "$PWD") /cwd || exit 1"
+fi)
+mount -t tmpfs -o mode=1777 tmpfs \$r/tmp
+$(if [[ $PWD == /tmp/* ]]; then
+    echo "mkdir -p \$r$(shquote "$PWD") && mount --move /cwd \$r$(shquote "$PWD") || exit 1"
+fi)
+mkdir -p \$r$GUEST_OUT \$r$GUEST_KROOT
+mount --bind /share/out \$r$GUEST_OUT || exit 1
+mount --move /kroot \$r$GUEST_KROOT || exit 1
+cp /share/setup.sh /share/run.sh \$r$GUEST_DIR/
+# Through the host's sh: a bare "chroot \$r modprobe" would run busybox's own
+# modprobe applet, which lacks -d.
+chroot \$r /bin/sh -e $GUEST_DIR/setup.sh || exit 1
+chroot \$r /usr/bin/env -i /bin/sh $GUEST_DIR/run.sh </dev/null >/share/stdout 2>/share/stderr
+echo \$? >/share/status
+EOF
+}
+
+# setup.sh: run by the host's /bin/sh -e inside the chroot: CAN modules and
+# interfaces. A failure here is a setup failure (exit 125), not the command's.
+write_setup_script() {
+    local i
+    {
+        echo "modprobe -a -d $GUEST_KROOT ${CAN_MODULES[*]} ${EXTRA_MODULES[*]}"
+        echo "ip link set lo up"
+        for (( i = 0; i < FD_IFACES; i++ )); do
+            echo "ip link add dev vcan$i type vcan"
+            echo "ip link set vcan$i mtu 72 up"
+        done
+        for (( i = 0; i < CLASSIC_IFACES; i++ )); do
+            echo "ip link add dev vcanc$i type vcan"
+            echo "ip link set vcanc$i mtu 16 up"
+        done
+    } >"$SHARE/setup.sh"
+}
+
+# run.sh: run by the host's /bin/sh inside the chroot, with a clean environment.
+write_run_script() {
+    local name pattern arg
+    {
+        # compgen -v lists set variables; the patterns select those we pass on.
+        for name in $(compgen -v); do
+            for pattern in "${PASS_ENV[@]}" "${EXTRA_ENV[@]}"; do
+                # shellcheck disable=SC2053  # glob match on purpose
+                if [[ $name == $pattern && -v $name ]] && declare -p "$name" 2>/dev/null | grep -q '^declare -[^ ]*x'; then
+                    echo "export $name=$(shquote "${!name}")"
+                    break
+                fi
+            done
+        done
+        echo "export SKINBUS_VM=1 SKINBUS_VM_OUT=$GUEST_OUT SKINBUS_VM_MODROOT=$GUEST_KROOT"
+        # The command runs as root; a non-root caller's PATH may lack ip, modprobe.
+        # shellcheck disable=SC2016  # expanded by the guest's sh
+        echo 'PATH=${PATH:+$PATH:}/usr/local/sbin:/usr/sbin:/sbin; export PATH'
+        local msg="$PROG: working directory $PWD is not visible in the guest"
+        [[ $PWD == /tmp || $PWD == /tmp/* ]] && msg+=" (its /tmp is a fresh tmpfs)"
+        echo "cd $(shquote "$PWD") 2>/dev/null || { echo $(shquote "$msg") >&2; exit 125; }"
+        printf 'exec'
+        for arg in "${COMMAND[@]}"; do
+            printf ' %s' "$(shquote "$arg")"
+        done
+        printf '\n'
+    } >"$SHARE/run.sh"
+}
+
+# Escape commas for QEMU's option parser.
+qemu_path() {
+    printf '%s' "${1//,/,,}"
+}
+
+run_vm() {
+    local work console qemu_pid rc=0 interrupted=0 append="console=ttyS0 panic=-1"
+    work=$(mktemp -d "${TMPDIR:-/tmp}/can_vm.XXXXXX")
+    # shellcheck disable=SC2064  # expand $work now
+    trap "rm -rf $(shquote "$work")" EXIT
+    SHARE=$work/share
+    console=$work/console.log
+    mkdir -p "$SHARE/out"
+    write_guest_script
+    write_setup_script
+    write_run_script
+    (( VERBOSE )) || append+=" quiet"
+
+    # KVM guests hang on these machines, so emulate (TCG). -cpu max lets binaries
+    # built for newer x86-64 levels (AVX2) run; a second vCPU made boots slower.
+    # qboot (shipped with QEMU) starts the kernel a little sooner than SeaBIOS.
+    local bios=()
+    [[ -f /usr/share/qemu/qboot.rom ]] && bios=(-bios /usr/share/qemu/qboot.rom)
+    # Run in the background and wait, so Ctrl-C reaches the trap at once.
+    timeout --kill-after=10 "$TIMEOUT" \
+        qemu-system-x86_64 -nographic -no-reboot -nodefaults -serial stdio \
+            -accel tcg -cpu max -smp 1 -m "$MEMORY" "${bios[@]}" \
+            -kernel "$KERNEL_IMAGE" -initrd "$INITRD" -append "$append" \
+            -virtfs "local,path=/,mount_tag=host,security_model=none,readonly=on,multidevs=remap" \
+            -virtfs "local,path=$(qemu_path "$SHARE"),mount_tag=share,security_model=none,multidevs=remap" \
+        </dev/null >"$console" 2>&1 &
+    qemu_pid=$!
+    trap 'interrupted=130; kill -TERM $qemu_pid 2>/dev/null' INT
+    trap 'interrupted=143; kill -TERM $qemu_pid 2>/dev/null' TERM
+    wait "$qemu_pid" || rc=$?
+    # An interrupted wait returns early; wait again for the real status.
+    while kill -0 "$qemu_pid" 2>/dev/null; do
+        rc=0
+        wait "$qemu_pid" || rc=$?
+    done
+    trap - INT TERM
+
+    [[ -f $SHARE/stdout ]] && cat "$SHARE/stdout"
+    [[ -f $SHARE/stderr ]] && cat "$SHARE/stderr" >&2
+    if (( VERBOSE )); then
+        echo "----- guest console -----" >&2
+        cat "$console" >&2
+    fi
+    if [[ -n $OUT_DIR ]]; then
+        mkdir -p "$OUT_DIR"
+        cp -a "$SHARE/out/." "$OUT_DIR/"
+    fi
+
+    local status=""
+    [[ -f $SHARE/status ]] && status=$(<"$SHARE/status")
+    if [[ $status =~ ^[0-9]+$ ]]; then
+        return "$status"
+    fi
+    if (( interrupted )); then
+        note "interrupted"
+        return "$interrupted"
+    fi
+    if (( ! VERBOSE )); then
+        echo "----- guest console (last 30 lines) -----" >&2
+        tail -n 30 "$console" >&2
+    fi
+    if (( rc == 124 || rc == 137 )); then
+        note "timed out after ${TIMEOUT}s"
+        return 124
+    fi
+    note "the guest did not run the command (QEMU exit status $rc)"
+    return 125
+}
+
+main() {
+    TIMEOUT=300 FD_IFACES=1 CLASSIC_IFACES=1 MEMORY=512 VERBOSE=0 OUT_DIR=""
+    EXTRA_MODULES=() EXTRA_ENV=() COMMAND=()
+    local prepare_only=0 mods
+    while (( $# )); do
+        case $1 in
+            --help|-h) usage; exit 0 ;;
+            --prepare) prepare_only=1; shift ;;
+            --timeout|--fd-ifaces|--classic-ifaces|--modules|--env|--out-dir|--memory)
+                (( $# >= 2 )) || die "$1 needs a value"
+                case $1 in
+                    --timeout) TIMEOUT=$2 ;;
+                    --fd-ifaces) FD_IFACES=$2 ;;
+                    --classic-ifaces) CLASSIC_IFACES=$2 ;;
+                    --modules) IFS=', ' read -r -a mods <<<"$2"; EXTRA_MODULES+=("${mods[@]}") ;;
+                    --env) EXTRA_ENV+=("$2") ;;
+                    --out-dir) OUT_DIR=$2 ;;
+                    --memory) MEMORY=$2 ;;
+                esac
+                shift 2 ;;
+            --verbose) VERBOSE=1; shift ;;
+            --) shift; COMMAND=("$@"); break ;;
+            *) die "unknown argument '$1' (see --help)" ;;
+        esac
+    done
+    [[ $TIMEOUT =~ ^[0-9]+(\.[0-9]+)?[smh]?$ ]] || die "bad --timeout '$TIMEOUT'"
+    is_count "$FD_IFACES" || die "bad --fd-ifaces '$FD_IFACES'"
+    is_count "$CLASSIC_IFACES" || die "bad --classic-ifaces '$CLASSIC_IFACES'"
+    if ! [[ $MEMORY =~ ^[0-9]+$ ]] || (( MEMORY < 128 )); then
+        die "bad --memory '$MEMORY'"
+    fi
+    FD_IFACES=$((10#$FD_IFACES)) CLASSIC_IFACES=$((10#$CLASSIC_IFACES))
+    local m
+    for m in "${EXTRA_MODULES[@]}"; do
+        [[ $m =~ ^[A-Za-z0-9_-]+$ ]] || die "bad module name '$m'"
+    done
+    for m in "${EXTRA_ENV[@]}"; do
+        [[ $m =~ ^[A-Za-z_][A-Za-z0-9_]*$ ]] || die "bad variable name '$m'"
+    done
+    if (( ! prepare_only && ${#COMMAND[@]} == 0 )); then
+        usage >&2
+        exit 125
+    fi
+
+    check_host_tools
+    mkdir -p "${SKINBUS_CACHE_DIR:-${HOME:?HOME is not set}/.cache/skinbus}/can-vm"
+    # Canonical (symlink-free) path: the guest resolves it under its own mount.
+    CACHE=$(cd "${SKINBUS_CACHE_DIR:-$HOME/.cache/skinbus}/can-vm" && pwd -P)
+    prepare
+    if (( prepare_only )); then
+        note "ready: $KPKG $KVER in $CACHE"
+        exit 0
+    fi
+    local rc=0
+    run_vm || rc=$?
+    exit "$rc"
+}
+
+main "$@"
