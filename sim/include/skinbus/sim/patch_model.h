@@ -1,0 +1,258 @@
+// skinbus/sim/patch_model.h: the physics of one skin patch, from a press to the field at its
+// 16 Hall sensors.
+//
+// Chain (docs/sim/physics.md gives every parameter with its source or marks it an assumption):
+//   press (u, v, depth) -> surface deflection by the plate-on-foundation kernel
+//     (skinbus/sim/plate_kernel.h), superposed over contacts
+//   -> each magnet moves down with the surface, in-plane toward the press (the surface layer
+//      bends: -lateral * slope) and tilts with the surface normal
+//   -> field at every sensor: exact dipole sum (skinbus/sim/dipole.h)
+//   -> sensor frame, per-unit sensor rotation and gain.
+//
+// Coordinates: the patch frame has its origin at the patch centre on the skin surface, u and v
+// along the sensor grid, h out of the skin; depth is positive into the skin. For a flat patch
+// (u, v, h) is (x, y, z). For a cylinder section (a forearm) u is arc length around the axis at
+// the skin surface, v runs along the axis, h is the outward normal; the cylinder's axis is
+// parallel to y at z = -radius. Sensor channels are in each sensor's own frame (x along u,
+// y along v, z along the outward normal at the sensor).
+//
+// Costs: a PatchModel precomputes every magnet's rest field at every sensor (magnets x sensors
+// x 3 doubles). contact_field() touches only magnets within the kernel's reach of a contact
+// (skip what a scene does not need): O(touched magnets x sensors) dipole evaluations.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "skinbus/common/result.h"
+#include "skinbus/sim/dipole.h"
+#include "skinbus/sim/dual.h"
+#include "skinbus/sim/mlx90393.h"
+#include "skinbus/sim/plate_kernel.h"
+#include "skinbus/sim/vec3.h"
+
+namespace skinbus::sim {
+
+enum class SurfaceKind : uint8_t { kFlat, kCylinder };
+enum class Polarity : uint8_t { kUniform, kCheckerboard };
+
+struct PatchDesign {
+  // Geometry of the skin surface.
+  SurfaceKind surface = SurfaceKind::kFlat;
+  double size_u_mm = 140, size_v_mm = 140;  // extent (arc length along u for a cylinder)
+  double radius_mm = 0;                     // cylinder: skin-surface radius (> sensor depth)
+  double thickness_mm = 15;                 // lattice: surface, infill and base layers
+  // Magnets: a grid on the surface.
+  int magnets_u = 7, magnets_v = 7;
+  double magnet_pitch_mm = 20;
+  Polarity polarity = Polarity::kCheckerboard;
+  double magnet_diameter_mm = 3, magnet_height_mm = 1.5;
+  double remanence_t = 1.32;              // NdFeB N42
+  double magnet_centre_height_mm = 0.75;  // magnet centre above the surface
+  // Sensors: a grid below the base.
+  int sensors_u = 4, sensors_v = 4;
+  double sensor_pitch_mm = 30;
+  double sensor_depth_mm = 17;  // below the surface: lattice 15 mm + base and package 2 mm
+  Mlx90393Config sensor_config;
+  // Lattice mechanics.
+  double spread_mm = 10;    // plate-on-foundation length l
+  double lateral_mm = 2.0;  // in-plane motion of a magnet = -lateral * surface slope
+  double anisotropy = 0;    // l_u = l (1 + a), l_v = l (1 - a); the nominal model has 0
+  // Depth -> normal force: F = k d + k3 d^3.
+  double stiffness_n_per_mm = 2.0;
+  double stiffening_n_per_mm3 = 0.05;
+  // Temperature: magnet remanence coefficient (NdFeB), per degC.
+  double remanence_tempco_per_c = -0.0012;
+
+  int magnet_count() const { return magnets_u * magnets_v; }
+  int sensor_count() const { return sensors_u * sensors_v; }
+  int channel_count() const { return 3 * sensor_count(); }
+};
+
+// Checks a design: positive sizes, sensors inside the patch, a cylinder radius larger than the
+// sensor depth, a valid sensor configuration. The error names the parameter.
+Status validate(const PatchDesign& design);
+
+// Per-unit spread of a fabricated patch (1 standard deviation). Assumptions for a hand-
+// assembled, 3D-printed patch; see docs/sim/physics.md.
+struct FabricationVariation {
+  double magnet_position_sd_mm = 0.15;
+  double magnet_height_sd_mm = 0.1;
+  double magnet_moment_rel_sd = 0.02;
+  double magnet_tilt_sd_rad = 0.026;  // 1.5 degrees
+  double sensor_position_sd_mm = 0.1;
+  double sensor_rotation_sd_rad = 0.0087;  // 0.5 degrees
+  double sensor_gain_rel_sd = 0.01;
+  double spread_rel_sd = 0.03;
+  double lateral_rel_sd = 0.05;
+  static FabricationVariation none() { return {0, 0, 0, 0, 0, 0, 0, 0, 0}; }
+};
+
+template <typename T>
+struct ContactT {
+  T u_mm{}, v_mm{}, depth_mm{};
+};
+using Contact = ContactT<double>;
+
+class PatchModel {
+ public:
+  struct Magnet {
+    double u, v, h;      // rest position, surface coordinates (mm)
+    Vec3<double> m_loc;  // moment in the local surface frame (A m^2), tilt included
+  };
+  struct Sensor {
+    double u, v, h;       // position, surface coordinates (h < 0: below the surface)
+    Vec3<double> pos;     // 3D position (mm)
+    Mat3 frame;           // rows: the sensor's x, y, z axes in patch 3D coordinates
+    Vec3<double> gain;    // per-axis gain (1 nominal)
+  };
+
+  // The nominal unit of a design (no fabrication variation).
+  static Result<PatchModel> nominal(const PatchDesign& design);
+  // A fabricated unit: variation drawn from a generator seeded by the board's hardware UID,
+  // so the same UID always gives the same unit.
+  static Result<PatchModel> fabricated(const PatchDesign& design, uint64_t hardware_uid,
+                                       const FabricationVariation& variation);
+
+  const PatchDesign& design() const { return design_; }
+  const std::vector<Magnet>& magnets() const { return magnets_; }
+  const std::vector<Sensor>& sensors() const { return sensors_; }
+  int channel_count() const { return 3 * static_cast<int>(sensors_.size()); }
+  double spread_u_mm() const { return spread_u_; }
+  double spread_v_mm() const { return spread_v_; }
+  double lateral_mm() const { return lateral_; }
+
+  // Field at every channel with nothing touching, uT (what a tare removes).
+  void rest_field_ut(std::span<double> out) const;
+
+  // Change of the field at every channel caused by `contacts` (superposed deflections), uT,
+  // noise-free, no ambient field, at reference temperature. `out` has channel_count() entries.
+  // T = double, or a jet type for derivatives with respect to contact parameters.
+  template <typename T>
+  void contact_field_ut(std::span<const ContactT<T>> contacts, T* out) const;
+  void contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const {
+    contact_field_ut<double>(contacts, out.data());
+  }
+
+  // Jacobian of the field change of one contact with respect to (u, v, depth): row-major,
+  // channel_count() x 3. Also returns the field change itself in `field` when not empty.
+  void contact_jacobian(const Contact& c, std::span<double> jacobian, std::span<double> field = {}) const;
+
+  // Magnets within reach of a contact at (u, v): the others do not move.
+  bool magnet_in_reach(const Magnet& m, double u, double v) const {
+    const double du = (m.u - u) / spread_u_, dv = (m.v - v) / spread_v_;
+    return du * du + dv * dv < kPlateKernelCutoff * kPlateKernelCutoff;
+  }
+
+  // Normal force for a press of `depth_mm` (N); 0 for depth <= 0.
+  double force_n(double depth_mm) const;
+  // Deepest press the lattice takes (densified beyond): 60 % of its thickness. Deeper presses
+  // act as this depth.
+  double max_depth_mm() const { return 0.6 * design_.thickness_mm; }
+
+  // 3D position and local frame (rows: t_u, t_v, normal) of surface point (u, v, h).
+  template <typename T>
+  Vec3<T> surface_point(const T& u, const T& v, const T& h, Vec3<T>* t_u, Vec3<T>* t_v, Vec3<T>* n) const;
+
+ private:
+  PatchModel() = default;
+  static Result<PatchModel> build(const PatchDesign& design, uint64_t seed, const FabricationVariation& var);
+
+  PatchDesign design_;
+  double spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
+  std::vector<Magnet> magnets_;
+  std::vector<Sensor> sensors_;
+  std::vector<Vec3<double>> rest_;  // [magnet * sensors + sensor]: rest field in 3D, uT
+};
+
+// ---- implementation of the templates ---------------------------------------------------------
+
+template <typename T>
+Vec3<T> PatchModel::surface_point(const T& u, const T& v, const T& h, Vec3<T>* t_u, Vec3<T>* t_v,
+                                  Vec3<T>* n) const {
+  if (design_.surface == SurfaceKind::kFlat) {
+    if (t_u) *t_u = {T(1.0), T(0.0), T(0.0)};
+    if (t_v) *t_v = {T(0.0), T(1.0), T(0.0)};
+    if (n) *n = {T(0.0), T(0.0), T(1.0)};
+    return {u, v, h};
+  }
+  using std::cos;
+  using std::sin;
+  const double r = design_.radius_mm;
+  const T theta = u / r;
+  const T s = sin(theta), c = cos(theta);
+  if (t_u) *t_u = {c, T(0.0), -s};
+  if (t_v) *t_v = {T(0.0), T(1.0), T(0.0)};
+  if (n) *n = {s, T(0.0), c};
+  const T rr = T(r) + h;
+  return {rr * s, v, rr * c - T(r)};
+}
+
+template <typename T>
+void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out) const {
+  const std::size_t ns = sensors_.size();
+  std::vector<Vec3<T>> acc(ns);  // small; the double path in patch_model.cc avoids it
+  const double lu = spread_u_, lv = spread_v_;
+  for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
+    const Magnet& m = magnets_[mi];
+    // Surface deflection and slope at the magnet, summed over contacts (the plate is linear).
+    T w(0.0), pu(0.0), pv(0.0);
+    bool moved = false;
+    for (const ContactT<T>& c : contacts) {
+      // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
+      T depth = c.depth_mm;
+      if (!(value_of(depth) > 0)) continue;  // no press (or NaN): nothing moves
+      if (value_of(depth) > max_depth_mm()) depth = T(max_depth_mm());
+      const T du = T(m.u) - c.u_mm, dv = T(m.v) - c.v_mm;
+      const double sdu = value_of(du) / lu, sdv = value_of(dv) / lv;
+      const double s2 = sdu * sdu + sdv * sdv;
+      if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
+      moved = true;
+      using std::sqrt;
+      const T s = sqrt(du * du / (lu * lu) + dv * dv / (lv * lv));
+      const double sv = value_of(s);
+      double g, dg, d2g;
+      plate_kernel(sv, &g, &dg, &d2g);
+      const T gs = first_order(s, g, dg);
+      // The slope needs g'(s)/s, finite for s > 0 (it grows like log s at the press itself,
+      // where the slope is 0 anyway).
+      const double q = sv > 1e-6 ? dg / sv : 0.0;
+      const double dq = sv > 1e-6 ? (d2g * sv - dg) / (sv * sv) : 0.0;
+      const T dgs = first_order(s, q, dq);
+      w = w + depth * gs;  // deflection into the skin
+      pu = pu - depth * dgs * du / (lu * lu);  // slope of the surface height h = -w
+      pv = pv - depth * dgs * dv / (lv * lv);
+    }
+    if (!moved) continue;
+    // New magnet pose in surface coordinates.
+    const T nu = T(m.u) - T(lateral_) * pu;
+    const T nv = T(m.v) - T(lateral_) * pv;
+    const T nh = T(m.h) - w;
+    Vec3<T> tu, tv, nn;
+    const Vec3<T> pos = surface_point(nu, nv, nh, &tu, &tv, &nn);
+    // Moment follows the surface normal: local direction (m_u - slope_u |m_z|, ...).
+    const T mu = T(m.m_loc.x) - pu * T(m.m_loc.z);
+    const T mv = T(m.m_loc.y) - pv * T(m.m_loc.z);
+    const T mz = T(m.m_loc.z);
+    using std::sqrt;
+    const double mag = std::sqrt(dot(m.m_loc, m.m_loc));
+    const T norm = sqrt(mu * mu + mv * mv + mz * mz);
+    const T k = T(mag) / norm;
+    const Vec3<T> moment = (tu * (mu * k)) + (tv * (mv * k)) + (nn * (mz * k));
+    for (std::size_t si = 0; si < ns; ++si) {
+      const Vec3<T> b = dipole_field_ut(moment, lift<T>(sensors_[si].pos) - pos);
+      const Vec3<double>& r = rest_[mi * ns + si];
+      acc[si] = acc[si] + b - lift<T>(r);
+    }
+  }
+  for (std::size_t si = 0; si < ns; ++si) {
+    const Vec3<T> local = sensors_[si].frame.apply(acc[si]);
+    out[3 * si + 0] = local.x * sensors_[si].gain.x;
+    out[3 * si + 1] = local.y * sensors_[si].gain.y;
+    out[3 * si + 2] = local.z * sensors_[si].gain.z;
+  }
+}
+
+}  // namespace skinbus::sim

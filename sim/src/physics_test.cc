@@ -1,0 +1,279 @@
+// Physics of a patch: dipole field, plate kernel, sensor model and the forward model.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+#include "skinbus/sim/dipole.h"
+#include "skinbus/sim/mlx90393.h"
+#include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/plate_kernel.h"
+
+namespace skinbus::sim {
+namespace {
+
+TEST(DipoleTest, AnalyticValuesOnAxisAndEquator) {
+  const double m = 0.011;  // A m^2
+  const double r = 17.0;   // mm
+  const double k = 1e-7 * m / std::pow(r * 1e-3, 3) * 1e6;  // mu0/4pi m / r^3 in uT
+  const auto on_axis = dipole_field_ut(Vec3<double>{0, 0, m}, Vec3<double>{0, 0, r});
+  EXPECT_NEAR(on_axis.z, 2 * k, 1e-9 * k);
+  EXPECT_NEAR(on_axis.x, 0, 1e-12);
+  const auto equator = dipole_field_ut(Vec3<double>{0, 0, m}, Vec3<double>{r, 0, 0});
+  EXPECT_NEAR(equator.z, -k, 1e-9 * k);
+  // Off-axis at 45 degrees in the x-z plane: B = k (3 cos t sin t, 0, 3 cos^2 t - 1).
+  const double c = std::sqrt(0.5);
+  const auto diag = dipole_field_ut(Vec3<double>{0, 0, m}, Vec3<double>{r * c, 0, r * c});
+  EXPECT_NEAR(diag.x, k * 3 * c * c, 1e-9 * k);
+  EXPECT_NEAR(diag.z, k * (3 * c * c - 1), 1e-9 * k);
+}
+
+TEST(DipoleTest, PointDipoleMatchesAFiniteCylinderAtSensorDistance) {
+  // A 3 x 1.5 mm N42 disc seen along its axis: the point dipole overestimates the exact field
+  // by (radius/z)^2-order terms: 0.7 % at the sensors' 17.75 mm, 1.6 % at 12 mm.
+  const double m = cylinder_moment_am2(1.32, 3.0, 1.5);
+  const double limits[][2] = {{12.0, 0.02}, {16.0, 0.01}, {17.75, 0.008}, {20.0, 0.006}, {40.0, 0.0015}};
+  for (const auto& [z, tol] : limits) {
+    const double exact = cylinder_axial_field_ut(1.32, 3.0, 1.5, z);
+    const double dip = dipole_field_ut(Vec3<double>{0, 0, m}, Vec3<double>{0, 0, z}).z;
+    EXPECT_GT(dip, exact);
+    EXPECT_NEAR(dip / exact, 1.0, tol) << "z=" << z;
+  }
+}
+
+TEST(PlateKernelTest, KelvinFunctionAndShape) {
+  double kei, dkei;
+  kelvin_kei(0, &kei, &dkei);
+  EXPECT_DOUBLE_EQ(kei, -M_PI / 4);
+  kelvin_kei(1, &kei, &dkei);
+  // Reference values from the independent integral kei(x) = Im int_0^inf exp(-x e^{i pi/4}
+  // cosh t) dt, evaluated by quadrature.
+  EXPECT_NEAR(kei, -0.494994637, 2e-9);
+  kelvin_kei(2, &kei, &dkei);
+  EXPECT_NEAR(kei, -0.202400068, 2e-9);
+  kelvin_kei(3, &kei, &dkei);
+  EXPECT_NEAR(kei, -0.051121884, 2e-9);
+  for (double x : {0.3, 1.0, 2.5, 4.0, 6.0}) {
+    double a, da, b, db;
+    kelvin_kei(x - 1e-6, &a, &da);
+    kelvin_kei(x + 1e-6, &b, &db);
+    kelvin_kei(x, &kei, &dkei);
+    EXPECT_NEAR(dkei, (b - a) / 2e-6, 1e-6) << x;
+  }
+  double g, dg, d2g;
+  plate_kernel(0, &g, &dg, &d2g);
+  EXPECT_NEAR(g, 1.0, 1e-12);
+  EXPECT_NEAR(dg, 0.0, 1e-9);
+  plate_kernel(kPlateKernelCutoff, &g, &dg);
+  EXPECT_EQ(g, 0);
+  EXPECT_EQ(dg, 0);
+  plate_kernel(std::nan(""), &g, &dg);
+  EXPECT_EQ(g, 0);
+  // Monotone bowl out to the uplift ring, continuous derivative everywhere.
+  double prev = 2;
+  for (double s = 0; s < 3.5; s += 0.01) {
+    plate_kernel(s, &g, &dg);
+    EXPECT_LT(g, prev);
+    prev = g;
+  }
+  for (double s = 0.005; s < kPlateKernelCutoff; s += 0.0137) {
+    double ga, gb;
+    plate_kernel(s - 1e-5, &ga, &dg);
+    plate_kernel(s + 1e-5, &gb, &dg);
+    plate_kernel(s, &g, &dg);
+    EXPECT_NEAR(dg, (gb - ga) / 2e-5, 1e-5) << s;
+  }
+}
+
+TEST(Mlx90393Test, SensitivityConversionTimeQuantisationSaturation) {
+  Mlx90393Config c;
+  c.gain_sel = 7;
+  c.res_xy = 0;
+  c.res_z = 0;
+  EXPECT_DOUBLE_EQ(mlx90393_sensitivity_xy_ut(c), 0.150);
+  EXPECT_DOUBLE_EQ(mlx90393_sensitivity_z_ut(c), 0.242);
+  c.gain_sel = 0;
+  c.res_xy = 1;
+  EXPECT_DOUBLE_EQ(mlx90393_sensitivity_xy_ut(c), 0.751 * 2);
+  c.osr = 0;
+  c.dig_filt = 0;
+  EXPECT_DOUBLE_EQ(mlx90393_conversion_time_us(c), 3 * (67 + 64 * 3));
+  c.osr = 1;
+  c.dig_filt = 2;
+  EXPECT_DOUBLE_EQ(mlx90393_conversion_time_us(c), 3 * (67 + 64 * 2 * 6));
+  EXPECT_LT(mlx90393_noise_xy_ut(c), mlx90393_noise_xy_ut(Mlx90393Config{7, 0, 0, 0, 0, false}));
+
+  bool sat = true;
+  EXPECT_EQ(mlx90393_code(15.0, 0.15, 0, &sat), 100);
+  EXPECT_FALSE(sat);
+  EXPECT_EQ(mlx90393_code(15.07, 0.15, 0, &sat), 100);  // quantised to the LSB
+  EXPECT_EQ(mlx90393_code(1e6, 0.15, 0, &sat), 32767);
+  EXPECT_TRUE(sat);
+  EXPECT_EQ(mlx90393_code(-1e6, 0.15, 0, &sat), -32767);
+  EXPECT_TRUE(sat);
+  EXPECT_EQ(mlx90393_code(std::nan(""), 0.15, 0, &sat), 0);
+  EXPECT_TRUE(sat);
+  EXPECT_EQ(mlx90393_code(0.0, 0.15, 2, &sat), 32768);  // RES 2: unsigned around 32768
+  EXPECT_NEAR(mlx90393_field_ut(mlx90393_code(-300.0, 0.3, 2, &sat), 0.3, 2), -300.0, 1e-9);
+  EXPECT_EQ(mlx90393_code(1e6, 0.15, 3, &sat), 16383 + 16384);
+  EXPECT_TRUE(sat);
+}
+
+class PatchModelTest : public ::testing::Test {
+ protected:
+  PatchDesign design;
+  PatchModel nominal() {
+    auto m = PatchModel::nominal(design);
+    EXPECT_TRUE(m.ok()) << m.error().to_string();
+    return std::move(m).value();
+  }
+};
+
+TEST_F(PatchModelTest, NoContactNoSignal) {
+  const PatchModel p = nominal();
+  std::vector<double> out(48, 1.0);
+  p.contact_field_ut({}, out);
+  for (double x : out) EXPECT_EQ(x, 0.0);
+  const Contact zero{10, 10, 0};
+  p.contact_field_ut(std::span<const Contact>(&zero, 1), out);
+  for (double x : out) EXPECT_EQ(x, 0.0);
+}
+
+TEST_F(PatchModelTest, PressProducesALocalisedSignal) {
+  const PatchModel p = nominal();
+  std::vector<double> out(48);
+  const Contact c{-45, -45, 3};  // over sensor 0
+  p.contact_field_ut(std::span<const Contact>(&c, 1), out);
+  double near = 0, far = 0;
+  for (int k = 0; k < 3; ++k) {
+    near += out[k] * out[k];
+    far += out[45 + k] * out[45 + k];  // sensor 15, the far corner
+  }
+  EXPECT_GT(std::sqrt(near), 50.0);  // tens to hundreds of uT under a 3 mm press
+  EXPECT_LT(std::sqrt(far), 1.0);
+}
+
+TEST_F(PatchModelTest, MirrorSymmetryOfTheNominalPatch) {
+  const PatchModel p = nominal();
+  std::vector<double> a(48), b(48);
+  const Contact c{12.5, -7.0, 2.0}, m{-12.5, -7.0, 2.0};
+  p.contact_field_ut(std::span<const Contact>(&c, 1), a);
+  p.contact_field_ut(std::span<const Contact>(&m, 1), b);
+  for (int s = 0; s < 16; ++s) {
+    const int ms = (s / 4) * 4 + (3 - s % 4);  // sensor mirrored in u
+    EXPECT_NEAR(a[3 * s + 0], -b[3 * ms + 0], 1e-9);
+    EXPECT_NEAR(a[3 * s + 1], b[3 * ms + 1], 1e-9);
+    EXPECT_NEAR(a[3 * s + 2], b[3 * ms + 2], 1e-9);
+  }
+}
+
+TEST_F(PatchModelTest, DistantContactsSuperpose) {
+  design.size_u_mm = 300;
+  design.magnets_u = 15;
+  const PatchModel p = nominal();
+  std::vector<double> ab(48), a(48), b(48);
+  const Contact ca{-140, 0, 3}, cb{140, 0, 2};  // reaches do not overlap (6.5 l = 65 mm)
+  const Contact both[2] = {ca, cb};
+  p.contact_field_ut(both, ab);
+  p.contact_field_ut(std::span<const Contact>(&ca, 1), a);
+  p.contact_field_ut(std::span<const Contact>(&cb, 1), b);
+  for (int i = 0; i < 48; ++i) EXPECT_NEAR(ab[i], a[i] + b[i], 1e-9);
+}
+
+TEST_F(PatchModelTest, JacobianMatchesFiniteDifferences) {
+  for (SurfaceKind kind : {SurfaceKind::kFlat, SurfaceKind::kCylinder}) {
+    design.surface = kind;
+    design.radius_mm = 45;
+    design.size_u_mm = 140;
+    auto made = PatchModel::fabricated(design, 0xABCDEF, FabricationVariation{});
+    ASSERT_TRUE(made.ok()) << made.error().to_string();
+    const PatchModel& p = *made;
+    for (const Contact c : {Contact{3.3, -7.1, 1.5}, Contact{-40, 22, 3.5}, Contact{61, 60, 0.7}}) {
+      std::vector<double> jac(48 * 3), f0(48), fp(48), fm(48);
+      p.contact_jacobian(c, jac, f0);
+      for (int k = 0; k < 3; ++k) {
+        const double h = 1e-5;
+        Contact cp = c, cm = c;
+        (k == 0 ? cp.u_mm : k == 1 ? cp.v_mm : cp.depth_mm) += h;
+        (k == 0 ? cm.u_mm : k == 1 ? cm.v_mm : cm.depth_mm) -= h;
+        p.contact_field_ut(std::span<const Contact>(&cp, 1), fp);
+        p.contact_field_ut(std::span<const Contact>(&cm, 1), fm);
+        for (int i = 0; i < 48; ++i) {
+          const double fd = (fp[i] - fm[i]) / (2 * h);
+          EXPECT_NEAR(jac[3 * i + k], fd, 1e-4 * (1 + std::fabs(fd))) << "channel " << i << " param " << k;
+        }
+      }
+    }
+  }
+}
+
+TEST_F(PatchModelTest, FabricatedUnitsAreDeterministicPerUid) {
+  auto a = PatchModel::fabricated(design, 42, FabricationVariation{});
+  auto b = PatchModel::fabricated(design, 42, FabricationVariation{});
+  auto c = PatchModel::fabricated(design, 43, FabricationVariation{});
+  ASSERT_TRUE(a.ok() && b.ok() && c.ok());
+  std::vector<double> fa(48), fb(48), fc(48);
+  const Contact k{5, 5, 2};
+  a->contact_field_ut(std::span<const Contact>(&k, 1), fa);
+  b->contact_field_ut(std::span<const Contact>(&k, 1), fb);
+  c->contact_field_ut(std::span<const Contact>(&k, 1), fc);
+  EXPECT_EQ(fa, fb);
+  EXPECT_NE(fa, fc);
+  EXPECT_EQ(a->magnets()[3].u, b->magnets()[3].u);
+}
+
+TEST_F(PatchModelTest, NoNanOrInfAtExtremes) {
+  for (SurfaceKind kind : {SurfaceKind::kFlat, SurfaceKind::kCylinder}) {
+    design.surface = kind;
+    design.radius_mm = 40;
+    const PatchModel p = nominal();
+    std::vector<double> out(48), jac(144), rest(48);
+    p.rest_field_ut(rest);
+    for (double x : rest) ASSERT_TRUE(std::isfinite(x));
+    const double edge = 70, corner = 70;
+    for (const Contact c : {Contact{0, 0, 0}, Contact{0, 0, 1e-9}, Contact{0, 0, 50}, Contact{0, 0, 1e9},
+                            Contact{edge, 0, 4}, Contact{corner, corner, 4}, Contact{-corner, corner, 9},
+                            Contact{500, -500, 4}, Contact{60, 60, -3}, Contact{-60, -60, 4},
+                            Contact{std::nan(""), 0, 3}, Contact{0, 0, std::nan("")},
+                            Contact{1e300, 0, 3}}) {
+      p.contact_field_ut(std::span<const Contact>(&c, 1), out);
+      for (double x : out) ASSERT_TRUE(std::isfinite(x)) << c.u_mm << "," << c.v_mm << "," << c.depth_mm;
+      if (std::isfinite(c.u_mm) && std::isfinite(c.depth_mm) && std::fabs(c.u_mm) < 1e6) {
+        p.contact_jacobian(c, jac);
+        for (double x : jac) ASSERT_TRUE(std::isfinite(x)) << c.u_mm << "," << c.v_mm << "," << c.depth_mm;
+      }
+    }
+  }
+}
+
+TEST_F(PatchModelTest, DepthIsClampedAndForceGrows) {
+  const PatchModel p = nominal();
+  std::vector<double> a(48), b(48);
+  const Contact deep{0, 0, p.max_depth_mm()}, deeper{0, 0, 100};
+  p.contact_field_ut(std::span<const Contact>(&deep, 1), a);
+  p.contact_field_ut(std::span<const Contact>(&deeper, 1), b);
+  EXPECT_EQ(a, b);
+  EXPECT_EQ(p.force_n(0), 0);
+  EXPECT_EQ(p.force_n(-1), 0);
+  EXPECT_NEAR(p.force_n(2), 2 * 2.0 + 0.05 * 8, 1e-12);
+  EXPECT_GT(p.force_n(4), p.force_n(3));
+}
+
+TEST_F(PatchModelTest, BadDesignsNameTheParameter) {
+  design.spread_mm = -1;
+  auto m = PatchModel::nominal(design);
+  ASSERT_FALSE(m.ok());
+  EXPECT_NE(m.error().message.find("spread_mm"), std::string::npos);
+  design = PatchDesign{};
+  design.surface = SurfaceKind::kCylinder;
+  design.radius_mm = 10;
+  m = PatchModel::nominal(design);
+  ASSERT_FALSE(m.ok());
+  EXPECT_NE(m.error().message.find("radius_mm"), std::string::npos);
+  design = PatchDesign{};
+  design.sensor_pitch_mm = 60;
+  EXPECT_FALSE(PatchModel::nominal(design).ok());
+}
+
+}  // namespace
+}  // namespace skinbus::sim
