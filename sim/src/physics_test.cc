@@ -207,6 +207,18 @@ TEST_F(PatchModelTest, JacobianMatchesFiniteDifferences) {
   }
 }
 
+TEST_F(PatchModelTest, FastPathEqualsTheTemplate) {
+  design.surface = SurfaceKind::kCylinder;
+  design.radius_mm = 50;
+  auto made = PatchModel::fabricated(design, 77, FabricationVariation{});
+  ASSERT_TRUE(made.ok());
+  const Contact cs[2] = {{10, -20, 2.5}, {-30, 35, 1.0}};
+  std::vector<double> fast(48), slow(48);
+  made->contact_field_ut(cs, fast);
+  made->contact_field_ut<double>(std::span<const Contact>(cs, 2), slow.data());
+  for (int i = 0; i < 48; ++i) EXPECT_NEAR(fast[i], slow[i], 1e-9 * (1 + std::fabs(slow[i])));
+}
+
 TEST_F(PatchModelTest, FabricatedUnitsAreDeterministicPerUid) {
   auto a = PatchModel::fabricated(design, 42, FabricationVariation{});
   auto b = PatchModel::fabricated(design, 42, FabricationVariation{});
