@@ -14,7 +14,9 @@ constexpr double kSensZ[8] = {1.210, 0.968, 0.726, 0.605, 0.484, 0.403, 0.323, 0
 constexpr double kNoiseXyAnchorUt = 1.4;
 constexpr double kNoiseZAnchorUt = 2.3;
 
-double samples_per_axis(const Mlx90393Config& c) { return std::ldexp(1.0, c.osr) * (2 + std::ldexp(1.0, c.dig_filt)); }
+double samples_per_axis(const Mlx90393Config& c) {
+  return std::ldexp(1.0, c.osr) * (2 + std::ldexp(1.0, c.dig_filt));
+}
 
 }  // namespace
 
@@ -22,8 +24,12 @@ bool mlx90393_config_valid(const Mlx90393Config& c) {
   return c.gain_sel <= 7 && c.res_xy <= 3 && c.res_z <= 3 && c.osr <= 3 && c.dig_filt <= 7;
 }
 
-double mlx90393_sensitivity_xy_ut(const Mlx90393Config& c) { return kSensXy[c.gain_sel & 7] * std::ldexp(1.0, c.res_xy & 3); }
-double mlx90393_sensitivity_z_ut(const Mlx90393Config& c) { return kSensZ[c.gain_sel & 7] * std::ldexp(1.0, c.res_z & 3); }
+double mlx90393_sensitivity_xy_ut(const Mlx90393Config& c) {
+  return kSensXy[c.gain_sel & 7] * std::ldexp(1.0, c.res_xy & 3);
+}
+double mlx90393_sensitivity_z_ut(const Mlx90393Config& c) {
+  return kSensZ[c.gain_sel & 7] * std::ldexp(1.0, c.res_z & 3);
+}
 
 double mlx90393_conversion_time_us(const Mlx90393Config& c) {
   const double per_axis = 67 + 64 * samples_per_axis(c);
@@ -31,8 +37,12 @@ double mlx90393_conversion_time_us(const Mlx90393Config& c) {
   return 3 * per_axis + temp;
 }
 
-double mlx90393_noise_xy_ut(const Mlx90393Config& c) { return kNoiseXyAnchorUt * std::sqrt(3.0 / samples_per_axis(c)); }
-double mlx90393_noise_z_ut(const Mlx90393Config& c) { return kNoiseZAnchorUt * std::sqrt(3.0 / samples_per_axis(c)); }
+double mlx90393_noise_xy_ut(const Mlx90393Config& c) {
+  return kNoiseXyAnchorUt * std::sqrt(3.0 / samples_per_axis(c));
+}
+double mlx90393_noise_z_ut(const Mlx90393Config& c) {
+  return kNoiseZAnchorUt * std::sqrt(3.0 / samples_per_axis(c));
+}
 
 int32_t mlx90393_code(double field_ut, double sensitivity_ut, uint8_t res, bool* saturated) {
   const bool finite = std::isfinite(field_ut);

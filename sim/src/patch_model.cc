@@ -31,33 +31,47 @@ void accumulate_dipole(std::size_t ns, double px, double py, double pz, double m
   }
 }
 
-Error bad(const std::string& what) { return make_error(ErrorCode::kInvalidArgument, "patch design: " + what); }
+Error bad(const std::string& what) {
+  return make_error(ErrorCode::kInvalidArgument, "patch design: " + what);
+}
 
 }  // namespace
 
 Status validate(const PatchDesign& d) {
   auto positive = [](double x) { return std::isfinite(x) && x > 0; };
-  if (!positive(d.size_u_mm) || !positive(d.size_v_mm)) return bad("size_u_mm and size_v_mm must be > 0");
+  if (!positive(d.size_u_mm) || !positive(d.size_v_mm))
+    return bad("size_u_mm and size_v_mm must be > 0");
   if (!positive(d.thickness_mm)) return bad("thickness_mm must be > 0");
-  if (d.magnets_u < 1 || d.magnets_v < 1 || d.magnets_u * d.magnets_v > 4096) return bad("magnets_u/v must be 1..64");
-  if (d.sensors_u < 1 || d.sensors_v < 1 || d.sensors_u * d.sensors_v > kMaxSensors) return bad("sensors_u/v must give 1..256 sensors");
-  if (!positive(d.magnet_pitch_mm) || !positive(d.sensor_pitch_mm)) return bad("pitches must be > 0");
-  if (!positive(d.magnet_diameter_mm) || !positive(d.magnet_height_mm) || !positive(d.remanence_t)) {
+  if (d.magnets_u < 1 || d.magnets_v < 1 || d.magnets_u * d.magnets_v > 4096)
+    return bad("magnets_u/v must be 1..64");
+  if (d.sensors_u < 1 || d.sensors_v < 1 || d.sensors_u * d.sensors_v > kMaxSensors)
+    return bad("sensors_u/v must give 1..256 sensors");
+  if (!positive(d.magnet_pitch_mm) || !positive(d.sensor_pitch_mm))
+    return bad("pitches must be > 0");
+  if (!positive(d.magnet_diameter_mm) || !positive(d.magnet_height_mm) ||
+      !positive(d.remanence_t)) {
     return bad("magnet_diameter_mm, magnet_height_mm and remanence_t must be > 0");
   }
-  if (!positive(d.sensor_depth_mm) || d.sensor_depth_mm < d.thickness_mm) return bad("sensor_depth_mm must be >= thickness_mm");
+  if (!positive(d.sensor_depth_mm) || d.sensor_depth_mm < d.thickness_mm)
+    return bad("sensor_depth_mm must be >= thickness_mm");
   if (!positive(d.spread_mm)) return bad("spread_mm must be > 0");
   if (!std::isfinite(d.lateral_mm) || d.lateral_mm < 0) return bad("lateral_mm must be >= 0");
-  if (!std::isfinite(d.anisotropy) || std::fabs(d.anisotropy) >= 0.5) return bad("anisotropy must be in (-0.5, 0.5)");
-  if (!std::isfinite(d.stiffness_n_per_mm) || d.stiffness_n_per_mm <= 0) return bad("stiffness_n_per_mm must be > 0");
-  if ((d.sensors_u - 1) * d.sensor_pitch_mm > d.size_u_mm || (d.sensors_v - 1) * d.sensor_pitch_mm > d.size_v_mm) {
+  if (!std::isfinite(d.anisotropy) || std::fabs(d.anisotropy) >= 0.5)
+    return bad("anisotropy must be in (-0.5, 0.5)");
+  if (!std::isfinite(d.stiffness_n_per_mm) || d.stiffness_n_per_mm <= 0)
+    return bad("stiffness_n_per_mm must be > 0");
+  if ((d.sensors_u - 1) * d.sensor_pitch_mm > d.size_u_mm ||
+      (d.sensors_v - 1) * d.sensor_pitch_mm > d.size_v_mm) {
     return bad("the sensor grid does not fit inside the patch");
   }
   if (d.surface == SurfaceKind::kCylinder) {
-    if (!positive(d.radius_mm) || d.radius_mm <= d.sensor_depth_mm + 1) return bad("cylinder radius_mm must exceed sensor_depth_mm + 1");
-    if (d.size_u_mm / d.radius_mm > 1.5 * M_PI) return bad("cylinder arc (size_u_mm / radius_mm) must be below 270 degrees");
+    if (!positive(d.radius_mm) || d.radius_mm <= d.sensor_depth_mm + 1)
+      return bad("cylinder radius_mm must exceed sensor_depth_mm + 1");
+    if (d.size_u_mm / d.radius_mm > 1.5 * M_PI)
+      return bad("cylinder arc (size_u_mm / radius_mm) must be below 270 degrees");
   }
-  if (!mlx90393_config_valid(d.sensor_config)) return bad("sensor_config out of the MLX90393's ranges");
+  if (!mlx90393_config_valid(d.sensor_config))
+    return bad("sensor_config out of the MLX90393's ranges");
   return Status::Ok();
 }
 
@@ -70,7 +84,8 @@ Result<PatchModel> PatchModel::fabricated(const PatchDesign& design, uint64_t ha
   return build(design, hardware_uid, variation);
 }
 
-Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed, const FabricationVariation& var) {
+Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed,
+                                     const FabricationVariation& var) {
   if (Status s = validate(d); !s.ok()) return s.error();
   PatchModel p;
   p.design_ = d;
@@ -80,16 +95,20 @@ Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed, const 
   p.spread_v_ = spread * (1 - d.anisotropy);
   p.lateral_ = std::fmax(0.0, d.lateral_mm * (1 + var.lateral_rel_sd * rng.normal()));
 
-  const double moment = cylinder_moment_am2(d.remanence_t, d.magnet_diameter_mm, d.magnet_height_mm);
+  const double moment =
+      cylinder_moment_am2(d.remanence_t, d.magnet_diameter_mm, d.magnet_height_mm);
   for (int j = 0; j < d.magnets_v; ++j) {
     for (int i = 0; i < d.magnets_u; ++i) {
       Magnet m;
-      m.u = (i - (d.magnets_u - 1) / 2.0) * d.magnet_pitch_mm + var.magnet_position_sd_mm * rng.normal();
-      m.v = (j - (d.magnets_v - 1) / 2.0) * d.magnet_pitch_mm + var.magnet_position_sd_mm * rng.normal();
+      m.u = (i - (d.magnets_u - 1) / 2.0) * d.magnet_pitch_mm +
+            var.magnet_position_sd_mm * rng.normal();
+      m.v = (j - (d.magnets_v - 1) / 2.0) * d.magnet_pitch_mm +
+            var.magnet_position_sd_mm * rng.normal();
       m.h = d.magnet_centre_height_mm + var.magnet_height_sd_mm * rng.normal();
       const double sign = d.polarity == Polarity::kCheckerboard && (i + j) % 2 ? -1.0 : 1.0;
       const double mag = moment * (1 + var.magnet_moment_rel_sd * rng.normal());
-      const double tu = var.magnet_tilt_sd_rad * rng.normal(), tv = var.magnet_tilt_sd_rad * rng.normal();
+      const double tu = var.magnet_tilt_sd_rad * rng.normal(),
+                   tv = var.magnet_tilt_sd_rad * rng.normal();
       const double n = std::sqrt(1 + tu * tu + tv * tv);
       m.m_loc = Vec3<double>{tu / n, tv / n, 1 / n} * (sign * mag);
       p.magnets_.push_back(m);
@@ -98,19 +117,23 @@ Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed, const 
   for (int j = 0; j < d.sensors_v; ++j) {
     for (int i = 0; i < d.sensors_u; ++i) {
       Sensor s;
-      s.u = (i - (d.sensors_u - 1) / 2.0) * d.sensor_pitch_mm + var.sensor_position_sd_mm * rng.normal();
-      s.v = (j - (d.sensors_v - 1) / 2.0) * d.sensor_pitch_mm + var.sensor_position_sd_mm * rng.normal();
+      s.u = (i - (d.sensors_u - 1) / 2.0) * d.sensor_pitch_mm +
+            var.sensor_position_sd_mm * rng.normal();
+      s.v = (j - (d.sensors_v - 1) / 2.0) * d.sensor_pitch_mm +
+            var.sensor_position_sd_mm * rng.normal();
       s.h = -d.sensor_depth_mm + var.sensor_position_sd_mm * rng.normal();
       Vec3<double> tu, tv, n;
       s.pos = p.surface_point(s.u, s.v, s.h, &tu, &tv, &n);
       // The sensor's axes: the local surface frame, turned by a small mounting error.
-      const Mat3 err = rotation_from_vector(Vec3<double>{rng.normal(), rng.normal(), rng.normal()} * var.sensor_rotation_sd_rad);
+      const Mat3 err = rotation_from_vector(Vec3<double>{rng.normal(), rng.normal(), rng.normal()} *
+                                            var.sensor_rotation_sd_rad);
       const Vec3<double> ax[3] = {tu, tv, n};
       for (int r = 0; r < 3; ++r) {
         const Vec3<double>& e = err.r[r];
         s.frame.r[r] = ax[0] * e.x + ax[1] * e.y + ax[2] * e.z;
       }
-      s.gain = {1 + var.sensor_gain_rel_sd * rng.normal(), 1 + var.sensor_gain_rel_sd * rng.normal(),
+      s.gain = {1 + var.sensor_gain_rel_sd * rng.normal(),
+                1 + var.sensor_gain_rel_sd * rng.normal(),
                 1 + var.sensor_gain_rel_sd * rng.normal()};
       p.sensors_.push_back(s);
     }
@@ -123,7 +146,8 @@ Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed, const 
     Vec3<double> tu, tv, n;
     const Vec3<double> pos = p.surface_point(m.u, m.v, m.h, &tu, &tv, &n);
     const Vec3<double> moment3 = tu * m.m_loc.x + tv * m.m_loc.y + n * m.m_loc.z;
-    for (std::size_t si = 0; si < ns; ++si) p.rest_[mi * ns + si] = dipole_field_ut(moment3, p.sensors_[si].pos - pos);
+    for (std::size_t si = 0; si < ns; ++si)
+      p.rest_[mi * ns + si] = dipole_field_ut(moment3, p.sensors_[si].pos - pos);
   }
   for (const Sensor& s : p.sensors_) {
     p.sx_.push_back(s.pos.x);
@@ -150,7 +174,8 @@ void PatchModel::rest_field_ut(std::span<double> out) const {
   }
 }
 
-void PatchModel::contact_jacobian(const Contact& c, std::span<double> jacobian, std::span<double> field) const {
+void PatchModel::contact_jacobian(const Contact& c, std::span<double> jacobian,
+                                  std::span<double> field) const {
   using D = Dual<3>;
   const ContactT<D> cd{D::variable(c.u_mm, 0), D::variable(c.v_mm, 1), D::variable(c.depth_mm, 2)};
   std::vector<D> out(static_cast<std::size_t>(channel_count()));
@@ -186,15 +211,16 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
     }
     if (!moved) continue;
     Vec3<double> tu, tv, nn;
-    const Vec3<double> pos = surface_point(m.u - lateral_ * pu, m.v - lateral_ * pv, m.h - w, &tu, &tv, &nn);
+    const Vec3<double> pos =
+        surface_point(m.u - lateral_ * pu, m.v - lateral_ * pv, m.h - w, &tu, &tv, &nn);
     const double mu = m.m_loc.x - pu * m.m_loc.z, mv = m.m_loc.y - pv * m.m_loc.z, mz = m.m_loc.z;
     const double k = std::sqrt(dot(m.m_loc, m.m_loc) / (mu * mu + mv * mv + mz * mz));
     const Vec3<double> mom = tu * (mu * k) + tv * (mv * k) + nn * (mz * k);
     const double* rx = rx_.data() + mi * ns;
     const double* ry = ry_.data() + mi * ns;
     const double* rz = rz_.data() + mi * ns;
-    accumulate_dipole(ns, pos.x, pos.y, pos.z, mom.x, mom.y, mom.z, sx_.data(), sy_.data(), sz_.data(), rx, ry, rz,
-                      ax, ay, az);
+    accumulate_dipole(ns, pos.x, pos.y, pos.z, mom.x, mom.y, mom.z, sx_.data(), sy_.data(),
+                      sz_.data(), rx, ry, rz, ax, ay, az);
   }
   for (std::size_t si = 0; si < ns; ++si) {
     const Vec3<double> local = sensors_[si].frame.apply(Vec3<double>{ax[si], ay[si], az[si]});
@@ -206,7 +232,8 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
 
 double PatchModel::force_n(double depth_mm) const {
   if (!(depth_mm > 0)) return 0;
-  return design_.stiffness_n_per_mm * depth_mm + design_.stiffening_n_per_mm3 * depth_mm * depth_mm * depth_mm;
+  return design_.stiffness_n_per_mm * depth_mm +
+         design_.stiffening_n_per_mm3 * depth_mm * depth_mm * depth_mm;
 }
 
 }  // namespace skinbus::sim

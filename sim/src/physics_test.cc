@@ -13,8 +13,8 @@ namespace skinbus::sim {
 namespace {
 
 TEST(DipoleTest, AnalyticValuesOnAxisAndEquator) {
-  const double m = 0.011;  // A m^2
-  const double r = 17.0;   // mm
+  const double m = 0.011;                                   // A m^2
+  const double r = 17.0;                                    // mm
   const double k = 1e-7 * m / std::pow(r * 1e-3, 3) * 1e6;  // mu0/4pi m / r^3 in uT
   const auto on_axis = dipole_field_ut(Vec3<double>{0, 0, m}, Vec3<double>{0, 0, r});
   EXPECT_NEAR(on_axis.z, 2 * k, 1e-9 * k);
@@ -32,7 +32,8 @@ TEST(DipoleTest, PointDipoleMatchesAFiniteCylinderAtSensorDistance) {
   // A 3 x 1.5 mm N42 disc seen along its axis: the point dipole overestimates the exact field
   // by (radius/z)^2-order terms: 0.7 % at the sensors' 17.75 mm, 1.6 % at 12 mm.
   const double m = cylinder_moment_am2(1.32, 3.0, 1.5);
-  const double limits[][2] = {{12.0, 0.02}, {16.0, 0.01}, {17.75, 0.008}, {20.0, 0.006}, {40.0, 0.0015}};
+  const double limits[][2] = {
+      {12.0, 0.02}, {16.0, 0.01}, {17.75, 0.008}, {20.0, 0.006}, {40.0, 0.0015}};
   for (const auto& [z, tol] : limits) {
     const double exact = cylinder_axial_field_ut(1.32, 3.0, 1.5, z);
     const double dip = dipole_field_ut(Vec3<double>{0, 0, m}, Vec3<double>{0, 0, z}).z;
@@ -200,7 +201,8 @@ TEST_F(PatchModelTest, JacobianMatchesFiniteDifferences) {
         p.contact_field_ut(std::span<const Contact>(&cm, 1), fm);
         for (int i = 0; i < 48; ++i) {
           const double fd = (fp[i] - fm[i]) / (2 * h);
-          EXPECT_NEAR(jac[3 * i + k], fd, 1e-4 * (1 + std::fabs(fd))) << "channel " << i << " param " << k;
+          EXPECT_NEAR(jac[3 * i + k], fd, 1e-4 * (1 + std::fabs(fd)))
+              << "channel " << i << " param " << k;
         }
       }
     }
@@ -243,16 +245,18 @@ TEST_F(PatchModelTest, NoNanOrInfAtExtremes) {
     p.rest_field_ut(rest);
     for (double x : rest) ASSERT_TRUE(std::isfinite(x));
     const double edge = 70, corner = 70;
-    for (const Contact c : {Contact{0, 0, 0}, Contact{0, 0, 1e-9}, Contact{0, 0, 50}, Contact{0, 0, 1e9},
-                            Contact{edge, 0, 4}, Contact{corner, corner, 4}, Contact{-corner, corner, 9},
-                            Contact{500, -500, 4}, Contact{60, 60, -3}, Contact{-60, -60, 4},
-                            Contact{std::nan(""), 0, 3}, Contact{0, 0, std::nan("")},
-                            Contact{1e300, 0, 3}}) {
+    for (const Contact c :
+         {Contact{0, 0, 0}, Contact{0, 0, 1e-9}, Contact{0, 0, 50}, Contact{0, 0, 1e9},
+          Contact{edge, 0, 4}, Contact{corner, corner, 4}, Contact{-corner, corner, 9},
+          Contact{500, -500, 4}, Contact{60, 60, -3}, Contact{-60, -60, 4},
+          Contact{std::nan(""), 0, 3}, Contact{0, 0, std::nan("")}, Contact{1e300, 0, 3}}) {
       p.contact_field_ut(std::span<const Contact>(&c, 1), out);
-      for (double x : out) ASSERT_TRUE(std::isfinite(x)) << c.u_mm << "," << c.v_mm << "," << c.depth_mm;
+      for (double x : out)
+        ASSERT_TRUE(std::isfinite(x)) << c.u_mm << "," << c.v_mm << "," << c.depth_mm;
       if (std::isfinite(c.u_mm) && std::isfinite(c.depth_mm) && std::fabs(c.u_mm) < 1e6) {
         p.contact_jacobian(c, jac);
-        for (double x : jac) ASSERT_TRUE(std::isfinite(x)) << c.u_mm << "," << c.v_mm << "," << c.depth_mm;
+        for (double x : jac)
+          ASSERT_TRUE(std::isfinite(x)) << c.u_mm << "," << c.v_mm << "," << c.depth_mm;
       }
     }
   }

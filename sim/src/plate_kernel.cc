@@ -18,10 +18,10 @@ void kelvin_kei(double x, double* kei, double* dkei_dx) {
   // Terms: ber = sum (-1)^k z^{4k} / ((2k)!)^2 ; bei = sum (-1)^k z^{4k+2} / ((2k+1)!)^2 ;
   // extra = sum (-1)^k psi(2k+2) z^{4k+2} / ((2k+1)!)^2, psi the digamma function.
   double ber = 0, bei = 0, extra = 0, dber = 0, dbei = 0, dextra = 0;
-  double zpow = 1;         // z^{4k}
-  double fact_even = 1;    // (2k)!
-  double fact_odd = 1;     // (2k+1)!
-  double harmonic = 1.0;   // H_{2k+1} = sum_{j=1}^{2k+1} 1/j, so psi(2k+2) = H_{2k+1} - gamma
+  double zpow = 1;        // z^{4k}
+  double fact_even = 1;   // (2k)!
+  double fact_odd = 1;    // (2k+1)!
+  double harmonic = 1.0;  // H_{2k+1} = sum_{j=1}^{2k+1} 1/j, so psi(2k+2) = H_{2k+1} - gamma
   for (int k = 0; k < 40; ++k) {
     const double sign = (k % 2) ? -1.0 : 1.0;
     const double te = sign * zpow / (fact_even * fact_even);
@@ -34,7 +34,9 @@ void kelvin_kei(double x, double* kei, double* dkei_dx) {
     if (k > 0) dber += te * (4.0 * k) / z / 2;
     dbei += to * (4.0 * k + 2) / z / 2;
     dextra += psi * to * (4.0 * k + 2) / z / 2;
-    if (std::fabs(te) + std::fabs(to) < 1e-300 || (k > 3 && std::fabs(to) < 1e-18 && std::fabs(te) < 1e-18)) break;
+    if (std::fabs(te) + std::fabs(to) < 1e-300 ||
+        (k > 3 && std::fabs(to) < 1e-18 && std::fabs(te) < 1e-18))
+      break;
     zpow *= z4;
     fact_even *= (2.0 * k + 1) * (2.0 * k + 2);
     fact_odd *= (2.0 * k + 2) * (2.0 * k + 3);
@@ -98,7 +100,8 @@ void plate_kernel(double s, double* g, double* dg_ds, double* d2g_ds2) {
   const double h01 = f * f * (3 - 2 * f), h11 = f * f * (f - 1);
   const double g0 = t.g[i], g1 = t.g[i + 1], d0 = t.dg[i] * kStep, d1 = t.dg[i + 1] * kStep;
   *g = h00 * g0 + h10 * d0 + h01 * g1 + h11 * d1;
-  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00, dh11 = 3 * f * f - 2 * f;
+  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00,
+               dh11 = 3 * f * f - 2 * f;
   *dg_ds = (dh00 * g0 + dh10 * d0 + dh01 * g1 + dh11 * d1) / kStep;
   if (d2g_ds2) {
     const double e00 = 12 * f - 6, e10 = 6 * f - 4, e11 = 6 * f - 2;

@@ -38,7 +38,8 @@ inline double cylinder_moment_am2(double remanence_t, double diameter_mm, double
 
 // Exact on-axis field of a uniformly magnetised cylinder (axial magnetisation), at distance
 // `z_mm` from its centre along the axis (|z| > height/2), in uT. For the finite-size check.
-inline double cylinder_axial_field_ut(double remanence_t, double diameter_mm, double height_mm, double z_mm) {
+inline double cylinder_axial_field_ut(double remanence_t, double diameter_mm, double height_mm,
+                                      double z_mm) {
   const double r = diameter_mm / 2, h = height_mm / 2;
   const double a = z_mm + h, b = z_mm - h;
   return remanence_t / 2 * (a / std::sqrt(a * a + r * r) - b / std::sqrt(b * b + r * r)) * 1e6;

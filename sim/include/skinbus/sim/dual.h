@@ -13,7 +13,7 @@ namespace skinbus::sim {
 
 template <int N>
 struct Dual {
-  double v = 0;                // value
+  double v = 0;               // value
   std::array<double, N> d{};  // partial derivatives
 
   Dual() = default;
@@ -57,13 +57,21 @@ Dual<N> operator/(const Dual<N>& a, const Dual<N>& b) {
   return r;
 }
 template <int N>
-Dual<N> operator+(const Dual<N>& a, double b) { return a + Dual<N>(b); }
+Dual<N> operator+(const Dual<N>& a, double b) {
+  return a + Dual<N>(b);
+}
 template <int N>
-Dual<N> operator+(double a, const Dual<N>& b) { return Dual<N>(a) + b; }
+Dual<N> operator+(double a, const Dual<N>& b) {
+  return Dual<N>(a) + b;
+}
 template <int N>
-Dual<N> operator-(const Dual<N>& a, double b) { return a - Dual<N>(b); }
+Dual<N> operator-(const Dual<N>& a, double b) {
+  return a - Dual<N>(b);
+}
 template <int N>
-Dual<N> operator-(double a, const Dual<N>& b) { return Dual<N>(a) - b; }
+Dual<N> operator-(double a, const Dual<N>& b) {
+  return Dual<N>(a) - b;
+}
 template <int N>
 Dual<N> operator*(const Dual<N>& a, double b) {
   Dual<N> r(a.v * b);
@@ -71,17 +79,29 @@ Dual<N> operator*(const Dual<N>& a, double b) {
   return r;
 }
 template <int N>
-Dual<N> operator*(double a, const Dual<N>& b) { return b * a; }
+Dual<N> operator*(double a, const Dual<N>& b) {
+  return b * a;
+}
 template <int N>
-Dual<N> operator/(const Dual<N>& a, double b) { return a * (1.0 / b); }
+Dual<N> operator/(const Dual<N>& a, double b) {
+  return a * (1.0 / b);
+}
 template <int N>
-Dual<N> operator/(double a, const Dual<N>& b) { return Dual<N>(a) / b; }
+Dual<N> operator/(double a, const Dual<N>& b) {
+  return Dual<N>(a) / b;
+}
 template <int N>
-Dual<N>& operator+=(Dual<N>& a, const Dual<N>& b) { return a = a + b; }
+Dual<N>& operator+=(Dual<N>& a, const Dual<N>& b) {
+  return a = a + b;
+}
 template <int N>
-Dual<N>& operator-=(Dual<N>& a, const Dual<N>& b) { return a = a - b; }
+Dual<N>& operator-=(Dual<N>& a, const Dual<N>& b) {
+  return a = a - b;
+}
 template <int N>
-Dual<N>& operator*=(Dual<N>& a, const Dual<N>& b) { return a = a * b; }
+Dual<N>& operator*=(Dual<N>& a, const Dual<N>& b) {
+  return a = a * b;
+}
 
 template <int N>
 Dual<N> sqrt(const Dual<N>& a) {
@@ -128,6 +148,8 @@ template <typename T>
 T first_order(const T& x, double f, double df) {
   return T(f) + (x - T(value_of(x))) * df;
 }
-inline double first_order(double, double f, double) { return f; }
+inline double first_order(double, double f, double) {
+  return f;
+}
 
 }  // namespace skinbus::sim

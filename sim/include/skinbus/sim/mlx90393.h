@@ -16,12 +16,12 @@
 namespace skinbus::sim {
 
 struct Mlx90393Config {
-  uint8_t gain_sel = 7;       // 0..7: 0 = highest range, 7 = finest resolution
-  uint8_t res_xy = 0;         // 0..3: each step halves resolution (doubles range) on X and Y
-  uint8_t res_z = 0;          // 0..3, on Z
-  uint8_t osr = 1;            // 0..3: 2^OSR oversampling
-  uint8_t dig_filt = 2;       // 0..7: digital filter depth
-  bool temperature = false;   // also convert temperature (adds its conversion time)
+  uint8_t gain_sel = 7;      // 0..7: 0 = highest range, 7 = finest resolution
+  uint8_t res_xy = 0;        // 0..3: each step halves resolution (doubles range) on X and Y
+  uint8_t res_z = 0;         // 0..3, on Z
+  uint8_t osr = 1;           // 0..3: 2^OSR oversampling
+  uint8_t dig_filt = 2;      // 0..7: digital filter depth
+  bool temperature = false;  // also convert temperature (adds its conversion time)
 };
 
 // uT per LSB for an X/Y or Z channel.

@@ -104,10 +104,10 @@ class PatchModel {
     Vec3<double> m_loc;  // moment in the local surface frame (A m^2), tilt included
   };
   struct Sensor {
-    double u, v, h;       // position, surface coordinates (h < 0: below the surface)
-    Vec3<double> pos;     // 3D position (mm)
-    Mat3 frame;           // rows: the sensor's x, y, z axes in patch 3D coordinates
-    Vec3<double> gain;    // per-axis gain (1 nominal)
+    double u, v, h;     // position, surface coordinates (h < 0: below the surface)
+    Vec3<double> pos;   // 3D position (mm)
+    Mat3 frame;         // rows: the sensor's x, y, z axes in patch 3D coordinates
+    Vec3<double> gain;  // per-axis gain (1 nominal)
   };
 
   // The nominal unit of a design (no fabrication variation).
@@ -139,7 +139,8 @@ class PatchModel {
 
   // Jacobian of the field change of one contact with respect to (u, v, depth): row-major,
   // channel_count() x 3. Also returns the field change itself in `field` when not empty.
-  void contact_jacobian(const Contact& c, std::span<double> jacobian, std::span<double> field = {}) const;
+  void contact_jacobian(const Contact& c, std::span<double> jacobian,
+                        std::span<double> field = {}) const;
 
   // Magnets within reach of a contact at (u, v): the others do not move.
   bool magnet_in_reach(const Magnet& m, double u, double v) const {
@@ -155,11 +156,13 @@ class PatchModel {
 
   // 3D position and local frame (rows: t_u, t_v, normal) of surface point (u, v, h).
   template <typename T>
-  Vec3<T> surface_point(const T& u, const T& v, const T& h, Vec3<T>* t_u, Vec3<T>* t_v, Vec3<T>* n) const;
+  Vec3<T> surface_point(const T& u, const T& v, const T& h, Vec3<T>* t_u, Vec3<T>* t_v,
+                        Vec3<T>* n) const;
 
  private:
   PatchModel() = default;
-  static Result<PatchModel> build(const PatchDesign& design, uint64_t seed, const FabricationVariation& var);
+  static Result<PatchModel> build(const PatchDesign& design, uint64_t seed,
+                                  const FabricationVariation& var);
 
   PatchDesign design_;
   double spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
@@ -225,7 +228,7 @@ void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out)
       const double q = sv > 1e-6 ? dg / sv : 0.0;
       const double dq = sv > 1e-6 ? (d2g * sv - dg) / (sv * sv) : 0.0;
       const T dgs = first_order(s, q, dq);
-      w = w + depth * gs;  // deflection into the skin
+      w = w + depth * gs;                      // deflection into the skin
       pu = pu - depth * dgs * du / (lu * lu);  // slope of the surface height h = -w
       pv = pv - depth * dgs * dv / (lv * lv);
     }

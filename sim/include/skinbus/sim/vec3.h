@@ -11,19 +11,29 @@ struct Vec3 {
 };
 
 template <typename T>
-Vec3<T> operator+(const Vec3<T>& a, const Vec3<T>& b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+Vec3<T> operator+(const Vec3<T>& a, const Vec3<T>& b) {
+  return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
 template <typename T>
-Vec3<T> operator-(const Vec3<T>& a, const Vec3<T>& b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+Vec3<T> operator-(const Vec3<T>& a, const Vec3<T>& b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
 template <typename T, typename S>
-Vec3<T> operator*(const Vec3<T>& a, const S& s) { return {a.x * s, a.y * s, a.z * s}; }
+Vec3<T> operator*(const Vec3<T>& a, const S& s) {
+  return {a.x * s, a.y * s, a.z * s};
+}
 template <typename T>
-T dot(const Vec3<T>& a, const Vec3<T>& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+T dot(const Vec3<T>& a, const Vec3<T>& b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
 template <typename T>
 Vec3<T> cross(const Vec3<T>& a, const Vec3<T>& b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
 template <typename T>
-Vec3<T> lift(const Vec3<double>& v) { return {T(v.x), T(v.y), T(v.z)}; }
+Vec3<T> lift(const Vec3<double>& v) {
+  return {T(v.x), T(v.y), T(v.z)};
+}
 
 // A rotation as a 3x3 matrix, rows r[0..2]: apply(v) = R v.
 struct Mat3 {

@@ -1,0 +1,32 @@
+// skinbus/sim/crlb.h: the Cramer-Rao lower bound: the best position and depth error any
+// unbiased estimator can reach at a point of a patch, from the forward model's Jacobian.
+//
+// With channel noise sigma_i (independent, Gaussian), the Fisher information of the contact
+// parameters theta = (u, v, depth) is F = J^T diag(1/sigma^2) J, J = d field / d theta, and the
+// covariance of any unbiased estimate is at least F^-1. Optionally a uniform ambient field
+// (3 more unknowns, as the physics estimator fits) is a nuisance parameter: F grows to 6 x 6 and
+// the bound on (u, v, depth) is read from its inverse. This is the physical limit every
+// estimator in this project is judged against.
+#pragma once
+
+#include "skinbus/sim/patch_model.h"
+
+namespace skinbus::sim {
+
+inline constexpr double kUnidentifiableMm = 1e3;  // reported bound where F is singular
+
+struct CrlbPoint {
+  double sd_u_mm = 0, sd_v_mm = 0;
+  double sd_xy_mm = 0;     // sqrt(var_u + var_v): the RMS in-plane error bound
+  double sd_depth_mm = 0;
+  bool identifiable = true;  // false: no information (e.g. far off the patch); sd = kUnidentifiableMm
+};
+
+CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut, double noise_z_ut,
+                  bool ambient_nuisance = false);
+
+// Inverts a symmetric positive-definite n x n matrix in place (n <= 8) by Gauss-Jordan with
+// partial pivoting; false if it is singular to working precision.
+bool invert_small(double* a, int n);
+
+}  // namespace skinbus::sim

@@ -1,0 +1,80 @@
+// skinbus/sim/dataset.h: indentation datasets: press plans, generation from a simulated
+// patch, and the one CSV format that simulator, lab recordings and the training tool share.
+//
+// The format (docs/dataset_format.md): `#` header lines `key: value` (format version, source,
+// unit, sensor layout, units), then one CSV header line naming every column, then one row per
+// sample. Standard columns: press, t_s, u_mm, v_mm, depth_mm, force_n, then per sensor i
+// s<i>_bx_ut, s<i>_by_ut, s<i>_bz_ut (tared field, the sensor's own frame, uT). Any other
+// column (a lab's robot pose, say) is kept by name. Any number of sensors.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "skinbus/common/result.h"
+#include "skinbus/sim/simulated_patch.h"
+
+namespace skinbus::sim {
+
+struct DatasetSensor {
+  double u_mm = 0, v_mm = 0, h_mm = 0;
+};
+
+struct Dataset {
+  std::map<std::string, std::string> meta;  // header block (format, source, unit, plan, ...)
+  std::vector<DatasetSensor> sensors;
+  std::vector<std::string> extra_columns;   // columns beyond the standard ones, in order
+  // One entry per row (struct of arrays).
+  std::vector<int64_t> press;               // press number (-1: not from a press)
+  std::vector<double> t_s, u_mm, v_mm, depth_mm, force_n;
+  std::vector<double> field_ut;             // rows x channels, row-major
+  std::vector<double> extra;                // rows x extra_columns, row-major
+
+  std::size_t rows() const { return u_mm.size(); }
+  int channels() const { return 3 * static_cast<int>(sensors.size()); }
+  const double* field(std::size_t row) const { return field_ut.data() + row * channels(); }
+  void append(int64_t press_id, double t, double u, double v, double depth, double force, const double* field);
+};
+
+// Where a robot presses. Positions in the patch frame, mm.
+struct PressPoint {
+  double u_mm = 0, v_mm = 0;
+};
+// The seed's protocol: an n x n grid at `pitch_mm`, centred (19 x 19 at 7.5 mm).
+std::vector<PressPoint> plan_grid(int n, double pitch_mm);
+// The same grid, each point moved by up to +-jitter * pitch/2 (uniform), seeded.
+std::vector<PressPoint> plan_jittered_grid(int n, double pitch_mm, double jitter, uint64_t seed);
+// `count` points of the 2D Halton sequence (bases 2, 3) over the square +-half_extent_mm.
+std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t skip = 0);
+// `count` uniformly random points over the square +-half_extent_mm.
+std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t seed);
+
+// A press-and-release depth ramp, as an indentation robot runs it.
+struct RampProtocol {
+  double max_depth_mm = 4.0;
+  double speed_mm_per_s = 2.0;      // down and up
+  double rate_hz = 41.7;            // sampling
+  double min_depth_mm = 1e-9;       // only samples deeper than this are kept ("contact samples")
+  int tare_samples = 32;            // baseline averaged before the presses
+};
+
+// Runs `plan` on `patch`: a ramp at every point, keeping contact samples, tared. Fills meta,
+// sensors and rows. Deterministic for the patch's noise seed.
+Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan, const RampProtocol& protocol,
+                              const Environment& env = {});
+
+// The super-resolution test split: `count` static presses at random positions over
+// +-half_extent_mm and random depths in (0, max_depth_mm], one sample each.
+Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm, double max_depth_mm,
+                                 uint64_t seed, const Environment& env = {}, int tare_samples = 32);
+
+// Writes / reads the CSV format. Errors name the file and line.
+Status write_dataset_csv(const Dataset& d, const std::string& path);
+Result<Dataset> read_dataset_csv(const std::string& path);
+
+// A fingerprint of the rows (FNV-1a over the numbers), for model metadata.
+uint64_t dataset_fingerprint(const Dataset& d);
+
+}  // namespace skinbus::sim

@@ -1,0 +1,392 @@
+#include "skinbus/sim/dataset.h"
+
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+namespace skinbus::sim {
+
+void Dataset::append(int64_t press_id, double t, double u, double v, double depth, double force, const double* f) {
+  press.push_back(press_id);
+  t_s.push_back(t);
+  u_mm.push_back(u);
+  v_mm.push_back(v);
+  depth_mm.push_back(depth);
+  force_n.push_back(force);
+  field_ut.insert(field_ut.end(), f, f + channels());
+}
+
+std::vector<PressPoint> plan_grid(int n, double pitch_mm) {
+  std::vector<PressPoint> p;
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < n; ++i) p.push_back({(i - (n - 1) / 2.0) * pitch_mm, (j - (n - 1) / 2.0) * pitch_mm});
+  }
+  return p;
+}
+
+std::vector<PressPoint> plan_jittered_grid(int n, double pitch_mm, double jitter, uint64_t seed) {
+  Rng rng(seed);
+  std::vector<PressPoint> p = plan_grid(n, pitch_mm);
+  for (PressPoint& q : p) {
+    q.u_mm += rng.uniform(-1, 1) * jitter * pitch_mm / 2;
+    q.v_mm += rng.uniform(-1, 1) * jitter * pitch_mm / 2;
+  }
+  return p;
+}
+
+namespace {
+double radical_inverse(uint64_t i, unsigned base) {
+  double f = 1, r = 0;
+  while (i > 0) {
+    f /= base;
+    r += f * static_cast<double>(i % base);
+    i /= base;
+  }
+  return r;
+}
+}  // namespace
+
+std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t skip) {
+  std::vector<PressPoint> p;
+  for (int k = 0; k < count; ++k) {
+    const uint64_t i = skip + static_cast<uint64_t>(k) + 1;
+    p.push_back({(2 * radical_inverse(i, 2) - 1) * half_extent_mm, (2 * radical_inverse(i, 3) - 1) * half_extent_mm});
+  }
+  return p;
+}
+
+std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t seed) {
+  Rng rng(seed);
+  std::vector<PressPoint> p;
+  for (int k = 0; k < count; ++k) p.push_back({rng.uniform(-1, 1) * half_extent_mm, rng.uniform(-1, 1) * half_extent_mm});
+  return p;
+}
+
+namespace {
+
+void fill_layout(const SimulatedPatch& patch, Dataset* d) {
+  const PatchModel& m = patch.model();
+  d->sensors.clear();
+  for (const auto& s : m.sensors()) d->sensors.push_back({s.u, s.v, s.h});
+  const PatchDesign& des = m.design();
+  d->meta["format"] = "skinbus-dataset 1";
+  d->meta["source"] = "sim";
+  d->meta["geometry"] = des.surface == SurfaceKind::kFlat
+                            ? "flat size_u_mm=" + std::to_string(des.size_u_mm) + " size_v_mm=" + std::to_string(des.size_v_mm)
+                            : "cylinder radius_mm=" + std::to_string(des.radius_mm) + " size_u_mm=" +
+                                  std::to_string(des.size_u_mm) + " size_v_mm=" + std::to_string(des.size_v_mm);
+  d->meta["field"] = "tared (baseline subtracted), uT, each sensor's own frame";
+  char noise[64];
+  std::snprintf(noise, sizeof noise, "xy=%.3f z=%.3f", patch.noise_xy_ut(), patch.noise_z_ut());
+  d->meta["noise_ut"] = noise;
+}
+
+}  // namespace
+
+Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan, const RampProtocol& pr,
+                              const Environment& env) {
+  Dataset d;
+  fill_layout(patch, &d);
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "ramp max_depth_mm=%g speed_mm_per_s=%g rate_hz=%g presses=%zu", pr.max_depth_mm,
+                pr.speed_mm_per_s, pr.rate_hz, plan.size());
+  d.meta["protocol"] = buf;
+  const int nc = patch.channel_count();
+  std::vector<double> baseline(nc), m(nc), tared(nc);
+  patch.tare(env, pr.tare_samples, baseline);
+  const double dt = 1.0 / pr.rate_hz;
+  const double ramp_s = pr.max_depth_mm / pr.speed_mm_per_s;
+  double t = 0;
+  for (std::size_t k = 0; k < plan.size(); ++k) {
+    // Down, then up, sampled at the rate; the sample times start half a period in.
+    for (double tp = dt / 2; tp < 2 * ramp_s; tp += dt) {
+      const double depth = pr.speed_mm_per_s * (tp < ramp_s ? tp : 2 * ramp_s - tp);
+      if (!(depth > pr.min_depth_mm)) continue;
+      const Contact c{plan[k].u_mm, plan[k].v_mm, depth};
+      patch.measure(std::span<const Contact>(&c, 1), env, m);
+      for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
+      d.append(static_cast<int64_t>(k), t + tp, c.u_mm, c.v_mm, depth, patch.model().force_n(depth), tared.data());
+    }
+    t += 2 * ramp_s + 1.0;  // a second to move to the next point
+  }
+  return d;
+}
+
+Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm, double max_depth_mm,
+                                 uint64_t seed, const Environment& env, int tare_samples) {
+  Dataset d;
+  fill_layout(patch, &d);
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "random_static count=%d half_extent_mm=%g max_depth_mm=%g seed=%llu", count,
+                half_extent_mm, max_depth_mm, static_cast<unsigned long long>(seed));
+  d.meta["protocol"] = buf;
+  const int nc = patch.channel_count();
+  std::vector<double> baseline(nc), m(nc), tared(nc);
+  patch.tare(env, tare_samples, baseline);
+  Rng rng(seed);
+  for (int k = 0; k < count; ++k) {
+    const Contact c{rng.uniform(-1, 1) * half_extent_mm, rng.uniform(-1, 1) * half_extent_mm,
+                    max_depth_mm * (1 - rng.uniform())};  // (0, max]
+    patch.measure(std::span<const Contact>(&c, 1), env, m);
+    for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
+    d.append(k, 0, c.u_mm, c.v_mm, c.depth_mm, patch.model().force_n(c.depth_mm), tared.data());
+  }
+  return d;
+}
+
+// ---- CSV ---------------------------------------------------------------------------------------
+
+namespace {
+
+const char* const kStandardColumns[] = {"press", "t_s", "u_mm", "v_mm", "depth_mm", "force_n"};
+
+void put_number(std::string* s, double x) {
+  char buf[32];
+  auto r = std::to_chars(buf, buf + sizeof buf, x, std::chars_format::general, 9);
+  s->append(buf, r.ptr);
+}
+
+}  // namespace
+
+Status write_dataset_csv(const Dataset& d, const std::string& path) {
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (!f) return make_error(ErrorCode::kIo, "cannot write '" + path + "': " + std::strerror(errno));
+  std::string s;
+  for (const auto& [k, v] : d.meta) {
+    if (k == "sensors" || k.rfind("sensor ", 0) == 0) continue;
+    s += "# " + k + ": " + v + "\n";
+  }
+  s += "# sensors: " + std::to_string(d.sensors.size()) + "\n";
+  for (std::size_t i = 0; i < d.sensors.size(); ++i) {
+    s += "# sensor " + std::to_string(i) + ": u_mm=";
+    put_number(&s, d.sensors[i].u_mm);
+    s += " v_mm=";
+    put_number(&s, d.sensors[i].v_mm);
+    s += " h_mm=";
+    put_number(&s, d.sensors[i].h_mm);
+    s += "\n";
+  }
+  for (const char* c : kStandardColumns) s += std::string(c) + (std::strcmp(c, "force_n") ? "," : "");
+  char name[32];
+  for (std::size_t i = 0; i < d.sensors.size(); ++i) {
+    for (char a : {'x', 'y', 'z'}) {
+      std::snprintf(name, sizeof name, ",s%02zu_b%c_ut", i, a);
+      s += name;
+    }
+  }
+  for (const std::string& e : d.extra_columns) s += "," + e;
+  s += "\n";
+  const int nc = d.channels();
+  const std::size_t ne = d.extra_columns.size();
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    s += std::to_string(d.press[r]);
+    for (double x : {d.t_s[r], d.u_mm[r], d.v_mm[r], d.depth_mm[r], d.force_n[r]}) {
+      s += ',';
+      put_number(&s, x);
+    }
+    for (int i = 0; i < nc; ++i) {
+      s += ',';
+      put_number(&s, d.field_ut[r * nc + i]);
+    }
+    for (std::size_t e = 0; e < ne; ++e) {
+      s += ',';
+      put_number(&s, d.extra[r * ne + e]);
+    }
+    s += '\n';
+    if (s.size() > (1 << 20)) {
+      std::fwrite(s.data(), 1, s.size(), f);
+      s.clear();
+    }
+  }
+  std::fwrite(s.data(), 1, s.size(), f);
+  if (std::fclose(f) != 0) return make_error(ErrorCode::kIo, "write to '" + path + "' failed: " + std::strerror(errno));
+  return Status::Ok();
+}
+
+namespace {
+
+bool parse_double(std::string_view t, double* out) {
+  while (!t.empty() && (t.front() == ' ' || t.front() == '\t')) t.remove_prefix(1);
+  while (!t.empty() && (t.back() == ' ' || t.back() == '\t' || t.back() == '\r')) t.remove_suffix(1);
+  if (t.empty()) return false;
+  auto r = std::from_chars(t.data(), t.data() + t.size(), *out);
+  return r.ec == std::errc() && r.ptr == t.data() + t.size();
+}
+
+std::vector<std::string_view> split(std::string_view line, char sep) {
+  std::vector<std::string_view> out;
+  std::size_t start = 0;
+  for (;;) {
+    const std::size_t p = line.find(sep, start);
+    out.push_back(line.substr(start, p == std::string_view::npos ? std::string_view::npos : p - start));
+    if (p == std::string_view::npos) break;
+    start = p + 1;
+  }
+  return out;
+}
+
+}  // namespace
+
+Result<Dataset> read_dataset_csv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return make_error(ErrorCode::kNotFound, "cannot open dataset '" + path + "'");
+  Dataset d;
+  std::string line;
+  uint64_t lineno = 0;
+  auto err = [&](const std::string& what) {
+    return make_error(ErrorCode::kParse, path + ":" + std::to_string(lineno) + ": " + what);
+  };
+  int declared_sensors = -1;
+  std::map<int, DatasetSensor> layout;
+  // Header block.
+  std::vector<std::string_view> cols;
+  std::string header_line;
+  while (std::getline(in, line)) {
+    ++lineno;
+    if (line.empty() || line == "\r") continue;
+    if (line[0] != '#') {
+      header_line = line;
+      break;
+    }
+    const std::size_t colon = line.find(':');
+    if (colon == std::string::npos) continue;  // a plain comment
+    std::string key = line.substr(1, colon - 1);
+    while (!key.empty() && key.front() == ' ') key.erase(0, 1);
+    std::string value = line.substr(colon + 1);
+    while (!value.empty() && (value.front() == ' ')) value.erase(0, 1);
+    while (!value.empty() && (value.back() == '\r')) value.pop_back();
+    if (key == "sensors") {
+      double n;
+      if (!parse_double(value, &n) || n < 1 || n > kMaxSensors || n != std::floor(n)) return err("bad sensor count '" + value + "'");
+      declared_sensors = static_cast<int>(n);
+    } else if (key.rfind("sensor ", 0) == 0) {
+      double idx;
+      if (!parse_double(key.substr(7), &idx) || idx < 0 || idx >= kMaxSensors) return err("bad sensor index in '" + key + "'");
+      DatasetSensor s;
+      std::istringstream kv(value);
+      std::string item;
+      int found = 0;
+      while (kv >> item) {
+        const std::size_t eq = item.find('=');
+        double x;
+        if (eq == std::string::npos || !parse_double(item.substr(eq + 1), &x) || !std::isfinite(x)) {
+          return err("bad sensor position '" + item + "'");
+        }
+        const std::string k = item.substr(0, eq);
+        if (k == "u_mm" || k == "x_mm") s.u_mm = x, ++found;
+        if (k == "v_mm" || k == "y_mm") s.v_mm = x, ++found;
+        if (k == "h_mm" || k == "z_mm") s.h_mm = x, ++found;
+      }
+      if (found < 2) return err("sensor position needs u_mm and v_mm");
+      layout[static_cast<int>(idx)] = s;
+    } else {
+      d.meta[key] = value;
+    }
+  }
+  if (header_line.empty()) return err("no column header line");
+  if (d.meta.count("format") && d.meta["format"].rfind("skinbus-dataset 1", 0) != 0) {
+    return err("unsupported format '" + d.meta["format"] + "' (this reader knows skinbus-dataset 1)");
+  }
+  cols = split(header_line, ',');
+  // Map columns.
+  int col_press = -1, col_t = -1, col_u = -1, col_v = -1, col_d = -1, col_f = -1;
+  std::map<int, int> field_col;  // channel -> column
+  std::vector<int> extra_cols;
+  for (int c = 0; c < static_cast<int>(cols.size()); ++c) {
+    std::string name(cols[c]);
+    while (!name.empty() && (name.back() == '\r' || name.back() == ' ')) name.pop_back();
+    while (!name.empty() && name.front() == ' ') name.erase(0, 1);
+    unsigned sensor = 0;
+    char axis = 0;
+    int consumed = 0;
+    if (name == "press") col_press = c;
+    else if (name == "t_s") col_t = c;
+    else if (name == "u_mm" || name == "x_mm") col_u = c;
+    else if (name == "v_mm" || name == "y_mm") col_v = c;
+    else if (name == "depth_mm") col_d = c;
+    else if (name == "force_n") col_f = c;
+    else if (std::sscanf(name.c_str(), "s%u_b%c_ut%n", &sensor, &axis, &consumed) == 2 &&
+             consumed == static_cast<int>(name.size()) && (axis == 'x' || axis == 'y' || axis == 'z') &&
+             sensor < static_cast<unsigned>(kMaxSensors)) {
+      const int ch = static_cast<int>(3 * sensor) + (axis - 'x');
+      if (field_col.count(ch)) return err("column '" + name + "' appears twice");
+      field_col[ch] = c;
+    } else {
+      if (name.empty()) return err("empty column name (column " + std::to_string(c + 1) + ")");
+      d.extra_columns.push_back(name);
+      extra_cols.push_back(c);
+    }
+  }
+  if (col_u < 0 || col_v < 0 || col_d < 0) return err("missing one of the columns u_mm, v_mm, depth_mm");
+  if (field_col.empty()) return err("no sensor columns (s<i>_b<x|y|z>_ut)");
+  const int nsens = static_cast<int>(field_col.size() / 3);
+  if (static_cast<int>(field_col.size()) != 3 * nsens || field_col.rbegin()->first != 3 * nsens - 1) {
+    return err("sensor columns must be s00..s" + std::to_string(nsens - 1) + " each with bx, by and bz");
+  }
+  if (declared_sensors >= 0 && declared_sensors != nsens) {
+    return err("header says " + std::to_string(declared_sensors) + " sensors but the columns have " + std::to_string(nsens));
+  }
+  d.sensors.resize(nsens);
+  for (const auto& [i, s] : layout) {
+    if (i >= nsens) return err("sensor " + std::to_string(i) + " described but not in the columns");
+    d.sensors[i] = s;
+  }
+  if (!layout.empty() && static_cast<int>(layout.size()) != nsens) return err("sensor layout lines missing for some sensors");
+
+  // Rows.
+  std::vector<double> row_field(3 * nsens);
+  while (std::getline(in, line)) {
+    ++lineno;
+    if (line.empty() || line == "\r" || line[0] == '#') continue;
+    const auto cells = split(line, ',');
+    if (cells.size() != cols.size()) {
+      return err("row has " + std::to_string(cells.size()) + " fields, the header " + std::to_string(cols.size()));
+    }
+    auto num = [&](int c, double* x) -> bool { return parse_double(cells[c], x) && std::isfinite(*x); };
+    double u, v, depth, t = 0, force = std::nan(""), press = -1;
+    if (!num(col_u, &u) || !num(col_v, &v) || !num(col_d, &depth)) return err("bad number in u_mm, v_mm or depth_mm");
+    if (col_t >= 0 && !num(col_t, &t)) return err("bad number in t_s");
+    if (col_f >= 0 && !parse_double(cells[col_f], &force)) return err("bad number in force_n");
+    if (col_press >= 0 && (!num(col_press, &press) || press != std::floor(press))) return err("bad press number");
+    for (const auto& [ch, c] : field_col) {
+      if (!parse_double(cells[c], &row_field[ch])) {
+        return err("bad number '" + std::string(cells[c]) + "' in column " + std::string(cols[c]));
+      }
+      // NaN is allowed (a dead channel in a lab recording); infinity is not.
+      if (std::isinf(row_field[ch])) return err("infinite value in column " + std::string(cols[c]));
+    }
+    d.append(static_cast<int64_t>(press), t, u, v, depth, force, row_field.data());
+    for (int c : extra_cols) {
+      double x;
+      if (!parse_double(cells[c], &x)) x = std::nan("");
+      d.extra.push_back(x);
+    }
+  }
+  if (d.rows() == 0) return err("no data rows");
+  return d;
+}
+
+uint64_t dataset_fingerprint(const Dataset& d) {
+  uint64_t h = 1469598103934665603ull;
+  auto mix = [&](double x) {
+    uint64_t b;
+    std::memcpy(&b, &x, sizeof b);
+    for (int i = 0; i < 8; ++i) {
+      h ^= (b >> (8 * i)) & 0xFF;
+      h *= 1099511628211ull;
+    }
+  };
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    mix(d.u_mm[r]);
+    mix(d.v_mm[r]);
+    mix(d.depth_mm[r]);
+  }
+  for (double x : d.field_ut) mix(x);
+  return h;
+}
+
+}  // namespace skinbus::sim

@@ -1,0 +1,206 @@
+// Measurement model, press plans, datasets (generation and CSV) and the Cramer-Rao bound.
+#include "skinbus/sim/dataset.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+
+#include "skinbus/sim/crlb.h"
+
+namespace skinbus::sim {
+namespace {
+
+SimulatedPatch make_patch(uint64_t noise_seed = 1) { return SimulatedPatch(*PatchModel::nominal(PatchDesign{}), noise_seed); }
+
+std::string temp_path(const char* name) { return ::testing::TempDir() + name; }
+
+TEST(MeasurementTest, NoiseLevelQuantisationAndDeterminism) {
+  SimulatedPatch a = make_patch(5), b = make_patch(5);
+  std::vector<double> ma(48), mb(48), rest(48);
+  a.model().rest_field_ut(rest);
+  double sum2 = 0;
+  const int n = 4000;
+  for (int k = 0; k < n; ++k) {
+    a.measure({}, {}, ma);
+    b.measure({}, {}, mb);
+    ASSERT_EQ(ma, mb);  // same seed, same numbers
+    sum2 += (ma[0] - rest[0]) * (ma[0] - rest[0]);
+    // Every value is a whole number of LSBs (0.150 uT on x/y at gain 7).
+    EXPECT_NEAR(std::remainder(ma[0], 0.15), 0.0, 1e-9);
+  }
+  const double expected = std::sqrt(a.noise_xy_ut() * a.noise_xy_ut() + 0.15 * 0.15 / 12);
+  EXPECT_NEAR(std::sqrt(sum2 / n), expected, 0.08 * expected);
+}
+
+TEST(MeasurementTest, AmbientTemperatureAndSaturation) {
+  SimulatedPatch p = make_patch();
+  std::vector<double> base(48), amb(48);
+  p.tare({}, 64, base);
+  Environment e;
+  e.ambient_ut = {0, 0, 50};
+  p.tare(e, 64, amb);
+  for (int s = 0; s < 16; ++s) EXPECT_NEAR(amb[3 * s + 2] - base[3 * s + 2], 50.0, 0.6);  // flat, nominal: every sensor
+  Environment hot;
+  hot.temperature_c = 45;
+  std::vector<double> warm(48);
+  p.tare(hot, 64, warm);
+  EXPECT_LT(std::fabs(warm[2]), std::fabs(base[2]));  // -2.4 % remanence at +20 degC
+  EXPECT_NEAR(warm[2] / base[2], 1 - 0.0012 * 20, 0.01);
+  Environment huge;
+  huge.ambient_ut = {1e5, 0, 0};
+  std::vector<double> m(48);
+  std::vector<uint8_t> sat(16);
+  const uint64_t mask = p.measure({}, huge, m, sat);
+  EXPECT_EQ(mask, 0xFFFFu);
+  for (uint8_t s : sat) EXPECT_TRUE(s);
+  for (double x : m) EXPECT_TRUE(std::isfinite(x));
+}
+
+TEST(DatasetTest, PressPlans) {
+  const auto g = plan_grid(19, 7.5);
+  ASSERT_EQ(g.size(), 361u);
+  EXPECT_DOUBLE_EQ(g.front().u_mm, -67.5);
+  EXPECT_DOUBLE_EQ(g.back().v_mm, 67.5);
+  const auto j = plan_jittered_grid(19, 7.5, 0.5, 3);
+  for (std::size_t i = 0; i < j.size(); ++i) EXPECT_LE(std::fabs(j[i].u_mm - g[i].u_mm), 7.5 * 0.25 + 1e-12);
+  const auto h = plan_halton(361, 67.5);
+  ASSERT_EQ(h.size(), 361u);
+  // Low discrepancy: every 15 x 15 mm cell of the square holds a press.
+  int empty = 0;
+  for (int cu = 0; cu < 9; ++cu) {
+    for (int cv = 0; cv < 9; ++cv) {
+      bool any = false;
+      for (const auto& p : h) any |= p.u_mm >= -67.5 + 15 * cu && p.u_mm < -52.5 + 15 * cu && p.v_mm >= -67.5 + 15 * cv && p.v_mm < -52.5 + 15 * cv;
+      empty += !any;
+    }
+  }
+  EXPECT_EQ(empty, 0);
+}
+
+TEST(DatasetTest, RampDatasetKeepsContactSamplesOnly) {
+  SimulatedPatch p = make_patch();
+  RampProtocol pr;
+  const Dataset d = generate_ramp_dataset(p, plan_grid(3, 30), pr);
+  // 4 mm at 2 mm/s down and up = 4 s at 41.7 Hz: 166 or 167 samples a press, all in contact.
+  EXPECT_GE(d.rows(), 9u * 166);
+  EXPECT_LE(d.rows(), 9u * 167);
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    EXPECT_GT(d.depth_mm[r], 0);
+    EXPECT_LE(d.depth_mm[r], pr.max_depth_mm);
+    EXPECT_NEAR(d.force_n[r], p.model().force_n(d.depth_mm[r]), 1e-12);
+  }
+  for (double x : d.field_ut) ASSERT_TRUE(std::isfinite(x));
+  // Deterministic per noise seed.
+  SimulatedPatch q = make_patch();
+  const Dataset e = generate_ramp_dataset(q, plan_grid(3, 30), pr);
+  EXPECT_EQ(d.field_ut, e.field_ut);
+  EXPECT_EQ(dataset_fingerprint(d), dataset_fingerprint(e));
+}
+
+TEST(DatasetTest, CsvRoundTrip) {
+  SimulatedPatch p = make_patch();
+  Dataset d = generate_random_test_set(p, 50, 65, 4, 9);
+  d.meta["unit_uid"] = "0x1234";
+  const std::string path = temp_path("roundtrip.csv");
+  ASSERT_TRUE(write_dataset_csv(d, path).ok());
+  auto r = read_dataset_csv(path);
+  ASSERT_TRUE(r.ok()) << r.error().to_string();
+  ASSERT_EQ(r->rows(), d.rows());
+  ASSERT_EQ(r->sensors.size(), 16u);
+  EXPECT_EQ(r->meta.at("unit_uid"), "0x1234");
+  EXPECT_EQ(r->meta.at("format"), "skinbus-dataset 1");
+  EXPECT_NEAR(r->sensors[5].u_mm, d.sensors[5].u_mm, 1e-9);
+  for (std::size_t i = 0; i < d.field_ut.size(); ++i) EXPECT_NEAR(r->field_ut[i], d.field_ut[i], 1e-6 * (1 + std::fabs(d.field_ut[i])));
+  for (std::size_t i = 0; i < d.rows(); ++i) EXPECT_NEAR(r->depth_mm[i], d.depth_mm[i], 1e-8);
+}
+
+void write_file(const std::string& path, const std::string& text) {
+  std::ofstream(path) << text;
+}
+
+TEST(DatasetTest, OtherSkinsAndLabColumns) {
+  // A lab recording of a 3-sensor skin with the robot's pose as extra columns, no header block.
+  const std::string path = temp_path("lab.csv");
+  write_file(path,
+             "# source: lab indenter\n"
+             "u_mm,v_mm,depth_mm,robot_z_mm,s0_bx_ut,s0_by_ut,s0_bz_ut,s1_bx_ut,s1_by_ut,s1_bz_ut,s2_bx_ut,s2_by_ut,s2_bz_ut\n"
+             "1,2,0.5,100.5,1,2,3,4,5,6,7,8,9\n"
+             "1,2,1.0,100.0,1,2,3,4,5,nan,7,8,9\n");
+  auto r = read_dataset_csv(path);
+  ASSERT_TRUE(r.ok()) << r.error().to_string();
+  EXPECT_EQ(r->channels(), 9);
+  ASSERT_EQ(r->extra_columns, std::vector<std::string>{"robot_z_mm"});
+  EXPECT_DOUBLE_EQ(r->extra[1], 100.0);
+  EXPECT_TRUE(std::isnan(r->field(1)[5]));  // a dead channel stays visible as NaN
+  EXPECT_EQ(r->meta.at("source"), "lab indenter");
+}
+
+TEST(DatasetTest, CorruptFilesGetClearErrors) {
+  struct Case {
+    const char* text;
+    const char* expect;
+  };
+  const Case cases[] = {
+      {"", "no column header"},
+      {"u_mm,v_mm,depth_mm\n1,2,3\n", "no sensor columns"},
+      {"u_mm,v_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5\n", "missing one of the columns"},
+      {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5\n", ":2: row has 5 fields"},
+      {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n1,x,3,4,5,6\n", ":3: bad number in u_mm"},
+      {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,inf,6\n", "infinite value"},
+      {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut\n1,2,3,4,5\n", "each with bx, by and bz"},
+      {"# sensors: 2\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n", "header says 2 sensors"},
+      {"# format: skinbus-dataset 7\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n", "unsupported format"},
+      {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n", "no data rows"},
+      {"u_mm,u_mm2,v_mm,depth_mm,s0_bx_ut,s0_bx_ut,s0_by_ut,s0_bz_ut\n", "appears twice"},
+  };
+  int i = 0;
+  for (const Case& c : cases) {
+    const std::string path = temp_path(("bad" + std::to_string(i++) + ".csv").c_str());
+    write_file(path, c.text);
+    auto r = read_dataset_csv(path);
+    ASSERT_FALSE(r.ok()) << c.text;
+    EXPECT_NE(r.error().message.find(c.expect), std::string::npos) << r.error().message;
+  }
+  auto missing = read_dataset_csv("/nonexistent/skinbus.csv");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_EQ(missing.error().code, ErrorCode::kNotFound);
+}
+
+TEST(CrlbTest, SmallMatrixInverse) {
+  double a[9] = {4, 1, 0, 1, 3, 1, 0, 1, 2};
+  const double orig[9] = {4, 1, 0, 1, 3, 1, 0, 1, 2};
+  ASSERT_TRUE(invert_small(a, 3));
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      double s = 0;
+      for (int k = 0; k < 3; ++k) s += orig[r * 3 + k] * a[k * 3 + c];
+      EXPECT_NEAR(s, r == c ? 1 : 0, 1e-12);
+    }
+  }
+  double sing[4] = {1, 2, 2, 4};
+  EXPECT_FALSE(invert_small(sing, 2));
+}
+
+TEST(CrlbTest, BoundScalesWithNoiseAndFlagsNoInformation) {
+  const PatchModel m = *PatchModel::nominal(PatchDesign{});
+  const Contact c{7, -3, 2};
+  const CrlbPoint a = crlb_at(m, c, 0.8, 1.3);
+  const CrlbPoint b = crlb_at(m, c, 0.4, 0.65);
+  ASSERT_TRUE(a.identifiable);
+  EXPECT_GT(a.sd_xy_mm, 0);
+  EXPECT_LT(a.sd_xy_mm, 1.0);
+  EXPECT_NEAR(b.sd_xy_mm / a.sd_xy_mm, 0.5, 1e-9);  // linear in the noise
+  EXPECT_NEAR(b.sd_depth_mm / a.sd_depth_mm, 0.5, 1e-9);
+  const CrlbPoint amb = crlb_at(m, c, 0.8, 1.3, true);
+  EXPECT_GE(amb.sd_xy_mm, a.sd_xy_mm * (1 - 1e-9));  // a nuisance never helps
+  const CrlbPoint off = crlb_at(m, Contact{400, 0, 2}, 0.8, 1.3);
+  EXPECT_FALSE(off.identifiable);
+  EXPECT_EQ(off.sd_xy_mm, kUnidentifiableMm);
+  // Deeper presses are localised better.
+  EXPECT_LT(crlb_at(m, Contact{7, -3, 4}, 0.8, 1.3).sd_xy_mm, crlb_at(m, Contact{7, -3, 1}, 0.8, 1.3).sd_xy_mm);
+}
+
+}  // namespace
+}  // namespace skinbus::sim
