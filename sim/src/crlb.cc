@@ -42,7 +42,8 @@ bool invert_small(double* a, int n) {
   return true;
 }
 
-CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut, double noise_z_ut, bool ambient) {
+CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut, double noise_z_ut,
+                  bool ambient) {
   const int nc = model.channel_count();
   const int np = ambient ? 6 : 3;
   std::vector<double> jac(static_cast<std::size_t>(nc) * 3);
@@ -67,7 +68,8 @@ CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
     }
   }
   CrlbPoint p;
-  if (!invert_small(fisher, np) || !(fisher[0] >= 0) || !(fisher[np + 1] >= 0) || !(fisher[2 * np + 2] >= 0)) {
+  if (!invert_small(fisher, np) || !(fisher[0] >= 0) || !(fisher[np + 1] >= 0) ||
+      !(fisher[2 * np + 2] >= 0)) {
     p.identifiable = false;
     p.sd_u_mm = p.sd_v_mm = p.sd_xy_mm = p.sd_depth_mm = kUnidentifiableMm;
     return p;

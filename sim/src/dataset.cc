@@ -10,7 +10,8 @@
 
 namespace skinbus::sim {
 
-void Dataset::append(int64_t press_id, double t, double u, double v, double depth, double force, const double* f) {
+void Dataset::append(int64_t press_id, double t, double u, double v, double depth, double force,
+                     const double* f) {
   press.push_back(press_id);
   t_s.push_back(t);
   u_mm.push_back(u);
@@ -23,7 +24,8 @@ void Dataset::append(int64_t press_id, double t, double u, double v, double dept
 std::vector<PressPoint> plan_grid(int n, double pitch_mm) {
   std::vector<PressPoint> p;
   for (int j = 0; j < n; ++j) {
-    for (int i = 0; i < n; ++i) p.push_back({(i - (n - 1) / 2.0) * pitch_mm, (j - (n - 1) / 2.0) * pitch_mm});
+    for (int i = 0; i < n; ++i)
+      p.push_back({(i - (n - 1) / 2.0) * pitch_mm, (j - (n - 1) / 2.0) * pitch_mm});
   }
   return p;
 }
@@ -54,7 +56,8 @@ std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t s
   std::vector<PressPoint> p;
   for (int k = 0; k < count; ++k) {
     const uint64_t i = skip + static_cast<uint64_t>(k) + 1;
-    p.push_back({(2 * radical_inverse(i, 2) - 1) * half_extent_mm, (2 * radical_inverse(i, 3) - 1) * half_extent_mm});
+    p.push_back({(2 * radical_inverse(i, 2) - 1) * half_extent_mm,
+                 (2 * radical_inverse(i, 3) - 1) * half_extent_mm});
   }
   return p;
 }
@@ -62,7 +65,8 @@ std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t s
 std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t seed) {
   Rng rng(seed);
   std::vector<PressPoint> p;
-  for (int k = 0; k < count; ++k) p.push_back({rng.uniform(-1, 1) * half_extent_mm, rng.uniform(-1, 1) * half_extent_mm});
+  for (int k = 0; k < count; ++k)
+    p.push_back({rng.uniform(-1, 1) * half_extent_mm, rng.uniform(-1, 1) * half_extent_mm});
   return p;
 }
 
@@ -76,9 +80,11 @@ void fill_layout(const SimulatedPatch& patch, Dataset* d) {
   d->meta["format"] = "skinbus-dataset 1";
   d->meta["source"] = "sim";
   d->meta["geometry"] = des.surface == SurfaceKind::kFlat
-                            ? "flat size_u_mm=" + std::to_string(des.size_u_mm) + " size_v_mm=" + std::to_string(des.size_v_mm)
-                            : "cylinder radius_mm=" + std::to_string(des.radius_mm) + " size_u_mm=" +
-                                  std::to_string(des.size_u_mm) + " size_v_mm=" + std::to_string(des.size_v_mm);
+                            ? "flat size_u_mm=" + std::to_string(des.size_u_mm) +
+                                  " size_v_mm=" + std::to_string(des.size_v_mm)
+                            : "cylinder radius_mm=" + std::to_string(des.radius_mm) +
+                                  " size_u_mm=" + std::to_string(des.size_u_mm) +
+                                  " size_v_mm=" + std::to_string(des.size_v_mm);
   d->meta["field"] = "tared (baseline subtracted), uT, each sensor's own frame";
   char noise[64];
   std::snprintf(noise, sizeof noise, "xy=%.3f z=%.3f", patch.noise_xy_ut(), patch.noise_z_ut());
@@ -87,13 +93,13 @@ void fill_layout(const SimulatedPatch& patch, Dataset* d) {
 
 }  // namespace
 
-Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan, const RampProtocol& pr,
-                              const Environment& env) {
+Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan,
+                              const RampProtocol& pr, const Environment& env) {
   Dataset d;
   fill_layout(patch, &d);
   char buf[160];
-  std::snprintf(buf, sizeof buf, "ramp max_depth_mm=%g speed_mm_per_s=%g rate_hz=%g presses=%zu", pr.max_depth_mm,
-                pr.speed_mm_per_s, pr.rate_hz, plan.size());
+  std::snprintf(buf, sizeof buf, "ramp max_depth_mm=%g speed_mm_per_s=%g rate_hz=%g presses=%zu",
+                pr.max_depth_mm, pr.speed_mm_per_s, pr.rate_hz, plan.size());
   d.meta["protocol"] = buf;
   const int nc = patch.channel_count();
   std::vector<double> baseline(nc), m(nc), tared(nc);
@@ -109,19 +115,22 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
       const Contact c{plan[k].u_mm, plan[k].v_mm, depth};
       patch.measure(std::span<const Contact>(&c, 1), env, m);
       for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
-      d.append(static_cast<int64_t>(k), t + tp, c.u_mm, c.v_mm, depth, patch.model().force_n(depth), tared.data());
+      d.append(static_cast<int64_t>(k), t + tp, c.u_mm, c.v_mm, depth, patch.model().force_n(depth),
+               tared.data());
     }
     t += 2 * ramp_s + 1.0;  // a second to move to the next point
   }
   return d;
 }
 
-Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm, double max_depth_mm,
-                                 uint64_t seed, const Environment& env, int tare_samples) {
+Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
+                                 double max_depth_mm, uint64_t seed, const Environment& env,
+                                 int tare_samples) {
   Dataset d;
   fill_layout(patch, &d);
   char buf[160];
-  std::snprintf(buf, sizeof buf, "random_static count=%d half_extent_mm=%g max_depth_mm=%g seed=%llu", count,
+  std::snprintf(buf, sizeof buf,
+                "random_static count=%d half_extent_mm=%g max_depth_mm=%g seed=%llu", count,
                 half_extent_mm, max_depth_mm, static_cast<unsigned long long>(seed));
   d.meta["protocol"] = buf;
   const int nc = patch.channel_count();
@@ -170,7 +179,8 @@ Status write_dataset_csv(const Dataset& d, const std::string& path) {
     put_number(&s, d.sensors[i].h_mm);
     s += "\n";
   }
-  for (const char* c : kStandardColumns) s += std::string(c) + (std::strcmp(c, "force_n") ? "," : "");
+  for (const char* c : kStandardColumns)
+    s += std::string(c) + (std::strcmp(c, "force_n") ? "," : "");
   char name[32];
   for (std::size_t i = 0; i < d.sensors.size(); ++i) {
     for (char a : {'x', 'y', 'z'}) {
@@ -203,7 +213,8 @@ Status write_dataset_csv(const Dataset& d, const std::string& path) {
     }
   }
   std::fwrite(s.data(), 1, s.size(), f);
-  if (std::fclose(f) != 0) return make_error(ErrorCode::kIo, "write to '" + path + "' failed: " + std::strerror(errno));
+  if (std::fclose(f) != 0)
+    return make_error(ErrorCode::kIo, "write to '" + path + "' failed: " + std::strerror(errno));
   return Status::Ok();
 }
 
@@ -211,7 +222,8 @@ namespace {
 
 bool parse_double(std::string_view t, double* out) {
   while (!t.empty() && (t.front() == ' ' || t.front() == '\t')) t.remove_prefix(1);
-  while (!t.empty() && (t.back() == ' ' || t.back() == '\t' || t.back() == '\r')) t.remove_suffix(1);
+  while (!t.empty() && (t.back() == ' ' || t.back() == '\t' || t.back() == '\r'))
+    t.remove_suffix(1);
   if (t.empty()) return false;
   auto r = std::from_chars(t.data(), t.data() + t.size(), *out);
   return r.ec == std::errc() && r.ptr == t.data() + t.size();
@@ -222,7 +234,8 @@ std::vector<std::string_view> split(std::string_view line, char sep) {
   std::size_t start = 0;
   for (;;) {
     const std::size_t p = line.find(sep, start);
-    out.push_back(line.substr(start, p == std::string_view::npos ? std::string_view::npos : p - start));
+    out.push_back(
+        line.substr(start, p == std::string_view::npos ? std::string_view::npos : p - start));
     if (p == std::string_view::npos) break;
     start = p + 1;
   }
@@ -261,11 +274,13 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
     while (!value.empty() && (value.back() == '\r')) value.pop_back();
     if (key == "sensors") {
       double n;
-      if (!parse_double(value, &n) || n < 1 || n > kMaxSensors || n != std::floor(n)) return err("bad sensor count '" + value + "'");
+      if (!parse_double(value, &n) || n < 1 || n > kMaxSensors || n != std::floor(n))
+        return err("bad sensor count '" + value + "'");
       declared_sensors = static_cast<int>(n);
     } else if (key.rfind("sensor ", 0) == 0) {
       double idx;
-      if (!parse_double(key.substr(7), &idx) || idx < 0 || idx >= kMaxSensors) return err("bad sensor index in '" + key + "'");
+      if (!parse_double(key.substr(7), &idx) || idx < 0 || idx >= kMaxSensors)
+        return err("bad sensor index in '" + key + "'");
       DatasetSensor s;
       std::istringstream kv(value);
       std::string item;
@@ -273,7 +288,8 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
       while (kv >> item) {
         const std::size_t eq = item.find('=');
         double x;
-        if (eq == std::string::npos || !parse_double(item.substr(eq + 1), &x) || !std::isfinite(x)) {
+        if (eq == std::string::npos || !parse_double(item.substr(eq + 1), &x) ||
+            !std::isfinite(x)) {
           return err("bad sensor position '" + item + "'");
         }
         const std::string k = item.substr(0, eq);
@@ -289,7 +305,8 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
   }
   if (header_line.empty()) return err("no column header line");
   if (d.meta.count("format") && d.meta["format"].rfind("skinbus-dataset 1", 0) != 0) {
-    return err("unsupported format '" + d.meta["format"] + "' (this reader knows skinbus-dataset 1)");
+    return err("unsupported format '" + d.meta["format"] +
+               "' (this reader knows skinbus-dataset 1)");
   }
   cols = split(header_line, ',');
   // Map columns.
@@ -303,14 +320,21 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
     unsigned sensor = 0;
     char axis = 0;
     int consumed = 0;
-    if (name == "press") col_press = c;
-    else if (name == "t_s") col_t = c;
-    else if (name == "u_mm" || name == "x_mm") col_u = c;
-    else if (name == "v_mm" || name == "y_mm") col_v = c;
-    else if (name == "depth_mm") col_d = c;
-    else if (name == "force_n") col_f = c;
+    if (name == "press")
+      col_press = c;
+    else if (name == "t_s")
+      col_t = c;
+    else if (name == "u_mm" || name == "x_mm")
+      col_u = c;
+    else if (name == "v_mm" || name == "y_mm")
+      col_v = c;
+    else if (name == "depth_mm")
+      col_d = c;
+    else if (name == "force_n")
+      col_f = c;
     else if (std::sscanf(name.c_str(), "s%u_b%c_ut%n", &sensor, &axis, &consumed) == 2 &&
-             consumed == static_cast<int>(name.size()) && (axis == 'x' || axis == 'y' || axis == 'z') &&
+             consumed == static_cast<int>(name.size()) &&
+             (axis == 'x' || axis == 'y' || axis == 'z') &&
              sensor < static_cast<unsigned>(kMaxSensors)) {
       const int ch = static_cast<int>(3 * sensor) + (axis - 'x');
       if (field_col.count(ch)) return err("column '" + name + "' appears twice");
@@ -321,21 +345,26 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
       extra_cols.push_back(c);
     }
   }
-  if (col_u < 0 || col_v < 0 || col_d < 0) return err("missing one of the columns u_mm, v_mm, depth_mm");
+  if (col_u < 0 || col_v < 0 || col_d < 0)
+    return err("missing one of the columns u_mm, v_mm, depth_mm");
   if (field_col.empty()) return err("no sensor columns (s<i>_b<x|y|z>_ut)");
   const int nsens = static_cast<int>(field_col.size() / 3);
-  if (static_cast<int>(field_col.size()) != 3 * nsens || field_col.rbegin()->first != 3 * nsens - 1) {
-    return err("sensor columns must be s00..s" + std::to_string(nsens - 1) + " each with bx, by and bz");
+  if (static_cast<int>(field_col.size()) != 3 * nsens ||
+      field_col.rbegin()->first != 3 * nsens - 1) {
+    return err("sensor columns must be s00..s" + std::to_string(nsens - 1) +
+               " each with bx, by and bz");
   }
   if (declared_sensors >= 0 && declared_sensors != nsens) {
-    return err("header says " + std::to_string(declared_sensors) + " sensors but the columns have " + std::to_string(nsens));
+    return err("header says " + std::to_string(declared_sensors) +
+               " sensors but the columns have " + std::to_string(nsens));
   }
   d.sensors.resize(nsens);
   for (const auto& [i, s] : layout) {
     if (i >= nsens) return err("sensor " + std::to_string(i) + " described but not in the columns");
     d.sensors[i] = s;
   }
-  if (!layout.empty() && static_cast<int>(layout.size()) != nsens) return err("sensor layout lines missing for some sensors");
+  if (!layout.empty() && static_cast<int>(layout.size()) != nsens)
+    return err("sensor layout lines missing for some sensors");
 
   // Rows.
   std::vector<double> row_field(3 * nsens);
@@ -344,14 +373,19 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
     if (line.empty() || line == "\r" || line[0] == '#') continue;
     const auto cells = split(line, ',');
     if (cells.size() != cols.size()) {
-      return err("row has " + std::to_string(cells.size()) + " fields, the header " + std::to_string(cols.size()));
+      return err("row has " + std::to_string(cells.size()) + " fields, the header " +
+                 std::to_string(cols.size()));
     }
-    auto num = [&](int c, double* x) -> bool { return parse_double(cells[c], x) && std::isfinite(*x); };
+    auto num = [&](int c, double* x) -> bool {
+      return parse_double(cells[c], x) && std::isfinite(*x);
+    };
     double u, v, depth, t = 0, force = std::nan(""), press = -1;
-    if (!num(col_u, &u) || !num(col_v, &v) || !num(col_d, &depth)) return err("bad number in u_mm, v_mm or depth_mm");
+    if (!num(col_u, &u) || !num(col_v, &v) || !num(col_d, &depth))
+      return err("bad number in u_mm, v_mm or depth_mm");
     if (col_t >= 0 && !num(col_t, &t)) return err("bad number in t_s");
     if (col_f >= 0 && !parse_double(cells[col_f], &force)) return err("bad number in force_n");
-    if (col_press >= 0 && (!num(col_press, &press) || press != std::floor(press))) return err("bad press number");
+    if (col_press >= 0 && (!num(col_press, &press) || press != std::floor(press)))
+      return err("bad press number");
     for (const auto& [ch, c] : field_col) {
       if (!parse_double(cells[c], &row_field[ch])) {
         return err("bad number '" + std::string(cells[c]) + "' in column " + std::string(cols[c]));

@@ -12,9 +12,13 @@
 namespace skinbus::sim {
 namespace {
 
-SimulatedPatch make_patch(uint64_t noise_seed = 1) { return SimulatedPatch(*PatchModel::nominal(PatchDesign{}), noise_seed); }
+SimulatedPatch make_patch(uint64_t noise_seed = 1) {
+  return SimulatedPatch(*PatchModel::nominal(PatchDesign{}), noise_seed);
+}
 
-std::string temp_path(const char* name) { return ::testing::TempDir() + name; }
+std::string temp_path(const char* name) {
+  return ::testing::TempDir() + name;
+}
 
 TEST(MeasurementTest, NoiseLevelQuantisationAndDeterminism) {
   SimulatedPatch a = make_patch(5), b = make_patch(5);
@@ -41,7 +45,8 @@ TEST(MeasurementTest, AmbientTemperatureAndSaturation) {
   Environment e;
   e.ambient_ut = {0, 0, 50};
   p.tare(e, 64, amb);
-  for (int s = 0; s < 16; ++s) EXPECT_NEAR(amb[3 * s + 2] - base[3 * s + 2], 50.0, 0.6);  // flat, nominal: every sensor
+  for (int s = 0; s < 16; ++s)
+    EXPECT_NEAR(amb[3 * s + 2] - base[3 * s + 2], 50.0, 0.6);  // flat, nominal: every sensor
   Environment hot;
   hot.temperature_c = 45;
   std::vector<double> warm(48);
@@ -64,7 +69,8 @@ TEST(DatasetTest, PressPlans) {
   EXPECT_DOUBLE_EQ(g.front().u_mm, -67.5);
   EXPECT_DOUBLE_EQ(g.back().v_mm, 67.5);
   const auto j = plan_jittered_grid(19, 7.5, 0.5, 3);
-  for (std::size_t i = 0; i < j.size(); ++i) EXPECT_LE(std::fabs(j[i].u_mm - g[i].u_mm), 7.5 * 0.25 + 1e-12);
+  for (std::size_t i = 0; i < j.size(); ++i)
+    EXPECT_LE(std::fabs(j[i].u_mm - g[i].u_mm), 7.5 * 0.25 + 1e-12);
   const auto h = plan_halton(361, 67.5);
   ASSERT_EQ(h.size(), 361u);
   // Low discrepancy: every 15 x 15 mm cell of the square holds a press.
@@ -72,7 +78,9 @@ TEST(DatasetTest, PressPlans) {
   for (int cu = 0; cu < 9; ++cu) {
     for (int cv = 0; cv < 9; ++cv) {
       bool any = false;
-      for (const auto& p : h) any |= p.u_mm >= -67.5 + 15 * cu && p.u_mm < -52.5 + 15 * cu && p.v_mm >= -67.5 + 15 * cv && p.v_mm < -52.5 + 15 * cv;
+      for (const auto& p : h)
+        any |= p.u_mm >= -67.5 + 15 * cu && p.u_mm < -52.5 + 15 * cu && p.v_mm >= -67.5 + 15 * cv &&
+               p.v_mm < -52.5 + 15 * cv;
       empty += !any;
     }
   }
@@ -112,7 +120,8 @@ TEST(DatasetTest, CsvRoundTrip) {
   EXPECT_EQ(r->meta.at("unit_uid"), "0x1234");
   EXPECT_EQ(r->meta.at("format"), "skinbus-dataset 1");
   EXPECT_NEAR(r->sensors[5].u_mm, d.sensors[5].u_mm, 1e-9);
-  for (std::size_t i = 0; i < d.field_ut.size(); ++i) EXPECT_NEAR(r->field_ut[i], d.field_ut[i], 1e-6 * (1 + std::fabs(d.field_ut[i])));
+  for (std::size_t i = 0; i < d.field_ut.size(); ++i)
+    EXPECT_NEAR(r->field_ut[i], d.field_ut[i], 1e-6 * (1 + std::fabs(d.field_ut[i])));
   for (std::size_t i = 0; i < d.rows(); ++i) EXPECT_NEAR(r->depth_mm[i], d.depth_mm[i], 1e-8);
 }
 
@@ -125,7 +134,8 @@ TEST(DatasetTest, OtherSkinsAndLabColumns) {
   const std::string path = temp_path("lab.csv");
   write_file(path,
              "# source: lab indenter\n"
-             "u_mm,v_mm,depth_mm,robot_z_mm,s0_bx_ut,s0_by_ut,s0_bz_ut,s1_bx_ut,s1_by_ut,s1_bz_ut,s2_bx_ut,s2_by_ut,s2_bz_ut\n"
+             "u_mm,v_mm,depth_mm,robot_z_mm,s0_bx_ut,s0_by_ut,s0_bz_ut,s1_bx_ut,s1_by_ut,s1_bz_ut,"
+             "s2_bx_ut,s2_by_ut,s2_bz_ut\n"
              "1,2,0.5,100.5,1,2,3,4,5,6,7,8,9\n"
              "1,2,1.0,100.0,1,2,3,4,5,nan,7,8,9\n");
   auto r = read_dataset_csv(path);
@@ -147,11 +157,14 @@ TEST(DatasetTest, CorruptFilesGetClearErrors) {
       {"u_mm,v_mm,depth_mm\n1,2,3\n", "no sensor columns"},
       {"u_mm,v_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5\n", "missing one of the columns"},
       {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5\n", ":2: row has 5 fields"},
-      {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n1,x,3,4,5,6\n", ":3: bad number in u_mm"},
+      {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n1,x,3,4,5,6\n",
+       ":3: bad number in u_mm"},
       {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,inf,6\n", "infinite value"},
       {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut\n1,2,3,4,5\n", "each with bx, by and bz"},
-      {"# sensors: 2\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n", "header says 2 sensors"},
-      {"# format: skinbus-dataset 7\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n", "unsupported format"},
+      {"# sensors: 2\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n",
+       "header says 2 sensors"},
+      {"# format: skinbus-dataset 7\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n",
+       "unsupported format"},
       {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n", "no data rows"},
       {"u_mm,u_mm2,v_mm,depth_mm,s0_bx_ut,s0_bx_ut,s0_by_ut,s0_bz_ut\n", "appears twice"},
   };
@@ -199,7 +212,8 @@ TEST(CrlbTest, BoundScalesWithNoiseAndFlagsNoInformation) {
   EXPECT_FALSE(off.identifiable);
   EXPECT_EQ(off.sd_xy_mm, kUnidentifiableMm);
   // Deeper presses are localised better.
-  EXPECT_LT(crlb_at(m, Contact{7, -3, 4}, 0.8, 1.3).sd_xy_mm, crlb_at(m, Contact{7, -3, 1}, 0.8, 1.3).sd_xy_mm);
+  EXPECT_LT(crlb_at(m, Contact{7, -3, 4}, 0.8, 1.3).sd_xy_mm,
+            crlb_at(m, Contact{7, -3, 1}, 0.8, 1.3).sd_xy_mm);
 }
 
 }  // namespace

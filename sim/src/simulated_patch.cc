@@ -3,7 +3,10 @@
 namespace skinbus::sim {
 
 SimulatedPatch::SimulatedPatch(PatchModel model, uint64_t noise_seed)
-    : model_(std::move(model)), rng_(noise_seed), rest_(model_.channel_count()), scratch_(model_.channel_count()) {
+    : model_(std::move(model)),
+      rng_(noise_seed),
+      rest_(model_.channel_count()),
+      scratch_(model_.channel_count()) {
   const Mlx90393Config& c = model_.design().sensor_config;
   noise_xy_ut_ = mlx90393_noise_xy_ut(c);
   noise_z_ut_ = mlx90393_noise_z_ut(c);
@@ -12,21 +15,23 @@ SimulatedPatch::SimulatedPatch(PatchModel model, uint64_t noise_seed)
   model_.rest_field_ut(rest_);
 }
 
-uint64_t SimulatedPatch::measure(std::span<const Contact> contacts, const Environment& env, std::span<double> field_ut,
-                                 std::span<uint8_t> saturated) {
+uint64_t SimulatedPatch::measure(std::span<const Contact> contacts, const Environment& env,
+                                 std::span<double> field_ut, std::span<uint8_t> saturated) {
   const int nc = channel_count();
   if (contacts.empty()) {
     for (int i = 0; i < nc; ++i) scratch_[i] = 0;
   } else {
     model_.contact_field_ut(contacts, scratch_);
   }
-  const double temp_scale = 1 + model_.design().remanence_tempco_per_c * (env.temperature_c - kReferenceTemperatureC);
+  const double temp_scale =
+      1 + model_.design().remanence_tempco_per_c * (env.temperature_c - kReferenceTemperatureC);
   const Mlx90393Config& cfg = model_.design().sensor_config;
   uint64_t mask = 0;
   const auto& sensors = model_.sensors();
   for (int s = 0; s < nc / 3; ++s) {
     const Vec3<double> amb = sensors[s].frame.apply(env.ambient_ut);
-    const double a[3] = {amb.x * sensors[s].gain.x, amb.y * sensors[s].gain.y, amb.z * sensors[s].gain.z};
+    const double a[3] = {amb.x * sensors[s].gain.x, amb.y * sensors[s].gain.y,
+                         amb.z * sensors[s].gain.z};
     bool sat_any = false;
     for (int k = 0; k < 3; ++k) {
       const int i = 3 * s + k;

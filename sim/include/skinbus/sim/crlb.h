@@ -17,9 +17,10 @@ inline constexpr double kUnidentifiableMm = 1e3;  // reported bound where F is s
 
 struct CrlbPoint {
   double sd_u_mm = 0, sd_v_mm = 0;
-  double sd_xy_mm = 0;     // sqrt(var_u + var_v): the RMS in-plane error bound
+  double sd_xy_mm = 0;  // sqrt(var_u + var_v): the RMS in-plane error bound
   double sd_depth_mm = 0;
-  bool identifiable = true;  // false: no information (e.g. far off the patch); sd = kUnidentifiableMm
+  bool identifiable =
+      true;  // false: no information (e.g. far off the patch); sd = kUnidentifiableMm
 };
 
 CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut, double noise_z_ut,

@@ -25,17 +25,18 @@ struct DatasetSensor {
 struct Dataset {
   std::map<std::string, std::string> meta;  // header block (format, source, unit, plan, ...)
   std::vector<DatasetSensor> sensors;
-  std::vector<std::string> extra_columns;   // columns beyond the standard ones, in order
+  std::vector<std::string> extra_columns;  // columns beyond the standard ones, in order
   // One entry per row (struct of arrays).
-  std::vector<int64_t> press;               // press number (-1: not from a press)
+  std::vector<int64_t> press;  // press number (-1: not from a press)
   std::vector<double> t_s, u_mm, v_mm, depth_mm, force_n;
-  std::vector<double> field_ut;             // rows x channels, row-major
-  std::vector<double> extra;                // rows x extra_columns, row-major
+  std::vector<double> field_ut;  // rows x channels, row-major
+  std::vector<double> extra;     // rows x extra_columns, row-major
 
   std::size_t rows() const { return u_mm.size(); }
   int channels() const { return 3 * static_cast<int>(sensors.size()); }
   const double* field(std::size_t row) const { return field_ut.data() + row * channels(); }
-  void append(int64_t press_id, double t, double u, double v, double depth, double force, const double* field);
+  void append(int64_t press_id, double t, double u, double v, double depth, double force,
+              const double* field);
 };
 
 // Where a robot presses. Positions in the patch frame, mm.
@@ -54,21 +55,22 @@ std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t s
 // A press-and-release depth ramp, as an indentation robot runs it.
 struct RampProtocol {
   double max_depth_mm = 4.0;
-  double speed_mm_per_s = 2.0;      // down and up
-  double rate_hz = 41.7;            // sampling
-  double min_depth_mm = 1e-9;       // only samples deeper than this are kept ("contact samples")
-  int tare_samples = 32;            // baseline averaged before the presses
+  double speed_mm_per_s = 2.0;  // down and up
+  double rate_hz = 41.7;        // sampling
+  double min_depth_mm = 1e-9;   // only samples deeper than this are kept ("contact samples")
+  int tare_samples = 32;        // baseline averaged before the presses
 };
 
 // Runs `plan` on `patch`: a ramp at every point, keeping contact samples, tared. Fills meta,
 // sensors and rows. Deterministic for the patch's noise seed.
-Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan, const RampProtocol& protocol,
-                              const Environment& env = {});
+Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan,
+                              const RampProtocol& protocol, const Environment& env = {});
 
 // The super-resolution test split: `count` static presses at random positions over
 // +-half_extent_mm and random depths in (0, max_depth_mm], one sample each.
-Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm, double max_depth_mm,
-                                 uint64_t seed, const Environment& env = {}, int tare_samples = 32);
+Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
+                                 double max_depth_mm, uint64_t seed, const Environment& env = {},
+                                 int tare_samples = 32);
 
 // Writes / reads the CSV format. Errors name the file and line.
 Status write_dataset_csv(const Dataset& d, const std::string& path);

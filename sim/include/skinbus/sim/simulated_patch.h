@@ -14,8 +14,9 @@
 namespace skinbus::sim {
 
 struct Environment {
-  Vec3<double> ambient_ut{};   // uniform field in the patch frame (Earth field as the limb turns), uT
-  double temperature_c = 25;   // the magnets' remanence falls as they warm
+  Vec3<double>
+      ambient_ut{};  // uniform field in the patch frame (Earth field as the limb turns), uT
+  double temperature_c = 25;  // the magnets' remanence falls as they warm
 };
 inline constexpr double kReferenceTemperatureC = 25;
 
@@ -31,8 +32,8 @@ class SimulatedPatch {
   // One measurement of every channel: absolute field in uT (quantised, noisy). Sets bit i of
   // the returned mask (sensor i < 64) when sensor i saturated; `saturated` (if not empty,
   // one entry per sensor) gets every sensor's flag.
-  uint64_t measure(std::span<const Contact> contacts, const Environment& env, std::span<double> field_ut,
-                   std::span<uint8_t> saturated = {});
+  uint64_t measure(std::span<const Contact> contacts, const Environment& env,
+                   std::span<double> field_ut, std::span<uint8_t> saturated = {});
 
   // Captures a baseline as a patch node does on tare: the mean of `samples` untouched
   // measurements. Returned per channel (uT).

@@ -1,0 +1,100 @@
+// skinbus-dataset: generate an indentation dataset from the patch simulator.
+//
+//   skinbus-dataset --plan grid -o train.csv                 # the seed's 19 x 19 protocol
+//   skinbus-dataset --plan random-test --count 2000 -o test.csv
+//   skinbus-dataset --plan halton --count 361 --uid 0x5B01 --fabricated -o unit1.csv
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <cstdio>
+#include <string>
+
+#include "skinbus/sim/dataset.h"
+
+int main(int argc, char** argv) {
+  using namespace skinbus::sim;
+  CLI::App app{
+      "skinbus-dataset: indentation datasets from the simulated patch, in the project's CSV format\n"
+      "(docs/dataset_format.md).\n\n"
+      "Plans (where the simulated robot presses):\n"
+      "  grid         the seed's protocol: --grid N x N points at --pitch mm (19 x 19 at 7.5 mm)\n"
+      "  jittered     the same grid, each point moved by up to --jitter x pitch/2\n"
+      "  halton       --count points of a low-discrepancy sequence over the grid's extent\n"
+      "  random       --count uniformly random points over the grid's extent\n"
+      "  random-test  the test split: --count static presses at random points and depths\n"
+      "Ramp plans press and release each point at --speed mm/s to --max-depth, sampled at --rate,\n"
+      "keeping contact samples only.\n\n"
+      "Examples:\n"
+      "  skinbus-dataset --plan grid -o train.csv\n"
+      "  skinbus-dataset --plan random-test --count 2000 -o test.csv\n"};
+  std::string plan = "grid", out_path;
+  int grid = 19, count = 361;
+  double pitch = 7.5, jitter = 0.5, max_depth = 4.0, speed = 2.0, rate = 41.7;
+  uint64_t uid = 0x5B00000000000001ull, seed = 1;
+  bool fabricated = false, cylinder = false;
+  double radius = 45, anisotropy = 0;
+  app.add_option("--plan", plan, "grid | jittered | halton | random | random-test")->capture_default_str();
+  app.add_option("--grid", grid, "grid points per side")->capture_default_str()->check(CLI::Range(1, 200));
+  app.add_option("--pitch", pitch, "grid pitch, mm")->capture_default_str()->check(CLI::Range(0.1, 100.0));
+  app.add_option("--jitter", jitter, "jittered plan: fraction of half a pitch")->capture_default_str();
+  app.add_option("--count", count, "presses for halton/random, samples for random-test")->capture_default_str()->check(CLI::Range(1, 10000000));
+  app.add_option("--max-depth", max_depth, "deepest press, mm")->capture_default_str()->check(CLI::Range(0.01, 9.0));
+  app.add_option("--speed", speed, "ramp speed, mm/s")->capture_default_str()->check(CLI::Range(0.01, 100.0));
+  app.add_option("--rate", rate, "sample rate, Hz")->capture_default_str()->check(CLI::Range(1.0, 1000.0));
+  app.add_option("--uid", uid, "hardware UID of the simulated unit (seeds its fabrication variation and noise)")->capture_default_str();
+  app.add_flag("--fabricated", fabricated, "a fabricated unit (per-UID variation) instead of the nominal design");
+  app.add_flag("--cylinder", cylinder, "a cylinder-section patch (forearm) instead of a flat one");
+  app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
+  app.add_option("--anisotropy", anisotropy, "lattice anisotropy (physics outside the nominal model class)")->capture_default_str();
+  app.add_option("--seed", seed, "seed of random plans")->capture_default_str();
+  app.add_option("-o,--output", out_path, "output CSV file")->required();
+  CLI11_PARSE(app, argc, argv);
+
+  try {
+    const auto t0 = std::chrono::steady_clock::now();
+    PatchDesign design;
+    if (cylinder) {
+      design.surface = SurfaceKind::kCylinder;
+      design.radius_mm = radius;
+    }
+    design.anisotropy = anisotropy;
+    auto model = fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{}) : PatchModel::nominal(design);
+    if (!model.ok()) throw std::runtime_error(model.error().message);
+    SimulatedPatch patch(std::move(model).value(), uid * 0x9E3779B97F4A7C15ull + 1);
+    const double half = (grid - 1) / 2.0 * pitch;
+    Dataset d;
+    RampProtocol pr;
+    pr.max_depth_mm = max_depth;
+    pr.speed_mm_per_s = speed;
+    pr.rate_hz = rate;
+    if (plan == "grid") {
+      d = generate_ramp_dataset(patch, plan_grid(grid, pitch), pr);
+    } else if (plan == "jittered") {
+      d = generate_ramp_dataset(patch, plan_jittered_grid(grid, pitch, jitter, seed), pr);
+    } else if (plan == "halton") {
+      d = generate_ramp_dataset(patch, plan_halton(count, half, seed), pr);
+    } else if (plan == "random") {
+      d = generate_ramp_dataset(patch, plan_random(count, half, seed), pr);
+    } else if (plan == "random-test") {
+      d = generate_random_test_set(patch, count, half, max_depth, seed);
+    } else {
+      throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
+    }
+    d.meta["plan"] = plan;
+    char uid_text[32];
+    std::snprintf(uid_text, sizeof uid_text, "0x%016llx", static_cast<unsigned long long>(uid));
+    d.meta["unit_uid"] = uid_text;
+    d.meta["unit"] = fabricated ? "fabricated" : "nominal";
+    const auto t1 = std::chrono::steady_clock::now();
+    auto s = write_dataset_csv(d, out_path);
+    if (!s.ok()) throw std::runtime_error(s.error().message);
+    const auto t2 = std::chrono::steady_clock::now();
+    std::fprintf(stderr, "skinbus-dataset: %zu rows x %d channels to %s (generate %.2f s, write %.2f s)\n", d.rows(),
+                 d.channels(), out_path.c_str(), std::chrono::duration<double>(t1 - t0).count(),
+                 std::chrono::duration<double>(t2 - t1).count());
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "skinbus-dataset: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
