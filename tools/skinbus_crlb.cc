@@ -48,11 +48,16 @@ int main(int argc, char** argv) {
   bool ambient = false;
   std::string csv;
   app.add_option("--depths", depths, "press depths, mm")->delimiter(',')->capture_default_str();
-  app.add_option("--step", step, "map grid step, mm")->capture_default_str()->check(CLI::Range(0.1, 50.0));
-  app.add_option("--extent", extent, "map covers +-extent mm (67.5: the seed's press grid)")->capture_default_str();
-  app.add_option("--noise-xy", noise_xy, "noise RMS of x/y channels, uT (default: the sensor model's)");
+  app.add_option("--step", step, "map grid step, mm")
+      ->capture_default_str()
+      ->check(CLI::Range(0.1, 50.0));
+  app.add_option("--extent", extent, "map covers +-extent mm (67.5: the seed's press grid)")
+      ->capture_default_str();
+  app.add_option("--noise-xy", noise_xy,
+                 "noise RMS of x/y channels, uT (default: the sensor model's)");
   app.add_option("--noise-z", noise_z, "noise RMS of z channels, uT (default: the sensor model's)");
-  app.add_flag("--ambient", ambient, "also estimate a uniform ambient field (3 nuisance parameters)");
+  app.add_flag("--ambient", ambient,
+               "also estimate a uniform ambient field (3 nuisance parameters)");
   app.add_option("--csv", csv, "write every map point to this CSV file");
   CLI11_PARSE(app, argc, argv);
 
@@ -71,12 +76,17 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "skinbus-crlb: cannot write '%s'\n", csv.c_str());
       return 1;
     }
-    std::fprintf(out, "# noise_xy_ut: %.4f\n# noise_z_ut: %.4f\n# ambient_nuisance: %d\n", noise_xy, noise_z, ambient);
+    std::fprintf(out, "# noise_xy_ut: %.4f\n# noise_z_ut: %.4f\n# ambient_nuisance: %d\n", noise_xy,
+                 noise_z, ambient);
     std::fprintf(out, "depth_mm,u_mm,v_mm,sd_u_mm,sd_v_mm,sd_xy_mm,sd_depth_mm,identifiable\n");
   }
-  std::printf("Cramer-Rao bound, nominal flat patch, noise %.2f uT (x, y) / %.2f uT (z)%s, over +-%.1f mm (step %.1f mm)\n\n",
-              noise_xy, noise_z, ambient ? ", ambient field estimated too" : "", extent, step);
-  std::printf("| depth (mm) | XY mean (mm) | XY median | XY p95 | depth mean (mm) | depth median | depth p95 | points without information |\n");
+  std::printf(
+      "Cramer-Rao bound, nominal flat patch, noise %.2f uT (x, y) / %.2f uT (z)%s, over +-%.1f mm "
+      "(step %.1f mm)\n\n",
+      noise_xy, noise_z, ambient ? ", ambient field estimated too" : "", extent, step);
+  std::printf(
+      "| depth (mm) | XY mean (mm) | XY median | XY p95 | depth mean (mm) | depth median | depth "
+      "p95 | points without information |\n");
   std::printf("|---|---|---|---|---|---|---|---|\n");
   for (double depth : depths) {
     std::vector<double> xy, dd;
@@ -93,14 +103,14 @@ int main(int argc, char** argv) {
           ++unident;
         }
         if (out) {
-          std::fprintf(out, "%g,%g,%g,%.6g,%.6g,%.6g,%.6g,%d\n", depth, u, v, p.sd_u_mm, p.sd_v_mm, p.sd_xy_mm,
-                       p.sd_depth_mm, p.identifiable);
+          std::fprintf(out, "%g,%g,%g,%.6g,%.6g,%.6g,%.6g,%d\n", depth, u, v, p.sd_u_mm, p.sd_v_mm,
+                       p.sd_xy_mm, p.sd_depth_mm, p.identifiable);
         }
       }
     }
     const Stats a = stats_of(xy, unident), b = stats_of(dd, unident);
-    std::printf("| %.1f | %.3f | %.3f | %.3f | %.4f | %.4f | %.4f | %d |\n", depth, a.mean, a.median, a.p95, b.mean, b.median,
-                b.p95, unident);
+    std::printf("| %.1f | %.3f | %.3f | %.3f | %.4f | %.4f | %.4f | %d |\n", depth, a.mean,
+                a.median, a.p95, b.mean, b.median, b.p95, unident);
   }
   if (out) std::fclose(out);
   return 0;

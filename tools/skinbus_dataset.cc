@@ -14,7 +14,8 @@
 int main(int argc, char** argv) {
   using namespace skinbus::sim;
   CLI::App app{
-      "skinbus-dataset: indentation datasets from the simulated patch, in the project's CSV format\n"
+      "skinbus-dataset: indentation datasets from the simulated patch, in the project's CSV "
+      "format\n"
       "(docs/dataset_format.md).\n\n"
       "Plans (where the simulated robot presses):\n"
       "  grid         the seed's protocol: --grid N x N points at --pitch mm (19 x 19 at 7.5 mm)\n"
@@ -33,19 +34,38 @@ int main(int argc, char** argv) {
   uint64_t uid = 0x5B00000000000001ull, seed = 1;
   bool fabricated = false, cylinder = false;
   double radius = 45, anisotropy = 0;
-  app.add_option("--plan", plan, "grid | jittered | halton | random | random-test")->capture_default_str();
-  app.add_option("--grid", grid, "grid points per side")->capture_default_str()->check(CLI::Range(1, 200));
-  app.add_option("--pitch", pitch, "grid pitch, mm")->capture_default_str()->check(CLI::Range(0.1, 100.0));
-  app.add_option("--jitter", jitter, "jittered plan: fraction of half a pitch")->capture_default_str();
-  app.add_option("--count", count, "presses for halton/random, samples for random-test")->capture_default_str()->check(CLI::Range(1, 10000000));
-  app.add_option("--max-depth", max_depth, "deepest press, mm")->capture_default_str()->check(CLI::Range(0.01, 9.0));
-  app.add_option("--speed", speed, "ramp speed, mm/s")->capture_default_str()->check(CLI::Range(0.01, 100.0));
-  app.add_option("--rate", rate, "sample rate, Hz")->capture_default_str()->check(CLI::Range(1.0, 1000.0));
-  app.add_option("--uid", uid, "hardware UID of the simulated unit (seeds its fabrication variation and noise)")->capture_default_str();
-  app.add_flag("--fabricated", fabricated, "a fabricated unit (per-UID variation) instead of the nominal design");
+  app.add_option("--plan", plan, "grid | jittered | halton | random | random-test")
+      ->capture_default_str();
+  app.add_option("--grid", grid, "grid points per side")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 200));
+  app.add_option("--pitch", pitch, "grid pitch, mm")
+      ->capture_default_str()
+      ->check(CLI::Range(0.1, 100.0));
+  app.add_option("--jitter", jitter, "jittered plan: fraction of half a pitch")
+      ->capture_default_str();
+  app.add_option("--count", count, "presses for halton/random, samples for random-test")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 10000000));
+  app.add_option("--max-depth", max_depth, "deepest press, mm")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 9.0));
+  app.add_option("--speed", speed, "ramp speed, mm/s")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 100.0));
+  app.add_option("--rate", rate, "sample rate, Hz")
+      ->capture_default_str()
+      ->check(CLI::Range(1.0, 1000.0));
+  app.add_option("--uid", uid,
+                 "hardware UID of the simulated unit (seeds its fabrication variation and noise)")
+      ->capture_default_str();
+  app.add_flag("--fabricated", fabricated,
+               "a fabricated unit (per-UID variation) instead of the nominal design");
   app.add_flag("--cylinder", cylinder, "a cylinder-section patch (forearm) instead of a flat one");
   app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
-  app.add_option("--anisotropy", anisotropy, "lattice anisotropy (physics outside the nominal model class)")->capture_default_str();
+  app.add_option("--anisotropy", anisotropy,
+                 "lattice anisotropy (physics outside the nominal model class)")
+      ->capture_default_str();
   app.add_option("--seed", seed, "seed of random plans")->capture_default_str();
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
@@ -58,7 +78,8 @@ int main(int argc, char** argv) {
       design.radius_mm = radius;
     }
     design.anisotropy = anisotropy;
-    auto model = fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{}) : PatchModel::nominal(design);
+    auto model = fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
+                            : PatchModel::nominal(design);
     if (!model.ok()) throw std::runtime_error(model.error().message);
     SimulatedPatch patch(std::move(model).value(), uid * 0x9E3779B97F4A7C15ull + 1);
     const double half = (grid - 1) / 2.0 * pitch;
@@ -89,9 +110,10 @@ int main(int argc, char** argv) {
     auto s = write_dataset_csv(d, out_path);
     if (!s.ok()) throw std::runtime_error(s.error().message);
     const auto t2 = std::chrono::steady_clock::now();
-    std::fprintf(stderr, "skinbus-dataset: %zu rows x %d channels to %s (generate %.2f s, write %.2f s)\n", d.rows(),
-                 d.channels(), out_path.c_str(), std::chrono::duration<double>(t1 - t0).count(),
-                 std::chrono::duration<double>(t2 - t1).count());
+    std::fprintf(
+        stderr, "skinbus-dataset: %zu rows x %d channels to %s (generate %.2f s, write %.2f s)\n",
+        d.rows(), d.channels(), out_path.c_str(), std::chrono::duration<double>(t1 - t0).count(),
+        std::chrono::duration<double>(t2 - t1).count());
   } catch (const std::exception& e) {
     std::fprintf(stderr, "skinbus-dataset: %s\n", e.what());
     return 1;
