@@ -67,7 +67,9 @@ int main(int argc, char** argv) {
   app.add_option("-a,--active", active, "share of time a patch streams (1 = stream mode)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1.0));
-  app.add_option("--heartbeat-hz", hb, "heartbeat rate per patch, Hz")->capture_default_str();
+  app.add_option("--heartbeat-hz", hb, "heartbeat rate per patch, Hz")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1000.0));
   app.add_flag("--classic", classic, "classic CAN (8-byte frames) instead of CAN FD");
   app.add_option("--nominal-bitrate", nominal, "arbitration bit rate, bit/s")
       ->capture_default_str()
@@ -81,6 +83,13 @@ int main(int argc, char** argv) {
   app.add_flag("--table", table, "print the standard budget table (Markdown) and exit");
   CLI11_PARSE(app, argc, argv);
 
+  if (!classic && data < nominal) {
+    std::fprintf(
+        stderr,
+        "skinbus-budget: --data-bitrate (%.0f) must not be below --nominal-bitrate (%.0f)\n", data,
+        nominal);
+    return 1;
+  }
   if (table) {
     print_table();
     return 0;

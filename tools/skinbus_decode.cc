@@ -41,7 +41,7 @@ class Decoder {
     bool quiet = false;
     uint64_t max_messages = 0;
   };
-  Decoder(Options o, Reassembler::Config rc) : opt_(std::move(o)), reasm_(rc) {}
+  Decoder(Options o, Reassembler::Config rc) : opt_(std::move(o)), reasm_config_(rc) {}
 
   bool done() const { return opt_.max_messages && printed_ >= opt_.max_messages; }
 
@@ -54,7 +54,7 @@ class Decoder {
     }
     if (opt_.frames && selected_frame(f) && !opt_.quiet)
       print_prefixed(rx_us, iface, ("frame " + describe_frame(f)).c_str());
-    const FeedResult r = reasm_.feed(f, rx_us);
+    const FeedResult r = reassembler(iface).feed(f, rx_us);
     switch (r.status) {
       case FeedStatus::kMessage:
         on_message(*r.message, r.missing_before, rx_us, iface);
@@ -82,19 +82,39 @@ class Decoder {
 
   void set_source(std::string s) { source_ = std::move(s); }
 
-  void finish(uint64_t now_us) { reasm_.expire(now_us + 1000000000ull); }
+  void finish(uint64_t now_us) {
+    for (auto& [name, r] : reasm_) r->expire(now_us + 1000000000ull);
+  }
 
   void print_stats(std::FILE* out) const {
-    const ReassemblyStats& s = reasm_.stats();
+    ReassemblyStats s;  // summed over interfaces
+    for (const auto& [name, r] : reasm_) {
+      const ReassemblyStats& t = r->stats();
+      s.frames += t.frames;
+      s.messages += t.messages;
+      s.samples += t.samples;
+      s.integrity_failures += t.integrity_failures;
+      s.gaps += t.gaps;
+      s.duplicates += t.duplicates;
+      s.reorders += t.reorders;
+      s.resyncs += t.resyncs;
+      s.stale_parts += t.stale_parts;
+      s.evictions += t.evictions;
+      s.conflicts += t.conflicts;
+      s.rejected += t.rejected;
+      s.foreign += t.foreign;
+      for (int e = 0; e < kDecodeErrorCount; ++e) s.by_error[e] += t.by_error[e];
+    }
     std::fprintf(out, "# skinbus-decode statistics\n");
-    std::fprintf(
-        out,
-        "frames %" PRIu64 " messages %" PRIu64 " samples %" PRIu64 " integrity_failures %" PRIu64
-        " gaps %" PRIu64 " duplicates %" PRIu64 " reorders %" PRIu64 " stale_parts %" PRIu64
-        " evictions %" PRIu64 " conflicts %" PRIu64 " rejected %" PRIu64 " foreign %" PRIu64
-        " bad_lines %" PRIu64 " bus_errors %" PRIu64 "\n",
-        s.frames, s.messages, s.samples, s.integrity_failures, s.gaps, s.duplicates, s.reorders,
-        s.stale_parts, s.evictions, s.conflicts, s.rejected, s.foreign, bad_lines_, bus_errors_);
+    std::fprintf(out,
+                 "frames %" PRIu64 " messages %" PRIu64 " samples %" PRIu64
+                 " integrity_failures %" PRIu64 " gaps %" PRIu64 " duplicates %" PRIu64
+                 " reorders %" PRIu64 " resyncs %" PRIu64 " stale_parts %" PRIu64
+                 " evictions %" PRIu64 " conflicts %" PRIu64 " rejected %" PRIu64
+                 " foreign %" PRIu64 " bad_lines %" PRIu64 " bus_errors %" PRIu64 "\n",
+                 s.frames, s.messages, s.samples, s.integrity_failures, s.gaps, s.duplicates,
+                 s.reorders, s.resyncs, s.stale_parts, s.evictions, s.conflicts, s.rejected,
+                 s.foreign, bad_lines_, bus_errors_);
     for (int e = 1; e < kDecodeErrorCount; ++e) {
       if (s.by_error[e]) {
         std::fprintf(out, "rejected %s %" PRIu64 "\n",
@@ -102,11 +122,12 @@ class Decoder {
                      s.by_error[e]);
       }
     }
-    std::fprintf(out, "%-6s %10s %10s %8s %6s %8s\n", "node", "samples", "heartbeats", "acks",
-                 "infos", "missing");
-    for (const auto& [node, c] : per_patch_) {
-      std::fprintf(out, "%-6d %10" PRIu64 " %10" PRIu64 " %8" PRIu64 " %6" PRIu64 " %8" PRIu64 "\n",
-                   node, c.samples, c.heartbeats, c.acks, c.infos, c.missing);
+    std::fprintf(out, "%-12s %-6s %10s %10s %8s %6s %8s\n", "interface", "node", "samples",
+                 "heartbeats", "acks", "infos", "missing");
+    for (const auto& [key, c] : per_patch_) {
+      std::fprintf(
+          out, "%-12s %-6d %10" PRIu64 " %10" PRIu64 " %8" PRIu64 " %6" PRIu64 " %8" PRIu64 "\n",
+          key.first.c_str(), key.second, c.samples, c.heartbeats, c.acks, c.infos, c.missing);
     }
     if (limiter_.total_suppressed()) {
       std::fprintf(out, "(%" PRIu64 " error reports suppressed by rate limiting)\n",
@@ -123,7 +144,7 @@ class Decoder {
   }
 
   void on_message(const Message& m, uint32_t missing, uint64_t rx_us, std::string_view iface) {
-    PatchCounts& c = per_patch_[m.node];
+    PatchCounts& c = per_patch_[{std::string(iface), m.node}];
     c.missing += missing;
     switch (m.message_class()) {
       case MessageClass::kSample:
@@ -174,9 +195,20 @@ class Decoder {
   }
 
   Options opt_;
-  Reassembler reasm_;
+  // Node IDs are per bus: one reassembler per interface, created on first sight (a log may
+  // interleave several, as `candump -L any` writes it).
+  Reassembler& reassembler(std::string_view iface) {
+    auto it = reasm_.find(iface);
+    if (it == reasm_.end()) {
+      it = reasm_.emplace(std::string(iface), std::make_unique<Reassembler>(reasm_config_)).first;
+    }
+    return *it->second;
+  }
+
+  Reassembler::Config reasm_config_;
+  std::map<std::string, std::unique_ptr<Reassembler>, std::less<>> reasm_;
   RateLimiter limiter_{10, 1000000};
-  std::map<int, PatchCounts> per_patch_;
+  std::map<std::pair<std::string, int>, PatchCounts> per_patch_;
   std::string source_ = "stdin";
   uint64_t bad_lines_ = 0;
   uint64_t bus_errors_ = 0;
@@ -205,9 +237,11 @@ int run_log(Decoder& dec, std::FILE* in, const std::string& name) {
   return 0;
 }
 
-int run_live(Decoder& dec, const std::vector<std::string>& ifaces, bool fd, double duration_s) {
+int run_live(Decoder& dec, const std::vector<std::string>& ifaces, bool fd, double duration_s,
+             const std::vector<CanIdFilter>& filters) {
   SocketCanOptions opts;
   opts.fd = fd;
+  opts.filters = filters;  // the kernel drops what was not asked for
   std::vector<std::unique_ptr<SocketCanPort>> ports;
   CanPoller poller;
   for (const std::string& name : ifaces) {
@@ -311,7 +345,19 @@ int main(int argc, char** argv) {
     }
     Decoder dec(o, Reassembler::Config{64, timeout_us});
     if (!ifaces.empty()) {
-      run_live(dec, ifaces, !classic, duration_s);
+      // Kernel filters for --patch / --class, as `candump can0,<id>:<mask>` would set them.
+      std::vector<CanIdFilter> filters;
+      if (!o.patches.empty() && !o.classes.empty()) {
+        for (int n : o.patches) {
+          for (MessageClass c : o.classes)
+            filters.push_back({make_can_id(c, static_cast<uint8_t>(n)), 0x7FF});
+        }
+      } else if (!o.patches.empty()) {
+        for (int n : o.patches) filters.push_back(filter_for_node(static_cast<uint8_t>(n)));
+      } else {
+        for (MessageClass c : o.classes) filters.push_back(filter_for_class(c));
+      }
+      run_live(dec, ifaces, !classic, duration_s, filters);
     } else if (files.empty()) {
       run_log(dec, stdin, "stdin");
     } else {

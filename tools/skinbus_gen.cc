@@ -58,6 +58,11 @@ Sample make_sample(const Pattern& p, int node_index, int node_count, double t_s,
     const double f[3] = {g * dx / 40.0, g * dy / 40.0, -g};
     for (int a = 0; a < kAxisCount; ++a) {
       const double lsb = std::round((f[a] + noise(rng)) / kFieldUtPerLsb);
+      // Beyond the wire's range: clipped, and flagged as the protocol requires.
+      if (lsb > kFieldMaxLsb || lsb < -kFieldMaxLsb) {
+        s.saturation_mask = static_cast<uint16_t>(s.saturation_mask | (1u << sensor));
+        s.flags |= sample_flags::kSaturated;
+      }
       s.field_lsb[sensor * 3 + a] = static_cast<int16_t>(std::clamp(lsb, -32767.0, 32767.0));
     }
   }
@@ -85,12 +90,13 @@ int main(int argc, char** argv) {
   app.add_option("--nodes", nodes, "patch node IDs, e.g. 1-4,9")->capture_default_str();
   app.add_option("--rate", rate_hz, "sample rate per patch, Hz")
       ->capture_default_str()
-      ->check(CLI::Range(0.1, 1000.0));
+      ->check(CLI::Range(0.1, 655.35));  // heartbeats carry it in 0.01 Hz, 16 bits
   app.add_option("--duration", duration_s, "seconds of traffic")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 86400.0));
   app.add_option("--heartbeat-hz", heartbeat_hz, "heartbeat rate per patch, Hz (0: none)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 100.0));
   app.add_flag("--classic", classic, "classic CAN frames (8 bytes) instead of CAN FD");
   app.add_option("--seed", seed, "random seed of the noise")->capture_default_str();
   app.add_option("--noise-ut", pattern.noise_ut, "noise standard deviation, uT")
@@ -144,7 +150,7 @@ int main(int argc, char** argv) {
     const double sample_dt = 1.0 / rate_hz;
     const double hb_dt = heartbeat_hz > 0 ? 1.0 / heartbeat_hz : 1e300;
     std::vector<uint8_t> sample_seq(node_ids.size(), 0), hb_seq(node_ids.size(), 0);
-    double next_sample = 0, next_hb = 0;
+    double next_sample = 0, next_hb = heartbeat_hz > 0 ? 0 : 1e300;
     uint64_t frames_sent = 0, messages = 0;
     CanFrame frames[kMaxParts];
     char line[kCandumpLineMax];
@@ -165,7 +171,10 @@ int main(int argc, char** argv) {
           Status s = port->send_blocking(frames[i], 1000);
           if (!s.ok()) throw std::runtime_error(s.error().message);
         } else {
-          format_candump_line(frames[i], t_us, log_iface, line);
+          if (format_candump_line(frames[i], t_us, log_iface, line) == 0) {
+            throw std::invalid_argument("--log-interface '" + log_iface +
+                                        "' is too long (32 characters at most)");
+          }
           std::fprintf(out, "%s\n", line);
         }
       }
@@ -202,9 +211,15 @@ int main(int argc, char** argv) {
         next_sample += sample_dt;
       }
     }
-    if (out != stdout) std::fclose(out);
-    if (expect) std::fclose(expect);
-    std::fflush(stdout);
+    // A log that could not be written whole is an error, not a success.
+    const bool out_failed = std::fflush(out) != 0 || std::ferror(out);
+    if (out != stdout && std::fclose(out) != 0)
+      throw std::runtime_error("writing '" + out_path + "' failed");
+    if (out_failed)
+      throw std::runtime_error(std::string("writing the log failed: ") + std::strerror(errno));
+    if (expect && (std::fflush(expect) != 0 || std::ferror(expect) || std::fclose(expect) != 0)) {
+      throw std::runtime_error("writing '" + expect_path + "' failed");
+    }
     std::fprintf(
         stderr, "skinbus-gen: %" PRIu64 " messages in %" PRIu64 " %s frames from %zu patches%s\n",
         messages, frames_sent, classic ? "classic" : "FD", node_ids.size(),

@@ -72,9 +72,9 @@ BudgetResult compute_budget(const BusTiming& t, const PatchTraffic& traffic, int
   r.load_per_patch =
       (sample_msgs * r.sample_time_us + traffic.heartbeat_hz * r.heartbeat_time_us) * 1e-6;
   r.load_total = r.load_per_patch * patches;
-  r.max_patches =
-      r.load_per_patch > 0 ? static_cast<int>(std::floor(load_limit / r.load_per_patch)) : kNodeMax;
-  r.max_patches = std::min<int>(r.max_patches, kNodeMax);
+  // Computed in double and clamped before the conversion to int (no overflow for tiny loads).
+  const double fit = r.load_per_patch > 0 ? std::floor(load_limit / r.load_per_patch) : kNodeMax;
+  r.max_patches = static_cast<int>(std::clamp(fit, 0.0, static_cast<double>(kNodeMax)));
   r.full_bus_frames_per_s = 1e6 / frame_time_us(t, t.fd ? kFdMaxLen : kClassicMaxLen);
   return r;
 }

@@ -100,7 +100,9 @@ struct Serializer {
   std::size_t operator()(const Ack& m) const {
     put_u8(p + 0, m.opcode);
     put_u8(p + 1, static_cast<uint8_t>(m.status));
-    put_u32(p + 2, m.value);
+    put_u8(p + 2, m.command_seq);
+    put_u8(p + 3, m.broadcast ? 1 : 0);
+    put_u16(p + 4, m.value);
     return kAckPayloadLen;
   }
   std::size_t operator()(const Sample& m) const {
@@ -185,7 +187,10 @@ DecodeError deserialize_payload(MessageClass c, std::span<const uint8_t> payload
       m.opcode = get_u8(p + 0);
       if (get_u8(p + 1) >= kAckStatusCount) return DecodeError::kBadValue;
       m.status = static_cast<AckStatus>(get_u8(p + 1));
-      m.value = get_u32(p + 2);
+      m.command_seq = get_u8(p + 2);
+      if (get_u8(p + 3) > 1) return DecodeError::kBadValue;  // only bit 0 is defined
+      m.broadcast = get_u8(p + 3) & 1;
+      m.value = get_u16(p + 4);
       *body = m;
       return DecodeError::kNone;
     }

@@ -107,12 +107,15 @@ TEST(CodecTest, GoldenCommandsAcksSync) {
   EXPECT_EQ(frames_text(encode_frames(
                 Message{kNodeBroadcast, 8, FrameKind::kFd, Command{Opcode::kTare, {}}})),
             "0FF##12008010000000000");
-  EXPECT_EQ(
-      frames_text(encode_frames(Message{12, 7, FrameKind::kClassic, Ack{3, AckStatus::kOk, 4170}})),
-      "10C#200703004A100000");
   EXPECT_EQ(frames_text(encode_frames(
-                Message{12, 9, FrameKind::kClassic, Ack{0x42, AckStatus::kUnknownOpcode, 0}})),
-            "10C#2009420100000000");
+                Message{12, 0, FrameKind::kClassic, Ack{3, AckStatus::kOk, 7, false, 4170}})),
+            "10C#2000030007004A10");
+  EXPECT_EQ(frames_text(encode_frames(Message{12, 1, FrameKind::kClassic,
+                                              Ack{0x42, AckStatus::kUnknownOpcode, 9, false, 0}})),
+            "10C#2001420109000000");
+  EXPECT_EQ(frames_text(
+                encode_frames(Message{12, 2, FrameKind::kFd, Ack{1, AckStatus::kOk, 8, true, 0}})),
+            "10C##12002010008010000");
   EXPECT_EQ(frames_text(encode_frames(
                 Message{kNodeBroadcast, 1, FrameKind::kClassic, Sync{0x12345678, 0x0102}})),
             "07F#2001785634120201");
@@ -267,6 +270,8 @@ TEST(CodecTest, RejectsWithAReason) {
   Message m;
   EXPECT_EQ(decode_single(frame_of("10C#2007030F4A100000"), &m),
             DecodeError::kBadValue);  // ack status 15
+  EXPECT_EQ(decode_single(frame_of("10C#2000030007024A10"), &m),
+            DecodeError::kBadValue);  // ack flags: only bit 0 is defined
   EXPECT_EQ(decode_single(frame_of("185#202A040302010900"), &m), DecodeError::kBadPart);
   EXPECT_EQ(decode_single(frame_of("08C#2007034A10000000"), &m), DecodeError::kNone);
   EXPECT_EQ(std::get<Command>(m.body).opcode, Opcode::kSetRate);

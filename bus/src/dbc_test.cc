@@ -128,6 +128,28 @@ TEST(DbcTest, EverySampleChannelOfEveryPartDecodes) {
   }
 }
 
+TEST(DbcTest, DeclaredLengthsAreTheLongestFrames) {
+  std::mt19937_64 rng(5);
+  for (FrameKind kind : {FrameKind::kFd, FrameKind::kClassic}) {
+    std::map<uint32_t, std::size_t> declared;
+    std::istringstream in(generate_dbc(kind, 1, 2));
+    std::string line;
+    while (std::getline(in, line)) {
+      unsigned id = 0, len = 0;
+      char name[64];
+      if (std::sscanf(line.c_str(), "BO_ %u %63[^:]: %u", &id, name, &len) == 3) declared[id] = len;
+    }
+    for (int c = 0; c < kMessageClassCount; ++c) {
+      const Message m = testing::random_message(rng, static_cast<MessageClass>(c), kind, 2, 0);
+      const auto frames = testing::encode_frames(m);
+      std::size_t longest = 0;
+      for (const CanFrame& f : frames) longest = std::max<std::size_t>(longest, f.len);
+      EXPECT_EQ(declared.at(frames[0].id), longest)
+          << message_class_name(static_cast<MessageClass>(c));
+    }
+  }
+}
+
 // The DBC files shipped in docs/ are what the generator writes today.
 TEST(DbcTest, ShippedFilesAreCurrent) {
   const char* src = std::getenv("SKINBUS_SOURCE_DIR");

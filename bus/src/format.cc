@@ -70,8 +70,8 @@ struct Formatter {
     const std::string op(opcode_name(static_cast<Opcode>(m.opcode)));
     appendf(s, " op=%s", op.c_str());
     if (op == "unknown") appendf(s, "(0x%02X)", m.opcode);
-    appendf(s, " status=%s value=%" PRIu32, std::string(ack_status_name(m.status)).c_str(),
-            m.value);
+    appendf(s, " status=%s cmd_seq=%u%s value=%u", std::string(ack_status_name(m.status)).c_str(),
+            m.command_seq, m.broadcast ? " broadcast" : "", m.value);
   }
   void operator()(const Sample& m) const {
     appendf(s, " t_us=%" PRIu32 " flags=%s fault=%04X sat=%04X field_ut=", m.timestamp_us,

@@ -14,8 +14,11 @@ CanFrame frame_of(const char* text) {
 }
 
 TEST(FormatTest, MessagesOnOneLine) {
-  Message m{12, 7, FrameKind::kClassic, Ack{3, AckStatus::kOk, 4170}};
-  EXPECT_EQ(format_message(m), "ack node=12 seq=7 op=set_rate status=ok value=4170");
+  Message m{12, 0, FrameKind::kClassic, Ack{3, AckStatus::kOk, 7, false, 4170}};
+  EXPECT_EQ(format_message(m), "ack node=12 seq=0 op=set_rate status=ok cmd_seq=7 value=4170");
+  m.body = Ack{1, AckStatus::kBusy, 8, true, 2};
+  EXPECT_EQ(format_message(m), "ack node=12 seq=0 op=tare status=busy cmd_seq=8 broadcast value=2");
+  m.seq = 7;
   m.body = Command{Opcode::kSetRate, {0x4A, 0x10, 0, 0, 0}};
   EXPECT_EQ(format_message(m), "command node=12 seq=7 op=set_rate rate_hz=41.70 arg=4A10000000");
   m.body = Command{static_cast<Opcode>(0x42), {}};

@@ -103,9 +103,9 @@ constexpr FieldDesc kCommandFields[] = {
 };
 
 constexpr FieldDesc kAckFields[] = {
-    {"opcode", 0, FieldType::kU8, 1, ""},
-    {"status", 1, FieldType::kU8, 1, ""},
-    {"value", 2, FieldType::kU32, 1, ""},
+    {"opcode", 0, FieldType::kU8, 1, ""},      {"status", 1, FieldType::kU8, 1, ""},
+    {"command_seq", 2, FieldType::kU8, 1, ""}, {"flags", 3, FieldType::kU8, 1, ""},
+    {"value", 4, FieldType::kU16, 1, ""},
 };
 
 constexpr FieldDesc kHeartbeatFields[] = {

@@ -94,8 +94,16 @@ FeedResult Reassembler::complete(MessageClass c, uint8_t node, uint8_t seq, Fram
       r.missing_before = ahead - 1u;
       stats_.gaps += ahead - 1u;
       snd.last_seq = seq;
-    } else {
+    } else if (rx_time_us - snd.last_rx_us <= config_.timeout_us) {
       ++stats_.reorders;  // an older message completed late: emitted, history unchanged
+    } else {
+      // Behind, but after a silence longer than any reordering can last: the sender restarted
+      // or 128 or more messages were lost. Take its sequence as the new reference; the jump is
+      // counted forward (mod 256) as missing messages.
+      ++stats_.resyncs;
+      r.missing_before = ahead - 1u;
+      stats_.gaps += ahead - 1u;
+      snd.last_seq = seq;
     }
   } else {
     snd.valid = true;
@@ -106,6 +114,11 @@ FeedResult Reassembler::complete(MessageClass c, uint8_t node, uint8_t seq, Fram
   snd.recent_crc[snd.ring_pos] = crc;
   snd.recent_used[snd.ring_pos] = true;
   snd.ring_pos = static_cast<uint8_t>((snd.ring_pos + 1) % kRecent);
+  if (is_multi_part(c) && snd.last_seq == seq) {
+    snd.have_last = true;
+    snd.last_kind = kind;
+    std::memcpy(snd.last_payload.data(), payload, len);
+  }
 
   ++stats_.messages;
   if (c == MessageClass::kSample) ++stats_.samples;
@@ -139,8 +152,16 @@ FeedResult Reassembler::feed(const CanFrame& frame, uint64_t rx_time_us) {
 
   Slot* s = find_slot(c, v.node, seq, v.kind);
   if (s == nullptr) {
-    // A stray repeat of one part of a message already emitted opens a slot that goes stale;
-    // dropping it here by sequence alone could drop a restarted node's new message.
+    // A stray repeat of one part of the message this sender emitted last: the same sequence,
+    // kind and bytes, within the timeout. (By sequence alone it could be a restarted node's
+    // new message, which must not be dropped.)
+    const Sender& snd = sender(c, v.node);
+    if (snd.have_last && snd.last_seq == seq && snd.last_kind == v.kind &&
+        rx_time_us - snd.last_rx_us <= config_.timeout_us &&
+        std::memcmp(snd.last_payload.data() + v.payload_offset, v.part_data, v.part_len) == 0) {
+      ++stats_.duplicates;
+      return FeedResult{FeedStatus::kDuplicate, DecodeError::kNone, nullptr, 0};
+    }
     s = allocate_slot(rx_time_us);
     s->message_class = c;
     s->node = v.node;

@@ -60,11 +60,50 @@ TEST(ReassemblerTest, CountsGapsReordersAndDuplicates) {
   EXPECT_EQ(r.feed(frames[1], 301).status, FeedStatus::kDuplicate);
   EXPECT_EQ(r.feed(frames[0], 302).status, FeedStatus::kMessage);
   EXPECT_EQ(r.stats().reorders, 2u);  // part 0 after part 1
-  // The whole message again: recognised by sequence and CRC, not emitted twice.
-  EXPECT_EQ(r.feed(frames[0], 400).status, FeedStatus::kPending);
+  // The whole message again, or one part of it: recognised by its bytes, not emitted twice.
+  EXPECT_EQ(r.feed(frames[0], 400).status, FeedStatus::kDuplicate);
   EXPECT_EQ(r.feed(frames[1], 401).status, FeedStatus::kDuplicate);
-  EXPECT_EQ(r.stats().duplicates, 2u);
+  EXPECT_EQ(r.stats().duplicates, 3u);
+  EXPECT_EQ(r.stats().stale_parts, 0u);
+  EXPECT_EQ(r.slots_in_use(), 0u);
   EXPECT_EQ(r.stats().samples, 4u);
+}
+
+// After a silence, a sequence that looks "behind" is a restart or a loss of 128+ messages,
+// not a late message: the gap is counted forward and later messages are not reorders.
+TEST(ReassemblerTest, LongLossAndRestartResynchronise) {
+  std::mt19937_64 rng(11);
+  Reassembler r;
+  uint64_t t = 0;
+  auto send = [&](uint8_t seq) {
+    FeedResult last;
+    for (const CanFrame& f :
+         encode_frames(random_message(rng, MessageClass::kSample, FrameKind::kFd, 3, seq))) {
+      last = r.feed(f, t);
+    }
+    t += 24000;  // 41.7 Hz
+    return last;
+  };
+  int s = 0;
+  for (; s < 10; ++s) send(static_cast<uint8_t>(s));
+  t += 200 * 24000;  // 200 samples lost
+  s += 200;
+  const FeedResult after = send(static_cast<uint8_t>(s++));
+  EXPECT_EQ(after.missing_before, 200u);
+  for (int k = 0; k < 20; ++k) send(static_cast<uint8_t>(s++));
+  EXPECT_EQ(r.stats().gaps, 200u);
+  EXPECT_EQ(r.stats().reorders, 0u);
+  EXPECT_EQ(r.stats().resyncs, 1u);
+  // A reboot: sequence 0 again after a second of silence, and a second one right after 100
+  // messages, whose 0 lies "behind": delivered either way, never a reorder.
+  t += 1000000;
+  EXPECT_EQ(send(0).status, FeedStatus::kMessage);
+  for (int k = 1; k < 100; ++k) send(static_cast<uint8_t>(k));
+  t += 1000000;
+  EXPECT_EQ(send(0).status, FeedStatus::kMessage);
+  EXPECT_EQ(send(1).status, FeedStatus::kMessage);
+  EXPECT_EQ(r.stats().reorders, 0u);
+  EXPECT_EQ(r.stats().resyncs, 2u);
 }
 
 TEST(ReassemblerTest, StalePartsTimeOut) {
@@ -150,6 +189,8 @@ TEST(ReassemblerTest, RandomShuffleDropDuplicate) {
     const double drop_p = (round % 4) * 0.02;
     const double dup_p = (round % 3) * 0.05;
     const int window = 1 + static_cast<int>(rng() % 24);
+    // Every third round corrupts one byte of some multi-part frames: the CRC must catch each.
+    const double corrupt_p = round % 3 == 2 ? 0.03 : 0.0;
 
     struct Tx {
       CanFrame frame;
@@ -161,7 +202,9 @@ TEST(ReassemblerTest, RandomShuffleDropDuplicate) {
     for (int i = 0; i < 300; ++i) {
       const auto c = static_cast<MessageClass>(rng() % kMessageClassCount);
       const auto node = static_cast<uint8_t>(1 + rng() % 8);
-      const uint64_t key = static_cast<uint64_t>(c) << 8 | node;
+      // One sequence counter per real sender: every SYNC comes from the host (node 127).
+      const uint64_t key =
+          static_cast<uint64_t>(c) << 8 | (c == MessageClass::kSync ? kNodeBroadcast : node);
       const Message m = random_message(rng, c, kind, node, next_seq[key]++);
       sent.push_back(m);
       for (const CanFrame& f : encode_frames(m)) wire.push_back({f, i});
@@ -172,11 +215,22 @@ TEST(ReassemblerTest, RandomShuffleDropDuplicate) {
       std::swap(wire[i], wire[j]);
     }
     std::vector<Tx> rx;
+    std::set<int> corrupted;
     std::uniform_real_distribution<double> p(0, 1);
     for (const Tx& t : wire) {
       if (p(rng) < drop_p) continue;
       rx.push_back(t);
       if (p(rng) < dup_p) rx.push_back(t);
+      if (corrupt_p > 0 && is_multi_part(sent[t.msg].message_class()) && p(rng) < corrupt_p) {
+        CanFrame& f = rx.back().frame;
+        const std::size_t parts = part_count(sent[t.msg].message_class(), kind);
+        const std::size_t part = f.data[0] & 0x1F;
+        const std::size_t carried = std::min(
+            part_len(kind), payload_len(sent[t.msg].message_class()) - part * part_len(kind));
+        f.data[kHeaderLen + rng() % carried] ^= static_cast<uint8_t>(1 + rng() % 255);
+        corrupted.insert(t.msg);
+        (void)parts;
+      }
     }
     std::map<int, int> frames_arrived;
     {
@@ -192,7 +246,10 @@ TEST(ReassemblerTest, RandomShuffleDropDuplicate) {
     for (const Tx& t : rx) {
       const FeedResult res = r.feed(t.frame, t_us += 10);
       ASSERT_NE(res.status, FeedStatus::kRejected);
-      ASSERT_NE(res.status, FeedStatus::kIntegrityFailure) << "seed " << seed << " round " << round;
+      if (corrupt_p == 0) {
+        ASSERT_NE(res.status, FeedStatus::kIntegrityFailure)
+            << "seed " << seed << " round " << round;
+      }
       if (res.status != FeedStatus::kMessage) continue;
       // Find which sent message this is: it must equal one exactly.
       const Message& got = *res.message;
@@ -208,12 +265,22 @@ TEST(ReassemblerTest, RandomShuffleDropDuplicate) {
     }
     for (int i = 0; i < static_cast<int>(sent.size()); ++i) {
       const int needed = static_cast<int>(part_count(sent[i].message_class(), kind));
-      if (frames_arrived[i] == needed) {
+      if (corrupted.count(i)) {
+        EXPECT_LE(emitted[i], 1) << "seed " << seed;  // only its clean copy could complete it
+      } else if (frames_arrived[i] == needed) {
         EXPECT_EQ(emitted[i], 1) << "message " << i << " complete but emitted " << emitted[i]
                                  << " times; seed " << seed << " round " << round;
       } else {
         EXPECT_EQ(emitted[i], 0) << "incomplete message emitted; seed " << seed;
       }
+    }
+    // The statistics agree with what happened.
+    int total = 0;
+    for (const auto& [i, n] : emitted) total += n;
+    EXPECT_EQ(r.stats().messages, static_cast<uint64_t>(total));
+    EXPECT_EQ(r.stats().frames, rx.size());
+    if (corrupt_p > 0 && !corrupted.empty()) {
+      EXPECT_GT(r.stats().integrity_failures + r.stats().conflicts + r.stats().stale_parts, 0u);
     }
   }
 }

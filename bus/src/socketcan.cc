@@ -126,7 +126,8 @@ Result<std::unique_ptr<SocketCanPort>> SocketCanPort::open(std::string_view ifna
   }
   std::unique_ptr<SocketCanPort> port(new SocketCanPort());
   port->name_ = name;
-  port->tx_limit_ = options.tx_queue_frames;
+  port->tx_limit_ = options.tx_queue_frames > 0 ? options.tx_queue_frames : 1;
+  port->tx_ring_.resize(port->tx_limit_);
   port->fd_ = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
   if (port->fd_ < 0) {
     if (errno == EAFNOSUPPORT || errno == EPROTONOSUPPORT) {
@@ -207,6 +208,18 @@ Result<std::unique_ptr<SocketCanPort>> SocketCanPort::open(std::string_view ifna
   return port;
 }
 
+std::unique_ptr<SocketCanPort> SocketCanPort::adopt_for_testing(int fd, std::string name,
+                                                                bool fd_enabled,
+                                                                std::size_t tx_queue_frames) {
+  std::unique_ptr<SocketCanPort> port(new SocketCanPort());
+  port->fd_ = fd;
+  port->name_ = std::move(name);
+  port->fd_enabled_ = fd_enabled;
+  port->tx_limit_ = tx_queue_frames > 0 ? tx_queue_frames : 1;
+  port->tx_ring_.resize(port->tx_limit_);
+  return port;
+}
+
 SocketCanPort::~SocketCanPort() {
   if (fd_ >= 0) ::close(fd_);
 }
@@ -242,18 +255,20 @@ Status SocketCanPort::send(const CanFrame& frame) {
                       "frame length " + std::to_string(frame.len) + " too long");
   }
   flush();  // keep order: older queued frames first
-  if (tx_queue_.empty()) {
+  if (tx_count_ == 0) {
     bool would_block = false;
     Status s = write_now(frame, &would_block);
+    if (!s.ok()) ++stats_.tx_dropped;
     if (!s.ok() || !would_block) return s;
   }
-  if (tx_queue_.size() >= tx_limit_) {
+  if (tx_count_ >= tx_limit_) {
     ++stats_.tx_dropped;
     return make_error(ErrorCode::kUnavailable, "transmit queue of '" + name_ + "' full (" +
                                                    std::to_string(tx_limit_) +
                                                    " frames): frame dropped");
   }
-  tx_queue_.push_back(frame);
+  tx_ring_[(tx_head_ + tx_count_) % tx_limit_] = frame;
+  ++tx_count_;
   ++stats_.tx_queued;
   return Status::Ok();
 }
@@ -262,7 +277,7 @@ Status SocketCanPort::send_blocking(const CanFrame& frame, int timeout_ms) {
   const uint64_t deadline = monotonic_now_us() + static_cast<uint64_t>(timeout_ms) * 1000u;
   Status s = send(frame);
   if (!s.ok()) return s;
-  while (!tx_queue_.empty()) {
+  while (tx_count_ > 0) {
     const uint64_t now = monotonic_now_us();
     if (now >= deadline) {
       return make_error(ErrorCode::kUnavailable,
@@ -277,17 +292,27 @@ Status SocketCanPort::send_blocking(const CanFrame& frame, int timeout_ms) {
 }
 
 std::size_t SocketCanPort::flush() {
-  while (!tx_queue_.empty()) {
+  while (tx_count_ > 0) {
     bool would_block = false;
-    Status s = write_now(tx_queue_.front(), &would_block);
+    Status s = write_now(tx_ring_[tx_head_], &would_block);
     if (would_block) break;
     if (!s.ok()) {
-      error_ = s.error();
-      ++stats_.tx_dropped;  // a hard write error on a queued frame: counted, not retried
+      // A hard write error on a queued frame: counted, reported once, not retried.
+      ++stats_.tx_dropped;
+      tx_error_ = s.error();
+      tx_error_pending_ = true;
     }
-    tx_queue_.pop_front();
+    tx_head_ = (tx_head_ + 1) % tx_limit_;
+    --tx_count_;
   }
-  return tx_queue_.size();
+  return tx_count_;
+}
+
+bool SocketCanPort::take_tx_error(Error* error) {
+  if (!tx_error_pending_) return false;
+  *error = tx_error_;
+  tx_error_pending_ = false;
+  return true;
 }
 
 SocketCanPort::RecvStatus SocketCanPort::receive(CanFrame* frame, RxMeta* meta) {
@@ -375,7 +400,11 @@ Status CanPoller::add(SocketCanPort* port) {
 Result<std::size_t> CanPoller::poll(int timeout_ms, const FrameHandler& on_frame,
                                     const ErrorHandler& on_error) {
   bool pending = false;
-  for (SocketCanPort* p : ports_) pending |= p->flush() > 0;
+  Error tx_error;
+  for (SocketCanPort* p : ports_) {
+    pending |= p->flush() > 0;
+    if (p->take_tx_error(&tx_error) && on_error) on_error(*p, tx_error);
+  }
   if (pending && (timeout_ms < 0 || timeout_ms > 1)) timeout_ms = 1;  // retry queued sends soon
 
   epoll_event events[16];

@@ -49,7 +49,7 @@ inline Message random_message(std::mt19937_64& rng, MessageClass c, FrameKind ki
     }
     case MessageClass::kAck:
       m.body = Ack{static_cast<uint8_t>(u(255)), static_cast<AckStatus>(u(kAckStatusCount - 1)),
-                   static_cast<uint32_t>(u(0xFFFFFFFF))};
+                   static_cast<uint8_t>(u(255)), u(1) == 1, static_cast<uint16_t>(u(0xFFFF))};
       break;
     case MessageClass::kSample: {
       Sample s;

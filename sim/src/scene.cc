@@ -6,23 +6,35 @@
 
 namespace skinbus::sim {
 
-Result<int> Scene::add_patch(uint64_t hardware_uid, const PatchDesign& design, const LimbMotion& limb) {
+Result<int> Scene::add_patch(uint64_t hardware_uid, const PatchDesign& design,
+                             const LimbMotion& limb) {
   for (const auto& p : patches_) {
     if (p->uid == hardware_uid) {
-      return make_error(ErrorCode::kInvalidArgument, "scene: hardware UID " + std::to_string(hardware_uid) + " used twice");
+      return make_error(ErrorCode::kInvalidArgument,
+                        "scene: hardware UID " + std::to_string(hardware_uid) + " used twice");
     }
   }
   auto model = PatchModel::fabricated(design, hardware_uid, FabricationVariation{});
   if (!model.ok()) return model.error();
-  patches_.push_back(std::unique_ptr<PatchState>(
-      new PatchState{hardware_uid, SimulatedPatch(std::move(model).value(), hardware_uid * 0x9E3779B97F4A7C15ull + 7), limb, {}, {}, 0}));
+  patches_.push_back(std::unique_ptr<PatchState>(new PatchState{
+      hardware_uid,
+      SimulatedPatch(std::move(model).value(), hardware_uid * 0x9E3779B97F4A7C15ull + 7),
+      limb,
+      {},
+      {},
+      0}));
   return static_cast<int>(patches_.size()) - 1;
 }
 
 Status Scene::add_contact(const SceneContact& c) {
-  if (c.patch < 0 || c.patch >= patch_count()) return make_error(ErrorCode::kInvalidArgument, "scene: contact on unknown patch " + std::to_string(c.patch));
-  if (!(c.t_end_s > c.t_start_s) || !(c.ramp_s >= 0) || !(c.depth_mm >= 0) || !std::isfinite(c.u_mm) || !std::isfinite(c.v_mm)) {
-    return make_error(ErrorCode::kInvalidArgument, "scene: contact needs t_end_s > t_start_s, ramp_s >= 0, depth_mm >= 0, finite position");
+  if (c.patch < 0 || c.patch >= patch_count())
+    return make_error(ErrorCode::kInvalidArgument,
+                      "scene: contact on unknown patch " + std::to_string(c.patch));
+  if (!(c.t_end_s > c.t_start_s) || !(c.ramp_s >= 0) || !(c.depth_mm >= 0) ||
+      !std::isfinite(c.u_mm) || !std::isfinite(c.v_mm)) {
+    return make_error(
+        ErrorCode::kInvalidArgument,
+        "scene: contact needs t_end_s > t_start_s, ramp_s >= 0, depth_mm >= 0, finite position");
   }
   contacts_.push_back(c);
   patches_[c.patch]->contacts.push_back(static_cast<int>(contacts_.size()) - 1);
@@ -55,17 +67,21 @@ void Scene::active_contacts(int i, double t_s, std::vector<Contact>* out) {
 
 Environment Scene::environment(int i, double t_s) const {
   const PatchState& p = *patches_[i];
-  const double angle = p.limb.amplitude_rad * std::sin(2 * M_PI * t_s / p.limb.period_s + p.limb.phase_rad);
+  const double angle =
+      p.limb.amplitude_rad * std::sin(2 * M_PI * t_s / p.limb.period_s + p.limb.phase_rad);
   const double n = std::sqrt(dot(p.limb.axis, p.limb.axis));
   Environment e;
   // The patch frame turns with the limb: the world field seen in it turns the other way.
   const Mat3 r = rotation_from_vector(n > 0 ? p.limb.axis * (angle / n) : Vec3<double>{});
   e.ambient_ut = r.apply_transposed(config_.earth_field_ut);
-  e.temperature_c = config_.temperature_c + config_.temperature_swing_c * std::sin(2 * M_PI * t_s / config_.temperature_period_s);
+  e.temperature_c =
+      config_.temperature_c +
+      config_.temperature_swing_c * std::sin(2 * M_PI * t_s / config_.temperature_period_s);
   return e;
 }
 
-uint64_t Scene::measure(int i, double t_s, std::span<double> field_ut, std::vector<Contact>* truth) {
+uint64_t Scene::measure(int i, double t_s, std::span<double> field_ut,
+                        std::vector<Contact>* truth) {
   std::vector<Contact> local;
   std::vector<Contact>* cs = truth ? truth : &local;
   cs->clear();

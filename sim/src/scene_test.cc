@@ -21,7 +21,8 @@ TEST(SceneTest, OnlyTouchedPatchesDeformAndTheTouchShowsWhereItIs) {
   arm.radius_mm = 45;
   for (int i = 0; i < 12; ++i) ASSERT_TRUE(scene.add_patch(0x5B00 + i, i < 6 ? arm : flat).ok());
   ASSERT_TRUE(scene.add_contact({3, 1.0, 2.0, 10, -5, 3.0}).ok());
-  std::vector<std::vector<double>> base(12, std::vector<double>(48)), now(12, std::vector<double>(48));
+  std::vector<std::vector<double>> base(12, std::vector<double>(48)),
+      now(12, std::vector<double>(48));
   for (int i = 0; i < 12; ++i) scene.measure(i, 0.0, base[i]);
   std::vector<Contact> truth;
   for (int i = 0; i < 12; ++i) {
@@ -43,8 +44,10 @@ TEST(SceneTest, TurningLimbChangesTheAmbientFieldUniformly) {
   Scene scene;
   LimbMotion swing{{1, 0, 0}, M_PI / 2, 4.0, 0};
   ASSERT_TRUE(scene.add_patch(1, PatchDesign{}, swing).ok());
-  const Environment e0 = scene.environment(0, 0.0), e1 = scene.environment(0, 1.0);  // 0 and 90 degrees
-  const double m0 = std::sqrt(dot(e0.ambient_ut, e0.ambient_ut)), m1 = std::sqrt(dot(e1.ambient_ut, e1.ambient_ut));
+  const Environment e0 = scene.environment(0, 0.0),
+                    e1 = scene.environment(0, 1.0);  // 0 and 90 degrees
+  const double m0 = std::sqrt(dot(e0.ambient_ut, e0.ambient_ut)),
+               m1 = std::sqrt(dot(e1.ambient_ut, e1.ambient_ut));
   EXPECT_NEAR(m0, m1, 1e-9);  // a rotation keeps the magnitude
   EXPECT_GT(std::sqrt(dot(e0.ambient_ut - e1.ambient_ut, e0.ambient_ut - e1.ambient_ut)), 40.0);
 }

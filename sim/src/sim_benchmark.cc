@@ -14,7 +14,8 @@ namespace {
 std::vector<Contact> random_contacts(int n) {
   Rng rng(3);
   std::vector<Contact> c;
-  for (int i = 0; i < n; ++i) c.push_back({rng.uniform(-67.5, 67.5), rng.uniform(-67.5, 67.5), rng.uniform(0.05, 4.0)});
+  for (int i = 0; i < n; ++i)
+    c.push_back({rng.uniform(-67.5, 67.5), rng.uniform(-67.5, 67.5), rng.uniform(0.05, 4.0)});
   return c;
 }
 
@@ -27,7 +28,8 @@ void BM_ForwardModel(benchmark::State& state) {
     m.contact_field_ut(std::span<const Contact>(&cs[i++ & 4095], 1), out);
     benchmark::DoNotOptimize(out.data());
   }
-  state.counters["patch_samples_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["patch_samples_per_s"] =
+      benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
 }
 BENCHMARK(BM_ForwardModel);
 
@@ -40,7 +42,8 @@ void BM_MeasureTouched(benchmark::State& state) {
     p.measure(std::span<const Contact>(&cs[i++ & 4095], 1), Environment{}, out);
     benchmark::DoNotOptimize(out.data());
   }
-  state.counters["patch_samples_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["patch_samples_per_s"] =
+      benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
 }
 BENCHMARK(BM_MeasureTouched);
 
@@ -51,7 +54,8 @@ void BM_MeasureIdle(benchmark::State& state) {
     p.measure({}, Environment{}, out);
     benchmark::DoNotOptimize(out.data());
   }
-  state.counters["patch_samples_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["patch_samples_per_s"] =
+      benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
 }
 BENCHMARK(BM_MeasureIdle);
 

@@ -56,11 +56,20 @@ done
 recv=$!
 sleep 0.5
 cansend vcan0 08C#2007034A10000000
-cansend vcan0 10C##1200703004A100000
+cansend vcan0 10C##12002010008010000
 wait "$recv"
 printf '%s\n' "command node=12 seq=7 op=set_rate rate_hz=41.70 arg=4A10000000" \
-              "ack node=12 seq=7 op=set_rate status=ok value=4170" >cansend_expected.txt
-check "cansend->receiver" cansend_expected.txt cansend.txt
+  "ack node=12 seq=2 op=tare status=ok cmd_seq=8 broadcast value=0" >cansend_expected.txt
+check "cansend->receiver (fd)" cansend_expected.txt cansend.txt
+"$bin/skinbus-decode" -i vcanc0 --duration 4 --count 2 >cansend_classic.txt &
+recv=$!
+sleep 0.5
+cansend vcanc0 07F#2001785634120201
+cansend vcanc0 10C#2001420109000000
+wait "$recv"
+printf '%s\n' "sync node=127 seq=1 counter=258 host_time_us=305419896" \
+  "ack node=12 seq=1 op=unknown(0x42) status=unknown_opcode cmd_seq=9 value=0" >cansend_classic_expected.txt
+check "cansend->receiver (classic)" cansend_classic_expected.txt cansend_classic.txt
 
 # 4. candump filters: one class (samples: class 3 -> 0x180/0x780), one patch (node 4 -> 004/07F).
 candump -L vcan0,180:780 >only_samples.log &

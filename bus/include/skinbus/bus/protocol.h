@@ -187,10 +187,14 @@ enum class AckStatus : uint8_t {
 inline constexpr uint8_t kAckStatusCount = 7;
 std::string_view ack_status_name(AckStatus s);
 
+// An acknowledgement carries its own transfer sequence (the patch's ack counter, so lost acks
+// show as gaps) and names the command it answers by that command's sequence.
 struct Ack {
   uint8_t opcode = 0;  // the opcode acknowledged (raw: unknown ones are echoed too)
   AckStatus status = AckStatus::kOk;
-  uint32_t value = 0;  // applied value (mode, rate_chz, ...) or a detail code for a NACK
+  uint8_t command_seq = 0;  // transfer sequence of the command answered
+  bool broadcast = false;   // the command was addressed to every patch (node 127)
+  uint16_t value = 0;       // applied value (mode, rate_chz, ...) or a detail code for a NACK
   bool operator==(const Ack&) const = default;
 };
 inline constexpr std::size_t kAckPayloadLen = 6;

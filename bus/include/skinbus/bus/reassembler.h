@@ -28,6 +28,8 @@ struct ReassemblyStats {
   uint64_t gaps = 0;                // messages missing between two emitted ones (per sender, class)
   uint64_t duplicates = 0;          // frames carrying a part already held or already emitted
   uint64_t reorders = 0;            // parts after a later part, or messages after a later message
+  uint64_t resyncs = 0;             // a sender's sequence jumped back after a silence (restart,
+                                    // or 128+ messages lost): counted forward as gaps
   uint64_t stale_parts = 0;         // parts dropped because their message timed out incomplete
   uint64_t evictions = 0;           // incomplete messages dropped because every slot was busy
   uint64_t conflicts = 0;           // a part seen twice with different bytes (message dropped)
@@ -100,6 +102,11 @@ class Reassembler {
     std::array<uint8_t, kRecent> recent_seq{};
     std::array<uint16_t, kRecent> recent_crc{};
     std::array<bool, kRecent> recent_used{};
+    // The last multi-part message emitted, so a stray repeat of one of its parts is recognised
+    // as a duplicate by its bytes (not by sequence alone).
+    bool have_last = false;
+    FrameKind last_kind = FrameKind::kFd;
+    std::array<uint8_t, kMaxPayloadLen> last_payload{};
   };
 
   FeedResult complete(MessageClass c, uint8_t node, uint8_t seq, FrameKind kind,

@@ -16,7 +16,6 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <deque>
 #include <functional>
 #include <memory>
 #include <string>
@@ -82,7 +81,7 @@ struct PortStats {
   uint64_t rx_frames = 0;
   uint64_t tx_frames = 0;        // accepted by the kernel
   uint64_t tx_queued = 0;        // sends that had to wait in the transmit queue
-  uint64_t tx_dropped = 0;       // sends refused because the transmit queue was full
+  uint64_t tx_dropped = 0;       // frames not sent: transmit queue full, or a write error
   uint64_t rx_kernel_drops = 0;  // frames the kernel dropped (SO_RXQ_OVFL)
   uint64_t error_frames = 0;
   uint64_t bus_off = 0;
@@ -96,6 +95,11 @@ class SocketCanPort {
   // kUnsupported when the kernel has no CAN, kNotFound when the interface does not exist.
   static Result<std::unique_ptr<SocketCanPort>> open(std::string_view ifname,
                                                      const SocketCanOptions& options);
+  // For tests of the transmit queue on machines without CAN: wraps an open, non-blocking
+  // datagram socket (one end of a socketpair) that stands in for a CAN_RAW socket; frames are
+  // written as the kernel's can_frame / canfd_frame records. Takes ownership of `fd`.
+  static std::unique_ptr<SocketCanPort> adopt_for_testing(int fd, std::string name, bool fd_enabled,
+                                                          std::size_t tx_queue_frames);
   ~SocketCanPort();
   SocketCanPort(const SocketCanPort&) = delete;
   SocketCanPort& operator=(const SocketCanPort&) = delete;
@@ -112,7 +116,10 @@ class SocketCanPort {
   Status send_blocking(const CanFrame& frame, int timeout_ms);
   // Moves queued frames to the kernel until it is full again. Returns frames still queued.
   std::size_t flush();
-  std::size_t queued() const { return tx_queue_.size(); }
+  std::size_t queued() const { return tx_count_; }
+  // The last error of a queued frame that flush() could not send (counted in tx_dropped), once:
+  // true and `*error` set if there was one since the last call. CanPoller reports these.
+  bool take_tx_error(Error* error);
 
   enum class RecvStatus { kFrame, kNoFrame, kError };
   // Reads one frame if one is waiting. kError: `error()` says what (e.g. interface down).
@@ -130,8 +137,11 @@ class SocketCanPort {
   int ifindex_ = 0;
   std::string name_;
   bool fd_enabled_ = false;
-  std::size_t tx_limit_ = 0;
-  std::deque<CanFrame> tx_queue_;  // bounded by tx_limit_; never grows past it
+  // Transmit queue: a ring of tx_limit_ frames allocated at open(); sending never allocates.
+  std::vector<CanFrame> tx_ring_;
+  std::size_t tx_limit_ = 0, tx_head_ = 0, tx_count_ = 0;
+  bool tx_error_pending_ = false;
+  Error tx_error_;
   uint32_t last_drop_counter_ = 0;
   Error error_;
   PortStats stats_;

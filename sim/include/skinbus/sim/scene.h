@@ -28,17 +28,17 @@ struct SceneContact {
   int patch = 0;
   double t_start_s = 0, t_end_s = 1;  // pressed between these times (ramps included)
   double u_mm = 0, v_mm = 0;
-  double depth_mm = 2;                // held depth
-  double ramp_s = 0.15;               // press-in and release time
+  double depth_mm = 2;   // held depth
+  double ramp_s = 0.15;  // press-in and release time
 };
 
 struct SceneConfig {
   Vec3<double> earth_field_ut{0, 19, -45};  // world frame; |B| ~ 49 uT (mid latitudes)
   double temperature_c = 25;
-  double temperature_swing_c = 0;           // slow sinusoidal drift of every patch
+  double temperature_swing_c = 0;  // slow sinusoidal drift of every patch
   double temperature_period_s = 600;
-  double creep_fraction = 0.05;             // held press sinks this fraction further ...
-  double creep_tau_s = 2.0;                 // ... with this time constant
+  double creep_fraction = 0.05;  // held press sinks this fraction further ...
+  double creep_tau_s = 2.0;      // ... with this time constant
 };
 
 class Scene {
@@ -46,7 +46,8 @@ class Scene {
   explicit Scene(SceneConfig config = {}) : config_(config) {}
 
   // Adds a fabricated patch; returns its index. The error names what is wrong.
-  Result<int> add_patch(uint64_t hardware_uid, const PatchDesign& design, const LimbMotion& limb = {});
+  Result<int> add_patch(uint64_t hardware_uid, const PatchDesign& design,
+                        const LimbMotion& limb = {});
   Status add_contact(const SceneContact& c);
 
   int patch_count() const { return static_cast<int>(patches_.size()); }
@@ -60,7 +61,8 @@ class Scene {
 
   // Measures patch `i` at `t_s` (absolute field, uT). Times of one patch must not decrease
   // (the creep state moves forward). Returns the saturation mask.
-  uint64_t measure(int i, double t_s, std::span<double> field_ut, std::vector<Contact>* truth = nullptr);
+  uint64_t measure(int i, double t_s, std::span<double> field_ut,
+                   std::vector<Contact>* truth = nullptr);
 
   // How many measurements evaluated a deformation, and how many were idle.
   uint64_t deformation_evaluations() const { return deformed_; }
