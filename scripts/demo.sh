@@ -23,7 +23,7 @@ mkdir -p "$out"
 
 echo
 echo "== bus budget for this demo (CAN FD 1/5 Mbit/s, 41.7 Hz per patch) =="
-"$bin/skinbus-budget" --patches "$(echo "$nodes" | awk -F- '{print ($2?$2-$1+1:1)}')"
+"$bin/skinbus-budget" --patches "$(build/tools/skinbus-gen --nodes "$nodes" --duration 0 2>&1 | sed -n 's/.* from \([0-9]*\) patches.*/\1/p')"
 
 vcan=
 if ip link show vcan0 >/dev/null 2>&1 && [[ $(cat /sys/class/net/vcan0/mtu) == 72 ]]; then
@@ -38,7 +38,7 @@ if [[ -n $vcan ]]; then
   echo "== $duration s of traffic from patches $nodes on SocketCAN interface $vcan =="
   candump -L "$vcan" >"$out/bus.log" &
   dump=$!
-  "$bin/skinbus-decode" -i "$vcan" --duration "$((duration + 1))" --stats >"$out/decoded.txt" 2>"$out/stats.txt" &
+  "$bin/skinbus-decode" -i "$vcan" --duration "$(awk -v d="$duration" 'BEGIN { print d + 1 }')" --stats >"$out/decoded.txt" 2>"$out/stats.txt" &
   dec=$!
   sleep 0.3
   "$bin/skinbus-gen" -i "$vcan" --nodes "$nodes" --duration "$duration"

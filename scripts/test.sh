@@ -6,7 +6,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
-scripts/can_vm.sh --prepare
+[[ ${SKINBUS_SKIP_VM:-0} == 1 ]] || scripts/can_vm.sh --prepare
 scripts/format.sh
 scripts/build.sh
 ctest --test-dir build -j2 --output-on-failure

@@ -30,6 +30,23 @@ for i in $(seq 1000); do echo "junk $i"; done | "$bin/skinbus-decode" --stats >/
 n=$(grep -c "bad_timestamp" "$work/flood.txt")
 [[ $n -le 10 ]] && grep -q "bad_lines 1000 " "$work/flood.txt" && ok "error reports rate-limited ($n printed, 1000 counted)" || bad "rate limit ($n printed)"
 
+# Two buses in one log (as `candump -L any` writes them): node IDs are per bus, so the same
+# node on can0 and can1 must not be mixed up.
+"$bin/skinbus-gen" --nodes 1-2 --duration 1 --seed 1 --log-interface can0 --expect "$work/e0.txt" -o "$work/a.log" 2>/dev/null
+"$bin/skinbus-gen" --nodes 1-2 --duration 1 --seed 2 --log-interface can1 --expect "$work/e1.txt" -o "$work/b.log" 2>/dev/null
+paste -d'\n' "$work/a.log" "$work/b.log" | "$bin/skinbus-decode" -t --stats 2>"$work/two.txt" >"$work/two_out.txt"
+n_expected=$(cat "$work/e0.txt" "$work/e1.txt" | wc -l)
+grep -q "messages $n_expected .*conflicts 0" "$work/two.txt" && grep " can0 " "$work/two_out.txt" | cut -d' ' -f3- | diff -q - "$work/e0.txt" >/dev/null &&
+  ok "two interfaces in one log kept apart ($n_expected messages)" || { bad "two interfaces mixed up"; head -3 "$work/two.txt"; }
+
+# Generator edges: unwritable output fails, too-long interface names and bad rates are refused.
+"$bin/skinbus-gen" --duration 1 >/dev/full 2>"$work/e4.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "failed" "$work/e4.txt" && ok "write failure reported" || bad "write failure not reported"
+"$bin/skinbus-gen" --duration 0.1 --log-interface "$(printf 'x%.0s' {1..40})" >/dev/null 2>"$work/e5.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "too long" "$work/e5.txt" && ok "long interface name refused" || bad "long interface name"
+timeout 10 "$bin/skinbus-gen" --heartbeat-hz -1 --duration 0.1 >/dev/null 2>&1; rc=$?
+[[ $rc != 0 && $rc != 124 ]] && ok "negative heartbeat rate refused" || bad "negative heartbeat rate (rc $rc)"
+
 # Bad options and missing files: non-zero exit, a message naming the problem.
 "$bin/skinbus-decode" /nonexistent.log 2>"$work/e1.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "/nonexistent.log" "$work/e1.txt" && ok "missing file named" || bad "missing file"

@@ -14,7 +14,9 @@ int first_nonzero(const Command& c, int from) {
   return -1;
 }
 
-CommandCheck bad_arg(uint16_t detail) { return {AckStatus::kBadArgument, detail}; }
+CommandCheck bad_arg(uint16_t detail) {
+  return {AckStatus::kBadArgument, detail};
+}
 
 }  // namespace
 
@@ -23,7 +25,9 @@ CommandCheck check_command(const Command& c, const CommandLimits& lim) {
   CommandCheck ok{AckStatus::kOk, 0};
   switch (c.opcode) {
     case Opcode::kTare:
-    case Opcode::kGetInfo: used = 0; break;
+    case Opcode::kGetInfo:
+      used = 0;
+      break;
     case Opcode::kSetMode:
       used = 1;
       if (c.arg[0] >= kPatchModeCount) return bad_arg(1);
@@ -50,14 +54,15 @@ CommandCheck check_command(const Command& c, const CommandLimits& lim) {
       used = 4;
       if (internal::get_u32(c.arg.data()) != kRebootMagic) return {AckStatus::kNotPermitted, 1};
       break;
-    default: return {AckStatus::kUnknownOpcode, 0};
+    default:
+      return {AckStatus::kUnknownOpcode, 0};
   }
   if (const int i = first_nonzero(c, used); i >= 0) return bad_arg(static_cast<uint16_t>(1 + i));
   return ok;
 }
 
-bool answer_command_frame(const CanFrame& frame, uint8_t own_node, uint8_t ack_seq, const CommandLimits& limits,
-                          Message* ack, Command* accepted) {
+bool answer_command_frame(const CanFrame& frame, uint8_t own_node, uint8_t ack_seq,
+                          const CommandLimits& limits, Message* ack, Command* accepted) {
   if (frame.extended || frame.rtr || frame.error) return false;
   if (can_id_class(frame.id) != static_cast<uint8_t>(MessageClass::kCommand)) return false;
   const uint8_t to = can_id_node(frame.id);

@@ -8,7 +8,9 @@
 namespace skinbus::bus {
 namespace {
 
-Command cmd(Opcode op, std::array<uint8_t, 5> arg = {}) { return Command{op, arg}; }
+Command cmd(Opcode op, std::array<uint8_t, 5> arg = {}) {
+  return Command{op, arg};
+}
 
 TEST(CommandTest, AcceptsWellFormedCommands) {
   const CommandLimits lim;
@@ -22,7 +24,8 @@ TEST(CommandTest, AcceptsWellFormedCommands) {
   EXPECT_EQ(r.value, 4170);
   EXPECT_EQ(check_command(cmd(Opcode::kSyncMode, {1}), lim).status, AckStatus::kOk);
   EXPECT_EQ(check_command(cmd(Opcode::kIdentify, {5}), lim).value, 5);
-  EXPECT_EQ(check_command(cmd(Opcode::kReboot, {0x52, 0x42, 0x4F, 0x54}), lim).status, AckStatus::kOk);
+  EXPECT_EQ(check_command(cmd(Opcode::kReboot, {0x52, 0x42, 0x4F, 0x54}), lim).status,
+            AckStatus::kOk);
 }
 
 TEST(CommandTest, RefusesWithAReason) {
@@ -31,10 +34,12 @@ TEST(CommandTest, RefusesWithAReason) {
   EXPECT_EQ(check_command(cmd(static_cast<Opcode>(0)), lim).status, AckStatus::kUnknownOpcode);
   EXPECT_EQ(check_command(cmd(Opcode::kSetMode, {3}), lim).status, AckStatus::kBadArgument);
   EXPECT_EQ(check_command(cmd(Opcode::kSetRate, {0, 0}), lim).status, AckStatus::kBadArgument);
-  EXPECT_EQ(check_command(cmd(Opcode::kSetRate, {0x11, 0x27}), lim).status, AckStatus::kBadArgument);  // 100.01 Hz
+  EXPECT_EQ(check_command(cmd(Opcode::kSetRate, {0x11, 0x27}), lim).status,
+            AckStatus::kBadArgument);  // 100.01 Hz
   EXPECT_EQ(check_command(cmd(Opcode::kSyncMode, {2}), lim).status, AckStatus::kBadArgument);
   EXPECT_EQ(check_command(cmd(Opcode::kIdentify, {200}), lim).status, AckStatus::kBadArgument);
-  EXPECT_EQ(check_command(cmd(Opcode::kReboot, {1, 2, 3, 4}), lim).status, AckStatus::kNotPermitted);
+  EXPECT_EQ(check_command(cmd(Opcode::kReboot, {1, 2, 3, 4}), lim).status,
+            AckStatus::kNotPermitted);
   // Unused argument bytes must be zero: the detail names the first offending byte.
   const CommandCheck junk = check_command(cmd(Opcode::kTare, {0, 0, 7}), lim);
   EXPECT_EQ(junk.status, AckStatus::kBadArgument);
@@ -58,10 +63,12 @@ TEST(CommandTest, EveryCommandFrameGetsOneAnswer) {
             "ack node=12 seq=4 op=tare status=ok cmd_seq=8 broadcast value=0");
   EXPECT_EQ(format_message(answer("08C#2009420000000000")),
             "ack node=12 seq=4 op=unknown(0x42) status=unknown_opcode cmd_seq=9 value=0");
-  EXPECT_EQ(format_message(answer("08C#20090302")), "ack node=12 seq=4 op=set_rate status=bad_length cmd_seq=9 value=4");
+  EXPECT_EQ(format_message(answer("08C#20090302")),
+            "ack node=12 seq=4 op=set_rate status=bad_length cmd_seq=9 value=4");
   EXPECT_EQ(format_message(answer("08C#4009034A10000000")),
             "ack node=12 seq=4 op=set_rate status=version_mismatch cmd_seq=9 value=1");
-  EXPECT_EQ(format_message(answer("08C#")), "ack node=12 seq=4 op=unknown(0x00) status=bad_length cmd_seq=0 value=0");
+  EXPECT_EQ(format_message(answer("08C#")),
+            "ack node=12 seq=4 op=unknown(0x00) status=bad_length cmd_seq=0 value=0");
   // Not for this node, or not a command: no answer.
   CanFrame f;
   Message ack;

@@ -18,7 +18,7 @@ TEST(BusErrorTest, DecodesControllerEvents) {
   f.id = 0x100;  // CAN_ERR_RESTARTED
   EXPECT_TRUE(decode_error_frame(f).restarted);
   EXPECT_EQ(describe_bus_error(decode_error_frame(f)), "restarted");
-  f.id = 0x004;  // CAN_ERR_CRTL
+  f.id = 0x004;             // CAN_ERR_CRTL
   f.data[1] = 0x04 | 0x10;  // RX warning, RX passive
   const BusErrorEvent e = decode_error_frame(f);
   EXPECT_TRUE(e.error_warning);

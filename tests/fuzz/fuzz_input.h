@@ -18,10 +18,13 @@ inline bool next_frame(const uint8_t* data, std::size_t size, std::size_t* pos, 
   f->id = head & 0x7FF;
   f->fd = head & 0x800;
   f->brs = head & 0x1000;
-  f->extended = (head & 0xE000) == 0xE000;  // rarely: a foreign frame
-  std::size_t len = data[*pos + 2] % 65;
-  if (!f->fd) len %= 9;
-  if (f->fd && !is_valid_fd_len(len)) len = round_up_fd_len(len);
+  const unsigned kind = head >> 13;  // rarely: frames of other kinds, as a bus can carry them
+  f->extended = kind == 7;
+  f->rtr = kind == 6 && !f->fd;
+  f->error = kind == 5;
+  // Lengths as a receiver may see them: any 0..64 (invalid FD lengths included; a classic
+  // frame longer than 8 must be rejected, not read).
+  const std::size_t len = data[*pos + 2] % 65;
   *pos += 3;
   const std::size_t n = len < size - *pos ? len : size - *pos;
   std::memcpy(f->data.data(), data + *pos, n);

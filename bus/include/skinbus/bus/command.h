@@ -33,7 +33,7 @@ CommandCheck check_command(const Command& cmd, const CommandLimits& limits);
 // with check_command; a frame too short or of another protocol version gets a NACK saying so.
 // Returns false for frames that are not commands to this node (no answer is due). `ack_seq` is
 // the patch's own ack counter.
-bool answer_command_frame(const CanFrame& frame, uint8_t own_node, uint8_t ack_seq, const CommandLimits& limits,
-                          Message* ack, Command* accepted);
+bool answer_command_frame(const CanFrame& frame, uint8_t own_node, uint8_t ack_seq,
+                          const CommandLimits& limits, Message* ack, Command* accepted);
 
 }  // namespace skinbus::bus

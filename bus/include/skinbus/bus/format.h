@@ -21,7 +21,7 @@ std::string format_message(const Message& msg);
 // wholly inside this part; or the reason it is not a valid skinbus frame.
 std::string describe_frame(const CanFrame& frame);
 
-// "contact,tared" (empty string when no flag is set).
+// "contact,tared" ("-" when no flag is set).
 std::string format_sample_flags(uint16_t flags);
 
 }  // namespace skinbus::bus
