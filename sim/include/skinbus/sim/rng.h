@@ -1,5 +1,5 @@
 // skinbus/sim/rng.h: a small, fully specified random generator (xoshiro256** seeded by
-// SplitMix64, Gaussian by Box-Muller), so a seed gives the same numbers on every platform and
+// SplitMix64, Gaussian by the polar method), so a seed gives the same numbers on every platform and
 // standard library. std::normal_distribution does not promise that.
 #pragma once
 
@@ -33,19 +33,22 @@ class Rng {
   // Uniform in [0, 1).
   double uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
   double uniform(double lo, double hi) { return lo + (hi - lo) * uniform(); }
-  // Standard normal.
+  // Standard normal (Marsaglia's polar method: no trigonometry, two values per accepted pair).
   double normal() {
     if (have_spare_) {
       have_spare_ = false;
       return spare_;
     }
-    double u1 = uniform();
-    while (u1 <= 0) u1 = uniform();
-    const double u2 = uniform();
-    const double r = std::sqrt(-2 * std::log(u1));
-    spare_ = r * std::sin(2 * M_PI * u2);
+    double u, v, s;
+    do {
+      u = 2 * uniform() - 1;
+      v = 2 * uniform() - 1;
+      s = u * u + v * v;
+    } while (s >= 1 || s == 0);
+    const double k = std::sqrt(-2 * std::log(s) / s);
+    spare_ = v * k;
     have_spare_ = true;
-    return r * std::cos(2 * M_PI * u2);
+    return u * k;
   }
 
  private:
