@@ -3,6 +3,7 @@
 # and never stops the stream; bad options fail with a message naming them; --help explains.
 set -uo pipefail
 bin=${1:?usage: tools_test.sh BUILD_DIR}/tools
+here=$(cd "$(dirname "$0")" && pwd)
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 pass=0
@@ -46,6 +47,23 @@ grep -q "messages $n_expected .*conflicts 0" "$work/two.txt" && grep " can0 " "$
 [[ $rc != 0 ]] && grep -q "too long" "$work/e5.txt" && ok "long interface name refused" || bad "long interface name"
 timeout 10 "$bin/skinbus-gen" --heartbeat-hz -1 --duration 0.1 >/dev/null 2>&1; rc=$?
 [[ $rc != 0 && $rc != 124 ]] && ok "negative heartbeat rate refused" || bad "negative heartbeat rate (rc $rc)"
+
+# Simulator tools: a dataset through the tool reads back; the CRLB map plots; bad plans fail.
+"$bin/skinbus-dataset" --plan random-test --count 20 -o "$work/t.csv" 2>/dev/null &&
+  grep -q "^# format: skinbus-dataset 1" "$work/t.csv" && [[ $(grep -vc '^#' "$work/t.csv") == 21 ]] &&
+  ok "skinbus-dataset writes the documented format" || bad "skinbus-dataset output"
+"$bin/skinbus-dataset" --plan spiral -o "$work/x.csv" 2>"$work/e6.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "unknown --plan 'spiral'" "$work/e6.txt" && ok "unknown plan named" || bad "unknown plan"
+"$bin/skinbus-dataset" --plan grid -o /nonexistent/dir/x.csv 2>"$work/e7.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "/nonexistent/dir/x.csv" "$work/e7.txt" && ok "unwritable dataset path named" || bad "unwritable dataset path"
+"$bin/skinbus-crlb" --depths 2 --step 10 --csv "$work/crlb.csv" >"$work/crlb.txt" &&
+  grep -q "^| 2.0 |" "$work/crlb.txt" && ok "skinbus-crlb table" || bad "skinbus-crlb table"
+if [[ -x /usr/bin/python3 ]] && /usr/bin/python3 -c "import matplotlib" 2>/dev/null; then
+  "$here/../tools/plot_crlb.py" "$work/crlb.csv" "$work/crlb.png" && [[ -s $work/crlb.png ]] &&
+    ok "CRLB map plotted" || bad "CRLB plot"
+else
+  bad "python3-matplotlib missing: run scripts/setup.sh"
+fi
 
 # Bad options and missing files: non-zero exit, a message naming the problem.
 "$bin/skinbus-decode" /nonexistent.log 2>"$work/e1.txt"; rc=$?
