@@ -52,6 +52,12 @@ timeout 10 "$bin/skinbus-gen" --heartbeat-hz -1 --duration 0.1 >/dev/null 2>&1; 
 "$bin/skinbus-dataset" --plan random-test --count 20 -o "$work/t.csv" 2>/dev/null &&
   grep -q "^# format: skinbus-dataset 1" "$work/t.csv" && [[ $(grep -vc '^#' "$work/t.csv") == 21 ]] &&
   ok "skinbus-dataset writes the documented format" || bad "skinbus-dataset output"
+printf 'u_mm,v_mm\n0,0\n10.5, -3\n' >"$work/points.csv"
+"$bin/skinbus-dataset" --plan list --points "$work/points.csv" -o "$work/l.csv" 2>/dev/null &&
+  [[ $(grep -v '^#' "$work/l.csv" | cut -d, -f1 | sort -u | wc -l) == 3 ]] && ok "list plan (2 presses)" || bad "list plan"
+printf '0,0\n1,x\n' >"$work/badpoints.csv"
+"$bin/skinbus-dataset" --plan list --points "$work/badpoints.csv" -o "$work/l.csv" 2>"$work/e8.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "badpoints.csv:2:" "$work/e8.txt" && ok "bad press list line named" || bad "bad press list"
 "$bin/skinbus-dataset" --plan spiral -o "$work/x.csv" 2>"$work/e6.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "unknown --plan 'spiral'" "$work/e6.txt" && ok "unknown plan named" || bad "unknown plan"
 "$bin/skinbus-dataset" --plan grid -o /nonexistent/dir/x.csv 2>"$work/e7.txt"; rc=$?

@@ -23,12 +23,13 @@ int main(int argc, char** argv) {
       "  halton       --count points of a low-discrepancy sequence over the grid's extent\n"
       "  random       --count uniformly random points over the grid's extent\n"
       "  random-test  the test split: --count static presses at random points and depths\n"
+      "  list         the points in --points FILE (one 'u_mm,v_mm' per line)\n"
       "Ramp plans press and release each point at --speed mm/s to --max-depth, sampled at --rate,\n"
       "keeping contact samples only.\n\n"
       "Examples:\n"
       "  skinbus-dataset --plan grid -o train.csv\n"
       "  skinbus-dataset --plan random-test --count 2000 -o test.csv\n"};
-  std::string plan = "grid", out_path;
+  std::string plan = "grid", out_path, points_path;
   int grid = 19, count = 361;
   double pitch = 7.5, jitter = 0.5, max_depth = 4.0, speed = 2.0, rate = 41.7;
   uint64_t uid = 0x5B00000000000001ull, seed = 1;
@@ -67,6 +68,7 @@ int main(int argc, char** argv) {
                  "lattice anisotropy (physics outside the nominal model class)")
       ->capture_default_str();
   app.add_option("--seed", seed, "seed of random plans")->capture_default_str();
+  app.add_option("--points", points_path, "list plan: file of press points");
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
 
@@ -96,6 +98,11 @@ int main(int argc, char** argv) {
       d = generate_ramp_dataset(patch, plan_halton(count, half, seed), pr);
     } else if (plan == "random") {
       d = generate_ramp_dataset(patch, plan_random(count, half, seed), pr);
+    } else if (plan == "list") {
+      if (points_path.empty()) throw std::invalid_argument("--plan list needs --points FILE");
+      auto pts = plan_from_file(points_path);
+      if (!pts.ok()) throw std::runtime_error(pts.error().message);
+      d = generate_ramp_dataset(patch, *pts, pr);
     } else if (plan == "random-test") {
       d = generate_random_test_set(patch, count, half, max_depth, seed);
     } else {

@@ -70,6 +70,37 @@ std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t s
   return p;
 }
 
+Result<std::vector<PressPoint>> plan_from_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return make_error(ErrorCode::kNotFound, "cannot open press list '" + path + "'");
+  std::vector<PressPoint> points;
+  std::string line;
+  int lineno = 0;
+  while (std::getline(in, line)) {
+    ++lineno;
+    for (char& ch : line) {
+      if (ch == ',' || ch == ';' || ch == '\t' || ch == '\r') ch = ' ';
+    }
+    std::istringstream ls(line);
+    std::string a, b, rest;
+    if (!(ls >> a) || a[0] == '#') continue;  // blank or comment
+    ls >> b;
+    PressPoint p;
+    const bool ok =
+        std::from_chars(a.data(), a.data() + a.size(), p.u_mm).ptr == a.data() + a.size() &&
+        std::from_chars(b.data(), b.data() + b.size(), p.v_mm).ptr == b.data() + b.size() &&
+        std::isfinite(p.u_mm) && std::isfinite(p.v_mm) && !b.empty() && !(ls >> rest);
+    if (!ok) {
+      if (points.empty() && lineno <= 2 && (a == "u_mm" || a == "x_mm")) continue;  // a header line
+      return make_error(ErrorCode::kParse, path + ":" + std::to_string(lineno) +
+                                               ": expected 'u_mm,v_mm', got '" + line + "'");
+    }
+    points.push_back(p);
+  }
+  if (points.empty()) return make_error(ErrorCode::kParse, path + ": no press points");
+  return points;
+}
+
 namespace {
 
 void fill_layout(const SimulatedPatch& patch, Dataset* d) {

@@ -51,6 +51,9 @@ std::vector<PressPoint> plan_jittered_grid(int n, double pitch_mm, double jitter
 std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t skip = 0);
 // `count` uniformly random points over the square +-half_extent_mm.
 std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t seed);
+// A given list: a text file with one point per line, "u_mm,v_mm" (or separated by spaces);
+// '#' lines and a header line naming the columns are skipped. Errors name the line.
+Result<std::vector<PressPoint>> plan_from_file(const std::string& path);
 
 // A press-and-release depth ramp, as an indentation robot runs it.
 struct RampProtocol {
