@@ -18,17 +18,7 @@ double message_time_us(const BusTiming& t, MessageClass c, double* frames) {
   Message m;
   m.node = kNodeMin;
   m.kind = t.fd ? FrameKind::kFd : FrameKind::kClassic;
-  switch (c) {
-    case MessageClass::kSample:
-      m.body = Sample{};
-      break;
-    case MessageClass::kHeartbeat:
-      m.body = Heartbeat{};
-      break;
-    default:
-      m.body = Info{};
-      break;
-  }
+  m.body = default_body(c);
   CanFrame out[kMaxParts];
   const EncodeResult r = encode(m, out);
   double us = 0;

@@ -58,6 +58,24 @@ uint16_t crc16_ccitt(std::span<const uint8_t> bytes) {
   return crc;
 }
 
+MessageBody default_body(MessageClass c) {
+  switch (c) {
+    case MessageClass::kSync:
+      return Sync{};
+    case MessageClass::kCommand:
+      return Command{};
+    case MessageClass::kAck:
+      return Ack{};
+    case MessageClass::kSample:
+      return Sample{};
+    case MessageClass::kInfo:
+      return Info{};
+    case MessageClass::kHeartbeat:
+      return Heartbeat{};
+  }
+  return Sample{};
+}
+
 bool node_allowed(MessageClass c, uint8_t node) {
   switch (c) {
     case MessageClass::kSync:

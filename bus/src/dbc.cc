@@ -6,17 +6,13 @@
 #include <cstdio>
 
 #include "skinbus/bus/codec.h"
+#include "text.h"
 
 namespace skinbus::bus {
 
-namespace {
+using internal::appendf;
 
-template <typename... Args>
-void appendf(std::string* s, const char* fmt, Args... args) {
-  char buf[512];
-  const int n = std::snprintf(buf, sizeof buf, fmt, args...);
-  s->append(buf, n < 0 ? 0 : static_cast<std::size_t>(n));
-}
+namespace {
 
 std::string upper(std::string_view v) {
   std::string s(v);
@@ -63,26 +59,7 @@ std::string generate_dbc(FrameKind kind, uint8_t first_node, uint8_t last_node) 
                        ? kNodeMin
                        : node;
       probe.kind = kind;
-      switch (c) {
-        case MessageClass::kSync:
-          probe.body = Sync{};
-          break;
-        case MessageClass::kCommand:
-          probe.body = Command{};
-          break;
-        case MessageClass::kAck:
-          probe.body = Ack{};
-          break;
-        case MessageClass::kSample:
-          probe.body = Sample{};
-          break;
-        case MessageClass::kInfo:
-          probe.body = Info{};
-          break;
-        case MessageClass::kHeartbeat:
-          probe.body = Heartbeat{};
-          break;
-      }
+      probe.body = default_body(c);
       CanFrame frames[kMaxParts];
       const EncodeResult r = encode(probe, frames);
       for (std::size_t i = 0; i < r.frames; ++i) dlc = std::max<std::size_t>(dlc, frames[i].len);

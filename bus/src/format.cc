@@ -4,19 +4,13 @@
 #include <cstdio>
 
 #include "byte_order.h"
+#include "text.h"
 
 namespace skinbus::bus {
 
-namespace {
+using internal::appendf;
 
-template <typename... Args>
-void appendf(std::string* s, const char* fmt, Args... args) {
-  char buf[256];
-  const int n = std::snprintf(buf, sizeof buf, fmt, args...);
-  s->append(
-      buf,
-      n < 0 ? 0 : static_cast<std::size_t>(n < static_cast<int>(sizeof buf) ? n : sizeof buf - 1));
-}
+namespace {
 
 std::string join_bits(unsigned bits, const char* const* names, int count) {
   std::string s;

@@ -55,6 +55,9 @@ struct EncodeResult {
   EncodeError error = EncodeError::kNone;
 };
 
+// A message body of class `c` with every field at its default.
+MessageBody default_body(MessageClass c);
+
 // True if `node` may appear in the identifier of a message of class `c`.
 bool node_allowed(MessageClass c, uint8_t node);
 
