@@ -88,23 +88,7 @@ class Decoder {
 
   void print_stats(std::FILE* out) const {
     ReassemblyStats s;  // summed over interfaces
-    for (const auto& [name, r] : reasm_) {
-      const ReassemblyStats& t = r->stats();
-      s.frames += t.frames;
-      s.messages += t.messages;
-      s.samples += t.samples;
-      s.integrity_failures += t.integrity_failures;
-      s.gaps += t.gaps;
-      s.duplicates += t.duplicates;
-      s.reorders += t.reorders;
-      s.resyncs += t.resyncs;
-      s.stale_parts += t.stale_parts;
-      s.evictions += t.evictions;
-      s.conflicts += t.conflicts;
-      s.rejected += t.rejected;
-      s.foreign += t.foreign;
-      for (int e = 0; e < kDecodeErrorCount; ++e) s.by_error[e] += t.by_error[e];
-    }
+    for (const auto& [name, r] : reasm_) s += r->stats();
     std::fprintf(out, "# skinbus-decode statistics\n");
     std::fprintf(out,
                  "frames %" PRIu64 " messages %" PRIu64 " samples %" PRIu64

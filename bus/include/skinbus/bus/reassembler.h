@@ -36,6 +36,25 @@ struct ReassemblyStats {
   uint64_t rejected = 0;            // frames parse_frame refused (any reason but kForeign)
   uint64_t foreign = 0;             // frames of other protocols (extended, RTR, error frames)
   std::array<uint64_t, kDecodeErrorCount> by_error{};  // rejected + foreign, by DecodeError
+
+  // Sums statistics (of several buses).
+  ReassemblyStats& operator+=(const ReassemblyStats& o) {
+    frames += o.frames;
+    messages += o.messages;
+    samples += o.samples;
+    integrity_failures += o.integrity_failures;
+    gaps += o.gaps;
+    duplicates += o.duplicates;
+    reorders += o.reorders;
+    resyncs += o.resyncs;
+    stale_parts += o.stale_parts;
+    evictions += o.evictions;
+    conflicts += o.conflicts;
+    rejected += o.rejected;
+    foreign += o.foreign;
+    for (std::size_t e = 0; e < by_error.size(); ++e) by_error[e] += o.by_error[e];
+    return *this;
+  }
 };
 
 enum class FeedStatus : uint8_t {
