@@ -102,6 +102,49 @@ TEST(DbcTest, DecodesGoldenFramesThroughTheFile) {
   v = decode_with_dbc(dbc, f);
   EXPECT_EQ(v["opcode"], 3);
   EXPECT_EQ(v["arg0"], 0x4A);
+  // The other tables, field by field, on the golden frames of docs/protocol.md.
+  ASSERT_EQ(parse_frame_text("10C##12002010008010000", &f), CandumpError::kNone);
+  v = decode_with_dbc(dbc, f);
+  EXPECT_EQ(v["opcode"], 1);
+  EXPECT_EQ(v["status"], 0);
+  EXPECT_EQ(v["command_seq"], 8);
+  EXPECT_EQ(v["flags"], 1);
+  EXPECT_EQ(v["value"], 0);
+  ASSERT_EQ(parse_frame_text("07F#2001785634120201", &f), CandumpError::kNone);
+  v = decode_with_dbc(dbc, f);
+  EXPECT_EQ(v["host_time_us"], 0x12345678);
+  EXPECT_EQ(v["counter"], 0x0102);
+  ASSERT_EQ(parse_frame_text(
+                "205##12003EFCDAB8967452301010203011003070003024A101027D0076400AD020000", &f),
+            CandumpError::kNone);
+  v = decode_with_dbc(dbc, f);
+  EXPECT_EQ(v["fw_major"], 1);
+  EXPECT_EQ(v["fw_patch"], 3);
+  EXPECT_EQ(v["protocol_version"], 1);
+  EXPECT_EQ(v["sensor_count"], 16);
+  EXPECT_EQ(v["axis_count"], 3);
+  EXPECT_EQ(v["gain_sel"], 7);
+  EXPECT_EQ(v["oversampling"], 3);
+  EXPECT_EQ(v["digital_filter"], 2);
+  EXPECT_NEAR(v["rate"], 41.70, 1e-9);
+  EXPECT_NEAR(v["max_rate"], 100.0, 1e-9);
+  EXPECT_EQ(v["conversion_time"], 2000);
+  EXPECT_EQ(v["field_lsb"], 100);
+  ASSERT_EQ(parse_frame_text("285##"
+                             "1200901024A10100E0000EFCDAB89674523010102030502000700010009004E0CA5CB"
+                             "0000000000000000000000000000",
+                             &f),
+            CandumpError::kNone);
+  v = decode_with_dbc(dbc, f);
+  EXPECT_EQ(v["state"], 1);
+  EXPECT_EQ(v["mode"], 2);
+  EXPECT_EQ(v["uptime"], 3600);
+  EXPECT_EQ(v["status"], 5);
+  EXPECT_EQ(v["fault_mask"], 2);
+  EXPECT_EQ(v["i2c_errors"], 7);
+  EXPECT_EQ(v["can_errors"], 1);
+  EXPECT_EQ(v["saturation_count"], 9);
+  EXPECT_NEAR(v["temperature"], 31.5, 1e-9);
 }
 
 TEST(DbcTest, EverySampleChannelOfEveryPartDecodes) {
