@@ -46,6 +46,7 @@ int main(int argc, char** argv) {
   std::vector<double> depths = {1, 2, 4};
   double step = 2.5, extent = 67.5, noise_xy = -1, noise_z = -1;
   bool ambient = false;
+  double tip_radius = 5.0;
   std::string csv;
   app.add_option("--depths", depths, "press depths, mm")->delimiter(',')->capture_default_str();
   app.add_option("--step", step, "map grid step, mm")
@@ -56,6 +57,9 @@ int main(int argc, char** argv) {
   app.add_option("--noise-xy", noise_xy,
                  "noise RMS of x/y channels, uT (default: the sensor model's)");
   app.add_option("--noise-z", noise_z, "noise RMS of z channels, uT (default: the sensor model's)");
+  app.add_option("--tip-radius", tip_radius, "round indenter tip radius, mm (0: a point)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 50.0));
   app.add_flag("--ambient", ambient,
                "also estimate a uniform ambient field (3 nuisance parameters)");
   app.add_option("--csv", csv, "write every map point to this CSV file");
@@ -76,14 +80,16 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "skinbus-crlb: cannot write '%s'\n", csv.c_str());
       return 1;
     }
+    std::fprintf(out, "# tip_radius_mm: %.3f\n", tip_radius);
     std::fprintf(out, "# noise_xy_ut: %.4f\n# noise_z_ut: %.4f\n# ambient_nuisance: %d\n", noise_xy,
                  noise_z, ambient);
     std::fprintf(out, "depth_mm,u_mm,v_mm,sd_u_mm,sd_v_mm,sd_xy_mm,sd_depth_mm,identifiable\n");
   }
   std::printf(
-      "Cramer-Rao bound, nominal flat patch, noise %.2f uT (x, y) / %.2f uT (z)%s, over +-%.1f mm "
-      "(step %.1f mm)\n\n",
-      noise_xy, noise_z, ambient ? ", ambient field estimated too" : "", extent, step);
+      "Cramer-Rao bound, nominal flat patch, noise %.2f uT (x, y) / %.2f uT (z)%s, tip radius %.1f "
+      "mm, "
+      "over +-%.1f mm (step %.1f mm)\n\n",
+      noise_xy, noise_z, ambient ? ", ambient field estimated too" : "", tip_radius, extent, step);
   std::printf(
       "| depth (mm) | XY mean (mm) | XY median | XY p95 | depth mean (mm) | depth median | depth "
       "p95 | points without information |\n");
@@ -95,7 +101,8 @@ int main(int argc, char** argv) {
     for (int j = 0; j < n; ++j) {
       for (int i = 0; i < n; ++i) {
         const double u = -extent + i * step, v = -extent + j * step;
-        const CrlbPoint p = crlb_at(*model, Contact{u, v, depth}, noise_xy, noise_z, ambient);
+        const CrlbPoint p =
+            crlb_at(*model, Contact{u, v, depth, tip_radius}, noise_xy, noise_z, ambient);
         if (p.identifiable) {
           xy.push_back(p.sd_xy_mm);
           dd.push_back(p.sd_depth_mm);

@@ -129,8 +129,9 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
   Dataset d;
   fill_layout(patch, &d);
   char buf[160];
-  std::snprintf(buf, sizeof buf, "ramp max_depth_mm=%g speed_mm_per_s=%g rate_hz=%g presses=%zu",
-                pr.max_depth_mm, pr.speed_mm_per_s, pr.rate_hz, plan.size());
+  std::snprintf(buf, sizeof buf,
+                "ramp max_depth_mm=%g speed_mm_per_s=%g rate_hz=%g tip_radius_mm=%g presses=%zu",
+                pr.max_depth_mm, pr.speed_mm_per_s, pr.rate_hz, pr.tip_radius_mm, plan.size());
   d.meta["protocol"] = buf;
   const int nc = patch.channel_count();
   std::vector<double> baseline(nc), m(nc), tared(nc);
@@ -143,7 +144,7 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
     for (double tp = dt / 2; tp < 2 * ramp_s; tp += dt) {
       const double depth = pr.speed_mm_per_s * (tp < ramp_s ? tp : 2 * ramp_s - tp);
       if (!(depth > pr.min_depth_mm)) continue;
-      const Contact c{plan[k].u_mm, plan[k].v_mm, depth};
+      const Contact c{plan[k].u_mm, plan[k].v_mm, depth, pr.tip_radius_mm};
       patch.measure(std::span<const Contact>(&c, 1), env, m);
       for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
       d.append(static_cast<int64_t>(k), t + tp, c.u_mm, c.v_mm, depth, patch.model().force_n(depth),
@@ -156,13 +157,14 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
 
 Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
                                  double max_depth_mm, uint64_t seed, const Environment& env,
-                                 int tare_samples) {
+                                 int tare_samples, double tip_radius_mm) {
   Dataset d;
   fill_layout(patch, &d);
   char buf[160];
-  std::snprintf(buf, sizeof buf,
-                "random_static count=%d half_extent_mm=%g max_depth_mm=%g seed=%llu", count,
-                half_extent_mm, max_depth_mm, static_cast<unsigned long long>(seed));
+  std::snprintf(
+      buf, sizeof buf,
+      "random_static count=%d half_extent_mm=%g max_depth_mm=%g tip_radius_mm=%g seed=%llu", count,
+      half_extent_mm, max_depth_mm, tip_radius_mm, static_cast<unsigned long long>(seed));
   d.meta["protocol"] = buf;
   const int nc = patch.channel_count();
   std::vector<double> baseline(nc), m(nc), tared(nc);
@@ -170,7 +172,7 @@ Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_e
   Rng rng(seed);
   for (int k = 0; k < count; ++k) {
     const Contact c{rng.uniform(-1, 1) * half_extent_mm, rng.uniform(-1, 1) * half_extent_mm,
-                    max_depth_mm * (1 - rng.uniform())};  // (0, max]
+                    max_depth_mm * (1 - rng.uniform()), tip_radius_mm};  // depth in (0, max]
     patch.measure(std::span<const Contact>(&c, 1), env, m);
     for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
     d.append(k, 0, c.u_mm, c.v_mm, c.depth_mm, patch.model().force_n(c.depth_mm), tared.data());

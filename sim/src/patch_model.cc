@@ -177,7 +177,8 @@ void PatchModel::rest_field_ut(std::span<double> out) const {
 void PatchModel::contact_jacobian(const Contact& c, std::span<double> jacobian,
                                   std::span<double> field) const {
   using D = Dual<3>;
-  const ContactT<D> cd{D::variable(c.u_mm, 0), D::variable(c.v_mm, 1), D::variable(c.depth_mm, 2)};
+  const ContactT<D> cd{D::variable(c.u_mm, 0), D::variable(c.v_mm, 1), D::variable(c.depth_mm, 2),
+                       c.tip_radius_mm};
   std::vector<D> out(static_cast<std::size_t>(channel_count()));
   contact_field_ut<D>(std::span<const ContactT<D>>(&cd, 1), out.data());
   for (std::size_t i = 0; i < out.size(); ++i) {
@@ -201,13 +202,22 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
       const double s2 = du * du / (lu * lu) + dv * dv / (lv * lv);
       if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
       moved = true;
-      const double s = std::sqrt(s2);
+      double a2 = 0, amp = depth;  // round tip: see ContactT
+      if (c.tip_radius_mm > 0) {
+        const double r = c.tip_radius_mm;
+        a2 = std::fmin((depth < r ? 2 * r * depth - depth * depth : r * r) / (lu * lv),
+                       kMaxTipContact2);
+        double g0, dg0;
+        plate_kernel(std::sqrt(a2), &g0, &dg0);
+        amp = depth / g0;
+      }
+      const double s = std::sqrt(s2 + a2);
       double g, dg;
       plate_kernel(s, &g, &dg);
       const double q = s > 1e-6 ? dg / s : 0.0;
-      w += depth * g;
-      pu -= depth * q * du / (lu * lu);
-      pv -= depth * q * dv / (lv * lv);
+      w += amp * g;
+      pu -= amp * q * du / (lu * lu);
+      pv -= amp * q * dv / (lv * lv);
     }
     if (!moved) continue;
     Vec3<double> tu, tv, nn;

@@ -189,7 +189,8 @@ TEST_F(PatchModelTest, JacobianMatchesFiniteDifferences) {
     auto made = PatchModel::fabricated(design, 0xABCDEF, FabricationVariation{});
     ASSERT_TRUE(made.ok()) << made.error().to_string();
     const PatchModel& p = *made;
-    for (const Contact c : {Contact{3.3, -7.1, 1.5}, Contact{-40, 22, 3.5}, Contact{61, 60, 0.7}}) {
+    for (const Contact c : {Contact{3.3, -7.1, 1.5}, Contact{-40, 22, 3.5}, Contact{61, 60, 0.7},
+                            Contact{-12, 8, 2.5, 6.0}, Contact{20, 20, 8.0, 4.0}}) {
       std::vector<double> jac(48 * 3), f0(48), fp(48), fm(48);
       p.contact_jacobian(c, jac, f0);
       for (int k = 0; k < 3; ++k) {
@@ -214,7 +215,7 @@ TEST_F(PatchModelTest, FastPathEqualsTheTemplate) {
   design.radius_mm = 50;
   auto made = PatchModel::fabricated(design, 77, FabricationVariation{});
   ASSERT_TRUE(made.ok());
-  const Contact cs[2] = {{10, -20, 2.5}, {-30, 35, 1.0}};
+  const Contact cs[2] = {{10, -20, 2.5, 8.0}, {-30, 35, 1.0}};
   std::vector<double> fast(48), slow(48);
   made->contact_field_ut(cs, fast);
   made->contact_field_ut<double>(std::span<const Contact>(cs, 2), slow.data());
@@ -249,7 +250,8 @@ TEST_F(PatchModelTest, NoNanOrInfAtExtremes) {
          {Contact{0, 0, 0}, Contact{0, 0, 1e-9}, Contact{0, 0, 50}, Contact{0, 0, 1e9},
           Contact{edge, 0, 4}, Contact{corner, corner, 4}, Contact{-corner, corner, 9},
           Contact{500, -500, 4}, Contact{60, 60, -3}, Contact{-60, -60, 4},
-          Contact{std::nan(""), 0, 3}, Contact{0, 0, std::nan("")}, Contact{1e300, 0, 3}}) {
+          Contact{std::nan(""), 0, 3}, Contact{0, 0, std::nan("")}, Contact{1e300, 0, 3},
+          Contact{0, 0, 4, 500}, Contact{0, 0, 1e-12, 5}, Contact{70, 70, 9, 20}}) {
       p.contact_field_ut(std::span<const Contact>(&c, 1), out);
       for (double x : out)
         ASSERT_TRUE(std::isfinite(x)) << c.u_mm << "," << c.v_mm << "," << c.depth_mm;
@@ -260,6 +262,18 @@ TEST_F(PatchModelTest, NoNanOrInfAtExtremes) {
       }
     }
   }
+}
+
+TEST_F(PatchModelTest, RoundTipSpreadsWiderAtTheSameDepth) {
+  const PatchModel p = nominal();
+  std::vector<double> point(48), round(48), tiny(48);
+  const Contact a{-15, -15, 2}, b{-15, -15, 2, 8.0}, c{-15, -15, 2, 1e-6};
+  p.contact_field_ut(std::span<const Contact>(&a, 1), point);
+  p.contact_field_ut(std::span<const Contact>(&b, 1), round);
+  p.contact_field_ut(std::span<const Contact>(&c, 1), tiny);
+  // A neighbouring sensor (30 mm away) sees more of the wider bowl.
+  EXPECT_GT(std::fabs(round[3 * 6 + 2]), std::fabs(point[3 * 6 + 2]));
+  for (int i = 0; i < 48; ++i) EXPECT_NEAR(tiny[i], point[i], 1e-3);  // a vanishing tip is a point
 }
 
 TEST_F(PatchModelTest, DepthIsClampedAndForceGrows) {

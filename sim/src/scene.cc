@@ -60,7 +60,7 @@ void Scene::active_contacts(int i, double t_s, std::vector<Contact>* out) {
     // Creep follows a fraction of the depth with a lag; it also relaxes after release.
     p.creep_mm[j] += (config_.creep_fraction * d - p.creep_mm[j]) * k;
     const double total = d > 0 ? d + p.creep_mm[j] : 0.0;
-    if (total > 0) out->push_back(Contact{c.u_mm, c.v_mm, total});
+    if (total > 0) out->push_back(Contact{c.u_mm, c.v_mm, total, c.tip_radius_mm});
   }
   p.last_t_s = std::max(p.last_t_s, t_s);
 }

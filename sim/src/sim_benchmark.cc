@@ -15,7 +15,8 @@ std::vector<Contact> random_contacts(int n) {
   Rng rng(3);
   std::vector<Contact> c;
   for (int i = 0; i < n; ++i)
-    c.push_back({rng.uniform(-67.5, 67.5), rng.uniform(-67.5, 67.5), rng.uniform(0.05, 4.0)});
+    c.push_back({rng.uniform(-67.5, 67.5), rng.uniform(-67.5, 67.5), rng.uniform(0.05, 4.0),
+                 5.0});  // 5 mm tip
   return c;
 }
 

@@ -60,6 +60,7 @@ struct RampProtocol {
   double max_depth_mm = 4.0;
   double speed_mm_per_s = 2.0;  // down and up
   double rate_hz = 41.7;        // sampling
+  double tip_radius_mm = 5.0;   // the indenter\'s round tip (assumption: a 10 mm probe)
   double min_depth_mm = 1e-9;   // only samples deeper than this are kept ("contact samples")
   int tare_samples = 32;        // baseline averaged before the presses
 };
@@ -73,7 +74,7 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
 // +-half_extent_mm and random depths in (0, max_depth_mm], one sample each.
 Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
                                  double max_depth_mm, uint64_t seed, const Environment& env = {},
-                                 int tare_samples = 32);
+                                 int tare_samples = 32, double tip_radius_mm = 5.0);
 
 // Writes / reads the CSV format. Errors name the file and line.
 Status write_dataset_csv(const Dataset& d, const std::string& path);

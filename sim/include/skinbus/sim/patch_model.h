@@ -37,6 +37,8 @@ namespace skinbus::sim {
 
 enum class SurfaceKind : uint8_t { kFlat, kCylinder };
 inline constexpr int kMaxSensors = 256;
+// A tip's contact radius counts up to 2 spread lengths (beyond, a press is no longer local).
+inline constexpr double kMaxTipContact2 = 4.0;
 enum class Polarity : uint8_t { kUniform, kCheckerboard };
 
 struct PatchDesign {
@@ -94,6 +96,11 @@ struct FabricationVariation {
 template <typename T>
 struct ContactT {
   T u_mm{}, v_mm{}, depth_mm{};
+  // Radius of the round indenter tip (a finger, a robot's probe); 0: a point. The bowl is the
+  // plate's point-load shape seen from sqrt(r^2 + a^2), a = the tip's contact radius at this
+  // depth (the sphere's chord), scaled so the deflection under the tip is depth_mm: a blunter
+  // tip at the same depth spreads wider.
+  double tip_radius_mm = 0;
 };
 using Contact = ContactT<double>;
 
@@ -218,7 +225,14 @@ void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out)
       if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
       moved = true;
       using std::sqrt;
-      const T s = sqrt(du * du / (lu * lu) + dv * dv / (lv * lv));
+      T a2(0.0);  // squared contact radius of the tip, over l_u l_v
+      if (c.tip_radius_mm > 0) {
+        const double r = c.tip_radius_mm;
+        a2 = value_of(depth) < r ? (T(2 * r) * depth - depth * depth) / (lu * lv)
+                                 : T(r * r / (lu * lv));
+        if (value_of(a2) > kMaxTipContact2) a2 = T(kMaxTipContact2);
+      }
+      const T s = sqrt(du * du / (lu * lu) + dv * dv / (lv * lv) + a2);
       const double sv = value_of(s);
       double g, dg, d2g;
       plate_kernel(sv, &g, &dg, &d2g);
@@ -228,9 +242,16 @@ void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out)
       const double q = sv > 1e-6 ? dg / sv : 0.0;
       const double dq = sv > 1e-6 ? (d2g * sv - dg) / (sv * sv) : 0.0;
       const T dgs = first_order(s, q, dq);
-      w = w + depth * gs;                      // deflection into the skin
-      pu = pu - depth * dgs * du / (lu * lu);  // slope of the surface height h = -w
-      pv = pv - depth * dgs * dv / (lv * lv);
+      T amp = depth;  // deflection under the tip is the depth: divide by the shape there
+      if (c.tip_radius_mm > 0) {
+        const T s0 = sqrt(a2);
+        double g0, dg0;
+        plate_kernel(value_of(s0), &g0, &dg0);
+        amp = depth / first_order(s0, g0, dg0);
+      }
+      w = w + amp * gs;                      // deflection into the skin
+      pu = pu - amp * dgs * du / (lu * lu);  // slope of the surface height h = -w
+      pv = pv - amp * dgs * dv / (lv * lv);
     }
     if (!moved) continue;
     // New magnet pose in surface coordinates.

@@ -28,8 +28,9 @@ struct SceneContact {
   int patch = 0;
   double t_start_s = 0, t_end_s = 1;  // pressed between these times (ramps included)
   double u_mm = 0, v_mm = 0;
-  double depth_mm = 2;   // held depth
-  double ramp_s = 0.15;  // press-in and release time
+  double depth_mm = 2;         // held depth
+  double ramp_s = 0.15;        // press-in and release time
+  double tip_radius_mm = 8.0;  // a fingertip
 };
 
 struct SceneConfig {
