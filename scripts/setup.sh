@@ -7,7 +7,9 @@ packages=(
   # build
   g++ cmake ninja-build ccache pkg-config clang-format git
   # libraries
-  libcli11-dev libgtest-dev libgmock-dev libbenchmark-dev
+  libcli11-dev libgtest-dev libgmock-dev libbenchmark-dev libyaml-cpp-dev
+  # patch node: GPIO lines (libgpiod 1.6 C++ bindings)
+  libgpiod-dev
   # fuzzing (libFuzzer ships with clang's runtime)
   clang libclang-rt-14-dev
   # CAN: can-utils are the real peer in tests; the kernel tests boot Debian's kernel in QEMU

@@ -67,4 +67,10 @@ double mlx90393_field_ut(int32_t code, double sensitivity_ut, uint8_t res) {
   return (code - offset) * sensitivity_ut;
 }
 
+bool mlx90393_code_at_limit(int32_t code, uint8_t res) {
+  if (res == 2) return code <= 0 || code >= 65535;
+  if (res == 3) return code <= 0 || code >= 32767;
+  return code <= -32767 || code >= 32767;
+}
+
 }  // namespace skinbus::sim

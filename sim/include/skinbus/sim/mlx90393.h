@@ -40,5 +40,8 @@ bool mlx90393_config_valid(const Mlx90393Config& c);
 // limited to 15 bits by the chip); `saturated` tells when the code was clipped.
 int32_t mlx90393_code(double field_ut, double sensitivity_ut, uint8_t res, bool* saturated);
 double mlx90393_field_ut(int32_t code, double sensitivity_ut, uint8_t res);
+// True if `code` sits at a clip limit of resolution `res` (what mlx90393_code returns for a
+// saturated field): a reading there only bounds the field.
+bool mlx90393_code_at_limit(int32_t code, uint8_t res);
 
 }  // namespace skinbus::sim

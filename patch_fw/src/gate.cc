@@ -1,0 +1,137 @@
+#include "skinbus/patch_fw/gate.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace skinbus::patch_fw {
+
+namespace {
+constexpr int kN = bus::kSensorCount;
+
+double median(double* v, int n) {
+  std::nth_element(v, v + n / 2, v + n);
+  const double hi = v[n / 2];
+  if (n % 2) return hi;
+  return 0.5 * (hi + *std::max_element(v, v + n / 2));
+}
+}  // namespace
+
+ContactGate::ContactGate(GateConfig config) : config_(config) {
+  start_tare();
+}
+
+void ContactGate::start_tare() {
+  tare_left_ = std::max(config_.tare_samples, 1);
+  tare_sum_.fill(0);
+  tare_count_.fill(0);
+  based_ = 0;
+  contact_ = false;
+  below_ = 0;
+}
+
+void ContactGate::update(const ArraySample& s, GateOutput* out) {
+  const double dt_s = have_time_ && s.timestamp_us > last_time_us_
+                          ? static_cast<double>(s.timestamp_us - last_time_us_) * 1e-6
+                          : 0.0;
+  have_time_ = true;
+  last_time_us_ = s.timestamp_us;
+  uint16_t healthy = 0;
+  for (int i = 0; i < kN; ++i) {
+    const double* f = &s.field_ut[3 * i];
+    const bool finite = std::isfinite(f[0]) && std::isfinite(f[1]) && std::isfinite(f[2]);
+    if (finite && !(s.fault_mask & (1u << i))) healthy = static_cast<uint16_t>(healthy | 1u << i);
+  }
+  out->drift_tracking = false;
+  out->tared_ut.fill(0);
+
+  if (tare_left_ > 0) {
+    for (int i = 0; i < kN; ++i) {
+      if (!(healthy & (1u << i))) continue;
+      for (int a = 0; a < 3; ++a) tare_sum_[3 * i + a] += s.field_ut[3 * i + a];
+      ++tare_count_[i];
+    }
+    if (--tare_left_ == 0) {
+      for (int i = 0; i < kN; ++i) {
+        if (tare_count_[i] == 0) continue;
+        for (int a = 0; a < 3; ++a) baseline_[3 * i + a] = tare_sum_[3 * i + a] / tare_count_[i];
+        based_ = static_cast<uint16_t>(based_ | 1u << i);
+      }
+    }
+    out->tare_active = tare_left_ > 0;
+    out->contact = false;
+    out->tared = false;
+    out->score_ut = 0;
+    out->unbased_mask = static_cast<uint16_t>(~based_);
+    return;
+  }
+  out->tare_active = false;
+
+  // Deviation of every healthy, based sensor; common mode removed for the score.
+  const uint16_t usable = healthy & based_;
+  double dev[3 * kN];
+  double axis_vals[kN];
+  int n_usable = 0;
+  for (int i = 0; i < kN; ++i) {
+    if (!(usable & (1u << i))) continue;
+    ++n_usable;
+    for (int a = 0; a < 3; ++a) dev[3 * i + a] = s.field_ut[3 * i + a] - baseline_[3 * i + a];
+  }
+  double common[3] = {0, 0, 0};
+  if (n_usable >= 3) {
+    for (int a = 0; a < 3; ++a) {
+      int k = 0;
+      for (int i = 0; i < kN; ++i)
+        if (usable & (1u << i)) axis_vals[k++] = dev[3 * i + a];
+      common[a] = median(axis_vals, k);
+    }
+  }
+  double score = 0;
+  for (int i = 0; i < kN; ++i) {
+    if (!(usable & (1u << i))) continue;
+    double sq = 0;
+    for (int a = 0; a < 3; ++a) sq += (dev[3 * i + a] - common[a]) * (dev[3 * i + a] - common[a]);
+    score = std::max(score, std::sqrt(sq));
+    for (int a = 0; a < 3; ++a) out->tared_ut[3 * i + a] = dev[3 * i + a];
+  }
+  out->score_ut = score;
+
+  // Hysteresis.
+  if (!contact_) {
+    if (score > config_.on_threshold_ut) {
+      contact_ = true;
+      below_ = 0;
+    }
+  } else if (score < config_.off_threshold_ut) {
+    if (++below_ >= config_.off_samples) contact_ = false;
+  } else {
+    below_ = 0;
+  }
+  if (contact_) last_contact_us_ = s.timestamp_us;
+
+  // Drift: only untouched, after the hold-off; a sensor without a baseline takes its reading.
+  const bool quiet = !contact_ && (last_contact_us_ == 0 ||
+                                   static_cast<double>(s.timestamp_us - last_contact_us_) * 1e-6 >=
+                                       config_.drift_holdoff_s);
+  if (quiet) {
+    const double alpha = config_.drift_tau_s > 0 ? std::min(1.0, dt_s / config_.drift_tau_s) : 0;
+    const double max_step = config_.drift_max_ut_per_s * dt_s;
+    for (int i = 0; i < kN; ++i) {
+      if (!(healthy & (1u << i))) continue;
+      if (!(based_ & (1u << i))) {
+        for (int a = 0; a < 3; ++a) baseline_[3 * i + a] = s.field_ut[3 * i + a];
+        based_ = static_cast<uint16_t>(based_ | 1u << i);
+        continue;
+      }
+      for (int a = 0; a < 3; ++a) {
+        const double step = std::clamp(alpha * dev[3 * i + a], -max_step, max_step);
+        if (step != 0) out->drift_tracking = true;
+        baseline_[3 * i + a] += step;
+      }
+    }
+  }
+  out->contact = contact_;
+  out->tared = based_ != 0;
+  out->unbased_mask = static_cast<uint16_t>(~based_ & 0xFFFF);
+}
+
+}  // namespace skinbus::patch_fw
