@@ -59,7 +59,7 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
     }
     out->tare_active = tare_left_ > 0;
     out->contact = false;
-    out->tared = false;
+    out->tared = tare_left_ == 0 && based_ != 0;
     out->score_ut = 0;
     out->unbased_mask = static_cast<uint16_t>(~based_);
     return;

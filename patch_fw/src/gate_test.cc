@@ -1,1 +1,236 @@
-// placeholder
+// Baseline, drift tracking and contact gating: on synthetic fields and on the patch physics.
+#include "skinbus/patch_fw/gate.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/rng.h"
+#include "skinbus/sim/simulated_patch.h"
+
+namespace skinbus::patch_fw {
+namespace {
+
+constexpr uint64_t kPeriodUs = 23981;  // 41.7 Hz
+
+// A patch at rest: sensor i reads a fixed field plus noise; `press` adds a local bump.
+struct Synthetic {
+  sim::Rng rng{7};
+  uint64_t t_us = 1000;
+  double ambient[3] = {0, 0, 0};
+  double drift_per_sensor[16] = {};  // added to x
+  double press_ut = 0;               // on sensors 5, 6 (z), half on their neighbours
+  double noise_ut = 1.0;
+  uint16_t faults = 0;
+
+  ArraySample next() {
+    ArraySample s;
+    s.timestamp_us = t_us;
+    t_us += kPeriodUs;
+    for (int i = 0; i < 16; ++i) {
+      for (int a = 0; a < 3; ++a) {
+        double v = 50.0 * ((i + a) % 5) - 100 + ambient[a] + noise_ut * rng.normal();
+        if (a == 0) v += drift_per_sensor[i];
+        if (a == 2 && (i == 5 || i == 6)) v += press_ut;
+        if (a == 2 && (i == 1 || i == 9 || i == 10)) v += 0.5 * press_ut;
+        s.field_ut[3 * i + a] = v;
+      }
+    }
+    s.fault_mask = faults;
+    return s;
+  }
+};
+
+TEST(GateTest, TareThenContactWithHysteresis) {
+  ContactGate gate;
+  Synthetic syn;
+  GateOutput out;
+  for (int k = 0; k < gate.config().tare_samples; ++k) {
+    gate.update(syn.next(), &out);
+    EXPECT_EQ(out.tare_active, k + 1 < gate.config().tare_samples);
+    EXPECT_FALSE(out.contact);
+  }
+  EXPECT_TRUE(out.tared);
+  EXPECT_EQ(out.unbased_mask, 0);
+  for (int k = 0; k < 100; ++k) {
+    gate.update(syn.next(), &out);
+    ASSERT_FALSE(out.contact) << "noise alone must not gate on, score " << out.score_ut;
+  }
+  EXPECT_LT(out.score_ut, gate.config().off_threshold_ut);
+  syn.press_ut = 30;
+  gate.update(syn.next(), &out);
+  EXPECT_TRUE(out.contact);  // one sample of latency at most
+  EXPECT_NEAR(out.tared_ut[3 * 5 + 2], 30, 5);
+  // Between the thresholds: stays on.
+  syn.press_ut = 0.5 * (gate.config().on_threshold_ut + gate.config().off_threshold_ut);
+  for (int k = 0; k < 20; ++k) {
+    gate.update(syn.next(), &out);
+    EXPECT_TRUE(out.contact);
+  }
+  // Released: off after off_samples samples below the off threshold.
+  syn.press_ut = 0;
+  for (int k = 0; k < gate.config().off_samples - 1; ++k) {
+    gate.update(syn.next(), &out);
+    EXPECT_TRUE(out.contact);
+  }
+  gate.update(syn.next(), &out);
+  EXPECT_FALSE(out.contact);
+}
+
+TEST(GateTest, SustainedPressIsNeverAbsorbed) {
+  ContactGate gate;
+  Synthetic syn;
+  GateOutput out;
+  for (int k = 0; k < 100; ++k) gate.update(syn.next(), &out);
+  const auto base = gate.baseline_ut();
+  syn.press_ut = 25;
+  const int ten_minutes = static_cast<int>(600e6 / kPeriodUs);
+  for (int k = 0; k < ten_minutes; ++k) {
+    gate.update(syn.next(), &out);
+    ASSERT_TRUE(out.contact) << "after " << k << " samples";
+  }
+  EXPECT_FALSE(out.drift_tracking);
+  for (int i = 0; i < bus::kChannelCount; ++i) EXPECT_EQ(gate.baseline_ut()[i], base[i]);
+  EXPECT_NEAR(out.tared_ut[3 * 5 + 2], 25, 5);
+}
+
+TEST(GateTest, SlowDriftIsFollowedWithoutFalseContacts) {
+  ContactGate gate;
+  Synthetic syn;
+  GateOutput out;
+  for (int k = 0; k < 100; ++k) gate.update(syn.next(), &out);
+  // Ten minutes of a different slow drift per sensor (temperature), up to 30 uT.
+  const int n = static_cast<int>(600e6 / kPeriodUs);
+  int drift_samples = 0;
+  for (int k = 0; k < n; ++k) {
+    for (int i = 0; i < 16; ++i) syn.drift_per_sensor[i] = 30.0 * (i / 15.0) * k / n;
+    gate.update(syn.next(), &out);
+    ASSERT_FALSE(out.contact) << "drift read as a touch at sample " << k << " score "
+                              << out.score_ut;
+    drift_samples += out.drift_tracking;
+  }
+  EXPECT_GT(drift_samples, n / 2);
+  EXPECT_NEAR(out.tared_ut[3 * 15], 0, 3.0);  // the baseline kept up with 30 uT
+  // A press after the drift is still seen.
+  syn.press_ut = 30;
+  gate.update(syn.next(), &out);
+  EXPECT_TRUE(out.contact);
+}
+
+TEST(GateTest, UniformAmbientChangeIsNotATouch) {
+  ContactGate gate;
+  Synthetic syn;
+  GateOutput out;
+  for (int k = 0; k < 100; ++k) gate.update(syn.next(), &out);
+  // The limb turns: the Earth's field changes by 40 uT on every sensor at once.
+  syn.ambient[0] = 25;
+  syn.ambient[2] = -31;
+  for (int k = 0; k < 50; ++k) {
+    gate.update(syn.next(), &out);
+    ASSERT_FALSE(out.contact) << out.score_ut;
+  }
+  // ... while a local press still is.
+  syn.press_ut = 30;
+  gate.update(syn.next(), &out);
+  EXPECT_TRUE(out.contact);
+}
+
+TEST(GateTest, FaultySensorsAndNonFiniteValuesAreLeftOut) {
+  ContactGate gate;
+  Synthetic syn;
+  syn.faults = 1u << 3;  // faulty through the tare: no baseline
+  GateOutput out;
+  for (int k = 0; k < 20; ++k) gate.update(syn.next(), &out);
+  EXPECT_EQ(out.unbased_mask & 0xFFFF, 1u << 3);
+  for (int a = 0; a < 3; ++a) EXPECT_EQ(out.tared_ut[9 + a], 0.0);
+  // A NaN from a sensor is treated as a fault: nothing non-finite comes out.
+  ArraySample s = syn.next();
+  s.field_ut[3 * 8 + 1] = std::nan("");
+  s.field_ut[3 * 2] = INFINITY;
+  gate.update(s, &out);
+  for (double v : out.tared_ut) ASSERT_TRUE(std::isfinite(v));
+  EXPECT_TRUE(std::isfinite(out.score_ut));
+  EXPECT_FALSE(out.contact);
+  // Sensor 3 comes back: it takes a baseline from its next untouched reading.
+  syn.faults = 0;
+  gate.update(syn.next(), &out);
+  EXPECT_EQ(out.unbased_mask & 0xFFFF, 0);
+  gate.update(syn.next(), &out);
+  EXPECT_NEAR(out.tared_ut[9], 0, 6);
+}
+
+TEST(GateTest, TareCommandTakesANewBaseline) {
+  ContactGate gate;
+  Synthetic syn;
+  GateOutput out;
+  for (int k = 0; k < 30; ++k) gate.update(syn.next(), &out);
+  syn.drift_per_sensor[4] = 80;  // a step no drift filter follows quickly
+  gate.update(syn.next(), &out);
+  EXPECT_NEAR(out.tared_ut[12], 80, 5);
+  gate.start_tare();
+  for (int k = 0; k < gate.config().tare_samples; ++k) gate.update(syn.next(), &out);
+  gate.update(syn.next(), &out);
+  EXPECT_NEAR(out.tared_ut[12], 0, 3);
+}
+
+// On the patch physics with the sensor noise model: an hour of idle noise never gates on, and
+// presses of 1 mm over the sensor grid (2 mm anywhere) do.
+TEST(GateTest, DetectsLightPressesOnThePhysicsAndNeverFiresOnNoise) {
+  auto model = sim::PatchModel::fabricated(sim::PatchDesign{}, 77, sim::FabricationVariation{});
+  ASSERT_TRUE(model.ok());
+  sim::SimulatedPatch patch(std::move(model).value(), 3);
+  sim::Environment env;
+  ContactGate gate;
+  GateOutput out;
+  ArraySample s;
+  uint64_t t = 0;
+  auto feed = [&](const std::vector<sim::Contact>& contacts) {
+    patch.measure(contacts, env, s.field_ut);
+    s.timestamp_us = t += kPeriodUs;
+    gate.update(s, &out);
+  };
+  const int hour = static_cast<int>(3600e6 / kPeriodUs);
+  double worst_idle = 0;
+  for (int k = 0; k < hour; ++k) {
+    feed({});
+    ASSERT_FALSE(out.contact) << "false contact at sample " << k << ", score " << out.score_ut;
+    worst_idle = std::max(worst_idle, out.score_ut);
+  }
+  // Detection rate of single presses (5 mm tip), over the sensor grid (|u|, |v| <= 50 mm) and
+  // over the whole patch (the outer 20 mm lie beyond the outermost sensors).
+  sim::Rng rng(11);
+  for (double depth : {0.5, 1.0, 2.0}) {
+    int inner = 0, inner_hit = 0, all_hit = 0;
+    const int presses = 300;
+    for (int p = 0; p < presses; ++p) {
+      sim::Contact c;
+      c.u_mm = rng.uniform(-65, 65);
+      c.v_mm = rng.uniform(-65, 65);
+      c.depth_mm = depth;
+      c.tip_radius_mm = 5;
+      feed({c});
+      const bool is_inner = std::fabs(c.u_mm) <= 50 && std::fabs(c.v_mm) <= 50;
+      inner += is_inner;
+      inner_hit += is_inner && out.contact;
+      all_hit += out.contact;
+      for (int k = 0; k < 5; ++k) feed({});
+      ASSERT_FALSE(out.contact);
+    }
+    const double inner_rate = static_cast<double>(inner_hit) / inner;
+    const double all_rate = static_cast<double>(all_hit) / presses;
+    std::printf("%.1f mm presses detected: %.1f %% over the sensor grid, %.1f %% anywhere\n", depth,
+                100 * inner_rate, 100 * all_rate);
+    if (depth >= 1.0) {
+      EXPECT_GE(inner_rate, 0.9) << depth;
+    }
+    if (depth >= 2.0) {
+      EXPECT_GE(all_rate, 0.95) << depth;
+    }
+  }
+  std::printf("idle: largest score %.2f uT in an hour (on threshold %.1f uT)\n", worst_idle,
+              gate.config().on_threshold_ut);
+}
+
+}  // namespace
+}  // namespace skinbus::patch_fw
