@@ -78,7 +78,41 @@ fi
 [[ $rc != 0 ]] && grep -q "outside 1-125" "$work/e2.txt" && ok "bad node range named" || bad "bad node range"
 "$bin/skinbus-decode" -i nocan0 2>"$work/e3.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "nocan0" "$work/e3.txt" && ok "missing interface named" || bad "missing interface"
-for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc; do
+# Patch node daemon: bad settings exit 2 naming the setting, missing devices exit 1 naming them.
+patchd() { timeout 20 "$bin/skinbus-patchd" "$@"; }
+patchd --i2c /dev/i2c-99 -i none --candump-out /dev/null 2>"$work/p1.txt"; rc=$?
+[[ $rc == 1 ]] && grep -q "i2c.device: i2c device /dev/i2c-99" "$work/p1.txt" && ok "patchd: missing I2C device named" || { bad "patchd: missing I2C device (rc $rc)"; cat "$work/p1.txt"; }
+printf 'i2c:\n  channels:\n    - {channel: 0, addresses: [0x0C, 0x0D, 0x0E, 0x0F]}\n    - {channel: 0, addresses: [0x10, 0x11, 0x12, 0x13]}\n' >"$work/dup.yaml"
+patchd --sim -c "$work/dup.yaml" -i none --candump-out /dev/null 2>"$work/p2.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "i2c.channels\[1\].channel (line 4): channel 0 is listed twice" "$work/p2.txt" && ok "patchd: duplicate mux channel named" || { bad "patchd: duplicate mux channel (rc $rc)"; cat "$work/p2.txt"; }
+printf 'i2c:\n  channels:\n    - {channel: 0, addresses: [0x0C, 0x0D, 0x0E, 0x50]}\n    - {channel: 1, addresses: [0x0C, 0x0D, 0x0E, 0x0F]}\n    - {channel: 2, addresses: [0x0C, 0x0D, 0x0E, 0x0F]}\n    - {channel: 3, addresses: [0x0C, 0x0D, 0x0E, 0x0F]}\n' >"$work/addr.yaml"
+patchd --sim -c "$work/addr.yaml" -i none --candump-out /dev/null 2>"$work/p3.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "address 0x50 is not an MLX90393 address" "$work/p3.txt" && ok "patchd: bad sensor address named" || { bad "patchd: bad address (rc $rc)"; cat "$work/p3.txt"; }
+patchd --sim --mux 0x40 -i none --candump-out /dev/null 2>"$work/p3b.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "i2c.mux_address 0x40" "$work/p3b.txt" && ok "patchd: bad mux address named" || bad "patchd: bad mux address (rc $rc)"
+printf 'sensor: {oversampling: 3, digital_filter: 7}\n' >"$work/slow.yaml"
+patchd --sim -c "$work/slow.yaml" -i none --candump-out /dev/null 2>"$work/p4.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "rate_hz 41.70: the sensors allow at most 4.8" "$work/p4.txt" && ok "patchd: impossible rate for the conversion time named" || { bad "patchd: impossible rate (rc $rc)"; cat "$work/p4.txt"; }
+patchd --sim -c /nonexistent/patch.yaml 2>"$work/p5.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "/nonexistent/patch.yaml" "$work/p5.txt" && ok "patchd: missing config file named" || bad "patchd: missing config file (rc $rc)"
+printf 'rate_hz: 20\nnod: 4\n' >"$work/typo.yaml"
+patchd --sim -c "$work/typo.yaml" --check >/dev/null 2>"$work/p6.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "nod (line 2): unknown setting" "$work/p6.txt" && ok "patchd: misspelt setting refused" || bad "patchd: misspelt setting (rc $rc)"
+patchd --sim --contacts /nonexistent.csv -i none --candump-out /dev/null 2>"$work/p7.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "sim.contacts: contact script /nonexistent.csv" "$work/p7.txt" && ok "patchd: missing contact script named" || bad "patchd: missing contact script (rc $rc)"
+patchd --sim -i nocan0 --duration 1 2>"$work/p8.txt"; rc=$?
+[[ $rc == 1 ]] && grep -q "can.interface: .*nocan0" "$work/p8.txt" && ok "patchd: missing CAN interface named" || { bad "patchd: missing CAN interface (rc $rc)"; cat "$work/p8.txt"; }
+patchd --sim -c "$work/dup.yaml" --check >/dev/null 2>&1; rc=$?
+[[ $rc == 2 ]] && patchd --sim --check | grep -q "^rate_hz: 41.7" && ok "patchd --check" || bad "patchd --check"
+# A simulated patch piped into the decoder: every sample arrives.
+patchd --sim -i none --candump-out - --mode stream --duration 2 -q --expect "$work/pexp.txt" | "$bin/skinbus-decode" --stats >"$work/pdec.txt" 2>"$work/pstats.txt"
+n=$(grep -c "^sample node=1 " "$work/pdec.txt")
+[[ $n -ge 75 ]] && diff -q "$work/pexp.txt" "$work/pdec.txt" >/dev/null && ok "patchd | skinbus-decode ($n samples, all reproduced)" || bad "patchd pipe ($n samples)"
+"$bin/skinbus-cmd" --node 3 tare --print --seq 5 | grep -qx "083##12005010000000000" && ok "skinbus-cmd --print" || bad "skinbus-cmd --print: $("$bin/skinbus-cmd" --node 3 tare --print --seq 5)"
+"$bin/skinbus-cmd" --node 3 mode fast --print 2>"$work/c1.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "mode 'fast'" "$work/c1.txt" && ok "skinbus-cmd: bad argument named" || bad "skinbus-cmd bad argument (rc $rc)"
+
+for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd; do
   "$bin/$t" --help | grep -q "Examples:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
 done
 

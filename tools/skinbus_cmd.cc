@@ -59,7 +59,8 @@ int main(int argc, char** argv) {
   app.add_option("--seq", seq, "transfer sequence of the command, 0..255")
       ->check(CLI::Range(0, 255))
       ->capture_default_str();
-  app.add_option("--sync-counter", sync_counter, "sync: the SYNC counter")->check(CLI::Range(0, 65535));
+  app.add_option("--sync-counter", sync_counter, "sync: the SYNC counter")
+      ->check(CLI::Range(0, 65535));
   app.add_flag("--classic", classic, "send a classic CAN frame (commands fit in 8 bytes anyway)");
   app.add_flag("--print", print, "print the frame in cansend syntax instead of sending it");
   app.add_option("--timeout-ms", timeout_ms, "how long to wait for acknowledgements")
@@ -83,7 +84,8 @@ int main(int argc, char** argv) {
     };
     if (command == "sync") {
       msg.node = kNodeBroadcast;
-      msg.body = Sync{static_cast<uint32_t>(realtime_now_us()), static_cast<uint16_t>(sync_counter)};
+      msg.body =
+          Sync{static_cast<uint32_t>(realtime_now_us()), static_cast<uint16_t>(sync_counter)};
     } else {
       Command c;
       if (command == "tare") {
@@ -91,19 +93,25 @@ int main(int argc, char** argv) {
       } else if (command == "mode") {
         need_arg("stream, event or off");
         c.opcode = Opcode::kSetMode;
-        if (argument == "off") c.arg[0] = static_cast<uint8_t>(PatchMode::kOff);
-        else if (argument == "stream") c.arg[0] = static_cast<uint8_t>(PatchMode::kStream);
-        else if (argument == "event") c.arg[0] = static_cast<uint8_t>(PatchMode::kEvent);
-        else throw std::invalid_argument("mode '" + argument + "': stream, event or off");
+        if (argument == "off")
+          c.arg[0] = static_cast<uint8_t>(PatchMode::kOff);
+        else if (argument == "stream")
+          c.arg[0] = static_cast<uint8_t>(PatchMode::kStream);
+        else if (argument == "event")
+          c.arg[0] = static_cast<uint8_t>(PatchMode::kEvent);
+        else
+          throw std::invalid_argument("mode '" + argument + "': stream, event or off");
       } else if (command == "rate") {
         need_arg("a rate in Hz");
         const double hz = std::stod(argument);
-        if (!(hz > 0 && hz <= 655.35)) throw std::invalid_argument("rate " + argument + ": 0.01..655.35 Hz");
+        if (!(hz > 0 && hz <= 655.35))
+          throw std::invalid_argument("rate " + argument + ": 0.01..655.35 Hz");
         c.opcode = Opcode::kSetRate;
         put_u16(c.arg, static_cast<uint16_t>(std::lround(hz * 100)));
       } else if (command == "sync-mode") {
         need_arg("on or off");
-        if (argument != "on" && argument != "off") throw std::invalid_argument("sync-mode: on or off");
+        if (argument != "on" && argument != "off")
+          throw std::invalid_argument("sync-mode: on or off");
         c.opcode = Opcode::kSyncMode;
         c.arg[0] = argument == "on" ? 1 : 0;
       } else if (command == "identify") {
@@ -153,31 +161,31 @@ int main(int argc, char** argv) {
       CanPoller poller;
       (void)poller.add(port->get());
       bool done = false;
-      auto r = poller.poll(static_cast<int>((end_us - now) / 1000) + 1,
-                           [&](SocketCanPort&, const CanFrame& f, const RxMeta&) {
-                             const uint8_t from = can_id_node(f.id);
-                             if (node != kNodeBroadcast && from != node) return;
-                             if (can_id_class(f.id) == static_cast<uint8_t>(MessageClass::kAck)) {
-                               Message m;
-                               if (decode_single(f, &m) != DecodeError::kNone) return;
-                               const Ack& a = std::get<Ack>(m.body);
-                               if (a.command_seq != seq || a.opcode != frame[0].data[2]) return;
-                               std::printf("%s\n", format_message(m).c_str());
-                               ++acks;
-                               if (a.status != AckStatus::kOk) ++nacks;
-                             } else {
-                               const FeedResult fr = infos.feed(f, monotonic_now_us());
-                               if (fr.status == FeedStatus::kMessage) {
-                                 std::printf("%s\n", format_message(*fr.message).c_str());
-                                 ++infos_seen;
-                               }
-                             }
-                             if (node != kNodeBroadcast && acks > 0 && (!want_info || infos_seen > 0))
-                               done = true;
-                           },
-                           [](SocketCanPort&, const Error& e) {
-                             std::fprintf(stderr, "skinbus-cmd: %s\n", e.message.c_str());
-                           });
+      auto r = poller.poll(
+          static_cast<int>((end_us - now) / 1000) + 1,
+          [&](SocketCanPort&, const CanFrame& f, const RxMeta&) {
+            const uint8_t from = can_id_node(f.id);
+            if (node != kNodeBroadcast && from != node) return;
+            if (can_id_class(f.id) == static_cast<uint8_t>(MessageClass::kAck)) {
+              Message m;
+              if (decode_single(f, &m) != DecodeError::kNone) return;
+              const Ack& a = std::get<Ack>(m.body);
+              if (a.command_seq != seq || a.opcode != frame[0].data[2]) return;
+              std::printf("%s\n", format_message(m).c_str());
+              ++acks;
+              if (a.status != AckStatus::kOk) ++nacks;
+            } else {
+              const FeedResult fr = infos.feed(f, monotonic_now_us());
+              if (fr.status == FeedStatus::kMessage) {
+                std::printf("%s\n", format_message(*fr.message).c_str());
+                ++infos_seen;
+              }
+            }
+            if (node != kNodeBroadcast && acks > 0 && (!want_info || infos_seen > 0)) done = true;
+          },
+          [](SocketCanPort&, const Error& e) {
+            std::fprintf(stderr, "skinbus-cmd: %s\n", e.message.c_str());
+          });
       if (!r.ok()) throw std::runtime_error(r.error().message);
       if (done) break;
     }

@@ -199,7 +199,9 @@ int main(int argc, char** argv) {
     const bool any_line = !settings.gpio.drdy_lines.empty() || settings.gpio.mux_reset ||
                           settings.gpio.identify_led || settings.gpio.sync_in;
     if (settings.sim.enabled) {
-      board = need(SimulatedBoard::create(settings, &clock), "--sim");
+      auto b = SimulatedBoard::create(settings, &clock);
+      if (!b.ok()) throw ConfigError(b.error().message);
+      board = std::move(b).value();
       i2c = board->bus.get();
       gpio = board->gpio.get();
     } else {
