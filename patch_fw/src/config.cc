@@ -17,12 +17,6 @@ namespace skinbus::patch_fw {
 
 namespace {
 
-std::string hex2(unsigned v) {
-  char b[8];
-  std::snprintf(b, sizeof b, "0x%02X", v);
-  return b;
-}
-
 // Reading a YAML tree with the path of every value, so errors can name it. Conversion errors
 // are collected as the first Error; later reads are skipped.
 class Reader {
@@ -339,8 +333,8 @@ Status validate_settings(PatchNodeSettings* s) {
   }
   if (s->mux_address &&
       (*s->mux_address < kTca9546aAddressMin || *s->mux_address > kTca9546aAddressMax)) {
-    return bad(ErrorCode::kOutOfRange,
-               "i2c.mux_address " + hex2(*s->mux_address) + ": a TCA9546A answers at 0x70..0x77");
+    return bad(ErrorCode::kOutOfRange, "i2c.mux_address " + format_hex_byte(*s->mux_address) +
+                                           ": a TCA9546A answers at 0x70..0x77");
   }
   if (s->array.slots.size() != static_cast<std::size_t>(bus::kSensorCount)) {
     return bad(ErrorCode::kInvalidArgument,
@@ -354,7 +348,7 @@ Status validate_settings(PatchNodeSettings* s) {
     const std::string name = "i2c.channels (sensor " + std::to_string(i) + ", channel " +
                              std::to_string(slot.channel) + ")";
     if (slot.address < mlx90393::kAddressMin || slot.address > mlx90393::kAddressMax) {
-      return bad(ErrorCode::kOutOfRange, name + ": address " + hex2(slot.address) +
+      return bad(ErrorCode::kOutOfRange, name + ": address " + format_hex_byte(slot.address) +
                                              " is not an MLX90393 address (0x0C..0x1B)");
     }
     if (slot.channel >= 0 && !s->mux_address) {
@@ -365,8 +359,8 @@ Status validate_settings(PatchNodeSettings* s) {
       return bad(ErrorCode::kInvalidArgument, name + ": collides with the multiplexer address");
     }
     if (!seen.insert({slot.channel, slot.address}).second) {
-      return bad(ErrorCode::kInvalidArgument,
-                 name + ": address " + hex2(slot.address) + " is listed twice on that channel");
+      return bad(ErrorCode::kInvalidArgument, name + ": address " + format_hex_byte(slot.address) +
+                                                  " is listed twice on that channel");
     }
   }
   // Lines used once.
@@ -426,8 +420,8 @@ std::string settings_to_yaml(const PatchNodeSettings& s) {
     << "\ncan:\n  interface: " << s.can_interface << "\n  fd: " << (s.can_fd ? "true" : "false")
     << "\n";
   if (!s.candump_out.empty()) o << "  candump_out: " << s.candump_out << "\n";
-  o << "i2c:\n  device: " << s.i2c_device
-    << "\n  mux_address: " << (s.mux_address ? hex2(*s.mux_address) : std::string("none"))
+  o << "i2c:\n  device: " << s.i2c_device << "\n  mux_address: "
+    << (s.mux_address ? format_hex_byte(*s.mux_address) : std::string("none"))
     << "\n  clock_hz: " << s.array.i2c_clock_hz
     << "\n  transaction_overhead_us: " << s.array.transaction_overhead_us << "\n  channels:\n";
   for (std::size_t i = 0; i < s.array.slots.size();) {
@@ -435,7 +429,7 @@ std::string settings_to_yaml(const PatchNodeSettings& s) {
     o << "    - channel: " << c << "\n      addresses: [";
     bool first = true;
     for (; i < s.array.slots.size() && s.array.slots[i].channel == c; ++i) {
-      o << (first ? "" : ", ") << hex2(s.array.slots[i].address);
+      o << (first ? "" : ", ") << format_hex_byte(s.array.slots[i].address);
       first = false;
     }
     o << "]\n";

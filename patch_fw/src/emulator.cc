@@ -1,4 +1,5 @@
 #include "skinbus/patch_fw/emulator.h"
+#include "skinbus/patch_fw/tca9546a.h"
 
 #include <algorithm>
 #include <cmath>
@@ -15,16 +16,8 @@ namespace mlx = mlx90393;
 
 namespace {
 
-constexpr uint8_t kMuxAddressMin = 0x70;
-constexpr uint8_t kMuxAddressMax = 0x77;
 constexpr int kMuxChannels = 4;
 constexpr uint64_t kBurstRateStepUs = 20000;  // BURST_DATA_RATE unit: 20 ms
-
-std::string hex2(uint8_t v) {
-  char buf[8];
-  std::snprintf(buf, sizeof buf, "0x%02X", v);
-  return buf;
-}
 
 unsigned field(uint16_t reg, int shift, unsigned bits) {
   return (static_cast<unsigned>(reg) >> shift) & ((1u << bits) - 1);
@@ -296,16 +289,16 @@ EmulatedI2cBus::~EmulatedI2cBus() = default;
 
 Status EmulatedI2cBus::add_mux(uint8_t address) {
   if (mux_address_) return make_error(ErrorCode::kInvalidArgument, "emulator: mux already added");
-  if (address < kMuxAddressMin || address > kMuxAddressMax) {
+  if (address < kTca9546aAddressMin || address > kTca9546aAddressMax) {
     return make_error(ErrorCode::kInvalidArgument,
-                      "emulator: mux address " + hex2(address) + " outside 0x70..0x77");
+                      "emulator: mux address " + format_hex_byte(address) + " outside 0x70..0x77");
   }
   mux_address_ = address;
   return Status::Ok();
 }
 
 Status EmulatedI2cBus::add_mlx90393(int channel, uint8_t address, int sensor) {
-  const std::string what = "emulator: MLX90393 at " + hex2(address) + " channel " +
+  const std::string what = "emulator: MLX90393 at " + format_hex_byte(address) + " channel " +
                            std::to_string(channel) + " sensor " + std::to_string(sensor) + ": ";
   if (channel < -1 || channel >= kMuxChannels) {
     return make_error(ErrorCode::kInvalidArgument, what + "channel outside -1..3");
@@ -341,8 +334,8 @@ Status EmulatedI2cBus::transfer(std::span<I2cMessage> messages) {
   for (size_t i = 0; i < messages.size() && result.ok(); ++i) {
     I2cMessage& m = messages[i];
     const auto fail = [&](ErrorCode code, const std::string& what) {
-      result = make_error(code, "emulator: " + what + " at " + hex2(m.address) + " (message " +
-                                    std::to_string(i + 1) + " of " +
+      result = make_error(code, "emulator: " + what + " at " + format_hex_byte(m.address) +
+                                    " (message " + std::to_string(i + 1) + " of " +
                                     std::to_string(messages.size()) + ")");
     };
     if (mux_address_ && m.address == *mux_address_) {

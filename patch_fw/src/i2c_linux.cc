@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cerrno>
+#include <cstdio>
 #include <cstring>
 
 #include "skinbus/patch_fw/i2c.h"
@@ -56,14 +57,19 @@ Status LinuxI2cBus::transfer(std::span<I2cMessage> messages) {
   i2c_rdwr_ioctl_data data{msgs.data(), static_cast<uint32_t>(messages.size())};
   if (ioctl(fd_, I2C_RDWR, &data) < 0) {
     const int e = errno;
-    char addr[8];
-    std::snprintf(addr, sizeof addr, "0x%02X", messages[0].address);
     // ENXIO / EREMOTEIO: no acknowledge from the device.
     const ErrorCode code =
         (e == ENXIO || e == EREMOTEIO) ? ErrorCode::kUnavailable : ErrorCode::kIo;
-    return make_error(code, path_ + " transfer at " + addr + ": " + std::strerror(e));
+    return make_error(code, path_ + " transfer at " + format_hex_byte(messages[0].address) + ": " +
+                                std::strerror(e));
   }
   return Status::Ok();
+}
+
+std::string format_hex_byte(unsigned value) {
+  char buf[8];
+  std::snprintf(buf, sizeof buf, "0x%02X", value & 0xFFu);
+  return buf;
 }
 
 Status i2c_write(I2cBus& bus, uint8_t address, std::span<const uint8_t> out) {

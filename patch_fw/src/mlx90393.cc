@@ -11,12 +11,6 @@ namespace m = mlx90393;
 
 namespace {
 
-std::string hex2(unsigned v) {
-  char buf[8];
-  std::snprintf(buf, sizeof buf, "0x%02X", v & 0xFFu);
-  return buf;
-}
-
 uint16_t set_field(uint16_t reg, int shift, unsigned bits, unsigned value) {
   const unsigned mask = ((1u << bits) - 1u) << shift;
   return static_cast<uint16_t>((reg & ~mask) | ((value << shift) & mask));
@@ -32,7 +26,8 @@ Status Mlx90393::command(std::span<const uint8_t> cmd, std::span<uint8_t> in, bo
       I2cMessage{address_, false, {const_cast<uint8_t*>(cmd.data()), cmd.size()}},
       I2cMessage{address_, true, in}};
   Status st = bus_->transfer(msgs);
-  const std::string where = "MLX90393 at " + hex2(address_) + " on " + std::string(bus_->name());
+  const std::string where =
+      "MLX90393 at " + format_hex_byte(address_) + " on " + std::string(bus_->name());
   if (!st.ok()) {
     if (st.error().code == ErrorCode::kUnavailable) ++stats_.naks;
     return make_error(st.error().code, where + ": " + st.error().message);
@@ -46,8 +41,9 @@ Status Mlx90393::command(std::span<const uint8_t> cmd, std::span<uint8_t> in, bo
   }
   if (status & m::kStatusError) {
     ++stats_.error_bits;
-    return make_error(ErrorCode::kIo, where + ": error bit set in status " + hex2(status) +
-                                          " answering command " + hex2(cmd[0]));
+    return make_error(ErrorCode::kIo, where + ": error bit set in status " +
+                                          format_hex_byte(status) + " answering command " +
+                                          format_hex_byte(cmd[0]));
   }
   return Status::Ok();
 }
@@ -80,8 +76,8 @@ Status Mlx90393::reset() {
   Status st = bus_->transfer({&msg, 1});
   if (!st.ok()) {
     if (st.error().code == ErrorCode::kUnavailable) ++stats_.naks;
-    return make_error(st.error().code,
-                      "MLX90393 at " + hex2(address_) + ": reset: " + st.error().message);
+    return make_error(st.error().code, "MLX90393 at " + format_hex_byte(address_) +
+                                           ": reset: " + st.error().message);
   }
   clock_->sleep_until_us(clock_->now_us() + m::kResetTimeUs);
   // The first status after RT carries RS; accept it here.
@@ -97,10 +93,10 @@ Result<uint16_t> Mlx90393::read_register(uint8_t reg) {
   if (!st.ok()) return st.error();
   if (m::status_data_bytes(in[0]) != 2) {
     ++stats_.bad_data_counts;
-    return make_error(ErrorCode::kIo, "MLX90393 at " + hex2(address_) + ": register read " +
-                                          hex2(reg) + " announced " +
-                                          std::to_string(m::status_data_bytes(in[0])) +
-                                          " data bytes, expected 2");
+    return make_error(ErrorCode::kIo,
+                      "MLX90393 at " + format_hex_byte(address_) + ": register read " +
+                          format_hex_byte(reg) + " announced " +
+                          std::to_string(m::status_data_bytes(in[0])) + " data bytes, expected 2");
   }
   return static_cast<uint16_t>(in[1] << 8 | in[2]);
 }
@@ -151,7 +147,7 @@ Status Mlx90393::configure(const Mlx90393Settings& settings) {
       char msg[96];
       std::snprintf(msg, sizeof msg, ": register 0x%02X reads back 0x%04X after writing 0x%04X",
                     reg, *back, want[reg]);
-      return make_error(ErrorCode::kIo, "MLX90393 at " + hex2(address_) + msg);
+      return make_error(ErrorCode::kIo, "MLX90393 at " + format_hex_byte(address_) + msg);
     }
   }
   settings_ = settings;
@@ -173,9 +169,9 @@ Status Mlx90393::read_measurement(Mlx90393Reading* out) {
   if (!st.ok()) return st;
   if (m::status_data_bytes(in[0]) != m::measurement_bytes(m::kAxesXyz)) {
     ++stats_.bad_data_counts;
-    return make_error(ErrorCode::kIo, "MLX90393 at " + hex2(address_) + ": measurement announced " +
-                                          std::to_string(m::status_data_bytes(in[0])) +
-                                          " data bytes, expected 6");
+    return make_error(ErrorCode::kIo,
+                      "MLX90393 at " + format_hex_byte(address_) + ": measurement announced " +
+                          std::to_string(m::status_data_bytes(in[0])) + " data bytes, expected 6");
   }
   const sim::Mlx90393Config& c = settings_.chip;
   for (int axis = 0; axis < 3; ++axis) {

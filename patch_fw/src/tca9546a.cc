@@ -7,9 +7,7 @@ namespace skinbus::patch_fw {
 
 namespace {
 std::string where(uint8_t address, const I2cBus& bus) {
-  char buf[48];
-  std::snprintf(buf, sizeof buf, "TCA9546A at 0x%02X on ", address);
-  return buf + std::string(bus.name());
+  return "TCA9546A at " + format_hex_byte(address) + " on " + std::string(bus.name());
 }
 }  // namespace
 

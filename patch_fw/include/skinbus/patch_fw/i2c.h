@@ -52,6 +52,9 @@ class LinuxI2cBus final : public I2cBus {
   std::string path_;
 };
 
+// "0x0C": how addresses, registers and status bytes appear in messages and settings.
+std::string format_hex_byte(unsigned value);
+
 // Convenience: one write message, or a write followed by a read (repeated START).
 Status i2c_write(I2cBus& bus, uint8_t address, std::span<const uint8_t> out);
 Status i2c_write_read(I2cBus& bus, uint8_t address, std::span<const uint8_t> out,
