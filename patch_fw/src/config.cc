@@ -138,6 +138,33 @@ class Reader {
   }
 };
 
+// A string as a YAML scalar that reads back the same: plain when that is safe, else
+// double-quoted with escapes.
+std::string yaml_string(const std::string& v) {
+  bool plain = !v.empty() && v != "none" && v != "true" && v != "false";
+  for (char c : v) {
+    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                    c == '_' || c == '.' || c == '/' || c == '-';
+    plain = plain && ok;
+  }
+  if (plain && (v[0] == '-' || v[0] == '.')) plain = false;
+  if (plain) return v;
+  std::string out = "\"";
+  for (unsigned char c : v) {
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += static_cast<char>(c);
+    } else if (c < 0x20 || c == 0x7F) {  // bytes >= 0x80 stay as they are (UTF-8 text)
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\x%02X", c);
+      out += buf;
+    } else {
+      out += static_cast<char>(c);
+    }
+  }
+  return out + "\"";
+}
+
 Status parse(const YAML::Node& root, PatchNodeSettings* s) {
   Reader r;
   if (!root || root.IsNull()) return Status::Ok();  // an empty file keeps the defaults
@@ -331,6 +358,16 @@ Status validate_settings(PatchNodeSettings* s) {
     return bad(ErrorCode::kOutOfRange,
                "node " + std::to_string(s->node.node_id) + ": patch node IDs are 1..125");
   }
+  {
+    const std::string& n = s->can_interface;
+    bool ok = !n.empty() && n.size() <= 15;
+    for (char c : n) ok = ok && c > ' ' && c < 0x7F && c != '/' && c != ':';
+    if (!ok) {
+      return bad(ErrorCode::kInvalidArgument,
+                 "can.interface '" + n +
+                     "': an interface name is 1..15 printable characters without '/' or ':'");
+    }
+  }
   if (s->mux_address &&
       (*s->mux_address < kTca9546aAddressMin || *s->mux_address > kTca9546aAddressMax)) {
     return bad(ErrorCode::kOutOfRange, "i2c.mux_address " + format_hex_byte(*s->mux_address) +
@@ -417,10 +454,10 @@ std::string settings_to_yaml(const PatchNodeSettings& s) {
     << "\nevent_tail_ms: " << s.node.event_tail_ms
     << "\nheartbeat_ms: " << s.node.heartbeat_period_ms << "\nhardware_uid: " << uid
     << "\nsend_tared: " << (s.node.send_tared ? "true" : "false")
-    << "\ncan:\n  interface: " << s.can_interface << "\n  fd: " << (s.can_fd ? "true" : "false")
-    << "\n";
-  if (!s.candump_out.empty()) o << "  candump_out: " << s.candump_out << "\n";
-  o << "i2c:\n  device: " << s.i2c_device << "\n  mux_address: "
+    << "\ncan:\n  interface: " << yaml_string(s.can_interface)
+    << "\n  fd: " << (s.can_fd ? "true" : "false") << "\n";
+  if (!s.candump_out.empty()) o << "  candump_out: " << yaml_string(s.candump_out) << "\n";
+  o << "i2c:\n  device: " << yaml_string(s.i2c_device) << "\n  mux_address: "
     << (s.mux_address ? format_hex_byte(*s.mux_address) : std::string("none"))
     << "\n  clock_hz: " << s.array.i2c_clock_hz
     << "\n  transaction_overhead_us: " << s.array.transaction_overhead_us << "\n  channels:\n";
@@ -443,7 +480,7 @@ std::string settings_to_yaml(const PatchNodeSettings& s) {
     << "\nhealth:\n  dead_after_failures: " << s.array.dead_after_failures
     << "\n  retry_interval_samples: " << s.array.retry_interval_samples
     << "\n  stuck_after_samples: " << s.array.stuck_after_samples
-    << "\ngpio:\n  chip: " << s.gpio.chip << "\n  drdy: [";
+    << "\ngpio:\n  chip: " << yaml_string(s.gpio.chip) << "\n  drdy: [";
   for (std::size_t j = 0; j < s.gpio.drdy_lines.size(); ++j)
     o << (j ? ", " : "") << s.gpio.drdy_lines[j];
   auto line = [](const std::optional<unsigned>& l) {
@@ -458,7 +495,7 @@ std::string settings_to_yaml(const PatchNodeSettings& s) {
     << "\n  drift_max_ut_per_s: " << s.gate.drift_max_ut_per_s
     << "\n  drift_holdoff_s: " << s.gate.drift_holdoff_s
     << "\nsim:\n  enabled: " << (s.sim.enabled ? "true" : "false") << "\n";
-  if (!s.sim.contacts_file.empty()) o << "  contacts: " << s.sim.contacts_file << "\n";
+  if (!s.sim.contacts_file.empty()) o << "  contacts: " << yaml_string(s.sim.contacts_file) << "\n";
   o << "  random_presses_per_min: " << s.sim.random_presses_per_min << "\n  seed: " << s.sim.seed
     << "\n  limb_swing_deg: " << s.sim.limb_swing_deg
     << "\n  limb_period_s: " << s.sim.limb_period_s << "\n";

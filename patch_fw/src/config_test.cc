@@ -111,6 +111,8 @@ TEST(ConfigTest, ErrorsNameTheSetting) {
       {"sensor: {oversampling: 3, digital_filter: 7}", "rate_hz 41.70: the sensors allow at most"},
       {"sensor: {gain_sel: 9}", "sensor.gain_sel"},
       {"node: [1, 2]", "node"},
+      {"can: {interface: 'can 0'}", "can.interface 'can 0'"},
+      {"can: {interface: averyveryverylongname0}", "1..15 printable characters"},
       {"node: 3\n  bad indent: [", "line"},
   };
   for (const Case& c : cases) {
@@ -118,6 +120,20 @@ TEST(ConfigTest, ErrorsNameTheSetting) {
     EXPECT_NE(e.find(c.must_contain), std::string::npos)
         << "yaml: " << c.yaml << "\nerror: '" << e << "'\nexpected to contain: " << c.must_contain;
   }
+}
+
+TEST(ConfigTest, OddStringsPrintAndReadBack) {
+  PatchNodeSettings a;
+  ASSERT_TRUE(load_and_validate("i2c: {device: \"/dev/i2c 1 \\\"x\\\" \"}\n"
+                                "gpio: {chip: 'none'}\n",
+                                &a)
+                  .ok());
+  EXPECT_EQ(a.i2c_device, "/dev/i2c 1 \"x\" ");
+  EXPECT_EQ(a.gpio.chip, "none");
+  PatchNodeSettings b;
+  ASSERT_TRUE(load_and_validate(settings_to_yaml(a), &b).ok()) << settings_to_yaml(a);
+  EXPECT_EQ(b.i2c_device, a.i2c_device);
+  EXPECT_EQ(b.gpio.chip, "none");
 }
 
 TEST(ConfigTest, ImpossibleRateForTheConversionTime) {
