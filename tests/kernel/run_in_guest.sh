@@ -7,4 +7,5 @@ here=$(cd "$(dirname "$0")" && pwd)
 status=0
 "$build/tests/kernel_socketcan_test" --gtest_brief=1 || status=1
 "$here/bus_e2e.sh" "$build" || status=1
+"$here/patchd_e2e.sh" "$build" || status=1
 exit $status
