@@ -90,15 +90,15 @@ class Decoder {
     ReassemblyStats s;  // summed over interfaces
     for (const auto& [name, r] : reasm_) s += r->stats();
     std::fprintf(out, "# skinbus-decode statistics\n");
-    std::fprintf(out,
-                 "frames %" PRIu64 " messages %" PRIu64 " samples %" PRIu64
-                 " integrity_failures %" PRIu64 " gaps %" PRIu64 " duplicates %" PRIu64
-                 " reorders %" PRIu64 " resyncs %" PRIu64 " stale_parts %" PRIu64
-                 " evictions %" PRIu64 " conflicts %" PRIu64 " rejected %" PRIu64
-                 " foreign %" PRIu64 " bad_lines %" PRIu64 " bus_errors %" PRIu64 "\n",
-                 s.frames, s.messages, s.samples, s.integrity_failures, s.gaps, s.duplicates,
-                 s.reorders, s.resyncs, s.stale_parts, s.evictions, s.conflicts, s.rejected,
-                 s.foreign, bad_lines_, bus_errors_);
+    std::fprintf(
+        out,
+        "frames %" PRIu64 " messages %" PRIu64 " samples %" PRIu64 " integrity_failures %" PRIu64
+        " gaps %" PRIu64 " duplicates %" PRIu64 " reorders %" PRIu64 " resyncs %" PRIu64
+        " restarts %" PRIu64 " stale_parts %" PRIu64 " evictions %" PRIu64 " conflicts %" PRIu64
+        " rejected %" PRIu64 " foreign %" PRIu64 " bad_lines %" PRIu64 " bus_errors %" PRIu64 "\n",
+        s.frames, s.messages, s.samples, s.integrity_failures, s.gaps, s.duplicates, s.reorders,
+        s.resyncs, s.restarts, s.stale_parts, s.evictions, s.conflicts, s.rejected, s.foreign,
+        bad_lines_, bus_errors_);
     for (int e = 1; e < kDecodeErrorCount; ++e) {
       if (s.by_error[e]) {
         std::fprintf(out, "rejected %s %" PRIu64 "\n",

@@ -66,9 +66,12 @@ class DaemonSink final : public FrameSink {
   }
 };
 
+// Set across the re-execution that serves the reboot command, so outputs are appended to.
+constexpr const char* kRestartedEnv = "SKINBUS_PATCHD_RESTARTED";
+
 std::FILE* open_out(const std::string& path, const char* what) {
   if (path == "-") return stdout;
-  std::FILE* f = std::fopen(path.c_str(), "w");
+  std::FILE* f = std::fopen(path.c_str(), std::getenv(kRestartedEnv) ? "a" : "w");
   if (f == nullptr) {
     throw ConfigError(std::string(what) + " " + path + ": " + std::strerror(errno));
   }
@@ -302,6 +305,7 @@ int main(int argc, char** argv) {
         if (log) std::fflush(log);
         if (expect) std::fflush(expect);
         port.reset();
+        setenv(kRestartedEnv, "1", 1);
         execv("/proc/self/exe", argv);
         throw std::runtime_error(std::string("reboot: execv failed: ") + std::strerror(errno));
       }
@@ -347,9 +351,11 @@ int main(int argc, char** argv) {
           const uint8_t cls = bus::can_id_class(f.id);
           if (!f.extended && bus::can_id_node(f.id) == settings.node.node_id &&
               cls >= static_cast<uint8_t>(bus::MessageClass::kAck)) {
-            if (foreign_same_id++ % 1000 == 0) {
-              info("another node sends with node ID " + std::to_string(settings.node.node_id) +
-                   " (duplicate node ID on the bus?)");
+            if (foreign_same_id++ % 1000 == 0) {  // a warning: shown even with --quiet
+              std::fprintf(stderr,
+                           "%s: warning: another node sends with node ID %d (duplicate node ID on "
+                           "the bus?)\n",
+                           tag.c_str(), settings.node.node_id);
             }
             continue;
           }

@@ -1,5 +1,7 @@
 #include "skinbus/bus/reassembler.h"
 
+#include <algorithm>
+
 #include <bit>
 #include <cstring>
 
@@ -8,11 +10,18 @@ namespace skinbus::bus {
 Reassembler::Reassembler(const Config& config)
     : config_(config),
       slots_(config.slots == 0 ? 1 : config.slots),
-      senders_(static_cast<std::size_t>(kNodeMask + 1) * kMessageClassCount) {}
+      senders_(static_cast<std::size_t>(kNodeMask + 1) * kMessageClassCount),
+      last_uptime_s_(static_cast<std::size_t>(kNodeMask + 1), kNoUptime) {}
+
+void Reassembler::forget_node(uint8_t node) {
+  for (int c = 0; c < kMessageClassCount; ++c)
+    sender(static_cast<MessageClass>(c), node) = Sender{};
+}
 
 void Reassembler::reset() {
   for (Slot& s : slots_) s.used = false;
   for (Sender& s : senders_) s = Sender{};
+  std::fill(last_uptime_s_.begin(), last_uptime_s_.end(), kNoUptime);
   in_use_ = 0;
 }
 
@@ -78,6 +87,15 @@ FeedResult Reassembler::complete(MessageClass c, uint8_t node, uint8_t seq, Fram
   const uint16_t crc = is_multi_part(c)
                            ? static_cast<uint16_t>(payload[len - 2] | payload[len - 1] << 8)
                            : crc16_ccitt({payload, len});
+  if (c == MessageClass::kHeartbeat) {
+    const uint32_t up = std::get<Heartbeat>(out_.body).uptime_s;
+    uint32_t& last = last_uptime_s_[node & kNodeMask];
+    if (last != kNoUptime && up < last) {
+      ++stats_.restarts;
+      forget_node(node);
+    }
+    last = up;
+  }
   Sender& snd = sender(c, node);
   for (std::size_t i = 0; i < kRecent; ++i) {
     if (snd.recent_used[i] && snd.recent_seq[i] == seq && snd.recent_crc[i] == crc) {

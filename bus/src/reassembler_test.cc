@@ -106,6 +106,50 @@ TEST(ReassemblerTest, LongLossAndRestartResynchronise) {
   EXPECT_EQ(r.stats().resyncs, 2u);
 }
 
+// A restarted node sends the same first heartbeats as at its last start (same sequence, same
+// content). Its uptime going backwards marks the restart: nothing of the new start is taken for
+// a duplicate or a gap.
+TEST(ReassemblerTest, RestartIsRecognisedByTheHeartbeatUptime) {
+  Reassembler r;
+  uint64_t t = 1000;
+  auto send = [&](const Message& m) {
+    std::array<CanFrame, kMaxParts> frames;
+    const EncodeResult e = encode(m, frames);
+    FeedResult last;
+    for (std::size_t i = 0; i < e.frames; ++i) last = r.feed(frames[i], t += 100);
+    return last;
+  };
+  auto boot = [&](int seconds) {
+    int emitted = 0;
+    for (int s = 0; s < seconds; ++s) {
+      Heartbeat hb;
+      hb.uptime_s = static_cast<uint32_t>(s);
+      hb.hardware_uid = 42;
+      emitted += send(Message{9, static_cast<uint8_t>(s), FrameKind::kFd, hb}).status ==
+                 FeedStatus::kMessage;
+      for (int k = 0; k < 5; ++k) {
+        Sample smp;
+        smp.timestamp_us = static_cast<uint32_t>(s * 1000 + k);
+        emitted += send(Message{9, static_cast<uint8_t>(5 * s + k), FrameKind::kFd, smp}).status ==
+                   FeedStatus::kMessage;
+      }
+      t += 1000000;
+    }
+    return emitted;
+  };
+  EXPECT_EQ(boot(4), 24);
+  EXPECT_EQ(boot(3), 18);  // restarted after 4 s: heartbeats 0..2 again, identical
+  EXPECT_EQ(r.stats().restarts, 1u);
+  EXPECT_EQ(r.stats().duplicates, 0u);
+  EXPECT_EQ(r.stats().gaps, 0u);
+  // A real repeat of the last heartbeat is still a duplicate, not a restart.
+  Heartbeat hb;
+  hb.uptime_s = 2;
+  hb.hardware_uid = 42;
+  EXPECT_EQ(send(Message{9, 2, FrameKind::kFd, hb}).status, FeedStatus::kDuplicate);
+  EXPECT_EQ(r.stats().restarts, 1u);
+}
+
 TEST(ReassemblerTest, StalePartsTimeOut) {
   std::mt19937_64 rng(3);
   Reassembler r(Reassembler::Config{8, 50000});

@@ -222,6 +222,15 @@ uint64_t PatchNode::poll() {
       if (led_->set(want).ok()) led_on_ = want;
     }
   }
+  // The heartbeat goes first: after a restart it is the node's first message, so a host
+  // recognises the restart (uptime back to 0) before anything else arrives.
+  if (now >= next_heartbeat_us_) {
+    send_message(bus::Message{config_.node_id, seq_heartbeat_++, config_.kind, heartbeat()});
+    ++stats_.heartbeats_sent;
+    next_heartbeat_us_ += uint64_t{config_.heartbeat_period_ms} * 1000u;
+    if (next_heartbeat_us_ <= now)
+      next_heartbeat_us_ = now + uint64_t{config_.heartbeat_period_ms} * 1000u;
+  }
   if (config_.mode != bus::PatchMode::kOff) {
     if (config_.sync_mode) {
       if (pending_sync_) {
@@ -238,14 +247,6 @@ uint64_t PatchNode::poll() {
         next_sample_us_ = now + period;
       }
     }
-  }
-  now = clock_->now_us();
-  if (now >= next_heartbeat_us_) {
-    send_message(bus::Message{config_.node_id, seq_heartbeat_++, config_.kind, heartbeat()});
-    ++stats_.heartbeats_sent;
-    next_heartbeat_us_ += uint64_t{config_.heartbeat_period_ms} * 1000u;
-    if (next_heartbeat_us_ <= now)
-      next_heartbeat_us_ = now + uint64_t{config_.heartbeat_period_ms} * 1000u;
   }
   uint64_t next = next_heartbeat_us_;
   if (config_.mode != bus::PatchMode::kOff && !config_.sync_mode)

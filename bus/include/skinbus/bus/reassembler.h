@@ -30,6 +30,8 @@ struct ReassemblyStats {
   uint64_t reorders = 0;            // parts after a later part, or messages after a later message
   uint64_t resyncs = 0;             // a sender's sequence jumped back after a silence (restart,
                                     // or 128+ messages lost): counted forward as gaps
+  uint64_t restarts = 0;            // a node's heartbeat uptime went backwards: it restarted, and
+                                    // its sequence history was forgotten (no gaps, no duplicates)
   uint64_t stale_parts = 0;         // parts dropped because their message timed out incomplete
   uint64_t evictions = 0;           // incomplete messages dropped because every slot was busy
   uint64_t conflicts = 0;           // a part seen twice with different bytes (message dropped)
@@ -47,6 +49,7 @@ struct ReassemblyStats {
     duplicates += o.duplicates;
     reorders += o.reorders;
     resyncs += o.resyncs;
+    restarts += o.restarts;
     stale_parts += o.stale_parts;
     evictions += o.evictions;
     conflicts += o.conflicts;
@@ -110,8 +113,10 @@ class Reassembler {
     std::array<uint8_t, kMaxPayloadLen> payload{};
   };
   // Per (sender, class): the sequence history used for gap, reorder and duplicate detection.
-  // A repeat is recognised by (sequence, payload CRC) among the last kRecent messages, so a
-  // node that restarts its sequence after a reboot is not mistaken for a duplicate.
+  // A repeat is recognised by (sequence, payload CRC) among the last kRecent messages. A node
+  // that restarts sends the same first heartbeats as at its last start (same sequence, same
+  // content): a heartbeat whose uptime is below the node's previous one marks the restart, and
+  // the node's history is forgotten before the duplicate check.
   static constexpr std::size_t kRecent = 16;
   struct Sender {
     bool valid = false;
@@ -138,9 +143,14 @@ class Reassembler {
                     static_cast<std::size_t>(c)];
   }
 
+  // Forgets the sequence history of every class of `node` (it restarted).
+  void forget_node(uint8_t node);
+
   Config config_;
   std::vector<Slot> slots_;
   std::vector<Sender> senders_;
+  std::vector<uint32_t> last_uptime_s_;  // per node: uptime of its last heartbeat, or kNoUptime
+  static constexpr uint32_t kNoUptime = UINT32_MAX;
   std::size_t in_use_ = 0;
   uint64_t last_expire_us_ = 0;
   Message out_;
