@@ -33,7 +33,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   PatchNodeSettings again = default_settings();
   if (!load_settings_text(printed, &again).ok() || !validate_settings(&again).ok()) std::abort();
   if (settings_to_yaml(again) != printed) {
-    std::fprintf(stderr, "printed:\n%s\nreprinted:\n%s\n", printed.c_str(), settings_to_yaml(again).c_str());
+    std::fprintf(stderr, "printed:\n%s\nreprinted:\n%s\n", printed.c_str(),
+                 settings_to_yaml(again).c_str());
     std::abort();
   }
   return 0;
