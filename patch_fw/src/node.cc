@@ -157,8 +157,7 @@ void PatchNode::on_sync_edge() {
   if (config_.sync_mode && config_.mode != bus::PatchMode::kOff) pending_sync_ = true;
 }
 
-void PatchNode::apply(const bus::Command& cmd, const bus::CanFrame& frame) {
-  (void)frame;
+void PatchNode::apply(const bus::Command& cmd) {
   const uint64_t now = clock_->now_us();
   switch (cmd.opcode) {
     case bus::Opcode::kTare:
@@ -204,7 +203,7 @@ void PatchNode::on_frame(const bus::CanFrame& frame) {
   if (!bus::answer_command_frame(frame, config_.node_id, seq_ack_, limits, &ack, &cmd)) return;
   ++seq_ack_;
   const bool ok = std::get<bus::Ack>(ack.body).status == bus::AckStatus::kOk;
-  if (ok) apply(cmd, frame);
+  if (ok) apply(cmd);
   ack.kind = config_.kind;
   send_message(ack);
   ++stats_.acks_sent;

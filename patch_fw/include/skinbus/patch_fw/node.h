@@ -92,7 +92,7 @@ class PatchNode {
  private:
   void take_sample(bool synced);
   void send_message(const bus::Message& msg);
-  void apply(const bus::Command& cmd, const bus::CanFrame& frame);
+  void apply(const bus::Command& cmd);
   uint64_t period_us() const;
 
   NodeConfig config_;
