@@ -155,11 +155,11 @@ int main(int argc, char** argv) {
     const uint64_t end_us = monotonic_now_us() + static_cast<uint64_t>(timeout_ms) * 1000;
     int acks = 0, nacks = 0, infos_seen = 0;
     const bool want_info = command == "info";
+    CanPoller poller;
+    if (Status st = poller.add(port->get()); !st.ok()) throw std::runtime_error(st.error().message);
     while (true) {
       const uint64_t now = monotonic_now_us();
       if (now >= end_us) break;
-      CanPoller poller;
-      (void)poller.add(port->get());
       bool done = false;
       auto r = poller.poll(
           static_cast<int>((end_us - now) / 1000) + 1,

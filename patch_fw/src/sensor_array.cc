@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <set>
 
 namespace skinbus::patch_fw {
 
@@ -32,15 +33,10 @@ SensorArray::SensorArray(I2cBus* bus, Tca9546a* mux, Clock* clock, SensorArrayCo
 }
 
 uint32_t SensorArray::cycle_time_us(const SensorArrayConfig& config) {
-  int channels = 0;
-  int last = -2;
-  std::vector<int> chans;
-  for (const SensorSlot& s : config.slots) chans.push_back(s.channel);
-  std::sort(chans.begin(), chans.end());
-  for (int c : chans) {
-    if (c >= 0 && c != last) ++channels;
-    last = c;
-  }
+  std::set<int> mux_channels;
+  for (const SensorSlot& s : config.slots)
+    if (s.channel >= 0) mux_channels.insert(s.channel);
+  const uint32_t channels = static_cast<uint32_t>(mux_channels.size());
   const uint32_t n = static_cast<uint32_t>(config.slots.size());
   const uint64_t bits = n * (kTriggerBits + kReadBits) + 2u * channels * kMuxSelectBits;
   const uint64_t transactions = 2u * n + 2u * channels;

@@ -131,13 +131,6 @@ double PatchPhysicsSource::temperature_c(int, uint64_t time_us) {
   return scene_.environment(0, t_s).temperature_c;
 }
 
-std::vector<sim::Contact> PatchPhysicsSource::truth(uint64_t time_us) {
-  std::vector<sim::Contact> out;
-  const double t_s = static_cast<double>(time_us - std::min(time_us, start_us_)) * 1e-6;
-  scene_.active_contacts(0, t_s, &out);
-  return out;
-}
-
 Result<std::unique_ptr<SimulatedBoard>> SimulatedBoard::create(const PatchNodeSettings& s,
                                                                Clock* clock) {
   std::vector<sim::SceneContact> contacts;

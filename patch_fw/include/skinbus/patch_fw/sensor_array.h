@@ -1,7 +1,8 @@
 // skinbus/patch_fw/sensor_array.h: the patch's 16 MLX90393s behind a TCA9546A, sampled as one.
 //
 // A sample is pipelined: every healthy sensor is triggered (SM, grouped by multiplexer
-// channel), the array waits one conversion time (or for the data-ready lines, when wired), then
+// channel), the array waits one conversion time (and, when data-ready lines are wired, for an
+// edge on each of them, at most twice the conversion time: whichever is later), then
 // reads every sensor (RM). The sample's timestamp is the middle of the conversion window.
 //
 // Health, per sensor:
@@ -69,7 +70,7 @@ struct ArraySample {
 class SensorArray {
  public:
   // Not owned, outliving the array: bus, mux (null when every slot is on the trunk), clock,
-  // and the data-ready lines (may be empty; any edge on any of them ends the wait).
+  // and the data-ready lines (may be empty; each is waited for in turn, see above).
   SensorArray(I2cBus* bus, Tca9546a* mux, Clock* clock, SensorArrayConfig config,
               std::vector<GpioInput*> drdy_lines = {});
 

@@ -45,8 +45,6 @@ class PatchPhysicsSource final : public FieldSource {
   sim::Vec3<double> field_ut(int sensor, uint64_t time_us) override;
   double temperature_c(int sensor, uint64_t time_us) override;
   uint64_t measurements() const { return measurements_; }
-  // The contacts pressing at `time_us` (after ramps and creep): the ground truth.
-  std::vector<sim::Contact> truth(uint64_t time_us);
 
  private:
   PatchPhysicsSource() = default;
