@@ -7,22 +7,9 @@
 #   3. cansend of golden frames -> skinbus-decode -i prints them
 #   4. candump's id:mask filters select one patch / one class as docs/protocol.md says
 set -euo pipefail
-bin=${1:?usage: bus_e2e.sh BUILD_DIR}/tools
-work=${SKINBUS_VM_OUT:-$(mktemp -d)}/bus_e2e
-mkdir -p "$work"
-cd "$work"
-fail=0
-pass=0
-check() {  # check NAME EXPECTED_FILE GOT_FILE
-  if diff -q "$2" "$3" >/dev/null; then
-    echo "PASS $1 ($(wc -l <"$2") messages)"
-    pass=$((pass + 1))
-  else
-    echo "FAIL $1: decoded output differs from what was sent"
-    diff "$2" "$3" | head -10
-    fail=$((fail + 1))
-  fi
-}
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_begin bus_e2e "${1:-}"
 
 # 1. The project's sender, candump as the capture, the project's decoder.
 # Classic samples take 18 frames: fewer patches keep the emulated guest's candump ahead of the
@@ -36,7 +23,7 @@ for kind in fd classic; do
   sleep 0.3
   kill "$dump"; wait "$dump" 2>/dev/null || true
   "$bin/skinbus-decode" --stats "cap_$kind.log" >"decoded_$kind.txt" 2>"stats_$kind.txt"
-  check "sender->candump->decoder ($kind)" "sent_$kind.txt" "decoded_$kind.txt"
+  check_same "sender->candump->decoder ($kind)" "sent_$kind.txt" "decoded_$kind.txt"
 done
 
 # 2. canplayer replays a log onto the bus; the project's receiver decodes it live.
@@ -48,7 +35,7 @@ for kind in fd classic; do
   sleep 0.5
   canplayer -I "play_$kind.log" "$iface=can0"
   wait "$recv"
-  check "canplayer->receiver ($kind)" "play_$kind.txt" "received_$kind.txt"
+  check_same "canplayer->receiver ($kind)" "play_$kind.txt" "received_$kind.txt"
 done
 
 # 3. cansend: single golden frames from docs/protocol.md, one FD and one classic.
@@ -60,7 +47,7 @@ cansend vcan0 10C##12002010008010000
 wait "$recv"
 printf '%s\n' "command node=12 seq=7 op=set_rate rate_hz=41.70 arg=4A10000000" \
   "ack node=12 seq=2 op=tare status=ok cmd_seq=8 broadcast value=0" >cansend_expected.txt
-check "cansend->receiver (fd)" cansend_expected.txt cansend.txt
+check_same "cansend->receiver (fd)" cansend_expected.txt cansend.txt
 "$bin/skinbus-decode" -i vcanc0 --duration 4 --count 2 >cansend_classic.txt &
 recv=$!
 sleep 0.5
@@ -69,7 +56,7 @@ cansend vcanc0 10C#2001420109000000
 wait "$recv"
 printf '%s\n' "sync node=127 seq=1 counter=258 host_time_us=305419896" \
   "ack node=12 seq=1 op=unknown(0x42) status=unknown_opcode cmd_seq=9 value=0" >cansend_classic_expected.txt
-check "cansend->receiver (classic)" cansend_classic_expected.txt cansend_classic.txt
+check_same "cansend->receiver (classic)" cansend_classic_expected.txt cansend_classic.txt
 
 # 4. candump filters: one class (samples: class 3 -> 0x180/0x780), one patch (node 4 -> 004/07F).
 candump -L vcan0,180:780 >only_samples.log &
@@ -84,8 +71,7 @@ kill "$d1" "$d2"; wait "$d1" "$d2" 2>/dev/null || true
 "$bin/skinbus-decode" only_node4.log | cut -d' ' -f2 | sort -u >nodes.txt
 echo sample >classes_expected.txt
 echo node=4 >nodes_expected.txt
-check "candump class filter" classes_expected.txt classes.txt
-check "candump patch filter" nodes_expected.txt nodes.txt
+check_same "candump class filter" classes_expected.txt classes.txt
+check_same "candump patch filter" nodes_expected.txt nodes.txt
 
-echo "bus_e2e: $pass passed, $fail failed"
-((fail == 0))
+e2e_end bus_e2e

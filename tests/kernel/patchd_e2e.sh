@@ -14,24 +14,9 @@
 #
 #   scripts/can_vm.sh --fd-ifaces 1 --classic-ifaces 1 -- tests/kernel/patchd_e2e.sh BUILD_DIR
 set -euo pipefail
-bin=${1:?usage: patchd_e2e.sh BUILD_DIR}/tools
-work=${SKINBUS_VM_OUT:-$(mktemp -d)}/patchd_e2e
-mkdir -p "$work"
-cd "$work"
-fail=0
-pass=0
-ok() { echo "PASS $1"; pass=$((pass + 1)); }
-bad() { echo "FAIL $1"; fail=$((fail + 1)); }
-check_same() {  # check_same NAME EXPECTED_FILE GOT_FILE
-  if [[ ! -s $2 ]]; then
-    bad "$1: $2 is empty"
-  elif diff -q "$2" "$3" >/dev/null; then
-    ok "$1 ($(wc -l <"$2") messages)"
-  else
-    bad "$1: decoded capture differs from what the daemon sent ($(wc -l <"$2") sent, $(wc -l <"$3") decoded)"
-    diff "$2" "$3" | cut -c1-160 | head -10 || true
-  fi
-}
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_begin patchd_e2e "${1:-}"
 check() {  # check NAME DETAIL COMMAND...: PASS when COMMAND succeeds, else FAIL with DETAIL
   local name=$1 detail=$2
   shift 2
@@ -299,5 +284,4 @@ check "same node ID twice: both daemons warn about a duplicate node ID" \
   "exit $status; $(grep -h duplicate dup_1.err dup_2.err | head -2)" \
   test "$(grep -l 'duplicate node ID' dup_1.err dup_2.err | wc -l)" = 2
 
-echo "patchd_e2e: $pass passed, $fail failed"
-((fail == 0))
+e2e_end patchd_e2e
