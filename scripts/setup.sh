@@ -10,6 +10,8 @@ packages=(
   libcli11-dev libgtest-dev libgmock-dev libbenchmark-dev libyaml-cpp-dev
   # patch node: GPIO lines (libgpiod 1.6 C++ bindings)
   libgpiod-dev
+  # body map: robot descriptions (URDF) and calibration (Ceres Solver 2.1, Eigen)
+  liburdfdom-dev libceres-dev libeigen3-dev
   # fuzzing (libFuzzer ships with clang's runtime)
   clang libclang-rt-14-dev
   # CAN: can-utils are the real peer in tests; the kernel tests boot Debian's kernel in QEMU

@@ -24,6 +24,7 @@ enum class ErrorCode {
   kUnsupported,      // the request is valid but this build or kernel cannot serve it
   kUnavailable,      // try again later (would block, queue full)
   kDegenerate,       // the input is valid but carries too little information to answer
+  kNotConverged,     // an iterative solve ended without an answer it can vouch for
   kInternal,         // a broken invariant: a bug
 };
 
@@ -46,6 +47,8 @@ constexpr const char* error_code_name(ErrorCode code) {
       return "unavailable";
     case ErrorCode::kDegenerate:
       return "degenerate";
+    case ErrorCode::kNotConverged:
+      return "not_converged";
     case ErrorCode::kInternal:
       return "internal";
   }
