@@ -1,5 +1,7 @@
 // body_map throughput on one core: forward kinematics of every link of the Unitree G1 and of the
-// project's skinbot, and the pose of one deep link alone.
+// project's skinbot, the pose of one deep link alone, and one patch pose calibration (flat
+// patch, N touches with 0.5 mm noise and 10% outliers). Accuracy is measured by
+// `skinbus-bench calibration` on the same kind of data (docs/benchmarks/body_map.md).
 //
 //   SKINBUS_SOURCE_DIR=. build/body_map/body_map_benchmark --benchmark_min_time=0.2
 //
@@ -14,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "skinbus/body_map/calibration.h"
 #include "skinbus/body_map/robot_model.h"
 
 namespace skinbus::body_map {
@@ -134,6 +137,40 @@ void BM_LinkPoseG1Hand(benchmark::State& state) {
   state.SetLabel("left_rubber_hand, " + std::to_string(depth) + " joints from the root");
 }
 BENCHMARK(BM_LinkPoseG1Hand);
+
+// ---- Calibration ----
+
+static void BM_CalibratePatch(benchmark::State& state) {
+  const int n = static_cast<int>(state.range(0));
+  PatchPlacement truth;
+  truth.node_id = 1;
+  truth.link = "torso_link";
+  truth.pose_on_link = {rotation_from_rpy(0.3, -0.2, 1.1), Eigen::Vector3d(110, -40, 250)};
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> pos(-60, 60), depth(1, 3);
+  std::normal_distribution<double> noise(0, 0.5);
+  std::vector<CalibrationTouch> touches;
+  for (int i = 0; i < n; ++i) {
+    const double u = pos(rng), v = pos(rng), d = depth(rng);
+    CalibrationTouch t;
+    t.probe_mm = link_surface_point(truth, u, v, d).point_mm +
+                 Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+    t.u_mm = i % 10 == 0 ? pos(rng) : u + noise(rng);  // every tenth an outlier
+    t.v_mm = v + noise(rng);
+    t.depth_mm = d;
+    touches.push_back(t);
+  }
+  PatchPlacement start = truth;
+  start.pose_on_link.translation_mm += Eigen::Vector3d(15, -10, 5);
+  start.pose_on_link.rotation = rotation_from_rpy(0.2, 0.1, 0.3) * start.pose_on_link.rotation;
+  for (auto _ : state) {
+    Result<PatchCalibration> c = calibrate_patch(start, touches);
+    if (!c.ok()) state.SkipWithError(c.error().message.c_str());
+    benchmark::DoNotOptimize(c);
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_CalibratePatch)->Arg(10)->Arg(30)->Arg(60)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 }  // namespace skinbus::body_map
