@@ -112,9 +112,42 @@ n=$(grep -c "^sample node=1 " "$work/pdec.txt")
 "$bin/skinbus-cmd" --node 3 mode fast --print 2>"$work/c1.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "mode 'fast'" "$work/c1.txt" && ok "skinbus-cmd: bad argument named" || bad "skinbus-cmd bad argument (rc $rc)"
 
-for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd; do
-  "$bin/$t" --help | grep -q "Examples:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
+# Patch pose calibration: a simulated session calibrates; a collinear touch set is refused with
+# what to add while the other patches are written; bad input fails with the file and line.
+robot="$here/../body_map/robots/skinbot.urdf"
+"$bin/skinbus-touchsim" --robot "$robot" --out-dir "$work/cal" --base-frame --seed 3 >/dev/null
+"$bin/skinbus-calibrate" --map "$work/cal/initial.yaml" --touches "$work/cal/touches.csv" --truth "$work/cal/truth.yaml" \
+  --out "$work/cal/out.yaml" --report "$work/cal/report.md" 2>"$work/cal/err.txt"; rc=$?
+n=$(grep -c "calibration:" "$work/cal/out.yaml")
+worst=$(awk -F'|' '/ calibrated /{ if ($14 + 0 > m) m = $14 + 0 } END { print m }' "$work/cal/report.md")
+[[ $rc == 0 && $n == 10 ]] && awk -v w="$worst" 'BEGIN { exit !(w < 1.0) }' && grep -q "\[10/10\]" "$work/cal/err.txt" &&
+  ok "skinbus-calibrate: 10 patches calibrated, worst error $worst mm, progress shown" || { bad "skinbus-calibrate session (rc $rc, $n, worst $worst)"; cat "$work/cal/err.txt"; }
+grep -v "^5,base" "$work/cal/touches.csv" >"$work/cal/line.csv"
+for i in $(seq 0 9); do echo "5,link,110,$((i * 10)),200,$((i * 10 - 45)),$((i * 10 - 45)),2"; done >>"$work/cal/line.csv"
+echo "99,link,0,0,0,0,0,0" >>"$work/cal/line.csv"
+"$bin/skinbus-calibrate" --map "$work/cal/initial.yaml" --touches "$work/cal/line.csv" --out "$work/cal/out2.yaml" \
+  --report "$work/cal/report2.md" 2>"$work/cal/err2.txt"; rc=$?
+[[ $rc == 3 ]] && grep -q "node 5 .*refused.*along a line.*add touches away from that line" "$work/cal/err2.txt" &&
+  [[ $(grep -c "calibration:" "$work/cal/out2.yaml") == 9 ]] && ok "collinear touches refused (exit 3), the other 9 patches written" ||
+  { bad "collinear touches (rc $rc)"; cat "$work/cal/err2.txt"; }
+grep -q "1 touches of node 99, which the map does not place" "$work/cal/err2.txt" && ok "touches of an unknown node reported" || bad "unknown node not reported"
+sed '5s/.*/3,base,1,2,oops,4,5,6/' "$work/cal/touches.csv" >"$work/cal/bad.csv"
+"$bin/skinbus-calibrate" --map "$work/cal/initial.yaml" --touches "$work/cal/bad.csv" 2>"$work/cal/err3.txt" >/dev/null; rc=$?
+[[ $rc == 2 ]] && grep -q "bad.csv: touch log line 5: probe_z_mm 'oops'" "$work/cal/err3.txt" && ok "corrupt touch log: file and line named" || { bad "corrupt touch log (rc $rc)"; cat "$work/cal/err3.txt"; }
+"$bin/skinbus-calibrate" --map "$work/cal/nope.yaml" --touches "$work/cal/touches.csv" 2>"$work/cal/err4.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "not_found: skin map .*nope.yaml" "$work/cal/err4.txt" && ok "missing skin map" || bad "missing skin map (rc $rc)"
+"$bin/skinbus-calibrate" --map "$work/cal/initial.yaml" --touches "$work/cal/touches.csv" --robot "$work/none.urdf" 2>"$work/cal/err5.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "none.urdf" "$work/cal/err5.txt" && ok "missing robot description" || bad "missing robot (rc $rc)"
+sed 's/link: torso_link/link: chest_link/' "$work/cal/initial.yaml" >"$work/cal/badlink.yaml"
+"$bin/skinbus-calibrate" --map "$work/cal/badlink.yaml" --touches "$work/cal/touches.csv" 2>"$work/cal/err6.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "'chest_link' is not a link of robot 'skinbot'" "$work/cal/err6.txt" && ok "unknown link in the skin map" || { bad "unknown link (rc $rc)"; cat "$work/cal/err6.txt"; }
+"$bin/skinbus-bench" calibration --sessions 2 --touches 30 --noise 0.5 >"$work/bench.md" 2>/dev/null &&
+  grep -q "^| 30 | 0.5 | 20 | 0 |" "$work/bench.md" && ok "skinbus-bench calibration" || { bad "skinbus-bench calibration"; cat "$work/bench.md"; }
+
+for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate; do
+  "$bin/$t" --help | grep -q "Examples:\|Example:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
 done
+"$bin/skinbus-bench" --help | grep -q "calibration" && ok "skinbus-bench --help" || bad "skinbus-bench --help"
 
 echo "$pass passed, $fail failed"
 ((fail == 0))
