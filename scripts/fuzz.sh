@@ -19,7 +19,7 @@ cmake --build "$build" -j2
 scratch=$(mktemp -d)
 trap 'rm -rf "$scratch"' EXIT
 status=0
-for target in frame_decoder reassembler candump settings; do
+for target in frame_decoder reassembler candump settings body_map; do
   mkdir -p "$scratch/$target"
   echo "fuzz: $target for ${seconds}s"
   if ! "$build/tests/fuzz/fuzz_$target" -max_total_time="$seconds" -print_final_stats=1 \

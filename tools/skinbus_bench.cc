@@ -67,22 +67,25 @@ int bench_calibration(const CalibrationArgs& a) {
   if (!robot.ok()) return fail(robot.error().to_string());
   skinbus::Result<SkinMap> truth = tile_humanoid(robot.value());
   if (!truth.ok()) return fail(truth.error().to_string());
-  std::printf("## Patch pose calibration: error and solve time per patch\n\n"
-              "%d simulated sessions per row on %s (%zu patches each: cylinder sections on the "
-              "forearms, flat on the chest); %.0f%% outlier touches; patch estimates off by %.2g mm "
-              "(u, v) and %.2g mm (depth), 1 sd; starting poses %.0f mm and %.0f degrees off; "
-              "probe positions in the %s frame.\n\n",
-              a.sessions, robot.value().name().c_str(), truth.value().patches.size(),
-              100 * a.outliers, a.estimate_noise, a.depth_noise, a.position_error,
-              a.rotation_error, a.base_frame ? "base (random joint positions)" : "link");
-  std::printf("| touches | probe noise mm | patches | refused | position mean mm | position p95 mm "
-              "| rotation mean deg | rotation p95 deg | sd/error | outliers caught | solve median "
-              "ms | solve p95 ms |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::printf(
+      "## Patch pose calibration: error and solve time per patch\n\n"
+      "%d simulated sessions per row on %s (%zu patches each: cylinder sections on the "
+      "forearms, flat on the chest); %.0f%% outlier touches; patch estimates off by %.2g mm "
+      "(u, v) and %.2g mm (depth), 1 sd; starting poses %.0f mm and %.0f degrees off; "
+      "probe positions in the %s frame.\n\n",
+      a.sessions, robot.value().name().c_str(), truth.value().patches.size(), 100 * a.outliers,
+      a.estimate_noise, a.depth_noise, a.position_error, a.rotation_error,
+      a.base_frame ? "base (random joint positions)" : "link");
+  std::printf(
+      "| touches | probe noise mm | patches | refused | position mean mm | position p95 mm "
+      "| rotation mean deg | rotation p95 deg | sd/error | outliers caught | solve median "
+      "ms | solve p95 ms |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   std::FILE* csv = a.csv.empty() ? nullptr : std::fopen(a.csv.c_str(), "w");
   if (!a.csv.empty() && !csv) return fail("cannot write " + a.csv);
   if (csv) {
-    std::fprintf(csv, "touches,probe_noise_mm,patches,refused,pos_mean_mm,pos_p95_mm,rot_mean_deg,"
-                      "rot_p95_deg,solve_median_ms,solve_p95_ms\n");
+    std::fprintf(csv,
+                 "touches,probe_noise_mm,patches,refused,pos_mean_mm,pos_p95_mm,rot_mean_deg,"
+                 "rot_p95_deg,solve_median_ms,solve_p95_ms\n");
   }
   const int rows = static_cast<int>(a.touches.size() * a.noises.size());
   int row = 0;
@@ -147,13 +150,12 @@ int bench_calibration(const CalibrationArgs& a) {
         s2 += sd_ratio[i] * sd_ratio[i];
       }
       const double honesty = pos.empty() ? NAN : std::sqrt(e2 / s2);
-      std::printf("| %d | %.1f | %d | %d | %.3f | %.3f | %.3f | %.3f | %.2f | %d/%d | %.2f | %.2f |\n",
-                  n, noise, patches, refused, mean(pos), quantile(pos, 0.95), mean(rot),
-                  quantile(rot, 0.95), honesty, caught, outliers, quantile(ms, 0.5),
-                  quantile(ms, 0.95));
+      std::printf(
+          "| %d | %.1f | %d | %d | %.3f | %.3f | %.3f | %.3f | %.2f | %d/%d | %.2f | %.2f |\n", n,
+          noise, patches, refused, mean(pos), quantile(pos, 0.95), mean(rot), quantile(rot, 0.95),
+          honesty, caught, outliers, quantile(ms, 0.5), quantile(ms, 0.95));
       std::fflush(stdout);
-      std::fprintf(stderr, "[%d/%d] %d touches, probe noise %.1f mm done\n", ++row, rows, n,
-                   noise);
+      std::fprintf(stderr, "[%d/%d] %d touches, probe noise %.1f mm done\n", ++row, rows, n, noise);
       if (csv) {
         std::fprintf(csv, "%d,%.3f,%d,%d,%.5f,%.5f,%.5f,%.5f,%.4f,%.4f\n", n, noise, patches,
                      refused, mean(pos), quantile(pos, 0.95), mean(rot), quantile(rot, 0.95),
@@ -161,9 +163,10 @@ int bench_calibration(const CalibrationArgs& a) {
       }
     }
   }
-  std::printf("\nsd/error: rms position error over rms reported position sd (1: the covariance "
-              "is honest). Goals: 0.5 mm and 0.3 degrees from 30 touches at 0.5 mm probe noise; "
-              "20 ms per patch.\n");
+  std::printf(
+      "\nsd/error: rms position error over rms reported position sd (1: the covariance "
+      "is honest). Goals: 0.5 mm and 0.3 degrees from 30 touches at 0.5 mm probe noise; "
+      "20 ms per patch.\n");
   if (csv) std::fclose(csv);
   if (!a.plot.empty()) {
     if (a.csv.empty()) return fail("--plot needs --csv");
@@ -192,19 +195,21 @@ int bench_fk(const std::string& path, int calls) {
     }
     us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - t0).count() / calls);
   }
-  std::printf("## Forward kinematics\n\n| robot | links | joints | all links, us (median of 7) | "
-              "per link, ns |\n|---|---|---|---|---|\n| %s | %d | %d | %.3f | %.1f |\n",
-              r.name().c_str(), r.link_count(), r.joint_count(), quantile(us, 0.5),
-              1000 * quantile(us, 0.5) / r.link_count());
+  std::printf(
+      "## Forward kinematics\n\n| robot | links | joints | all links, us (median of 7) | "
+      "per link, ns |\n|---|---|---|---|---|\n| %s | %d | %d | %.3f | %.1f |\n",
+      r.name().c_str(), r.link_count(), r.joint_count(), quantile(us, 0.5),
+      1000 * quantile(us, 0.5) / r.link_count());
   return 0;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"skinbus-bench: run time and error of the project's estimators and stages,\n"
-               "measured together on the same data. One subcommand per stage; each prints a\n"
-               "Markdown table (docs/benchmarks/ keeps the results and the commands).\n"};
+  CLI::App app{
+      "skinbus-bench: run time and error of the project's estimators and stages,\n"
+      "measured together on the same data. One subcommand per stage; each prints a\n"
+      "Markdown table (docs/benchmarks/ keeps the results and the commands).\n"};
   app.require_subcommand(1);
   CalibrationArgs ca;
   CLI::App* cal = app.add_subcommand(
@@ -213,8 +218,12 @@ int main(int argc, char** argv) {
       "touches per patch and probe noise");
   cal->add_option("--robot", ca.robot, "robot (URDF) tiled by the default humanoid layout")
       ->capture_default_str();
-  cal->add_option("--touches", ca.touches, "touches per patch")->delimiter(',')->capture_default_str();
-  cal->add_option("--noise", ca.noises, "probe noise levels, mm")->delimiter(',')->capture_default_str();
+  cal->add_option("--touches", ca.touches, "touches per patch")
+      ->delimiter(',')
+      ->capture_default_str();
+  cal->add_option("--noise", ca.noises, "probe noise levels, mm")
+      ->delimiter(',')
+      ->capture_default_str();
   cal->add_option("--sessions", ca.sessions, "sessions per row (each calibrates every patch)")
       ->capture_default_str()
       ->check(CLI::Range(1, 100000));

@@ -65,8 +65,8 @@ int main(int argc, char** argv) {
       "  skinbus-touchsim --robot body_map/robots/skinbot.urdf --out-dir s\n"
       "  skinbus-calibrate --map s/initial.yaml --touches s/touches.csv --truth s/truth.yaml \\\n"
       "      --out s/calibrated.yaml --report s/report.md --plot s/residuals.png\n"};
-  std::string map_path, touches_path, robot_path, out_path, report_path, residuals_path,
-      plot_path, truth_path;
+  std::string map_path, touches_path, robot_path, out_path, report_path, residuals_path, plot_path,
+      truth_path;
   CalibrationOptions o;
   app.add_option("--map", map_path, "skin map to start from (YAML)")->required();
   app.add_option("--touches", touches_path, "touch log (CSV)")->required();
@@ -131,8 +131,10 @@ int main(int argc, char** argv) {
   for (const TouchRecord& r : log.value().touches)
     if (!map.value().find_node(r.node_id)) ++unknown[r.node_id];
   for (auto [node, count] : unknown) {
-    std::fprintf(stderr, "skinbus-calibrate: warning: %d touches of node %d, which the map does "
-                 "not place: ignored\n", count, node);
+    std::fprintf(stderr,
+                 "skinbus-calibrate: warning: %d touches of node %d, which the map does "
+                 "not place: ignored\n",
+                 count, node);
   }
 
   SkinMap out = map.value();
@@ -183,12 +185,12 @@ int main(int argc, char** argv) {
             (robot ? ", robot `" + robot_path + "`" : "") + ".\n" +
             fmt("Noise: probe %.3g mm, estimate %.3g mm (u, v) / %.3g mm (depth); outliers beyond "
                 "%.3g sd.\n\n",
-                o.probe_sigma_mm, o.estimate_sigma_mm, o.estimate_depth_sigma_mm,
-                o.outlier_sigma) +
-            std::to_string(calibrated) + " calibrated, " + std::to_string(refused) +
-            " refused, " + std::to_string(count - calibrated - refused) + " without touches.\n\n";
-  report += "| node | link | status | touches | outliers | moved mm | turned deg | sd mm | sd deg "
-            "| rms residual mm | residual / noise | solve ms |";
+                o.probe_sigma_mm, o.estimate_sigma_mm, o.estimate_depth_sigma_mm, o.outlier_sigma) +
+            std::to_string(calibrated) + " calibrated, " + std::to_string(refused) + " refused, " +
+            std::to_string(count - calibrated - refused) + " without touches.\n\n";
+  report +=
+      "| node | link | status | touches | outliers | moved mm | turned deg | sd mm | sd deg "
+      "| rms residual mm | residual / noise | solve ms |";
   report += truth ? " error mm | error deg |\n" : "\n";
   report += "|---|---|---|---|---|---|---|---|---|---|---|---|";
   report += truth ? "---|---|\n" : "\n";
@@ -198,22 +200,22 @@ int main(int argc, char** argv) {
               std::to_string(oc.lines.size()) + " | ";
     if (oc.status == "calibrated") {
       const PatchCalibration& c = oc.result.value();
-      report += std::to_string(c.uncertainty.touches - c.uncertainty.inliers) + " | " +
-                fmt("%.2f | %.2f | %.3f | %.3f |",
-                    (c.pose_on_link.translation_mm - p.pose_on_link.translation_mm).norm(),
-                    rotation_angle_between(c.pose_on_link.rotation, p.pose_on_link.rotation) *
-                        kRadToDeg,
-                    c.uncertainty.position_sd_mm.norm(), c.uncertainty.rotation_sd_deg.norm()) +
-                fmt(" %.3f | %.2f | %.2f |", c.uncertainty.rms_residual_mm, c.residual_sigma,
-                    oc.solve_ms);
+      report +=
+          std::to_string(c.uncertainty.touches - c.uncertainty.inliers) + " | " +
+          fmt("%.2f | %.2f | %.3f | %.3f |",
+              (c.pose_on_link.translation_mm - p.pose_on_link.translation_mm).norm(),
+              rotation_angle_between(c.pose_on_link.rotation, p.pose_on_link.rotation) * kRadToDeg,
+              c.uncertainty.position_sd_mm.norm(), c.uncertainty.rotation_sd_deg.norm()) +
+          fmt(" %.3f | %.2f | %.2f |", c.uncertainty.rms_residual_mm, c.residual_sigma,
+              oc.solve_ms);
       if (truth) {
         const PatchPlacement* t = truth->find_node(p.node_id);
-        report += t ? fmt(" %.3f | %.3f |",
-                          (c.pose_on_link.translation_mm - t->pose_on_link.translation_mm).norm(),
-                          rotation_angle_between(c.pose_on_link.rotation,
-                                                 t->pose_on_link.rotation) *
-                              kRadToDeg)
-                    : " - | - |";
+        report +=
+            t ? fmt(" %.3f | %.3f |",
+                    (c.pose_on_link.translation_mm - t->pose_on_link.translation_mm).norm(),
+                    rotation_angle_between(c.pose_on_link.rotation, t->pose_on_link.rotation) *
+                        kRadToDeg)
+              : " - | - |";
       }
     } else {
       report += "- | - | - | - | - | - | - | - |";
@@ -221,8 +223,9 @@ int main(int argc, char** argv) {
     }
     report += "\n";
   }
-  report += "\nsd: the norm of the per-axis standard deviations from the covariance (scaled up "
-            "when residuals exceed the stated noise).\n\n## Notes and outliers\n\n";
+  report +=
+      "\nsd: the norm of the per-axis standard deviations from the covariance (scaled up "
+      "when residuals exceed the stated noise).\n\n## Notes and outliers\n\n";
   for (const PatchOutcome& oc : outcomes) {
     if (!oc.note.empty()) {
       report += "- node " + std::to_string(oc.initial->node_id) + ": " + oc.note + "\n";
@@ -272,8 +275,7 @@ int main(int argc, char** argv) {
   if (report_path.empty()) std::fputs(report.c_str(), stdout);
   if (!out_path.empty()) {
     if (!robot_path.empty()) {  // the written map names its robot relative to itself
-      const std::filesystem::path dir =
-          std::filesystem::absolute(out_path).parent_path();
+      const std::filesystem::path dir = std::filesystem::absolute(out_path).parent_path();
       out.robot = std::filesystem::relative(std::filesystem::absolute(robot_path), dir).string();
     }
     if (skinbus::Status st = save_skin_map_file(out, out_path); !st.ok()) {
@@ -285,8 +287,8 @@ int main(int argc, char** argv) {
     const char* dir = std::getenv("SKINBUS_TOOLS_DIR");
     const std::string script =
         std::string(dir ? dir : SKINBUS_SOURCE_DIR "/tools") + "/plot_calibration.py";
-    const std::string cmd = "'" + script + "' '" + residuals_path + "' '" + plot_path +
-                            "' " + fmt("%.6g", o.outlier_sigma);
+    const std::string cmd = "'" + script + "' '" + residuals_path + "' '" + plot_path + "' " +
+                            fmt("%.6g", o.outlier_sigma);
     if (std::system(cmd.c_str()) != 0) {
       std::fprintf(stderr, "skinbus-calibrate: the plot failed (%s); map and report are written\n",
                    cmd.c_str());

@@ -95,24 +95,24 @@ int main(int argc, char** argv) {
       simulate_calibration_session(robot.value(), truth.value(), o);
   if (!s.ok()) return fail(s.error().to_string());
   const std::string dir = out_dir + "/";
-  for (auto [map, name] : {std::pair{&s.value().truth, "truth.yaml"},
-                           std::pair{&s.value().initial, "initial.yaml"}}) {
+  for (auto [map, name] :
+       {std::pair{&s.value().truth, "truth.yaml"}, std::pair{&s.value().initial, "initial.yaml"}}) {
     if (skinbus::Status st = save_skin_map_file(*map, dir + name); !st.ok()) {
       return fail(st.error().to_string());
     }
   }
   std::ofstream csv(dir + "touches.csv");
-  csv << "# skinbus touch log: simulated session, seed " << o.seed << ", "
-      << o.touches_per_patch << " touches per patch, probe noise " << o.probe_noise_mm
-      << " mm, estimate noise " << o.estimate_noise_mm << " mm, outliers " << o.outlier_fraction
-      << "\n"
+  csv << "# skinbus touch log: simulated session, seed " << o.seed << ", " << o.touches_per_patch
+      << " touches per patch, probe noise " << o.probe_noise_mm << " mm, estimate noise "
+      << o.estimate_noise_mm << " mm, outliers " << o.outlier_fraction << "\n"
       << touch_log_to_csv(s.value().log);
   if (!csv) return fail("cannot write " + dir + "touches.csv");
   int outliers = 0;
   for (bool b : s.value().outlier) outliers += b;
-  std::printf("skinbus-touchsim: %zu patches on %s, %zu touches (%d outliers) -> %s{truth,initial}"
-              ".yaml, %stouches.csv\n",
-              s.value().truth.patches.size(), robot.value().name().c_str(),
-              s.value().log.touches.size(), outliers, dir.c_str(), dir.c_str());
+  std::printf(
+      "skinbus-touchsim: %zu patches on %s, %zu touches (%d outliers) -> %s{truth,initial}"
+      ".yaml, %stouches.csv\n",
+      s.value().truth.patches.size(), robot.value().name().c_str(), s.value().log.touches.size(),
+      outliers, dir.c_str(), dir.c_str());
   return 0;
 }

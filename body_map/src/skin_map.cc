@@ -3,6 +3,7 @@
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <map>
 #include <numbers>
@@ -124,7 +125,7 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
     char* end = nullptr;
     errno = 0;
     const unsigned long long x = std::strtoull(v.c_str(), &end, 0);
-    if (v.empty() || *end != '\0' || errno != 0 || v[0] == '-') {
+    if (v.empty() || *end != '\0' || errno != 0 || v.find('-') != std::string::npos) {
       r.fail(path + ".uid", u, "'" + v + "' is not a 64-bit unsigned integer");
     }
     out->hardware_uid = x;
@@ -213,7 +214,10 @@ void print_vector(std::ostream& o, const double* v, int n) {
   o << "[";
   char buf[40];
   for (int i = 0; i < n; ++i) {
+    // 15 digits keep the file readable; a number they do not read back exactly (e.g. a position
+    // beyond 1e5 mm, where they would be off by more than 1e-9 mm) gets the 17 of an exact copy.
     std::snprintf(buf, sizeof buf, "%.15g", v[i]);
+    if (std::strtod(buf, nullptr) != v[i]) std::snprintf(buf, sizeof buf, "%.17g", v[i]);
     o << (i ? ", " : "") << buf;
   }
   o << "]";

@@ -57,7 +57,7 @@ TEST(SkinMap, WritesWhatItReadsBack) {
     PatchPlacement p;
     p.node_id = i;
     p.hardware_uid = 0xFFFF000000000000ull + static_cast<uint64_t>(i);
-    p.link = i % 2 ? "a_link" : "b link";
+    p.link = i % 5 == 0 ? "null" : i % 2 ? "a_link" : "b link";
     p.pose_on_link = {rotation_from_vector(Eigen::Vector3d(n(rng), n(rng), n(rng))),
                       Eigen::Vector3d(n(rng), n(rng), n(rng)) * 300};
     if (i % 3 == 0) {
@@ -122,6 +122,7 @@ TEST(SkinMap, ErrorsNameTheKeyAndLine) {
       {head + "    uid: 0x1\n  - node: 4\n    uid: 1\n    link: l\n    position_mm: [0, 0, 0]\n",
        "hardware UID 0x0000000000000001 is already node 3"},
       {head + "    uid: -5\n", "not a 64-bit unsigned integer"},
+      {head + "    uid: \" -5\"\n", "not a 64-bit unsigned integer"},
   };
   for (const Case& c : cases) {
     Result<SkinMap> m = load_skin_map_text(c.yaml);

@@ -90,7 +90,15 @@ Result<TouchLog> read_touch_log(std::istream& in) {
     r.u_mm = v[3];
     r.v_mm = v[4];
     r.depth_mm = v[5];
-    if (f.size() == want && !log.joint_names.empty()) {
+    // A link-frame row whose joint fields are all empty gives no joint positions, as a row of
+    // the fixed columns alone does (touch_log_to_csv writes such a row that way).
+    bool joints_given = f.size() == want && !log.joint_names.empty();
+    if (joints_given && r.frame == ProbeFrame::kLink) {
+      joints_given = false;
+      for (std::size_t c = kFixedColumns; c < want; ++c)
+        joints_given = joints_given || !f[c].empty();
+    }
+    if (joints_given) {
       r.joint_positions.resize(log.joint_names.size());
       for (std::size_t j = 0; j < log.joint_names.size(); ++j) {
         const std::string_view field = f[kFixedColumns + j];

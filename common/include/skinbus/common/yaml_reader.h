@@ -143,7 +143,10 @@ class YamlReader {
 // A string as a YAML scalar that reads back the same: plain when that is safe, else
 // double-quoted with escapes.
 inline std::string yaml_string(const std::string& v) {
-  bool plain = !v.empty() && v != "none" && v != "true" && v != "false";
+  // Words YAML reads as something other than a string (null) or that settings read as a
+  // keyword (none, true, false) are quoted.
+  bool plain = !v.empty() && v != "none" && v != "true" && v != "false" && v != "null" &&
+               v != "Null" && v != "NULL";
   for (char c : v) {
     const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
                     c == '_' || c == '.' || c == '/' || c == '-';
