@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 #include <numbers>
 #include <random>
 
@@ -326,14 +327,17 @@ Result<PatchCalibration> calibrate_patch(const PatchPlacement& initial,
     }
   };
   classify();
-  for (int round = 0; round < 3; ++round) {
+  // Plain least squares on the inliers until the inlier set settles; the last problem is kept
+  // for the covariance.
+  std::unique_ptr<ceres::Problem> last;
+  bool settled = false;
+  for (int round = 0; round < 4 && !settled && inliers.size() >= 3; ++round) {
     const std::vector<int> used = inliers;
-    if (static_cast<int>(used.size()) < 3) break;
-    ceres::Problem problem;
-    solve = refine(g, touches, used, false, options, noise, qv, tv, &radius, &problem);
+    last = std::make_unique<ceres::Problem>();
+    solve = refine(g, touches, used, false, options, noise, qv, tv, &radius, last.get());
     out.iterations += solve.iterations;
     classify();
-    if (inliers == used) break;
+    settled = inliers == used;
   }
 
   // 4. Checks on the answer.
@@ -354,6 +358,11 @@ Result<PatchCalibration> calibrate_patch(const PatchPlacement& initial,
   if (!solve.converged) {
     return make_error(ErrorCode::kNotConverged, "the solver did not converge: " + solve.report);
   }
+  if (!settled) {
+    return make_error(ErrorCode::kNotConverged,
+                      "touches keep changing between inlier and outlier: the stated noise may be "
+                      "too small for these touches");
+  }
 
   const bool fit_radius = options.fit_radius && g.kind == SurfaceKind::kCylinder;
   const int dof = 6 + (fit_radius ? 1 : 0);
@@ -364,30 +373,22 @@ Result<PatchCalibration> calibrate_patch(const PatchPlacement& initial,
 
   // Covariance of the final (plain) problem on the inliers.
   {
-    ceres::Problem problem;
-    double q2[4] = {qv[0], qv[1], qv[2], qv[3]}, t2[3] = {tv[0], tv[1], tv[2]}, r2 = radius;
-    for (int i : inliers) {
-      const CalibrationTouch& t = touches[i];
-      problem.AddResidualBlock(touch_cost(g, t, noise), nullptr, q2, t2, &r2);
-    }
-    problem.SetManifold(q2, new ceres::EigenQuaternionManifold);
-    if (!fit_radius) problem.SetParameterBlockConstant(&r2);
     ceres::Covariance::Options co;
     co.algorithm_type = ceres::DENSE_SVD;
     co.null_space_rank = 0;
     co.min_reciprocal_condition_number = 1e-12;
     ceres::Covariance covariance(co);
-    std::vector<std::pair<const double*, const double*>> blocks = {{q2, q2}, {t2, t2}, {q2, t2}};
-    if (fit_radius) blocks.push_back({&r2, &r2});
-    if (!covariance.Compute(blocks, &problem)) {
+    std::vector<std::pair<const double*, const double*>> blocks = {{qv, qv}, {tv, tv}, {qv, tv}};
+    if (fit_radius) blocks.push_back({&radius, &radius});
+    if (!covariance.Compute(blocks, last.get())) {
       return make_error(ErrorCode::kDegenerate,
                         "the touches do not determine the pose (rank-deficient covariance): add "
                         "touches spread over the whole patch");
     }
     Eigen::Matrix3d cqq, ctt, cqt;
-    covariance.GetCovarianceBlockInTangentSpace(q2, q2, cqq.data());
-    covariance.GetCovarianceBlock(t2, t2, ctt.data());
-    covariance.GetCovarianceBlockInTangentSpace(q2, t2, cqt.data());
+    covariance.GetCovarianceBlockInTangentSpace(qv, qv, cqq.data());
+    covariance.GetCovarianceBlock(tv, tv, ctt.data());
+    covariance.GetCovarianceBlockInTangentSpace(qv, tv, cqt.data());
     // Eigen's matrices are column-major, Ceres writes row-major: transpose where it matters.
     cqq.transposeInPlace();
     ctt.transposeInPlace();
@@ -398,7 +399,7 @@ Result<PatchCalibration> calibrate_patch(const PatchPlacement& initial,
     out.covariance.block<3, 3>(0, 3) = 2.0 * cqt * scale;
     out.covariance.block<3, 3>(3, 0) = out.covariance.block<3, 3>(0, 3).transpose();
     if (fit_radius) {
-      covariance.GetCovarianceBlock(&r2, &r2, &out.radius_variance_mm2);
+      covariance.GetCovarianceBlock(&radius, &radius, &out.radius_variance_mm2);
       out.radius_variance_mm2 *= scale;
     }
   }
