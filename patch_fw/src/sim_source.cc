@@ -4,6 +4,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "skinbus/common/csv.h"
 #include "skinbus/sim/rng.h"
 
 namespace skinbus::patch_fw {
@@ -17,27 +18,20 @@ Result<std::vector<sim::SceneContact>> parse_contact_script(const std::string& t
     ++line_no;
     const std::size_t hash = line.find('#');
     if (hash != std::string::npos) line.resize(hash);
-    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    if (is_csv_comment_or_blank(line)) continue;
     if (line.rfind("t_start", 0) == 0) continue;  // header
     double v[7] = {0, 0, 0, 0, 0, 8.0, 0};
+    const std::vector<std::string_view> fields = split_csv_fields(line);
     int n = 0;
-    std::size_t pos = 0;
-    while (pos <= line.size() && n < 8) {
-      const std::size_t comma = line.find(',', pos);
-      const std::string field =
-          line.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
-      char* end = nullptr;
-      const double x = std::strtod(field.c_str(), &end);
-      while (end && (*end == ' ' || *end == '\r' || *end == '\t')) ++end;
-      if (field.empty() || *end != '\0' || !std::isfinite(x) || n >= 7) {
+    for (std::string_view field : fields) {
+      if (n >= 7 || !parse_csv_number(field, &v[n])) {
         return make_error(ErrorCode::kParse, "contact script line " + std::to_string(line_no) +
-                                                 ": field " + std::to_string(n + 1) + " '" + field +
+                                                 ": field " + std::to_string(n + 1) + " '" +
+                                                 std::string(field) +
                                                  "' (expected t_start_s,t_end_s,u_mm,v_mm,depth_mm"
                                                  "[,tip_radius_mm[,node]])");
       }
-      v[n++] = x;
-      if (comma == std::string::npos) break;
-      pos = comma + 1;
+      ++n;
     }
     if (n < 5) {
       return make_error(ErrorCode::kParse, "contact script line " + std::to_string(line_no) + ": " +
