@@ -23,12 +23,9 @@ TEST(ContactScript, ReadsRowsForThisNode) {
 
 TEST(ContactScript, ErrorsNameLineAndField) {
   const std::vector<std::pair<std::string, std::string>> cases = {
-      {"0,1,0,0,x\n", "line 1: field 5 'x'"},
-      {"\n0,1,0,0,nan\n", "line 2: field 5 'nan'"},
-      {"0,1,0,0,1,2,3,4\n", "field 8 '4'"},
-      {"0,1,0\n", "3 fields, at least 5 needed"},
-      {"0,1,0,,1\n", "field 4 ''"},
-      {"2,1,0,0,1\n", "t_end_s > t_start_s"},
+      {"0,1,0,0,x\n", "line 1: field 5 'x'"}, {"\n0,1,0,0,nan\n", "line 2: field 5 'nan'"},
+      {"0,1,0,0,1,2,3,4\n", "field 8 '4'"},   {"0,1,0\n", "3 fields, at least 5 needed"},
+      {"0,1,0,,1\n", "field 4 ''"},           {"2,1,0,0,1\n", "t_end_s > t_start_s"},
   };
   for (const auto& [text, says] : cases) {
     Result<std::vector<sim::SceneContact>> c = parse_contact_script(text, 1);
