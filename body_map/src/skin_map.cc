@@ -120,16 +120,9 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
   for (const char* k : {"node", "link", "position_mm"})
     if (!p[k]) r.fail(path + "." + k, p, "missing");
   r.get_int(p, "node", path + ".", kNodeMin, kNodeMax, &out->node_id);
-  if (const YAML::Node u = p["uid"]; u && !r.error) {
-    const std::string v = u.IsScalar() ? u.Scalar() : "";
-    char* end = nullptr;
-    errno = 0;
-    const unsigned long long x = std::strtoull(v.c_str(), &end, 0);
-    if (v.empty() || *end != '\0' || errno != 0 || v.find('-') != std::string::npos) {
-      r.fail(path + ".uid", u, "'" + v + "' is not a 64-bit unsigned integer");
-    }
-    out->hardware_uid = x;
-  }
+  unsigned long long uid = 0;
+  r.get_uint64(p, "uid", path + ".", &uid);
+  out->hardware_uid = uid;
   r.get_string(p, "link", path + ".", &out->link);
   get_vector<3>(r, p, "position_mm", path + ".", &out->pose_on_link.translation_mm);
   if (p["rpy_deg"] && p["quaternion_wxyz"]) {

@@ -52,17 +52,9 @@ Status parse(const YAML::Node& root, PatchNodeSettings* s) {
   r.get_bool(root, "sync", "", &s->node.sync_mode);
   r.get_int(root, "event_tail_ms", "", 0, 60000, &s->node.event_tail_ms);
   r.get_int(root, "heartbeat_ms", "", 100, 60000, &s->node.heartbeat_period_ms);
-  if (const YAML::Node u = root["hardware_uid"]; u && !r.error) {
-    const std::string v = u.IsScalar() ? u.Scalar() : "";
-    char* end = nullptr;
-    errno = 0;
-    const unsigned long long x = std::strtoull(v.c_str(), &end, 0);
-    if (v.empty() || *end != '\0' || errno != 0 || v[0] == '-') {
-      r.fail("hardware_uid", u, "'" + v + "' is not a 64-bit unsigned integer");
-    } else {
-      s->node.hardware_uid = x;
-    }
-  }
+  unsigned long long uid = s->node.hardware_uid;
+  r.get_uint64(root, "hardware_uid", "", &uid);
+  s->node.hardware_uid = uid;
   r.get_bool(root, "send_tared", "", &s->node.send_tared);
 
   if (const YAML::Node c = root["can"]; c && !r.error) {

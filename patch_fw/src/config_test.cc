@@ -90,6 +90,8 @@ TEST(ConfigTest, ErrorsNameTheSetting) {
       {"mode: fast", "mode"},
       {"rate_hz: abc", "rate_hz"},
       {"nodee: 3", "nodee"},  // a typo is an error, not silently ignored
+      {"hardware_uid: \" -5\"", "hardware_uid (line 1): ' -5' is not a 64-bit unsigned integer"},
+      {"node: 3\nnode: 4", "node (line 2): given twice"},
       {"i2c: {mux_address: 0x50}", "i2c.mux_address 0x50"},
       {"i2c: {channels: [{channel: 0, addresses: [0x0C, 0x0D, 0x0E, 0x50]},"
        " {channel: 1, addresses: [0x0C, 0x0D, 0x0E, 0x0F]},"

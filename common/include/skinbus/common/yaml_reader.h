@@ -98,6 +98,22 @@ class YamlReader {
     long long v;
     if (integer(map[key], path + key, lo, hi, &v)) *out = static_cast<T>(v);
   }
+  // A 64-bit unsigned integer (decimal or 0x hex); any minus sign is refused (strtoull would
+  // wrap " -5" around to a huge number).
+  void get_uint64(const YAML::Node& map, const char* key, const std::string& path,
+                  unsigned long long* out) {
+    const YAML::Node n = map[key];
+    if (error || !n) return;
+    const std::string v = n.IsScalar() ? n.Scalar() : "";
+    char* end = nullptr;
+    errno = 0;
+    const unsigned long long x = std::strtoull(v.c_str(), &end, 0);
+    if (v.empty() || *end != '\0' || errno != 0 || v.find('-') != std::string::npos) {
+      fail(path + key, n, "'" + v + "' is not a 64-bit unsigned integer");
+      return;
+    }
+    *out = x;
+  }
   void get_double(const YAML::Node& map, const char* key, const std::string& path, double lo,
                   double hi, double* out) {
     const YAML::Node n = map[key];
