@@ -18,6 +18,7 @@
 
 #include "skinbus/body_map/calibration.h"
 #include "skinbus/body_map/calibration_sim.h"
+#include "tool_util.h"
 
 #ifndef SKINBUS_SOURCE_DIR
 #define SKINBUS_SOURCE_DIR "."
@@ -27,18 +28,9 @@ namespace {
 
 using namespace skinbus::body_map;
 using Clock = std::chrono::steady_clock;
+using skinbus::tools::mean;
+using skinbus::tools::quantile;
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
-
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<std::size_t>(q * static_cast<double>(v.size())))];
-}
-double mean(const std::vector<double>& v) {
-  double s = 0;
-  for (double x : v) s += x;
-  return v.empty() ? NAN : s / static_cast<double>(v.size());
-}
 
 std::string tools_dir() {
   const char* d = std::getenv("SKINBUS_TOOLS_DIR");

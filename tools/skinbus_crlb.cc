@@ -12,6 +12,7 @@
 
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/mlx90393.h"
+#include "tool_util.h"
 
 namespace {
 
@@ -24,10 +25,9 @@ Stats stats_of(std::vector<double> v, int unident) {
   Stats s;
   s.unidentifiable = unident;
   if (v.empty()) return s;
-  std::sort(v.begin(), v.end());
-  for (double x : v) s.mean += x / static_cast<double>(v.size());
-  s.median = v[v.size() / 2];
-  s.p95 = v[std::min(v.size() - 1, static_cast<std::size_t>(0.95 * static_cast<double>(v.size())))];
+  s.mean = skinbus::tools::mean(v);
+  s.median = skinbus::tools::quantile(v, 0.5);
+  s.p95 = skinbus::tools::quantile(v, 0.95);
   return s;
 }
 

@@ -128,9 +128,17 @@ Noise noise_of(const CalibrationOptions& o) {
           std::hypot(o.probe_sigma_mm, o.estimate_depth_sigma_mm)};
 }
 
+TouchCost cost_of(const PatchGeometry& g, const CalibrationTouch& t, Noise n) {
+  return {&g, t.probe_mm, t.u_mm, t.v_mm, t.depth_mm, 1.0 / n.tangent_mm, 1.0 / n.normal_mm};
+}
+
 ceres::CostFunction* touch_cost(const PatchGeometry& g, const CalibrationTouch& t, Noise n) {
-  return new ceres::AutoDiffCostFunction<TouchCost, 3, 4, 3, 1>(new TouchCost{
-      &g, t.probe_mm, t.u_mm, t.v_mm, t.depth_mm, 1.0 / n.tangent_mm, 1.0 / n.normal_mm});
+  return new ceres::AutoDiffCostFunction<TouchCost, 3, 4, 3, 1>(new TouchCost(cost_of(g, t, n)));
+}
+
+// Whether the radius is a parameter: asked for, and the patch is a cylinder.
+bool fits_radius(const PatchGeometry& g, const CalibrationOptions& o) {
+  return o.fit_radius && g.kind == SurfaceKind::kCylinder;
 }
 
 struct Solve {
@@ -144,7 +152,7 @@ Solve refine(const PatchGeometry& g, std::span<const CalibrationTouch> touches,
              const std::vector<int>& use, bool robust, const CalibrationOptions& options,
              Noise noise, double* quaternion, double* translation, double* radius,
              ceres::Problem* problem) {
-  const bool fit_radius = options.fit_radius && g.kind == SurfaceKind::kCylinder;
+  const bool fit_radius = fits_radius(g, options);
   for (int i : use) {
     problem->AddResidualBlock(touch_cost(g, touches[i], noise),
                               robust ? new ceres::CauchyLoss(3.0) : nullptr, quaternion,
@@ -178,7 +186,7 @@ Solve refine(const PatchGeometry& g, std::span<const CalibrationTouch> touches,
 
 Status check_touch_geometry(const PatchGeometry& g, std::span<const CalibrationTouch> touches,
                             const CalibrationOptions& options) {
-  const bool fit_radius = options.fit_radius && g.kind == SurfaceKind::kCylinder;
+  const bool fit_radius = fits_radius(g, options);
   const int need = std::max(options.min_touches, fit_radius ? 8 : 3);
   const int n = static_cast<int>(touches.size());
   if (n < need) {
@@ -314,13 +322,7 @@ Result<PatchCalibration> calibrate_patch(const PatchPlacement& initial,
       r.residual_mm = qq * patch_point<double>(g, radius, tc.u_mm, tc.v_mm, tc.depth_mm) +
                       Eigen::Vector3d(tv[0], tv[1], tv[2]) - tc.probe_mm;
       Eigen::Vector3d whitened;
-      TouchCost{&g,
-                tc.probe_mm,
-                tc.u_mm,
-                tc.v_mm,
-                tc.depth_mm,
-                1.0 / noise.tangent_mm,
-                1.0 / noise.normal_mm}(qv, tv, &radius, whitened.data());
+      cost_of(g, tc, noise)(qv, tv, &radius, whitened.data());
       r.norm_sigma = whitened.norm();
       r.outlier = !(r.norm_sigma <= options.outlier_sigma);
       if (!r.outlier) inliers.push_back(i);
@@ -364,7 +366,7 @@ Result<PatchCalibration> calibrate_patch(const PatchPlacement& initial,
                       "too small for these touches");
   }
 
-  const bool fit_radius = options.fit_radius && g.kind == SurfaceKind::kCylinder;
+  const bool fit_radius = fits_radius(g, options);
   const int dof = 6 + (fit_radius ? 1 : 0);
   double sum_sq = 0;
   for (int i : inliers) sum_sq += std::pow(out.residuals[i].norm_sigma, 2);

@@ -32,16 +32,8 @@ bool get_vector(YamlReader& r, const YAML::Node& map, const char* key, const std
     r.fail(path + key, n, "expected a list of " + std::to_string(N) + " numbers");
     return false;
   }
-  for (int i = 0; i < N; ++i) {
-    const std::string s = n[i].IsScalar() ? n[i].Scalar() : "";
-    char* end = nullptr;
-    const double v = std::strtod(s.c_str(), &end);
-    if (s.empty() || *end != '\0' || !std::isfinite(v)) {
-      r.fail(path + key, n[i], "'" + s + "' is not a number");
-      return false;
-    }
-    (*out)(i) = v;
-  }
+  for (int i = 0; i < N; ++i)
+    if (!r.number(n[i], path + key, &(*out)(i))) return false;
   return true;
 }
 

@@ -114,17 +114,26 @@ class YamlReader {
     }
     *out = x;
   }
-  void get_double(const YAML::Node& map, const char* key, const std::string& path, double lo,
-                  double hi, double* out) {
-    const YAML::Node n = map[key];
-    if (error || !n) return;
+  // One scalar as a finite number; `path` names it in the error.
+  bool number(const YAML::Node& n, const std::string& path, double* out) {
+    if (error) return false;
     const std::string s = n.IsScalar() ? n.Scalar() : "";
     char* end = nullptr;
     const double v = std::strtod(s.c_str(), &end);
     if (s.empty() || *end != '\0' || !std::isfinite(v)) {
-      fail(path + key, n, "'" + s + "' is not a number");
-      return;
+      fail(path, n, "'" + s + "' is not a number");
+      return false;
     }
+    *out = v;
+    return true;
+  }
+  void get_double(const YAML::Node& map, const char* key, const std::string& path, double lo,
+                  double hi, double* out) {
+    const YAML::Node n = map[key];
+    if (error || !n) return;
+    double v;
+    if (!number(n, path + key, &v)) return;
+    const std::string s = n.Scalar();
     if (v < lo || v > hi) {
       fail(path + key, n, s + " is outside " + std::to_string(lo) + ".." + std::to_string(hi));
       error->code = ErrorCode::kOutOfRange;
