@@ -7,11 +7,13 @@ packages=(
   # build
   g++ cmake ninja-build ccache pkg-config clang-format git
   # libraries
-  libcli11-dev libgtest-dev libgmock-dev libbenchmark-dev libyaml-cpp-dev
+  libcli11-dev libgtest-dev libgmock-dev libbenchmark-dev libyaml-cpp-dev nlohmann-json3-dev
   # patch node: GPIO lines (libgpiod 1.6 C++ bindings)
   libgpiod-dev
   # body map: robot descriptions (URDF) and calibration (Ceres Solver 2.1, Eigen)
   liburdfdom-dev libceres-dev libeigen3-dev
+  # models: LibTorch for training (with OpenBLAS: the reference BLAS is ~10x slower), oneDNN
+  libtorch-dev libopenblas0-openmp libdnnl-dev
   # fuzzing (libFuzzer ships with clang's runtime)
   clang libclang-rt-14-dev
   # CAN: can-utils are the real peer in tests; the kernel tests boot Debian's kernel in QEMU

@@ -1,0 +1,148 @@
+#include "skinbus/fusion/model_file.h"
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+namespace skinbus::fusion {
+namespace {
+
+ModelFile make_model(const Architecture& a, uint32_t seed) {
+  ModelFile m;
+  m.meta.name = "test";
+  m.meta.architecture = a;
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) {
+      m.meta.sensors.push_back({-45.0 + 30 * c, -45.0 + 30 * r, -17});
+      if (a.kind == ArchitectureKind::kCnn) m.meta.architecture.sensor_cell.push_back(r * 4 + c);
+    }
+  }
+  m.meta.input_mean.assign(48, 1.5);
+  m.meta.input_scale.assign(48, 20.0);
+  m.meta.outputs = {"u_mm", "v_mm", "depth_mm", "force_n"};
+  m.meta.output_mean = {0, 0, 1, 2};
+  m.meta.output_scale = {40, 40, 1, 2};
+  m.meta.data_fingerprint = 0x123456789abcdefULL;
+  m.meta.info["seed"] = "7";
+  m.meta.metrics["xy_mean_mm"] = 0.75;
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> n(0, 1);
+  m.tensors = expected_tensors(a, 48, 4);
+  for (Tensor& t : m.tensors) {
+    t.data.resize(static_cast<std::size_t>(t.numel()));
+    for (float& v : t.data) v = n(rng);
+  }
+  return m;
+}
+
+std::string temp_stem(const char* name) {
+  return (std::filesystem::temp_directory_path() / name).string();
+}
+
+TEST(ModelFile, SeedCnnShapeAndCost) {
+  const Architecture a = seed_cnn(1.0, 4, 4);
+  EXPECT_EQ(a.conv_channels, (std::vector<int>{32, 64, 128, 256}));
+  EXPECT_EQ(a.hidden, (std::vector<int>{512, 256, 128, 64}));
+  const ModelFile m = make_model(a, 1);
+  // 100 in-bounds taps on a 4x4 grid; 4.31 M conv MACs + 0.434 M fc MACs (the seed's ~9.5 MFLOP).
+  EXPECT_EQ(m.macs(), 100 * (3 * 32 + 32 * 64 + 64 * 128 + 128 * 256) +
+                          (512 * 512 + 512 * 256 + 256 * 128 + 128 * 64 + 64 * 4));
+  const Architecture q = seed_cnn(0.25, 4, 4);
+  EXPECT_EQ(q.conv_channels, (std::vector<int>{8, 16, 32, 64}));
+  EXPECT_EQ(q.hidden, (std::vector<int>{128, 64, 32, 16}));
+}
+
+TEST(ModelFile, RoundTripIsExact) {
+  for (const Architecture& a : {seed_cnn(0.25, 4, 4), mlp({64, 32})}) {
+    const ModelFile m = make_model(a, 2);
+    const std::string stem = temp_stem("skinbus_model_rt");
+    ASSERT_TRUE(write_model(m, stem + ".json").ok());
+    Result<ModelFile> r = read_model(stem);
+    ASSERT_TRUE(r.ok()) << r.error().to_string();
+    EXPECT_EQ(r->meta.name, "test");
+    EXPECT_EQ(r->meta.architecture.kind, a.kind);
+    EXPECT_EQ(r->meta.architecture.sensor_cell, m.meta.architecture.sensor_cell);
+    EXPECT_EQ(r->meta.input_mean, m.meta.input_mean);
+    EXPECT_EQ(r->meta.output_scale, m.meta.output_scale);
+    EXPECT_EQ(r->meta.data_fingerprint, m.meta.data_fingerprint);
+    EXPECT_EQ(r->meta.info.at("seed"), "7");
+    EXPECT_DOUBLE_EQ(r->meta.metrics.at("xy_mean_mm"), 0.75);
+    ASSERT_EQ(r->tensors.size(), m.tensors.size());
+    for (const Tensor& t : m.tensors) {
+      const Tensor* u = r->find(t.name);
+      ASSERT_NE(u, nullptr) << t.name;
+      EXPECT_EQ(u->shape, t.shape);
+      EXPECT_EQ(u->data, t.data) << t.name;
+    }
+  }
+}
+
+TEST(ModelFile, RefusesModelsThatDoNotMatchTheirArchitecture) {
+  ModelFile m = make_model(seed_cnn(0.25, 4, 4), 3);
+  ModelFile wrong_shape = m;
+  wrong_shape.tensors[0].shape = {8, 3, 3, 2};
+  EXPECT_FALSE(validate_model(wrong_shape).ok());
+  ModelFile missing = m;
+  missing.tensors.pop_back();
+  EXPECT_FALSE(validate_model(missing).ok());
+  ModelFile nan = m;
+  nan.tensors[1].data[0] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_NE(validate_model(nan).error().message.find("non-finite"), std::string::npos);
+  ModelFile twice = m;
+  twice.meta.architecture.sensor_cell[1] = twice.meta.architecture.sensor_cell[0];
+  EXPECT_NE(validate_model(twice).error().message.find("used twice"), std::string::npos);
+  ModelFile scale = m;
+  scale.meta.input_scale[5] = 0;
+  EXPECT_FALSE(validate_model(scale).ok());
+  EXPECT_FALSE(write_model(scale, temp_stem("skinbus_model_bad")).ok());
+}
+
+TEST(ModelFile, CorruptWeightFilesGiveClearErrors) {
+  const ModelFile m = make_model(mlp({16}), 4);
+  const std::string stem = temp_stem("skinbus_model_corrupt");
+  ASSERT_TRUE(write_model(m, stem).ok());
+  std::string bytes;
+  {
+    std::ifstream f(stem + ".safetensors", std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(f), {});
+  }
+  auto write = [&](const std::string& b) {
+    std::ofstream f(stem + ".safetensors", std::ios::binary | std::ios::trunc);
+    f.write(b.data(), static_cast<std::streamsize>(b.size()));
+  };
+  write(bytes.substr(0, bytes.size() - 4));  // truncated data
+  Result<ModelFile> r = read_model(stem);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("does not fit"), std::string::npos) << r.error().message;
+  write(bytes.substr(0, 5));  // truncated header length
+  r = read_model(stem);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("shorter"), std::string::npos);
+  std::string huge = bytes;
+  huge[7] = '\x7f';  // header length beyond the file
+  write(huge);
+  EXPECT_NE(read_model(stem).error().message.find("exceeds"), std::string::npos);
+  std::string garbage = bytes;
+  garbage[8] = '[';  // header is not an object
+  write(garbage);
+  EXPECT_FALSE(read_model(stem).ok());
+  std::remove((stem + ".safetensors").c_str());
+  EXPECT_EQ(read_model(stem).error().code, ErrorCode::kNotFound);
+  {
+    std::ofstream f(stem + ".json", std::ios::trunc);
+    f << "{\"format\": \"skinbus-model\"}";
+  }
+  EXPECT_NE(read_model(stem).error().message.find("architecture"), std::string::npos);
+}
+
+TEST(ModelFile, StemOfAnyOfTheThreeSpellings) {
+  EXPECT_EQ(model_stem("a/b.json"), "a/b");
+  EXPECT_EQ(model_stem("a/b.safetensors"), "a/b");
+  EXPECT_EQ(model_stem("a/b"), "a/b");
+}
+
+}  // namespace
+}  // namespace skinbus::fusion
