@@ -1,0 +1,468 @@
+#include "skinbus/fusion/training.h"
+
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <numeric>
+#include <random>
+#include <set>
+
+namespace skinbus::fusion {
+namespace {
+
+// The network of model_file.h in LibTorch. Parameter names match the model file's tensor names.
+struct NetImpl : torch::nn::Module {
+  NetImpl(const Architecture& a, int channels, int outputs) : arch(a) {
+    int in = channels;
+    if (a.kind == ArchitectureKind::kCnn) {
+      int c = 3;
+      for (std::size_t k = 0; k < a.conv_channels.size(); ++k) {
+        convs.push_back(register_module(
+            "conv" + std::to_string(k),
+            torch::nn::Conv2d(torch::nn::Conv2dOptions(c, a.conv_channels[k], 3).padding(1))));
+        c = a.conv_channels[k];
+      }
+      in = 2 * c;
+      std::vector<int64_t> cells(a.sensor_cell.begin(), a.sensor_cell.end());
+      cell_index = torch::tensor(cells, torch::kLong);
+    }
+    for (std::size_t k = 0; k < a.hidden.size(); ++k) {
+      fcs.push_back(register_module("fc" + std::to_string(k), torch::nn::Linear(in, a.hidden[k])));
+      in = a.hidden[k];
+    }
+    head = register_module("head", torch::nn::Linear(in, outputs));
+  }
+
+  // x: [batch, channels], normalised.
+  torch::Tensor forward(torch::Tensor x) {
+    if (arch.kind == ArchitectureKind::kCnn) {
+      const int64_t b = x.size(0);
+      const int64_t sensors = cell_index.size(0);
+      const int64_t cells = arch.grid_rows * arch.grid_cols;
+      torch::Tensor per_sensor = x.view({b, sensors, 3});
+      torch::Tensor grid = torch::zeros({b, cells, 3}, x.options());
+      grid = grid.index_copy(1, cell_index, per_sensor);
+      x = grid.permute({0, 2, 1}).reshape({b, 3, arch.grid_rows, arch.grid_cols});
+      for (auto& conv : convs) x = torch::relu(conv->forward(x));
+      torch::Tensor avg = x.mean({2, 3});
+      torch::Tensor mx = std::get<0>(x.flatten(2).max(2));
+      x = torch::cat({avg, mx}, 1);
+    }
+    for (auto& fc : fcs) x = torch::relu(fc->forward(x));
+    return head->forward(x);
+  }
+
+  Architecture arch;
+  std::vector<torch::nn::Conv2d> convs;
+  std::vector<torch::nn::Linear> fcs;
+  torch::nn::Linear head{nullptr};
+  torch::Tensor cell_index;
+};
+TORCH_MODULE(Net);
+
+Status load_weights(Net& net, const ModelFile& model) {
+  torch::NoGradGuard no_grad;
+  for (auto& p : net->named_parameters()) {
+    const Tensor* t = model.find(p.key());
+    if (t == nullptr || t->numel() != p.value().numel()) {
+      return make_error(ErrorCode::kInvalidArgument, "model lacks tensor '" + p.key() + "'");
+    }
+    torch::Tensor src =
+        torch::from_blob(const_cast<float*>(t->data.data()), p.value().sizes(), torch::kFloat32);
+    p.value().copy_(src);
+  }
+  return Status::Ok();
+}
+
+std::vector<Tensor> save_weights(Net& net) {
+  std::vector<Tensor> out;
+  for (auto& p : net->named_parameters()) {
+    torch::Tensor v = p.value().detach().contiguous().to(torch::kFloat32);
+    Tensor t;
+    t.name = p.key();
+    for (int64_t d : v.sizes()) t.shape.push_back(d);
+    t.data.assign(v.data_ptr<float>(), v.data_ptr<float>() + v.numel());
+    out.push_back(std::move(t));
+  }
+  return out;
+}
+
+torch::Tensor normalised_inputs(const ModelMeta& m, std::span<const double> field, int64_t rows) {
+  const int channels = m.channels();
+  torch::Tensor x = torch::empty({rows, channels}, torch::kFloat32);
+  float* p = x.data_ptr<float>();
+  for (int64_t r = 0; r < rows; ++r) {
+    for (int c = 0; c < channels; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r * channels + c);
+      p[i] = static_cast<float>((field[i] - m.input_mean[c]) / m.input_scale[c]);
+    }
+  }
+  return x;
+}
+
+double mean_of(const std::vector<double>& v) {
+  return v.empty() ? 0.0 : std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
+}
+
+}  // namespace
+
+Status fit_grid(std::span<const SensorPosition> sensors, Architecture& a) {
+  auto distinct = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    std::vector<double> out;
+    for (double x : v) {
+      if (out.empty() || x - out.back() > 1e-3) out.push_back(x);
+    }
+    return out;
+  };
+  std::vector<double> us, vs;
+  for (const SensorPosition& s : sensors) {
+    us.push_back(s.u_mm);
+    vs.push_back(s.v_mm);
+  }
+  const std::vector<double> cols = distinct(us), rows = distinct(vs);
+  if (cols.size() * rows.size() != sensors.size()) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "the sensors do not form a grid (" + std::to_string(rows.size()) + " x " +
+                          std::to_string(cols.size()) + " distinct positions for " +
+                          std::to_string(sensors.size()) + " sensors): use an MLP");
+  }
+  a.grid_rows = static_cast<int>(rows.size());
+  a.grid_cols = static_cast<int>(cols.size());
+  a.sensor_cell.clear();
+  std::set<int> used;
+  for (const SensorPosition& s : sensors) {
+    const auto find = [](const std::vector<double>& axis, double x) {
+      return static_cast<int>(std::lower_bound(axis.begin(), axis.end(), x - 1e-3) - axis.begin());
+    };
+    const int cell = find(rows, s.v_mm) * a.grid_cols + find(cols, s.u_mm);
+    if (!used.insert(cell).second) {
+      return make_error(ErrorCode::kInvalidArgument, "two sensors share a grid cell: use an MLP");
+    }
+    a.sensor_cell.push_back(cell);
+  }
+  return Status::Ok();
+}
+
+ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::string& name) {
+  ModelMeta m;
+  m.name = name;
+  m.architecture = a;
+  for (const sim::DatasetSensor& s : data.sensors) m.sensors.push_back({s.u_mm, s.v_mm, s.h_mm});
+  const int channels = data.channels();
+  const std::size_t rows = data.rows();
+  m.input_mean.assign(channels, 0.0);
+  m.input_scale.assign(channels, 1.0);
+  for (int c = 0; c < channels; ++c) {
+    double s = 0, s2 = 0;
+    for (std::size_t r = 0; r < rows; ++r) {
+      const double v = data.field(r)[c];
+      s += v;
+      s2 += v * v;
+    }
+    const double mean = rows ? s / static_cast<double>(rows) : 0.0;
+    const double var = rows ? s2 / static_cast<double>(rows) - mean * mean : 0.0;
+    m.input_mean[c] = mean;
+    m.input_scale[c] = std::max(std::sqrt(std::max(var, 0.0)), 1e-3);
+  }
+  m.outputs = {"u_mm", "v_mm", "depth_mm", "force_n"};
+  const std::vector<double>* cols[] = {&data.u_mm, &data.v_mm, &data.depth_mm, &data.force_n};
+  for (const std::vector<double>* col : cols) {
+    const double mean = mean_of(*col);
+    double var = 0;
+    for (double v : *col) var += (v - mean) * (v - mean);
+    var = col->empty() ? 1.0 : var / static_cast<double>(col->size());
+    m.output_mean.push_back(mean);
+    m.output_scale.push_back(std::max(std::sqrt(var), 1e-3));
+  }
+  double max_u = 0, max_v = 0, max_d = 0;
+  for (std::size_t r = 0; r < rows; ++r) {
+    max_u = std::max(max_u, std::fabs(data.u_mm[r]));
+    max_v = std::max(max_v, std::fabs(data.v_mm[r]));
+    max_d = std::max(max_d, data.depth_mm[r]);
+  }
+  // The patch extent: the dataset's "size_u_mm"/"size_v_mm" header when present, else the
+  // presses' extent.
+  auto meta_number = [&](const char* key, double fallback) {
+    auto it = data.meta.find(key);
+    if (it == data.meta.end()) return fallback;
+    char* end = nullptr;
+    const double v = std::strtod(it->second.c_str(), &end);
+    return end != it->second.c_str() && v > 0 ? v : fallback;
+  };
+  m.half_u_mm = meta_number("size_u_mm", 2 * std::max(max_u, 1.0)) / 2;
+  m.half_v_mm = meta_number("size_v_mm", 2 * std::max(max_v, 1.0)) / 2;
+  m.max_depth_mm = std::max(max_d, 0.1);
+  m.data_fingerprint = sim::dataset_fingerprint(data);
+  return m;
+}
+
+Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
+                                const ModelFile* base) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (data.rows() == 0) return make_error(ErrorCode::kInvalidArgument, "the dataset has no rows");
+  const int channels = data.channels();
+  ModelMeta meta;
+  if (base != nullptr) {
+    if (base->meta.channels() != channels) {
+      return make_error(ErrorCode::kInvalidArgument,
+                        "the base model has " + std::to_string(base->meta.channels()) +
+                            " channels, the data " + std::to_string(channels));
+    }
+    meta = base->meta;
+    meta.name = o.name;
+    meta.info["base_model"] = base->meta.name;
+    meta.data_fingerprint = sim::dataset_fingerprint(data);
+  } else {
+    Architecture a = o.architecture;
+    if (a.kind == ArchitectureKind::kCnn) {
+      std::vector<SensorPosition> sensors;
+      for (const sim::DatasetSensor& s : data.sensors) sensors.push_back({s.u_mm, s.v_mm, s.h_mm});
+      if (Status s = fit_grid(sensors, a); !s.ok()) return s.error();
+    }
+    meta = make_meta(data, a, o.name);
+  }
+
+  // Split by press location.
+  std::map<std::pair<int64_t, int64_t>, std::vector<int64_t>> by_location;
+  for (std::size_t r = 0; r < data.rows(); ++r) {
+    // Rows of one press share its location; rows not from a press are their own location.
+    const auto key =
+        std::make_pair(std::llround(data.u_mm[r] * 100), std::llround(data.v_mm[r] * 100));
+    by_location[data.press[r] >= 0 ? key : std::make_pair(key.first, key.second)].push_back(
+        static_cast<int64_t>(r));
+  }
+  // A press's location is its first row's (a ramp stays at one (u, v)).
+  if (by_location.size() < 2) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "the dataset has fewer than 2 press locations: nothing to validate on");
+  }
+  std::vector<std::vector<int64_t>> locations;
+  for (auto& kv : by_location) locations.push_back(std::move(kv.second));
+  std::mt19937_64 rng(o.seed);
+  std::shuffle(locations.begin(), locations.end(), rng);
+  const std::size_t n_val = std::clamp<std::size_t>(
+      static_cast<std::size_t>(
+          std::lround(o.validation_fraction * static_cast<double>(locations.size()))),
+      1, locations.size() - 1);
+  std::vector<int64_t> train_rows, val_rows;
+  for (std::size_t i = 0; i < locations.size(); ++i) {
+    auto& dst = i < n_val ? val_rows : train_rows;
+    const auto& rows = locations[i];
+    for (std::size_t k = 0; k < rows.size(); ++k) {
+      if (i < n_val || k % static_cast<std::size_t>(std::max(o.sample_stride, 1)) == 0) {
+        dst.push_back(rows[k]);
+      }
+    }
+  }
+  if (base == nullptr) {
+    // Normalisation from the training split only.
+    sim::Dataset train_only;
+    train_only.sensors = data.sensors;
+    train_only.meta = data.meta;
+    for (int64_t r : train_rows) {
+      const std::size_t i = static_cast<std::size_t>(r);
+      train_only.append(data.press[i], data.t_s[i], data.u_mm[i], data.v_mm[i], data.depth_mm[i],
+                        data.force_n[i], data.field(i));
+    }
+    ModelMeta m = make_meta(train_only, meta.architecture, o.name);
+    meta.input_mean = m.input_mean;
+    meta.input_scale = m.input_scale;
+    meta.output_mean = m.output_mean;
+    meta.output_scale = m.output_scale;
+  }
+
+  torch::manual_seed(o.seed);
+  torch::set_num_threads(std::max(o.threads, 1));
+  const int outputs = static_cast<int>(meta.outputs.size());
+  Net net(meta.architecture, channels, outputs);
+  if (base != nullptr) {
+    if (Status s = load_weights(net, *base); !s.ok()) return s.error();
+  }
+
+  auto make_xy = [&](const std::vector<int64_t>& rows, torch::Tensor& x, torch::Tensor& y) {
+    std::vector<double> field(rows.size() * static_cast<std::size_t>(channels));
+    y = torch::empty({static_cast<int64_t>(rows.size()), outputs}, torch::kFloat32);
+    float* py = y.data_ptr<float>();
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      const std::size_t r = static_cast<std::size_t>(rows[i]);
+      std::copy(data.field(r), data.field(r) + channels,
+                field.begin() + static_cast<std::ptrdiff_t>(i * channels));
+      const double t[4] = {data.u_mm[r], data.v_mm[r], data.depth_mm[r], data.force_n[r]};
+      for (int j = 0; j < outputs; ++j) {
+        py[i * outputs + j] =
+            static_cast<float>((t[j] - meta.output_mean[j]) / meta.output_scale[j]);
+      }
+    }
+    x = normalised_inputs(meta, field, static_cast<int64_t>(rows.size()));
+  };
+  torch::Tensor x_train, y_train, x_val, y_val;
+  make_xy(train_rows, x_train, y_train);
+  make_xy(val_rows, x_val, y_val);
+  std::vector<double> val_depth(val_rows.size());
+  for (std::size_t i = 0; i < val_rows.size(); ++i)
+    val_depth[i] = data.depth_mm[static_cast<std::size_t>(val_rows[i])];
+
+  torch::optim::AdamW opt(net->parameters(),
+                          torch::optim::AdamWOptions(o.learning_rate).weight_decay(o.weight_decay));
+  TrainResult result;
+  result.train_samples = static_cast<int>(train_rows.size());
+  result.validation_samples = static_cast<int>(val_rows.size());
+  result.validation_locations = static_cast<int>(n_val);
+  result.train_locations = static_cast<int>(locations.size() - n_val);
+  std::vector<Tensor> best_weights = save_weights(net);
+  double best_score = std::numeric_limits<double>::infinity();
+  EpochReport best_report;
+  int since_best = 0;
+  const int64_t n = x_train.size(0);
+  std::vector<int64_t> order(static_cast<std::size_t>(n));
+  std::iota(order.begin(), order.end(), 0);
+  for (int epoch = 1; epoch <= o.max_epochs; ++epoch) {
+    net->train();
+    std::shuffle(order.begin(), order.end(), rng);
+    torch::Tensor perm = torch::from_blob(order.data(), {n}, torch::kLong);
+    double loss_sum = 0;
+    int64_t seen = 0;
+    for (int64_t b = 0; b < n; b += o.batch_size) {
+      const int64_t e = std::min(n, b + o.batch_size);
+      torch::Tensor idx = perm.slice(0, b, e);
+      torch::Tensor xb = x_train.index_select(0, idx), yb = y_train.index_select(0, idx);
+      opt.zero_grad();
+      torch::Tensor loss = torch::mse_loss(net->forward(xb), yb);
+      const double l = loss.item<double>();
+      if (!std::isfinite(l)) {
+        return make_error(ErrorCode::kNotConverged,
+                          "training loss became non-finite at epoch " + std::to_string(epoch));
+      }
+      loss.backward();
+      torch::nn::utils::clip_grad_norm_(net->parameters(), o.grad_clip_norm);
+      opt.step();
+      loss_sum += l * static_cast<double>(e - b);
+      seen += e - b;
+    }
+    // Validation in physical units.
+    net->eval();
+    torch::NoGradGuard no_grad;
+    torch::Tensor pred = net->forward(x_val);
+    EpochReport rep;
+    rep.epoch = epoch;
+    rep.epochs = o.max_epochs;
+    rep.train_loss = loss_sum / static_cast<double>(std::max<int64_t>(seen, 1));
+    rep.val_loss = torch::mse_loss(pred, y_val).item<double>();
+    const float* pp = pred.data_ptr<float>();
+    const float* py = y_val.data_ptr<float>();
+    std::vector<double> xy, xy_deep, depth, force;
+    for (std::size_t i = 0; i < val_rows.size(); ++i) {
+      double d[4];
+      for (int j = 0; j < outputs; ++j) {
+        d[j] = (pp[i * outputs + j] - py[i * outputs + j]) * meta.output_scale[j];
+      }
+      xy.push_back(std::hypot(d[0], d[1]));
+      if (val_depth[i] >= o.select_min_depth_mm) xy_deep.push_back(xy.back());
+      depth.push_back(std::fabs(d[2]));
+      force.push_back(std::fabs(d[3]));
+    }
+    rep.val_xy_mean_mm = mean_of(xy);
+    rep.val_xy_deep_mm = xy_deep.empty() ? rep.val_xy_mean_mm : mean_of(xy_deep);
+    rep.val_depth_mean_mm = mean_of(depth);
+    rep.val_force_mean_n = mean_of(force);
+    rep.score = rep.val_xy_deep_mm + rep.val_depth_mean_mm;
+    rep.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (!std::isfinite(rep.score)) {
+      return make_error(ErrorCode::kNotConverged, "validation error became non-finite");
+    }
+    if (rep.score < best_score) {
+      best_score = rep.score;
+      best_weights = save_weights(net);
+      result.best_epoch = epoch;
+      rep.improved = true;
+      best_report = rep;
+      since_best = 0;
+    } else {
+      ++since_best;
+    }
+    result.history.push_back(rep);
+    if (o.progress) o.progress(rep);
+    if (since_best >= o.patience) break;
+    if (o.max_seconds > 0 && rep.elapsed_s >= o.max_seconds) break;
+  }
+  result.model.meta = meta;
+  result.model.tensors = std::move(best_weights);
+  ModelMeta& m = result.model.meta;
+  m.info["seed"] = std::to_string(o.seed);
+  m.info["best_epoch"] = std::to_string(result.best_epoch);
+  m.info["epochs_run"] = std::to_string(result.history.size());
+  m.info["split"] = "by press location, " + std::to_string(result.validation_locations) + " of " +
+                    std::to_string(locations.size()) + " locations held out";
+  m.metrics["val_xy_mean_mm"] = best_report.val_xy_mean_mm;
+  m.metrics["val_xy_deep_mean_mm"] = best_report.val_xy_deep_mm;
+  m.metrics["val_depth_mean_mm"] = best_report.val_depth_mean_mm;
+  m.metrics["val_force_mean_n"] = best_report.val_force_mean_n;
+  m.metrics["select_min_depth_mm"] = o.select_min_depth_mm;
+  m.metrics["train_seconds"] = best_report.elapsed_s;
+  if (Status s = validate_model(result.model); !s.ok()) return s.error();
+  return result;
+}
+
+Result<std::vector<double>> torch_forward(const ModelFile& model, std::span<const double> field_ut,
+                                          int batch, int threads) {
+  if (Status s = validate_model(model); !s.ok()) return s.error();
+  const int channels = model.meta.channels();
+  if (batch <= 0 || field_ut.size() != static_cast<std::size_t>(batch) * channels) {
+    return make_error(ErrorCode::kInvalidArgument, "field_ut must hold batch x channels values");
+  }
+  torch::set_num_threads(std::max(threads, 1));
+  const int outputs = static_cast<int>(model.meta.outputs.size());
+  Net net(model.meta.architecture, channels, outputs);
+  if (Status s = load_weights(net, model); !s.ok()) return s.error();
+  net->eval();
+  torch::NoGradGuard no_grad;
+  torch::Tensor y = net->forward(normalised_inputs(model.meta, field_ut, batch)).contiguous();
+  std::vector<double> out(static_cast<std::size_t>(batch) * outputs);
+  const float* p = y.data_ptr<float>();
+  for (int i = 0; i < batch; ++i) {
+    for (int j = 0; j < outputs; ++j) {
+      out[static_cast<std::size_t>(i * outputs + j)] =
+          p[i * outputs + j] * model.meta.output_scale[j] + model.meta.output_mean[j];
+    }
+  }
+  return out;
+}
+
+Result<ModelFile> random_model(const Architecture& arch, int sensors, uint64_t seed) {
+  const int side = static_cast<int>(std::lround(std::sqrt(sensors)));
+  if (sensors <= 0 || side * side != sensors) {
+    return make_error(ErrorCode::kInvalidArgument, "random_model needs a square sensor count");
+  }
+  ModelFile model;
+  ModelMeta& m = model.meta;
+  m.name = "random";
+  m.architecture = arch;
+  for (int r = 0; r < side; ++r) {
+    for (int c = 0; c < side; ++c) {
+      m.sensors.push_back({30.0 * (c - (side - 1) / 2.0), 30.0 * (r - (side - 1) / 2.0), -17});
+    }
+  }
+  if (arch.kind == ArchitectureKind::kCnn) {
+    if (Status s = fit_grid(m.sensors, m.architecture); !s.ok()) return s.error();
+  }
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int c = 0; c < 3 * sensors; ++c) {
+    m.input_mean.push_back(5 * u(rng));
+    m.input_scale.push_back(30 + 10 * u(rng));
+  }
+  m.outputs = {"u_mm", "v_mm", "depth_mm", "force_n"};
+  m.output_mean = {0, 0, 2, 4};
+  m.output_scale = {40, 40, 1.2, 2.5};
+  torch::manual_seed(seed);
+  Net net(m.architecture, 3 * sensors, 4);
+  model.tensors = save_weights(net);
+  if (Status s = validate_model(model); !s.ok()) return s.error();
+  return model;
+}
+
+}  // namespace skinbus::fusion

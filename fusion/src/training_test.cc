@@ -1,0 +1,181 @@
+#include "skinbus/fusion/training.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+
+#include "skinbus/sim/dataset.h"
+#include "skinbus/sim/simulated_patch.h"
+
+namespace skinbus::fusion {
+namespace {
+
+constexpr uint64_t kSeed = 20261121;
+
+sim::Dataset ramp_set(const sim::PatchModel& model, const std::vector<sim::PressPoint>& plan,
+                      uint64_t noise_seed) {
+  sim::SimulatedPatch patch(model, noise_seed);
+  sim::RampProtocol ramp;
+  ramp.rate_hz = 20;  // a coarse ramp keeps the test quick
+  return sim::generate_ramp_dataset(patch, plan, ramp);
+}
+
+sim::Dataset test_set(const sim::PatchModel& model, int count, uint64_t seed) {
+  sim::SimulatedPatch patch(model, seed);
+  return sim::generate_random_test_set(patch, count, 60, 4, seed);
+}
+
+struct Errors {
+  double xy_deep_mm = 0, depth_mm = 0;
+};
+
+// Mean XY error on samples >= 1 mm deep and mean depth error of `model` on `test`, through
+// LibTorch.
+Errors evaluate(const ModelFile& model, const sim::Dataset& test) {
+  Result<std::vector<double>> out =
+      torch_forward(model, test.field_ut, static_cast<int>(test.rows()), 2);
+  EXPECT_TRUE(out.ok());
+  Errors e;
+  int deep = 0;
+  for (std::size_t r = 0; r < test.rows(); ++r) {
+    const double* y = out->data() + 4 * r;
+    e.depth_mm += std::fabs(y[2] - test.depth_mm[r]);
+    if (test.depth_mm[r] >= 1.0) {
+      e.xy_deep_mm += std::hypot(y[0] - test.u_mm[r], y[1] - test.v_mm[r]);
+      ++deep;
+    }
+  }
+  e.xy_deep_mm /= std::max(deep, 1);
+  e.depth_mm /= static_cast<double>(test.rows());
+  return e;
+}
+
+TrainOptions quick_options() {
+  TrainOptions o;
+  o.architecture = mlp({128, 128});
+  o.max_epochs = 150;
+  o.patience = 150;
+  o.batch_size = 64;
+  o.learning_rate = 3e-3;
+  o.seed = kSeed;
+  o.threads = 1;
+  return o;
+}
+
+TEST(Training, SmallSimulatedSetBeatsTheMeanByAClearMargin) {
+  std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const sim::Dataset train = ramp_set(nominal, sim::plan_halton(200, 60), kSeed);
+  const sim::Dataset test = test_set(nominal, 300, kSeed + 1);
+  Result<TrainResult> r = train_model(train, quick_options());
+  ASSERT_TRUE(r.ok()) << r.error().to_string();
+  // Trivial baseline: always answer the training mean.
+  double base_xy = 0;
+  int deep = 0;
+  for (std::size_t i = 0; i < test.rows(); ++i) {
+    if (test.depth_mm[i] < 1.0) continue;
+    base_xy += std::hypot(test.u_mm[i] - r->model.meta.output_mean[0],
+                          test.v_mm[i] - r->model.meta.output_mean[1]);
+    ++deep;
+  }
+  base_xy /= deep;
+  const Errors e = evaluate(r->model, test);
+  std::printf("baseline XY %.2f mm, trained XY (>= 1 mm deep) %.2f mm, depth %.3f mm\n", base_xy,
+              e.xy_deep_mm, e.depth_mm);
+  EXPECT_LT(e.xy_deep_mm, 0.25 * base_xy);
+  EXPECT_LT(e.depth_mm, 0.3);
+  // The split is by location and recorded.
+  EXPECT_GT(r->validation_locations, 0);
+  EXPECT_EQ(r->train_locations + r->validation_locations, 200);
+  EXPECT_GT(r->model.meta.metrics.at("val_xy_deep_mean_mm"), 0);
+  for (const EpochReport& rep : r->history) ASSERT_TRUE(std::isfinite(rep.train_loss));
+}
+
+TEST(Training, SameSeedSameModel) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const sim::Dataset train = ramp_set(nominal, sim::plan_halton(30, 60), kSeed);
+  TrainOptions o = quick_options();
+  o.max_epochs = 3;
+  Result<TrainResult> a = train_model(train, o);
+  Result<TrainResult> b = train_model(train, o);
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_EQ(a->model.tensors.size(), b->model.tensors.size());
+  for (std::size_t i = 0; i < a->model.tensors.size(); ++i) {
+    EXPECT_EQ(a->model.tensors[i].data, b->model.tensors[i].data) << a->model.tensors[i].name;
+  }
+  o.seed += 1;
+  Result<TrainResult> c = train_model(train, o);
+  ASSERT_TRUE(c.ok());
+  EXPECT_NE(a->model.tensors[0].data, c->model.tensors[0].data);
+}
+
+TEST(Training, FineTuningImprovesAMismatchedUnit) {
+  const sim::PatchDesign design;
+  const sim::PatchModel nominal = sim::PatchModel::nominal(design).value();
+  // A unit the nominal model does not describe: stiffer lattice spread, displaced magnets.
+  sim::PatchDesign other = design;
+  other.spread_mm = 11.5;
+  sim::FabricationVariation var;
+  var.magnet_position_sd_mm = 0.5;
+  const sim::PatchModel unit = sim::PatchModel::fabricated(other, 77, var).value();
+  Result<TrainResult> base =
+      train_model(ramp_set(nominal, sim::plan_halton(200, 60), kSeed), quick_options());
+  ASSERT_TRUE(base.ok());
+  const sim::Dataset unit_test = test_set(unit, 300, kSeed + 2);
+  const Errors before = evaluate(base->model, unit_test);
+  TrainOptions ft = quick_options();
+  ft.learning_rate = 1e-3;
+  ft.max_epochs = 40;
+  Result<TrainResult> tuned =
+      train_model(ramp_set(unit, sim::plan_halton(25, 60, 500), kSeed + 3), ft, &base->model);
+  ASSERT_TRUE(tuned.ok()) << tuned.error().to_string();
+  const Errors after = evaluate(tuned->model, unit_test);
+  std::printf("mismatched unit: XY %.2f -> %.2f mm, depth %.3f -> %.3f mm (25 presses)\n",
+              before.xy_deep_mm, after.xy_deep_mm, before.depth_mm, after.depth_mm);
+  EXPECT_LT(after.xy_deep_mm + after.depth_mm, 0.8 * (before.xy_deep_mm + before.depth_mm));
+  EXPECT_EQ(tuned->model.meta.info.at("base_model"), base->model.meta.name);
+}
+
+TEST(Training, RefusesDataItCannotLearnFrom) {
+  sim::Dataset empty;
+  EXPECT_EQ(train_model(empty, quick_options()).error().code, ErrorCode::kInvalidArgument);
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const sim::Dataset one = ramp_set(nominal, {{0, 0}}, kSeed);
+  EXPECT_NE(train_model(one, quick_options()).error().message.find("fewer than 2"),
+            std::string::npos);
+  // A CNN needs a grid; scattered sensors are refused with a pointer to the MLP.
+  Architecture a;
+  std::vector<SensorPosition> scattered = {{0, 0, 0}, {1, 7, 0}, {3, 2, 0}, {9, 5, 0}};
+  EXPECT_NE(fit_grid(scattered, a).error().message.find("MLP"), std::string::npos);
+}
+
+TEST(Training, TorchForwardMatchesTheModelFileSemantics) {
+  // A one-layer MLP with known weights: y = head(relu(fc0(x))) by hand.
+  Result<ModelFile> m = random_model(mlp({3}), 16, 5);
+  ASSERT_TRUE(m.ok());
+  std::vector<double> field(48);
+  for (int c = 0; c < 48; ++c) field[c] = 10.0 * std::sin(c);
+  Result<std::vector<double>> y = torch_forward(*m, field, 1, 1);
+  ASSERT_TRUE(y.ok());
+  const Tensor& w0 = *m->find("fc0.weight");
+  const Tensor& b0 = *m->find("fc0.bias");
+  const Tensor& wh = *m->find("head.weight");
+  const Tensor& bh = *m->find("head.bias");
+  double h[3];
+  for (int k = 0; k < 3; ++k) {
+    double s = b0.data[k];
+    for (int c = 0; c < 48; ++c) {
+      s += w0.data[k * 48 + c] * (field[c] - m->meta.input_mean[c]) / m->meta.input_scale[c];
+    }
+    h[k] = std::max(s, 0.0);
+  }
+  for (int j = 0; j < 4; ++j) {
+    double s = bh.data[j];
+    for (int k = 0; k < 3; ++k) s += wh.data[j * 3 + k] * h[k];
+    EXPECT_NEAR((*y)[j], s * m->meta.output_scale[j] + m->meta.output_mean[j], 1e-4);
+  }
+}
+
+}  // namespace
+}  // namespace skinbus::fusion
