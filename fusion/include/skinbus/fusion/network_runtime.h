@@ -1,0 +1,133 @@
+// skinbus/fusion/network_runtime.h: the host inference runtime of a per-patch network (no
+// LibTorch).
+//
+// A NetworkRuntime is built once from a ModelFile (model_file.h gives the exact network) and then
+// turns batches of tared samples into contacts:
+//
+//   auto rt = NetworkRuntime::create(model, {.threads = 2});
+//   if (!rt) ...;                                   // rt.error() says why
+//   rt->run(fields_ut, batch, estimates);           // batch x channels in, batch estimates out
+//
+// Contract of a run:
+//   - input: `batch` samples of `channels()` tared fields each (uT, double, row-major, channel
+//     order of estimate.h). Optionally a per-sample channel mask (0 = dead channel).
+//   - every sample is checked with check_sample(); a network cannot drop channels, so a sample
+//     with any unusable channel is rejected (kEstimateRejected) with the reason of its first bad
+//     channel (kNonFinite, kSaturated or kDead) and costs no compute;
+//   - the usable samples go through the network; outputs are de-normalised to physical units
+//     (u_mm, v_mm, depth_mm, force_n matched by the model's output names; a missing output is 0)
+//     and passed through flag_range() with the patch extent and deepest press of the metadata:
+//     out-of-patch or out-of-depth contacts are flagged, never clipped; no NaN/Inf ever leaves.
+//
+// Costs: create() validates the model, packs the weights into the layout of the chosen kernels
+// (a few MB for the seed CNN), allocates every work buffer and starts `threads - 1` worker
+// threads that live as long as the runtime. run() allocates nothing with the kernel backends
+// (the oneDNN backend allocates small execution contexts inside the library). A batch is split
+// into `threads` contiguous parts; the calling thread computes the first part, workers the
+// others, and run() returns when all are done. A runtime serves one caller at a time: run() and
+// run_outputs() must not be called concurrently on the same object (use one runtime per thread
+// or a lock); different runtimes are independent.
+//
+// Backends (RuntimeOptions::backend):
+//   kAuto     the fastest measured on this machine class (docs/benchmarks/runtime.md): kKernels
+//             where the CPU has AVX-512, else kOneDnn for float32, kPortable if oneDNN refuses.
+//   kKernels  this library's register-blocked kernels on packed weights; convolutions compute
+//             only the in-bounds taps of the grid. AVX-512 code is selected at run time
+//             (float32: AVX-512F; bfloat16: AVX512_BF16); without it float32 falls back to the
+//             portable kernels.
+//   kPortable the same plan with plain C++ kernels (any CPU; for comparison and fallback).
+//   kOneDnn   oneDNN primitives (convolution with fused ReLU, inner product), float32 only.
+// Precision (RuntimeOptions::precision):
+//   kFloat32   matches LibTorch on the same weights to well below 1e-3 mm.
+//   kBfloat16  weights and activations rounded to bfloat16, products accumulated in float32
+//              (vdpbf16ps); about 1.8-2x the float32 speed. On random models the outputs differ
+//              from float32 by at most 0.01-0.5 % of each output's scale (0.005 mm on the seed
+//              CNN, 0.2 mm on an MLP at a 40 mm scale; docs/benchmarks/runtime.md). create()
+//              returns kUnsupported when the CPU lacks AVX512_BF16 (kKernels/kAuto) or the
+//              backend is kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+
+#include "skinbus/common/result.h"
+#include "skinbus/fusion/estimate.h"
+#include "skinbus/fusion/model_file.h"
+
+namespace skinbus::fusion {
+
+enum class RuntimeBackend : uint8_t { kAuto, kKernels, kPortable, kOneDnn };
+enum class RuntimePrecision : uint8_t { kFloat32, kBfloat16 };
+
+constexpr const char* runtime_backend_name(RuntimeBackend b) {
+  switch (b) {
+    case RuntimeBackend::kAuto:
+      return "auto";
+    case RuntimeBackend::kKernels:
+      return "kernels";
+    case RuntimeBackend::kPortable:
+      return "portable";
+    case RuntimeBackend::kOneDnn:
+      return "onednn";
+  }
+  return "unknown";
+}
+
+constexpr const char* runtime_precision_name(RuntimePrecision p) {
+  return p == RuntimePrecision::kFloat32 ? "float32" : "bfloat16";
+}
+
+struct RuntimeOptions {
+  RuntimeBackend backend = RuntimeBackend::kAuto;
+  RuntimePrecision precision = RuntimePrecision::kFloat32;
+  int threads = 1;         // calling thread + (threads - 1) persistent workers; 1..64
+  InputLimits limits;      // saturation threshold for check_sample()
+  double margin_mm = 2.0;  // flag_range() margins
+  double margin_depth_mm = 0.2;
+};
+
+class NetworkRuntime {
+ public:
+  // Validates `model` (validate_model) and builds the runtime. Errors: kInvalidArgument for a
+  // model that does not validate or whose outputs lack u_mm/v_mm/depth_mm, or bad options;
+  // kUnsupported for a precision or backend this CPU or build cannot serve.
+  static Result<NetworkRuntime> create(const ModelFile& model, const RuntimeOptions& options = {});
+
+  NetworkRuntime(NetworkRuntime&&) noexcept;
+  NetworkRuntime& operator=(NetworkRuntime&&) noexcept;
+  ~NetworkRuntime();
+
+  // Estimates `batch` samples. `field_ut` holds batch * channels() values; `out` at least
+  // `batch` entries; `channel_ok`, if not empty, batch * channels() entries (0 = dead channel,
+  // read only). Returns kInvalidArgument (and, if `out` is large enough, marks every estimate
+  // rejected with kWrongShape) when the sizes do not agree; per-sample problems are never an
+  // error, they are rejections in `out`.
+  Status run(std::span<const double> field_ut, int batch, std::span<ContactEstimate> out,
+             std::span<const uint8_t> channel_ok = {});
+
+  // One sample on the calling thread; a sample of the wrong size is rejected with kWrongShape.
+  ContactEstimate estimate(std::span<const double> field_ut,
+                           std::span<const uint8_t> channel_ok = {});
+
+  // The bare network: `outputs` receives batch x outputs() values in physical units, in the
+  // model's output order, with no input checks and no range flags (a non-finite input gives a
+  // non-finite output). For comparisons with other implementations and for benchmarks.
+  Status run_outputs(std::span<const double> field_ut, int batch, std::span<double> outputs);
+
+  int channels() const;
+  int outputs() const;
+  int threads() const;
+  RuntimeBackend backend() const;  // the backend in use (kAuto resolved)
+  RuntimePrecision precision() const;
+  // A short description of the kernels in use, e.g. "kernels avx512 float32".
+  const char* kernel_name() const;
+
+  struct Impl;
+
+ private:
+  explicit NetworkRuntime(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace skinbus::fusion

@@ -1,0 +1,63 @@
+// network_kernels.h (internal): the register-blocked matrix kernels of the network runtime.
+//
+// Every layer is a sum of small matrix products C[rows, cols] (+)= A[rows, K] * B[K, cols]:
+// a fully connected layer is one, a 3x3 convolution one per in-bounds tap (rows are the output
+// cells whose neighbour at that tap lies inside the grid, A rows are those neighbours). A kernel
+// computes R rows (1..kMaxRows, each row given by its own pointer, so taps and samples gather
+// freely) by 16 * V columns (V = 1..kMaxVectors) of a packed panel of B:
+//   float32:  panel[k][16 * V]              (K rows of 16 * V floats)
+//   bfloat16: panel[k / 2][16 * V][2]       (pairs of K, the vdpbf16ps layout; K padded to even
+//                                            with zeros, A rows likewise zero at the pad)
+// The accumulators start from `bias` (16 * V floats) when it is not null, else from C; the
+// result is stored to C, through max(0, .) when `relu`.
+#pragma once
+
+#include <cstdint>
+
+namespace skinbus::fusion::detail {
+
+inline constexpr int kMaxRows = 6;
+inline constexpr int kMaxVectors = 4;
+inline constexpr int kLanes = 16;  // floats per column vector
+
+using GemmF32 = void (*)(const float* const* a, const float* b, int k, float* const* c,
+                         const float* bias, bool relu);
+using GemmBf16 = void (*)(const uint16_t* const* a, const uint16_t* b, int k_pairs, float* const* c,
+                          const float* bias, bool relu);
+// Rounds `n` floats to bfloat16 (round to nearest even), applying max(0, .) first when `relu`.
+using ToBf16 = void (*)(const float* in, uint16_t* out, int n, bool relu);
+// max(0, .) over `n` floats in place.
+using ReluF32 = void (*)(float* x, int n);
+// Global average and max over `cells` rows of `ld` floats (`c` <= ld used): out[0, c) the
+// averages, out[c, 2c) the maxima.
+using PoolF32 = void (*)(const float* x, int cells, int ld, int c, float* out);
+
+struct KernelSet {
+  const char* name = "";
+  GemmF32 f32[kMaxRows][kMaxVectors] = {};
+  GemmBf16 bf16[kMaxRows][kMaxVectors] = {};  // null when the CPU lacks AVX512_BF16
+  ToBf16 to_bf16 = nullptr;
+  ReluF32 relu = nullptr;
+  PoolF32 pool = nullptr;
+};
+
+// Plain C++ kernels for any CPU (bf16 entries emulate vdpbf16ps exactly enough for tests).
+const KernelSet& portable_kernels();
+// AVX-512 kernels when the CPU has AVX-512F (and AVX512_BF16 for the bf16 entries), else null.
+const KernelSet* avx512_kernels();
+
+// Round-to-nearest-even conversion of one float to bfloat16 bits (finite inputs).
+inline uint16_t to_bf16_bits(float f) {
+  uint32_t u;
+  __builtin_memcpy(&u, &f, sizeof u);
+  u += 0x7fffu + ((u >> 16) & 1u);
+  return static_cast<uint16_t>(u >> 16);
+}
+inline float from_bf16_bits(uint16_t h) {
+  const uint32_t u = static_cast<uint32_t>(h) << 16;
+  float f;
+  __builtin_memcpy(&f, &u, sizeof f);
+  return f;
+}
+
+}  // namespace skinbus::fusion::detail

@@ -1,0 +1,701 @@
+#include "skinbus/fusion/network_runtime.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "network_kernels.h"
+#include "network_onednn.h"
+
+namespace skinbus::fusion {
+namespace {
+
+using detail::KernelSet;
+using detail::kLanes;
+using detail::kMaxRows;
+using detail::kMaxVectors;
+
+// Samples per pass of the kernel backends: their activations (16 x 16 cells x 256 floats for
+// the seed CNN's widest layer) stay in L2 while the weights stream once per pass.
+constexpr int kKernelChunk = 16;
+// K steps (floats, or bfloat16 pairs) per pass of the kernels over a weight panel.
+constexpr int kKBlock = 64;
+constexpr std::size_t kAlign = 64;
+constexpr int kMaxThreads = 64;
+
+int round_up(int n, int m) {
+  return (n + m - 1) / m * m;
+}
+
+// A zero-filled, 64-byte aligned array.
+template <typename T>
+class Aligned {
+ public:
+  void assign(std::size_t n) {
+    const std::size_t bytes = (n * sizeof(T) + kAlign - 1) / kAlign * kAlign;
+    p_.reset(static_cast<T*>(std::aligned_alloc(kAlign, bytes == 0 ? kAlign : bytes)));
+    std::memset(static_cast<void*>(p_.get()), 0, bytes == 0 ? kAlign : bytes);
+    n_ = n;
+  }
+  T* data() const { return p_.get(); }
+  std::size_t size() const { return n_; }
+
+ private:
+  struct Free {
+    void operator()(T* p) const { std::free(p); }
+  };
+  std::unique_ptr<T, Free> p_;
+  std::size_t n_ = 0;
+};
+
+// A persistent pool: the caller runs part 0, worker w runs part w; every worker acknowledges
+// every job, so no worker reads a job while the next is being posted.
+class WorkerPool {
+ public:
+  using Fn = void (*)(void* ctx, int part);
+
+  explicit WorkerPool(int workers, bool single_openmp) {
+    for (int w = 0; w < workers; ++w) {
+      threads_.emplace_back([this, w, single_openmp] { loop(w + 1, single_openmp); });
+    }
+  }
+  ~WorkerPool() {
+    stop_.store(true, std::memory_order_relaxed);
+    generation_.fetch_add(1, std::memory_order_release);
+    generation_.notify_all();
+    for (std::thread& t : threads_) t.join();
+  }
+  WorkerPool(const WorkerPool&) = delete;
+  WorkerPool& operator=(const WorkerPool&) = delete;
+
+  int workers() const { return static_cast<int>(threads_.size()); }
+
+  void run(int parts, Fn fn, void* ctx) {
+    if (parts <= 1 || threads_.empty()) {
+      for (int p = 0; p < parts; ++p) fn(ctx, p);
+      return;
+    }
+    fn_ = fn;
+    ctx_ = ctx;
+    parts_ = parts;
+    pending_.store(static_cast<int>(threads_.size()), std::memory_order_relaxed);
+    generation_.fetch_add(1, std::memory_order_release);
+    generation_.notify_all();
+    fn(ctx, 0);
+    for (int p = pending_.load(std::memory_order_acquire); p != 0;
+         p = pending_.load(std::memory_order_acquire)) {
+      pending_.wait(p, std::memory_order_acquire);
+    }
+  }
+
+ private:
+  void loop(int part, bool single_openmp) {
+    if (single_openmp) detail::set_openmp_threads(1);
+    uint32_t seen = 0;
+    for (;;) {
+      generation_.wait(seen, std::memory_order_acquire);
+      seen = generation_.load(std::memory_order_acquire);
+      if (stop_.load(std::memory_order_relaxed)) return;
+      if (part < parts_) fn_(ctx_, part);
+      if (pending_.fetch_sub(1, std::memory_order_acq_rel) == 1) pending_.notify_one();
+    }
+  }
+
+  std::vector<std::thread> threads_;
+  std::atomic<uint32_t> generation_{0};
+  std::atomic<int> pending_{0};
+  std::atomic<bool> stop_{false};
+  Fn fn_ = nullptr;
+  void* ctx_ = nullptr;
+  int parts_ = 0;
+};
+
+// One column block of a packed layer: columns [col0, col0 + 16 * vectors), its panels for every
+// tap consecutive from `offset` (elements of the packed array).
+struct ColBlock {
+  int col0 = 0, vectors = 0;
+  std::size_t offset = 0, panel = 0;  // panel: elements of one tap's panel
+};
+
+struct KernelLayer {
+  bool conv = false, relu = true;
+  int k = 0, k_pairs = 0, n = 0, n_ld = 0;
+  std::vector<ColBlock> blocks;
+  Aligned<float> bias;  // n_ld
+};
+
+// The in-bounds pairs of one 3x3 tap over the grid.
+struct Tap {
+  int weight_tap = 4;  // ky * 3 + kx
+  std::vector<int> out_cell, in_cell;
+  // The same over a chunk of samples: rows (sample * cells + cell) in sample order.
+  std::vector<int> chunk_out, chunk_in;
+};
+
+// Per thread: input, activations and scratch, sized at create.
+struct Slot {
+  Aligned<float> x;         // normalised input rows (kernel backends)
+  Aligned<float> f0, f1;    // float activations
+  Aligned<uint16_t> h;      // bfloat16 activations
+  std::vector<uint8_t> ok;  // channel mask scratch
+  std::vector<int> index;   // chunk row -> sample
+  std::vector<double> raw;  // chunk outputs, physical units
+};
+
+}  // namespace
+
+struct NetworkRuntime::Impl {
+  RuntimeOptions opt;
+  RuntimeBackend backend = RuntimeBackend::kKernels;
+  std::string kernel_name;
+  bool cnn = false;
+  int channels = 0, outputs = 0, cells = 1, chunk = kKernelChunk;
+  int x_row = 0;          // floats per sample in an input buffer
+  std::vector<int> dest;  // channel -> offset in an input row
+  std::vector<float> in_mean, in_inv_scale;
+  std::vector<double> out_mean, out_scale;
+  int field_index[4] = {-1, -1, -1, -1};  // u, v, depth, force -> output index
+  double half_u_mm = 70, half_v_mm = 70, max_depth_mm = 9;
+
+  // Kernel backends.
+  const KernelSet* ks = nullptr;
+  bool bf16 = false;
+  std::vector<KernelLayer> layers;
+  std::vector<Tap> taps;  // centre first
+  int last_conv = -1;
+  Aligned<float> w32;
+  Aligned<uint16_t> w16;
+  // oneDNN backend.
+  std::unique_ptr<detail::OneDnnNet> dnn;
+
+  std::vector<Slot> slots;
+  std::unique_ptr<WorkerPool> pool;
+
+  Status build_kernels(const ModelFile& model);
+  void forward_kernels(Slot& s, int n);
+  // Runs the first n rows of slot's input; fills slot.raw (n x outputs, physical units).
+  void forward(int slot, int n);
+  float* input(int slot) {
+    return dnn ? dnn->input(slot) : slots[static_cast<std::size_t>(slot)].x.data();
+  }
+};
+
+namespace {
+
+const char* output_names[4] = {"u_mm", "v_mm", "depth_mm", "force_n"};
+
+}  // namespace
+
+Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
+  const Architecture& a = model.meta.architecture;
+  // Taps of the grid, centre first (it covers every cell, so it initialises every row).
+  if (cnn) {
+    for (int t : {4, 0, 1, 2, 3, 5, 6, 7, 8}) {
+      Tap tap;
+      tap.weight_tap = t;
+      const int dy = t / 3 - 1, dx = t % 3 - 1;
+      for (int r = 0; r < a.grid_rows; ++r) {
+        for (int c = 0; c < a.grid_cols; ++c) {
+          const int rr = r + dy, cc = c + dx;
+          if (rr < 0 || rr >= a.grid_rows || cc < 0 || cc >= a.grid_cols) continue;
+          tap.out_cell.push_back(r * a.grid_cols + c);
+          tap.in_cell.push_back(rr * a.grid_cols + cc);
+        }
+      }
+      const int cells_n = a.grid_rows * a.grid_cols;
+      for (int sample = 0; sample < chunk; ++sample) {
+        for (std::size_t p = 0; p < tap.out_cell.size(); ++p) {
+          tap.chunk_out.push_back(sample * cells_n + tap.out_cell[p]);
+          tap.chunk_in.push_back(sample * cells_n + tap.in_cell[p]);
+        }
+      }
+      if (!tap.out_cell.empty()) taps.push_back(std::move(tap));
+    }
+  }
+  // Layer shapes and packed sizes.
+  struct Source {
+    const Tensor* w;
+    const Tensor* b;
+  };
+  std::vector<Source> src;
+  int in = cnn ? 3 : channels;
+  std::size_t packed = 0;
+  auto add_layer = [&](const std::string& name, bool conv, int out, bool relu) {
+    KernelLayer l;
+    l.conv = conv;
+    l.relu = relu;
+    l.k = in;
+    l.k_pairs = (in + 1) / 2;
+    l.n = out;
+    l.n_ld = round_up(out, kLanes);
+    const int ntaps = conv ? static_cast<int>(taps.size()) : 1;
+    const int k_rows = bf16 ? 2 * l.k_pairs : l.k;
+    for (int col0 = 0; col0 < l.n_ld; col0 += kLanes * kMaxVectors) {
+      ColBlock b;
+      b.col0 = col0;
+      b.vectors = std::min(kMaxVectors, (l.n_ld - col0) / kLanes);
+      b.panel = static_cast<std::size_t>(k_rows) * kLanes * b.vectors;
+      b.offset = packed;
+      packed += b.panel * static_cast<std::size_t>(ntaps);
+      l.blocks.push_back(b);
+    }
+    l.bias.assign(static_cast<std::size_t>(l.n_ld));
+    src.push_back({model.find(name + ".weight"), model.find(name + ".bias")});
+    layers.push_back(std::move(l));
+    in = out;
+  };
+  if (cnn) {
+    for (std::size_t k = 0; k < a.conv_channels.size(); ++k) {
+      add_layer("conv" + std::to_string(k), true, a.conv_channels[k], true);
+    }
+    last_conv = static_cast<int>(layers.size()) - 1;
+    in = 2 * in;
+  }
+  for (std::size_t k = 0; k < a.hidden.size(); ++k) {
+    add_layer("fc" + std::to_string(k), false, a.hidden[k], true);
+  }
+  add_layer("head", false, outputs, false);
+
+  // Pack: panel[k][cols] (float32) or panel[k/2][cols][2] (bfloat16), zeros beyond the shape.
+  if (bf16) {
+    w16.assign(packed);
+  } else {
+    w32.assign(packed);
+  }
+  for (std::size_t li = 0; li < layers.size(); ++li) {
+    KernelLayer& l = layers[li];
+    const float* w = src[li].w->data.data();
+    std::copy(src[li].b->data.begin(), src[li].b->data.end(), l.bias.data());
+    const int ntaps = l.conv ? static_cast<int>(taps.size()) : 1;
+    auto weight = [&](int o, int i, int t) -> float {
+      if (o >= l.n || i >= l.k) return 0.0f;
+      if (!l.conv) return w[static_cast<std::size_t>(o) * l.k + i];
+      return w[(static_cast<std::size_t>(o) * l.k + i) * 9 + static_cast<std::size_t>(t)];
+    };
+    for (const ColBlock& b : l.blocks) {
+      const int cols = kLanes * b.vectors;
+      for (int t = 0; t < ntaps; ++t) {
+        const int wt = l.conv ? taps[static_cast<std::size_t>(t)].weight_tap : 0;
+        const std::size_t base = b.offset + b.panel * static_cast<std::size_t>(t);
+        if (bf16) {
+          for (int kp = 0; kp < l.k_pairs; ++kp) {
+            for (int j = 0; j < cols; ++j) {
+              for (int e = 0; e < 2; ++e) {
+                w16.data()[base + (static_cast<std::size_t>(kp) * cols + j) * 2 + e] =
+                    detail::to_bf16_bits(weight(b.col0 + j, 2 * kp + e, wt));
+              }
+            }
+          }
+        } else {
+          for (int kk = 0; kk < l.k; ++kk) {
+            for (int j = 0; j < cols; ++j) {
+              w32.data()[base + static_cast<std::size_t>(kk) * cols + j] =
+                  weight(b.col0 + j, kk, wt);
+            }
+          }
+        }
+      }
+    }
+  }
+
+  // Buffers.
+  int widest = round_up(cnn ? 3 : channels, kLanes);
+  for (const KernelLayer& l : layers) widest = std::max(widest, l.n_ld);
+  if (cnn)
+    widest = std::max(widest, round_up(2 * layers[static_cast<std::size_t>(last_conv)].n, kLanes));
+  const std::size_t rows = static_cast<std::size_t>(chunk) * static_cast<std::size_t>(cells);
+  for (Slot& s : slots) {
+    s.x.assign(static_cast<std::size_t>(chunk) * static_cast<std::size_t>(x_row));
+    s.f0.assign(rows * static_cast<std::size_t>(widest));
+    s.f1.assign(rows * static_cast<std::size_t>(widest));
+    if (bf16) s.h.assign(rows * static_cast<std::size_t>(widest));
+  }
+  return Status::Ok();
+}
+
+void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
+  const float* a32 = s.x.data();
+  int a_ld = cnn ? kLanes : round_up(channels, kLanes);
+  if (bf16) ks->to_bf16(s.x.data(), s.h.data(), n * cells * a_ld, false);
+  float* out = s.f0.data();
+  const float* a_rows[kMaxRows];
+  const uint16_t* h_rows[kMaxRows];
+  float* c_rows[kMaxRows];
+  for (std::size_t li = 0; li < layers.size(); ++li) {
+    const KernelLayer& l = layers[li];
+    const int rows_per_sample = l.conv ? cells : 1;
+    for (const ColBlock& b : l.blocks) {
+      const int ntaps = l.conv ? static_cast<int>(taps.size()) : 1;
+      const int cols = kLanes * b.vectors;
+      for (int t = 0; t < ntaps; ++t) {
+        const Tap* tap = l.conv ? &taps[static_cast<std::size_t>(t)] : nullptr;
+        const int nt = l.conv ? static_cast<int>(tap->out_cell.size()) : 1;
+        const int total = n * nt;
+        const bool relu = !l.conv && l.relu;
+        const std::size_t panel = b.offset + b.panel * static_cast<std::size_t>(t);
+        // K in blocks whose panel slice (kKBlock x 64 floats = 16 KB) stays in L1 while every
+        // row block passes over it.
+        const int k_steps = bf16 ? l.k_pairs : l.k;
+        for (int k0 = 0; k0 < k_steps; k0 += kKBlock) {
+          const int kn = std::min(kKBlock, k_steps - k0);
+          const bool last_k = k0 + kn == k_steps;
+          const float* bias = t == 0 && k0 == 0 ? l.bias.data() + b.col0 : nullptr;
+          const std::ptrdiff_t a_k = bf16 ? 2 * k0 : k0;
+          for (int r0 = 0; r0 < total; r0 += kMaxRows) {
+            const int r = std::min(kMaxRows, total - r0);
+            for (int i = 0; i < r; ++i) {
+              const int in_row = l.conv ? tap->chunk_in[r0 + i] : r0 + i;
+              const int out_row = l.conv ? tap->chunk_out[r0 + i] : r0 + i;
+              const std::ptrdiff_t a_off = static_cast<std::ptrdiff_t>(in_row) * a_ld + a_k;
+              a_rows[i] = a32 + a_off;
+              h_rows[i] = s.h.data() + a_off;
+              c_rows[i] = out + static_cast<std::ptrdiff_t>(out_row) * l.n_ld + b.col0;
+            }
+            if (bf16) {
+              ks->bf16[r - 1][b.vectors - 1](h_rows, w16.data() + panel + 2 * k0 * cols, kn, c_rows,
+                                             bias, relu && last_k);
+            } else {
+              ks->f32[r - 1][b.vectors - 1](a_rows, w32.data() + panel + k0 * cols, kn, c_rows,
+                                            bias, relu && last_k);
+            }
+          }
+        }
+      }
+    }
+    const int count = n * rows_per_sample * l.n_ld;
+    // A convolution's rows finish at different taps: ReLU afterwards (in the conversion to
+    // bfloat16 when the next layer reads that).
+    if (l.conv && (!bf16 || static_cast<int>(li) == last_conv)) ks->relu(out, count);
+    float* next = out == s.f0.data() ? s.f1.data() : s.f0.data();
+    a32 = out;
+    a_ld = l.n_ld;
+    if (static_cast<int>(li) == last_conv) {
+      // Global average and max over the cells, average first.
+      const int c = l.n, ld = round_up(2 * c, kLanes);
+      for (int sample = 0; sample < n; ++sample) {
+        float* dst = next + static_cast<std::ptrdiff_t>(sample) * ld;
+        ks->pool(out + static_cast<std::ptrdiff_t>(sample) * cells * l.n_ld, cells, l.n_ld, c, dst);
+        for (int j = 2 * c; j < ld; ++j) dst[j] = 0.0f;
+      }
+      a32 = next;
+      a_ld = ld;
+      next = out;
+      if (bf16) ks->to_bf16(a32, s.h.data(), n * a_ld, false);
+    } else if (bf16 && li + 1 < layers.size()) {
+      ks->to_bf16(out, s.h.data(), count, l.conv);
+    }
+    out = next;
+  }
+  // a32 holds the head: n rows of a_ld floats.
+  for (int sample = 0; sample < n; ++sample) {
+    for (int j = 0; j < outputs; ++j) {
+      s.raw[static_cast<std::size_t>(sample * outputs + j)] =
+          static_cast<double>(a32[sample * a_ld + j]) * out_scale[static_cast<std::size_t>(j)] +
+          out_mean[static_cast<std::size_t>(j)];
+    }
+  }
+}
+
+void NetworkRuntime::Impl::forward(int slot, int n) {
+  Slot& s = slots[static_cast<std::size_t>(slot)];
+  if (n <= 0) return;
+  if (dnn) {
+    dnn->run(slot, n);
+    const float* y = dnn->output(slot);
+    for (int i = 0; i < n * outputs; ++i) {
+      const std::size_t j = static_cast<std::size_t>(i % outputs);
+      s.raw[static_cast<std::size_t>(i)] = static_cast<double>(y[i]) * out_scale[j] + out_mean[j];
+    }
+    return;
+  }
+  forward_kernels(s, n);
+}
+
+namespace {
+
+// One call of run()/run_outputs(), shared by the parts.
+struct Call {
+  NetworkRuntime::Impl* impl = nullptr;
+  const double* field = nullptr;
+  const uint8_t* channel_ok = nullptr;
+  ContactEstimate* out = nullptr;  // estimates, or
+  double* raw = nullptr;           // bare outputs
+  int batch = 0, parts = 1;
+};
+
+void normalise(const NetworkRuntime::Impl& impl, const double* field, float* row) {
+  for (int c = 0; c < impl.channels; ++c) {
+    const std::size_t i = static_cast<std::size_t>(c);
+    row[impl.dest[i]] = (static_cast<float>(field[c]) - impl.in_mean[i]) * impl.in_inv_scale[i];
+  }
+}
+
+void run_part(void* ctx, int part) {
+  Call& call = *static_cast<Call*>(ctx);
+  NetworkRuntime::Impl& impl = *call.impl;
+  Slot& s = impl.slots[static_cast<std::size_t>(part)];
+  const int begin = static_cast<int>(static_cast<int64_t>(call.batch) * part / call.parts);
+  const int end = static_cast<int>(static_cast<int64_t>(call.batch) * (part + 1) / call.parts);
+  const std::size_t ch = static_cast<std::size_t>(impl.channels);
+  float* x = impl.input(part);
+  int m = 0;
+  auto flush = [&] {
+    impl.forward(part, m);
+    for (int i = 0; i < m; ++i) {
+      const std::size_t sample = static_cast<std::size_t>(s.index[static_cast<std::size_t>(i)]);
+      const double* y = s.raw.data() + static_cast<std::size_t>(i * impl.outputs);
+      if (call.raw != nullptr) {
+        std::copy_n(y, impl.outputs, call.raw + sample * static_cast<std::size_t>(impl.outputs));
+        continue;
+      }
+      ContactEstimate e;
+      double* fields[4] = {&e.u_mm, &e.v_mm, &e.depth_mm, &e.force_n};
+      for (int f = 0; f < 4; ++f) {
+        if (impl.field_index[f] >= 0) *fields[f] = y[impl.field_index[f]];
+      }
+      flag_range(e, impl.half_u_mm, impl.half_v_mm, impl.max_depth_mm, impl.opt.margin_mm,
+                 impl.opt.margin_depth_mm);
+      call.out[sample] = e;
+    }
+    m = 0;
+  };
+  for (int sample = begin; sample < end; ++sample) {
+    const double* field = call.field + static_cast<std::size_t>(sample) * ch;
+    if (call.raw == nullptr) {
+      if (call.channel_ok != nullptr) {
+        std::copy_n(call.channel_ok + static_cast<std::size_t>(sample) * ch, ch, s.ok.data());
+      } else {
+        std::fill(s.ok.begin(), s.ok.end(), uint8_t{1});
+      }
+      const SampleCheck check = check_sample({field, ch}, {s.ok.data(), ch}, impl.opt.limits);
+      if (check.masked > 0) {
+        ContactEstimate e;
+        e.flags = kEstimateRejected;
+        e.reason = check.first_reason;
+        call.out[sample] = e;
+        continue;
+      }
+    }
+    s.index[static_cast<std::size_t>(m)] = sample;
+    normalise(impl, field, x + static_cast<std::ptrdiff_t>(m) * impl.x_row);
+    if (++m == impl.chunk) flush();
+  }
+  flush();
+}
+
+}  // namespace
+
+Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
+                                              const RuntimeOptions& options) {
+  if (Status st = validate_model(model); !st.ok()) return st.error();
+  if (options.threads < 1 || options.threads > kMaxThreads) {
+    return make_error(ErrorCode::kInvalidArgument, "threads must be 1.." +
+                                                       std::to_string(kMaxThreads) + ", got " +
+                                                       std::to_string(options.threads));
+  }
+  auto impl = std::make_unique<Impl>();
+  Impl& im = *impl;
+  im.opt = options;
+  const ModelMeta& meta = model.meta;
+  const Architecture& a = meta.architecture;
+  im.cnn = a.kind == ArchitectureKind::kCnn;
+  im.channels = meta.channels();
+  im.outputs = static_cast<int>(meta.outputs.size());
+  im.cells = im.cnn ? a.grid_rows * a.grid_cols : 1;
+  im.half_u_mm = meta.half_u_mm;
+  im.half_v_mm = meta.half_v_mm;
+  im.max_depth_mm = meta.max_depth_mm;
+  for (int f = 0; f < 4; ++f) {
+    for (int j = 0; j < im.outputs; ++j) {
+      if (meta.outputs[static_cast<std::size_t>(j)] == output_names[f]) im.field_index[f] = j;
+    }
+  }
+  if (im.field_index[0] < 0 || im.field_index[1] < 0 || im.field_index[2] < 0) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "model '" + meta.name + "' lacks one of the outputs u_mm, v_mm, depth_mm");
+  }
+  for (int c = 0; c < im.channels; ++c) {
+    const std::size_t i = static_cast<std::size_t>(c);
+    im.in_mean.push_back(static_cast<float>(meta.input_mean[i]));
+    im.in_inv_scale.push_back(static_cast<float>(1.0 / meta.input_scale[i]));
+  }
+  im.out_mean = meta.output_mean;
+  im.out_scale = meta.output_scale;
+
+  // Backend and kernels.
+  const KernelSet* avx = detail::avx512_kernels();
+  im.bf16 = options.precision == RuntimePrecision::kBfloat16;
+  RuntimeBackend be = options.backend;
+  if (be == RuntimeBackend::kAuto)
+    be = avx != nullptr ? RuntimeBackend::kKernels
+                        : (im.bf16 ? RuntimeBackend::kKernels : RuntimeBackend::kOneDnn);
+  if (be == RuntimeBackend::kOneDnn && im.bf16) {
+    return make_error(ErrorCode::kUnsupported, "the oneDNN backend serves float32 only");
+  }
+  if (be == RuntimeBackend::kKernels) {
+    im.ks = avx != nullptr ? avx : &detail::portable_kernels();
+    if (im.bf16 && (avx == nullptr || avx->bf16[0][0] == nullptr)) {
+      return make_error(ErrorCode::kUnsupported, "bfloat16 needs a CPU with AVX512_BF16");
+    }
+  } else if (be == RuntimeBackend::kPortable) {
+    im.ks = &detail::portable_kernels();
+  }
+  im.backend = be;
+  im.slots.resize(static_cast<std::size_t>(options.threads));
+  if (be == RuntimeBackend::kOneDnn) {
+    auto net = detail::OneDnnNet::create(model, options.threads);
+    if (!net.ok() && options.backend == RuntimeBackend::kAuto) {
+      im.backend = be = RuntimeBackend::kPortable;
+      im.ks = &detail::portable_kernels();
+    } else if (!net.ok()) {
+      return net.error();
+    } else {
+      im.dnn = std::move(net.value());
+      im.chunk = detail::kOneDnnMaxChunk;
+      im.kernel_name = "onednn float32";
+    }
+  }
+  // Where each channel lands in an input row.
+  if (im.dnn) {
+    im.x_row = im.dnn->input_row();
+  } else {
+    im.x_row = im.cnn ? im.cells * kLanes : round_up(im.channels, kLanes);
+  }
+  for (int c = 0; c < im.channels; ++c) {
+    if (!im.cnn) {
+      im.dest.push_back(c);
+      continue;
+    }
+    const int cell = a.sensor_cell[static_cast<std::size_t>(c / 3)];
+    im.dest.push_back(cell * (im.dnn ? 3 : kLanes) + c % 3);
+  }
+  if (!im.dnn) {
+    if (Status st = im.build_kernels(model); !st.ok()) return st.error();
+    im.kernel_name =
+        std::string("kernels ") + im.ks->name + " " + runtime_precision_name(options.precision);
+    if (be == RuntimeBackend::kPortable) {
+      im.kernel_name = std::string("portable ") + runtime_precision_name(options.precision);
+    }
+  }
+  for (Slot& s : im.slots) {
+    s.ok.assign(static_cast<std::size_t>(im.channels), 1);
+    s.index.assign(static_cast<std::size_t>(im.chunk), 0);
+    s.raw.assign(static_cast<std::size_t>(im.chunk * im.outputs), 0.0);
+  }
+  im.pool = std::make_unique<WorkerPool>(options.threads - 1, im.dnn != nullptr);
+  return NetworkRuntime(std::move(impl));
+}
+
+NetworkRuntime::NetworkRuntime(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+NetworkRuntime::NetworkRuntime(NetworkRuntime&&) noexcept = default;
+NetworkRuntime& NetworkRuntime::operator=(NetworkRuntime&&) noexcept = default;
+NetworkRuntime::~NetworkRuntime() = default;
+
+namespace {
+
+void run_call(NetworkRuntime::Impl& impl, Call& call) {
+  call.impl = &impl;
+  call.parts = std::max(1, std::min(impl.opt.threads, call.batch));
+  const int saved = impl.dnn ? detail::set_openmp_threads(1) : 0;
+  impl.pool->run(call.parts, &run_part, &call);
+  if (impl.dnn) detail::set_openmp_threads(saved);
+}
+
+}  // namespace
+
+Status NetworkRuntime::run(std::span<const double> field_ut, int batch,
+                           std::span<ContactEstimate> out, std::span<const uint8_t> channel_ok) {
+  Impl& im = *impl_;
+  if (batch < 0 || out.size() < static_cast<std::size_t>(batch)) {
+    return make_error(ErrorCode::kInvalidArgument, "run: out holds fewer than batch estimates");
+  }
+  const std::size_t values =
+      static_cast<std::size_t>(batch) * static_cast<std::size_t>(im.channels);
+  if (field_ut.size() != values || (!channel_ok.empty() && channel_ok.size() != values)) {
+    for (int i = 0; i < batch; ++i) {
+      ContactEstimate e;
+      e.flags = kEstimateRejected;
+      e.reason = RejectReason::kWrongShape;
+      out[static_cast<std::size_t>(i)] = e;
+    }
+    return make_error(ErrorCode::kInvalidArgument,
+                      "run: expected " + std::to_string(values) + " values (batch " +
+                          std::to_string(batch) + " x " + std::to_string(im.channels) +
+                          " channels), got " + std::to_string(field_ut.size()));
+  }
+  if (batch == 0) return Status::Ok();
+  Call call;
+  call.field = field_ut.data();
+  call.channel_ok = channel_ok.empty() ? nullptr : channel_ok.data();
+  call.out = out.data();
+  call.batch = batch;
+  run_call(im, call);
+  return Status::Ok();
+}
+
+ContactEstimate NetworkRuntime::estimate(std::span<const double> field_ut,
+                                         std::span<const uint8_t> channel_ok) {
+  Impl& im = *impl_;
+  const std::size_t ch = static_cast<std::size_t>(im.channels);
+  ContactEstimate e;
+  if (field_ut.size() != ch || (!channel_ok.empty() && channel_ok.size() != ch)) {
+    e.flags = kEstimateRejected;
+    e.reason = RejectReason::kWrongShape;
+    return e;
+  }
+  Call call;
+  call.impl = &im;
+  call.field = field_ut.data();
+  call.channel_ok = channel_ok.empty() ? nullptr : channel_ok.data();
+  call.out = &e;
+  call.batch = 1;
+  call.parts = 1;
+  const int saved = im.dnn ? detail::set_openmp_threads(1) : 0;
+  run_part(&call, 0);
+  if (im.dnn) detail::set_openmp_threads(saved);
+  return e;
+}
+
+Status NetworkRuntime::run_outputs(std::span<const double> field_ut, int batch,
+                                   std::span<double> outputs) {
+  Impl& im = *impl_;
+  const std::size_t b = static_cast<std::size_t>(std::max(batch, 0));
+  if (batch < 0 || field_ut.size() != b * static_cast<std::size_t>(im.channels) ||
+      outputs.size() < b * static_cast<std::size_t>(im.outputs)) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "run_outputs: sizes do not match batch " + std::to_string(batch));
+  }
+  if (batch == 0) return Status::Ok();
+  Call call;
+  call.field = field_ut.data();
+  call.raw = outputs.data();
+  call.batch = batch;
+  run_call(im, call);
+  return Status::Ok();
+}
+
+int NetworkRuntime::channels() const {
+  return impl_->channels;
+}
+int NetworkRuntime::outputs() const {
+  return impl_->outputs;
+}
+int NetworkRuntime::threads() const {
+  return impl_->opt.threads;
+}
+RuntimeBackend NetworkRuntime::backend() const {
+  return impl_->backend;
+}
+RuntimePrecision NetworkRuntime::precision() const {
+  return impl_->opt.precision;
+}
+const char* NetworkRuntime::kernel_name() const {
+  return impl_->kernel_name.c_str();
+}
+
+}  // namespace skinbus::fusion

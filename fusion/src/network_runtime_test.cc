@@ -1,0 +1,279 @@
+#include "skinbus/fusion/network_runtime.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "skinbus/fusion/training.h"
+
+namespace skinbus::fusion {
+namespace {
+
+constexpr int kSensors = 16;
+constexpr int kChannels = 3 * kSensors;
+// LibTorch and the runtime both compute in float32; outputs are compared in mm (and N).
+constexpr double kTorchToleranceMm = 1e-3;
+
+ModelFile model_for(const std::string& which, uint64_t seed = 11) {
+  Architecture a = which == "mlp"        ? mlp({256, 256})
+                   : which == "cnn_w025" ? seed_cnn(0.25, 4, 4)
+                                         : seed_cnn(1.0, 4, 4);
+  auto m = random_model(a, kSensors, seed);
+  EXPECT_TRUE(m.ok()) << m.error().to_string();
+  return std::move(m.value());
+}
+
+// Tared fields of realistic scale: tens to hundreds of uT.
+std::vector<double> fields(int batch, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-250.0, 250.0);
+  std::vector<double> f(static_cast<std::size_t>(batch) * kChannels);
+  for (double& v : f) v = u(rng);
+  return f;
+}
+
+bool has_avx512_bf16() {
+  RuntimeOptions o;
+  o.backend = RuntimeBackend::kKernels;
+  o.precision = RuntimePrecision::kBfloat16;
+  return NetworkRuntime::create(model_for("cnn_w025"), o).ok();
+}
+
+struct EqualityCase {
+  std::string model;
+  RuntimeBackend backend;
+};
+
+class TorchEqualityTest : public ::testing::TestWithParam<EqualityCase> {};
+
+TEST_P(TorchEqualityTest, MatchesLibTorchForEveryBatchAndThreadCount) {
+  const EqualityCase& p = GetParam();
+  const ModelFile model = model_for(p.model);
+  for (int threads : {1, 2}) {
+    RuntimeOptions o;
+    o.backend = p.backend;
+    o.threads = threads;
+    auto rt = NetworkRuntime::create(model, o);
+    ASSERT_TRUE(rt.ok()) << rt.error().to_string();
+    for (int batch : {1, 7, 64}) {
+      const std::vector<double> f = fields(batch, static_cast<uint32_t>(batch * 10 + threads));
+      auto want = torch_forward(model, f, batch, 1);
+      ASSERT_TRUE(want.ok()) << want.error().to_string();
+      std::vector<double> got(static_cast<std::size_t>(batch) * 4);
+      ASSERT_TRUE(rt->run_outputs(f, batch, got).ok());
+      double worst = 0;
+      for (std::size_t i = 0; i < got.size(); ++i) {
+        worst = std::max(worst, std::fabs(got[i] - (*want)[i]));
+      }
+      EXPECT_LE(worst, kTorchToleranceMm)
+          << rt->kernel_name() << " threads " << threads << " batch " << batch;
+      if (batch == 64 && threads == 1) {
+        std::printf("%s %s: max |runtime - LibTorch| %.2e\n", p.model.c_str(), rt->kernel_name(),
+                    worst);
+      }
+      // run() gives the same numbers as estimates.
+      std::vector<ContactEstimate> est(static_cast<std::size_t>(batch));
+      ASSERT_TRUE(rt->run(f, batch, est).ok());
+      for (int i = 0; i < batch; ++i) {
+        const ContactEstimate& e = est[static_cast<std::size_t>(i)];
+        ASSERT_TRUE(e.valid());
+        EXPECT_DOUBLE_EQ(e.u_mm, got[static_cast<std::size_t>(4 * i)]);
+        EXPECT_DOUBLE_EQ(e.v_mm, got[static_cast<std::size_t>(4 * i + 1)]);
+        EXPECT_DOUBLE_EQ(e.depth_mm, got[static_cast<std::size_t>(4 * i + 2)]);
+        EXPECT_DOUBLE_EQ(e.force_n, got[static_cast<std::size_t>(4 * i + 3)]);
+      }
+    }
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Backends, TorchEqualityTest,
+                         ::testing::Values(EqualityCase{"cnn", RuntimeBackend::kKernels},
+                                           EqualityCase{"cnn_w025", RuntimeBackend::kKernels},
+                                           EqualityCase{"mlp", RuntimeBackend::kKernels},
+                                           EqualityCase{"cnn", RuntimeBackend::kOneDnn},
+                                           EqualityCase{"cnn_w025", RuntimeBackend::kOneDnn},
+                                           EqualityCase{"mlp", RuntimeBackend::kOneDnn},
+                                           EqualityCase{"cnn", RuntimeBackend::kPortable},
+                                           EqualityCase{"cnn_w025", RuntimeBackend::kPortable},
+                                           EqualityCase{"mlp", RuntimeBackend::kPortable}),
+                         [](const auto& param_info) {
+                           return param_info.param.model + "_" +
+                                  runtime_backend_name(param_info.param.backend);
+                         });
+
+TEST(NetworkRuntimeTest, ThreadsGiveTheSameResultsAsOneThread) {
+  const ModelFile model = model_for("cnn");
+  for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kOneDnn}) {
+    RuntimeOptions o1, o2;
+    o1.backend = o2.backend = b;
+    o2.threads = 2;
+    auto one = NetworkRuntime::create(model, o1);
+    auto two = NetworkRuntime::create(model, o2);
+    ASSERT_TRUE(one.ok() && two.ok());
+    for (int batch : {1, 2, 7, 33, 64}) {
+      const std::vector<double> f = fields(batch, 5);
+      std::vector<double> y1(static_cast<std::size_t>(batch) * 4), y2(y1.size());
+      ASSERT_TRUE(one->run_outputs(f, batch, y1).ok());
+      ASSERT_TRUE(two->run_outputs(f, batch, y2).ok());
+      for (std::size_t i = 0; i < y1.size(); ++i) {
+        if (b == RuntimeBackend::kKernels) {
+          // Every row is computed in the same order wherever it lands: bit-identical.
+          ASSERT_EQ(y1[i], y2[i]) << "batch " << batch << " value " << i;
+        } else {
+          // oneDNN may pick other kernels for other chunk sizes.
+          ASSERT_NEAR(y1[i], y2[i], 1e-4) << "batch " << batch << " value " << i;
+        }
+      }
+    }
+  }
+}
+
+TEST(NetworkRuntimeTest, ABatchGivesTheSameAsOneSampleAtATime) {
+  const ModelFile model = model_for("cnn_w025");
+  auto rt = NetworkRuntime::create(model, {});
+  ASSERT_TRUE(rt.ok());
+  const int batch = 20;
+  const std::vector<double> f = fields(batch, 9);
+  std::vector<ContactEstimate> est(batch);
+  ASSERT_TRUE(rt->run(f, batch, est).ok());
+  for (int i = 0; i < batch; ++i) {
+    const ContactEstimate e = rt->estimate(
+        std::span<const double>(f).subspan(static_cast<std::size_t>(i) * kChannels, kChannels));
+    EXPECT_EQ(e.u_mm, est[static_cast<std::size_t>(i)].u_mm);
+    EXPECT_EQ(e.depth_mm, est[static_cast<std::size_t>(i)].depth_mm);
+  }
+}
+
+TEST(NetworkRuntimeTest, RejectsUnusableSamplesWithTheReasonAndNoNaN) {
+  const ModelFile model = model_for("cnn_w025");
+  for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kOneDnn}) {
+    RuntimeOptions o;
+    o.backend = b;
+    o.threads = 2;
+    auto rt = NetworkRuntime::create(model, o);
+    ASSERT_TRUE(rt.ok());
+    const int batch = 6;
+    std::vector<double> f = fields(batch, 3);
+    std::vector<uint8_t> ok(f.size(), 1);
+    f[1 * kChannels + 5] = std::numeric_limits<double>::quiet_NaN();
+    f[2 * kChannels + 7] = std::numeric_limits<double>::infinity();
+    f[3 * kChannels + 0] = 2.0e4;  // beyond the default saturation (1e4 uT)
+    ok[4 * kChannels + 47] = 0;    // dead, by the caller's mask
+    std::vector<ContactEstimate> est(batch);
+    ASSERT_TRUE(rt->run(f, batch, est, ok).ok());
+    const RejectReason want[batch] = {RejectReason::kNone,      RejectReason::kNonFinite,
+                                      RejectReason::kNonFinite, RejectReason::kSaturated,
+                                      RejectReason::kDead,      RejectReason::kNone};
+    for (int i = 0; i < batch; ++i) {
+      const ContactEstimate& e = est[static_cast<std::size_t>(i)];
+      EXPECT_EQ(e.reason, want[i]) << "sample " << i;
+      EXPECT_EQ(e.valid(), want[i] == RejectReason::kNone) << "sample " << i;
+      EXPECT_TRUE(std::isfinite(e.u_mm) && std::isfinite(e.v_mm) && std::isfinite(e.depth_mm) &&
+                  std::isfinite(e.force_n));
+    }
+    // The good samples are what they are alone.
+    const ContactEstimate alone =
+        rt->estimate(std::span<const double>(f).subspan(5 * kChannels, kChannels));
+    EXPECT_EQ(alone.u_mm, est[5].u_mm);
+
+    // Wrong shapes: a batch call refuses and marks every estimate; one sample is rejected.
+    std::vector<double> short_f(f.begin(), f.end() - 1);
+    EXPECT_FALSE(rt->run(short_f, batch, est).ok());
+    for (const ContactEstimate& e : est) EXPECT_EQ(e.reason, RejectReason::kWrongShape);
+    const ContactEstimate e = rt->estimate(std::span<const double>(f).first(kChannels - 3));
+    EXPECT_FALSE(e.valid());
+    EXPECT_EQ(e.reason, RejectReason::kWrongShape);
+  }
+}
+
+TEST(NetworkRuntimeTest, FlagsContactsOutsideThePatch) {
+  ModelFile model = model_for("cnn_w025");
+  model.meta.output_mean[0] = 500.0;  // every u far beyond the 70 mm half width
+  model.meta.output_mean[2] = -50.0;  // every depth above the skin
+  auto rt = NetworkRuntime::create(model, {});
+  ASSERT_TRUE(rt.ok());
+  const std::vector<double> f = fields(4, 1);
+  std::vector<ContactEstimate> est(4);
+  ASSERT_TRUE(rt->run(f, 4, est).ok());
+  for (const ContactEstimate& e : est) {
+    EXPECT_TRUE(e.valid());
+    EXPECT_NE(e.flags & kEstimateOutsidePatch, 0u);
+    EXPECT_NE(e.flags & kEstimateDepthRange, 0u);
+    EXPECT_GT(e.u_mm, 400.0);  // flagged, not clipped
+  }
+}
+
+TEST(NetworkRuntimeTest, RefusesACorruptModel) {
+  ModelFile model = model_for("cnn_w025");
+  for (Tensor& t : model.tensors) {
+    if (t.name == "conv1.weight") {
+      t.shape[1] += 1;
+      t.data.resize(static_cast<std::size_t>(t.numel()));
+    }
+  }
+  for (RuntimeBackend b :
+       {RuntimeBackend::kAuto, RuntimeBackend::kKernels, RuntimeBackend::kOneDnn}) {
+    RuntimeOptions o;
+    o.backend = b;
+    auto rt = NetworkRuntime::create(model, o);
+    ASSERT_FALSE(rt.ok());
+    EXPECT_EQ(rt.error().code, ErrorCode::kInvalidArgument);
+    EXPECT_NE(rt.error().message.find("conv1.weight"), std::string::npos) << rt.error().message;
+  }
+  RuntimeOptions bad_threads;
+  bad_threads.threads = 0;
+  EXPECT_FALSE(NetworkRuntime::create(model_for("mlp"), bad_threads).ok());
+}
+
+TEST(NetworkRuntimeTest, Bfloat16IsUnsupportedOnOneDnn) {
+  RuntimeOptions o;
+  o.backend = RuntimeBackend::kOneDnn;
+  o.precision = RuntimePrecision::kBfloat16;
+  auto rt = NetworkRuntime::create(model_for("mlp"), o);
+  ASSERT_FALSE(rt.ok());
+  EXPECT_EQ(rt.error().code, ErrorCode::kUnsupported);
+}
+
+// bfloat16 rounds weights and activations to 8 significant bits; products accumulate in float32.
+// Stated tolerance: max difference from float32 within 1.5 % of each output's scale (0.6 mm for
+// u and v at a 40 mm scale), mean within 0.3 %.
+TEST(NetworkRuntimeTest, Bfloat16StaysCloseToFloat32) {
+  if (!has_avx512_bf16()) GTEST_SKIP() << "CPU without AVX512_BF16";
+  for (const std::string which : {"cnn", "cnn_w025", "mlp"}) {
+    const ModelFile model = model_for(which);
+    RuntimeOptions o32, o16;
+    o16.precision = RuntimePrecision::kBfloat16;
+    o16.threads = 2;
+    auto r32 = NetworkRuntime::create(model, o32);
+    auto r16 = NetworkRuntime::create(model, o16);
+    ASSERT_TRUE(r32.ok() && r16.ok());
+    const int batch = 64;
+    const std::vector<double> f = fields(batch, 77);
+    std::vector<double> y32(batch * 4), y16(batch * 4);
+    ASSERT_TRUE(r32->run_outputs(f, batch, y32).ok());
+    ASSERT_TRUE(r16->run_outputs(f, batch, y16).ok());
+    for (int j = 0; j < 4; ++j) {
+      double worst = 0, sum = 0;
+      for (int i = 0; i < batch; ++i) {
+        const double d = std::fabs(y32[static_cast<std::size_t>(4 * i + j)] -
+                                   y16[static_cast<std::size_t>(4 * i + j)]);
+        worst = std::max(worst, d);
+        sum += d;
+      }
+      const double scale = model.meta.output_scale[static_cast<std::size_t>(j)];
+      EXPECT_LE(worst, 0.015 * scale) << which << " output " << j;
+      EXPECT_LE(sum / batch, 0.003 * scale) << which << " output " << j;
+      std::printf("%s output %d: bf16 - f32 max %.4f mean %.4f (scale %.1f)\n", which.c_str(), j,
+                  worst, sum / batch, scale);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace skinbus::fusion
