@@ -87,65 +87,142 @@ Result<PatchModel> PatchModel::fabricated(const PatchDesign& design, uint64_t ha
 Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed,
                                      const FabricationVariation& var) {
   if (Status s = validate(d); !s.ok()) return s.error();
-  PatchModel p;
-  p.design_ = d;
+  // Draws the unit's parameters (the order of the draws fixes every UID's unit), then
+  // assembles the model from them.
+  UnitParameters p;
   Rng rng(seed ^ 0x5EEDF00DCAFEull);
-  const double spread = d.spread_mm * (1 + var.spread_rel_sd * rng.normal());
-  p.spread_u_ = spread * (1 + d.anisotropy);
-  p.spread_v_ = spread * (1 - d.anisotropy);
-  p.lateral_ = std::fmax(0.0, d.lateral_mm * (1 + var.lateral_rel_sd * rng.normal()));
+  p.spread_mm = d.spread_mm * (1 + var.spread_rel_sd * rng.normal());
+  p.lateral_mm = std::fmax(0.0, d.lateral_mm * (1 + var.lateral_rel_sd * rng.normal()));
 
   const double moment =
       cylinder_moment_am2(d.remanence_t, d.magnet_diameter_mm, d.magnet_height_mm);
   for (int j = 0; j < d.magnets_v; ++j) {
     for (int i = 0; i < d.magnets_u; ++i) {
-      Magnet m;
-      m.u = (i - (d.magnets_u - 1) / 2.0) * d.magnet_pitch_mm +
-            var.magnet_position_sd_mm * rng.normal();
-      m.v = (j - (d.magnets_v - 1) / 2.0) * d.magnet_pitch_mm +
-            var.magnet_position_sd_mm * rng.normal();
-      m.h = d.magnet_centre_height_mm + var.magnet_height_sd_mm * rng.normal();
+      MagnetParameters m;
+      m.u_mm = (i - (d.magnets_u - 1) / 2.0) * d.magnet_pitch_mm +
+               var.magnet_position_sd_mm * rng.normal();
+      m.v_mm = (j - (d.magnets_v - 1) / 2.0) * d.magnet_pitch_mm +
+               var.magnet_position_sd_mm * rng.normal();
+      m.h_mm = d.magnet_centre_height_mm + var.magnet_height_sd_mm * rng.normal();
       const double sign = d.polarity == Polarity::kCheckerboard && (i + j) % 2 ? -1.0 : 1.0;
       const double mag = moment * (1 + var.magnet_moment_rel_sd * rng.normal());
       const double tu = var.magnet_tilt_sd_rad * rng.normal(),
                    tv = var.magnet_tilt_sd_rad * rng.normal();
       const double n = std::sqrt(1 + tu * tu + tv * tv);
-      m.m_loc = Vec3<double>{tu / n, tv / n, 1 / n} * (sign * mag);
-      p.magnets_.push_back(m);
+      m.moment_am2 = Vec3<double>{tu / n, tv / n, 1 / n} * (sign * mag);
+      p.magnets.push_back(m);
     }
   }
   for (int j = 0; j < d.sensors_v; ++j) {
     for (int i = 0; i < d.sensors_u; ++i) {
-      Sensor s;
-      s.u = (i - (d.sensors_u - 1) / 2.0) * d.sensor_pitch_mm +
-            var.sensor_position_sd_mm * rng.normal();
-      s.v = (j - (d.sensors_v - 1) / 2.0) * d.sensor_pitch_mm +
-            var.sensor_position_sd_mm * rng.normal();
-      s.h = -d.sensor_depth_mm + var.sensor_position_sd_mm * rng.normal();
-      Vec3<double> tu, tv, n;
-      s.pos = p.surface_point(s.u, s.v, s.h, &tu, &tv, &n);
-      // The sensor's axes: the local surface frame, turned by a small mounting error.
-      const Mat3 err = rotation_from_vector(Vec3<double>{rng.normal(), rng.normal(), rng.normal()} *
-                                            var.sensor_rotation_sd_rad);
-      const Vec3<double> ax[3] = {tu, tv, n};
-      for (int r = 0; r < 3; ++r) {
-        const Vec3<double>& e = err.r[r];
-        s.frame.r[r] = ax[0] * e.x + ax[1] * e.y + ax[2] * e.z;
-      }
+      SensorParameters s;
+      s.u_mm = (i - (d.sensors_u - 1) / 2.0) * d.sensor_pitch_mm +
+               var.sensor_position_sd_mm * rng.normal();
+      s.v_mm = (j - (d.sensors_v - 1) / 2.0) * d.sensor_pitch_mm +
+               var.sensor_position_sd_mm * rng.normal();
+      s.h_mm = -d.sensor_depth_mm + var.sensor_position_sd_mm * rng.normal();
+      // A small mounting error turns the chip against the local surface frame.
+      s.mounting = rotation_from_vector(Vec3<double>{rng.normal(), rng.normal(), rng.normal()} *
+                                        var.sensor_rotation_sd_rad);
       s.gain = {1 + var.sensor_gain_rel_sd * rng.normal(),
                 1 + var.sensor_gain_rel_sd * rng.normal(),
                 1 + var.sensor_gain_rel_sd * rng.normal()};
-      p.sensors_.push_back(s);
+      p.sensors.push_back(s);
     }
+  }
+  return assemble(d, p);
+}
+
+Result<PatchModel> PatchModel::from_parameters(const PatchDesign& d, const UnitParameters& u) {
+  if (Status s = validate(d); !s.ok()) return s.error();
+  auto fail = [](const std::string& what) {
+    return make_error(ErrorCode::kInvalidArgument, "unit parameters: " + what);
+  };
+  if (static_cast<int>(u.magnets.size()) != d.magnet_count() ||
+      static_cast<int>(u.sensors.size()) != d.sensor_count()) {
+    return fail("the design has " + std::to_string(d.magnet_count()) + " magnets and " +
+                std::to_string(d.sensor_count()) + " sensors, the parameters " +
+                std::to_string(u.magnets.size()) + " and " + std::to_string(u.sensors.size()));
+  }
+  auto finite3 = [](const Vec3<double>& v) {
+    return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+  };
+  if (!std::isfinite(u.spread_mm) || !(u.spread_mm > 0)) return fail("spread_mm must be > 0");
+  if (!std::isfinite(u.lateral_mm) || !(u.lateral_mm >= 0)) return fail("lateral_mm must be >= 0");
+  for (std::size_t i = 0; i < u.magnets.size(); ++i) {
+    const MagnetParameters& m = u.magnets[i];
+    if (!std::isfinite(m.u_mm) || !std::isfinite(m.v_mm) || !std::isfinite(m.h_mm) ||
+        !finite3(m.moment_am2) || !(dot(m.moment_am2, m.moment_am2) > 0)) {
+      return fail("magnet " + std::to_string(i) + ": non-finite position or zero moment");
+    }
+  }
+  for (std::size_t i = 0; i < u.sensors.size(); ++i) {
+    const SensorParameters& s = u.sensors[i];
+    bool ok = std::isfinite(s.u_mm) && std::isfinite(s.v_mm) && std::isfinite(s.h_mm) &&
+              finite3(s.gain) && s.gain.x != 0 && s.gain.y != 0 && s.gain.z != 0;
+    for (int r = 0; r < 3 && ok; ++r) {
+      for (int c = 0; c < 3; ++c) {
+        const double e = dot(s.mounting.r[r], s.mounting.r[c]) - (r == c ? 1.0 : 0.0);
+        ok = ok && std::fabs(e) < 1e-6;
+      }
+    }
+    if (!ok) {
+      return fail("sensor " + std::to_string(i) +
+                  ": non-finite position, zero gain or a mounting that is not a rotation");
+    }
+  }
+  return assemble(d, u);
+}
+
+UnitParameters PatchModel::parameters() const {
+  UnitParameters u;
+  u.spread_mm = spread_;
+  u.lateral_mm = lateral_;
+  for (const Magnet& m : magnets_) u.magnets.push_back({m.u, m.v, m.h, m.m_loc});
+  for (const Sensor& s : sensors_) u.sensors.push_back({s.u, s.v, s.h, s.mounting, s.gain});
+  return u;
+}
+
+Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParameters& u) {
+  PatchModel p;
+  p.design_ = d;
+  p.spread_ = u.spread_mm;
+  p.spread_u_ = u.spread_mm * (1 + d.anisotropy);
+  p.spread_v_ = u.spread_mm * (1 - d.anisotropy);
+  p.lateral_ = u.lateral_mm;
+  for (const MagnetParameters& m : u.magnets) {
+    Magnet mg;
+    mg.u = m.u_mm;
+    mg.v = m.v_mm;
+    mg.h = m.h_mm;
+    mg.m_loc = m.moment_am2;
+    p.magnets_.push_back(mg);
+  }
+  for (const SensorParameters& sp : u.sensors) {
+    Sensor s;
+    s.u = sp.u_mm;
+    s.v = sp.v_mm;
+    s.h = sp.h_mm;
+    Vec3<double> tu, tv, n;
+    s.pos = p.surface_point(s.u, s.v, s.h, &tu, &tv, &n);
+    // The sensor's axes: the local surface frame, turned by the mounting rotation.
+    const Vec3<double> ax[3] = {tu, tv, n};
+    for (int r = 0; r < 3; ++r) {
+      const Vec3<double>& e = sp.mounting.r[r];
+      s.frame.r[r] = ax[0] * e.x + ax[1] * e.y + ax[2] * e.z;
+    }
+    s.mounting = sp.mounting;
+    s.gain = sp.gain;
+    p.sensors_.push_back(s);
   }
   // Rest field of every magnet at every sensor, in 3D.
   const std::size_t ns = p.sensors_.size();
   p.rest_.resize(p.magnets_.size() * ns);
   for (std::size_t mi = 0; mi < p.magnets_.size(); ++mi) {
     const Magnet& m = p.magnets_[mi];
-    Vec3<double> tu, tv, n;
-    const Vec3<double> pos = p.surface_point(m.u, m.v, m.h, &tu, &tv, &n);
-    const Vec3<double> moment3 = tu * m.m_loc.x + tv * m.m_loc.y + n * m.m_loc.z;
+    Vec3<double> pos, moment3;
+    p.magnet_pose<double>(m.u, m.v, m.h, m.m_loc, p.spread_u_, p.spread_v_, p.lateral_, {}, &pos,
+                          &moment3);
     for (std::size_t si = 0; si < ns; ++si)
       p.rest_[mi * ns + si] = dipole_field_ut(moment3, p.sensors_[si].pos - pos);
   }

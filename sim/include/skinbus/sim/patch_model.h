@@ -31,6 +31,7 @@
 #include "skinbus/sim/dual.h"
 #include "skinbus/sim/mlx90393.h"
 #include "skinbus/sim/plate_kernel.h"
+#include "skinbus/sim/unit_parameters.h"
 #include "skinbus/sim/vec3.h"
 
 namespace skinbus::sim {
@@ -115,6 +116,8 @@ class PatchModel {
     Vec3<double> pos;   // 3D position (mm)
     Mat3 frame;         // rows: the sensor's x, y, z axes in patch 3D coordinates
     Vec3<double> gain;  // per-axis gain (1 nominal)
+    Mat3 mounting;      // mounting rotation relative to the local surface frame (see
+                        // SensorParameters); `frame` is built from it
   };
 
   // The nominal unit of a design (no fabrication variation).
@@ -123,11 +126,23 @@ class PatchModel {
   // so the same UID always gives the same unit.
   static Result<PatchModel> fabricated(const PatchDesign& design, uint64_t hardware_uid,
                                        const FabricationVariation& variation);
+  // A unit from its explicit parameters (skinbus/sim/unit_parameters.h): `params` must have
+  // design.magnet_count() magnets and design.sensor_count() sensors, finite values, spread > 0,
+  // lateral >= 0, finite non-zero gains and orthonormal mounting rotations; the error names the
+  // entry that is not. The design's anisotropy is applied on top of the isotropic spread.
+  // from_parameters(m.design(), m.parameters()) rebuilds m exactly (bit for bit). Cost: the rest
+  // field table, magnets x sensors dipole evaluations.
+  static Result<PatchModel> from_parameters(const PatchDesign& design,
+                                            const UnitParameters& params);
+
+  // The unit's explicit parameters (what from_parameters() takes).
+  UnitParameters parameters() const;
 
   const PatchDesign& design() const { return design_; }
   const std::vector<Magnet>& magnets() const { return magnets_; }
   const std::vector<Sensor>& sensors() const { return sensors_; }
   int channel_count() const { return 3 * static_cast<int>(sensors_.size()); }
+  double spread_mm() const { return spread_; }  // isotropic spread, before anisotropy
   double spread_u_mm() const { return spread_u_; }
   double spread_v_mm() const { return spread_v_; }
   double lateral_mm() const { return lateral_; }
@@ -166,13 +181,26 @@ class PatchModel {
   Vec3<T> surface_point(const T& u, const T& v, const T& h, Vec3<T>* t_u, Vec3<T>* t_v,
                         Vec3<T>* n) const;
 
+  // Pose of one magnet under `contacts`: its 3D position (mm) and moment (A m^2) in patch
+  // coordinates, from its rest parameters (surface coordinates u, v, h; moment `m_loc` in the
+  // local surface frame) and the lattice's spread lengths and lateral coupling. Returns false,
+  // with the rest pose, when no contact reaches it. The one formula of the deformation for every
+  // scalar type: contact_field_ut() calls it with the model's own parameters, per-unit
+  // identification with jets over the parameters (fusion/unit_identification.h). Only the
+  // design's surface and max_depth_mm() are read from the model.
+  template <typename T>
+  bool magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& m_loc, const T& spread_u,
+                   const T& spread_v, const T& lateral, std::span<const ContactT<T>> contacts,
+                   Vec3<T>* pos, Vec3<T>* moment) const;
+
  private:
   PatchModel() = default;
   static Result<PatchModel> build(const PatchDesign& design, uint64_t seed,
                                   const FabricationVariation& var);
+  static Result<PatchModel> assemble(const PatchDesign& design, const UnitParameters& params);
 
   PatchDesign design_;
-  double spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
+  double spread_ = 10, spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
   std::vector<Magnet> magnets_;
   std::vector<Sensor> sensors_;
   std::vector<Vec3<double>> rest_;  // [magnet * sensors + sensor]: rest field in 3D, uT
@@ -204,71 +232,87 @@ Vec3<T> PatchModel::surface_point(const T& u, const T& v, const T& h, Vec3<T>* t
 }
 
 template <typename T>
+bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& m_loc,
+                             const T& spread_u, const T& spread_v, const T& lateral,
+                             std::span<const ContactT<T>> contacts, Vec3<T>* pos,
+                             Vec3<T>* moment) const {
+  using std::sqrt;
+  const double lu = value_of(spread_u), lv = value_of(spread_v);
+  const T lu2 = spread_u * spread_u, lv2 = spread_v * spread_v, luv = spread_u * spread_v;
+  // Surface deflection and slope at the magnet, summed over contacts (the plate is linear).
+  T w(0.0), pu(0.0), pv(0.0);
+  bool moved = false;
+  for (const ContactT<T>& c : contacts) {
+    // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
+    T depth = c.depth_mm;
+    if (!(value_of(depth) > 0)) continue;  // no press (or NaN): nothing moves
+    if (value_of(depth) > max_depth_mm()) depth = T(max_depth_mm());
+    const T du = u - c.u_mm, dv = v - c.v_mm;
+    const double sdu = value_of(du) / lu, sdv = value_of(dv) / lv;
+    const double s2 = sdu * sdu + sdv * sdv;
+    if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
+    moved = true;
+    T a2(0.0);  // squared contact radius of the tip, over l_u l_v
+    if (c.tip_radius_mm > 0) {
+      const double r = c.tip_radius_mm;
+      a2 = value_of(depth) < r ? (T(2 * r) * depth - depth * depth) / luv : T(r * r) / luv;
+      if (value_of(a2) > kMaxTipContact2) a2 = T(kMaxTipContact2);
+    }
+    // At the very point of a point load (s = 0) the kernel is flat (g'(0) = 0): no derivative
+    // through the square root there, which would be 0/0 for jets.
+    const T s_sq = du * du / lu2 + dv * dv / lv2 + a2;
+    const T s = value_of(s_sq) > 0 ? sqrt(s_sq) : T(0.0);
+    const double sv = value_of(s);
+    double g, dg, d2g;
+    plate_kernel(sv, &g, &dg, &d2g);
+    const T gs = first_order(s, g, dg);
+    // The slope needs g'(s)/s, finite for s > 0 (it grows like log s at the press itself,
+    // where the slope is 0 anyway).
+    const double q = sv > 1e-6 ? dg / sv : 0.0;
+    const double dq = sv > 1e-6 ? (d2g * sv - dg) / (sv * sv) : 0.0;
+    const T dgs = first_order(s, q, dq);
+    T amp = depth;  // deflection under the tip is the depth: divide by the shape there
+    if (c.tip_radius_mm > 0) {
+      const T s0 = sqrt(a2);
+      double g0, dg0;
+      plate_kernel(value_of(s0), &g0, &dg0);
+      amp = depth / first_order(s0, g0, dg0);
+    }
+    w = w + amp * gs;                // deflection into the skin
+    pu = pu - amp * dgs * du / lu2;  // slope of the surface height h = -w
+    pv = pv - amp * dgs * dv / lv2;
+  }
+  Vec3<T> tu, tv, nn;
+  if (!moved) {
+    *pos = surface_point(u, v, h, &tu, &tv, &nn);
+    *moment = tu * m_loc.x + tv * m_loc.y + nn * m_loc.z;
+    return false;
+  }
+  // New magnet pose in surface coordinates.
+  *pos = surface_point(u - lateral * pu, v - lateral * pv, h - w, &tu, &tv, &nn);
+  // Moment follows the surface normal: local direction (m_u - slope_u |m_z|, ...), its
+  // magnitude kept.
+  const T mu = m_loc.x - pu * m_loc.z;
+  const T mv = m_loc.y - pv * m_loc.z;
+  const T mz = m_loc.z;
+  const T k = sqrt(dot(m_loc, m_loc) / (mu * mu + mv * mv + mz * mz));
+  *moment = (tu * (mu * k)) + (tv * (mv * k)) + (nn * (mz * k));
+  return true;
+}
+
+template <typename T>
 void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out) const {
   const std::size_t ns = sensors_.size();
   Vec3<T> acc[kMaxSensors];  // on the stack: no allocation per call
   for (std::size_t si = 0; si < ns; ++si) acc[si] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
-  const double lu = spread_u_, lv = spread_v_;
+  const T lu(spread_u_), lv(spread_v_), lat(lateral_);
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
-    // Surface deflection and slope at the magnet, summed over contacts (the plate is linear).
-    T w(0.0), pu(0.0), pv(0.0);
-    bool moved = false;
-    for (const ContactT<T>& c : contacts) {
-      // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
-      T depth = c.depth_mm;
-      if (!(value_of(depth) > 0)) continue;  // no press (or NaN): nothing moves
-      if (value_of(depth) > max_depth_mm()) depth = T(max_depth_mm());
-      const T du = T(m.u) - c.u_mm, dv = T(m.v) - c.v_mm;
-      const double sdu = value_of(du) / lu, sdv = value_of(dv) / lv;
-      const double s2 = sdu * sdu + sdv * sdv;
-      if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
-      moved = true;
-      using std::sqrt;
-      T a2(0.0);  // squared contact radius of the tip, over l_u l_v
-      if (c.tip_radius_mm > 0) {
-        const double r = c.tip_radius_mm;
-        a2 = value_of(depth) < r ? (T(2 * r) * depth - depth * depth) / (lu * lv)
-                                 : T(r * r / (lu * lv));
-        if (value_of(a2) > kMaxTipContact2) a2 = T(kMaxTipContact2);
-      }
-      const T s = sqrt(du * du / (lu * lu) + dv * dv / (lv * lv) + a2);
-      const double sv = value_of(s);
-      double g, dg, d2g;
-      plate_kernel(sv, &g, &dg, &d2g);
-      const T gs = first_order(s, g, dg);
-      // The slope needs g'(s)/s, finite for s > 0 (it grows like log s at the press itself,
-      // where the slope is 0 anyway).
-      const double q = sv > 1e-6 ? dg / sv : 0.0;
-      const double dq = sv > 1e-6 ? (d2g * sv - dg) / (sv * sv) : 0.0;
-      const T dgs = first_order(s, q, dq);
-      T amp = depth;  // deflection under the tip is the depth: divide by the shape there
-      if (c.tip_radius_mm > 0) {
-        const T s0 = sqrt(a2);
-        double g0, dg0;
-        plate_kernel(value_of(s0), &g0, &dg0);
-        amp = depth / first_order(s0, g0, dg0);
-      }
-      w = w + amp * gs;                      // deflection into the skin
-      pu = pu - amp * dgs * du / (lu * lu);  // slope of the surface height h = -w
-      pv = pv - amp * dgs * dv / (lv * lv);
+    Vec3<T> pos, moment;
+    if (!magnet_pose(T(m.u), T(m.v), T(m.h), lift<T>(m.m_loc), lu, lv, lat, contacts, &pos,
+                     &moment)) {
+      continue;
     }
-    if (!moved) continue;
-    // New magnet pose in surface coordinates.
-    const T nu = T(m.u) - T(lateral_) * pu;
-    const T nv = T(m.v) - T(lateral_) * pv;
-    const T nh = T(m.h) - w;
-    Vec3<T> tu, tv, nn;
-    const Vec3<T> pos = surface_point(nu, nv, nh, &tu, &tv, &nn);
-    // Moment follows the surface normal: local direction (m_u - slope_u |m_z|, ...).
-    const T mu = T(m.m_loc.x) - pu * T(m.m_loc.z);
-    const T mv = T(m.m_loc.y) - pv * T(m.m_loc.z);
-    const T mz = T(m.m_loc.z);
-    using std::sqrt;
-    const double mag = std::sqrt(dot(m.m_loc, m.m_loc));
-    const T norm = sqrt(mu * mu + mv * mv + mz * mz);
-    const T k = T(mag) / norm;
-    const Vec3<T> moment = (tu * (mu * k)) + (tv * (mv * k)) + (nn * (mz * k));
     for (std::size_t si = 0; si < ns; ++si) {
       const Vec3<T> b = dipole_field_ut(moment, lift<T>(sensors_[si].pos) - pos);
       const Vec3<double>& r = rest_[mi * ns + si];
