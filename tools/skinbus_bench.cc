@@ -3,6 +3,7 @@
 //
 //   skinbus-bench calibration --plot docs/benchmarks/calibration.png
 //   skinbus-bench fk --robot ../shared/robots/unitree_g1/g1_29dof.urdf
+//   skinbus-bench models --test test.csv --train train.csv --model models/nominal_seed_cnn
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -16,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_models.h"
 #include "skinbus/body_map/calibration.h"
 #include "skinbus/body_map/calibration_sim.h"
 #include "tool_util.h"
@@ -239,7 +241,14 @@ int main(int argc, char** argv) {
   fk->add_option("--calls", fk_calls, "calls per repetition")
       ->capture_default_str()
       ->check(CLI::Range(1, 100000000));
+  skinbus::tools::ModelsBenchArgs ma;
+  CLI::App* models = app.add_subcommand(
+      "models",
+      "per-patch estimators (networks on the host runtime, LibTorch reference, nearest-neighbour "
+      "lookup, physics LM): latency, throughput and error per depth bin against the CRLB");
+  skinbus::tools::add_models_options(models, ma);
   CLI11_PARSE(app, argc, argv);
   if (cal->parsed()) return bench_calibration(ca);
+  if (models->parsed()) return skinbus::tools::bench_models(ma);
   return bench_fk(fk_robot, fk_calls);
 }

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <map>
 #include <numeric>
 #include <random>
@@ -184,14 +185,17 @@ ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::
     max_v = std::max(max_v, std::fabs(data.v_mm[r]));
     max_d = std::max(max_d, data.depth_mm[r]);
   }
-  // The patch extent: the dataset's "size_u_mm"/"size_v_mm" header when present, else the
-  // presses' extent.
+  // The patch extent: "size_u_mm=" / "size_v_mm=" in the dataset's geometry header when
+  // present, else the presses' extent.
   auto meta_number = [&](const char* key, double fallback) {
-    auto it = data.meta.find(key);
+    auto it = data.meta.find("geometry");
     if (it == data.meta.end()) return fallback;
+    const std::size_t at = it->second.find(std::string(key) + "=");
+    if (at == std::string::npos) return fallback;
+    const char* start = it->second.c_str() + at + std::strlen(key) + 1;
     char* end = nullptr;
-    const double v = std::strtod(it->second.c_str(), &end);
-    return end != it->second.c_str() && v > 0 ? v : fallback;
+    const double v = std::strtod(start, &end);
+    return end != start && v > 0 ? v : fallback;
   };
   m.half_u_mm = meta_number("size_u_mm", 2 * std::max(max_u, 1.0)) / 2;
   m.half_v_mm = meta_number("size_v_mm", 2 * std::max(max_v, 1.0)) / 2;
@@ -383,6 +387,12 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
       since_best = 0;
     } else {
       ++since_best;
+      if (o.plateau_epochs > 0 && since_best % o.plateau_epochs == 0) {
+        for (auto& group : opt.param_groups()) {
+          auto& go = static_cast<torch::optim::AdamWOptions&>(group.options());
+          go.lr(go.lr() * 0.5);
+        }
+      }
     }
     result.history.push_back(rep);
     if (o.progress) o.progress(rep);
@@ -407,28 +417,57 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
   return result;
 }
 
-Result<std::vector<double>> torch_forward(const ModelFile& model, std::span<const double> field_ut,
-                                          int batch, int threads) {
+struct TorchRunner::Impl {
+  Impl(const ModelFile& m, int t)
+      : meta(m.meta),
+        threads(t),
+        net(m.meta.architecture, m.meta.channels(), static_cast<int>(m.meta.outputs.size())) {}
+  ModelMeta meta;
+  int threads;
+  Net net;
+};
+
+TorchRunner::TorchRunner(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+TorchRunner::~TorchRunner() = default;
+TorchRunner::TorchRunner(TorchRunner&&) noexcept = default;
+TorchRunner& TorchRunner::operator=(TorchRunner&&) noexcept = default;
+
+Result<TorchRunner> TorchRunner::create(const ModelFile& model, int threads) {
   if (Status s = validate_model(model); !s.ok()) return s.error();
-  const int channels = model.meta.channels();
-  if (batch <= 0 || field_ut.size() != static_cast<std::size_t>(batch) * channels) {
-    return make_error(ErrorCode::kInvalidArgument, "field_ut must hold batch x channels values");
+  auto impl = std::make_unique<Impl>(model, std::max(threads, 1));
+  if (Status s = load_weights(impl->net, model); !s.ok()) return s.error();
+  impl->net->eval();
+  return TorchRunner(std::move(impl));
+}
+
+Status TorchRunner::run(std::span<const double> field_ut, int batch, std::span<double> outputs) {
+  const ModelMeta& m = impl_->meta;
+  const int channels = m.channels();
+  const int n_out = static_cast<int>(m.outputs.size());
+  if (batch <= 0 || field_ut.size() != static_cast<std::size_t>(batch) * channels ||
+      outputs.size() != static_cast<std::size_t>(batch) * n_out) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "field_ut must hold batch x channels and outputs batch x outputs values");
   }
-  torch::set_num_threads(std::max(threads, 1));
-  const int outputs = static_cast<int>(model.meta.outputs.size());
-  Net net(model.meta.architecture, channels, outputs);
-  if (Status s = load_weights(net, model); !s.ok()) return s.error();
-  net->eval();
+  torch::set_num_threads(impl_->threads);
   torch::NoGradGuard no_grad;
-  torch::Tensor y = net->forward(normalised_inputs(model.meta, field_ut, batch)).contiguous();
-  std::vector<double> out(static_cast<std::size_t>(batch) * outputs);
+  torch::Tensor y = impl_->net->forward(normalised_inputs(m, field_ut, batch)).contiguous();
   const float* p = y.data_ptr<float>();
   for (int i = 0; i < batch; ++i) {
-    for (int j = 0; j < outputs; ++j) {
-      out[static_cast<std::size_t>(i * outputs + j)] =
-          p[i * outputs + j] * model.meta.output_scale[j] + model.meta.output_mean[j];
+    for (int j = 0; j < n_out; ++j) {
+      outputs[static_cast<std::size_t>(i * n_out + j)] =
+          p[i * n_out + j] * m.output_scale[j] + m.output_mean[j];
     }
   }
+  return Status::Ok();
+}
+
+Result<std::vector<double>> torch_forward(const ModelFile& model, std::span<const double> field_ut,
+                                          int batch, int threads) {
+  Result<TorchRunner> runner = TorchRunner::create(model, threads);
+  if (!runner.ok()) return runner.error();
+  std::vector<double> out(static_cast<std::size_t>(std::max(batch, 0)) * model.meta.outputs.size());
+  if (Status s = runner->run(field_ut, batch, out); !s.ok()) return s.error();
   return out;
 }
 

@@ -16,6 +16,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -44,6 +45,8 @@ struct TrainOptions {
   std::string name = "model";
   int max_epochs = 200;
   int patience = 20;  // stop after this many epochs without a better score
+  // Halve the learning rate after this many epochs without a better score (0: never).
+  int plateau_epochs = 6;
   int batch_size = 128;
   double learning_rate = 1e-3;
   double weight_decay = 1e-4;  // AdamW
@@ -81,6 +84,23 @@ Status fit_grid(std::span<const SensorPosition> sensors, Architecture& a);
 
 // Normalisation and metadata from a dataset, as train_model() sets them (exposed for tests).
 ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::string& name);
+
+// LibTorch running a model: the reference runtime (tests, benchmark). Owns its network; run()
+// allocates LibTorch tensors per call.
+class TorchRunner {
+ public:
+  static Result<TorchRunner> create(const ModelFile& model, int threads);
+  ~TorchRunner();
+  TorchRunner(TorchRunner&&) noexcept;
+  TorchRunner& operator=(TorchRunner&&) noexcept;
+  // `batch` samples of tared fields (batch x channels, uT) -> batch x outputs, physical units.
+  Status run(std::span<const double> field_ut, int batch, std::span<double> outputs);
+
+ private:
+  struct Impl;
+  explicit TorchRunner(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
 
 // LibTorch's forward pass of `model` on `batch` samples of tared fields (batch x channels, uT):
 // batch x outputs in physical units, row-major. The reference the host runtime is checked

@@ -1,0 +1,39 @@
+// skinbus/fusion/evaluation.h: how far estimates are from the truth, per depth bin. One place for
+// the numbers every estimator is judged by (the training tool's test metrics, the benchmark).
+#pragma once
+
+#include <array>
+#include <span>
+#include <string>
+
+#include "skinbus/fusion/estimate.h"
+
+namespace skinbus::fusion {
+
+// The depth bins of the reports (mm): [0, 0.5), [0.5, 1), [1, 2), [2, 3), [3, 4]; deeper presses
+// count in the last bin.
+inline constexpr std::array<double, 6> kDepthBinEdgesMm = {0, 0.5, 1, 2, 3, 4};
+inline constexpr int kDepthBins = 5;
+std::string depth_bin_name(int bin);  // "0-0.5", ...
+int depth_bin(double depth_mm);       // -1 for depth < 0
+
+struct ErrorStats {
+  int count = 0;     // estimates compared
+  int rejected = 0;  // truth rows the estimator gave no estimate for (not in the means)
+  int flagged = 0;   // estimates with any flag other than kEstimateMasked
+  double xy_mean_mm = 0, xy_p95_mm = 0, depth_mean_mm = 0, force_mean_n = 0;
+};
+
+struct ErrorSummary {
+  ErrorStats all;
+  std::array<ErrorStats, kDepthBins> bins;
+};
+
+struct Truth {
+  std::span<const double> u_mm, v_mm, depth_mm, force_n;  // one entry per estimate
+};
+
+// Compares `estimates` with `truth` (same length). Rejected estimates are counted, not averaged.
+ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const Truth& truth);
+
+}  // namespace skinbus::fusion

@@ -1,0 +1,408 @@
+#include "bench_models.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <functional>
+#include <memory>
+#include <thread>
+
+#include "skinbus/fusion/evaluation.h"
+#include "skinbus/fusion/lookup_estimator.h"
+#include "skinbus/fusion/network_runtime.h"
+#include "skinbus/fusion/physics_estimator.h"
+#include "skinbus/sim/crlb.h"
+#include "skinbus/sim/dataset.h"
+#include "tool_util.h"
+#ifdef SKINBUS_HAVE_TORCH
+#include "skinbus/fusion/training.h"
+#endif
+
+#ifndef SKINBUS_SOURCE_DIR
+#define SKINBUS_SOURCE_DIR "."
+#endif
+
+namespace skinbus::tools {
+namespace {
+
+using namespace skinbus::fusion;
+using Clock = std::chrono::steady_clock;
+
+// One estimator as the benchmark drives it: `run` estimates rows [begin, end) of the test set
+// in batches of `batch` on `threads` threads.
+struct Candidate {
+  std::string name, kind;
+  double macs = 0;  // multiply-adds per sample (networks), 0 otherwise
+  std::function<void(int begin, int end, int batch, int threads, ContactEstimate* out)> run;
+};
+
+struct Measured {
+  std::string name, kind;
+  double macs = 0;
+  double batch1_us = 0, batch64_1t_us = 0, batch64_2t_us = 0;
+  ErrorSummary errors;
+  std::vector<ContactEstimate> estimates;
+};
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// Median over 3 repetitions of the time per sample (µs) of run(0, n, batch, threads).
+double time_per_sample_us(const Candidate& c, int n, int batch, int threads,
+                          std::vector<ContactEstimate>& out) {
+  std::vector<double> reps;
+  for (int r = 0; r < 3; ++r) {
+    const auto t0 = Clock::now();
+    c.run(0, n, batch, threads, out.data());
+    reps.push_back(seconds_since(t0) * 1e6 / n);
+  }
+  return quantile(reps, 0.5);
+}
+
+// Splits [begin, end) over `threads` std::threads (for estimators without their own pool).
+void split_threads(int begin, int end, int threads, const std::function<void(int, int)>& work) {
+  if (threads <= 1) {
+    work(begin, end);
+    return;
+  }
+  std::vector<std::thread> pool;
+  const int per = (end - begin + threads - 1) / threads;
+  for (int t = 0; t < threads; ++t) {
+    const int b = begin + t * per, e = std::min(end, b + per);
+    if (b < e) pool.emplace_back(work, b, e);
+  }
+  for (std::thread& th : pool) th.join();
+}
+
+void write_table(const std::vector<Measured>& rows, const std::array<double, kDepthBins>& crlb,
+                 FILE* f) {
+  std::fprintf(f,
+               "| estimator | kind | batch 1, 1 thread (µs) | batch 64, 1 thread (µs/sample) | "
+               "batch 64, 2 threads (µs/sample) | XY mean (mm) | XY p95 (mm) |");
+  for (int b = 0; b < kDepthBins; ++b) {
+    std::fprintf(f, " XY %s mm (x CRLB) |", depth_bin_name(b).c_str());
+  }
+  std::fprintf(
+      f, " depth mean (mm) | force mean (N) | rejected |\n|---|---|---:|---:|---:|---:|---:|");
+  for (int b = 0; b < kDepthBins; ++b) std::fprintf(f, "---:|");
+  std::fprintf(f, "---:|---:|---:|\n");
+  for (const Measured& m : rows) {
+    std::fprintf(f, "| %s | %s | %.1f | %.1f | %.1f | %.3f | %.3f |", m.name.c_str(),
+                 m.kind.c_str(), m.batch1_us, m.batch64_1t_us, m.batch64_2t_us,
+                 m.errors.all.xy_mean_mm, m.errors.all.xy_p95_mm);
+    for (int b = 0; b < kDepthBins; ++b) {
+      const ErrorStats& s = m.errors.bins[static_cast<std::size_t>(b)];
+      std::fprintf(f, " %.3f (%.2f) |", s.xy_mean_mm,
+                   crlb[static_cast<std::size_t>(b)] > 0
+                       ? s.xy_mean_mm / crlb[static_cast<std::size_t>(b)]
+                       : 0.0);
+    }
+    std::fprintf(f, " %.3f | %.3f | %d |\n", m.errors.all.depth_mean_mm, m.errors.all.force_mean_n,
+                 m.errors.all.rejected);
+  }
+  std::fprintf(f, "| CRLB (RMS XY bound, mean over the test presses) | bound | | | | | |");
+  for (int b = 0; b < kDepthBins; ++b)
+    std::fprintf(f, " %.3f |", crlb[static_cast<std::size_t>(b)]);
+  std::fprintf(f, " | | |\n");
+}
+
+}  // namespace
+
+void add_models_options(CLI::App* sub, ModelsBenchArgs& a) {
+  sub->add_option("--test", a.test_path, "off-grid test split (skinbus-dataset --plan random-test)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  sub->add_option("--train", a.train_path,
+                  "training presses: the nearest-neighbour lookup's table (optional)")
+      ->check(CLI::ExistingFile);
+  sub->add_option("--model", a.model_paths, "trained network (repeat); a stem or .json path");
+  sub->add_option("--reference", a.reference_path,
+                  "model run through LibTorch as the reference runtime (default: the first "
+                  "width-1 CNN)");
+  sub->add_flag("!--no-bf16", a.bf16, "leave out the bfloat16 rows");
+  sub->add_flag("!--no-physics", a.physics, "leave out the physics LM row");
+  sub->add_option("--latency-samples", a.latency_samples, "samples timed at batch 1")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--max-test", a.max_test, "test rows used")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 10000000));
+  sub->add_option("--csv", a.csv, "write the table as CSV");
+  sub->add_option("--errors-csv", a.errors_csv, "write every estimate's error (for the error map)");
+  sub->add_option("--plot", a.plot,
+                  "PNG stem: writes <stem>_pareto.png and <stem>_error_map.png (needs --errors-csv "
+                  "and --csv)");
+}
+
+int bench_models(const ModelsBenchArgs& a) {
+  Result<sim::Dataset> test_r = sim::read_dataset_csv(a.test_path);
+  if (!test_r.ok()) {
+    std::fprintf(stderr, "skinbus-bench: %s\n", test_r.error().to_string().c_str());
+    return 2;
+  }
+  sim::Dataset& test = test_r.value();
+  const int n =
+      static_cast<int>(std::min<std::size_t>(test.rows(), static_cast<std::size_t>(a.max_test)));
+  const int channels = test.channels();
+  const sim::PatchDesign design;
+  Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design);
+  if (!nominal.ok() || nominal->channel_count() != channels) {
+    std::fprintf(stderr,
+                 "skinbus-bench: the test split does not have the nominal patch's %d channels\n",
+                 nominal.ok() ? nominal->channel_count() : 0);
+    return 2;
+  }
+  // The CRLB of every test press, averaged per depth bin.
+  const double nxy = sim::mlx90393_noise_xy_ut(design.sensor_config);
+  const double nz = sim::mlx90393_noise_z_ut(design.sensor_config);
+  std::array<double, kDepthBins> crlb{};
+  std::array<int, kDepthBins> crlb_n{};
+  for (int r = 0; r < n; ++r) {
+    const int b = depth_bin(test.depth_mm[r]);
+    if (b < 0) continue;
+    sim::Contact c{test.u_mm[r], test.v_mm[r], test.depth_mm[r], 5.0};
+    const sim::CrlbPoint p = sim::crlb_at(*nominal, c, nxy, nz);
+    crlb[static_cast<std::size_t>(b)] += p.sd_xy_mm;
+    ++crlb_n[static_cast<std::size_t>(b)];
+  }
+  for (int b = 0; b < kDepthBins; ++b) {
+    if (crlb_n[static_cast<std::size_t>(b)])
+      crlb[static_cast<std::size_t>(b)] /= crlb_n[static_cast<std::size_t>(b)];
+  }
+
+  std::vector<Candidate> candidates;
+  // Keep what the candidates point to alive for the whole run.
+  std::vector<std::shared_ptr<void>> keep;
+  const double* field = test.field_ut.data();
+  const ModelFile* reference = nullptr;
+  std::vector<ModelFile> models;
+  models.reserve(a.model_paths.size());
+  for (const std::string& path : a.model_paths) {
+    Result<ModelFile> m = read_model(path);
+    if (!m.ok()) {
+      std::fprintf(stderr, "skinbus-bench: %s\n", m.error().to_string().c_str());
+      return 2;
+    }
+    models.push_back(std::move(m.value()));
+  }
+  for (const ModelFile& m : models) {
+    if (m.meta.channels() != channels) {
+      std::fprintf(stderr, "skinbus-bench: model %s has %d channels, the test split %d\n",
+                   m.meta.name.c_str(), m.meta.channels(), channels);
+      return 2;
+    }
+    const bool cnn = m.meta.architecture.kind == ArchitectureKind::kCnn;
+    if (a.reference_path.empty() && cnn && m.meta.architecture.width == 1.0 &&
+        reference == nullptr) {
+      reference = &m;
+    }
+    std::vector<RuntimePrecision> precisions = {RuntimePrecision::kFloat32};
+    if (cnn && a.bf16) precisions.push_back(RuntimePrecision::kBfloat16);
+    for (RuntimePrecision p : precisions) {
+      auto rts = std::make_shared<std::array<std::unique_ptr<NetworkRuntime>, 2>>();
+      bool ok = true;
+      for (int t = 1; t <= 2; ++t) {
+        RuntimeOptions o;
+        o.precision = p;
+        o.threads = t;
+        Result<NetworkRuntime> rt = NetworkRuntime::create(m, o);
+        if (!rt.ok()) {
+          std::fprintf(stderr, "skinbus-bench: %s %s: %s (row left out)\n", m.meta.name.c_str(),
+                       runtime_precision_name(p), rt.error().to_string().c_str());
+          ok = false;
+          break;
+        }
+        (*rts)[static_cast<std::size_t>(t - 1)] =
+            std::make_unique<NetworkRuntime>(std::move(rt.value()));
+      }
+      if (!ok) continue;
+      keep.push_back(rts);
+      Candidate c;
+      c.name = m.meta.name + (p == RuntimePrecision::kBfloat16 ? " bf16" : "");
+      c.kind = std::string("runtime ") + (*rts)[0]->kernel_name();
+      c.macs = static_cast<double>(m.macs());
+      c.run = [rts, field, channels](int begin, int end, int batch, int threads,
+                                     ContactEstimate* out) {
+        NetworkRuntime& rt = *(*rts)[static_cast<std::size_t>(std::clamp(threads, 1, 2) - 1)];
+        for (int b = begin; b < end; b += batch) {
+          const int k = std::min(batch, end - b);
+          (void)rt.run({field + static_cast<std::size_t>(b) * channels,
+                        static_cast<std::size_t>(k) * channels},
+                       k, {out + b, static_cast<std::size_t>(k)});
+        }
+      };
+      candidates.push_back(std::move(c));
+    }
+  }
+#ifdef SKINBUS_HAVE_TORCH
+  if (!a.reference_path.empty()) {
+    Result<ModelFile> m = read_model(a.reference_path);
+    if (!m.ok()) {
+      std::fprintf(stderr, "skinbus-bench: %s\n", m.error().to_string().c_str());
+      return 2;
+    }
+    models.push_back(std::move(m.value()));
+    reference = &models.back();
+  }
+  if (reference != nullptr) {
+    auto runners = std::make_shared<std::array<std::unique_ptr<TorchRunner>, 2>>();
+    for (int t = 1; t <= 2; ++t) {
+      Result<TorchRunner> r = TorchRunner::create(*reference, t);
+      if (!r.ok()) {
+        std::fprintf(stderr, "skinbus-bench: LibTorch: %s\n", r.error().to_string().c_str());
+        return 2;
+      }
+      (*runners)[static_cast<std::size_t>(t - 1)] =
+          std::make_unique<TorchRunner>(std::move(r.value()));
+    }
+    keep.push_back(runners);
+    const ModelMeta meta = reference->meta;
+    Candidate c;
+    c.name = reference->meta.name + " (LibTorch)";
+    c.kind = "LibTorch reference";
+    c.macs = static_cast<double>(reference->macs());
+    c.run = [runners, field, channels, meta](int begin, int end, int batch, int threads,
+                                             ContactEstimate* out) {
+      TorchRunner& r = *(*runners)[static_cast<std::size_t>(std::clamp(threads, 1, 2) - 1)];
+      std::vector<double> y(static_cast<std::size_t>(batch) * 4);
+      for (int b = begin; b < end; b += batch) {
+        const int k = std::min(batch, end - b);
+        (void)r.run({field + static_cast<std::size_t>(b) * channels,
+                     static_cast<std::size_t>(k) * channels},
+                    k, {y.data(), static_cast<std::size_t>(k) * 4});
+        for (int i = 0; i < k; ++i) {
+          ContactEstimate& e = out[b + i];
+          e = {y[4 * i],     y[4 * i + 1], y[4 * i + 2],
+               y[4 * i + 3], kEstimateOk,  RejectReason::kNone};
+          flag_range(e, meta.half_u_mm, meta.half_v_mm, meta.max_depth_mm);
+        }
+      }
+    };
+    candidates.push_back(std::move(c));
+  }
+#endif
+  if (!a.train_path.empty()) {
+    Result<sim::Dataset> train = sim::read_dataset_csv(a.train_path);
+    if (!train.ok()) {
+      std::fprintf(stderr, "skinbus-bench: %s\n", train.error().to_string().c_str());
+      return 2;
+    }
+    Result<LookupEstimator> lk = LookupEstimator::from_dataset(design, *train);
+    if (!lk.ok()) {
+      std::fprintf(stderr, "skinbus-bench: lookup: %s\n", lk.error().to_string().c_str());
+      return 2;
+    }
+    auto table = std::make_shared<LookupEstimator>(std::move(lk.value()));
+    keep.push_back(table);
+    Candidate c;
+    c.name = "nearest-neighbour lookup";
+    c.kind = "table of " + std::to_string(table->rows()) + " training samples";
+    c.run = [table, field, channels](int begin, int end, int, int threads, ContactEstimate* out) {
+      split_threads(begin, end, threads, [&](int b, int e) {
+        for (int i = b; i < e; ++i) {
+          out[i] = table->estimate(
+              {field + static_cast<std::size_t>(i) * channels, static_cast<std::size_t>(channels)});
+        }
+      });
+    };
+    candidates.push_back(std::move(c));
+  }
+  if (a.physics) {
+    Result<PhysicsEstimator> pe = PhysicsEstimator::create(*nominal);
+    if (!pe.ok()) {
+      std::fprintf(stderr, "skinbus-bench: physics: %s\n", pe.error().to_string().c_str());
+      return 2;
+    }
+    auto est = std::make_shared<PhysicsEstimator>(std::move(pe.value()));
+    keep.push_back(est);
+    Candidate c;
+    c.name = "physics LM (nominal model)";
+    c.kind = "Ceres Levenberg-Marquardt, lookup start";
+    c.run = [est, field, channels](int begin, int end, int, int threads, ContactEstimate* out) {
+      split_threads(begin, end, threads, [&](int b, int e) {
+        for (int i = b; i < e; ++i) {
+          out[i] = est->estimate({field + static_cast<std::size_t>(i) * channels,
+                                  static_cast<std::size_t>(channels)})
+                       .contact;
+        }
+      });
+    };
+    candidates.push_back(std::move(c));
+  }
+
+  std::vector<Measured> rows;
+  const Truth truth{{test.u_mm.data(), static_cast<std::size_t>(n)},
+                    {test.v_mm.data(), static_cast<std::size_t>(n)},
+                    {test.depth_mm.data(), static_cast<std::size_t>(n)},
+                    {test.force_n.data(), static_cast<std::size_t>(n)}};
+  for (const Candidate& c : candidates) {
+    std::fprintf(stderr, "skinbus-bench: %s ...\n", c.name.c_str());
+    Measured m;
+    m.name = c.name;
+    m.kind = c.kind;
+    m.macs = c.macs;
+    m.estimates.resize(static_cast<std::size_t>(n));
+    const int lat_n = std::min(n, a.latency_samples);
+    m.batch1_us = time_per_sample_us(c, lat_n, 1, 1, m.estimates);
+    m.batch64_1t_us = time_per_sample_us(c, n, 64, 1, m.estimates);
+    m.batch64_2t_us = time_per_sample_us(c, n, 64, 2, m.estimates);
+    m.errors = summarize_errors(m.estimates, truth);
+    rows.push_back(std::move(m));
+  }
+  std::printf(
+      "Test split: %s (%d samples). CRLB: nominal unit, sensor noise %.3f / %.3f uT (xy / z).\n"
+      "Times are per sample; errors on the same samples. x CRLB: mean XY error over the mean\n"
+      "CRLB RMS XY bound of the bin.\n\n",
+      a.test_path.c_str(), n, nxy, nz);
+  write_table(rows, crlb, stdout);
+  if (!a.csv.empty()) {
+    std::ofstream f(a.csv);
+    f << "estimator,kind,macs,batch1_us,batch64_1t_us,batch64_2t_us,xy_mean_mm,xy_p95_mm,depth_"
+         "mean_mm,"
+         "force_mean_n,rejected";
+    for (int b = 0; b < kDepthBins; ++b)
+      f << ",xy_mean_mm_" << depth_bin_name(b) << ",crlb_mm_" << depth_bin_name(b);
+    f << "\n";
+    for (const Measured& m : rows) {
+      f << '"' << m.name << "\",\"" << m.kind << "\"," << m.macs << ',' << m.batch1_us << ','
+        << m.batch64_1t_us << ',' << m.batch64_2t_us << ',' << m.errors.all.xy_mean_mm << ','
+        << m.errors.all.xy_p95_mm << ',' << m.errors.all.depth_mean_mm << ','
+        << m.errors.all.force_mean_n << ',' << m.errors.all.rejected;
+      for (int b = 0; b < kDepthBins; ++b) {
+        f << ',' << m.errors.bins[static_cast<std::size_t>(b)].xy_mean_mm << ','
+          << crlb[static_cast<std::size_t>(b)];
+      }
+      f << "\n";
+    }
+  }
+  if (!a.errors_csv.empty()) {
+    std::ofstream f(a.errors_csv);
+    f << "estimator,u_mm,v_mm,depth_mm,xy_error_mm,depth_error_mm,valid\n";
+    for (const Measured& m : rows) {
+      for (int r = 0; r < n; ++r) {
+        const ContactEstimate& e = m.estimates[static_cast<std::size_t>(r)];
+        f << '"' << m.name << "\"," << test.u_mm[r] << ',' << test.v_mm[r] << ','
+          << test.depth_mm[r] << ','
+          << (e.valid() ? std::hypot(e.u_mm - test.u_mm[r], e.v_mm - test.v_mm[r]) : 0.0) << ','
+          << (e.valid() ? std::fabs(e.depth_mm - test.depth_mm[r]) : 0.0) << ','
+          << (e.valid() ? 1 : 0) << "\n";
+      }
+    }
+  }
+  if (!a.plot.empty() && !a.csv.empty() && !a.errors_csv.empty()) {
+    const char* d = std::getenv("SKINBUS_TOOLS_DIR");
+    const std::string cmd = std::string(d ? d : SKINBUS_SOURCE_DIR "/tools") + "/plot_models.py '" +
+                            a.csv + "' '" + a.errors_csv + "' '" + a.plot + "'";
+    if (std::system(cmd.c_str()) != 0) {
+      std::fprintf(stderr, "skinbus-bench: plotting failed (%s)\n", cmd.c_str());
+      return 1;
+    }
+  }
+  return 0;
+}
+
+}  // namespace skinbus::tools
