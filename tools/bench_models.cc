@@ -112,6 +112,25 @@ void write_table(const std::vector<Measured>& rows, const std::array<double, kDe
 
 }  // namespace
 
+std::array<double, kDepthBins> crlb_per_bin(const sim::PatchModel& model, const sim::Dataset& data,
+                                            int n) {
+  const sim::Mlx90393Config& cfg = model.design().sensor_config;
+  const double nxy = sim::mlx90393_noise_xy_ut(cfg), nz = sim::mlx90393_noise_z_ut(cfg);
+  std::array<double, kDepthBins> sum{};
+  std::array<int, kDepthBins> count{};
+  for (int r = 0; r < n; ++r) {
+    const int b = depth_bin(data.depth_mm[r]);
+    if (b < 0) continue;
+    const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], 5.0};
+    sum[static_cast<std::size_t>(b)] += sim::crlb_at(model, c, nxy, nz).sd_xy_mm;
+    ++count[static_cast<std::size_t>(b)];
+  }
+  for (std::size_t b = 0; b < sum.size(); ++b) {
+    if (count[b] > 0) sum[b] /= count[b];
+  }
+  return sum;
+}
+
 void add_models_options(CLI::App* sub, ModelsBenchArgs& a) {
   sub->add_option("--test", a.test_path, "off-grid test split (skinbus-dataset --plan random-test)")
       ->required()
@@ -156,23 +175,9 @@ int bench_models(const ModelsBenchArgs& a) {
                  nominal.ok() ? nominal->channel_count() : 0);
     return 2;
   }
-  // The CRLB of every test press, averaged per depth bin.
   const double nxy = sim::mlx90393_noise_xy_ut(design.sensor_config);
   const double nz = sim::mlx90393_noise_z_ut(design.sensor_config);
-  std::array<double, kDepthBins> crlb{};
-  std::array<int, kDepthBins> crlb_n{};
-  for (int r = 0; r < n; ++r) {
-    const int b = depth_bin(test.depth_mm[r]);
-    if (b < 0) continue;
-    sim::Contact c{test.u_mm[r], test.v_mm[r], test.depth_mm[r], 5.0};
-    const sim::CrlbPoint p = sim::crlb_at(*nominal, c, nxy, nz);
-    crlb[static_cast<std::size_t>(b)] += p.sd_xy_mm;
-    ++crlb_n[static_cast<std::size_t>(b)];
-  }
-  for (int b = 0; b < kDepthBins; ++b) {
-    if (crlb_n[static_cast<std::size_t>(b)])
-      crlb[static_cast<std::size_t>(b)] /= crlb_n[static_cast<std::size_t>(b)];
-  }
+  const std::array<double, kDepthBins> crlb = crlb_per_bin(*nominal, test, n);
 
   std::vector<Candidate> candidates;
   // Keep what the candidates point to alive for the whole run.

@@ -8,6 +8,9 @@
 #include <string>
 #include <vector>
 
+#include "skinbus/fusion/evaluation.h"
+#include "skinbus/sim/dataset.h"
+
 namespace skinbus::tools {
 
 struct ModelsBenchArgs {
@@ -22,7 +25,26 @@ struct ModelsBenchArgs {
   std::string csv, errors_csv, plot;     // outputs
 };
 
+// The mean CRLB RMS XY bound (mm) of the first `n` rows of `data` per depth bin, for `model`
+// (its design's sensor noise, a 5 mm tip).
+std::array<double, fusion::kDepthBins> crlb_per_bin(const sim::PatchModel& model,
+                                                    const sim::Dataset& data, int n);
+
 void add_models_options(CLI::App* sub, ModelsBenchArgs& a);
 int bench_models(const ModelsBenchArgs& a);
+
+// `skinbus-bench budget`: accuracy at a fixed robot-time budget (361 presses per unit).
+struct BudgetBenchArgs {
+  std::vector<std::string> units = {"nominal", "fabricated", "anisotropic"};
+  uint64_t uid = 0x5B00000000000001ull;  // as skinbus-dataset's default
+  double anisotropy = 0.05;              // of the "anisotropic" unit (outside the model class)
+  std::vector<std::string> seed_models;  // "unit=path": seed CNN trained on that unit's grid
+  int test_count = 2000;                 // off-grid test presses
+  int grid_test_per_point = 3;           // test presses at every grid point
+  std::string csv;
+};
+
+void add_budget_options(CLI::App* sub, BudgetBenchArgs& a);
+int bench_budget(const BudgetBenchArgs& a);
 
 }  // namespace skinbus::tools

@@ -247,8 +247,15 @@ int main(int argc, char** argv) {
       "per-patch estimators (networks on the host runtime, LibTorch reference, nearest-neighbour "
       "lookup, physics LM): latency, throughput and error per depth bin against the CRLB");
   skinbus::tools::add_models_options(models, ma);
+  skinbus::tools::BudgetBenchArgs ba;
+  CLI::App* budget = app.add_subcommand(
+      "budget",
+      "accuracy from one unit's 361 presses (the seed's robot-time budget): the seed recipe "
+      "against the physics pipeline, per simulated unit, off-grid and at grid points");
+  skinbus::tools::add_budget_options(budget, ba);
   CLI11_PARSE(app, argc, argv);
   if (cal->parsed()) return bench_calibration(ca);
+  if (budget->parsed()) return skinbus::tools::bench_budget(ba);
   if (models->parsed()) return skinbus::tools::bench_models(ma);
   return bench_fk(fk_robot, fk_calls);
 }

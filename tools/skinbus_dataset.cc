@@ -23,6 +23,8 @@ int main(int argc, char** argv) {
       "  halton       --count points of a low-discrepancy sequence over the grid's extent\n"
       "  random       --count uniformly random points over the grid's extent\n"
       "  random-test  the test split: --count static presses at random points and depths\n"
+      "  grid-test    --count static presses at random depths at every grid point (the split\n"
+      "               at the training grid's points)\n"
       "  list         the points in --points FILE (one 'u_mm,v_mm' per line)\n"
       "Ramp plans press and release each point at --speed mm/s to --max-depth, sampled at --rate,\n"
       "keeping contact samples only.\n\n"
@@ -35,7 +37,7 @@ int main(int argc, char** argv) {
   uint64_t uid = 0x5B00000000000001ull, seed = 1;
   bool fabricated = false, cylinder = false;
   double radius = 45, anisotropy = 0;
-  app.add_option("--plan", plan, "grid | jittered | halton | random | random-test")
+  app.add_option("--plan", plan, "grid | jittered | halton | random | random-test | grid-test")
       ->capture_default_str();
   app.add_option("--grid", grid, "grid points per side")
       ->capture_default_str()
@@ -45,7 +47,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.1, 100.0));
   app.add_option("--jitter", jitter, "jittered plan: fraction of half a pitch")
       ->capture_default_str();
-  app.add_option("--count", count, "presses for halton/random, samples for random-test")
+  app.add_option(
+         "--count", count,
+         "presses for halton/random, samples for random-test, presses per point for grid-test")
       ->capture_default_str()
       ->check(CLI::Range(1, 10000000));
   app.add_option("--max-depth", max_depth, "deepest press, mm")
@@ -105,6 +109,8 @@ int main(int argc, char** argv) {
       d = generate_ramp_dataset(patch, *pts, pr);
     } else if (plan == "random-test") {
       d = generate_random_test_set(patch, count, half, max_depth, seed);
+    } else if (plan == "grid-test") {
+      d = generate_static_test_set(patch, plan_grid(grid, pitch), count, max_depth, seed);
     } else {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
     }

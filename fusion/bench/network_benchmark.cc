@@ -4,16 +4,28 @@
 //
 // Arguments of every benchmark: model (0..3: CNN width 1, 0.5, 0.25, 0.125; 4: MLP), batch,
 // threads. The per_sample counter is the wall time of one sample (batch time / batch).
+//
+// Accuracy of the reduced precisions on a trained model instead of timings:
+//   fusion_network_benchmark --accuracy_model=<model> --accuracy_data=<dataset.csv>
+// prints the XY, depth and force errors against the dataset's truth (evaluation.h, per depth bin)
+// for float32, bfloat16 and int8, and how far each moves the outputs from float32.
 #include <benchmark/benchmark.h>
 #include <dlfcn.h>
 
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <map>
 #include <memory>
 #include <random>
+#include <string>
 #include <vector>
 
+#include "skinbus/fusion/evaluation.h"
 #include "skinbus/fusion/network_runtime.h"
 #include "skinbus/fusion/training.h"
+#include "skinbus/sim/dataset.h"
 
 namespace skinbus::fusion {
 namespace {
@@ -105,13 +117,114 @@ BENCHMARK_CAPTURE(runtime, kernels_f32, RuntimeBackend::kKernels, RuntimePrecisi
     ->Apply(args);
 BENCHMARK_CAPTURE(runtime, kernels_bf16, RuntimeBackend::kKernels, RuntimePrecision::kBfloat16)
     ->Apply(args);
+BENCHMARK_CAPTURE(runtime, kernels_int8, RuntimeBackend::kKernels, RuntimePrecision::kInt8)
+    ->Apply(args);
 BENCHMARK_CAPTURE(runtime, onednn_f32, RuntimeBackend::kOneDnn, RuntimePrecision::kFloat32)
     ->Apply(args);
 BENCHMARK_CAPTURE(runtime, portable_f32, RuntimeBackend::kPortable, RuntimePrecision::kFloat32)
     ->Apply(args);
 BENCHMARK(torch)->Apply(args);
 
+int accuracy(const std::string& model_path, const std::string& data_path) {
+  Result<ModelFile> m = read_model(model_path);
+  if (!m.ok()) {
+    std::fprintf(stderr, "%s\n", m.error().to_string().c_str());
+    return 2;
+  }
+  Result<sim::Dataset> d = sim::read_dataset_csv(data_path);
+  if (!d.ok()) {
+    std::fprintf(stderr, "%s\n", d.error().to_string().c_str());
+    return 2;
+  }
+  const sim::Dataset& data = *d;
+  if (data.channels() != m->meta.channels()) {
+    std::fprintf(stderr, "model has %d channels, the dataset %d\n", m->meta.channels(),
+                 data.channels());
+    return 2;
+  }
+  const int rows = static_cast<int>(data.rows());
+  const Truth truth{data.u_mm, data.v_mm, data.depth_mm, data.force_n};
+  std::printf("model %s, %d samples of %s\n", model_path.c_str(), rows, data_path.c_str());
+  std::printf("%-9s %-26s %8s %8s", "precision", "kernels", "XY mean", "XY p95");
+  for (int b = 0; b < kDepthBins; ++b) std::printf(" %8s", ("XY " + depth_bin_name(b)).c_str());
+  std::printf(" %8s %8s %9s %9s\n", "depth", "force", "dXY mean", "dXY max");
+  std::vector<ContactEstimate> ref;
+  double ref_xy = 0;
+  for (RuntimePrecision p :
+       {RuntimePrecision::kFloat32, RuntimePrecision::kBfloat16, RuntimePrecision::kInt8}) {
+    RuntimeOptions o;
+    o.precision = p;
+    auto rt = NetworkRuntime::create(*m, o);
+    if (!rt.ok()) {
+      std::printf("%-9s %s\n", runtime_precision_name(p), rt.error().to_string().c_str());
+      continue;
+    }
+    std::vector<ContactEstimate> est(static_cast<std::size_t>(rows));
+    constexpr int kBatch = 64;
+    for (int b = 0; b < rows; b += kBatch) {
+      const int k = std::min(kBatch, rows - b);
+      const std::size_t ch = static_cast<std::size_t>(data.channels());
+      Status st =
+          rt->run({data.field(static_cast<std::size_t>(b)), static_cast<std::size_t>(k) * ch}, k,
+                  {est.data() + b, static_cast<std::size_t>(k)});
+      if (!st.ok()) {
+        std::fprintf(stderr, "%s\n", st.error().to_string().c_str());
+        return 2;
+      }
+    }
+    const ErrorSummary e = summarize_errors(est, truth);
+    if (ref.empty()) {
+      ref = est;
+      ref_xy = e.all.xy_mean_mm;
+    }
+    double dsum = 0, dmax = 0;
+    int n = 0;
+    for (std::size_t i = 0; i < est.size(); ++i) {
+      if (!est[i].valid() || !ref[i].valid()) continue;
+      const double dxy = std::hypot(est[i].u_mm - ref[i].u_mm, est[i].v_mm - ref[i].v_mm);
+      dsum += dxy;
+      dmax = std::max(dmax, dxy);
+      ++n;
+    }
+    std::printf("%-9s %-26s %8.4f %8.4f", runtime_precision_name(p), rt->kernel_name(),
+                e.all.xy_mean_mm, e.all.xy_p95_mm);
+    for (int b = 0; b < kDepthBins; ++b) {
+      std::printf(" %8.4f", e.bins[static_cast<std::size_t>(b)].xy_mean_mm);
+    }
+    std::printf(" %8.4f %8.4f %9.4f %9.4f   XY mean %+.2f %% of float32\n", e.all.depth_mean_mm,
+                e.all.force_mean_n, n > 0 ? dsum / n : 0.0, dmax,
+                100.0 * (e.all.xy_mean_mm / ref_xy - 1.0));
+  }
+  return 0;
+}
+
 }  // namespace
 }  // namespace skinbus::fusion
 
-BENCHMARK_MAIN();
+int main(int argc, char** argv) {
+  std::string model_path, data_path;
+  int kept = 1;
+  for (int i = 1; i < argc; ++i) {
+    const char* a = argv[i];
+    if (std::strncmp(a, "--accuracy_model=", 17) == 0) {
+      model_path = a + 17;
+    } else if (std::strncmp(a, "--accuracy_data=", 16) == 0) {
+      data_path = a + 16;
+    } else {
+      argv[kept++] = argv[i];
+    }
+  }
+  if (!model_path.empty() || !data_path.empty()) {
+    if (model_path.empty() || data_path.empty()) {
+      std::fprintf(stderr, "--accuracy_model and --accuracy_data go together\n");
+      return 2;
+    }
+    return skinbus::fusion::accuracy(model_path, data_path);
+  }
+  argc = kept;
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

@@ -3,6 +3,7 @@
 #include <cpuid.h>
 #include <immintrin.h>
 
+#include <cmath>
 #include <cstring>
 #include <utility>
 
@@ -53,6 +54,72 @@ void gemm_bf16_portable(const uint16_t* const* a, const uint16_t* b, int k_pairs
   }
 }
 
+template <int R, int V>
+void gemm_i8_portable(const uint8_t* const* a, const int8_t* b, int k_quads, int32_t* const* c,
+                      bool init) {
+  constexpr int kCols = kLanes * V;
+  int32_t acc[R][kCols];
+  for (int i = 0; i < R; ++i) {
+    for (int j = 0; j < kCols; ++j) acc[i][j] = init ? 0 : c[i][j];
+  }
+  for (int kq = 0; kq < k_quads; ++kq) {
+    const int8_t* bk = b + static_cast<std::ptrdiff_t>(kq) * kCols * 4;
+    for (int i = 0; i < R; ++i) {
+      const uint8_t* ak = a[i] + 4 * kq;
+      for (int j = 0; j < kCols; ++j) {
+        int32_t sum = 0;
+        for (int e = 0; e < 4; ++e) sum += static_cast<int32_t>(ak[e]) * bk[4 * j + e];
+        acc[i][j] += sum;
+      }
+    }
+  }
+  for (int i = 0; i < R; ++i) {
+    for (int j = 0; j < kCols; ++j) c[i][j] = acc[i][j];
+  }
+}
+
+// The scale of a sample whose largest value is `max_value` (`finite` false when any value is
+// not finite), and its inverse for quantising.
+float u8_scale(float max_value, bool finite, float* inv) {
+  if (!finite) {
+    *inv = 0.0f;
+    return std::nanf("");
+  }
+  if (!(max_value > 0.0f)) {
+    *inv = 0.0f;
+    return 0.0f;
+  }
+  *inv = 255.0f / max_value;
+  return max_value / 255.0f;
+}
+
+float quantise_u8_portable(const float* x, int n, uint8_t* out) {
+  float mx = 0.0f;
+  bool finite = true;
+  for (int i = 0; i < n; ++i) {
+    finite = finite && std::isfinite(x[i]);
+    mx = x[i] > mx ? x[i] : mx;
+  }
+  float inv = 0.0f;
+  const float scale = u8_scale(mx, finite, &inv);
+  for (int i = 0; i < n; ++i) {
+    const float q = std::nearbyint((x[i] > 0.0f ? x[i] : 0.0f) * inv);
+    out[i] = static_cast<uint8_t>(q > 255.0f ? 255.0f : q);
+  }
+  return scale;
+}
+
+void dequantise_portable(const int32_t* acc, int rows, int ld, float a_scale, const float* w_scale,
+                         const float* bias, bool relu, float* out) {
+  for (int r = 0; r < rows; ++r) {
+    const std::ptrdiff_t row = static_cast<std::ptrdiff_t>(r) * ld;
+    for (int j = 0; j < ld; ++j) {
+      const float y = std::fma(static_cast<float>(acc[row + j]), a_scale * w_scale[j], bias[j]);
+      out[row + j] = relu && y < 0.0f ? 0.0f : y;
+    }
+  }
+}
+
 void to_bf16_portable(const float* in, uint16_t* out, int n, bool relu) {
   for (int i = 0; i < n; ++i) out[i] = to_bf16_bits(relu && in[i] < 0.0f ? 0.0f : in[i]);
 }
@@ -86,6 +153,8 @@ void pool_portable(const float* x, int cells, int ld, int c, float* out) {
 #define SKINBUS_AVX512 __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,fma")))
 #define SKINBUS_AVX512_BF16 \
   __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,fma,avx512bf16")))
+#define SKINBUS_AVX512_VNNI \
+  __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,fma,avx512vnni")))
 
 template <int R, int V>
 SKINBUS_AVX512 void gemm_f32_avx512(const float* const* a, const float* b, int k, float* const* c,
@@ -161,6 +230,93 @@ SKINBUS_AVX512_BF16 void gemm_bf16_avx512(const uint16_t* const* a, const uint16
   }
 }
 
+template <int R, int V>
+SKINBUS_AVX512_VNNI void gemm_i8_avx512(const uint8_t* const* a, const int8_t* b, int k_quads,
+                                        int32_t* const* c, bool init) {
+  __m512i acc[R][V];
+  const uint8_t* ap[R];
+#pragma GCC unroll 8
+  for (int i = 0; i < R; ++i) {
+    ap[i] = a[i];
+#pragma GCC unroll 4
+    for (int v = 0; v < V; ++v) {
+      acc[i][v] = init ? _mm512_setzero_si512() : _mm512_loadu_si512(c[i] + kLanes * v);
+    }
+  }
+  for (int kq = 0; kq < k_quads; ++kq) {
+    __m512i bv[V];
+#pragma GCC unroll 4
+    for (int v = 0; v < V; ++v) bv[v] = _mm512_loadu_si512(b + 4 * kLanes * v);
+    b += 4 * kLanes * V;
+#pragma GCC unroll 8
+    for (int i = 0; i < R; ++i) {
+      int32_t quad;
+      std::memcpy(&quad, ap[i] + 4 * kq, sizeof quad);
+      const __m512i av = _mm512_set1_epi32(quad);
+#pragma GCC unroll 4
+      for (int v = 0; v < V; ++v) acc[i][v] = _mm512_dpbusd_epi32(acc[i][v], av, bv[v]);
+    }
+  }
+#pragma GCC unroll 8
+  for (int i = 0; i < R; ++i) {
+#pragma GCC unroll 4
+    for (int v = 0; v < V; ++v) _mm512_storeu_si512(c[i] + kLanes * v, acc[i][v]);
+  }
+}
+
+SKINBUS_AVX512 float quantise_u8_avx512(const float* x, int n, uint8_t* out) {
+  const __m512 zero = _mm512_setzero_ps();
+  __m512 mx = zero;
+  __mmask16 bad = 0;
+  int i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    const __m512 v = _mm512_loadu_ps(x + i);
+    // Quiet or signalling NaN, +Inf, -Inf.
+    bad = static_cast<__mmask16>(bad | _mm512_fpclass_ps_mask(v, 0x99));
+    mx = _mm512_max_ps(mx, v);
+  }
+  alignas(64) float lanes[kLanes];
+  _mm512_store_ps(lanes, mx);
+  float m = 0.0f;
+  for (const float v : lanes) m = v > m ? v : m;
+  bool finite = bad == 0;
+  for (int j = i; j < n; ++j) {
+    finite = finite && std::isfinite(x[j]);
+    m = x[j] > m ? x[j] : m;
+  }
+  float inv = 0.0f;
+  const float scale = u8_scale(m, finite, &inv);
+  const __m512 vinv = _mm512_set1_ps(inv);
+  for (i = 0; i + kLanes <= n; i += kLanes) {
+    // Round to nearest even (the default mode), then saturate to 0..255.
+    const __m512 v = _mm512_mul_ps(_mm512_max_ps(_mm512_loadu_ps(x + i), zero), vinv);
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + i),
+                     _mm512_cvtusepi32_epi8(_mm512_cvtps_epi32(v)));
+  }
+  for (; i < n; ++i) {
+    const float q = std::nearbyint((x[i] > 0.0f ? x[i] : 0.0f) * inv);
+    out[i] = static_cast<uint8_t>(q > 255.0f ? 255.0f : q);
+  }
+  return scale;
+}
+
+SKINBUS_AVX512 void dequantise_avx512(const int32_t* acc, int rows, int ld, float a_scale,
+                                      const float* w_scale, const float* bias, bool relu,
+                                      float* out) {
+  const __m512 zero = _mm512_setzero_ps();
+  const __m512 as = _mm512_set1_ps(a_scale);
+  for (int j = 0; j < ld; j += kLanes) {
+    const __m512 s = _mm512_mul_ps(_mm512_loadu_ps(w_scale + j), as);
+    const __m512 b = _mm512_loadu_ps(bias + j);
+    for (int r = 0; r < rows; ++r) {
+      const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(r) * ld + j;
+      __m512 y = _mm512_fmadd_ps(_mm512_cvtepi32_ps(_mm512_loadu_si512(acc + at)), s, b);
+      if (relu) y = _mm512_max_ps(y, zero);
+      _mm512_storeu_ps(out + at, y);
+    }
+  }
+}
+
 SKINBUS_AVX512 void relu_avx512(float* x, int n) {
   const __m512 zero = _mm512_setzero_ps();
   int i = 0;
@@ -220,6 +376,14 @@ struct Bf16Portable {
   static GemmBf16 get() { return &gemm_bf16_portable<R, V>; }
 };
 template <int R, int V>
+struct I8Portable {
+  static GemmI8 get() { return &gemm_i8_portable<R, V>; }
+};
+template <int R, int V>
+struct I8Avx512 {
+  static GemmI8 get() { return &gemm_i8_avx512<R, V>; }
+};
+template <int R, int V>
 struct F32Avx512 {
   static GemmF32 get() { return &gemm_f32_avx512<R, V>; }
 };
@@ -236,6 +400,9 @@ KernelSet make_portable() {
   fill<F32Portable>(k.f32, RowSeq{});
   fill<Bf16Portable>(k.bf16, RowSeq{});
   k.to_bf16 = &to_bf16_portable;
+  fill<I8Portable>(k.i8, RowSeq{});
+  k.quantise_u8 = &quantise_u8_portable;
+  k.dequantise = &dequantise_portable;
   k.relu = &relu_portable;
   k.pool = &pool_portable;
   return k;
@@ -256,6 +423,13 @@ bool has_avx512_bf16() {
   return (eax & (1u << 5)) != 0;
 }
 
+bool has_avx512_vnni() {
+  // CPUID leaf 7 sub-leaf 0, ECX bit 11.
+  unsigned eax = 0, ebx = 0, ecx = 0, edx = 0;
+  if (__get_cpuid_count(7, 0, &eax, &ebx, &ecx, &edx) == 0) return false;
+  return (ecx & (1u << 11)) != 0;
+}
+
 }  // namespace
 
 const KernelSet& portable_kernels() {
@@ -274,6 +448,11 @@ const KernelSet* avx512_kernels() {
     if (has_avx512_bf16()) {
       fill<Bf16Avx512>(s.bf16, RowSeq{});
       s.to_bf16 = &to_bf16_avx512;
+    }
+    if (has_avx512_vnni()) {
+      fill<I8Avx512>(s.i8, RowSeq{});
+      s.quantise_u8 = &quantise_u8_avx512;
+      s.dequantise = &dequantise_avx512;
     }
     return s;
   }();

@@ -8,8 +8,13 @@
 //   float32:  panel[k][16 * V]              (K rows of 16 * V floats)
 //   bfloat16: panel[k / 2][16 * V][2]       (pairs of K, the vdpbf16ps layout; K padded to even
 //                                            with zeros, A rows likewise zero at the pad)
-// The accumulators start from `bias` (16 * V floats) when it is not null, else from C; the
-// result is stored to C, through max(0, .) when `relu`.
+//   int8:     panel[k / 4][16 * V][4]       (quads of K, the vpdpbusd layout: A rows unsigned
+//                                            8-bit, B signed 8-bit, K padded to a multiple of 4
+//                                            with zeros)
+// The float accumulators start from `bias` (16 * V floats) when it is not null, else from C; the
+// result is stored to C, through max(0, .) when `relu`. The int8 kernels accumulate exact int32
+// sums into C (starting from zero when `init`, else from C); scales and bias are applied by
+// dequantise_u8 afterwards.
 #pragma once
 
 #include <cstdint>
@@ -24,6 +29,16 @@ using GemmF32 = void (*)(const float* const* a, const float* b, int k, float* co
                          const float* bias, bool relu);
 using GemmBf16 = void (*)(const uint16_t* const* a, const uint16_t* b, int k_pairs, float* const* c,
                           const float* bias, bool relu);
+using GemmI8 = void (*)(const uint8_t* const* a, const int8_t* b, int k_quads, int32_t* const* c,
+                        bool init);
+// Quantises `n` floats (one sample's activations, >= 0 after ReLU; negatives clamp to 0) to
+// unsigned 8 bits: out = round(x / scale) with scale = max(x) / 255. Returns the scale: 0 when
+// every value is 0, NaN when any value is not finite (so the sample's outputs become NaN).
+using QuantiseU8 = float (*)(const float* x, int n, uint8_t* out);
+// Dequantises `rows` rows of `ld` int32 sums (ld a multiple of 16): out = acc * a_scale *
+// w_scale[j] + bias[j], through max(0, .) when `relu`.
+using DequantiseI32 = void (*)(const int32_t* acc, int rows, int ld, float a_scale,
+                               const float* w_scale, const float* bias, bool relu, float* out);
 // Rounds `n` floats to bfloat16 (round to nearest even), applying max(0, .) first when `relu`.
 using ToBf16 = void (*)(const float* in, uint16_t* out, int n, bool relu);
 // max(0, .) over `n` floats in place.
@@ -36,14 +51,19 @@ struct KernelSet {
   const char* name = "";
   GemmF32 f32[kMaxRows][kMaxVectors] = {};
   GemmBf16 bf16[kMaxRows][kMaxVectors] = {};  // null when the CPU lacks AVX512_BF16
+  GemmI8 i8[kMaxRows][kMaxVectors] = {};      // null when the CPU lacks AVX512_VNNI
+  QuantiseU8 quantise_u8 = nullptr;
+  DequantiseI32 dequantise = nullptr;
   ToBf16 to_bf16 = nullptr;
   ReluF32 relu = nullptr;
   PoolF32 pool = nullptr;
 };
 
-// Plain C++ kernels for any CPU (bf16 entries emulate vdpbf16ps exactly enough for tests).
+// Plain C++ kernels for any CPU (bf16 entries emulate vdpbf16ps exactly enough for tests; int8
+// entries compute the same integer sums as vpdpbusd).
 const KernelSet& portable_kernels();
-// AVX-512 kernels when the CPU has AVX-512F (and AVX512_BF16 for the bf16 entries), else null.
+// AVX-512 kernels when the CPU has AVX-512F (and AVX512_BF16 for the bf16 entries, AVX512_VNNI
+// for the int8 entries), else null.
 const KernelSet* avx512_kernels();
 
 // Round-to-nearest-even conversion of one float to bfloat16 bits (finite inputs).

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <climits>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -124,9 +125,11 @@ struct ColBlock {
 
 struct KernelLayer {
   bool conv = false, relu = true;
-  int k = 0, k_pairs = 0, n = 0, n_ld = 0;
-  std::vector<ColBlock> blocks;
-  Aligned<float> bias;  // n_ld
+  bool int8 = false;  // u8 activations x s8 weights (else float32 or bfloat16 as the runtime)
+  int k = 0, k_pairs = 0, k_quads = 0, n = 0, n_ld = 0;
+  std::vector<ColBlock> blocks;  // offsets into w8 when int8, else w32 or w16
+  Aligned<float> bias;           // n_ld
+  Aligned<float> w_scale;        // int8: n_ld per output channel scales of the weights
 };
 
 // The in-bounds pairs of one 3x3 tap over the grid.
@@ -139,12 +142,15 @@ struct Tap {
 
 // Per thread: input, activations and scratch, sized at create.
 struct Slot {
-  Aligned<float> x;         // normalised input rows (kernel backends)
-  Aligned<float> f0, f1;    // float activations
-  Aligned<uint16_t> h;      // bfloat16 activations
-  std::vector<uint8_t> ok;  // channel mask scratch
-  std::vector<int> index;   // chunk row -> sample
-  std::vector<double> raw;  // chunk outputs, physical units
+  Aligned<float> x;            // normalised input rows (kernel backends)
+  Aligned<float> f0, f1;       // float activations
+  Aligned<uint16_t> h;         // bfloat16 activations
+  Aligned<uint8_t> q;          // int8 path: quantised activations
+  Aligned<int32_t> acc;        // int8 path: integer sums
+  std::vector<float> q_scale;  // int8 path: per sample scale of q
+  std::vector<uint8_t> ok;     // channel mask scratch
+  std::vector<int> index;      // chunk row -> sample
+  std::vector<double> raw;     // chunk outputs, physical units
 };
 
 }  // namespace
@@ -164,12 +170,13 @@ struct NetworkRuntime::Impl {
 
   // Kernel backends.
   const KernelSet* ks = nullptr;
-  bool bf16 = false;
+  bool bf16 = false, int8 = false;
   std::vector<KernelLayer> layers;
   std::vector<Tap> taps;  // centre first
   int last_conv = -1;
   Aligned<float> w32;
   Aligned<uint16_t> w16;
+  Aligned<int8_t> w8;
   // oneDNN backend.
   std::unique_ptr<detail::OneDnnNet> dnn;
 
@@ -224,27 +231,33 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
   };
   std::vector<Source> src;
   int in = cnn ? 3 : channels;
-  std::size_t packed = 0;
+  std::size_t packed = 0, packed8 = 0;
   auto add_layer = [&](const std::string& name, bool conv, int out, bool relu) {
     KernelLayer l;
     l.conv = conv;
     l.relu = relu;
+    // int8 serves the layers whose input is a ReLU output (non-negative, so unsigned 8 bits
+    // lose no sign); the first layer (signed normalised fields) and the head stay float32.
+    l.int8 = int8 && !layers.empty() && relu;
     l.k = in;
     l.k_pairs = (in + 1) / 2;
+    l.k_quads = (in + 3) / 4;
     l.n = out;
     l.n_ld = round_up(out, kLanes);
     const int ntaps = conv ? static_cast<int>(taps.size()) : 1;
-    const int k_rows = bf16 ? 2 * l.k_pairs : l.k;
+    const int k_rows = l.int8 ? 4 * l.k_quads : bf16 ? 2 * l.k_pairs : l.k;
+    std::size_t& at = l.int8 ? packed8 : packed;
     for (int col0 = 0; col0 < l.n_ld; col0 += kLanes * kMaxVectors) {
       ColBlock b;
       b.col0 = col0;
       b.vectors = std::min(kMaxVectors, (l.n_ld - col0) / kLanes);
       b.panel = static_cast<std::size_t>(k_rows) * kLanes * b.vectors;
-      b.offset = packed;
-      packed += b.panel * static_cast<std::size_t>(ntaps);
+      b.offset = at;
+      at += b.panel * static_cast<std::size_t>(ntaps);
       l.blocks.push_back(b);
     }
     l.bias.assign(static_cast<std::size_t>(l.n_ld));
+    if (l.int8) l.w_scale.assign(static_cast<std::size_t>(l.n_ld));
     src.push_back({model.find(name + ".weight"), model.find(name + ".bias")});
     layers.push_back(std::move(l));
     in = out;
@@ -260,13 +273,23 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     add_layer("fc" + std::to_string(k), false, a.hidden[k], true);
   }
   add_layer("head", false, outputs, false);
+  // An int32 sum holds at most 2^31 / (255 * 127) ~ 66000 products.
+  for (const KernelLayer& l : layers) {
+    const int64_t terms = int64_t{4} * l.k_quads * (l.conv ? static_cast<int64_t>(taps.size()) : 1);
+    if (l.int8 && terms * 255 * 127 > int64_t{INT32_MAX}) {
+      return make_error(ErrorCode::kUnsupported, "int8: a layer with " + std::to_string(terms) +
+                                                     " inputs could overflow its 32-bit sums");
+    }
+  }
 
-  // Pack: panel[k][cols] (float32) or panel[k/2][cols][2] (bfloat16), zeros beyond the shape.
+  // Pack: panel[k][cols] (float32), panel[k/2][cols][2] (bfloat16) or panel[k/4][cols][4]
+  // (int8), zeros beyond the shape.
   if (bf16) {
     w16.assign(packed);
   } else {
     w32.assign(packed);
   }
+  w8.assign(packed8);
   for (std::size_t li = 0; li < layers.size(); ++li) {
     KernelLayer& l = layers[li];
     const float* w = src[li].w->data.data();
@@ -277,12 +300,38 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
       if (!l.conv) return w[static_cast<std::size_t>(o) * l.k + i];
       return w[(static_cast<std::size_t>(o) * l.k + i) * 9 + static_cast<std::size_t>(t)];
     };
+    if (l.int8) {
+      // Symmetric per output channel: scale = max |w| / 127 over its inputs and taps.
+      for (int o = 0; o < l.n; ++o) {
+        float mx = 0.0f;
+        for (int i = 0; i < l.k; ++i) {
+          for (int t = 0; t < (l.conv ? 9 : 1); ++t) mx = std::max(mx, std::fabs(weight(o, i, t)));
+        }
+        l.w_scale.data()[o] = mx / 127.0f;
+      }
+    }
+    auto weight_s8 = [&](int o, int i, int t) -> int8_t {
+      if (o >= l.n) return 0;
+      const float scale = l.w_scale.data()[o];
+      if (scale == 0.0f) return 0;
+      const float q = std::nearbyint(weight(o, i, t) / scale);
+      return static_cast<int8_t>(std::clamp(q, -127.0f, 127.0f));
+    };
     for (const ColBlock& b : l.blocks) {
       const int cols = kLanes * b.vectors;
       for (int t = 0; t < ntaps; ++t) {
         const int wt = l.conv ? taps[static_cast<std::size_t>(t)].weight_tap : 0;
         const std::size_t base = b.offset + b.panel * static_cast<std::size_t>(t);
-        if (bf16) {
+        if (l.int8) {
+          for (int kq = 0; kq < l.k_quads; ++kq) {
+            for (int j = 0; j < cols; ++j) {
+              for (int e = 0; e < 4; ++e) {
+                w8.data()[base + (static_cast<std::size_t>(kq) * cols + j) * 4 + e] =
+                    weight_s8(b.col0 + j, 4 * kq + e, wt);
+              }
+            }
+          }
+        } else if (bf16) {
           for (int kp = 0; kp < l.k_pairs; ++kp) {
             for (int j = 0; j < cols; ++j) {
               for (int e = 0; e < 2; ++e) {
@@ -314,6 +363,11 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     s.f0.assign(rows * static_cast<std::size_t>(widest));
     s.f1.assign(rows * static_cast<std::size_t>(widest));
     if (bf16) s.h.assign(rows * static_cast<std::size_t>(widest));
+    if (int8) {
+      s.q.assign(rows * static_cast<std::size_t>(widest));
+      s.acc.assign(rows * static_cast<std::size_t>(widest));
+      s.q_scale.assign(static_cast<std::size_t>(chunk), 0.0f);
+    }
   }
   return Status::Ok();
 }
@@ -325,10 +379,21 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
   float* out = s.f0.data();
   const float* a_rows[kMaxRows];
   const uint16_t* h_rows[kMaxRows];
+  const uint8_t* q_rows[kMaxRows];
   float* c_rows[kMaxRows];
+  int32_t* i_rows[kMaxRows];
   for (std::size_t li = 0; li < layers.size(); ++li) {
     const KernelLayer& l = layers[li];
     const int rows_per_sample = l.conv ? cells : 1;
+    if (l.int8) {
+      // Each sample's input (its rows of this layer) on its own scale.
+      const std::ptrdiff_t per_sample = static_cast<std::ptrdiff_t>(rows_per_sample) * a_ld;
+      for (int sample = 0; sample < n; ++sample) {
+        s.q_scale[static_cast<std::size_t>(sample)] =
+            ks->quantise_u8(a32 + sample * per_sample, static_cast<int>(per_sample),
+                            s.q.data() + sample * per_sample);
+      }
+    }
     for (const ColBlock& b : l.blocks) {
       const int ntaps = l.conv ? static_cast<int>(taps.size()) : 1;
       const int cols = kLanes * b.vectors;
@@ -340,23 +405,32 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
         const std::size_t panel = b.offset + b.panel * static_cast<std::size_t>(t);
         // K in blocks whose panel slice (kKBlock x 64 floats = 16 KB) stays in L1 while every
         // row block passes over it.
-        const int k_steps = bf16 ? l.k_pairs : l.k;
+        const int k_steps = l.int8 ? l.k_quads : bf16 ? l.k_pairs : l.k;
         for (int k0 = 0; k0 < k_steps; k0 += kKBlock) {
           const int kn = std::min(kKBlock, k_steps - k0);
           const bool last_k = k0 + kn == k_steps;
           const float* bias = t == 0 && k0 == 0 ? l.bias.data() + b.col0 : nullptr;
-          const std::ptrdiff_t a_k = bf16 ? 2 * k0 : k0;
+          const std::ptrdiff_t a_k = l.int8 ? 4 * k0 : bf16 ? 2 * k0 : k0;
           for (int r0 = 0; r0 < total; r0 += kMaxRows) {
             const int r = std::min(kMaxRows, total - r0);
             for (int i = 0; i < r; ++i) {
               const int in_row = l.conv ? tap->chunk_in[r0 + i] : r0 + i;
               const int out_row = l.conv ? tap->chunk_out[r0 + i] : r0 + i;
               const std::ptrdiff_t a_off = static_cast<std::ptrdiff_t>(in_row) * a_ld + a_k;
-              a_rows[i] = a32 + a_off;
-              h_rows[i] = s.h.data() + a_off;
-              c_rows[i] = out + static_cast<std::ptrdiff_t>(out_row) * l.n_ld + b.col0;
+              const std::ptrdiff_t c_off = static_cast<std::ptrdiff_t>(out_row) * l.n_ld + b.col0;
+              if (l.int8) {
+                q_rows[i] = s.q.data() + a_off;
+                i_rows[i] = s.acc.data() + c_off;
+              } else {
+                a_rows[i] = a32 + a_off;
+                if (bf16) h_rows[i] = s.h.data() + a_off;
+                c_rows[i] = out + c_off;
+              }
             }
-            if (bf16) {
+            if (l.int8) {
+              ks->i8[r - 1][b.vectors - 1](q_rows, w8.data() + panel + 4 * k0 * cols, kn, i_rows,
+                                           t == 0 && k0 == 0);
+            } else if (bf16) {
               ks->bf16[r - 1][b.vectors - 1](h_rows, w16.data() + panel + 2 * k0 * cols, kn, c_rows,
                                              bias, relu && last_k);
             } else {
@@ -368,9 +442,19 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
       }
     }
     const int count = n * rows_per_sample * l.n_ld;
-    // A convolution's rows finish at different taps: ReLU afterwards (in the conversion to
-    // bfloat16 when the next layer reads that).
-    if (l.conv && (!bf16 || static_cast<int>(li) == last_conv)) ks->relu(out, count);
+    if (l.int8) {
+      // Scales, bias and ReLU on the integer sums.
+      const std::ptrdiff_t per_sample = static_cast<std::ptrdiff_t>(rows_per_sample) * l.n_ld;
+      for (int sample = 0; sample < n; ++sample) {
+        ks->dequantise(s.acc.data() + sample * per_sample, rows_per_sample, l.n_ld,
+                       s.q_scale[static_cast<std::size_t>(sample)], l.w_scale.data(), l.bias.data(),
+                       l.relu, out + sample * per_sample);
+      }
+    } else if (l.conv && (!bf16 || static_cast<int>(li) == last_conv)) {
+      // A convolution's rows finish at different taps: ReLU afterwards (in the conversion to
+      // bfloat16 when the next layer reads that).
+      ks->relu(out, count);
+    }
     float* next = out == s.f0.data() ? s.f1.data() : s.f0.data();
     a32 = out;
     a_ld = l.n_ld;
@@ -530,17 +614,23 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
   // Backend and kernels.
   const KernelSet* avx = detail::avx512_kernels();
   im.bf16 = options.precision == RuntimePrecision::kBfloat16;
+  im.int8 = options.precision == RuntimePrecision::kInt8;
+  if (!im.bf16 && !im.int8 && options.precision != RuntimePrecision::kFloat32) {
+    return make_error(ErrorCode::kInvalidArgument, "unknown precision");
+  }
   RuntimeBackend be = options.backend;
   if (be == RuntimeBackend::kAuto)
-    be = avx != nullptr ? RuntimeBackend::kKernels
-                        : (im.bf16 ? RuntimeBackend::kKernels : RuntimeBackend::kOneDnn);
-  if (be == RuntimeBackend::kOneDnn && im.bf16) {
+    be = avx != nullptr || im.bf16 || im.int8 ? RuntimeBackend::kKernels : RuntimeBackend::kOneDnn;
+  if (be == RuntimeBackend::kOneDnn && (im.bf16 || im.int8)) {
     return make_error(ErrorCode::kUnsupported, "the oneDNN backend serves float32 only");
   }
   if (be == RuntimeBackend::kKernels) {
     im.ks = avx != nullptr ? avx : &detail::portable_kernels();
     if (im.bf16 && (avx == nullptr || avx->bf16[0][0] == nullptr)) {
       return make_error(ErrorCode::kUnsupported, "bfloat16 needs a CPU with AVX512_BF16");
+    }
+    if (im.int8 && (avx == nullptr || avx->i8[0][0] == nullptr)) {
+      return make_error(ErrorCode::kUnsupported, "int8 needs a CPU with AVX512_VNNI");
     }
   } else if (be == RuntimeBackend::kPortable) {
     im.ks = &detail::portable_kernels();

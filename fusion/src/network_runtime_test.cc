@@ -45,6 +45,29 @@ bool has_avx512_bf16() {
   return NetworkRuntime::create(model_for("cnn_w025"), o).ok();
 }
 
+bool has_avx512_vnni() {
+  RuntimeOptions o;
+  o.backend = RuntimeBackend::kKernels;
+  o.precision = RuntimePrecision::kInt8;
+  return NetworkRuntime::create(model_for("cnn_w025"), o).ok();
+}
+
+// Max and mean |a - b| of output j over a batch of 4-output rows.
+struct Difference {
+  double max = 0, mean = 0;
+};
+Difference difference(const std::vector<double>& a, const std::vector<double>& b, int j) {
+  Difference d;
+  const std::size_t rows = a.size() / 4;
+  for (std::size_t i = 0; i < rows; ++i) {
+    const double e =
+        std::fabs(a[4 * i + static_cast<std::size_t>(j)] - b[4 * i + static_cast<std::size_t>(j)]);
+    d.max = std::max(d.max, e);
+    d.mean += e / static_cast<double>(rows);
+  }
+  return d;
+}
+
 struct EqualityCase {
   std::string model;
   RuntimeBackend backend;
@@ -273,6 +296,120 @@ TEST(NetworkRuntimeTest, Bfloat16StaysCloseToFloat32) {
                   worst, sum / batch, scale);
     }
   }
+}
+
+TEST(NetworkRuntimeTest, Int8IsUnsupportedOnOneDnnAndNamed) {
+  RuntimeOptions o;
+  o.backend = RuntimeBackend::kOneDnn;
+  o.precision = RuntimePrecision::kInt8;
+  auto rt = NetworkRuntime::create(model_for("mlp"), o);
+  ASSERT_FALSE(rt.ok());
+  EXPECT_EQ(rt.error().code, ErrorCode::kUnsupported);
+  EXPECT_STREQ(runtime_precision_name(RuntimePrecision::kInt8), "int8");
+  // The portable backend serves int8 on any CPU.
+  o.backend = RuntimeBackend::kPortable;
+  auto portable = NetworkRuntime::create(model_for("mlp"), o);
+  ASSERT_TRUE(portable.ok()) << portable.error().to_string();
+  EXPECT_STREQ(portable->kernel_name(), "portable int8");
+  EXPECT_EQ(portable->precision(), RuntimePrecision::kInt8);
+}
+
+// int8: weights 7 bits per output channel, activations 8 bits per sample and layer; int32
+// sums. Stated tolerance on random models: max difference from float32 within 3 % of each
+// output's scale (1.2 mm for u and v at a 40 mm scale), mean within 0.75 %.
+TEST(NetworkRuntimeTest, Int8StaysCloseToFloat32) {
+  for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kPortable}) {
+    if (b == RuntimeBackend::kKernels && !has_avx512_vnni()) continue;
+    for (const std::string which : {"cnn", "cnn_w025", "mlp"}) {
+      const ModelFile model = model_for(which);
+      RuntimeOptions o32, o8;
+      o8.backend = b;
+      o8.precision = RuntimePrecision::kInt8;
+      o8.threads = 2;
+      auto r32 = NetworkRuntime::create(model, o32);
+      auto r8 = NetworkRuntime::create(model, o8);
+      ASSERT_TRUE(r32.ok() && r8.ok());
+      const int batch = b == RuntimeBackend::kPortable ? 16 : 64;
+      const std::vector<double> f = fields(batch, 77);
+      std::vector<double> y32(static_cast<std::size_t>(batch) * 4), y8(y32.size());
+      ASSERT_TRUE(r32->run_outputs(f, batch, y32).ok());
+      ASSERT_TRUE(r8->run_outputs(f, batch, y8).ok());
+      for (int j = 0; j < 4; ++j) {
+        const Difference d = difference(y32, y8, j);
+        const double scale = model.meta.output_scale[static_cast<std::size_t>(j)];
+        EXPECT_LE(d.max, 0.03 * scale) << which << " output " << j << " " << r8->kernel_name();
+        EXPECT_LE(d.mean, 0.0075 * scale) << which << " output " << j << " " << r8->kernel_name();
+        if (b == RuntimeBackend::kKernels) {
+          std::printf("%s output %d: int8 - f32 max %.4f mean %.4f (scale %.1f)\n", which.c_str(),
+                      j, d.max, d.mean, scale);
+        }
+      }
+    }
+  }
+}
+
+// The AVX-512 VNNI kernels and the portable emulation compute the same integer sums; they may
+// differ only where float32 rounding of the first layer or the dequantisation moves a value
+// across a quantisation step.
+TEST(NetworkRuntimeTest, Int8KernelsMatchThePortableEmulation) {
+  if (!has_avx512_vnni()) GTEST_SKIP() << "CPU without AVX512_VNNI";
+  for (const std::string which : {"cnn_w025", "mlp"}) {
+    const ModelFile model = model_for(which);
+    RuntimeOptions ok, op;
+    ok.backend = RuntimeBackend::kKernels;
+    op.backend = RuntimeBackend::kPortable;
+    ok.precision = op.precision = RuntimePrecision::kInt8;
+    auto rk = NetworkRuntime::create(model, ok);
+    auto rp = NetworkRuntime::create(model, op);
+    ASSERT_TRUE(rk.ok() && rp.ok());
+    const int batch = 24;
+    const std::vector<double> f = fields(batch, 31);
+    std::vector<double> yk(static_cast<std::size_t>(batch) * 4), yp(yk.size());
+    ASSERT_TRUE(rk->run_outputs(f, batch, yk).ok());
+    ASSERT_TRUE(rp->run_outputs(f, batch, yp).ok());
+    for (int j = 0; j < 4; ++j) {
+      const double scale = model.meta.output_scale[static_cast<std::size_t>(j)];
+      EXPECT_LE(difference(yk, yp, j).max, 0.002 * scale) << which << " output " << j;
+    }
+  }
+}
+
+// Activation scales are per sample: a sample's int8 result does not depend on its batch, the
+// thread count or where in a chunk it lands.
+TEST(NetworkRuntimeTest, Int8SamplesAreIndependentOfTheirBatch) {
+  if (!has_avx512_vnni()) GTEST_SKIP() << "CPU without AVX512_VNNI";
+  const ModelFile model = model_for("cnn");
+  RuntimeOptions o1, o2;
+  o1.precision = o2.precision = RuntimePrecision::kInt8;
+  o2.threads = 2;
+  auto one = NetworkRuntime::create(model, o1);
+  auto two = NetworkRuntime::create(model, o2);
+  ASSERT_TRUE(one.ok() && two.ok());
+  const int batch = 37;
+  std::vector<double> f = fields(batch, 12);
+  // One sample far larger than the others: it must not coarsen their scales.
+  for (int c = 0; c < kChannels; ++c) f[static_cast<std::size_t>(5 * kChannels + c)] *= 30.0;
+  std::vector<double> y1(static_cast<std::size_t>(batch) * 4), y2(y1.size());
+  ASSERT_TRUE(one->run_outputs(f, batch, y1).ok());
+  ASSERT_TRUE(two->run_outputs(f, batch, y2).ok());
+  for (std::size_t i = 0; i < y1.size(); ++i) ASSERT_EQ(y1[i], y2[i]) << "value " << i;
+  for (int i = 0; i < batch; i += 6) {
+    std::vector<double> alone(4);
+    ASSERT_TRUE(one->run_outputs(std::span<const double>(f).subspan(
+                                     static_cast<std::size_t>(i) * kChannels, kChannels),
+                                 1, alone)
+                    .ok());
+    for (int j = 0; j < 4; ++j) {
+      EXPECT_EQ(alone[static_cast<std::size_t>(j)], y1[static_cast<std::size_t>(4 * i + j)])
+          << "sample " << i;
+    }
+  }
+  // Non-finite inputs are rejected by run() like every precision, with finite outputs.
+  f[static_cast<std::size_t>(2 * kChannels + 1)] = std::numeric_limits<double>::quiet_NaN();
+  std::vector<ContactEstimate> est(static_cast<std::size_t>(batch));
+  ASSERT_TRUE(one->run(f, batch, est).ok());
+  EXPECT_EQ(est[2].reason, RejectReason::kNonFinite);
+  EXPECT_TRUE(est[3].valid());
 }
 
 }  // namespace

@@ -155,6 +155,26 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
   return d;
 }
 
+namespace {
+
+// One tared sample per contact `pick(k, rng)` for k < count (the test splits).
+template <typename Pick>
+void static_presses(SimulatedPatch& patch, const Environment& env, int tare_samples, int count,
+                    uint64_t seed, Pick pick, Dataset* d) {
+  const int nc = patch.channel_count();
+  std::vector<double> baseline(nc), m(nc), tared(nc);
+  patch.tare(env, tare_samples, baseline);
+  Rng rng(seed);
+  for (int k = 0; k < count; ++k) {
+    const Contact c = pick(k, rng);
+    patch.measure(std::span<const Contact>(&c, 1), env, m);
+    for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
+    d->append(k, 0, c.u_mm, c.v_mm, c.depth_mm, patch.model().force_n(c.depth_mm), tared.data());
+  }
+}
+
+}  // namespace
+
 Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
                                  double max_depth_mm, uint64_t seed, const Environment& env,
                                  int tare_samples, double tip_radius_mm) {
@@ -166,17 +186,38 @@ Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_e
       "random_static count=%d half_extent_mm=%g max_depth_mm=%g tip_radius_mm=%g seed=%llu", count,
       half_extent_mm, max_depth_mm, tip_radius_mm, static_cast<unsigned long long>(seed));
   d.meta["protocol"] = buf;
-  const int nc = patch.channel_count();
-  std::vector<double> baseline(nc), m(nc), tared(nc);
-  patch.tare(env, tare_samples, baseline);
-  Rng rng(seed);
-  for (int k = 0; k < count; ++k) {
-    const Contact c{rng.uniform(-1, 1) * half_extent_mm, rng.uniform(-1, 1) * half_extent_mm,
-                    max_depth_mm * (1 - rng.uniform()), tip_radius_mm};  // depth in (0, max]
-    patch.measure(std::span<const Contact>(&c, 1), env, m);
-    for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
-    d.append(k, 0, c.u_mm, c.v_mm, c.depth_mm, patch.model().force_n(c.depth_mm), tared.data());
-  }
+  static_presses(
+      patch, env, tare_samples, count, seed,
+      [&](int, Rng& rng) {
+        const double u = rng.uniform(-1, 1) * half_extent_mm;
+        const double v = rng.uniform(-1, 1) * half_extent_mm;
+        return Contact{u, v, max_depth_mm * (1 - rng.uniform()),  // depth in (0, max]
+                       tip_radius_mm};
+      },
+      &d);
+  return d;
+}
+
+Dataset generate_static_test_set(SimulatedPatch& patch, const std::vector<PressPoint>& points,
+                                 int per_point, double max_depth_mm, uint64_t seed,
+                                 const Environment& env, int tare_samples, double tip_radius_mm) {
+  Dataset d;
+  fill_layout(patch, &d);
+  char buf[160];
+  std::snprintf(buf, sizeof buf,
+                "static_at_points points=%zu per_point=%d max_depth_mm=%g tip_radius_mm=%g "
+                "seed=%llu",
+                points.size(), per_point, max_depth_mm, tip_radius_mm,
+                static_cast<unsigned long long>(seed));
+  d.meta["protocol"] = buf;
+  const int count = static_cast<int>(points.size()) * std::max(per_point, 0);
+  static_presses(
+      patch, env, tare_samples, count, seed,
+      [&](int k, Rng& rng) {
+        const PressPoint& p = points[static_cast<std::size_t>(k / per_point)];
+        return Contact{p.u_mm, p.v_mm, max_depth_mm * (1 - rng.uniform()), tip_radius_mm};
+      },
+      &d);
   return d;
 }
 

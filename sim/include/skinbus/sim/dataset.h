@@ -76,6 +76,13 @@ Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_e
                                  double max_depth_mm, uint64_t seed, const Environment& env = {},
                                  int tare_samples = 32, double tip_radius_mm = 5.0);
 
+// Static presses at given points: `per_point` presses at each point of `points`, random depths
+// in (0, max_depth_mm], one sample each (e.g. the test split at the training grid's points).
+Dataset generate_static_test_set(SimulatedPatch& patch, const std::vector<PressPoint>& points,
+                                 int per_point, double max_depth_mm, uint64_t seed,
+                                 const Environment& env = {}, int tare_samples = 32,
+                                 double tip_radius_mm = 5.0);
+
 // Writes / reads the CSV format. Errors name the file and line.
 Status write_dataset_csv(const Dataset& d, const std::string& path);
 Result<Dataset> read_dataset_csv(const std::string& path);

@@ -1,0 +1,306 @@
+// `skinbus-bench budget`: the accuracy each pipeline reaches from one unit's 361 presses (the
+// seed's robot-time budget), on simulated units with known truth.
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <optional>
+
+#include "bench_models.h"
+#include "skinbus/fusion/bias_correction.h"
+#include "skinbus/fusion/network_runtime.h"
+#include "skinbus/fusion/physics_estimator.h"
+#include "skinbus/fusion/unit_identification.h"
+#include "skinbus/sim/simulated_patch.h"
+
+namespace skinbus::tools {
+namespace {
+
+using namespace skinbus::fusion;
+using Clock = std::chrono::steady_clock;
+
+// The seed's protocol: 19 x 19 presses at 7.5 mm, ramps to 4 mm (as skinbus-dataset --plan grid).
+constexpr int kGrid = 19;
+constexpr double kPitchMm = 7.5;
+constexpr double kHalfExtentMm = (kGrid - 1) / 2.0 * kPitchMm;
+
+struct Unit {
+  std::string name;
+  sim::PatchModel truth;
+  sim::Dataset presses;    // the budget: 361 ramps
+  sim::Dataset off_grid;   // test: random points and depths
+  sim::Dataset grid_test;  // test: random depths at the grid points
+};
+
+Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a) {
+  sim::PatchDesign design;
+  Result<sim::PatchModel> model = make_error(ErrorCode::kInvalidArgument, "unknown unit '" + name +
+                                                                              "' (nominal, "
+                                                                              "fabricated, "
+                                                                              "anisotropic)");
+  if (name == "nominal") {
+    model = sim::PatchModel::nominal(design);
+  } else if (name == "fabricated") {
+    model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+  } else if (name == "anisotropic") {
+    design.anisotropy = a.anisotropy;
+    model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+  }
+  if (!model.ok()) return model.error();
+  Unit u{name, model.value(), {}, {}, {}};
+  // The presses come from a fresh patch with skinbus-dataset's noise seed, so they equal
+  // `skinbus-dataset --plan grid [--fabricated] [--anisotropy A] --uid UID`, which the seed CNN
+  // of that unit is trained on.
+  sim::SimulatedPatch patch(model.value(), a.uid * 0x9E3779B97F4A7C15ull + 1);
+  u.presses =
+      sim::generate_ramp_dataset(patch, sim::plan_grid(kGrid, kPitchMm), sim::RampProtocol{});
+  sim::SimulatedPatch test_patch(model.value(), a.uid * 0x9E3779B97F4A7C15ull + 2);
+  u.off_grid = sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
+  u.grid_test = sim::generate_static_test_set(test_patch, sim::plan_grid(kGrid, kPitchMm),
+                                              a.grid_test_per_point, 4.0, 9);
+  return u;
+}
+
+struct Row {
+  std::string unit, pipeline;
+  ErrorSummary off_grid, grid;
+  std::array<double, kDepthBins> crlb{};
+  double setup_s = 0;    // identification / nothing
+  double residual = -1;  // identification residual RMS, noise units (held out), -1: none
+  bool goal = false;
+};
+
+using Estimator = std::function<ContactEstimate(const double* field)>;
+
+ErrorSummary run_on(const sim::Dataset& d, const Estimator& est) {
+  std::vector<ContactEstimate> out(d.rows());
+  for (std::size_t r = 0; r < d.rows(); ++r) out[r] = est(d.field(r));
+  return summarize_errors(out, {d.u_mm, d.v_mm, d.depth_mm, d.force_n});
+}
+
+bool goal_met(const Row& r) {
+  for (int b = 2; b < kDepthBins; ++b) {  // bins >= 1 mm
+    const auto i = static_cast<std::size_t>(b);
+    if (r.off_grid.bins[i].xy_mean_mm > 1.5 * r.crlb[i]) return false;
+  }
+  return r.off_grid.all.depth_mean_mm <= 0.1;
+}
+
+double deep_xy(const ErrorSummary& s) {
+  double sum = 0;
+  int n = 0;
+  for (int b = 2; b < kDepthBins; ++b) {
+    const ErrorStats& st = s.bins[static_cast<std::size_t>(b)];
+    sum += st.xy_mean_mm * st.count;
+    n += st.count;
+  }
+  return n ? sum / n : 0.0;
+}
+
+}  // namespace
+
+void add_budget_options(CLI::App* sub, BudgetBenchArgs& a) {
+  sub->add_option("--units", a.units, "simulated units: nominal, fabricated, anisotropic")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")
+      ->capture_default_str();
+  sub->add_option("--anisotropy", a.anisotropy, "lattice anisotropy of the 'anisotropic' unit")
+      ->capture_default_str();
+  sub->add_option("--seed-model", a.seed_models,
+                  "unit=MODEL: the seed CNN trained on that unit's 19 x 19 grid (skinbus-train on "
+                  "skinbus-dataset --plan grid); repeat per unit");
+  sub->add_option("--test-count", a.test_count, "off-grid test presses per unit")
+      ->capture_default_str()
+      ->check(CLI::Range(10, 1000000));
+  sub->add_option("--grid-test-per-point", a.grid_test_per_point, "test presses at each grid point")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
+  sub->add_option("--csv", a.csv, "write the table as CSV");
+}
+
+int bench_budget(const BudgetBenchArgs& a) {
+  std::map<std::string, std::string> seed_paths;
+  for (const std::string& s : a.seed_models) {
+    const std::size_t eq = s.find('=');
+    if (eq == std::string::npos) {
+      std::fprintf(stderr, "skinbus-bench: --seed-model wants unit=MODEL, got '%s'\n", s.c_str());
+      return 2;
+    }
+    seed_paths[s.substr(0, eq)] = s.substr(eq + 1);
+  }
+  std::vector<Row> rows;
+  for (const std::string& name : a.units) {
+    std::fprintf(stderr, "skinbus-bench: unit %s: simulating 361 presses and the test splits\n",
+                 name.c_str());
+    Result<Unit> unit = make_unit(name, a);
+    if (!unit.ok()) {
+      std::fprintf(stderr, "skinbus-bench: %s\n", unit.error().to_string().c_str());
+      return 2;
+    }
+    const std::array<double, kDepthBins> crlb =
+        crlb_per_bin(unit->truth, unit->off_grid, static_cast<int>(unit->off_grid.rows()));
+    auto add_row = [&](const std::string& pipeline, const Estimator& est, double setup_s,
+                       double residual) {
+      std::fprintf(stderr, "skinbus-bench:   %s\n", pipeline.c_str());
+      Row r{name,
+            pipeline,
+            run_on(unit->off_grid, est),
+            run_on(unit->grid_test, est),
+            crlb,
+            setup_s,
+            residual,
+            false};
+      r.goal = goal_met(r);
+      rows.push_back(std::move(r));
+    };
+    // 1. The seed recipe: the seed CNN trained on this unit's grid.
+    std::optional<NetworkRuntime> cnn;
+    if (auto it = seed_paths.find(name); it != seed_paths.end()) {
+      Result<ModelFile> m = read_model(it->second);
+      if (!m.ok()) {
+        std::fprintf(stderr, "skinbus-bench: %s\n", m.error().to_string().c_str());
+        return 2;
+      }
+      Result<NetworkRuntime> rt = NetworkRuntime::create(*m);
+      if (!rt.ok()) {
+        std::fprintf(stderr, "skinbus-bench: %s\n", rt.error().to_string().c_str());
+        return 2;
+      }
+      cnn.emplace(std::move(rt.value()));
+      const int channels = cnn->channels();
+      add_row(
+          "seed recipe: 19x19 grid + seed CNN",
+          [&](const double* f) {
+            return cnn->estimate({f, static_cast<std::size_t>(channels)});
+          },
+          0, -1);
+    } else {
+      std::fprintf(stderr, "skinbus-bench:   (no --seed-model for %s: seed recipe row left out)\n",
+                   name.c_str());
+    }
+    const std::size_t nc = static_cast<std::size_t>(unit->truth.channel_count());
+    // 2. Physics with the nominal model: no use of the unit's presses (the ablation).
+    Result<PhysicsEstimator> nominal_lm =
+        PhysicsEstimator::create(sim::PatchModel::nominal(sim::PatchDesign{}).value());
+    if (!nominal_lm.ok()) return 2;
+    add_row(
+        "physics LM, nominal model (presses unused)",
+        [&](const double* f) {
+          return nominal_lm->estimate({f, nc}).contact;
+        },
+        0, -1);
+    // 3. Identify the unit from its presses, then invert its fitted model.
+    const auto t0 = Clock::now();
+    Result<IdentifiedUnit> id =
+        identify_unit(sim::PatchDesign{}, unit->presses, {}, &unit->off_grid);
+    const double id_s = std::chrono::duration<double>(Clock::now() - t0).count();
+    if (!id.ok()) {
+      std::fprintf(stderr, "skinbus-bench: identification of %s: %s\n", name.c_str(),
+                   id.error().to_string().c_str());
+      return 3;
+    }
+    std::fprintf(stderr,
+                 "skinbus-bench:   identified in %.1f s: residual %.3f (fit) / %.3f (held out) "
+                 "noise units; nominal model %.3f\n",
+                 id_s, id->fit.rms, id->held_out.rms, id->nominal_held_out.rms);
+    Result<PhysicsEstimator> unit_lm = PhysicsEstimator::create(id->model);
+    if (!unit_lm.ok()) return 2;
+    add_row(
+        "identified unit + physics LM",
+        [&](const double* f) {
+          return unit_lm->estimate({f, nc}).contact;
+        },
+        id_s, id->held_out.rms);
+    // 4. A learned correction on top: the bias the identified model leaves on the unit's own
+    // presses (truth known), as a smooth function of the estimate.
+    {
+      const auto t1 = Clock::now();
+      std::vector<ContactEstimate> est;
+      std::vector<double> tu, tv, td;
+      for (std::size_t r = 0; r < unit->presses.rows(); r += 3) {
+        est.push_back(unit_lm->estimate({unit->presses.field(r), nc}).contact);
+        tu.push_back(unit->presses.u_mm[r]);
+        tv.push_back(unit->presses.v_mm[r]);
+        td.push_back(unit->presses.depth_mm[r]);
+      }
+      BiasCorrectionOptions bo;
+      bo.half_u_mm = bo.half_v_mm = kHalfExtentMm;
+      Result<BiasCorrection> bias = BiasCorrection::fit(est, tu, tv, td, bo);
+      if (!bias.ok()) {
+        std::fprintf(stderr, "skinbus-bench: bias correction: %s\n",
+                     bias.error().to_string().c_str());
+        return 3;
+      }
+      const double fit_s = std::chrono::duration<double>(Clock::now() - t1).count();
+      std::fprintf(stderr, "skinbus-bench:   bias correction: %d samples, RMS %.3f mm, %.1f s\n",
+                   bias->samples_used(), bias->rms_correction_mm(), fit_s);
+      add_row(
+          "identified unit + physics LM + learned bias correction",
+          [&](const double* f) {
+            return bias->apply(unit_lm->estimate({f, nc}).contact);
+          },
+          id_s + fit_s, id->held_out.rms);
+    }
+    // 5. The seed CNN's answer refined by least squares on the identified model.
+    if (cnn) {
+      const int channels = cnn->channels();
+      add_row(
+          "identified unit + seed CNN start + LM refine",
+          [&](const double* f) {
+            const ContactEstimate g = cnn->estimate({f, static_cast<std::size_t>(channels)});
+            if (!g.valid()) return unit_lm->estimate({f, nc}).contact;
+            return unit_lm->refine({f, nc}, {}, g).contact;
+          },
+          id_s, id->held_out.rms);
+    }
+  }
+  std::printf(
+      "Budget: 361 presses per unit (19 x 19 grid at 7.5 mm, ramps to 4 mm). Test: %d "
+      "off-grid presses and %d per grid point, random depths to 4 mm. x CRLB: mean XY "
+      "error / mean CRLB RMS XY bound of the bin (the unit's true model). Goal: XY <= "
+      "1.5x CRLB in every bin >= 1 mm and depth mean <= 0.1 mm (off-grid).\n\n",
+      a.test_count, a.grid_test_per_point);
+  std::printf("| unit | pipeline | setup (s) | id. residual (noise units, held out) |");
+  for (int b = 0; b < kDepthBins; ++b)
+    std::printf(" off-grid XY %s mm (x CRLB) |", depth_bin_name(b).c_str());
+  std::printf(
+      " off-grid XY mean, >= 1 mm deep | off-grid depth mean | grid-point XY mean, >= 1 mm "
+      "deep | grid-point depth mean | goal |\n|---|---|---:|---:|");
+  for (int b = 0; b < kDepthBins; ++b) std::printf("---:|");
+  std::printf("---:|---:|---:|---:|---|\n");
+  for (const Row& r : rows) {
+    std::printf("| %s | %s | %.1f | %s |", r.unit.c_str(), r.pipeline.c_str(), r.setup_s,
+                r.residual >= 0 ? std::to_string(r.residual).substr(0, 5).c_str() : "");
+    for (int b = 0; b < kDepthBins; ++b) {
+      const auto i = static_cast<std::size_t>(b);
+      std::printf(" %.3f (%.2f) |", r.off_grid.bins[i].xy_mean_mm,
+                  r.crlb[i] > 0 ? r.off_grid.bins[i].xy_mean_mm / r.crlb[i] : 0.0);
+    }
+    std::printf(" %.3f | %.3f | %.3f | %.3f | %s |\n", deep_xy(r.off_grid),
+                r.off_grid.all.depth_mean_mm, deep_xy(r.grid), r.grid.all.depth_mean_mm,
+                r.goal ? "met" : "not met");
+  }
+  if (!a.csv.empty()) {
+    std::ofstream f(a.csv);
+    f << "unit,pipeline,setup_s,residual_noise_units,off_grid_xy_deep_mm,off_grid_depth_mm,grid_xy_"
+         "deep_mm,grid_depth_mm,goal";
+    for (int b = 0; b < kDepthBins; ++b)
+      f << ",xy_mm_" << depth_bin_name(b) << ",crlb_mm_" << depth_bin_name(b);
+    f << "\n";
+    for (const Row& r : rows) {
+      f << r.unit << ",\"" << r.pipeline << "\"," << r.setup_s << ',' << r.residual << ','
+        << deep_xy(r.off_grid) << ',' << r.off_grid.all.depth_mean_mm << ',' << deep_xy(r.grid)
+        << ',' << r.grid.all.depth_mean_mm << ',' << (r.goal ? 1 : 0);
+      for (int b = 0; b < kDepthBins; ++b) {
+        const auto i = static_cast<std::size_t>(b);
+        f << ',' << r.off_grid.bins[i].xy_mean_mm << ',' << r.crlb[i];
+      }
+      f << "\n";
+    }
+  }
+  return 0;
+}
+
+}  // namespace skinbus::tools
