@@ -139,8 +139,9 @@ int bench_budget(const BudgetBenchArgs& a) {
       std::fprintf(stderr, "skinbus-bench: %s\n", unit.error().to_string().c_str());
       return 2;
     }
-    const std::array<double, kDepthBins> crlb =
-        crlb_per_bin(unit->truth, unit->off_grid, static_cast<int>(unit->off_grid.rows()));
+    const std::array<double, kDepthBins> crlb = mean_per_bin(
+        crlb_per_row(unit->truth, unit->off_grid, static_cast<int>(unit->off_grid.rows())),
+        unit->off_grid.depth_mm);
     auto add_row = [&](const std::string& pipeline, const Estimator& est, double setup_s,
                        double residual) {
       std::fprintf(stderr, "skinbus-bench:   %s\n", pipeline.c_str());

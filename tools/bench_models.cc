@@ -112,17 +112,25 @@ void write_table(const std::vector<Measured>& rows, const std::array<double, kDe
 
 }  // namespace
 
-std::array<double, kDepthBins> crlb_per_bin(const sim::PatchModel& model, const sim::Dataset& data,
-                                            int n) {
+std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n) {
   const sim::Mlx90393Config& cfg = model.design().sensor_config;
   const double nxy = sim::mlx90393_noise_xy_ut(cfg), nz = sim::mlx90393_noise_z_ut(cfg);
+  std::vector<double> out(static_cast<std::size_t>(n));
+  for (int r = 0; r < n; ++r) {
+    const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], 5.0};
+    out[static_cast<std::size_t>(r)] = sim::crlb_at(model, c, nxy, nz).sd_xy_mm;
+  }
+  return out;
+}
+
+std::array<double, kDepthBins> mean_per_bin(std::span<const double> values,
+                                            std::span<const double> depth_mm) {
   std::array<double, kDepthBins> sum{};
   std::array<int, kDepthBins> count{};
-  for (int r = 0; r < n; ++r) {
-    const int b = depth_bin(data.depth_mm[r]);
+  for (std::size_t r = 0; r < values.size(); ++r) {
+    const int b = depth_bin(depth_mm[r]);
     if (b < 0) continue;
-    const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], 5.0};
-    sum[static_cast<std::size_t>(b)] += sim::crlb_at(model, c, nxy, nz).sd_xy_mm;
+    sum[static_cast<std::size_t>(b)] += values[r];
     ++count[static_cast<std::size_t>(b)];
   }
   for (std::size_t b = 0; b < sum.size(); ++b) {
@@ -177,7 +185,9 @@ int bench_models(const ModelsBenchArgs& a) {
   }
   const double nxy = sim::mlx90393_noise_xy_ut(design.sensor_config);
   const double nz = sim::mlx90393_noise_z_ut(design.sensor_config);
-  const std::array<double, kDepthBins> crlb = crlb_per_bin(*nominal, test, n);
+  const std::vector<double> crlb_rows = crlb_per_row(*nominal, test, n);
+  const std::array<double, kDepthBins> crlb =
+      mean_per_bin(crlb_rows, {test.depth_mm.data(), static_cast<std::size_t>(n)});
 
   std::vector<Candidate> candidates;
   // Keep what the candidates point to alive for the whole run.
@@ -386,7 +396,7 @@ int bench_models(const ModelsBenchArgs& a) {
   }
   if (!a.errors_csv.empty()) {
     std::ofstream f(a.errors_csv);
-    f << "estimator,u_mm,v_mm,depth_mm,xy_error_mm,depth_error_mm,valid\n";
+    f << "estimator,u_mm,v_mm,depth_mm,xy_error_mm,depth_error_mm,valid,crlb_xy_mm\n";
     for (const Measured& m : rows) {
       for (int r = 0; r < n; ++r) {
         const ContactEstimate& e = m.estimates[static_cast<std::size_t>(r)];
@@ -394,7 +404,7 @@ int bench_models(const ModelsBenchArgs& a) {
           << test.depth_mm[r] << ','
           << (e.valid() ? std::hypot(e.u_mm - test.u_mm[r], e.v_mm - test.v_mm[r]) : 0.0) << ','
           << (e.valid() ? std::fabs(e.depth_mm - test.depth_mm[r]) : 0.0) << ','
-          << (e.valid() ? 1 : 0) << "\n";
+          << (e.valid() ? 1 : 0) << ',' << crlb_rows[static_cast<std::size_t>(r)] << "\n";
       }
     }
   }

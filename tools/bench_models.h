@@ -4,7 +4,9 @@
 
 #include <CLI/CLI.hpp>
 
+#include <array>
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -25,10 +27,11 @@ struct ModelsBenchArgs {
   std::string csv, errors_csv, plot;     // outputs
 };
 
-// The mean CRLB RMS XY bound (mm) of the first `n` rows of `data` per depth bin, for `model`
-// (its design's sensor noise, a 5 mm tip).
-std::array<double, fusion::kDepthBins> crlb_per_bin(const sim::PatchModel& model,
-                                                    const sim::Dataset& data, int n);
+// The CRLB RMS XY bound (mm) of each of the first `n` rows of `data` for `model` (its design's
+// sensor noise, a 5 mm tip), and its mean per depth bin.
+std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n);
+std::array<double, fusion::kDepthBins> mean_per_bin(std::span<const double> values,
+                                                    std::span<const double> depth_mm);
 
 void add_models_options(CLI::App* sub, ModelsBenchArgs& a);
 int bench_models(const ModelsBenchArgs& a);

@@ -294,10 +294,7 @@ Result<std::string> slurp(const std::string& path) {
   return ss.str();
 }
 
-Status read_weights(const std::string& file, ModelFile& model) {
-  Result<std::string> bytes = slurp(file);
-  if (!bytes.ok()) return bytes.error();
-  const std::string& b = bytes.value();
+Status parse_weights(std::string_view b, const std::string& file, ModelFile& model) {
   if (b.size() < 8) return file_error(file, "shorter than the 8-byte header length");
   uint64_t n = 0;
   for (int i = 7; i >= 0; --i) n = (n << 8) | static_cast<uint8_t>(b[static_cast<std::size_t>(i)]);
@@ -377,12 +374,22 @@ bool get_to(const json& j, const char* key, T& out) {
 
 Result<ModelFile> read_model(const std::string& path) {
   const std::string stem = model_stem(path);
-  const std::string meta_file = stem + ".json";
-  Result<std::string> text = slurp(meta_file);
+  Result<std::string> text = slurp(stem + ".json");
   if (!text.ok()) return text.error();
-  json j = json::parse(text.value(), nullptr, false);
+  Result<std::string> weights = slurp(stem + ".safetensors");
+  if (!weights.ok()) return weights.error();
+  return parse_model(text.value(), weights.value(), stem);
+}
+
+namespace {
+
+Result<ModelFile> parse_model_unguarded(std::string_view metadata_json, std::string_view weights,
+                                        const std::string& stem) {
+  const std::string meta_file = stem + ".json";
+  json j = json::parse(metadata_json, nullptr, false);
   if (j.is_discarded() || !j.is_object()) return file_error(meta_file, "not a JSON object");
-  if (j.value("format", std::string()) != "skinbus-model") {
+  std::string format;
+  if (!get_to(j, "format", format) || format != "skinbus-model") {
     return file_error(meta_file, "\"format\" is not \"skinbus-model\"");
   }
   ModelFile model;
@@ -425,11 +432,24 @@ Result<ModelFile> read_model(const std::string& path) {
   get_to(j, "data_fingerprint", m.data_fingerprint);
   get_to(j, "info", m.info);
   get_to(j, "metrics", m.metrics);
-  if (Status s = read_weights(stem + ".safetensors", model); !s.ok()) return s.error();
+  if (Status s = parse_weights(weights, stem + ".safetensors", model); !s.ok()) return s.error();
   if (Status s = validate_model(model); !s.ok()) {
     return make_error(ErrorCode::kParse, stem + ": " + s.error().message);
   }
   return model;
+}
+
+}  // namespace
+
+Result<ModelFile> parse_model(std::string_view metadata_json, std::string_view weights,
+                              const std::string& name) {
+  // The parser checks types before reading; this is the net under it, so that no exception
+  // leaves the library whatever the files hold.
+  try {
+    return parse_model_unguarded(metadata_json, weights, name);
+  } catch (const std::exception& e) {
+    return make_error(ErrorCode::kParse, name + ": malformed model (" + e.what() + ")");
+  }
 }
 
 }  // namespace skinbus::fusion

@@ -129,13 +129,18 @@ TEST(ModelFile, CorruptWeightFilesGiveClearErrors) {
   garbage[8] = '[';  // header is not an object
   write(garbage);
   EXPECT_FALSE(read_model(stem).ok());
-  std::remove((stem + ".safetensors").c_str());
-  EXPECT_EQ(read_model(stem).error().code, ErrorCode::kNotFound);
   {
     std::ofstream f(stem + ".json", std::ios::trunc);
     f << "{\"format\": \"skinbus-model\"}";
   }
   EXPECT_NE(read_model(stem).error().message.find("architecture"), std::string::npos);
+  {
+    std::ofstream f(stem + ".json", std::ios::trunc);
+    f << "{\"format\": 7}";  // wrong type: an error, not an exception
+  }
+  EXPECT_EQ(read_model(stem).error().code, ErrorCode::kParse);
+  std::remove((stem + ".safetensors").c_str());
+  EXPECT_EQ(read_model(stem).error().code, ErrorCode::kNotFound);
 }
 
 TEST(ModelFile, StemOfAnyOfTheThreeSpellings) {

@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "skinbus/common/result.h"
@@ -92,6 +93,10 @@ Status validate_model(const ModelFile& model);
 // `path` is either stem, `<stem>.json` or `<stem>.safetensors`. Reading validates the model;
 // errors name the file and what is wrong (a truncated or corrupt weight file, a missing key).
 Result<ModelFile> read_model(const std::string& path);
+// The same from the two files' contents (`name` is used in error messages). What read_model()
+// does after reading the files; also the fuzzed entry point.
+Result<ModelFile> parse_model(std::string_view metadata_json, std::string_view weights,
+                              const std::string& name);
 Status write_model(const ModelFile& model, const std::string& path);
 
 // The stem of a model path ("a/b.json" -> "a/b").

@@ -1,0 +1,77 @@
+#!/usr/bin/env bash
+# Trains the per-patch networks on simulated data and measures every estimator: the source of
+# docs/benchmarks/models.md and of the shipped default model (fusion/models/).
+#
+#   scripts/model_report.sh [work-dir]       (default build/models; trained models are cached there)
+#   scripts/model_report.sh --ship           also copies the default model into fusion/models/
+#
+# Steps: datasets (skinbus-dataset), networks (skinbus-train; a model already in work-dir is not
+# retrained), then skinbus-bench models and skinbus-bench budget, writing tables, CSV and plots
+# into docs/benchmarks/. Training runs on one thread per network; the whole script takes about
+# two hours on 2 cores (most of it the seed CNNs).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ship=0
+work=build/models
+for a in "$@"; do
+  case "$a" in
+    --ship) ship=1 ;;
+    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    *) work="$a" ;;
+  esac
+done
+bin=build/tools
+[[ -x $bin/skinbus-train ]] || scripts/build.sh
+mkdir -p "$work" docs/benchmarks
+threads=${SKINBUS_TRAIN_THREADS:-1}
+
+dataset() {  # name, skinbus-dataset arguments...
+  local name=$1; shift
+  [[ -f $work/$name.csv ]] || "$bin/skinbus-dataset" "$@" -o "$work/$name.csv"
+}
+train() {  # name, minutes, data, skinbus-train arguments...
+  local name=$1 minutes=$2 data=$3; shift 3
+  if [[ -f $work/$name.json ]]; then
+    echo "model_report: $name: cached"
+    return
+  fi
+  echo "model_report: training $name (at most $minutes min)"
+  "$bin/skinbus-train" "$work/$data.csv" -o "$work/$name" --test "$work/test_nominal.csv" \
+    --threads "$threads" --max-minutes "$minutes" --seed 1 "$@" 2>&1 | tee "$work/$name.log" |
+    grep -E "^(kept|test|  depth)" || true
+}
+
+# The nominal patch: 1200 presses at Halton positions (dense synthetic training data) and the
+# off-grid test split; the seed's 19 x 19 grid on three simulated units (the 361-press budget).
+dataset halton1200_nominal --plan halton --count 1200
+dataset test_nominal --plan random-test --count 2000 --seed 7
+dataset grid_nominal --plan grid
+dataset grid_fabricated --plan grid --fabricated
+dataset grid_anisotropic --plan grid --fabricated --anisotropy 0.05
+
+# Networks for the estimator table (all on the Halton set).
+train nominal_seed_cnn 35 halton1200_nominal --name nominal_seed_cnn --stride 4 --patience 20 --plateau 5
+train cnn_w0.5 12 halton1200_nominal --width 0.5 --stride 4 --patience 20 --plateau 5
+train cnn_w0.25 8 halton1200_nominal --width 0.25 --stride 4 --patience 20 --plateau 5
+train cnn_w0.125 6 halton1200_nominal --width 0.125 --stride 4 --patience 20 --plateau 5
+train mlp_256x256 5 halton1200_nominal --arch mlp --hidden 256,256 --stride 4 --patience 20 --plateau 5
+# The seed recipe per unit: the seed CNN on that unit's 19 x 19 grid.
+for unit in nominal fabricated anisotropic; do
+  train "seed_recipe_$unit" 12 "grid_$unit" --stride 2 --patience 20 --plateau 5
+done
+
+"$bin/skinbus-bench" models --test "$work/test_nominal.csv" --train "$work/grid_nominal.csv" \
+  --model "$work/nominal_seed_cnn" --model "$work/cnn_w0.5" --model "$work/cnn_w0.25" \
+  --model "$work/cnn_w0.125" --model "$work/mlp_256x256" \
+  --csv docs/benchmarks/models.csv --errors-csv "$work/model_errors.csv" \
+  --plot docs/benchmarks/models | tee "$work/models_table.md"
+"$bin/skinbus-bench" budget --seed-model "nominal=$work/seed_recipe_nominal" \
+  --seed-model "fabricated=$work/seed_recipe_fabricated" \
+  --seed-model "anisotropic=$work/seed_recipe_anisotropic" \
+  --csv docs/benchmarks/budget.csv | tee "$work/budget_table.md"
+
+if ((ship)); then
+  mkdir -p fusion/models
+  cp "$work/nominal_seed_cnn.json" "$work/nominal_seed_cnn.safetensors" fusion/models/
+  echo "model_report: shipped fusion/models/nominal_seed_cnn"
+fi
