@@ -144,6 +144,33 @@ sed 's/link: torso_link/link: chest_link/' "$work/cal/initial.yaml" >"$work/cal/
 "$bin/skinbus-bench" calibration --sessions 2 --touches 30 --noise 0.5 >"$work/bench.md" 2>/dev/null &&
   grep -q "^| 30 | 0.5 | 20 | 0 |" "$work/bench.md" && ok "skinbus-bench calibration" || { bad "skinbus-bench calibration"; cat "$work/bench.md"; }
 
+# Models: train a tiny network end to end, refuse bad input with its reason, bench it.
+mkdir -p "$work/m"
+"$bin/skinbus-dataset" --plan halton --count 12 --rate 5 -o "$work/m/train.csv" 2>/dev/null
+"$bin/skinbus-dataset" --plan random-test --count 40 -o "$work/m/test.csv" 2>/dev/null
+if [[ -x $bin/skinbus-train ]]; then
+  "$bin/skinbus-train" "$work/m/train.csv" -o "$work/m/mlp" --arch mlp --hidden 8 --epochs 2 \
+    --test "$work/m/test.csv" 2>"$work/m/train.txt"; rc=$?
+  [[ $rc == 0 && -s $work/m/mlp.safetensors ]] && grep -q "^epoch    2/2" "$work/m/train.txt" &&
+    grep -q '"test_xy_mean_mm"' "$work/m/mlp.json" && ok "skinbus-train writes a model with progress and test metrics" ||
+    { bad "skinbus-train (rc $rc)"; cat "$work/m/train.txt"; }
+  head -c 300 "$work/m/train.csv" >"$work/m/cut.csv"
+  "$bin/skinbus-train" "$work/m/cut.csv" -o "$work/m/x" 2>"$work/m/err1.txt"; rc=$?
+  [[ $rc == 2 ]] && grep -q "cut.csv" "$work/m/err1.txt" && ok "skinbus-train: corrupt dataset named" || { bad "skinbus-train corrupt dataset (rc $rc)"; cat "$work/m/err1.txt"; }
+  "$bin/skinbus-train" "$work/m/train.csv" -o "$work/m/x" --base "$work/m/none" 2>"$work/m/err2.txt"; rc=$?
+  [[ $rc == 2 ]] && grep -q "not_found" "$work/m/err2.txt" && ok "skinbus-train: missing base model" || { bad "skinbus-train missing base (rc $rc)"; cat "$work/m/err2.txt"; }
+  "$bin/skinbus-train" --help | grep -q "Examples:" && ok "skinbus-train --help" || bad "skinbus-train --help"
+  "$bin/skinbus-bench" models --test "$work/m/test.csv" --train "$work/m/train.csv" --model "$work/m/mlp" \
+    --latency-samples 5 --no-physics >"$work/m/bench.md" 2>/dev/null; rc=$?
+  [[ $rc == 0 ]] && grep -q "^| mlp | runtime" "$work/m/bench.md" && grep -q "^| nearest-neighbour lookup" "$work/m/bench.md" &&
+    grep -q "^| CRLB" "$work/m/bench.md" && ok "skinbus-bench models" || { bad "skinbus-bench models (rc $rc)"; cat "$work/m/bench.md"; }
+  printf '{"format": "skinbus-model", "architecture": 5}' >"$work/m/mlp.json"
+  "$bin/skinbus-bench" models --test "$work/m/test.csv" --model "$work/m/mlp" 2>"$work/m/err3.txt" >/dev/null; rc=$?
+  [[ $rc == 2 ]] && grep -q "mlp.json" "$work/m/err3.txt" && ok "skinbus-bench: corrupt model named" || { bad "corrupt model (rc $rc)"; cat "$work/m/err3.txt"; }
+fi
+"$bin/skinbus-bench" budget --units nominal,marble 2>"$work/m/err4.txt" >/dev/null; rc=$?
+[[ $rc == 2 ]] && grep -q "unknown unit 'marble'" "$work/m/err4.txt" && ok "skinbus-bench budget: unknown unit" || { bad "budget unknown unit (rc $rc)"; cat "$work/m/err4.txt"; }
+
 for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate; do
   "$bin/$t" --help | grep -q "Examples:\|Example:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
 done

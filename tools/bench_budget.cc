@@ -130,6 +130,13 @@ int bench_budget(const BudgetBenchArgs& a) {
     }
     seed_paths[s.substr(0, eq)] = s.substr(eq + 1);
   }
+  for (const std::string& name : a.units) {
+    if (name != "nominal" && name != "fabricated" && name != "anisotropic") {
+      std::fprintf(stderr, "skinbus-bench: unknown unit '%s' (nominal, fabricated, anisotropic)\n",
+                   name.c_str());
+      return 2;
+    }
+  }
   std::vector<Row> rows;
   for (const std::string& name : a.units) {
     std::fprintf(stderr, "skinbus-bench: unit %s: simulating 361 presses and the test splits\n",
