@@ -50,4 +50,20 @@ struct BudgetBenchArgs {
 void add_budget_options(CLI::App* sub, BudgetBenchArgs& a);
 int bench_budget(const BudgetBenchArgs& a);
 
+// `skinbus-bench finetune` (built with LibTorch only): error of a new unit against the presses
+// spent on it, fine-tuning a base network vs identifying the unit's physics.
+struct FinetuneBenchArgs {
+  std::string base_path;
+  std::vector<int> points = {10, 20, 40, 80, 160};
+  uint64_t uid = 0x5B00000000000007ull;
+  int epochs = 30;
+  double learning_rate = 3e-4;
+  int test_count = 1000;
+  int threads = 1;
+  std::string csv;
+};
+
+void add_finetune_options(CLI::App* sub, FinetuneBenchArgs& a);
+int bench_finetune(const FinetuneBenchArgs& a);
+
 }  // namespace skinbus::tools

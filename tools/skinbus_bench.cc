@@ -253,8 +253,19 @@ int main(int argc, char** argv) {
       "accuracy from one unit's 361 presses (the seed's robot-time budget): the seed recipe "
       "against the physics pipeline, per simulated unit, off-grid and at grid points");
   skinbus::tools::add_budget_options(budget, ba);
+#ifdef SKINBUS_HAVE_TORCH
+  skinbus::tools::FinetuneBenchArgs fa;
+  CLI::App* finetune = app.add_subcommand(
+      "finetune",
+      "a new unit's error against the presses spent on it: fine-tuning a base network vs "
+      "identifying the unit's physics from the same presses");
+  skinbus::tools::add_finetune_options(finetune, fa);
+#endif
   CLI11_PARSE(app, argc, argv);
   if (cal->parsed()) return bench_calibration(ca);
+#ifdef SKINBUS_HAVE_TORCH
+  if (finetune->parsed()) return skinbus::tools::bench_finetune(fa);
+#endif
   if (budget->parsed()) return skinbus::tools::bench_budget(ba);
   if (models->parsed()) return skinbus::tools::bench_models(ma);
   return bench_fk(fk_robot, fk_calls);
