@@ -199,39 +199,40 @@ int bench_budget(const BudgetBenchArgs& a) {
           return nominal_lm->estimate({f, nc}).contact;
         },
         0, -1);
-    // 3. Identify the unit from its presses, then invert its fitted model.
-    const auto t0 = Clock::now();
-    Result<IdentifiedUnit> id =
-        identify_unit(sim::PatchDesign{}, unit->presses, {}, &unit->off_grid);
-    const double id_s = std::chrono::duration<double>(Clock::now() - t0).count();
-    if (!id.ok()) {
-      std::fprintf(stderr, "skinbus-bench: identification of %s: %s\n", name.c_str(),
-                   id.error().to_string().c_str());
-      return 3;
-    }
-    std::fprintf(stderr,
-                 "skinbus-bench:   identified in %.1f s: residual %.3f (fit) / %.3f (held out) "
-                 "noise units; nominal model %.3f\n",
-                 id_s, id->fit.rms, id->held_out.rms, id->nominal_held_out.rms);
-    Result<PhysicsEstimator> unit_lm = PhysicsEstimator::create(id->model);
-    if (!unit_lm.ok()) return 2;
-    add_row(
-        "identified unit + physics LM",
-        [&](const double* f) {
-          return unit_lm->estimate({f, nc}).contact;
-        },
-        id_s, id->held_out.rms);
-    // 4. A learned correction on top: the bias the identified model leaves on the unit's own
-    // presses (truth known), as a smooth function of the estimate.
-    {
+    // 3. Identify the unit from its presses, then invert its fitted model; 4. with a learned
+    // correction on top (the bias the identified model leaves on the unit's own presses, where
+    // the truth is known). From the grid presses and from 361 presses at Halton positions.
+    std::optional<PhysicsEstimator> grid_lm;
+    double grid_id_s = 0, grid_residual = -1;
+    auto physics_pipeline = [&](const std::string& plan, const sim::Dataset& presses) -> int {
+      const auto t0 = Clock::now();
+      Result<IdentifiedUnit> id = identify_unit(sim::PatchDesign{}, presses, {}, &unit->off_grid);
+      const double id_s = std::chrono::duration<double>(Clock::now() - t0).count();
+      if (!id.ok()) {
+        std::fprintf(stderr, "skinbus-bench: identification of %s: %s\n", name.c_str(),
+                     id.error().to_string().c_str());
+        return 3;
+      }
+      std::fprintf(stderr,
+                   "skinbus-bench:   identified from %s in %.1f s: residual %.3f (fit) / %.3f "
+                   "(held out) noise units; nominal model %.3f\n",
+                   plan.c_str(), id_s, id->fit.rms, id->held_out.rms, id->nominal_held_out.rms);
+      Result<PhysicsEstimator> lm = PhysicsEstimator::create(id->model);
+      if (!lm.ok()) return 2;
+      add_row(
+          "identified unit (" + plan + ") + physics LM",
+          [&](const double* f) {
+            return lm->estimate({f, nc}).contact;
+          },
+          id_s, id->held_out.rms);
       const auto t1 = Clock::now();
       std::vector<ContactEstimate> est;
       std::vector<double> tu, tv, td;
-      for (std::size_t r = 0; r < unit->presses.rows(); r += 3) {
-        est.push_back(unit_lm->estimate({unit->presses.field(r), nc}).contact);
-        tu.push_back(unit->presses.u_mm[r]);
-        tv.push_back(unit->presses.v_mm[r]);
-        td.push_back(unit->presses.depth_mm[r]);
+      for (std::size_t r = 0; r < presses.rows(); r += 3) {
+        est.push_back(lm->estimate({presses.field(r), nc}).contact);
+        tu.push_back(presses.u_mm[r]);
+        tv.push_back(presses.v_mm[r]);
+        td.push_back(presses.depth_mm[r]);
       }
       BiasCorrectionOptions bo;
       bo.half_u_mm = bo.half_v_mm = kHalfExtentMm;
@@ -245,23 +246,36 @@ int bench_budget(const BudgetBenchArgs& a) {
       std::fprintf(stderr, "skinbus-bench:   bias correction: %d samples, RMS %.3f mm, %.1f s\n",
                    bias->samples_used(), bias->rms_correction_mm(), fit_s);
       add_row(
-          "identified unit + physics LM + learned bias correction",
+          "identified unit (" + plan + ") + physics LM + learned bias correction",
           [&](const double* f) {
-            return bias->apply(unit_lm->estimate({f, nc}).contact);
+            return bias->apply(lm->estimate({f, nc}).contact);
           },
           id_s + fit_s, id->held_out.rms);
+      if (plan == "grid") {
+        grid_lm.emplace(std::move(lm.value()));
+        grid_id_s = id_s;
+        grid_residual = id->held_out.rms;
+      }
+      return 0;
+    };
+    if (int rc = physics_pipeline("grid", unit->presses); rc != 0) return rc;
+    {
+      sim::SimulatedPatch patch(unit->truth, a.uid * 0x9E3779B97F4A7C15ull + 1);
+      const sim::Dataset halton = sim::generate_ramp_dataset(
+          patch, sim::plan_halton(kGrid * kGrid, kHalfExtentMm, 1), sim::RampProtocol{});
+      if (int rc = physics_pipeline("Halton", halton); rc != 0) return rc;
     }
     // 5. The seed CNN's answer refined by least squares on the identified model.
-    if (cnn) {
+    if (cnn && grid_lm) {
       const int channels = cnn->channels();
       add_row(
-          "identified unit + seed CNN start + LM refine",
+          "identified unit (grid) + seed CNN start + LM refine",
           [&](const double* f) {
             const ContactEstimate g = cnn->estimate({f, static_cast<std::size_t>(channels)});
-            if (!g.valid()) return unit_lm->estimate({f, nc}).contact;
-            return unit_lm->refine({f, nc}, {}, g).contact;
+            if (!g.valid()) return grid_lm->estimate({f, nc}).contact;
+            return grid_lm->refine({f, nc}, {}, g).contact;
           },
-          id_s, id->held_out.rms);
+          grid_id_s, grid_residual);
     }
   }
   std::printf(
