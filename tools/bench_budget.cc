@@ -87,17 +87,6 @@ bool goal_met(const Row& r) {
   return r.off_grid.all.depth_mean_mm <= 0.1;
 }
 
-double deep_xy(const ErrorSummary& s) {
-  double sum = 0;
-  int n = 0;
-  for (int b = 2; b < kDepthBins; ++b) {
-    const ErrorStats& st = s.bins[static_cast<std::size_t>(b)];
-    sum += st.xy_mean_mm * st.count;
-    n += st.count;
-  }
-  return n ? sum / n : 0.0;
-}
-
 }  // namespace
 
 void add_budget_options(CLI::App* sub, BudgetBenchArgs& a) {
@@ -300,8 +289,8 @@ int bench_budget(const BudgetBenchArgs& a) {
       std::printf(" %.3f (%.2f) |", r.off_grid.bins[i].xy_mean_mm,
                   r.crlb[i] > 0 ? r.off_grid.bins[i].xy_mean_mm / r.crlb[i] : 0.0);
     }
-    std::printf(" %.3f | %.3f | %.3f | %.3f | %s |\n", deep_xy(r.off_grid),
-                r.off_grid.all.depth_mean_mm, deep_xy(r.grid), r.grid.all.depth_mean_mm,
+    std::printf(" %.3f | %.3f | %.3f | %.3f | %s |\n", xy_mean_from_bin(r.off_grid),
+                r.off_grid.all.depth_mean_mm, xy_mean_from_bin(r.grid), r.grid.all.depth_mean_mm,
                 r.goal ? "met" : "not met");
   }
   if (!a.csv.empty()) {
@@ -313,8 +302,8 @@ int bench_budget(const BudgetBenchArgs& a) {
     f << "\n";
     for (const Row& r : rows) {
       f << r.unit << ",\"" << r.pipeline << "\"," << r.setup_s << ',' << r.residual << ','
-        << deep_xy(r.off_grid) << ',' << r.off_grid.all.depth_mean_mm << ',' << deep_xy(r.grid)
-        << ',' << r.grid.all.depth_mean_mm << ',' << (r.goal ? 1 : 0);
+        << xy_mean_from_bin(r.off_grid) << ',' << r.off_grid.all.depth_mean_mm << ','
+        << xy_mean_from_bin(r.grid) << ',' << r.grid.all.depth_mean_mm << ',' << (r.goal ? 1 : 0);
       for (int b = 0; b < kDepthBins; ++b) {
         const auto i = static_cast<std::size_t>(b);
         f << ',' << r.off_grid.bins[i].xy_mean_mm << ',' << r.crlb[i];

@@ -18,19 +18,8 @@ namespace {
 
 using namespace skinbus::fusion;
 using Clock = std::chrono::steady_clock;
-constexpr double kHalfExtentMm = 67.5;  // the seed grid's extent
+constexpr double kHalfExtentMm = 67.5;    // the seed grid's extent
 constexpr double kSecondsPerPress = 6.0;  // a 4 s ramp plus ~2 s to move to the next point
-
-double deep_xy(const ErrorSummary& s) {
-  double sum = 0;
-  int n = 0;
-  for (int b = 2; b < kDepthBins; ++b) {
-    const ErrorStats& st = s.bins[static_cast<std::size_t>(b)];
-    sum += st.xy_mean_mm * st.count;
-    n += st.count;
-  }
-  return n ? sum / n : 0.0;
-}
 
 }  // namespace
 
@@ -40,7 +29,8 @@ void add_finetune_options(CLI::App* sub, FinetuneBenchArgs& a) {
   sub->add_option("--points", a.points, "presses spent on the new unit (Halton positions)")
       ->delimiter(',')
       ->capture_default_str();
-  sub->add_option("--uid", a.uid, "hardware UID of the new (fabricated) unit")->capture_default_str();
+  sub->add_option("--uid", a.uid, "hardware UID of the new (fabricated) unit")
+      ->capture_default_str();
   sub->add_option("--epochs", a.epochs, "fine-tuning epochs")->capture_default_str();
   sub->add_option("--lr", a.learning_rate, "fine-tuning learning rate")->capture_default_str();
   sub->add_option("--test-count", a.test_count, "off-grid test presses")->capture_default_str();
@@ -55,10 +45,12 @@ int bench_finetune(const FinetuneBenchArgs& a) {
     return 2;
   }
   const sim::PatchDesign design;
-  Result<sim::PatchModel> unit = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+  Result<sim::PatchModel> unit =
+      sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
   if (!unit.ok()) return 2;
   sim::SimulatedPatch test_patch(*unit, a.uid * 0x9E3779B97F4A7C15ull + 2);
-  const sim::Dataset test = sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
+  const sim::Dataset test =
+      sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
   const std::size_t nc = static_cast<std::size_t>(unit->channel_count());
   const std::array<double, kDepthBins> crlb =
       mean_per_bin(crlb_per_row(*unit, test, static_cast<int>(test.rows())), test.depth_mm);
@@ -82,10 +74,12 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   // The physics with no presses: the nominal model.
   ErrorSummary nominal_physics;
   {
-    Result<PhysicsEstimator> lm = PhysicsEstimator::create(sim::PatchModel::nominal(design).value());
+    Result<PhysicsEstimator> lm =
+        PhysicsEstimator::create(sim::PatchModel::nominal(design).value());
     if (!lm.ok()) return 2;
     std::vector<ContactEstimate> out(test.rows());
-    for (std::size_t r = 0; r < test.rows(); ++r) out[r] = lm->estimate({test.field(r), nc}).contact;
+    for (std::size_t r = 0; r < test.rows(); ++r)
+      out[r] = lm->estimate({test.field(r), nc}).contact;
     nominal_physics = summarize_errors(out, {test.u_mm, test.v_mm, test.depth_mm, test.force_n});
   }
   struct Line {
@@ -98,12 +92,12 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   std::vector<Line> lines;
   const ErrorSummary before = evaluate(*base);
   std::fprintf(stderr, "skinbus-bench: base model on the new unit: XY %.3f mm (>= 1 mm deep)\n",
-               deep_xy(before));
+               xy_mean_from_bin(before));
   for (int n : a.points) {
     std::fprintf(stderr, "skinbus-bench: %d presses ...\n", n);
     sim::SimulatedPatch patch(*unit, a.uid * 0x9E3779B97F4A7C15ull + 1);
-    const sim::Dataset presses =
-        sim::generate_ramp_dataset(patch, sim::plan_halton(n, kHalfExtentMm, 1), sim::RampProtocol{});
+    const sim::Dataset presses = sim::generate_ramp_dataset(
+        patch, sim::plan_halton(n, kHalfExtentMm, 1), sim::RampProtocol{});
     Line line{n, n * kSecondsPerPress / 60, {}, {}, 0, 0, false};
     TrainOptions o;
     o.name = "finetuned";
@@ -123,7 +117,8 @@ int bench_finetune(const FinetuneBenchArgs& a) {
       Result<PhysicsEstimator> lm = PhysicsEstimator::create(id->model);
       if (lm.ok()) {
         std::vector<ContactEstimate> out(test.rows());
-        for (std::size_t r = 0; r < test.rows(); ++r) out[r] = lm->estimate({test.field(r), nc}).contact;
+        for (std::size_t r = 0; r < test.rows(); ++r)
+          out[r] = lm->estimate({test.field(r), nc}).contact;
         line.physics = summarize_errors(out, {test.u_mm, test.v_mm, test.depth_mm, test.force_n});
         line.physics_ok = true;
       }
@@ -132,35 +127,43 @@ int bench_finetune(const FinetuneBenchArgs& a) {
     }
     lines.push_back(line);
   }
-  std::printf("New unit: fabricated, UID 0x%llx. Base: %s (trained on the nominal patch). Test: %d "
-              "off-grid presses, random depths to 4 mm; XY and depth means over presses >= 1 mm "
-              "deep (CRLB there: %.3f mm). Robot time at %.0f s per press.\n\n",
-              static_cast<unsigned long long>(a.uid), base->meta.name.c_str(), a.test_count,
-              crlb_deep, kSecondsPerPress);
-  std::printf("| presses | robot time (min) | fine-tuned network XY (mm) | depth (mm) | fine-tuning "
-              "(s) | identified physics + LM XY (mm) | depth (mm) | identification (s) |\n"
-              "|---:|---:|---:|---:|---:|---:|---:|---:|\n");
-  std::printf("| 0 | 0 | %.3f | %.3f | | %.3f (nominal model) | %.3f | |\n", deep_xy(before),
-              before.all.depth_mean_mm, deep_xy(nominal_physics), nominal_physics.all.depth_mean_mm);
+  std::printf(
+      "New unit: fabricated, UID 0x%llx. Base: %s (trained on the nominal patch). Test: %d "
+      "off-grid presses, random depths to 4 mm; XY and depth means over presses >= 1 mm "
+      "deep (CRLB there: %.3f mm). Robot time at %.0f s per press.\n\n",
+      static_cast<unsigned long long>(a.uid), base->meta.name.c_str(), a.test_count, crlb_deep,
+      kSecondsPerPress);
+  std::printf(
+      "| presses | robot time (min) | fine-tuned network XY (mm) | depth (mm) | fine-tuning "
+      "(s) | identified physics + LM XY (mm) | depth (mm) | identification (s) |\n"
+      "|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+  std::printf("| 0 | 0 | %.3f | %.3f | | %.3f (nominal model) | %.3f | |\n",
+              xy_mean_from_bin(before), before.all.depth_mean_mm, xy_mean_from_bin(nominal_physics),
+              nominal_physics.all.depth_mean_mm);
   for (const Line& l : lines) {
-    std::printf("| %d | %.1f | %.3f | %.3f | %.0f |", l.presses, l.minutes, deep_xy(l.tuned),
-                l.tuned.all.depth_mean_mm, l.tune_s);
+    std::printf("| %d | %.1f | %.3f | %.3f | %.0f |", l.presses, l.minutes,
+                xy_mean_from_bin(l.tuned), l.tuned.all.depth_mean_mm, l.tune_s);
     if (l.physics_ok) {
-      std::printf(" %.3f | %.3f | %.1f |\n", deep_xy(l.physics), l.physics.all.depth_mean_mm, l.physics_s);
+      std::printf(" %.3f | %.3f | %.1f |\n", xy_mean_from_bin(l.physics),
+                  l.physics.all.depth_mean_mm, l.physics_s);
     } else {
       std::printf(" refused: presses too few or not covering the patch | | |\n");
     }
   }
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
-    f << "presses,robot_minutes,finetuned_xy_deep_mm,finetuned_depth_mm,finetune_s,physics_xy_deep_mm,physics_depth_mm,identify_s\n";
-      f << "0,0," << deep_xy(before) << ',' << before.all.depth_mean_mm << ",," << deep_xy(nominal_physics)
-      << ',' << nominal_physics.all.depth_mean_mm << ",\n";
+    f << "presses,robot_minutes,finetuned_xy_deep_mm,finetuned_depth_mm,finetune_s,physics_xy_deep_"
+         "mm,physics_depth_mm,identify_s\n";
+    f << "0,0," << xy_mean_from_bin(before) << ',' << before.all.depth_mean_mm << ",,"
+      << xy_mean_from_bin(nominal_physics) << ',' << nominal_physics.all.depth_mean_mm << ",\n";
     for (const Line& l : lines) {
-      f << l.presses << ',' << l.minutes << ',' << deep_xy(l.tuned) << ',' << l.tuned.all.depth_mean_mm
-        << ',' << l.tune_s << ',';
-      if (l.physics_ok) f << deep_xy(l.physics) << ',' << l.physics.all.depth_mean_mm << ',' << l.physics_s;
-      else f << ",,";
+      f << l.presses << ',' << l.minutes << ',' << xy_mean_from_bin(l.tuned) << ','
+        << l.tuned.all.depth_mean_mm << ',' << l.tune_s << ',';
+      if (l.physics_ok)
+        f << xy_mean_from_bin(l.physics) << ',' << l.physics.all.depth_mean_mm << ','
+          << l.physics_s;
+      else
+        f << ",,";
       f << "\n";
     }
   }

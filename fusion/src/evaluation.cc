@@ -48,6 +48,17 @@ int depth_bin(double depth_mm) {
   return kDepthBins - 1;
 }
 
+double xy_mean_from_bin(const ErrorSummary& s, int first_bin) {
+  double sum = 0;
+  int n = 0;
+  for (int b = std::max(first_bin, 0); b < kDepthBins; ++b) {
+    const ErrorStats& st = s.bins[static_cast<std::size_t>(b)];
+    sum += st.xy_mean_mm * st.count;
+    n += st.count;
+  }
+  return n > 0 ? sum / n : 0.0;
+}
+
 ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const Truth& truth) {
   Accumulator all;
   std::array<Accumulator, kDepthBins> bins;

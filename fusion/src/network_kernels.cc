@@ -55,13 +55,10 @@ void gemm_bf16_portable(const uint16_t* const* a, const uint16_t* b, int k_pairs
 }
 
 template <int R, int V>
-void gemm_i8_portable(const uint8_t* const* a, const int8_t* b, int k_quads, int32_t* const* c,
-                      bool init) {
+void gemm_i8_portable(const uint8_t* const* a, const int8_t* b, int k_quads, float* const* c,
+                      const float* bias, const float* a_scale, const float* w_scale, bool relu) {
   constexpr int kCols = kLanes * V;
-  int32_t acc[R][kCols];
-  for (int i = 0; i < R; ++i) {
-    for (int j = 0; j < kCols; ++j) acc[i][j] = init ? 0 : c[i][j];
-  }
+  int32_t acc[R][kCols] = {};
   for (int kq = 0; kq < k_quads; ++kq) {
     const int8_t* bk = b + static_cast<std::ptrdiff_t>(kq) * kCols * 4;
     for (int i = 0; i < R; ++i) {
@@ -74,7 +71,11 @@ void gemm_i8_portable(const uint8_t* const* a, const int8_t* b, int k_quads, int
     }
   }
   for (int i = 0; i < R; ++i) {
-    for (int j = 0; j < kCols; ++j) c[i][j] = acc[i][j];
+    for (int j = 0; j < kCols; ++j) {
+      const float y = std::fma(static_cast<float>(acc[i][j]), w_scale[j] * a_scale[i],
+                               bias != nullptr ? bias[j] : c[i][j]);
+      c[i][j] = relu && y < 0.0f ? 0.0f : y;
+    }
   }
 }
 
@@ -107,17 +108,6 @@ float quantise_u8_portable(const float* x, int n, uint8_t* out) {
     out[i] = static_cast<uint8_t>(q > 255.0f ? 255.0f : q);
   }
   return scale;
-}
-
-void dequantise_portable(const int32_t* acc, int rows, int ld, float a_scale, const float* w_scale,
-                         const float* bias, bool relu, float* out) {
-  for (int r = 0; r < rows; ++r) {
-    const std::ptrdiff_t row = static_cast<std::ptrdiff_t>(r) * ld;
-    for (int j = 0; j < ld; ++j) {
-      const float y = std::fma(static_cast<float>(acc[row + j]), a_scale * w_scale[j], bias[j]);
-      out[row + j] = relu && y < 0.0f ? 0.0f : y;
-    }
-  }
 }
 
 void to_bf16_portable(const float* in, uint16_t* out, int n, bool relu) {
@@ -232,16 +222,15 @@ SKINBUS_AVX512_BF16 void gemm_bf16_avx512(const uint16_t* const* a, const uint16
 
 template <int R, int V>
 SKINBUS_AVX512_VNNI void gemm_i8_avx512(const uint8_t* const* a, const int8_t* b, int k_quads,
-                                        int32_t* const* c, bool init) {
+                                        float* const* c, const float* bias, const float* a_scale,
+                                        const float* w_scale, bool relu) {
   __m512i acc[R][V];
   const uint8_t* ap[R];
 #pragma GCC unroll 8
   for (int i = 0; i < R; ++i) {
     ap[i] = a[i];
 #pragma GCC unroll 4
-    for (int v = 0; v < V; ++v) {
-      acc[i][v] = init ? _mm512_setzero_si512() : _mm512_loadu_si512(c[i] + kLanes * v);
-    }
+    for (int v = 0; v < V; ++v) acc[i][v] = _mm512_setzero_si512();
   }
   for (int kq = 0; kq < k_quads; ++kq) {
     __m512i bv[V];
@@ -257,10 +246,20 @@ SKINBUS_AVX512_VNNI void gemm_i8_avx512(const uint8_t* const* a, const int8_t* b
       for (int v = 0; v < V; ++v) acc[i][v] = _mm512_dpbusd_epi32(acc[i][v], av, bv[v]);
     }
   }
+  __m512 ws[V];
+#pragma GCC unroll 4
+  for (int v = 0; v < V; ++v) ws[v] = _mm512_loadu_ps(w_scale + kLanes * v);
+  const __m512 zero = _mm512_setzero_ps();
 #pragma GCC unroll 8
   for (int i = 0; i < R; ++i) {
+    const __m512 as = _mm512_set1_ps(a_scale[i]);
 #pragma GCC unroll 4
-    for (int v = 0; v < V; ++v) _mm512_storeu_si512(c[i] + kLanes * v, acc[i][v]);
+    for (int v = 0; v < V; ++v) {
+      const __m512 start = _mm512_loadu_ps((bias != nullptr ? bias : c[i]) + kLanes * v);
+      __m512 y = _mm512_fmadd_ps(_mm512_cvtepi32_ps(acc[i][v]), _mm512_mul_ps(ws[v], as), start);
+      if (relu) y = _mm512_max_ps(y, zero);
+      _mm512_storeu_ps(c[i] + kLanes * v, y);
+    }
   }
 }
 
@@ -298,23 +297,6 @@ SKINBUS_AVX512 float quantise_u8_avx512(const float* x, int n, uint8_t* out) {
     out[i] = static_cast<uint8_t>(q > 255.0f ? 255.0f : q);
   }
   return scale;
-}
-
-SKINBUS_AVX512 void dequantise_avx512(const int32_t* acc, int rows, int ld, float a_scale,
-                                      const float* w_scale, const float* bias, bool relu,
-                                      float* out) {
-  const __m512 zero = _mm512_setzero_ps();
-  const __m512 as = _mm512_set1_ps(a_scale);
-  for (int j = 0; j < ld; j += kLanes) {
-    const __m512 s = _mm512_mul_ps(_mm512_loadu_ps(w_scale + j), as);
-    const __m512 b = _mm512_loadu_ps(bias + j);
-    for (int r = 0; r < rows; ++r) {
-      const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(r) * ld + j;
-      __m512 y = _mm512_fmadd_ps(_mm512_cvtepi32_ps(_mm512_loadu_si512(acc + at)), s, b);
-      if (relu) y = _mm512_max_ps(y, zero);
-      _mm512_storeu_ps(out + at, y);
-    }
-  }
 }
 
 SKINBUS_AVX512 void relu_avx512(float* x, int n) {
@@ -402,7 +384,6 @@ KernelSet make_portable() {
   k.to_bf16 = &to_bf16_portable;
   fill<I8Portable>(k.i8, RowSeq{});
   k.quantise_u8 = &quantise_u8_portable;
-  k.dequantise = &dequantise_portable;
   k.relu = &relu_portable;
   k.pool = &pool_portable;
   return k;
@@ -452,7 +433,6 @@ const KernelSet* avx512_kernels() {
     if (has_avx512_vnni()) {
       fill<I8Avx512>(s.i8, RowSeq{});
       s.quantise_u8 = &quantise_u8_avx512;
-      s.dequantise = &dequantise_avx512;
     }
     return s;
   }();

@@ -11,10 +11,9 @@
 //   int8:     panel[k / 4][16 * V][4]       (quads of K, the vpdpbusd layout: A rows unsigned
 //                                            8-bit, B signed 8-bit, K padded to a multiple of 4
 //                                            with zeros)
-// The float accumulators start from `bias` (16 * V floats) when it is not null, else from C; the
-// result is stored to C, through max(0, .) when `relu`. The int8 kernels accumulate exact int32
-// sums into C (starting from zero when `init`, else from C); scales and bias are applied by
-// dequantise_u8 afterwards.
+// The accumulators start from `bias` (16 * V floats) when it is not null, else from C; the
+// result is stored to C, through max(0, .) when `relu`. The int8 kernels sum exact int32 products
+// over their K and add sum * a_scale[row] * w_scale[column] to that float start.
 #pragma once
 
 #include <cstdint>
@@ -29,16 +28,12 @@ using GemmF32 = void (*)(const float* const* a, const float* b, int k, float* co
                          const float* bias, bool relu);
 using GemmBf16 = void (*)(const uint16_t* const* a, const uint16_t* b, int k_pairs, float* const* c,
                           const float* bias, bool relu);
-using GemmI8 = void (*)(const uint8_t* const* a, const int8_t* b, int k_quads, int32_t* const* c,
-                        bool init);
-// Quantises `n` floats (one sample's activations, >= 0 after ReLU; negatives clamp to 0) to
-// unsigned 8 bits: out = round(x / scale) with scale = max(x) / 255. Returns the scale: 0 when
-// every value is 0, NaN when any value is not finite (so the sample's outputs become NaN).
+using GemmI8 = void (*)(const uint8_t* const* a, const int8_t* b, int k_quads, float* const* c,
+                        const float* bias, const float* a_scale, const float* w_scale, bool relu);
+// Quantises `n` floats (one activation row, >= 0 after ReLU; negatives clamp to 0) to unsigned
+// 8 bits: out = round(x / scale) with scale = max(x) / 255. Returns the scale: 0 when every
+// value is 0, NaN when any value is not finite (so the sample's outputs become NaN).
 using QuantiseU8 = float (*)(const float* x, int n, uint8_t* out);
-// Dequantises `rows` rows of `ld` int32 sums (ld a multiple of 16): out = acc * a_scale *
-// w_scale[j] + bias[j], through max(0, .) when `relu`.
-using DequantiseI32 = void (*)(const int32_t* acc, int rows, int ld, float a_scale,
-                               const float* w_scale, const float* bias, bool relu, float* out);
 // Rounds `n` floats to bfloat16 (round to nearest even), applying max(0, .) first when `relu`.
 using ToBf16 = void (*)(const float* in, uint16_t* out, int n, bool relu);
 // max(0, .) over `n` floats in place.
@@ -53,7 +48,6 @@ struct KernelSet {
   GemmBf16 bf16[kMaxRows][kMaxVectors] = {};  // null when the CPU lacks AVX512_BF16
   GemmI8 i8[kMaxRows][kMaxVectors] = {};      // null when the CPU lacks AVX512_VNNI
   QuantiseU8 quantise_u8 = nullptr;
-  DequantiseI32 dequantise = nullptr;
   ToBf16 to_bf16 = nullptr;
   ReluF32 relu = nullptr;
   PoolF32 pool = nullptr;

@@ -28,6 +28,8 @@ constexpr int kKernelChunk = 16;
 constexpr int kKBlock = 64;
 constexpr std::size_t kAlign = 64;
 constexpr int kMaxThreads = 64;
+// kInt8 runs a layer in int8 when it carries at least 1/kInt8MinShare of the multiply-adds.
+constexpr int64_t kInt8MinShare = 20;
 
 int round_up(int n, int m) {
   return (n + m - 1) / m * m;
@@ -232,13 +234,20 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
   std::vector<Source> src;
   int in = cnn ? 3 : channels;
   std::size_t packed = 0, packed8 = 0;
+  int64_t tap_cells = 0;  // in-bounds (cell, tap) pairs of a convolution
+  for (const Tap& tap : taps) tap_cells += static_cast<int64_t>(tap.out_cell.size());
+  const int64_t total_macs = model.macs();
   auto add_layer = [&](const std::string& name, bool conv, int out, bool relu) {
     KernelLayer l;
     l.conv = conv;
     l.relu = relu;
     // int8 serves the layers whose input is a ReLU output (non-negative, so unsigned 8 bits
-    // lose no sign); the first layer (signed normalised fields) and the head stay float32.
-    l.int8 = int8 && !layers.empty() && relu;
+    // lose no sign) and that carry at least 1/kInt8MinShare of the network's multiply-adds; the
+    // first layer (signed normalised fields), the head and the small layers stay float32: every
+    // int8 layer adds about the same rounding noise whatever its size, so small ones would cost
+    // accuracy for little speed (docs/benchmarks/runtime.md).
+    const int64_t layer_macs = static_cast<int64_t>(in) * out * (conv ? tap_cells : 1);
+    l.int8 = int8 && !layers.empty() && relu && layer_macs * kInt8MinShare >= total_macs;
     l.k = in;
     l.k_pairs = (in + 1) / 2;
     l.k_quads = (in + 3) / 4;

@@ -33,6 +33,10 @@ struct Truth {
   std::span<const double> u_mm, v_mm, depth_mm, force_n;  // one entry per estimate
 };
 
+// Mean XY error over the bins from `first_bin` on (weighted by their counts); with the default,
+// the presses at least 1 mm deep: those an estimator can localise.
+double xy_mean_from_bin(const ErrorSummary& s, int first_bin = 2);
+
 // Compares `estimates` with `truth` (same length). Rejected estimates are counted, not averaged.
 ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const Truth& truth);
 
