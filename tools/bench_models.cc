@@ -150,7 +150,7 @@ void add_models_options(CLI::App* sub, ModelsBenchArgs& a) {
   sub->add_option("--reference", a.reference_path,
                   "model run through LibTorch as the reference runtime (default: the first "
                   "width-1 CNN)");
-  sub->add_flag("!--no-bf16", a.bf16, "leave out the bfloat16 rows");
+  sub->add_flag("!--no-reduced", a.reduced, "leave out the bfloat16 and int8 rows");
   sub->add_flag("!--no-physics", a.physics, "leave out the physics LM row");
   sub->add_option("--latency-samples", a.latency_samples, "samples timed at batch 1")
       ->capture_default_str()
@@ -216,7 +216,10 @@ int bench_models(const ModelsBenchArgs& a) {
       reference = &m;
     }
     std::vector<RuntimePrecision> precisions = {RuntimePrecision::kFloat32};
-    if (cnn && a.bf16) precisions.push_back(RuntimePrecision::kBfloat16);
+    if (a.reduced) {
+      precisions.push_back(RuntimePrecision::kBfloat16);
+      precisions.push_back(RuntimePrecision::kInt8);
+    }
     for (RuntimePrecision p : precisions) {
       auto rts = std::make_shared<std::array<std::unique_ptr<NetworkRuntime>, 2>>();
       bool ok = true;
@@ -237,7 +240,9 @@ int bench_models(const ModelsBenchArgs& a) {
       if (!ok) continue;
       keep.push_back(rts);
       Candidate c;
-      c.name = m.meta.name + (p == RuntimePrecision::kBfloat16 ? " bf16" : "");
+      c.name = m.meta.name + (p == RuntimePrecision::kFloat32
+                                  ? std::string()
+                                  : std::string(" ") + runtime_precision_name(p));
       c.kind = std::string("runtime ") + (*rts)[0]->kernel_name();
       c.macs = static_cast<double>(m.macs());
       c.run = [rts, field, channels](int begin, int end, int batch, int threads,

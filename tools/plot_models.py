@@ -68,7 +68,7 @@ def main():
                                        for r in errors if r["estimator"] == names[0]
                                        and float(r["depth_mm"]) >= 1.0])]
     for n in names:
-        if n.endswith(" bf16") or n.endswith("(LibTorch)"):
+        if n.endswith((" bfloat16", " int8", "(LibTorch)")):
             continue
         panels.append((n, [(float(r["u_mm"]), float(r["v_mm"]), float(r["xy_error_mm"]))
                            for r in errors if r["estimator"] == n and r["valid"] == "1"

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <climits>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -131,7 +130,7 @@ struct KernelLayer {
   int k = 0, k_pairs = 0, k_quads = 0, n = 0, n_ld = 0;
   std::vector<ColBlock> blocks;  // offsets into w8 when int8, else w32 or w16
   Aligned<float> bias;           // n_ld
-  Aligned<float> w_scale;        // int8: n_ld per output channel scales of the weights
+  Aligned<float> w_scale;        // int8: weight scales per tap and output channel [tap][n_ld]
 };
 
 // The in-bounds pairs of one 3x3 tap over the grid.
@@ -148,8 +147,7 @@ struct Slot {
   Aligned<float> f0, f1;       // float activations
   Aligned<uint16_t> h;         // bfloat16 activations
   Aligned<uint8_t> q;          // int8 path: quantised activations
-  Aligned<int32_t> acc;        // int8 path: integer sums
-  std::vector<float> q_scale;  // int8 path: per sample scale of q
+  std::vector<float> q_scale;  // int8 path: scale of each row of q
   std::vector<uint8_t> ok;     // channel mask scratch
   std::vector<int> index;      // chunk row -> sample
   std::vector<double> raw;     // chunk outputs, physical units
@@ -266,7 +264,8 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
       l.blocks.push_back(b);
     }
     l.bias.assign(static_cast<std::size_t>(l.n_ld));
-    if (l.int8) l.w_scale.assign(static_cast<std::size_t>(l.n_ld));
+    if (l.int8)
+      l.w_scale.assign(static_cast<std::size_t>(l.n_ld) * static_cast<std::size_t>(ntaps));
     src.push_back({model.find(name + ".weight"), model.find(name + ".bias")});
     layers.push_back(std::move(l));
     in = out;
@@ -282,14 +281,8 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     add_layer("fc" + std::to_string(k), false, a.hidden[k], true);
   }
   add_layer("head", false, outputs, false);
-  // An int32 sum holds at most 2^31 / (255 * 127) ~ 66000 products.
-  for (const KernelLayer& l : layers) {
-    const int64_t terms = int64_t{4} * l.k_quads * (l.conv ? static_cast<int64_t>(taps.size()) : 1);
-    if (l.int8 && terms * 255 * 127 > int64_t{INT32_MAX}) {
-      return make_error(ErrorCode::kUnsupported, "int8: a layer with " + std::to_string(terms) +
-                                                     " inputs could overflow its 32-bit sums");
-    }
-  }
+  // An int8 kernel call sums at most 4 * kKBlock = 256 products of at most 255 * 127 in int32:
+  // no overflow whatever the layer's size.
 
   // Pack: panel[k][cols] (float32), panel[k/2][cols][2] (bfloat16) or panel[k/4][cols][4]
   // (int8), zeros beyond the shape.
@@ -310,20 +303,21 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
       return w[(static_cast<std::size_t>(o) * l.k + i) * 9 + static_cast<std::size_t>(t)];
     };
     if (l.int8) {
-      // Symmetric per output channel: scale = max |w| / 127 over its inputs and taps.
-      for (int o = 0; o < l.n; ++o) {
-        float mx = 0.0f;
-        for (int i = 0; i < l.k; ++i) {
-          for (int t = 0; t < (l.conv ? 9 : 1); ++t) mx = std::max(mx, std::fabs(weight(o, i, t)));
+      // Symmetric per tap and output channel: scale = max |w| / 127 over its inputs.
+      for (int t = 0; t < ntaps; ++t) {
+        const int wt = l.conv ? taps[static_cast<std::size_t>(t)].weight_tap : 0;
+        for (int o = 0; o < l.n; ++o) {
+          float mx = 0.0f;
+          for (int i = 0; i < l.k; ++i) mx = std::max(mx, std::fabs(weight(o, i, wt)));
+          l.w_scale.data()[t * l.n_ld + o] = mx / 127.0f;
         }
-        l.w_scale.data()[o] = mx / 127.0f;
       }
     }
-    auto weight_s8 = [&](int o, int i, int t) -> int8_t {
+    auto weight_s8 = [&](int o, int i, int t, int wt) -> int8_t {
       if (o >= l.n) return 0;
-      const float scale = l.w_scale.data()[o];
+      const float scale = l.w_scale.data()[t * l.n_ld + o];
       if (scale == 0.0f) return 0;
-      const float q = std::nearbyint(weight(o, i, t) / scale);
+      const float q = std::nearbyint(weight(o, i, wt) / scale);
       return static_cast<int8_t>(std::clamp(q, -127.0f, 127.0f));
     };
     for (const ColBlock& b : l.blocks) {
@@ -336,7 +330,7 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
             for (int j = 0; j < cols; ++j) {
               for (int e = 0; e < 4; ++e) {
                 w8.data()[base + (static_cast<std::size_t>(kq) * cols + j) * 4 + e] =
-                    weight_s8(b.col0 + j, 4 * kq + e, wt);
+                    weight_s8(b.col0 + j, 4 * kq + e, t, wt);
               }
             }
           }
@@ -374,8 +368,7 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     if (bf16) s.h.assign(rows * static_cast<std::size_t>(widest));
     if (int8) {
       s.q.assign(rows * static_cast<std::size_t>(widest));
-      s.acc.assign(rows * static_cast<std::size_t>(widest));
-      s.q_scale.assign(static_cast<std::size_t>(chunk), 0.0f);
+      s.q_scale.assign(rows, 0.0f);
     }
   }
   return Status::Ok();
@@ -389,18 +382,16 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
   const float* a_rows[kMaxRows];
   const uint16_t* h_rows[kMaxRows];
   const uint8_t* q_rows[kMaxRows];
+  float q_scales[kMaxRows];
   float* c_rows[kMaxRows];
-  int32_t* i_rows[kMaxRows];
   for (std::size_t li = 0; li < layers.size(); ++li) {
     const KernelLayer& l = layers[li];
     const int rows_per_sample = l.conv ? cells : 1;
     if (l.int8) {
-      // Each sample's input (its rows of this layer) on its own scale.
-      const std::ptrdiff_t per_sample = static_cast<std::ptrdiff_t>(rows_per_sample) * a_ld;
-      for (int sample = 0; sample < n; ++sample) {
-        s.q_scale[static_cast<std::size_t>(sample)] =
-            ks->quantise_u8(a32 + sample * per_sample, static_cast<int>(per_sample),
-                            s.q.data() + sample * per_sample);
+      // Every input row (a cell of a sample, or a sample) on its own scale.
+      for (int row = 0; row < n * rows_per_sample; ++row) {
+        const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(row) * a_ld;
+        s.q_scale[static_cast<std::size_t>(row)] = ks->quantise_u8(a32 + at, a_ld, s.q.data() + at);
       }
     }
     for (const ColBlock& b : l.blocks) {
@@ -427,18 +418,20 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
               const int out_row = l.conv ? tap->chunk_out[r0 + i] : r0 + i;
               const std::ptrdiff_t a_off = static_cast<std::ptrdiff_t>(in_row) * a_ld + a_k;
               const std::ptrdiff_t c_off = static_cast<std::ptrdiff_t>(out_row) * l.n_ld + b.col0;
+              c_rows[i] = out + c_off;
               if (l.int8) {
                 q_rows[i] = s.q.data() + a_off;
-                i_rows[i] = s.acc.data() + c_off;
+                q_scales[i] = s.q_scale[static_cast<std::size_t>(in_row)];
               } else {
                 a_rows[i] = a32 + a_off;
                 if (bf16) h_rows[i] = s.h.data() + a_off;
-                c_rows[i] = out + c_off;
               }
             }
             if (l.int8) {
-              ks->i8[r - 1][b.vectors - 1](q_rows, w8.data() + panel + 4 * k0 * cols, kn, i_rows,
-                                           t == 0 && k0 == 0);
+              ks->i8[r - 1][b.vectors - 1](
+                  q_rows, w8.data() + panel + 4 * k0 * cols, kn, c_rows, bias, q_scales,
+                  l.w_scale.data() + static_cast<std::ptrdiff_t>(t) * l.n_ld + b.col0,
+                  relu && last_k);
             } else if (bf16) {
               ks->bf16[r - 1][b.vectors - 1](h_rows, w16.data() + panel + 2 * k0 * cols, kn, c_rows,
                                              bias, relu && last_k);
@@ -451,15 +444,7 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
       }
     }
     const int count = n * rows_per_sample * l.n_ld;
-    if (l.int8) {
-      // Scales, bias and ReLU on the integer sums.
-      const std::ptrdiff_t per_sample = static_cast<std::ptrdiff_t>(rows_per_sample) * l.n_ld;
-      for (int sample = 0; sample < n; ++sample) {
-        ks->dequantise(s.acc.data() + sample * per_sample, rows_per_sample, l.n_ld,
-                       s.q_scale[static_cast<std::size_t>(sample)], l.w_scale.data(), l.bias.data(),
-                       l.relu, out + sample * per_sample);
-      }
-    } else if (l.conv && (!bf16 || static_cast<int>(li) == last_conv)) {
+    if (l.conv && (!bf16 || static_cast<int>(li) == last_conv)) {
       // A convolution's rows finish at different taps: ReLU afterwards (in the conversion to
       // bfloat16 when the next layer reads that).
       ks->relu(out, count);

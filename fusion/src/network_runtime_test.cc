@@ -5,12 +5,16 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "skinbus/fusion/evaluation.h"
 #include "skinbus/fusion/training.h"
+#include "skinbus/sim/dataset.h"
+#include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::fusion {
 namespace {
@@ -410,6 +414,52 @@ TEST(NetworkRuntimeTest, Int8SamplesAreIndependentOfTheirBatch) {
   ASSERT_TRUE(one->run(f, batch, est).ok());
   EXPECT_EQ(est[2].reason, RejectReason::kNonFinite);
   EXPECT_TRUE(est[3].valid());
+}
+
+// The trained default model (fusion/models/) on a fresh simulated split of the nominal patch: the
+// reduced precisions keep the XY mean error within 2 % of float32's, overall and in every depth
+// bin from 1 mm (the shallower bins hold presses too light to localise).
+TEST(NetworkRuntimeTest, ReducedPrecisionKeepsTheTrainedModelsXYError) {
+  const char* dir = std::getenv("SKINBUS_SOURCE_DIR");
+  std::string source = dir != nullptr ? dir : "";
+  if (source.empty()) {
+    source = __FILE__;
+    source = source.substr(0, source.rfind("/fusion/src/"));
+  }
+  Result<ModelFile> m = read_model(source + "/fusion/models/nominal_seed_cnn");
+  if (!m.ok()) GTEST_SKIP() << m.error().to_string();
+  sim::SimulatedPatch patch(sim::PatchModel::nominal(sim::PatchDesign{}).value(), 7);
+  const sim::Dataset test = sim::generate_random_test_set(patch, 1500, 67.5, 4.0, 4321);
+  const int rows = static_cast<int>(test.rows());
+  const Truth truth{test.u_mm, test.v_mm, test.depth_mm, test.force_n};
+  ErrorSummary ref;
+  for (RuntimePrecision p :
+       {RuntimePrecision::kFloat32, RuntimePrecision::kBfloat16, RuntimePrecision::kInt8}) {
+    RuntimeOptions o;
+    o.precision = p;
+    auto rt = NetworkRuntime::create(*m, o);
+    if (!rt.ok()) {
+      EXPECT_EQ(rt.error().code, ErrorCode::kUnsupported);
+      continue;
+    }
+    std::vector<ContactEstimate> out(static_cast<std::size_t>(rows));
+    ASSERT_TRUE(rt->run(test.field_ut, rows, out).ok());
+    const ErrorSummary e = summarize_errors(out, truth);
+    if (p == RuntimePrecision::kFloat32) {
+      ref = e;
+      continue;
+    }
+    std::printf("%s: XY mean %.4f mm (float32 %.4f)", runtime_precision_name(p), e.all.xy_mean_mm,
+                ref.all.xy_mean_mm);
+    EXPECT_LE(e.all.xy_mean_mm, 1.02 * ref.all.xy_mean_mm) << runtime_precision_name(p);
+    for (int b = 2; b < kDepthBins; ++b) {
+      const double got = e.bins[static_cast<std::size_t>(b)].xy_mean_mm;
+      const double want = ref.bins[static_cast<std::size_t>(b)].xy_mean_mm;
+      std::printf(", %s mm %.4f (%.4f)", depth_bin_name(b).c_str(), got, want);
+      EXPECT_LE(got, 1.02 * want) << runtime_precision_name(p) << " bin " << depth_bin_name(b);
+    }
+    std::printf("\n");
+  }
 }
 
 }  // namespace

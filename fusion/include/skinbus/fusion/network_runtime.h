@@ -45,19 +45,19 @@
 //              CNN, 0.2 mm on an MLP at a 40 mm scale; docs/benchmarks/runtime.md). create()
 //              returns kUnsupported when the CPU lacks AVX512_BF16 (kKernels/kAuto) or the
 //              backend is kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
-//   kInt8      every layer whose input is a ReLU output (all but the first layer and the head,
-//              which stay float32) runs as unsigned 8-bit activations x signed 8-bit weights
-//              with exact int32 sums (vpdpbusd). Weights: symmetric per output channel (scale
-//              max |w| / 127), quantised at create(). Activations: per sample and per layer,
-//              scale max / 255 of that sample's layer input, computed during the run (no
-//              calibration data), so a sample's result does not depend on its batch. Bias,
-//              dequantisation, ReLU and pooling in float32. About 3.4x the float32 speed on the
-//              seed CNN (2-2.9x at widths 0.5-0.25 and on the MLP); on random models the outputs
-//              differ from float32 by at most ~1 % of each output's scale
-//              (docs/benchmarks/runtime.md has both, and the error on a trained model). create()
-//              returns kUnsupported when the CPU lacks AVX512_VNNI (kKernels/kAuto), the backend
-//              is kOneDnn or a layer sums over ~66000 inputs (int32 could overflow); kPortable
-//              computes the same integer sums on any CPU (slowly, for tests).
+//   kInt8      the layers that carry at least 1/20 of the multiply-adds and whose input is a
+//              ReLU output (seed CNN: conv2, conv3, fc0 = 92 % of the work) run as unsigned 8-bit
+//              activations x signed 8-bit weights with exact int32 sums (vpdpbusd); the first
+//              layer (signed fields), the head and the small layers stay float32. Weights:
+//              symmetric per output channel and 3x3 tap (scale max |w| / 127), quantised at
+//              create(). Activations: per input row (a grid cell of one sample, or one sample),
+//              scale max / 255 of that row, computed during the run (no calibration data), so a
+//              sample's result does not depend on its batch. Scales, bias, ReLU and pooling in
+//              float32. About 2.6-2.8x the float32 speed on the seed CNN, 2.3x at width 0.5,
+//              1.7x at 0.25, 2.2x on the MLP; on a trained seed CNN the outputs move about as
+//              much as with bfloat16 (XY mean error +0.1 %; docs/benchmarks/runtime.md). create()
+//              returns kUnsupported when the CPU lacks AVX512_VNNI (kKernels/kAuto) or the backend
+//              is kOneDnn; kPortable computes the same integer sums on any CPU (slowly, for tests).
 #pragma once
 
 #include <cstdint>
