@@ -324,6 +324,49 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
   const int64_t n = x_train.size(0);
   std::vector<int64_t> order(static_cast<std::size_t>(n));
   std::iota(order.begin(), order.end(), 0);
+  // Validation in physical units.
+  auto validate = [&](int epoch, double train_loss) {
+    net->eval();
+    torch::NoGradGuard no_grad;
+    torch::Tensor pred = net->forward(x_val);
+    EpochReport rep;
+    rep.epoch = epoch;
+    rep.epochs = o.max_epochs;
+    rep.train_loss = train_loss;
+    rep.val_loss = torch::mse_loss(pred, y_val).item<double>();
+    const float* pp = pred.data_ptr<float>();
+    const float* py = y_val.data_ptr<float>();
+    std::vector<double> xy, xy_deep, depth, force;
+    for (std::size_t i = 0; i < val_rows.size(); ++i) {
+      double d[4];
+      for (int j = 0; j < outputs; ++j) {
+        d[j] = (pp[i * outputs + j] - py[i * outputs + j]) * meta.output_scale[j];
+      }
+      xy.push_back(std::hypot(d[0], d[1]));
+      if (val_depth[i] >= o.select_min_depth_mm) xy_deep.push_back(xy.back());
+      depth.push_back(std::fabs(d[2]));
+      force.push_back(std::fabs(d[3]));
+    }
+    rep.val_xy_mean_mm = mean_of(xy);
+    rep.val_xy_deep_mm = xy_deep.empty() ? rep.val_xy_mean_mm : mean_of(xy_deep);
+    rep.val_depth_mean_mm = mean_of(depth);
+    rep.val_force_mean_n = mean_of(force);
+    rep.score = rep.val_xy_deep_mm + rep.val_depth_mean_mm;
+    rep.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return rep;
+  };
+  // Fine-tuning starts from a model that already works: it is epoch 0, kept unless an epoch
+  // beats it on the new unit's validation presses (few presses must not make it worse).
+  if (base != nullptr) {
+    EpochReport rep = validate(0, 0.0);
+    if (std::isfinite(rep.score)) {
+      best_score = rep.score;
+      rep.improved = true;
+      best_report = rep;
+      result.history.push_back(rep);
+      if (o.progress) o.progress(rep);
+    }
+  }
   for (int epoch = 1; epoch <= o.max_epochs; ++epoch) {
     net->train();
     std::shuffle(order.begin(), order.end(), rng);
@@ -347,34 +390,7 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
       loss_sum += l * static_cast<double>(e - b);
       seen += e - b;
     }
-    // Validation in physical units.
-    net->eval();
-    torch::NoGradGuard no_grad;
-    torch::Tensor pred = net->forward(x_val);
-    EpochReport rep;
-    rep.epoch = epoch;
-    rep.epochs = o.max_epochs;
-    rep.train_loss = loss_sum / static_cast<double>(std::max<int64_t>(seen, 1));
-    rep.val_loss = torch::mse_loss(pred, y_val).item<double>();
-    const float* pp = pred.data_ptr<float>();
-    const float* py = y_val.data_ptr<float>();
-    std::vector<double> xy, xy_deep, depth, force;
-    for (std::size_t i = 0; i < val_rows.size(); ++i) {
-      double d[4];
-      for (int j = 0; j < outputs; ++j) {
-        d[j] = (pp[i * outputs + j] - py[i * outputs + j]) * meta.output_scale[j];
-      }
-      xy.push_back(std::hypot(d[0], d[1]));
-      if (val_depth[i] >= o.select_min_depth_mm) xy_deep.push_back(xy.back());
-      depth.push_back(std::fabs(d[2]));
-      force.push_back(std::fabs(d[3]));
-    }
-    rep.val_xy_mean_mm = mean_of(xy);
-    rep.val_xy_deep_mm = xy_deep.empty() ? rep.val_xy_mean_mm : mean_of(xy_deep);
-    rep.val_depth_mean_mm = mean_of(depth);
-    rep.val_force_mean_n = mean_of(force);
-    rep.score = rep.val_xy_deep_mm + rep.val_depth_mean_mm;
-    rep.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    EpochReport rep = validate(epoch, loss_sum / static_cast<double>(std::max<int64_t>(seen, 1)));
     if (!std::isfinite(rep.score)) {
       return make_error(ErrorCode::kNotConverged, "validation error became non-finite");
     }

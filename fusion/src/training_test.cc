@@ -137,6 +137,27 @@ TEST(Training, FineTuningImprovesAMismatchedUnit) {
   EXPECT_EQ(tuned->model.meta.info.at("base_model"), base->model.meta.name);
 }
 
+TEST(Training, FineTuningNeverReturnsAWorseModelThanItsBase) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  TrainOptions o = quick_options();
+  o.max_epochs = 30;
+  Result<TrainResult> base = train_model(ramp_set(nominal, sim::plan_halton(60, 60), kSeed), o);
+  ASSERT_TRUE(base.ok());
+  // A learning rate that wrecks the weights: every epoch is worse than the base.
+  TrainOptions wreck = quick_options();
+  wreck.learning_rate = 0.5;
+  wreck.max_epochs = 3;
+  wreck.plateau_epochs = 0;
+  Result<TrainResult> tuned =
+      train_model(ramp_set(nominal, sim::plan_halton(20, 60, 900), kSeed + 5), wreck, &base->model);
+  ASSERT_TRUE(tuned.ok()) << tuned.error().to_string();
+  EXPECT_EQ(tuned->best_epoch, 0);
+  EXPECT_EQ(tuned->history.front().epoch, 0);
+  for (std::size_t i = 0; i < base->model.tensors.size(); ++i) {
+    EXPECT_EQ(tuned->model.tensors[i].data, base->model.tensors[i].data);
+  }
+}
+
 TEST(Training, RefusesDataItCannotLearnFrom) {
   sim::Dataset empty;
   EXPECT_EQ(train_model(empty, quick_options()).error().code, ErrorCode::kInvalidArgument);

@@ -70,7 +70,9 @@ struct TrainResult {
 };
 
 // Trains a network on `data`. With `base` (fine-tuning), the base model's architecture and
-// normalisation are kept and its weights are the start; options.architecture is ignored.
+// normalisation are kept and its weights are the start (options.architecture is ignored); the
+// base itself is scored as epoch 0 and kept unless an epoch beats it, so fine-tuning on a few
+// presses never returns a model worse than its base on the new unit's validation presses.
 // Errors: kInvalidArgument for a dataset without rows or with fewer than 2 press locations, a
 // CNN asked for sensors that do not form a grid (use an MLP), or a base model with another
 // sensor count; kNotConverged if the loss becomes non-finite.
