@@ -111,20 +111,25 @@ double mean_of(const std::vector<double>& v) {
 }  // namespace
 
 Status fit_grid(std::span<const SensorPosition> sensors, Architecture& a) {
-  auto distinct = [](std::vector<double> v) {
+  // The distinct rows (v) and columns (u) of the layout: positions closer than a quarter of the
+  // largest gap between neighbours are one row or column (a unit's sensors sit ~0.1 mm off the
+  // nominal grid, the pitch is tens of mm). Returns each cluster's upper bound.
+  auto clusters = [](std::vector<double> v) {
     std::sort(v.begin(), v.end());
-    std::vector<double> out;
-    for (double x : v) {
-      if (out.empty() || x - out.back() > 1e-3) out.push_back(x);
+    double largest = 0;
+    for (std::size_t i = 1; i < v.size(); ++i) largest = std::max(largest, v[i] - v[i - 1]);
+    std::vector<double> upper;
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      if (i + 1 == v.size() || v[i + 1] - v[i] > 0.25 * largest) upper.push_back(v[i]);
     }
-    return out;
+    return upper;
   };
   std::vector<double> us, vs;
   for (const SensorPosition& s : sensors) {
     us.push_back(s.u_mm);
     vs.push_back(s.v_mm);
   }
-  const std::vector<double> cols = distinct(us), rows = distinct(vs);
+  const std::vector<double> cols = clusters(us), rows = clusters(vs);
   if (cols.size() * rows.size() != sensors.size()) {
     return make_error(ErrorCode::kInvalidArgument,
                       "the sensors do not form a grid (" + std::to_string(rows.size()) + " x " +
@@ -136,8 +141,8 @@ Status fit_grid(std::span<const SensorPosition> sensors, Architecture& a) {
   a.sensor_cell.clear();
   std::set<int> used;
   for (const SensorPosition& s : sensors) {
-    const auto find = [](const std::vector<double>& axis, double x) {
-      return static_cast<int>(std::lower_bound(axis.begin(), axis.end(), x - 1e-3) - axis.begin());
+    const auto find = [](const std::vector<double>& upper, double x) {
+      return static_cast<int>(std::lower_bound(upper.begin(), upper.end(), x) - upper.begin());
     };
     const int cell = find(rows, s.v_mm) * a.grid_cols + find(cols, s.u_mm);
     if (!used.insert(cell).second) {

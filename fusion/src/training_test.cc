@@ -169,6 +169,20 @@ TEST(Training, RefusesDataItCannotLearnFrom) {
   Architecture a;
   std::vector<SensorPosition> scattered = {{0, 0, 0}, {1, 7, 0}, {3, 2, 0}, {9, 5, 0}};
   EXPECT_NE(fit_grid(scattered, a).error().message.find("MLP"), std::string::npos);
+  // A fabricated unit's sensors sit a little off the nominal grid: still a grid, cells by
+  // position (row along v, column along u).
+  std::vector<SensorPosition> jittered;
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 3; c >= 0; --c) {
+      jittered.push_back(
+          {30.0 * c - 45 + 0.1 * ((r + c) % 3 - 1), 30.0 * r - 45 - 0.15 * (c % 2), -17});
+    }
+  }
+  ASSERT_TRUE(fit_grid(jittered, a).ok());
+  EXPECT_EQ(a.grid_rows, 4);
+  EXPECT_EQ(a.grid_cols, 4);
+  EXPECT_EQ(a.sensor_cell[0], 3);    // row 0, column 3
+  EXPECT_EQ(a.sensor_cell[15], 12);  // row 3, column 0
 }
 
 TEST(Training, TorchForwardMatchesTheModelFileSemantics) {
