@@ -36,9 +36,13 @@ train() {  # name, minutes, data, skinbus-train arguments...
     return
   fi
   echo "model_report: training $name (at most $minutes min)"
-  "$bin/skinbus-train" "$work/$data.csv" -o "$work/$name" --test "$work/test_nominal.csv" \
-    --threads "$threads" --max-minutes "$minutes" --seed 1 "$@" 2>&1 | tee "$work/$name.log" |
-    grep -E "^(kept|test|  depth)" || true
+  if ! "$bin/skinbus-train" "$work/$data.csv" -o "$work/$name" --test "$work/test_nominal.csv" \
+      --threads "$threads" --max-minutes "$minutes" --seed 1 "$@" >"$work/$name.log" 2>&1; then
+    echo "model_report: training $name failed; its log:" >&2
+    tail -20 "$work/$name.log" >&2
+    exit 1
+  fi
+  grep -E "^(kept|test|  depth)" "$work/$name.log" || true
 }
 
 # The nominal patch: 1200 presses at Halton positions (dense synthetic training data) and the

@@ -48,7 +48,7 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   Result<sim::PatchModel> unit =
       sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
   if (!unit.ok()) return 2;
-  sim::SimulatedPatch test_patch(*unit, a.uid * 0x9E3779B97F4A7C15ull + 2);
+  sim::SimulatedPatch test_patch(*unit, sim::unit_noise_seed(a.uid, 2));
   const sim::Dataset test =
       sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
   const std::size_t nc = static_cast<std::size_t>(unit->channel_count());
@@ -67,8 +67,12 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   crlb_deep /= std::max(deep_n, 1);
   auto evaluate = [&](const ModelFile& m) {
     Result<NetworkRuntime> rt = NetworkRuntime::create(m);
-    std::vector<ContactEstimate> out(test.rows());
-    if (rt.ok()) (void)rt->run(test.field_ut, static_cast<int>(test.rows()), out);
+    ContactEstimate rejected;
+    rejected.flags = kEstimateRejected;
+    std::vector<ContactEstimate> out(test.rows(), rejected);
+    if (rt.ok() && !rt->run(test.field_ut, static_cast<int>(test.rows()), out).ok()) {
+      std::fill(out.begin(), out.end(), rejected);
+    }
     return summarize_errors(out, {test.u_mm, test.v_mm, test.depth_mm, test.force_n});
   };
   // The physics with no presses: the nominal model.
@@ -95,7 +99,7 @@ int bench_finetune(const FinetuneBenchArgs& a) {
                xy_mean_from_bin(before));
   for (int n : a.points) {
     std::fprintf(stderr, "skinbus-bench: %d presses ...\n", n);
-    sim::SimulatedPatch patch(*unit, a.uid * 0x9E3779B97F4A7C15ull + 1);
+    sim::SimulatedPatch patch(*unit, sim::unit_noise_seed(a.uid, 1));
     const sim::Dataset presses = sim::generate_ramp_dataset(
         patch, sim::plan_halton(n, kHalfExtentMm, 1), sim::RampProtocol{});
     Line line{n, n * kSecondsPerPress / 60, {}, {}, 0, 0, false};
@@ -109,7 +113,12 @@ int bench_finetune(const FinetuneBenchArgs& a) {
     const auto t0 = Clock::now();
     Result<TrainResult> tuned = train_model(presses, o, &*base);
     line.tune_s = std::chrono::duration<double>(Clock::now() - t0).count();
-    if (tuned.ok()) line.tuned = evaluate(tuned->model);
+    if (tuned.ok()) {
+      line.tuned = evaluate(tuned->model);
+    } else {
+      std::fprintf(stderr, "skinbus-bench:   fine-tuning: %s\n", tuned.error().to_string().c_str());
+      line.tuned = summarize_errors({}, Truth{});  // NaN in the table, not a perfect score
+    }
     const auto t1 = Clock::now();
     Result<IdentifiedUnit> id = identify_unit(design, presses);
     line.physics_s = std::chrono::duration<double>(Clock::now() - t1).count();
@@ -152,6 +161,10 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   }
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
+    if (!f) {
+      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
+      return 1;
+    }
     f << "presses,robot_minutes,finetuned_xy_deep_mm,finetuned_depth_mm,finetune_s,physics_xy_deep_"
          "mm,physics_depth_mm,identify_s\n";
     f << "0,0," << xy_mean_from_bin(before) << ',' << before.all.depth_mean_mm << ",,"

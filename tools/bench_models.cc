@@ -47,6 +47,11 @@ struct Measured {
   std::vector<ContactEstimate> estimates;
 };
 
+// Marks `k` estimates rejected (a batch the estimator refused as a whole).
+void reject(ContactEstimate* out, int k) {
+  for (int i = 0; i < k; ++i) out[i] = {0, 0, 0, 0, kEstimateRejected, RejectReason::kWrongShape};
+}
+
 double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
@@ -166,6 +171,10 @@ void add_models_options(CLI::App* sub, ModelsBenchArgs& a) {
 }
 
 int bench_models(const ModelsBenchArgs& a) {
+  if (!a.plot.empty() && (a.csv.empty() || a.errors_csv.empty())) {
+    std::fprintf(stderr, "skinbus-bench: --plot needs --csv and --errors-csv\n");
+    return 2;
+  }
   Result<sim::Dataset> test_r = sim::read_dataset_csv(a.test_path);
   if (!test_r.ok()) {
     std::fprintf(stderr, "skinbus-bench: %s\n", test_r.error().to_string().c_str());
@@ -250,9 +259,10 @@ int bench_models(const ModelsBenchArgs& a) {
         NetworkRuntime& rt = *(*rts)[static_cast<std::size_t>(std::clamp(threads, 1, 2) - 1)];
         for (int b = begin; b < end; b += batch) {
           const int k = std::min(batch, end - b);
-          (void)rt.run({field + static_cast<std::size_t>(b) * channels,
-                        static_cast<std::size_t>(k) * channels},
-                       k, {out + b, static_cast<std::size_t>(k)});
+          const Status s = rt.run({field + static_cast<std::size_t>(b) * channels,
+                                   static_cast<std::size_t>(k) * channels},
+                                  k, {out + b, static_cast<std::size_t>(k)});
+          if (!s.ok()) reject(out + b, k);
         }
       };
       candidates.push_back(std::move(c));
@@ -281,23 +291,40 @@ int bench_models(const ModelsBenchArgs& a) {
     }
     keep.push_back(runners);
     const ModelMeta meta = reference->meta;
+    // The reference's outputs by name (the runtime reads them the same way).
+    const auto index_of = [&](const char* name) {
+      const auto it = std::find(meta.outputs.begin(), meta.outputs.end(), name);
+      return it == meta.outputs.end() ? -1 : static_cast<int>(it - meta.outputs.begin());
+    };
+    const std::array<int, 4> at = {index_of("u_mm"), index_of("v_mm"), index_of("depth_mm"),
+                                   index_of("force_n")};
+    if (at[0] < 0 || at[1] < 0 || at[2] < 0) {
+      std::fprintf(stderr, "skinbus-bench: the reference model lacks u_mm, v_mm or depth_mm\n");
+      return 2;
+    }
+    const int n_out = static_cast<int>(meta.outputs.size());
     Candidate c;
     c.name = reference->meta.name + " (LibTorch)";
     c.kind = "LibTorch reference";
     c.macs = static_cast<double>(reference->macs());
-    c.run = [runners, field, channels, meta](int begin, int end, int batch, int threads,
-                                             ContactEstimate* out) {
+    c.run = [runners, field, channels, meta, at, n_out](int begin, int end, int batch, int threads,
+                                                        ContactEstimate* out) {
       TorchRunner& r = *(*runners)[static_cast<std::size_t>(std::clamp(threads, 1, 2) - 1)];
-      std::vector<double> y(static_cast<std::size_t>(batch) * 4);
+      std::vector<double> y(static_cast<std::size_t>(batch) * n_out);
       for (int b = begin; b < end; b += batch) {
         const int k = std::min(batch, end - b);
-        (void)r.run({field + static_cast<std::size_t>(b) * channels,
-                     static_cast<std::size_t>(k) * channels},
-                    k, {y.data(), static_cast<std::size_t>(k) * 4});
+        const Status s = r.run({field + static_cast<std::size_t>(b) * channels,
+                                static_cast<std::size_t>(k) * channels},
+                               k, {y.data(), static_cast<std::size_t>(k) * n_out});
+        if (!s.ok()) {
+          reject(out + b, k);
+          continue;
+        }
         for (int i = 0; i < k; ++i) {
+          const double* yi = y.data() + static_cast<std::ptrdiff_t>(i) * n_out;
           ContactEstimate& e = out[b + i];
-          e = {y[4 * i],     y[4 * i + 1], y[4 * i + 2],
-               y[4 * i + 3], kEstimateOk,  RejectReason::kNone};
+          e = {yi[at[0]],   yi[at[1]],          yi[at[2]], at[3] >= 0 ? yi[at[3]] : 0.0,
+               kEstimateOk, RejectReason::kNone};
           flag_range(e, meta.half_u_mm, meta.half_v_mm, meta.max_depth_mm);
         }
       }
@@ -381,6 +408,10 @@ int bench_models(const ModelsBenchArgs& a) {
   write_table(rows, crlb, stdout);
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
+    if (!f) {
+      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
+      return 1;
+    }
     f << "estimator,kind,macs,batch1_us,batch64_1t_us,batch64_2t_us,xy_mean_mm,xy_p95_mm,depth_"
          "mean_mm,"
          "force_mean_n,rejected";
@@ -401,6 +432,10 @@ int bench_models(const ModelsBenchArgs& a) {
   }
   if (!a.errors_csv.empty()) {
     std::ofstream f(a.errors_csv);
+    if (!f) {
+      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.errors_csv.c_str());
+      return 1;
+    }
     f << "estimator,u_mm,v_mm,depth_mm,xy_error_mm,depth_error_mm,valid,crlb_xy_mm\n";
     for (const Measured& m : rows) {
       for (int r = 0; r < n; ++r) {

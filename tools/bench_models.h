@@ -20,7 +20,7 @@ struct ModelsBenchArgs {
   std::string train_path;                // training presses (nearest-neighbour table); optional
   std::vector<std::string> model_paths;  // trained networks
   std::string reference_path;            // model run through LibTorch (default: first width-1 CNN)
-  bool reduced = true;  // add bfloat16 and int8 rows for each network
+  bool reduced = true;                   // add bfloat16 and int8 rows for each network
   bool physics = true;                   // add the physics LM row (nominal unit model)
   int latency_samples = 300;             // samples timed at batch 1
   int max_test = 2000;                   // test rows used

@@ -21,6 +21,8 @@ def main():
     if len(sys.argv) != 4:
         sys.exit(__doc__)
     table, errors, stem = read(sys.argv[1]), read(sys.argv[2]), sys.argv[3]
+    if not table or not errors:
+        sys.exit("plot_models.py: empty table or error file")
     # Mean XY error of presses >= 1 mm deep, per estimator, from the per-sample errors.
     deep = {}
     for r in errors:

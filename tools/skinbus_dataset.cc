@@ -87,7 +87,7 @@ int main(int argc, char** argv) {
     auto model = fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
                             : PatchModel::nominal(design);
     if (!model.ok()) throw std::runtime_error(model.error().message);
-    SimulatedPatch patch(std::move(model).value(), uid * 0x9E3779B97F4A7C15ull + 1);
+    SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
     const double half = (grid - 1) / 2.0 * pitch;
     Dataset d;
     RampProtocol pr;

@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "skinbus/common/stats.h"
+
 namespace skinbus::tools {
 
 // Parses "1-4,7,9-10" into node IDs, each within [lo, hi]. Throws std::invalid_argument with
@@ -48,20 +50,8 @@ inline std::vector<int> parse_id_list(const std::string& text, int lo, int hi) {
   return out;
 }
 
-// The q-quantile (0..1) of `v` as the element at floor(q * size) of the sorted values; NaN
-// for an empty list.
-inline double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  const auto k = static_cast<std::size_t>(q * static_cast<double>(v.size()));
-  return v[std::min(v.size() - 1, k)];
-}
-// The mean of `v`; NaN for an empty list.
-inline double mean(const std::vector<double>& v) {
-  double s = 0;
-  for (double x : v) s += x;
-  return v.empty() ? std::nan("") : s / static_cast<double>(v.size());
-}
+using skinbus::mean;
+using skinbus::quantile;
 
 // Set by SIGINT / SIGTERM once install_stop_handler() ran; long-running tools poll it.
 inline std::atomic<bool>& stop_requested() {

@@ -58,13 +58,16 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
   Eigen::MatrixXd ata = Eigen::MatrixXd::Zero(t, t);
   Eigen::MatrixXd atb = Eigen::MatrixXd::Zero(t, 3);
   std::vector<double> phi(static_cast<std::size_t>(t));
+  // The samples the fit learns from: deep enough (estimate and truth), finite, not a gross miss.
+  auto fitted = [&](std::size_t i) {
+    const ContactEstimate& e = estimates[i];
+    return e.valid() && e.depth_mm >= o.min_depth_mm && true_depth_mm[i] >= o.min_depth_mm &&
+           std::isfinite(true_u_mm[i]) && std::isfinite(true_v_mm[i]) &&
+           std::hypot(true_u_mm[i] - e.u_mm, true_v_mm[i] - e.v_mm) < o.outlier_mm;
+  };
   for (std::size_t i = 0; i < n; ++i) {
     const ContactEstimate& e = estimates[i];
-    if (!e.valid() || e.depth_mm < o.min_depth_mm || !(true_depth_mm[i] >= o.min_depth_mm) ||
-        !std::isfinite(true_u_mm[i]) || !std::isfinite(true_v_mm[i]) ||
-        !(std::hypot(true_u_mm[i] - e.u_mm, true_v_mm[i] - e.v_mm) < o.outlier_mm)) {
-      continue;
-    }
+    if (!fitted(i)) continue;
     c.basis(e.u_mm, e.v_mm, e.depth_mm, phi.data());
     const Eigen::Map<const Eigen::VectorXd> p(phi.data(), t);
     ata.selfadjointView<Eigen::Lower>().rankUpdate(p);
@@ -95,15 +98,13 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
     for (int j = 0; j < t; ++j) c.coef_[static_cast<std::size_t>(k * t + j)] = coef(j, k);
   }
   double sum2 = 0;
-  int used = 0;
   for (std::size_t i = 0; i < n; ++i) {
     const ContactEstimate& e = estimates[i];
-    if (!e.valid() || e.depth_mm < o.min_depth_mm) continue;
-    ++used;
+    if (!fitted(i)) continue;
     const ContactEstimate f = c.apply(e);
     sum2 += (f.u_mm - e.u_mm) * (f.u_mm - e.u_mm) + (f.v_mm - e.v_mm) * (f.v_mm - e.v_mm);
   }
-  c.rms_correction_mm_ = std::sqrt(sum2 / std::max(used, 1));
+  c.rms_correction_mm_ = std::sqrt(sum2 / c.samples_);
   return c;
 }
 

@@ -7,7 +7,14 @@ namespace skinbus::fusion {
 SampleCheck check_sample(std::span<const double> field_ut, std::span<uint8_t> channel_ok,
                          const InputLimits& limits) {
   SampleCheck c;
-  const std::size_t n = field_ut.size() < channel_ok.size() ? field_ut.size() : channel_ok.size();
+  if (field_ut.size() != channel_ok.size()) {  // outside the contract: nothing is usable
+    for (uint8_t& ok : channel_ok) ok = 0;
+    c.masked =
+        static_cast<int>(channel_ok.size() > field_ut.size() ? channel_ok.size() : field_ut.size());
+    c.first_reason = RejectReason::kWrongShape;
+    return c;
+  }
+  const std::size_t n = field_ut.size();
   for (std::size_t i = 0; i < n; ++i) {
     RejectReason r = RejectReason::kNone;
     const double b = field_ut[i];

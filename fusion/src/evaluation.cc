@@ -4,6 +4,8 @@
 #include <cmath>
 #include <vector>
 
+#include "skinbus/common/stats.h"
+
 namespace skinbus::fusion {
 namespace {
 
@@ -17,18 +19,15 @@ struct Accumulator {
     s.count = static_cast<int>(xy.size());
     s.rejected = rejected;
     s.flagged = flagged;
-    if (xy.empty()) return s;
-    double sum = 0;
-    for (double e : xy) sum += e;
+    if (xy.empty()) {  // nothing to average: not a perfect score
+      s.xy_mean_mm = s.xy_p95_mm = s.depth_mean_mm = s.force_mean_n = std::nan("");
+      return s;
+    }
     const double n = static_cast<double>(xy.size());
-    s.xy_mean_mm = sum / n;
+    s.xy_mean_mm = mean(xy);
     s.depth_mean_mm = depth / n;
     s.force_mean_n = force / n;
-    std::sort(xy.begin(), xy.end());
-    const double pos = 0.95 * (n - 1);
-    const std::size_t lo = static_cast<std::size_t>(pos);
-    const std::size_t hi = std::min(lo + 1, xy.size() - 1);
-    s.xy_p95_mm = xy[lo] + (pos - static_cast<double>(lo)) * (xy[hi] - xy[lo]);
+    s.xy_p95_mm = quantile(std::move(xy), 0.95);
     return s;
   }
 };
@@ -56,13 +55,15 @@ double xy_mean_from_bin(const ErrorSummary& s, int first_bin) {
     sum += st.xy_mean_mm * st.count;
     n += st.count;
   }
-  return n > 0 ? sum / n : 0.0;
+  return n > 0 ? sum / n : std::nan("");
 }
 
 ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const Truth& truth) {
   Accumulator all;
   std::array<Accumulator, kDepthBins> bins;
-  for (std::size_t i = 0; i < estimates.size(); ++i) {
+  const std::size_t n = std::min({estimates.size(), truth.u_mm.size(), truth.v_mm.size(),
+                                  truth.depth_mm.size(), truth.force_n.size()});
+  for (std::size_t i = 0; i < n; ++i) {
     const ContactEstimate& e = estimates[i];
     const int b = depth_bin(truth.depth_mm[i]);
     Accumulator* targets[2] = {&all, b >= 0 ? &bins[static_cast<std::size_t>(b)] : nullptr};

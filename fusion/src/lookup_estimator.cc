@@ -144,8 +144,10 @@ Result<LookupEstimator> LookupEstimator::from_dataset(const sim::PatchDesign& de
   e.options_ = options;
   e.half_u_mm_ = design.size_u_mm / 2;
   e.half_v_mm_ = design.size_v_mm / 2;
-  e.max_depth_mm_ = 0.6 * design.thickness_mm;
-  if (options.ambient_invariant) e.set_ambient_basis(sim::PatchModel::nominal(design).value());
+  Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design);
+  if (!nominal.ok()) return nominal.error();
+  e.max_depth_mm_ = nominal->max_depth_mm();
+  if (options.ambient_invariant) e.set_ambient_basis(*nominal);
   const std::size_t nc = static_cast<std::size_t>(e.channels_);
   std::vector<double> w(nc);
   for (std::size_t r = 0; r < data.rows(); r += static_cast<std::size_t>(row_stride)) {
@@ -171,7 +173,10 @@ Result<LookupEstimator> LookupEstimator::from_dataset(const sim::PatchDesign& de
 
 int LookupEstimator::nearest(std::span<const double> whitened, std::span<const uint8_t> usable,
                              std::span<LookupNeighbour> out) const {
-  if (out.empty() || rows() == 0) return 0;
+  if (out.empty() || rows() == 0 || whitened.size() < static_cast<std::size_t>(channels_) ||
+      usable.size() < static_cast<std::size_t>(channels_)) {
+    return 0;
+  }
   // The sample, masked channels zeroed, ambient component removed for an invariant table.
   double q[kMaxChannels];
   for (int c = 0; c < channels_; ++c) q[c] = usable[c] != 0 ? whitened[c] : 0.0;

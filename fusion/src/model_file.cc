@@ -1,5 +1,7 @@
 #include "skinbus/fusion/model_file.h"
 
+#include "skinbus/common/yaml_reader.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -15,8 +17,14 @@ using nlohmann::json;
 
 constexpr int kSeedConv[] = {32, 64, 128, 256};
 constexpr int kSeedHidden[] = {512, 256, 128, 64};
-// Largest weight file accepted (bytes): far above any per-patch model, far below memory.
+// Largest safetensors header accepted (bytes): far above any per-patch model's.
 constexpr uint64_t kMaxHeaderBytes = 1u << 24;
+// Bounds of what a per-patch model may be (validate_model): far above any useful network, low
+// enough that every size computed from them fits and every buffer stays small.
+constexpr int kMaxGridSide = 64;
+constexpr int kMaxWidth = 8192;
+constexpr std::size_t kMaxLayers = 32;
+constexpr std::size_t kMaxSensors = 256;
 
 int scaled(int base, double width) {
   return std::max(1, static_cast<int>(std::lround(base * width)));
@@ -129,12 +137,22 @@ Status validate_model(const ModelFile& model) {
   const Architecture& a = m.architecture;
   auto bad = [](const std::string& what) { return make_error(ErrorCode::kInvalidArgument, what); };
   if (m.sensors.empty()) return bad("model has no sensors");
+  if (m.sensors.size() > kMaxSensors) return bad("model has more than 256 sensors");
+  if (a.conv_channels.size() > kMaxLayers || a.hidden.size() > kMaxLayers) {
+    return bad("model has more than 32 conv or hidden layers");
+  }
+  for (const std::vector<int>* widths : {&a.conv_channels, &a.hidden}) {
+    for (int w : *widths) {
+      if (w <= 0 || w > kMaxWidth) return bad("layer width must be in 1..8192");
+    }
+  }
   const int channels = m.channels();
   if (static_cast<int>(m.input_mean.size()) != channels ||
       static_cast<int>(m.input_scale.size()) != channels) {
     return bad("input_mean/input_scale need one entry per channel (" + std::to_string(channels) +
                ")");
   }
+  if (m.outputs.size() > 16) return bad("model has more than 16 outputs");
   if (m.outputs.empty() || m.output_mean.size() != m.outputs.size() ||
       m.output_scale.size() != m.outputs.size()) {
     return bad("output_mean/output_scale need one entry per output");
@@ -163,7 +181,10 @@ Status validate_model(const ModelFile& model) {
     for (int c : a.conv_channels) {
       if (c <= 0) return bad("conv channel count must be positive");
     }
-    if (a.grid_rows <= 0 || a.grid_cols <= 0) return bad("a CNN needs a grid");
+    if (a.grid_rows <= 0 || a.grid_cols <= 0 || a.grid_rows > kMaxGridSide ||
+        a.grid_cols > kMaxGridSide) {
+      return bad("a CNN needs a grid of 1..64 rows and columns");
+    }
     if (a.sensor_cell.size() != m.sensors.size()) {
       return bad("sensor_cell needs one cell per sensor");
     }
@@ -286,14 +307,6 @@ Status write_model(const ModelFile& model, const std::string& path) {
 
 namespace {
 
-Result<std::string> slurp(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  if (!f) return make_error(ErrorCode::kNotFound, "cannot open " + path);
-  std::ostringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
 Status parse_weights(std::string_view b, const std::string& file, ModelFile& model) {
   if (b.size() < 8) return file_error(file, "shorter than the 8-byte header length");
   uint64_t n = 0;
@@ -374,9 +387,9 @@ bool get_to(const json& j, const char* key, T& out) {
 
 Result<ModelFile> read_model(const std::string& path) {
   const std::string stem = model_stem(path);
-  Result<std::string> text = slurp(stem + ".json");
+  Result<std::string> text = read_text_file(stem + ".json", "model metadata");
   if (!text.ok()) return text.error();
-  Result<std::string> weights = slurp(stem + ".safetensors");
+  Result<std::string> weights = read_text_file(stem + ".safetensors", "model weights");
   if (!weights.ok()) return weights.error();
   return parse_model(text.value(), weights.value(), stem);
 }

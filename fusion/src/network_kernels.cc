@@ -103,6 +103,10 @@ float quantise_u8_portable(const float* x, int n, uint8_t* out) {
   }
   float inv = 0.0f;
   const float scale = u8_scale(mx, finite, &inv);
+  if (!finite) {  // the row's outputs become NaN through the scale; no NaN is converted
+    std::memset(out, 0, static_cast<std::size_t>(n));
+    return scale;
+  }
   for (int i = 0; i < n; ++i) {
     const float q = std::nearbyint((x[i] > 0.0f ? x[i] : 0.0f) * inv);
     out[i] = static_cast<uint8_t>(q > 255.0f ? 255.0f : q);
@@ -306,6 +310,10 @@ SKINBUS_AVX512 float quantise_u8_avx512(const float* x, int n, uint8_t* out) {
   }
   float inv = 0.0f;
   const float scale = u8_scale(m, finite, &inv);
+  if (!finite) {  // the row's outputs become NaN through the scale; no NaN is converted
+    std::memset(out, 0, static_cast<std::size_t>(n));
+    return scale;
+  }
   const __m512 vinv = _mm512_set1_ps(inv);
   for (i = 0; i + kLanes <= n; i += kLanes) {
     // Round to nearest even (the default mode), then saturate to 0..255.

@@ -41,6 +41,9 @@ class Aligned {
   void assign(std::size_t n) {
     const std::size_t bytes = (n * sizeof(T) + kAlign - 1) / kAlign * kAlign;
     p_.reset(static_cast<T*>(std::aligned_alloc(kAlign, bytes == 0 ? kAlign : bytes)));
+    // Sizes are bounded by validate_model() (a few MB at most): failing here is running out of
+    // memory, as fatal as operator new failing, but without an exception.
+    if (p_ == nullptr) std::abort();
     std::memset(static_cast<void*>(p_.get()), 0, bytes == 0 ? kAlign : bytes);
     n_ = n;
   }

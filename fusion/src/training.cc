@@ -68,8 +68,10 @@ Status load_weights(Net& net, const ModelFile& model) {
   torch::NoGradGuard no_grad;
   for (auto& p : net->named_parameters()) {
     const Tensor* t = model.find(p.key());
-    if (t == nullptr || t->numel() != p.value().numel()) {
-      return make_error(ErrorCode::kInvalidArgument, "model lacks tensor '" + p.key() + "'");
+    if (t == nullptr || !std::equal(t->shape.begin(), t->shape.end(), p.value().sizes().begin(),
+                                    p.value().sizes().end())) {
+      return make_error(ErrorCode::kInvalidArgument,
+                        "model lacks tensor '" + p.key() + "' with the network's shape");
     }
     torch::Tensor src =
         torch::from_blob(const_cast<float*>(t->data.data()), p.value().sizes(), torch::kFloat32);
@@ -106,6 +108,17 @@ torch::Tensor normalised_inputs(const ModelMeta& m, std::span<const double> fiel
 
 double mean_of(const std::vector<double>& v) {
   return v.empty() ? 0.0 : std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
+}
+
+// Runs `f`, turning any exception (LibTorch reports errors as c10::Error) into an error: none
+// leaves the library.
+template <typename F>
+auto guarded(const char* what, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const std::exception& e) {
+    return make_error(ErrorCode::kInternal, std::string(what) + ": " + e.what());
+  }
 }
 
 }  // namespace
@@ -153,37 +166,46 @@ Status fit_grid(std::span<const SensorPosition> sensors, Architecture& a) {
   return Status::Ok();
 }
 
-ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::string& name) {
+ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::string& name,
+                    std::span<const int64_t> rows_used) {
   ModelMeta m;
   m.name = name;
   m.architecture = a;
   for (const sim::DatasetSensor& s : data.sensors) m.sensors.push_back({s.u_mm, s.v_mm, s.h_mm});
-  const int channels = data.channels();
-  const std::size_t rows = data.rows();
-  m.input_mean.assign(channels, 0.0);
-  m.input_scale.assign(channels, 1.0);
-  for (int c = 0; c < channels; ++c) {
+  std::vector<std::size_t> idx;
+  if (rows_used.empty()) {
+    idx.resize(data.rows());
+    std::iota(idx.begin(), idx.end(), std::size_t{0});
+  } else {
+    for (int64_t r : rows_used) idx.push_back(static_cast<std::size_t>(r));
+  }
+  const double n = std::max<double>(static_cast<double>(idx.size()), 1.0);
+  // Mean and standard deviation (at least 1e-3) of value(r) over the rows used.
+  auto moments = [&](auto value, double* mean_out, double* scale_out) {
     double s = 0, s2 = 0;
-    for (std::size_t r = 0; r < rows; ++r) {
-      const double v = data.field(r)[c];
+    for (std::size_t r : idx) {
+      const double v = value(r);
       s += v;
       s2 += v * v;
     }
-    const double mean = rows ? s / static_cast<double>(rows) : 0.0;
-    const double var = rows ? s2 / static_cast<double>(rows) - mean * mean : 0.0;
-    m.input_mean[c] = mean;
-    m.input_scale[c] = std::max(std::sqrt(std::max(var, 0.0)), 1e-3);
+    const double mean = s / n;
+    *mean_out = mean;
+    *scale_out = std::max(std::sqrt(std::max(s2 / n - mean * mean, 0.0)), 1e-3);
+  };
+  const int channels = data.channels();
+  m.input_mean.assign(channels, 0.0);
+  m.input_scale.assign(channels, 1.0);
+  for (int c = 0; c < channels; ++c) {
+    moments([&](std::size_t r) { return data.field(r)[c]; }, &m.input_mean[c], &m.input_scale[c]);
   }
   m.outputs = {"u_mm", "v_mm", "depth_mm", "force_n"};
   const std::vector<double>* cols[] = {&data.u_mm, &data.v_mm, &data.depth_mm, &data.force_n};
-  for (const std::vector<double>* col : cols) {
-    const double mean = mean_of(*col);
-    double var = 0;
-    for (double v : *col) var += (v - mean) * (v - mean);
-    var = col->empty() ? 1.0 : var / static_cast<double>(col->size());
-    m.output_mean.push_back(mean);
-    m.output_scale.push_back(std::max(std::sqrt(var), 1e-3));
+  m.output_mean.assign(4, 0.0);
+  m.output_scale.assign(4, 1.0);
+  for (int j = 0; j < 4; ++j) {
+    moments([&](std::size_t r) { return (*cols[j])[r]; }, &m.output_mean[j], &m.output_scale[j]);
   }
+  const std::size_t rows = data.rows();
   double max_u = 0, max_v = 0, max_d = 0;
   for (std::size_t r = 0; r < rows; ++r) {
     max_u = std::max(max_u, std::fabs(data.u_mm[r]));
@@ -209,8 +231,10 @@ ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::
   return m;
 }
 
-Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
-                                const ModelFile* base) {
+namespace {
+
+Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions& o,
+                                    const ModelFile* base) {
   const auto t0 = std::chrono::steady_clock::now();
   if (data.rows() == 0) return make_error(ErrorCode::kInvalidArgument, "the dataset has no rows");
   const int channels = data.channels();
@@ -235,16 +259,22 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
     meta = make_meta(data, a, o.name);
   }
 
-  // Split by press location.
-  std::map<std::pair<int64_t, int64_t>, std::vector<int64_t>> by_location;
+  // Split by press location: every row of a press takes its press's location (its first row's
+  // (u, v), rounded to 0.01 mm), so presses repeated at one point stay together; a row that is
+  // not from a press (press < 0) is a location of its own.
+  using LocationKey = std::pair<int64_t, int64_t>;
+  std::map<LocationKey, std::vector<int64_t>> by_location;
+  std::map<int64_t, LocationKey> press_location;
   for (std::size_t r = 0; r < data.rows(); ++r) {
-    // Rows of one press share its location; rows not from a press are their own location.
-    const auto key =
-        std::make_pair(std::llround(data.u_mm[r] * 100), std::llround(data.v_mm[r] * 100));
-    by_location[data.press[r] >= 0 ? key : std::make_pair(key.first, key.second)].push_back(
-        static_cast<int64_t>(r));
+    const LocationKey here{std::llround(data.u_mm[r] * 100), std::llround(data.v_mm[r] * 100)};
+    LocationKey key = here;
+    if (data.press[r] >= 0) {
+      key = press_location.emplace(data.press[r], here).first->second;
+    } else {
+      key = {std::numeric_limits<int64_t>::min(), static_cast<int64_t>(r)};
+    }
+    by_location[key].push_back(static_cast<int64_t>(r));
   }
-  // A press's location is its first row's (a ramp stays at one (u, v)).
   if (by_location.size() < 2) {
     return make_error(ErrorCode::kInvalidArgument,
                       "the dataset has fewer than 2 press locations: nothing to validate on");
@@ -269,15 +299,7 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
   }
   if (base == nullptr) {
     // Normalisation from the training split only.
-    sim::Dataset train_only;
-    train_only.sensors = data.sensors;
-    train_only.meta = data.meta;
-    for (int64_t r : train_rows) {
-      const std::size_t i = static_cast<std::size_t>(r);
-      train_only.append(data.press[i], data.t_s[i], data.u_mm[i], data.v_mm[i], data.depth_mm[i],
-                        data.force_n[i], data.field(i));
-    }
-    ModelMeta m = make_meta(train_only, meta.architecture, o.name);
+    const ModelMeta m = make_meta(data, meta.architecture, o.name, train_rows);
     meta.input_mean = m.input_mean;
     meta.input_scale = m.input_scale;
     meta.output_mean = m.output_mean;
@@ -438,6 +460,13 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
   return result;
 }
 
+}  // namespace
+
+Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
+                                const ModelFile* base) {
+  return guarded("training", [&] { return train_unguarded(data, o, base); });
+}
+
 struct TorchRunner::Impl {
   Impl(const ModelFile& m, int t)
       : meta(m.meta),
@@ -455,10 +484,12 @@ TorchRunner& TorchRunner::operator=(TorchRunner&&) noexcept = default;
 
 Result<TorchRunner> TorchRunner::create(const ModelFile& model, int threads) {
   if (Status s = validate_model(model); !s.ok()) return s.error();
-  auto impl = std::make_unique<Impl>(model, std::max(threads, 1));
-  if (Status s = load_weights(impl->net, model); !s.ok()) return s.error();
-  impl->net->eval();
-  return TorchRunner(std::move(impl));
+  return guarded("LibTorch", [&]() -> Result<TorchRunner> {
+    auto impl = std::make_unique<Impl>(model, std::max(threads, 1));
+    if (Status s = load_weights(impl->net, model); !s.ok()) return s.error();
+    impl->net->eval();
+    return TorchRunner(std::move(impl));
+  });
 }
 
 Status TorchRunner::run(std::span<const double> field_ut, int batch, std::span<double> outputs) {
@@ -470,16 +501,20 @@ Status TorchRunner::run(std::span<const double> field_ut, int batch, std::span<d
     return make_error(ErrorCode::kInvalidArgument,
                       "field_ut must hold batch x channels and outputs batch x outputs values");
   }
-  torch::set_num_threads(impl_->threads);
-  torch::NoGradGuard no_grad;
-  torch::Tensor y = impl_->net->forward(normalised_inputs(m, field_ut, batch)).contiguous();
-  const float* p = y.data_ptr<float>();
-  for (int i = 0; i < batch; ++i) {
-    for (int j = 0; j < n_out; ++j) {
-      outputs[static_cast<std::size_t>(i * n_out + j)] =
-          p[i * n_out + j] * m.output_scale[j] + m.output_mean[j];
+  Result<bool> done = guarded("LibTorch", [&]() -> Result<bool> {
+    torch::set_num_threads(impl_->threads);
+    torch::NoGradGuard no_grad;
+    torch::Tensor y = impl_->net->forward(normalised_inputs(m, field_ut, batch)).contiguous();
+    const float* p = y.data_ptr<float>();
+    for (int i = 0; i < batch; ++i) {
+      for (int j = 0; j < n_out; ++j) {
+        outputs[static_cast<std::size_t>(i * n_out + j)] =
+            p[i * n_out + j] * m.output_scale[j] + m.output_mean[j];
+      }
     }
-  }
+    return true;
+  });
+  if (!done.ok()) return done.error();
   return Status::Ok();
 }
 
@@ -492,7 +527,9 @@ Result<std::vector<double>> torch_forward(const ModelFile& model, std::span<cons
   return out;
 }
 
-Result<ModelFile> random_model(const Architecture& arch, int sensors, uint64_t seed) {
+namespace {
+
+Result<ModelFile> random_model_unguarded(const Architecture& arch, int sensors, uint64_t seed) {
   const int side = static_cast<int>(std::lround(std::sqrt(sensors)));
   if (sensors <= 0 || side * side != sensors) {
     return make_error(ErrorCode::kInvalidArgument, "random_model needs a square sensor count");
@@ -523,6 +560,12 @@ Result<ModelFile> random_model(const Architecture& arch, int sensors, uint64_t s
   model.tensors = save_weights(net);
   if (Status s = validate_model(model); !s.ok()) return s.error();
   return model;
+}
+
+}  // namespace
+
+Result<ModelFile> random_model(const Architecture& arch, int sensors, uint64_t seed) {
+  return guarded("LibTorch", [&] { return random_model_unguarded(arch, sensors, seed); });
 }
 
 }  // namespace skinbus::fusion

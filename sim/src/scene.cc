@@ -16,13 +16,13 @@ Result<int> Scene::add_patch(uint64_t hardware_uid, const PatchDesign& design,
   }
   auto model = PatchModel::fabricated(design, hardware_uid, FabricationVariation{});
   if (!model.ok()) return model.error();
-  patches_.push_back(std::unique_ptr<PatchState>(new PatchState{
-      hardware_uid,
-      SimulatedPatch(std::move(model).value(), hardware_uid * 0x9E3779B97F4A7C15ull + 7),
-      limb,
-      {},
-      {},
-      0}));
+  patches_.push_back(std::unique_ptr<PatchState>(
+      new PatchState{hardware_uid,
+                     SimulatedPatch(std::move(model).value(), unit_noise_seed(hardware_uid, 7)),
+                     limb,
+                     {},
+                     {},
+                     0}));
   return static_cast<int>(patches_.size()) - 1;
 }
 

@@ -39,7 +39,8 @@ class BiasCorrection {
                                     std::span<const double> true_depth_mm,
                                     const BiasCorrectionOptions& options = {});
 
-  // The corrected estimate (unchanged when rejected or shallower than min_depth_mm).
+  // The corrected estimate (unchanged when rejected or shallower than min_depth_mm). Flags are
+  // kept as they were: run flag_range() with the patch's extent again if the range matters.
   ContactEstimate apply(const ContactEstimate& e) const;
 
   int terms() const { return terms_; }

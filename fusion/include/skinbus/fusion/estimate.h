@@ -84,7 +84,8 @@ struct SampleCheck {
 
 // Checks one sample. `channel_ok` has one entry per channel: on entry, 0 marks a channel the
 // caller knows is dead (any other value: alive); on return, 1 for a usable channel, 0 otherwise.
-// `field_ut` and `channel_ok` must have the same size.
+// `field_ut` and `channel_ok` must have the same size; if they do not, every channel is marked
+// unusable and first_reason is kWrongShape.
 SampleCheck check_sample(std::span<const double> field_ut, std::span<uint8_t> channel_ok,
                          const InputLimits& limits = {});
 

@@ -34,10 +34,11 @@ struct Truth {
 };
 
 // Mean XY error over the bins from `first_bin` on (weighted by their counts); with the default,
-// the presses at least 1 mm deep: those an estimator can localise.
+// the presses at least 1 mm deep: those an estimator can localise. NaN when they are empty.
 double xy_mean_from_bin(const ErrorSummary& s, int first_bin = 2);
 
-// Compares `estimates` with `truth` (same length). Rejected estimates are counted, not averaged.
+// Compares `estimates` with `truth` (same length; only the common length is compared). Rejected
+// estimates are counted, not averaged. Statistics of an empty set are NaN, never 0.
 ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const Truth& truth);
 
 }  // namespace skinbus::fusion

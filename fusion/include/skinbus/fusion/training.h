@@ -84,8 +84,10 @@ Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& op
 // a full grid (rows x columns == sensors, one sensor per cell).
 Status fit_grid(std::span<const SensorPosition> sensors, Architecture& a);
 
-// Normalisation and metadata from a dataset, as train_model() sets them (exposed for tests).
-ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::string& name);
+// Normalisation and metadata from a dataset, as train_model() sets them: normalisation over
+// `rows_used` (row indices; empty: every row), extent and fingerprint over the whole dataset.
+ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::string& name,
+                    std::span<const int64_t> rows_used = {});
 
 // LibTorch running a model: the reference runtime (tests, benchmark). Owns its network; run()
 // allocates LibTorch tensors per call.

@@ -20,6 +20,13 @@ struct Environment {
 };
 inline constexpr double kReferenceTemperatureC = 25;
 
+// The noise seed of the simulated unit with `hardware_uid`, stream `stream`: every tool that
+// simulates one unit uses it, so the same UID and stream give the same noise (stream 1: the
+// training presses of skinbus-dataset, 2: the benchmarks' test presses, 7: whole-body scenes).
+constexpr uint64_t unit_noise_seed(uint64_t hardware_uid, uint64_t stream) {
+  return hardware_uid * 0x9E3779B97F4A7C15ull + stream;
+}
+
 class SimulatedPatch {
  public:
   SimulatedPatch(PatchModel model, uint64_t noise_seed);

@@ -1,0 +1,26 @@
+// skinbus/common/stats.h: the summary statistics every report uses, defined once.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace skinbus {
+
+// The q-quantile (0..1) of `v` as the element at floor(q * size) of the sorted values; NaN
+// for an empty list.
+inline double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const auto k = static_cast<std::size_t>(q * static_cast<double>(v.size()));
+  return v[std::min(v.size() - 1, k)];
+}
+
+// The mean of `v`; NaN for an empty list.
+inline double mean(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x;
+  return v.empty() ? std::nan("") : s / static_cast<double>(v.size());
+}
+
+}  // namespace skinbus
