@@ -6,9 +6,10 @@
 #   scripts/model_report.sh --ship           also copies the default model into fusion/models/
 #
 # Steps: datasets (skinbus-dataset), networks (skinbus-train; a model already in work-dir is not
-# retrained), then skinbus-bench models and skinbus-bench budget, writing tables, CSV and plots
-# into docs/benchmarks/. Training runs on one thread per network; the whole script takes about
-# two hours on 2 cores (most of it the seed CNNs).
+# retrained), then skinbus-bench models, budget and finetune, writing tables, CSV and plots into
+# docs/benchmarks/ (the tables also into work-dir/*_table.md). Training runs on one thread per
+# network; training everything takes about two hours on 2 cores (most of it the seed CNNs), the
+# benchmarks about 15 minutes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ship=0
@@ -73,6 +74,8 @@ done
   --seed-model "fabricated=$work/seed_recipe_fabricated" \
   --seed-model "anisotropic=$work/seed_recipe_anisotropic" \
   --csv docs/benchmarks/budget.csv | tee "$work/budget_table.md"
+"$bin/skinbus-bench" finetune --base "$work/nominal_seed_cnn" --points 10,20,40,80,160 --epochs 15 \
+  --csv docs/benchmarks/finetune.csv | tee "$work/finetune_table.md"
 
 if ((ship)); then
   mkdir -p fusion/models

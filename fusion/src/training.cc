@@ -502,7 +502,8 @@ Status TorchRunner::run(std::span<const double> field_ut, int batch, std::span<d
                       "field_ut must hold batch x channels and outputs batch x outputs values");
   }
   Result<bool> done = guarded("LibTorch", [&]() -> Result<bool> {
-    torch::set_num_threads(impl_->threads);
+    // Changing LibTorch's thread count rebuilds its pool: only when it differs.
+    if (torch::get_num_threads() != impl_->threads) torch::set_num_threads(impl_->threads);
     torch::NoGradGuard no_grad;
     torch::Tensor y = impl_->net->forward(normalised_inputs(m, field_ut, batch)).contiguous();
     const float* p = y.data_ptr<float>();
