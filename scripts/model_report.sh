@@ -76,6 +76,9 @@ done
   --csv docs/benchmarks/budget.csv | tee "$work/budget_table.md"
 "$bin/skinbus-bench" finetune --base "$work/nominal_seed_cnn" --points 10,20,40,80,160 --epochs 15 \
   --csv docs/benchmarks/finetune.csv | tee "$work/finetune_table.md"
+"$bin/skinbus-bench" finetune --base "$work/nominal_seed_cnn" --points 10,20,40,80,160 --epochs 15 \
+  --anisotropy 0.05 --lr 1e-3 --csv docs/benchmarks/finetune_anisotropic.csv |
+  tee "$work/finetune_anisotropic_table.md"
 
 if ((ship)); then
   mkdir -p fusion/models

@@ -31,6 +31,9 @@ void add_finetune_options(CLI::App* sub, FinetuneBenchArgs& a) {
       ->capture_default_str();
   sub->add_option("--uid", a.uid, "hardware UID of the new (fabricated) unit")
       ->capture_default_str();
+  sub->add_option("--anisotropy", a.anisotropy,
+                  "lattice anisotropy of the new unit (physics the nominal model does not have)")
+      ->capture_default_str();
   sub->add_option("--epochs", a.epochs, "fine-tuning epochs")->capture_default_str();
   sub->add_option("--lr", a.learning_rate, "fine-tuning learning rate")->capture_default_str();
   sub->add_option("--test-count", a.test_count, "off-grid test presses")->capture_default_str();
@@ -45,8 +48,10 @@ int bench_finetune(const FinetuneBenchArgs& a) {
     return 2;
   }
   const sim::PatchDesign design;
+  sim::PatchDesign unit_design = design;
+  unit_design.anisotropy = a.anisotropy;
   Result<sim::PatchModel> unit =
-      sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+      sim::PatchModel::fabricated(unit_design, a.uid, sim::FabricationVariation{});
   if (!unit.ok()) return 2;
   sim::SimulatedPatch test_patch(*unit, sim::unit_noise_seed(a.uid, 2));
   const sim::Dataset test =
@@ -137,11 +142,12 @@ int bench_finetune(const FinetuneBenchArgs& a) {
     lines.push_back(line);
   }
   std::printf(
-      "New unit: fabricated, UID 0x%llx. Base: %s (trained on the nominal patch). Test: %d "
+      "New unit: fabricated, UID 0x%llx, lattice anisotropy %.2f. Base: %s (trained on the nominal "
+      "patch). Test: %d "
       "off-grid presses, random depths to 4 mm; XY and depth means over presses >= 1 mm "
       "deep (CRLB there: %.3f mm). Robot time at %.0f s per press.\n\n",
-      static_cast<unsigned long long>(a.uid), base->meta.name.c_str(), a.test_count, crlb_deep,
-      kSecondsPerPress);
+      static_cast<unsigned long long>(a.uid), a.anisotropy, base->meta.name.c_str(), a.test_count,
+      crlb_deep, kSecondsPerPress);
   std::printf(
       "| presses | robot time (min) | fine-tuned network XY (mm) | depth (mm) | fine-tuning "
       "(s) | identified physics + LM XY (mm) | depth (mm) | identification (s) |\n"

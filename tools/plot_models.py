@@ -39,9 +39,17 @@ def main():
         pts = [(float(r[column]), deep_mean.get(r["estimator"], float("nan")), r["estimator"])
                for r in table]
         pts = [p for p in pts if p[0] > 0 and p[1] == p[1]]
+        # One colour per model, one marker per precision; only the float32 rows are labelled.
+        families = list(dict.fromkeys(n.replace(" bfloat16", "").replace(" int8", "")
+                                      for _, _, n in pts))
         for t, e, name in pts:
-            ax.scatter(t, e, s=36)
-            ax.annotate(name, (t, e), textcoords="offset points", xytext=(5, 4), fontsize=8)
+            family = name.replace(" bfloat16", "").replace(" int8", "")
+            marker = "s" if name.endswith(" bfloat16") else "^" if name.endswith(" int8") else "o"
+            ax.scatter(t, e, s=40, marker=marker, color="C%d" % (families.index(family) % 10))
+            if marker == "o":
+                ax.annotate(name, (t, e), textcoords="offset points", xytext=(5, 4), fontsize=8)
+        for marker, label in (("o", "float32 / other"), ("s", "bfloat16"), ("^", "int8")):
+            ax.scatter([], [], marker=marker, color="0.4", label=label)
         front, best = [], float("inf")
         for t, e, _ in sorted(pts):
             if e < best:
@@ -58,7 +66,7 @@ def main():
         ax.set_xlabel("time per sample (µs, %s)" % title)
         ax.set_ylabel("XY mean error, presses >= 1 mm deep (mm)")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="lower left")
     fig.suptitle("Per-patch estimators: run time against error (same test split)")
     fig.tight_layout()
     fig.savefig(stem + "_pareto.png", dpi=110)
