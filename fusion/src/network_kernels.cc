@@ -142,7 +142,9 @@ void pool_portable(const float* x, int cells, int ld, int c, float* out) {
 // The compiler's max and conversion intrinsics start from an "undefined" vector it then reports
 // as (maybe) uninitialised.
 #pragma GCC diagnostic push
+#if !defined(__clang__)
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 #pragma GCC diagnostic ignored "-Wuninitialized"
 
 #define SKINBUS_AVX512 __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,fma")))
