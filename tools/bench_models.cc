@@ -115,6 +115,26 @@ void write_table(const std::vector<Measured>& rows, const std::array<double, kDe
   std::fprintf(f, " | | |\n");
 }
 
+// Per depth bin: XY p95, depth and force mean errors (the first table has the XY means).
+void write_bin_table(const std::vector<Measured>& rows, FILE* f) {
+  std::fprintf(f, "| estimator |");
+  for (int b = 0; b < kDepthBins; ++b) {
+    std::fprintf(f, " %s mm: XY p95 / depth / force |", depth_bin_name(b).c_str());
+  }
+  std::fprintf(f, "\n|---|");
+  for (int b = 0; b < kDepthBins; ++b) std::fprintf(f, "---:|");
+  std::fprintf(f, "\n");
+  for (const Measured& m : rows) {
+    std::fprintf(f, "| %s |", m.name.c_str());
+    for (int b = 0; b < kDepthBins; ++b) {
+      const ErrorStats& s = m.errors.bins[static_cast<std::size_t>(b)];
+      std::fprintf(f, " %.2f mm / %.3f mm / %.3f N |", s.xy_p95_mm, s.depth_mean_mm,
+                   s.force_mean_n);
+    }
+    std::fprintf(f, "\n");
+  }
+}
+
 }  // namespace
 
 std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n) {
@@ -406,6 +426,8 @@ int bench_models(const ModelsBenchArgs& a) {
       "CRLB RMS XY bound of the bin.\n\n",
       a.test_path.c_str(), n, nxy, nz);
   write_table(rows, crlb, stdout);
+  std::printf("\nPer depth bin: XY p95, depth mean and force mean errors.\n\n");
+  write_bin_table(rows, stdout);
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
     if (!f) {
@@ -415,8 +437,11 @@ int bench_models(const ModelsBenchArgs& a) {
     f << "estimator,kind,macs,batch1_us,batch64_1t_us,batch64_2t_us,xy_mean_mm,xy_p95_mm,depth_"
          "mean_mm,"
          "force_mean_n,rejected";
-    for (int b = 0; b < kDepthBins; ++b)
-      f << ",xy_mean_mm_" << depth_bin_name(b) << ",crlb_mm_" << depth_bin_name(b);
+    for (int b = 0; b < kDepthBins; ++b) {
+      const std::string bin = depth_bin_name(b);
+      f << ",xy_mean_mm_" << bin << ",crlb_mm_" << bin << ",xy_p95_mm_" << bin << ",depth_mean_mm_"
+        << bin << ",force_mean_n_" << bin;
+    }
     f << "\n";
     for (const Measured& m : rows) {
       f << '"' << m.name << "\",\"" << m.kind << "\"," << m.macs << ',' << m.batch1_us << ','
@@ -424,8 +449,9 @@ int bench_models(const ModelsBenchArgs& a) {
         << m.errors.all.xy_p95_mm << ',' << m.errors.all.depth_mean_mm << ','
         << m.errors.all.force_mean_n << ',' << m.errors.all.rejected;
       for (int b = 0; b < kDepthBins; ++b) {
-        f << ',' << m.errors.bins[static_cast<std::size_t>(b)].xy_mean_mm << ','
-          << crlb[static_cast<std::size_t>(b)];
+        const ErrorStats& st = m.errors.bins[static_cast<std::size_t>(b)];
+        f << ',' << st.xy_mean_mm << ',' << crlb[static_cast<std::size_t>(b)] << ',' << st.xy_p95_mm
+          << ',' << st.depth_mean_mm << ',' << st.force_mean_n;
       }
       f << "\n";
     }
