@@ -79,6 +79,8 @@ done
 "$bin/skinbus-bench" finetune --base "$work/nominal_seed_cnn" --points 10,20,40,80,160 --epochs 15 \
   --anisotropy 0.05 --lr 1e-3 --csv docs/benchmarks/finetune_anisotropic.csv |
   tee "$work/finetune_anisotropic_table.md"
+"$bin/skinbus-bench" finetune --base "$work/nominal_seed_cnn" --points 16,36,64,100 --plan grid \
+  --epochs 15 --csv docs/benchmarks/finetune_grid.csv | tee "$work/finetune_grid_table.md"
 
 if ((ship)); then
   mkdir -p fusion/models

@@ -34,6 +34,11 @@ void add_finetune_options(CLI::App* sub, FinetuneBenchArgs& a) {
   sub->add_option("--anisotropy", a.anisotropy,
                   "lattice anisotropy of the new unit (physics the nominal model does not have)")
       ->capture_default_str();
+  sub->add_option("--plan", a.plan,
+                  "press positions: halton (n points) | grid (the nearest square grid over the "
+                  "patch, round(sqrt(n))^2 points)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"halton", "grid"}));
   sub->add_option("--epochs", a.epochs, "fine-tuning epochs")->capture_default_str();
   sub->add_option("--lr", a.learning_rate, "fine-tuning learning rate")->capture_default_str();
   sub->add_option("--test-count", a.test_count, "off-grid test presses")->capture_default_str();
@@ -103,11 +108,15 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   std::fprintf(stderr, "skinbus-bench: base model on the new unit: XY %.3f mm (>= 1 mm deep)\n",
                xy_mean_from_bin(before));
   for (int n : a.points) {
-    std::fprintf(stderr, "skinbus-bench: %d presses ...\n", n);
+    const int side = std::max(2, static_cast<int>(std::lround(std::sqrt(n))));
+    const std::vector<sim::PressPoint> plan =
+        a.plan == "grid" ? sim::plan_grid(side, 2 * kHalfExtentMm / (side - 1))
+                         : sim::plan_halton(n, kHalfExtentMm, 1);
+    const int presses_n = static_cast<int>(plan.size());
+    std::fprintf(stderr, "skinbus-bench: %d presses ...\n", presses_n);
     sim::SimulatedPatch patch(*unit, sim::unit_noise_seed(a.uid, 1));
-    const sim::Dataset presses = sim::generate_ramp_dataset(
-        patch, sim::plan_halton(n, kHalfExtentMm, 1), sim::RampProtocol{});
-    Line line{n, n * kSecondsPerPress / 60, {}, {}, 0, 0, false};
+    const sim::Dataset presses = sim::generate_ramp_dataset(patch, plan, sim::RampProtocol{});
+    Line line{presses_n, presses_n * kSecondsPerPress / 60, {}, {}, 0, 0, false};
     TrainOptions o;
     o.name = "finetuned";
     o.max_epochs = a.epochs;
@@ -142,12 +151,13 @@ int bench_finetune(const FinetuneBenchArgs& a) {
     lines.push_back(line);
   }
   std::printf(
-      "New unit: fabricated, UID 0x%llx, lattice anisotropy %.2f. Base: %s (trained on the nominal "
+      "New unit: fabricated, UID 0x%llx, lattice anisotropy %.2f, presses on a %s plan. Base: %s "
+      "(trained on the nominal "
       "patch). Test: %d "
       "off-grid presses, random depths to 4 mm; XY and depth means over presses >= 1 mm "
       "deep (CRLB there: %.3f mm). Robot time at %.0f s per press.\n\n",
-      static_cast<unsigned long long>(a.uid), a.anisotropy, base->meta.name.c_str(), a.test_count,
-      crlb_deep, kSecondsPerPress);
+      static_cast<unsigned long long>(a.uid), a.anisotropy, a.plan.c_str(), base->meta.name.c_str(),
+      a.test_count, crlb_deep, kSecondsPerPress);
   std::printf(
       "| presses | robot time (min) | fine-tuned network XY (mm) | depth (mm) | fine-tuning "
       "(s) | identified physics + LM XY (mm) | depth (mm) | identification (s) |\n"

@@ -56,7 +56,8 @@ struct FinetuneBenchArgs {
   std::string base_path;
   std::vector<int> points = {10, 20, 40, 80, 160};
   uint64_t uid = 0x5B00000000000007ull;
-  double anisotropy = 0;  // of the new unit's lattice (0.05: physics outside the model class)
+  double anisotropy = 0;        // of the new unit's lattice (0.05: physics outside the model class)
+  std::string plan = "halton";  // press positions: halton | grid (round(sqrt(n))^2 points)
   int epochs = 30;
   double learning_rate = 3e-4;
   int test_count = 1000;
