@@ -7,6 +7,7 @@
 #include <fstream>
 
 #include "bench_models.h"
+#include "skinbus/common/stats.h"
 #include "skinbus/fusion/network_runtime.h"
 #include "skinbus/fusion/physics_estimator.h"
 #include "skinbus/fusion/training.h"
@@ -62,19 +63,13 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   const sim::Dataset test =
       sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
   const std::size_t nc = static_cast<std::size_t>(unit->channel_count());
-  const std::array<double, kDepthBins> crlb =
-      mean_per_bin(crlb_per_row(*unit, test, static_cast<int>(test.rows())), test.depth_mm);
-  double crlb_deep = 0;
-  int deep_n = 0;
+  // The mean CRLB of the presses at least 1 mm deep (those the table's XY means cover).
+  const std::vector<double> crlb = crlb_per_row(*unit, test, static_cast<int>(test.rows()));
+  std::vector<double> crlb_deep_rows;
   for (std::size_t r = 0; r < test.rows(); ++r) {
-    if (test.depth_mm[r] >= 1.0) ++deep_n;
+    if (test.depth_mm[r] >= 1.0) crlb_deep_rows.push_back(crlb[r]);
   }
-  for (int b = 2; b < kDepthBins; ++b) {
-    int n = 0;
-    for (double d : test.depth_mm) n += depth_bin(d) == b;
-    crlb_deep += crlb[static_cast<std::size_t>(b)] * n;
-  }
-  crlb_deep /= std::max(deep_n, 1);
+  const double crlb_deep = mean(crlb_deep_rows);
   auto evaluate = [&](const ModelFile& m) {
     Result<NetworkRuntime> rt = NetworkRuntime::create(m);
     ContactEstimate rejected;

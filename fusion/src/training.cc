@@ -11,6 +11,8 @@
 #include <random>
 #include <set>
 
+#include "skinbus/common/stats.h"
+
 namespace skinbus::fusion {
 namespace {
 
@@ -104,10 +106,6 @@ torch::Tensor normalised_inputs(const ModelMeta& m, std::span<const double> fiel
     }
   }
   return x;
-}
-
-double mean_of(const std::vector<double>& v) {
-  return v.empty() ? 0.0 : std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
 }
 
 // Runs `f`, turning any exception (LibTorch reports errors as c10::Error) into an error: none
@@ -256,7 +254,7 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
       for (const sim::DatasetSensor& s : data.sensors) sensors.push_back({s.u_mm, s.v_mm, s.h_mm});
       if (Status s = fit_grid(sensors, a); !s.ok()) return s.error();
     }
-    meta = make_meta(data, a, o.name);
+    meta.architecture = a;  // the rest of the metadata once the training rows are known
   }
 
   // Split by press location: every row of a press takes its press's location (its first row's
@@ -297,14 +295,8 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
       }
     }
   }
-  if (base == nullptr) {
-    // Normalisation from the training split only.
-    const ModelMeta m = make_meta(data, meta.architecture, o.name, train_rows);
-    meta.input_mean = m.input_mean;
-    meta.input_scale = m.input_scale;
-    meta.output_mean = m.output_mean;
-    meta.output_scale = m.output_scale;
-  }
+  // A new model's normalisation comes from the training split only.
+  if (base == nullptr) meta = make_meta(data, meta.architecture, o.name, train_rows);
 
   torch::manual_seed(o.seed);
   torch::set_num_threads(std::max(o.threads, 1));
@@ -374,10 +366,10 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
       depth.push_back(std::fabs(d[2]));
       force.push_back(std::fabs(d[3]));
     }
-    rep.val_xy_mean_mm = mean_of(xy);
-    rep.val_xy_deep_mm = xy_deep.empty() ? rep.val_xy_mean_mm : mean_of(xy_deep);
-    rep.val_depth_mean_mm = mean_of(depth);
-    rep.val_force_mean_n = mean_of(force);
+    rep.val_xy_mean_mm = mean(xy);
+    rep.val_xy_deep_mm = xy_deep.empty() ? rep.val_xy_mean_mm : mean(xy_deep);
+    rep.val_depth_mean_mm = mean(depth);
+    rep.val_force_mean_n = mean(force);
     rep.score = rep.val_xy_deep_mm + rep.val_depth_mean_mm;
     rep.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return rep;
