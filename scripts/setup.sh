@@ -14,6 +14,8 @@ packages=(
   liburdfdom-dev libceres-dev libeigen3-dev
   # models: LibTorch for training (with OpenBLAS: the reference BLAS is ~10x slower), oneDNN
   libtorch-dev libopenblas0-openmp libdnnl-dev
+  # host aggregator: Eclipse Cyclone DDS (C API and idlc)
+  cyclonedds-dev cyclonedds-tools
   # fuzzing (libFuzzer ships with clang's runtime)
   clang libclang-rt-14-dev
   # CAN: can-utils are the real peer in tests; the kernel tests boot Debian's kernel in QEMU

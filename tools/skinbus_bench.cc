@@ -17,6 +17,8 @@
 #include <string>
 #include <vector>
 
+#include "bench_ambient.h"
+#include "bench_host.h"
 #include "bench_models.h"
 #include "skinbus/body_map/calibration.h"
 #include "skinbus/body_map/calibration_sim.h"
@@ -253,6 +255,18 @@ int main(int argc, char** argv) {
       "accuracy from one unit's 361 presses (the seed's robot-time budget): the seed recipe "
       "against the physics pipeline, per simulated unit, off-grid and at grid points");
   skinbus::tools::add_budget_options(budget, ba);
+  skinbus::tools::AmbientBenchArgs aa;
+  CLI::App* ambient = app.add_subcommand(
+      "ambient",
+      "a per-patch model's error when the ambient field turns between tare and press (a limb "
+      "moving in the Earth's field), with and without common-mode rejection");
+  skinbus::tools::add_ambient_options(ambient, aa);
+  skinbus::tools::HostBenchArgs ha;
+  CLI::App* host = app.add_subcommand(
+      "host",
+      "the host aggregator: latency from frame arrival to publication and CPU use for 16, 64 "
+      "and 200 patches with 100, 10 and 0 % touched, and host time per idle patch");
+  skinbus::tools::add_host_options(host, ha);
 #ifdef SKINBUS_HAVE_TORCH
   skinbus::tools::FinetuneBenchArgs fa;
   CLI::App* finetune = app.add_subcommand(
@@ -267,6 +281,8 @@ int main(int argc, char** argv) {
   if (finetune->parsed()) return skinbus::tools::bench_finetune(fa);
 #endif
   if (budget->parsed()) return skinbus::tools::bench_budget(ba);
+  if (ambient->parsed()) return skinbus::tools::bench_ambient(aa);
+  if (host->parsed()) return skinbus::tools::bench_host(ha);
   if (models->parsed()) return skinbus::tools::bench_models(ma);
   return bench_fk(fk_robot, fk_calls);
 }

@@ -8,4 +8,7 @@ status=0
 "$build/tests/kernel_socketcan_test" --gtest_brief=1 || status=1
 "$here/bus_e2e.sh" "$build" || status=1
 "$here/patchd_e2e.sh" "$build" || status=1
+if [[ -x "$build/tools/skinbus-listen" ]]; then
+  "$here/host_e2e.sh" "$build" || status=1
+fi
 exit $status

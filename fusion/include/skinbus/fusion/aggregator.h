@@ -1,0 +1,133 @@
+// skinbus/fusion/aggregator.h: many patches in, body-frame contacts out.
+//
+// The host aggregator's pipeline, without its inputs and outputs (tools/skinbus_host.cc reads
+// SocketCAN or candump logs and publishes on DDS and as JSON lines):
+//
+//   frames --on_frame()--> reassembly (one bus::Reassembler per bus)
+//          --> registry (patch_registry.h: discovery, states, reboots, duplicate IDs, clocks)
+//          --> samples flagged `contact` are queued, newest per patch; all others end here
+//   process() --> common-mode (ambient) rejection (ambient.h) --> the per-patch models, one
+//          batched run per model file over every patch with a queued sample (network_runtime.h)
+//          --> patch (u, v, depth) -> surface point and normal on the patch's geometry -> the
+//          patch's link (skin map) -> the base frame (forward kinematics from joint states)
+//          --> merge across patches and track (contact_tracker.h) --> ContactArray
+//
+// Skip what a scene does not need: an idle patch costs its heartbeat once a second (event
+// mode), or in stream mode the reassembly of its samples and a flag test; it never reaches a
+// model. process() costs O(patches with a queued sample + contacts), not O(patches).
+//
+// Time: `rx_us` / `now_us` are host times (CLOCK_REALTIME microseconds, as SocketCAN stamps
+// frames; replayed logs use their own stamps). A contact's time is its sample's patch timestamp
+// mapped to host time by the patch's clock aligner (clock_alignment.h), or the receive time
+// until the aligner has converged.
+//
+// Kinematics: set_joint_state() gives joint positions by name (any subset of the robot's movable
+// joints; unknown names are counted and ignored). Contacts placed with joint states older than
+// `kinematics_stale_us` are flagged kContactStaleKinematics (and a kKinematicsStale event is
+// queued once); before the first joint state they use the zero pose, flagged
+// kContactNoKinematics. Without a robot model, link frames are taken as the base frame.
+//
+// Nothing here throws; no NaN or Inf leaves: non-finite estimates are rejections, counted.
+// Not thread-safe: one thread feeds, processes and reads.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "skinbus/body_map/robot_model.h"
+#include "skinbus/body_map/skin_map.h"
+#include "skinbus/bus/can_frame.h"
+#include "skinbus/bus/reassembler.h"
+#include "skinbus/common/result.h"
+#include "skinbus/fusion/ambient.h"
+#include "skinbus/fusion/contact_tracker.h"
+#include "skinbus/fusion/contacts.h"
+#include "skinbus/fusion/network_runtime.h"
+#include "skinbus/fusion/patch_registry.h"
+
+namespace skinbus::fusion {
+
+struct AggregatorOptions {
+  RegistryOptions registry;
+  TrackerOptions tracker;
+  CommonModeOptions common_mode;  // method kNone turns the rejection off
+  RuntimeOptions runtime;         // backend, precision, threads of every model's runtime
+  bus::Reassembler::Config reassembly;
+  uint64_t kinematics_stale_us = 250'000;  // joint states older than this: flagged
+  // A patch's contact is kept this long after its last contact sample (a lost frame does not
+  // end a press); a sample without the contact flag ends it at once.
+  uint64_t contact_hold_us = 75'000;
+  double ambient_flag_ut = 120;  // a common-mode change larger than this flags the contact
+  std::string base_frame = "base_link";
+};
+
+struct AggregatorStats {
+  uint64_t frames = 0;
+  uint64_t samples = 0;          // complete samples received
+  uint64_t idle_samples = 0;     // without the contact flag: no model run
+  uint64_t untared_samples = 0;  // contact flag but no baseline (kTared clear): skipped
+  uint64_t unattributed = 0;     // dropped by the registry (duplicate ID, unknown node)
+  uint64_t superseded = 0;       // a newer sample of the same patch arrived before process()
+  uint64_t estimated = 0;        // samples run through a model
+  uint64_t rejected = 0;         // estimates the model rejected (dead, saturated, ...)
+  uint64_t no_contact = 0;       // estimates placed outside the patch or without depth
+  uint64_t model_runs = 0;       // batched runs
+  uint64_t unknown_joints = 0;   // joint names not in the robot model
+  uint64_t publications = 0;     // ContactArrays produced by process()
+};
+
+class Aggregator {
+ public:
+  // `map` (required) and `robot` (may be null) must outlive the aggregator. Model files named by
+  // the map are read relative to `map_dir`; a model that cannot be read leaves its patches
+  // without one (degraded, an event says why), it is not an error. `bus_names`: one per bus
+  // (1..kMaxBuses); frames are fed with the bus index. Errors: kInvalidArgument for bad options
+  // or a bus count out of range.
+  static Result<std::unique_ptr<Aggregator>> create(const body_map::SkinMap* map,
+                                                    const std::string& map_dir,
+                                                    const body_map::RobotModel* robot,
+                                                    std::vector<std::string> bus_names,
+                                                    const AggregatorOptions& options = {});
+  ~Aggregator();
+
+  // One frame of bus `bus` received at host time `rx_us`. O(1) unless it completes a message.
+  void on_frame(int bus, const bus::CanFrame& frame, uint64_t rx_us);
+
+  // Joint positions by name, measured at `stamp_us`: radians for revolute joints; prismatic
+  // joints in millimetres (as RobotModel) or, with `prismatic_in_metres` (ROS 2 JointState),
+  // metres.
+  void set_joint_state(std::span<const std::string> names, std::span<const double> positions,
+                       uint64_t stamp_us, bool prismatic_in_metres = false);
+
+  // Estimates every queued sample, places, merges and tracks. Returns true and fills `out`
+  // when the contact set changed (new estimates, or contacts that ended); false otherwise.
+  bool process(uint64_t now_us, ContactArray* out);
+
+  // Registry timers (stale, offline) and kinematics staleness; call about every 100 ms.
+  void tick(uint64_t now_us);
+
+  // The status of every patch and the events since the last call.
+  void status(uint64_t now_us, PatchStatusArray* out);
+
+  // Host events (an interface went down, ...), reported with the patches' own.
+  void add_event(PatchEventKind kind, uint64_t now_us, std::string detail, int bus = -1);
+
+  const AggregatorStats& stats() const;
+  bus::ReassemblyStats reassembly_stats() const;  // summed over buses
+  const PatchRegistry& registry() const;
+  // The receive times of the samples the last process() estimated (for latency statistics).
+  std::span<const uint64_t> processed_rx_us() const;
+  // Models loaded (file, runtime kernel) for logs.
+  std::vector<std::string> model_descriptions() const;
+
+  struct Impl;
+
+ private:
+  explicit Aggregator(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace skinbus::fusion

@@ -1,0 +1,535 @@
+// The host aggregator's pipeline (aggregator.h).
+#include "skinbus/fusion/aggregator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+
+#include "skinbus/bus/protocol.h"
+#include "skinbus/fusion/evaluation.h"
+#include "skinbus/fusion/model_file.h"
+
+namespace skinbus::fusion {
+
+namespace {
+
+constexpr int kChannels = bus::kChannelCount;
+
+// The model's mean XY error at a depth, from its metadata (measured at training time), used as
+// the contact's uncertainty. Falls back to the deep-press validation error, then to 1 mm.
+struct ErrorTable {
+  std::array<double, kDepthBins> xy_mm{};
+  double fallback_mm = 1.0;
+  double at(double depth_mm) const {
+    const int b = depth_bin(depth_mm);
+    const double v = b >= 0 ? xy_mm[static_cast<std::size_t>(std::min(b, kDepthBins - 1))] : 0;
+    return v > 0 && std::isfinite(v) ? v : fallback_mm;
+  }
+};
+
+ErrorTable error_table(const ModelMeta& m) {
+  ErrorTable t;
+  auto it = m.metrics.find("val_xy_deep_mean_mm");
+  if (it != m.metrics.end() && std::isfinite(it->second) && it->second > 0) {
+    t.fallback_mm = it->second;
+  }
+  for (int b = 0; b < kDepthBins; ++b) {
+    auto jt = m.metrics.find("test_xy_mean_mm_depth_" + depth_bin_name(b));
+    if (jt != m.metrics.end()) t.xy_mm[static_cast<std::size_t>(b)] = jt->second;
+  }
+  return t;
+}
+
+}  // namespace
+
+struct Aggregator::Impl {
+  const body_map::SkinMap* map = nullptr;
+  const body_map::RobotModel* robot = nullptr;
+  AggregatorOptions options;
+  std::vector<std::string> bus_names;
+  std::vector<bus::Reassembler> reassemblers;
+  PatchRegistry registry;
+  ContactTracker tracker;
+  AggregatorStats stats;
+
+  struct Model {
+    std::string path;
+    std::unique_ptr<NetworkRuntime> runtime;
+    ErrorTable errors;
+    // The batch being built for a process() call.
+    std::vector<double> fields;
+    std::vector<uint8_t> ok;
+    std::vector<std::size_t> slots;  // pending_ index of each row
+    std::vector<ContactEstimate> out;
+    std::vector<uint32_t> ambient_flags;
+  };
+  std::vector<Model> models;
+
+  // Queued samples, newest per patch: slot per registry index, and the list of used slots.
+  struct Pending {
+    bool used = false;
+    PatchEntry* entry = nullptr;
+    uint64_t time_us = 0;  // aligned sample time
+    uint64_t rx_us = 0;    // host time its last frame arrived
+    std::array<double, kChannels> field{};
+    std::array<uint8_t, kChannels> ok{};
+  };
+  std::vector<Pending> pending;           // kMaxBuses * 128
+  std::vector<std::size_t> pending_list;  // indices into pending
+
+  // The current contact of each patch that has one.
+  struct Current {
+    bool used = false;
+    PatchContact contact;
+    uint64_t time_us = 0;  // aligned sample time
+    uint64_t last_us = 0;  // host time of its last contact sample
+  };
+  std::vector<Current> current;
+  std::vector<std::size_t> current_list;
+  bool released = false;  // a contact ended since the last publication
+
+  // Kinematics.
+  std::vector<double> q;
+  std::vector<bool> prismatic;  // per entry of q
+  std::vector<body_map::Pose> link_poses;
+  bool have_joints = false;
+  uint64_t joints_stamp_us = 0;
+  bool joints_stale_reported = false;
+  std::vector<std::string> last_names;  // name -> index cache
+  std::vector<int> name_index;
+
+  std::vector<uint64_t> bad_reported;  // per bus: bad frames already reported
+  std::vector<uint64_t> processed_rx;  // rx times of the samples of the last process()
+  std::vector<PatchContact> scratch_contacts;
+  std::vector<BodyContact> scratch_out;
+
+  Impl(const body_map::SkinMap* m, std::vector<std::string> names, const AggregatorOptions& o)
+      : map(m),
+        options(o),
+        bus_names(names),
+        registry(m, std::move(names), o.registry),
+        tracker(o.tracker) {}
+
+  static std::size_t slot(int bus, uint8_t node) {
+    return static_cast<std::size_t>(bus) * 128 + (node & 0x7F);
+  }
+
+  void on_sample(int bus, uint8_t node, const bus::Sample& s, uint32_t missing, uint64_t rx_us);
+  void place(const PatchEntry& e, const ContactEstimate& est, const Model& m, uint32_t flags,
+             PatchContact* out);
+};
+
+Aggregator::Aggregator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Aggregator::~Aggregator() = default;
+
+Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* map,
+                                                       const std::string& map_dir,
+                                                       const body_map::RobotModel* robot,
+                                                       std::vector<std::string> bus_names,
+                                                       const AggregatorOptions& options) {
+  if (map == nullptr) return make_error(ErrorCode::kInvalidArgument, "aggregator: no skin map");
+  if (bus_names.empty() || bus_names.size() > static_cast<std::size_t>(kMaxBuses)) {
+    return make_error(ErrorCode::kInvalidArgument, "aggregator: 1 to " + std::to_string(kMaxBuses) +
+                                                       " buses, not " +
+                                                       std::to_string(bus_names.size()));
+  }
+  auto impl = std::make_unique<Impl>(map, bus_names, options);
+  impl->robot = robot;
+  impl->reassemblers.reserve(bus_names.size());
+  for (std::size_t b = 0; b < bus_names.size(); ++b)
+    impl->reassemblers.emplace_back(options.reassembly);
+  impl->pending.resize(bus_names.size() * 128);
+  impl->bad_reported.assign(bus_names.size(), 0);
+  impl->current.resize(bus_names.size() * 128);
+  impl->pending_list.reserve(impl->pending.size());
+  impl->current_list.reserve(impl->current.size());
+  if (robot != nullptr) {
+    impl->q.assign(static_cast<std::size_t>(robot->joint_count()), 0.0);
+    impl->link_poses.resize(static_cast<std::size_t>(robot->link_count()));
+    impl->prismatic.assign(impl->q.size(), false);
+    for (int l = 0; l < robot->link_count(); ++l) {
+      const body_map::LinkJoint& j = robot->link(l).joint;
+      if (j.type == body_map::JointType::kPrismatic && j.q_index >= 0) {
+        impl->prismatic[static_cast<std::size_t>(j.q_index)] = true;
+      }
+    }
+  }
+
+  // One runtime per distinct model file; the patches that share a file share its batch.
+  std::map<std::string, int> by_path;
+  std::vector<int> model_of(map->patches.size(), -1);
+  std::vector<std::pair<std::string, std::string>> failures;
+  for (std::size_t i = 0; i < map->patches.size(); ++i) {
+    const std::string& name = map->patches[i].model;
+    if (name.empty()) continue;
+    std::filesystem::path p(name);
+    if (p.is_relative() && !map_dir.empty()) p = std::filesystem::path(map_dir) / p;
+    const std::string key = model_stem(p.lexically_normal().string());
+    auto it = by_path.find(key);
+    if (it != by_path.end()) {
+      model_of[i] = it->second;
+      continue;
+    }
+    int index = -1;
+    auto mf = read_model(key);
+    if (mf) {
+      auto rt = NetworkRuntime::create(*mf, options.runtime);
+      if (rt && rt->channels() == kChannels) {
+        Impl::Model m;
+        m.path = key;
+        m.runtime = std::make_unique<NetworkRuntime>(std::move(*rt));
+        m.errors = error_table(mf->meta);
+        index = static_cast<int>(impl->models.size());
+        impl->models.push_back(std::move(m));
+      } else {
+        failures.emplace_back(key, rt ? "the model takes " + std::to_string(rt->channels()) +
+                                            " channels, a patch sends " + std::to_string(kChannels)
+                                      : rt.error().to_string());
+      }
+    } else {
+      failures.emplace_back(key, mf.error().to_string());
+    }
+    by_path[key] = index;
+    model_of[i] = index;
+  }
+  impl->registry.set_models(model_of);
+  for (const auto& [path, why] : failures) {
+    impl->registry.add_event(PatchEventKind::kNoModel, 0, "model " + path + ": " + why);
+  }
+  return std::unique_ptr<Aggregator>(new Aggregator(std::move(impl)));
+}
+
+void Aggregator::on_frame(int bus, const bus::CanFrame& frame, uint64_t rx_us) {
+  Impl& s = *impl_;
+  if (bus < 0 || bus >= static_cast<int>(s.reassemblers.size())) return;
+  ++s.stats.frames;
+  const bus::FeedResult r = s.reassemblers[static_cast<std::size_t>(bus)].feed(frame, rx_us);
+  if (r.status != bus::FeedStatus::kMessage) return;
+  const bus::Message& m = *r.message;
+  switch (m.message_class()) {
+    case bus::MessageClass::kHeartbeat:
+      s.registry.on_heartbeat(bus, m.node, std::get<bus::Heartbeat>(m.body), rx_us);
+      break;
+    case bus::MessageClass::kSample:
+      s.on_sample(bus, m.node, std::get<bus::Sample>(m.body), r.missing_before, rx_us);
+      break;
+    case bus::MessageClass::kAck:
+    case bus::MessageClass::kInfo:
+      s.registry.on_traffic(bus, m.node, rx_us);
+      break;
+    case bus::MessageClass::kSync:
+    case bus::MessageClass::kCommand:
+      break;  // the host's own (or another host's) frames
+  }
+}
+
+void Aggregator::Impl::on_sample(int bus, uint8_t node, const bus::Sample& smp, uint32_t missing,
+                                 uint64_t rx_us) {
+  ++stats.samples;
+  PatchEntry* e = registry.on_sample(bus, node, smp, missing, rx_us);
+  if (e == nullptr) {
+    ++stats.unattributed;
+    return;
+  }
+  const std::size_t k = slot(bus, node);
+  if ((smp.flags & bus::sample_flags::kContact) == 0) {
+    ++stats.idle_samples;
+    // The press is over (event-mode tail, or a stream-mode idle sample).
+    if (current[k].used) {
+      current[k].used = false;
+      current_list.erase(std::find(current_list.begin(), current_list.end(), k));
+      released = true;
+    }
+    if (pending[k].used) {  // a contact sample queued before this release: drop it
+      pending[k].used = false;
+      pending_list.erase(std::find(pending_list.begin(), pending_list.end(), k));
+    }
+    return;
+  }
+  if ((smp.flags & bus::sample_flags::kTared) == 0 ||
+      (smp.flags & bus::sample_flags::kTareActive) != 0) {
+    ++stats.untared_samples;
+    return;
+  }
+  if (e->model_index < 0) {
+    ++stats.unattributed;
+    return;
+  }
+  Pending& p = pending[k];
+  if (p.used) {
+    ++stats.superseded;
+  } else {
+    p.used = true;
+    pending_list.push_back(k);
+  }
+  p.entry = e;
+  p.rx_us = rx_us;
+  auto host = e->clock.to_host_us(smp.timestamp_us);
+  p.time_us = host ? *host : rx_us;
+  for (int c = 0; c < kChannels; ++c) {
+    const int sensor = c / 3;
+    const bool bad =
+        ((smp.fault_mask >> sensor) & 1u) != 0 || ((smp.saturation_mask >> sensor) & 1u) != 0;
+    p.field[static_cast<std::size_t>(c)] =
+        smp.field_lsb[static_cast<std::size_t>(c)] * bus::kFieldUtPerLsb;
+    p.ok[static_cast<std::size_t>(c)] = bad ? 0 : 1;
+  }
+}
+
+void Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, const Model& m,
+                             uint32_t flags, PatchContact* out) {
+  const body_map::PatchPlacement& pl = *e.placement;
+  // The contact point on the undeformed skin surface; depth is reported alongside.
+  const body_map::SurfacePoint sp = body_map::link_surface_point(pl, est.u_mm, est.v_mm, 0.0);
+  Eigen::Vector3d point = sp.point_mm, normal = sp.normal;
+  if (robot != nullptr) {
+    const int link = robot->find_link(pl.link);
+    if (link >= 0) {
+      const body_map::Pose& pose = link_poses[static_cast<std::size_t>(link)];
+      point = pose.apply(point);
+      normal = pose.rotation * normal;
+    }
+  }
+  for (int i = 0; i < 3; ++i) {
+    out->position_mm[i] = point[i];
+    out->normal[i] = normal[i];
+  }
+  out->depth_mm = est.depth_mm;
+  out->force_n = est.force_n;
+  out->u_mm = est.u_mm;
+  out->v_mm = est.v_mm;
+  out->uncertainty_mm = m.errors.at(est.depth_mm);
+  out->node = e.node;
+  out->hardware_uid = e.hardware_uid != 0 ? e.hardware_uid : pl.hardware_uid;
+  out->link = pl.link;
+  out->flags = flags;
+}
+
+void Aggregator::set_joint_state(std::span<const std::string> names,
+                                 std::span<const double> positions, uint64_t stamp_us,
+                                 bool prismatic_in_metres) {
+  Impl& s = *impl_;
+  if (s.robot == nullptr) return;
+  const bool same = names.size() == s.last_names.size() &&
+                    std::equal(names.begin(), names.end(), s.last_names.begin());
+  if (!same) {
+    s.last_names.assign(names.begin(), names.end());
+    s.name_index.resize(names.size());
+    for (std::size_t i = 0; i < names.size(); ++i) {
+      s.name_index[i] = s.robot->find_joint(names[i]);
+      if (s.name_index[i] < 0) ++s.stats.unknown_joints;
+    }
+  }
+  const std::size_t n = std::min(names.size(), positions.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const int j = s.name_index[i];
+    if (j < 0 || !std::isfinite(positions[i])) continue;
+    const double scale =
+        prismatic_in_metres && s.prismatic[static_cast<std::size_t>(j)] ? 1000.0 : 1.0;
+    s.q[static_cast<std::size_t>(j)] = positions[i] * scale;
+  }
+  s.have_joints = true;
+  s.joints_stamp_us = stamp_us;
+  if (s.joints_stale_reported) {
+    s.joints_stale_reported = false;
+    s.registry.add_event(PatchEventKind::kKinematicsFresh, stamp_us, "joint states resumed");
+  }
+}
+
+bool Aggregator::process(uint64_t now_us, ContactArray* out) {
+  Impl& s = *impl_;
+  // Contacts whose patch went quiet without a release sample (lost frames, a vanished patch).
+  for (std::size_t i = 0; i < s.current_list.size();) {
+    const std::size_t k = s.current_list[i];
+    if (now_us > s.current[k].last_us + s.options.contact_hold_us) {
+      s.current[k].used = false;
+      s.current_list[i] = s.current_list.back();
+      s.current_list.pop_back();
+      s.released = true;
+    } else {
+      ++i;
+    }
+  }
+  s.processed_rx.clear();
+  if (s.pending_list.empty() && !s.released) return false;
+
+  uint32_t kin_flags = 0;
+  if (s.robot != nullptr) {
+    if (!s.have_joints) {
+      kin_flags |= kContactNoKinematics;
+    } else if (now_us > s.joints_stamp_us + s.options.kinematics_stale_us) {
+      kin_flags |= kContactStaleKinematics;
+    }
+    if (!s.robot->forward_kinematics(s.q, s.link_poses).ok()) {
+      kin_flags |= kContactStaleKinematics;  // cannot happen with finite q; keep last poses
+    }
+  }
+
+  // Batch the queued samples per model.
+  for (Impl::Model& m : s.models) {
+    m.fields.clear();
+    m.ok.clear();
+    m.slots.clear();
+  }
+  for (std::size_t k : s.pending_list) {
+    Impl::Pending& p = s.pending[k];
+    Impl::Model& m = s.models[static_cast<std::size_t>(p.entry->model_index)];
+    m.fields.insert(m.fields.end(), p.field.begin(), p.field.end());
+    m.ok.insert(m.ok.end(), p.ok.begin(), p.ok.end());
+    m.slots.push_back(k);
+  }
+  for (Impl::Model& m : s.models) {
+    const int batch = static_cast<int>(m.slots.size());
+    if (batch == 0) continue;
+    // Common-mode rejection, per sample, before the network.
+    std::vector<uint32_t>& amb_flags = m.ambient_flags;
+    amb_flags.assign(m.slots.size(), 0);
+    for (int b = 0; b < batch; ++b) {
+      std::span<double> f(m.fields.data() + static_cast<std::size_t>(b) * kChannels, kChannels);
+      std::span<const uint8_t> ok(m.ok.data() + static_cast<std::size_t>(b) * kChannels, kChannels);
+      const CommonModeEstimate cm = estimate_common_mode(f, ok, s.options.common_mode);
+      remove_common_mode(f, cm);
+      if (cm.valid && cm.magnitude_ut() > s.options.ambient_flag_ut) {
+        amb_flags[static_cast<std::size_t>(b)] = kContactAmbientLarge;
+      }
+    }
+    m.out.resize(m.slots.size());
+    if (!m.runtime->run(m.fields, batch, m.out, m.ok).ok()) continue;
+    ++s.stats.model_runs;
+    s.stats.estimated += static_cast<uint64_t>(batch);
+    for (int b = 0; b < batch; ++b) {
+      const std::size_t k = m.slots[static_cast<std::size_t>(b)];
+      const ContactEstimate& est = m.out[static_cast<std::size_t>(b)];
+      Impl::Pending& p = s.pending[k];
+      if (!est.valid()) {
+        ++s.stats.rejected;
+        continue;
+      }
+      if ((est.flags & kEstimateNoContact) != 0) {
+        ++s.stats.no_contact;
+        continue;
+      }
+      uint32_t flags = kin_flags | amb_flags[static_cast<std::size_t>(b)];
+      if (est.flags & kEstimateOutsidePatch) flags |= kContactOutsidePatch;
+      if (est.flags & kEstimateDepthRange) flags |= kContactDepthRange;
+      if (est.flags & kEstimateMasked) flags |= kContactMaskedChannels;
+      Impl::Current& c = s.current[k];
+      s.place(*p.entry, est, m, flags, &c.contact);
+      bool finite = true;
+      for (int i = 0; i < 3; ++i) {
+        finite =
+            finite && std::isfinite(c.contact.position_mm[i]) && std::isfinite(c.contact.normal[i]);
+      }
+      if (!finite) {
+        ++s.stats.rejected;
+        continue;
+      }
+      ++p.entry->contacts;
+      c.time_us = p.time_us;
+      c.last_us = now_us;
+      if (!c.used) {
+        c.used = true;
+        s.current_list.push_back(k);
+      }
+    }
+  }
+  for (std::size_t k : s.pending_list) {
+    s.pending[k].used = false;
+    s.processed_rx.push_back(s.pending[k].rx_us);
+  }
+  s.pending_list.clear();
+  s.released = false;
+
+  // Merge and track over every patch's current contact.
+  s.scratch_contacts.clear();
+  uint64_t stamp = 0;
+  std::sort(s.current_list.begin(), s.current_list.end());
+  for (std::size_t k : s.current_list) {
+    s.scratch_contacts.push_back(s.current[k].contact);
+    stamp = std::max(stamp, s.current[k].time_us);
+  }
+  if (stamp == 0) stamp = now_us;
+  out->stamp_us = stamp;
+  out->base_frame = s.options.base_frame;
+  out->contacts.clear();
+  s.tracker.update(stamp, s.scratch_contacts, &out->contacts);
+  ++s.stats.publications;
+  return true;
+}
+
+void Aggregator::tick(uint64_t now_us) {
+  Impl& s = *impl_;
+  s.registry.tick(now_us);
+  for (std::size_t b = 0; b < s.reassemblers.size(); ++b) {
+    bus::Reassembler& r = s.reassemblers[b];
+    r.expire(now_us);
+    // Frames the bus layer refused since the last tick, as one event per bus.
+    const bus::ReassemblyStats& st = r.stats();
+    const uint64_t bad = st.rejected + st.integrity_failures + st.conflicts + st.stale_parts;
+    if (bad > s.bad_reported[b]) {
+      char buf[200];
+      std::snprintf(buf, sizeof buf,
+                    "%llu bad frame(s) since the last report (totals: rejected %llu, failed CRC "
+                    "or values %llu, conflicting parts %llu, stale parts %llu)",
+                    static_cast<unsigned long long>(bad - s.bad_reported[b]),
+                    static_cast<unsigned long long>(st.rejected),
+                    static_cast<unsigned long long>(st.integrity_failures),
+                    static_cast<unsigned long long>(st.conflicts),
+                    static_cast<unsigned long long>(st.stale_parts));
+      s.registry.add_event(PatchEventKind::kBadFrames, now_us, buf, static_cast<int>(b));
+      s.bad_reported[b] = bad;
+    }
+  }
+  if (s.robot != nullptr && s.have_joints && !s.joints_stale_reported &&
+      now_us > s.joints_stamp_us + s.options.kinematics_stale_us) {
+    s.joints_stale_reported = true;
+    char buf[128];
+    std::snprintf(buf, sizeof buf,
+                  "joint states stopped %.2f s ago: contacts use the last known pose (flagged)",
+                  static_cast<double>(now_us - s.joints_stamp_us) * 1e-6);
+    s.registry.add_event(PatchEventKind::kKinematicsStale, now_us, buf);
+  }
+}
+
+void Aggregator::status(uint64_t now_us, PatchStatusArray* out) {
+  Impl& s = *impl_;
+  out->stamp_us = now_us;
+  out->patches.clear();
+  out->events.clear();
+  s.registry.status(&out->patches);
+  s.registry.take_events(&out->events);
+}
+
+void Aggregator::add_event(PatchEventKind kind, uint64_t now_us, std::string detail, int bus) {
+  impl_->registry.add_event(kind, now_us, std::move(detail), bus);
+}
+
+const AggregatorStats& Aggregator::stats() const {
+  return impl_->stats;
+}
+
+bus::ReassemblyStats Aggregator::reassembly_stats() const {
+  bus::ReassemblyStats sum;
+  for (const bus::Reassembler& r : impl_->reassemblers) sum += r.stats();
+  return sum;
+}
+
+const PatchRegistry& Aggregator::registry() const {
+  return impl_->registry;
+}
+
+std::span<const uint64_t> Aggregator::processed_rx_us() const {
+  return impl_->processed_rx;
+}
+
+std::vector<std::string> Aggregator::model_descriptions() const {
+  std::vector<std::string> out;
+  for (const Impl::Model& m : impl_->models) {
+    out.push_back(m.path + " (" + m.runtime->kernel_name() + ")");
+  }
+  return out;
+}
+
+}  // namespace skinbus::fusion

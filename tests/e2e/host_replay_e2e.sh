@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# End to end on the host (no kernel CAN needed): simulated patch daemons write their frames as a
+# candump log; skinbus-host replays it at recorded speed and publishes on DDS; skinbus-listen, a
+# separate process on a loopback-only DDS configuration, receives the contacts, which must lie
+# where the scene pressed, in the robot's base frame, within the model's error.
+#   tests/e2e/host_replay_e2e.sh BUILD_DIR
+set -euo pipefail
+build=$(cd "${1:?usage: host_replay_e2e.sh BUILD_DIR}" && pwd)
+src=$(cd "$(dirname "$0")/../.." && pwd)
+bin=$build/tools
+work=$(mktemp -d)
+cleanup() {
+  kill $(jobs -p) 2>/dev/null || true
+  if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi
+}
+trap cleanup EXIT
+cd "$work"
+
+# The skin map: the true layout skinbus-touchsim puts on the project's robot (cylinder patches
+# on the forearms, flat ones on the chest), every patch with the shipped model.
+"$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir session >/dev/null
+sed -e "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" \
+    -e "s|model: .*|model: $src/fusion/models/nominal_seed_cnn|" session/truth.yaml >map.yaml
+
+# The scene: presses on patches 1, 2 and 5 (patch 3 and 4 stay untouched), arms held bent.
+cat >presses.csv <<'CSV'
+# t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
+0.6,1.9,10,-20,2.0,5,1
+1.0,2.2,-30,35,2.5,5,2
+1.4,2.6,25,10,1.8,5,5
+CSV
+cat >joints.csv <<'CSV'
+time_s,left_shoulder_pitch_joint,left_elbow_joint,right_elbow_joint
+0,-0.4,0.6,0.9
+CSV
+
+# Five simulated patch daemons (event mode), each with the hardware UID the map gives it.
+for n in 1 2 3 4 5; do
+  uid=$(printf '0x5b%014x' "$n")
+  "$bin/skinbus-patchd" --sim -i none --candump-out "patch_$n.log" --node "$n" --uid "$uid" \
+    --contacts presses.csv --duration 3 -q &
+done
+wait
+sort -s -k1,1 patch_*.log >bus.log
+
+# DDS on loopback only, in a domain of its own.
+domain=$((RANDOM % 200 + 20))
+cat >dds.xml <<'XML'
+<CycloneDDS><Domain id="any">
+  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
+    <AllowMulticast>false</AllowMulticast></General>
+  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
+    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
+</Domain></CycloneDDS>
+XML
+export CYCLONEDDS_URI=file://$work/dds.xml
+echo "DDS domain $domain (loopback only)"
+
+"$bin/skinbus-listen" --domain "$domain" --timeout 30 --status >listen.jsonl 2>listen.err &
+listener=$!
+sleep 1.5
+"$bin/skinbus-host" --map map.yaml --replay bus.log --joints joints.csv --domain "$domain" \
+  --json --stats >host.jsonl 2>host.err
+sleep 1
+kill "$listener" 2>/dev/null || true
+wait "$listener" 2>/dev/null || true
+cat host.err
+
+# The truth: where each press lies on the robot at the held pose.
+awk -F, '!/^#/ {print $7, $3, $4}' presses.csv | "$bin/skinbus-locate" --map map.yaml \
+  --joints joints.csv - >truth.txt
+
+"$src/tests/e2e/check_contacts.py" truth.txt listen.jsonl --reference host.jsonl

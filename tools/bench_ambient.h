@@ -1,0 +1,28 @@
+// tools/bench_ambient.h: the `skinbus-bench ambient` subcommand (a per-patch model's error when
+// the ambient field turns between tare and press, with and without common-mode rejection).
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace skinbus::tools {
+
+struct AmbientBenchArgs {
+  std::string model_path = "fusion/models/nominal_seed_cnn";
+  std::vector<std::string> units = {"nominal", "fabricated"};
+  uint64_t uid = 0x5B00000000000001ull;
+  int count = 1000;
+  double field_ut = 50;       // magnitude of the ambient field
+  double max_turn_deg = 180;  // largest turn between tare and press
+  double half_extent_mm = 60;
+  double min_depth_mm = 0.5, max_depth_mm = 4;
+  std::string csv;
+};
+
+void add_ambient_options(CLI::App* sub, AmbientBenchArgs& a);
+int bench_ambient(const AmbientBenchArgs& a);
+
+}  // namespace skinbus::tools

@@ -1,0 +1,342 @@
+// `skinbus-bench host`: the host aggregator's latency and CPU use for many patches, some touched.
+//
+// A synthetic bus: every patch samples on the same SYNC at 41.7 Hz; each bus carries its
+// patches' frames one after another at their CAN FD wire time (bus/budget.h), in node order, so
+// frames arrive in bursts as they would. Touched patches send the tared fields of simulated
+// presses (the nominal unit, a pool of presses) with the contact flag; idle ones send noise
+// without it (stream mode) or nothing but heartbeats (event mode). All frames are encoded before
+// the clock starts.
+//
+// Two passes per configuration:
+//  - paced: frames are fed at their arrival times (sleeping in between); whenever the next frame
+//    is not due yet, the pipeline processes what arrived (as the daemon's poll loop does). The
+//    latency of a sample runs from its last frame's arrival to the end of process() that
+//    published its contact (the ContactArray ready for the outputs; the DDS write is not
+//    included). CPU use: the process's CPU time over the wall time.
+//  - unpaced: the same frames fed as fast as possible: host time per period, and per idle patch
+//    per period (the 0 % touched rows).
+#include <time.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "bench_host.h"
+#include "skinbus/bus/budget.h"
+#include "skinbus/bus/codec.h"
+#include "skinbus/fusion/aggregator.h"
+#include "skinbus/sim/rng.h"
+#include "skinbus/sim/simulated_patch.h"
+#include "tool_util.h"
+
+namespace skinbus::tools {
+
+namespace {
+
+constexpr double kRateHz = 41.7;
+
+uint64_t now_us() {
+  timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<uint64_t>(ts.tv_sec) * 1'000'000ull + static_cast<uint64_t>(ts.tv_nsec) / 1000;
+}
+
+double cpu_s() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + static_cast<double>(ts.tv_nsec) * 1e-9;
+}
+
+struct TimedFrame {
+  uint64_t at_us;  // arrival, from the start of the run
+  int bus;
+  bus::CanFrame frame;
+};
+
+struct Setup {
+  body_map::SkinMap map;
+  std::vector<std::string> buses;
+  std::vector<TimedFrame> frames;
+  int periods = 0;
+  int touched = 0;
+};
+
+// Tared press fields (LSB) of the nominal unit at random points, and idle noise samples.
+struct Pool {
+  std::vector<std::array<int16_t, bus::kChannelCount>> press, idle;
+};
+
+Pool make_pool(uint64_t seed) {
+  Pool pool;
+  auto model = sim::PatchModel::nominal(sim::PatchDesign{});
+  sim::SimulatedPatch patch(*model, seed);
+  sim::Rng rng(seed);
+  std::vector<double> base(static_cast<std::size_t>(patch.channel_count())), f(base.size());
+  sim::Environment env;
+  patch.tare(env, 32, base);
+  auto to_lsb = [](std::span<const double> tared, std::array<int16_t, bus::kChannelCount>* out) {
+    for (int c = 0; c < bus::kChannelCount; ++c) {
+      const double v = std::clamp(
+          std::round(tared[static_cast<std::size_t>(c)] / bus::kFieldUtPerLsb), -32767.0, 32767.0);
+      (*out)[static_cast<std::size_t>(c)] = static_cast<int16_t>(v);
+    }
+  };
+  std::vector<double> tared(base.size());
+  for (int k = 0; k < 64; ++k) {
+    const sim::Contact c{rng.uniform(-55, 55), rng.uniform(-55, 55), rng.uniform(1, 3), 5.0};
+    patch.measure(std::span<const sim::Contact>(&c, 1), env, f);
+    for (std::size_t i = 0; i < f.size(); ++i) tared[i] = f[i] - base[i];
+    to_lsb(tared, &pool.press.emplace_back());
+    patch.measure({}, env, f);
+    for (std::size_t i = 0; i < f.size(); ++i) tared[i] = f[i] - base[i];
+    to_lsb(tared, &pool.idle.emplace_back());
+  }
+  return pool;
+}
+
+Setup make_setup(const Pool& pool, int patches, double touched_fraction, double seconds,
+                 bool stream) {
+  Setup s;
+  const bus::BusTiming timing;
+  bus::PatchTraffic traffic;
+  traffic.sample_rate_hz = kRateHz;
+  const int per_bus = std::max(1, bus::compute_budget(timing, traffic, 1, 0.85).max_patches);
+  const int nbus = (patches + per_bus - 1) / per_bus;
+  for (int b = 0; b < nbus; ++b) s.buses.push_back("can" + std::to_string(b));
+  s.touched = static_cast<int>(std::lround(touched_fraction * patches));
+  for (int i = 0; i < patches; ++i) {
+    body_map::PatchPlacement p;
+    p.node_id = 1 + i / nbus;  // patches dealt over the buses: node IDs repeat across buses
+    p.hardware_uid = 0xB0000000000000ull + static_cast<uint64_t>(i);
+    p.link = "base";
+    // Spread the patches on a plane so no two presses merge.
+    p.pose_on_link.translation_mm = {200.0 * (i % 20), 200.0 * (i / 20), 0};
+    p.model = "fusion/models/nominal_seed_cnn";
+    s.map.patches.push_back(p);
+  }
+  // Touched patches: every (patches / touched)-th, so they spread over the buses.
+  std::vector<bool> is_touched(static_cast<std::size_t>(patches), false);
+  for (int k = 0; k < s.touched; ++k) {
+    is_touched[static_cast<std::size_t>(static_cast<long>(k) * patches / s.touched)] = true;
+  }
+  const double period_us = 1e6 / kRateHz;
+  s.periods = static_cast<int>(seconds * kRateHz);
+  std::array<bus::CanFrame, 4> buf;
+  std::vector<uint8_t> seq(static_cast<std::size_t>(patches), 0);
+  std::vector<double> bus_free_us(static_cast<std::size_t>(nbus), 0);
+  auto put = [&](int i, const bus::Message& m, uint64_t t0) {
+    const bus::EncodeResult r = bus::encode(m, buf);
+    const int b = i % nbus;
+    double& free_us = bus_free_us[static_cast<std::size_t>(b)];
+    free_us = std::max(free_us, static_cast<double>(t0));
+    for (std::size_t f = 0; f < r.frames; ++f) {
+      free_us += bus::frame_time_us(timing, buf[f].len);
+      s.frames.push_back({static_cast<uint64_t>(free_us), b, buf[f]});
+    }
+  };
+  // Heartbeats first, so every patch is identified by its UID before samples flow.
+  for (int i = 0; i < patches; ++i) {
+    bus::Heartbeat hb;
+    hb.state = bus::PatchState::kRunning;
+    hb.mode = stream ? bus::PatchMode::kStream : bus::PatchMode::kEvent;
+    hb.hardware_uid = s.map.patches[static_cast<std::size_t>(i)].hardware_uid;
+    hb.uptime_s = 10;
+    put(i,
+        bus::Message{static_cast<uint8_t>(s.map.patches[static_cast<std::size_t>(i)].node_id), 0,
+                     bus::FrameKind::kFd, hb},
+        0);
+  }
+  const uint64_t start_us = 50'000;
+  for (int k = 0; k < s.periods; ++k) {
+    const uint64_t t0 = start_us + static_cast<uint64_t>(k * period_us);
+    for (int i = 0; i < patches; ++i) {
+      const bool touched = is_touched[static_cast<std::size_t>(i)];
+      if (!touched && !stream) continue;
+      bus::Sample smp;
+      smp.timestamp_us = static_cast<uint32_t>(t0);
+      smp.flags = bus::sample_flags::kTared | bus::sample_flags::kSynced |
+                  (touched ? bus::sample_flags::kContact : 0);
+      const auto& f = touched
+                          ? pool.press[static_cast<std::size_t>((i + k / 40) % pool.press.size())]
+                          : pool.idle[static_cast<std::size_t>((i + k) % pool.idle.size())];
+      smp.field_lsb = f;
+      put(i,
+          bus::Message{static_cast<uint8_t>(s.map.patches[static_cast<std::size_t>(i)].node_id),
+                       seq[static_cast<std::size_t>(i)]++, bus::FrameKind::kFd, smp},
+          t0);
+    }
+  }
+  std::stable_sort(s.frames.begin(), s.frames.end(),
+                   [](const TimedFrame& a, const TimedFrame& b) { return a.at_us < b.at_us; });
+  return s;
+}
+
+struct Result {
+  int patches = 0, buses = 0, touched = 0;
+  double p50_us = NAN, p99_us = NAN, max_us = NAN, cpu_percent = NAN;
+  double period_us = NAN, idle_patch_us = NAN;
+  uint64_t estimated = 0, publications = 0;
+};
+
+std::unique_ptr<fusion::Aggregator> make_aggregator(const Setup& s, int threads) {
+  fusion::AggregatorOptions o;
+  o.runtime.threads = threads;
+  const char* src = SKINBUS_SOURCE_DIR;
+  auto a = fusion::Aggregator::create(&s.map, src, nullptr, s.buses, o);
+  if (!a) {
+    std::fprintf(stderr, "skinbus-bench host: %s\n", a.error().to_string().c_str());
+    return nullptr;
+  }
+  return std::move(*a);
+}
+
+bool run_paced(const Setup& s, int threads, Result* r) {
+  auto agg = make_aggregator(s, threads);
+  if (!agg) return false;
+  fusion::ContactArray out;
+  std::vector<double> lat;
+  lat.reserve(s.frames.size());
+  const uint64_t t_start = now_us() + 1000;
+  const double cpu0 = cpu_s();
+  bool fed = false;
+  uint64_t next_tick = 0;
+  for (std::size_t i = 0; i < s.frames.size(); ++i) {
+    const TimedFrame& f = s.frames[i];
+    const uint64_t due = t_start + f.at_us;
+    uint64_t t = now_us();
+    if (t < due) {
+      if (fed) {
+        if (agg->process(t, &out)) {
+          const uint64_t done = now_us();
+          for (uint64_t rx : agg->processed_rx_us()) lat.push_back(static_cast<double>(done - rx));
+        }
+        if (t >= next_tick) {
+          agg->tick(t);
+          next_tick = t + 100'000;
+        }
+        fed = false;
+      }
+      t = now_us();
+      if (t < due) std::this_thread::sleep_for(std::chrono::microseconds(due - t));
+    }
+    // The frame is stamped with its arrival time (as the kernel stamps it), not with when this
+    // loop got to it: a late loop shows as latency.
+    agg->on_frame(f.bus, f.frame, due);
+    fed = true;
+  }
+  const uint64_t t = now_us();
+  if (agg->process(t, &out)) {
+    const uint64_t done = now_us();
+    for (uint64_t rx : agg->processed_rx_us()) lat.push_back(static_cast<double>(done - rx));
+  }
+  const double wall = static_cast<double>(now_us() - t_start) * 1e-6;
+  r->cpu_percent = 100 * (cpu_s() - cpu0) / wall;
+  if (!lat.empty()) {
+    r->p50_us = quantile(lat, 0.5);
+    r->p99_us = quantile(lat, 0.99);
+    r->max_us = *std::max_element(lat.begin(), lat.end());
+  }
+  r->estimated = agg->stats().estimated;
+  r->publications = agg->stats().publications;
+  return true;
+}
+
+bool run_unpaced(const Setup& s, int threads, Result* r) {
+  auto agg = make_aggregator(s, threads);
+  if (!agg) return false;
+  fusion::ContactArray out;
+  // Warm-up: the heartbeats (identification), outside the timing.
+  std::size_t i = 0;
+  for (; i < s.frames.size() && s.frames[i].at_us < 50'000; ++i) {
+    agg->on_frame(s.frames[i].bus, s.frames[i].frame, s.frames[i].at_us);
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  uint64_t last = 0;
+  for (; i < s.frames.size(); ++i) {
+    const TimedFrame& f = s.frames[i];
+    if (f.at_us > last + 1000) {  // a pause on the bus: the poll loop would process here
+      (void)agg->process(f.at_us, &out);
+      agg->tick(f.at_us);
+    }
+    last = f.at_us;
+    agg->on_frame(f.bus, f.frame, f.at_us);
+  }
+  (void)agg->process(last + 1, &out);
+  const double us =
+      std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+  r->period_us = us / s.periods;
+  if (r->touched == 0) r->idle_patch_us = r->period_us / r->patches;
+  return true;
+}
+
+}  // namespace
+
+void add_host_options(CLI::App* sub, HostBenchArgs& a) {
+  sub->add_option("--patches", a.patches, "patch counts")->delimiter(',')->capture_default_str();
+  sub->add_option("--touched", a.touched_percent, "touched shares, percent")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--seconds", a.seconds, "simulated seconds per configuration")
+      ->capture_default_str();
+  sub->add_option("--mode", a.mode, "stream (idle patches send samples) or event")
+      ->capture_default_str();
+  sub->add_option("--threads", a.threads, "threads of each model runtime")->capture_default_str();
+  sub->add_option("--csv", a.csv, "write the table as CSV here");
+}
+
+int bench_host(const HostBenchArgs& a) {
+  if (a.mode != "stream" && a.mode != "event") {
+    std::fprintf(stderr, "skinbus-bench host: --mode stream or event\n");
+    return 2;
+  }
+  const bool stream = a.mode == "stream";
+  const Pool pool = make_pool(0xB0B0);
+  std::printf(
+      "host aggregator: %s mode, 41.7 Hz, SYNC'd patches, CAN FD 1/5 Mbit/s buses of up "
+      "to 85%% load, %.0f s per configuration, model runtime threads %d, %u cores\n",
+      a.mode.c_str(), a.seconds, a.threads, std::thread::hardware_concurrency());
+  std::printf("\n%8s %6s %8s %10s %10s %10s %8s %12s %14s %10s\n", "patches", "buses", "touched",
+              "p50 us", "p99 us", "max us", "CPU %", "us/period", "us/idle patch", "estimated");
+  std::vector<Result> rows;
+  for (int n : a.patches) {
+    for (double pct : a.touched_percent) {
+      const Setup s = make_setup(pool, n, pct / 100, a.seconds, stream);
+      Result r;
+      r.patches = n;
+      r.buses = static_cast<int>(s.buses.size());
+      r.touched = s.touched;
+      if (!run_paced(s, a.threads, &r) || !run_unpaced(s, a.threads, &r)) return 1;
+      std::printf("%8d %6d %7.0f%% %10.0f %10.0f %10.0f %8.1f %12.1f %14s %10llu\n", n, r.buses,
+                  pct, r.p50_us, r.p99_us, r.max_us, r.cpu_percent, r.period_us,
+                  std::isfinite(r.idle_patch_us)
+                      ? std::to_string(r.idle_patch_us).substr(0, 6).c_str()
+                      : "-",
+                  static_cast<unsigned long long>(r.estimated));
+      std::fflush(stdout);
+      rows.push_back(r);
+    }
+  }
+  std::printf(
+      "\nlatency: last frame of a sample on the bus -> its ContactArray ready (p50/p99/max "
+      "over every touched sample; '-' rows have none). CPU %%: process CPU time / wall "
+      "time while paced. us/period: host time per 1/41.7 s period when fed as fast as "
+      "possible; us/idle patch: that over the patches, with none touched.\n");
+  if (!a.csv.empty()) {
+    std::ofstream f(a.csv);
+    f << "mode,patches,buses,touched,p50_us,p99_us,max_us,cpu_percent,us_per_period,us_per_idle_"
+         "patch\n";
+    for (const Result& r : rows) {
+      f << a.mode << ',' << r.patches << ',' << r.buses << ',' << r.touched << ',' << r.p50_us
+        << ',' << r.p99_us << ',' << r.max_us << ',' << r.cpu_percent << ',' << r.period_us << ','
+        << r.idle_patch_us << '\n';
+    }
+  }
+  return 0;
+}
+
+}  // namespace skinbus::tools

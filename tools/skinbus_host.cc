@@ -1,0 +1,544 @@
+// skinbus-host: the host aggregator daemon. Reads patches' frames from SocketCAN interfaces or
+// candump logs, estimates contacts with each patch's model, places them on the robot and
+// publishes them on DDS (rt/skin/contacts, rt/skin/patch_status) and/or as JSON lines.
+//
+//   skinbus-host --map skin.yaml -i can0 -i can1
+//   skinbus-host --map skin.yaml --replay bus.log --fast --json --no-dds
+//   candump -L can0 | skinbus-host --map skin.yaml --replay - --json
+#include <CLI/CLI.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cinttypes>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "skinbus/body_map/joint_trajectory.h"
+#include "skinbus/body_map/robot_model.h"
+#include "skinbus/body_map/skin_map.h"
+#include "skinbus/bus/candump.h"
+#include "skinbus/bus/socketcan.h"
+#include "skinbus/fusion/aggregator.h"
+#include "skinbus/fusion/contacts_json.h"
+#ifdef SKINBUS_HAVE_DDS
+#include "skinbus/fusion/dds.h"
+#endif
+#include "tool_util.h"
+
+using namespace skinbus;
+
+namespace {
+
+struct HostArgs {
+  std::string map_path, robot_path;
+  std::vector<std::string> interfaces;
+  std::string replay;
+  bool fast = false;
+  std::string joints = "auto";  // auto | dds | none | FILE
+  bool json = false, json_status = false, dds = true;
+  int domain = -1;
+  double duration_s = 0;
+  double status_period_s = 1.0;
+  std::string backend = "auto", precision = "float32";
+  std::string ambient = "quiet-mean";
+  int threads = 1;
+  bool stats = false, quiet = false;
+  std::string base_frame = "base_link";
+};
+
+// Publication sinks: JSON lines on stdout, DDS.
+class Outputs {
+ public:
+  explicit Outputs(const HostArgs& a) : json_(a.json), json_status_(a.json_status) {
+#ifdef SKINBUS_HAVE_DDS
+    if (a.dds) {
+      fusion::DdsOptions o;
+      if (a.domain >= 0) o.domain_id = static_cast<uint32_t>(a.domain);
+      auto p = fusion::SkinPublisher::create(o);
+      if (!p) throw std::runtime_error(p.error().to_string());
+      pub_ = std::move(*p);
+    }
+#else
+    if (a.dds)
+      throw std::runtime_error("this build has no DDS (Cyclone DDS not found): use --no-dds");
+#endif
+  }
+  void contacts(const fusion::ContactArray& c) {
+    if (json_) {
+      std::fputs(fusion::contacts_to_json(c).c_str(), stdout);
+      std::fputc('\n', stdout);
+      std::fflush(stdout);
+    }
+#ifdef SKINBUS_HAVE_DDS
+    if (pub_) {
+      Status st = pub_->publish(c);
+      if (!st.ok())
+        std::fprintf(stderr, "skinbus-host: publish: %s\n", st.error().to_string().c_str());
+    }
+#endif
+  }
+  void status(const fusion::PatchStatusArray& s) {
+    if (json_status_) {
+      std::fputs(fusion::patch_status_to_json(s).c_str(), stdout);
+      std::fputc('\n', stdout);
+      std::fflush(stdout);
+    }
+#ifdef SKINBUS_HAVE_DDS
+    if (pub_) {
+      Status st = pub_->publish(s);
+      if (!st.ok())
+        std::fprintf(stderr, "skinbus-host: publish: %s\n", st.error().to_string().c_str());
+    }
+#endif
+  }
+
+ private:
+  bool json_, json_status_;
+#ifdef SKINBUS_HAVE_DDS
+  std::unique_ptr<fusion::SkinPublisher> pub_;
+#endif
+};
+
+// Joint states: a trajectory file (time from the start of the run), DDS, or none.
+class Joints {
+ public:
+  Joints(const HostArgs& a, const body_map::RobotModel* robot) {
+    std::string mode = a.joints;
+    if (mode == "auto") mode = robot == nullptr ? "none" : (a.dds ? "dds" : "none");
+    if (mode == "none") return;
+    if (robot == nullptr) throw std::runtime_error("--joints needs a robot (the map's or --robot)");
+    if (mode == "dds") {
+#ifdef SKINBUS_HAVE_DDS
+      fusion::DdsOptions o;
+      if (a.domain >= 0) o.domain_id = static_cast<uint32_t>(a.domain);
+      auto s = fusion::JointStateSubscriber::create(o);
+      if (!s) throw std::runtime_error(s.error().to_string());
+      sub_ = std::move(*s);
+      return;
+#else
+      throw std::runtime_error("--joints dds: this build has no DDS");
+#endif
+    }
+    auto t = body_map::load_joint_trajectory(mode);
+    if (!t) throw std::runtime_error(t.error().to_string());
+    traj_ = std::move(*t);
+    have_traj_ = true;
+    q_.resize(traj_.names.size());
+  }
+  // Feeds the aggregator the joint state for host time `now_us`; `run_start_us` is time zero of
+  // a trajectory file.
+  void update(fusion::Aggregator& agg, uint64_t now_us, uint64_t run_start_us) {
+    if (have_traj_) {
+      traj_.sample(static_cast<double>(now_us - run_start_us) * 1e-6, q_);
+      agg.set_joint_state(traj_.names, q_, now_us);
+    }
+#ifdef SKINBUS_HAVE_DDS
+    if (sub_) {
+      fusion::JointStateSample js;
+      if (sub_->take_latest(&js)) {
+        agg.set_joint_state(js.names, js.positions, js.received_us, /*prismatic_in_metres=*/true);
+      }
+    }
+#endif
+  }
+
+ private:
+  bool have_traj_ = false;
+  body_map::JointTrajectory traj_;
+  std::vector<double> q_;
+#ifdef SKINBUS_HAVE_DDS
+  std::unique_ptr<fusion::JointStateSubscriber> sub_;
+#endif
+};
+
+struct Runner {
+  Runner(const HostArgs& a, fusion::Aggregator& g, Outputs& o, Joints& j)
+      : args(a), agg(g), out(o), joints(j) {}
+  const HostArgs& args;
+  fusion::Aggregator& agg;
+  Outputs& out;
+  Joints& joints;
+  uint64_t run_start_us = 0;
+  uint64_t next_status_us = 0, next_tick_us = 0;
+  fusion::ContactArray contacts;
+  fusion::PatchStatusArray status;
+  std::vector<double> latency_us;
+
+  void after_frames(uint64_t now_us, bool measure_latency) {
+    joints.update(agg, now_us, run_start_us);
+    if (agg.process(now_us, &contacts)) {
+      out.contacts(contacts);
+      if (measure_latency) {
+        const uint64_t done = bus::realtime_now_us();
+        for (uint64_t rx : agg.processed_rx_us()) {
+          latency_us.push_back(static_cast<double>(done > rx ? done - rx : 0));
+        }
+      }
+    }
+    if (now_us >= next_tick_us) {
+      agg.tick(now_us);
+      next_tick_us = now_us + 100'000;
+    }
+    if (now_us >= next_status_us) {
+      agg.status(now_us, &status);
+      print_events();
+      out.status(status);
+      next_status_us = now_us + static_cast<uint64_t>(args.status_period_s * 1e6);
+    }
+  }
+  void print_events() {
+    if (args.quiet) return;
+    for (const fusion::PatchEvent& e : status.events) {
+      const bool loud = e.kind == fusion::PatchEventKind::kDuplicateId;
+      std::fprintf(stderr, "skinbus-host: %s%s: %s\n", loud ? "WARNING " : "",
+                   std::string(fusion::patch_event_name(e.kind)).c_str(), e.detail.c_str());
+    }
+  }
+};
+
+constexpr uint64_t kFlushUs = 500'000;  // past every hold time: all contacts end
+
+int run_replay(const HostArgs& a, Runner& r) {
+  std::FILE* f = a.replay == "-" ? stdin : std::fopen(a.replay.c_str(), "r");
+  if (f == nullptr) {
+    std::fprintf(stderr, "skinbus-host: cannot read '%s'\n", a.replay.c_str());
+    return 1;
+  }
+  bus::CandumpReader reader(f);
+  bus::CandumpRecord rec;
+  std::map<std::string, int, std::less<>> bus_of;  // interface name -> bus index
+  std::vector<std::string> names = a.interfaces;
+  for (std::size_t i = 0; i < names.size(); ++i) bus_of[names[i]] = static_cast<int>(i);
+  uint64_t log_start_us = 0, wall_start_us = 0, last_process_us = 0, log_us = 0;
+  bool first = true;
+  const uint64_t end_log_us = a.duration_s > 0 ? static_cast<uint64_t>(a.duration_s * 1e6) : 0;
+  for (;;) {
+    if (tools::stop_requested()) break;
+    const auto st = reader.next(&rec);
+    if (st == bus::CandumpReader::Status::kEof) break;
+    if (st == bus::CandumpReader::Status::kBadLine) continue;  // counted by the reader
+    if (first) {
+      log_start_us = rec.timestamp_us;
+      wall_start_us = bus::realtime_now_us();
+      r.run_start_us = a.fast ? log_start_us : wall_start_us;
+      r.next_status_us = r.run_start_us;
+      first = false;
+    }
+    log_us = rec.timestamp_us;
+    if (end_log_us > 0 && log_us - log_start_us > end_log_us) break;
+    auto it = bus_of.find(rec.iface);
+    int b = 0;
+    if (it != bus_of.end()) {
+      b = it->second;
+    } else if (bus_of.size() < static_cast<std::size_t>(fusion::kMaxBuses) &&
+               a.interfaces.empty()) {
+      b = 0;  // a log of one interface, or every interface onto bus 0 when none is named
+    } else {
+      continue;
+    }
+    uint64_t rx_us;
+    if (a.fast) {
+      rx_us = log_us;
+      // Batch what arrived within 1 ms of log time, as a poll loop would.
+      if (rx_us > last_process_us + 1000) {
+        r.after_frames(rx_us, false);
+        last_process_us = rx_us;
+      }
+    } else {
+      const uint64_t due = wall_start_us + (log_us - log_start_us);
+      uint64_t now = bus::realtime_now_us();
+      if (due > now) {
+        r.after_frames(now, true);  // the bus is quiet until the next frame: publish now
+        now = bus::realtime_now_us();
+        if (due > now) std::this_thread::sleep_for(std::chrono::microseconds(due - now));
+        now = bus::realtime_now_us();
+      }
+      rx_us = now;
+    }
+    r.agg.on_frame(b, rec.frame, rx_us);
+  }
+  const uint64_t end_us = a.fast ? log_us + 1 : bus::realtime_now_us();
+  r.after_frames(end_us, !a.fast);
+  // The end of the log: held contacts run out, and the final status goes out.
+  r.next_status_us = 0;
+  r.after_frames(end_us + kFlushUs, false);
+  if (reader.bad_lines() > 0) {
+    std::fprintf(stderr, "skinbus-host: %" PRIu64 " log line(s) could not be parsed\n",
+                 reader.bad_lines());
+  }
+  if (f != stdin) std::fclose(f);
+  return 0;
+}
+
+}  // namespace
+
+namespace {
+
+// True when the interface is administratively up (IFF_UP in /sys/class/net/<name>/flags).
+bool interface_up(const std::string& name) {
+  std::FILE* f = std::fopen(("/sys/class/net/" + name + "/flags").c_str(), "r");
+  if (f == nullptr) return false;
+  unsigned flags = 0;
+  const bool ok = std::fscanf(f, "%x", &flags) == 1;
+  std::fclose(f);
+  return ok && (flags & 0x1u) != 0;
+}
+
+int run_live(const HostArgs& a, Runner& r) {
+  bus::SocketCanOptions so;
+  so.fd = true;
+  so.rcvbuf_bytes = 1 << 20;
+  std::vector<std::unique_ptr<bus::SocketCanPort>> ports(a.interfaces.size());
+  std::vector<uint64_t> retry_us(a.interfaces.size(), 0);
+  std::vector<bool> down(a.interfaces.size(), false);
+  std::unique_ptr<bus::CanPoller> poller;
+  auto rebuild_poller = [&]() {
+    poller = std::make_unique<bus::CanPoller>();
+    for (auto& p : ports) {
+      if (p) (void)poller->add(p.get());
+    }
+  };
+  for (std::size_t i = 0; i < ports.size(); ++i) {
+    auto p = bus::SocketCanPort::open(a.interfaces[i], so);
+    if (!p) {
+      std::fprintf(stderr, "skinbus-host: %s\n", p.error().to_string().c_str());
+      return 1;
+    }
+    ports[i] = std::move(*p);
+  }
+  rebuild_poller();
+  std::map<int, int> bus_of_fd;
+  auto index_fds = [&]() {
+    bus_of_fd.clear();
+    for (std::size_t i = 0; i < ports.size(); ++i) {
+      if (ports[i]) bus_of_fd[ports[i]->fd()] = static_cast<int>(i);
+    }
+  };
+  index_fds();
+  r.run_start_us = bus::realtime_now_us();
+  r.next_status_us = r.run_start_us;
+  const uint64_t end_us =
+      a.duration_s > 0 ? r.run_start_us + static_cast<uint64_t>(a.duration_s * 1e6) : UINT64_MAX;
+  bool changed = false;
+  while (!tools::stop_requested()) {
+    const uint64_t now = bus::realtime_now_us();
+    if (now >= end_us) break;
+    auto n = poller->poll(
+        20,
+        [&](bus::SocketCanPort& port, const bus::CanFrame& frame, const bus::RxMeta& meta) {
+          if (frame.error) return;  // controller events: counted by the port
+          r.agg.on_frame(bus_of_fd[port.fd()], frame, meta.timestamp_us);
+        },
+        [&](bus::SocketCanPort& port, const Error& e) {
+          const int b = bus_of_fd[port.fd()];
+          const std::size_t bi = static_cast<std::size_t>(b);
+          if (!down[bi]) {
+            down[bi] = true;
+            r.agg.add_event(fusion::PatchEventKind::kInterfaceDown, bus::realtime_now_us(),
+                            port.name() + ": " + e.to_string() + " (reopening every second)", -1);
+          }
+          retry_us[bi] = bus::realtime_now_us() + 1'000'000;
+          changed = true;
+        });
+    if (!n.ok()) {
+      std::fprintf(stderr, "skinbus-host: %s\n", n.error().to_string().c_str());
+      return 1;
+    }
+    if (changed) {  // close the failed ports; reopen below
+      changed = false;
+      for (std::size_t i = 0; i < ports.size(); ++i) {
+        if (down[i] && ports[i]) ports[i].reset();
+      }
+      rebuild_poller();
+      index_fds();
+    }
+    const uint64_t t = bus::realtime_now_us();
+    for (std::size_t i = 0; i < ports.size(); ++i) {
+      if (!down[i] || t < retry_us[i]) continue;
+      if (!interface_up(a.interfaces[i])) {  // a socket binds to a down interface too
+        retry_us[i] = t + 1'000'000;
+        continue;
+      }
+      auto p = bus::SocketCanPort::open(a.interfaces[i], so);
+      if (p) {
+        ports[i] = std::move(*p);
+        down[i] = false;
+        r.agg.add_event(fusion::PatchEventKind::kInterfaceUp, t, a.interfaces[i] + ": reopened",
+                        -1);
+        rebuild_poller();
+        index_fds();
+      } else {
+        retry_us[i] = t + 1'000'000;
+      }
+    }
+    r.after_frames(t, true);
+  }
+  r.next_status_us = 0;
+  r.after_frames(bus::realtime_now_us() + kFlushUs, false);
+  return 0;
+}
+
+fusion::RuntimeBackend parse_backend(const std::string& s) {
+  if (s == "auto") return fusion::RuntimeBackend::kAuto;
+  if (s == "kernels") return fusion::RuntimeBackend::kKernels;
+  if (s == "portable") return fusion::RuntimeBackend::kPortable;
+  if (s == "onednn") return fusion::RuntimeBackend::kOneDnn;
+  throw std::invalid_argument("--backend: auto, kernels, portable or onednn");
+}
+
+fusion::RuntimePrecision parse_precision(const std::string& s) {
+  if (s == "float32") return fusion::RuntimePrecision::kFloat32;
+  if (s == "bfloat16") return fusion::RuntimePrecision::kBfloat16;
+  if (s == "int8") return fusion::RuntimePrecision::kInt8;
+  throw std::invalid_argument("--precision: float32, bfloat16 or int8");
+}
+
+fusion::CommonModeMethod parse_ambient(const std::string& s) {
+  if (s == "none") return fusion::CommonModeMethod::kNone;
+  if (s == "median") return fusion::CommonModeMethod::kMedian;
+  if (s == "quiet-mean") return fusion::CommonModeMethod::kQuietMean;
+  throw std::invalid_argument("--ambient: none, median or quiet-mean");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "skinbus-host: the host aggregator. Reads the patches' frames from SocketCAN interfaces\n"
+      "(-i, several allowed) or from a candump log (--replay, '-' for stdin), keeps a registry of\n"
+      "the patches it hears (state, reboots, duplicate node IDs, clock offset and drift), runs\n"
+      "each touched patch's model (batched per model file), rejects the common-mode field a\n"
+      "moving limb sees, places contacts on the robot through the skin map and forward\n"
+      "kinematics, merges presses seen by neighbouring patches and tracks them with stable IDs.\n\n"
+      "Outputs: DDS topics rt/skin/contacts and rt/skin/patch_status (ROS 2 compatible,\n"
+      "docs/dds.md), and/or JSON lines on stdout (--json, --json-status). Events (patches\n"
+      "appearing, going stale, rebooting, duplicate IDs, ...) are logged on stderr.\n\n"
+      "Joint states (--joints): 'dds' (rt/joint_states), a trajectory file (CSV: time_s,<joint>,\n"
+      "...; docs/aggregator.md), or 'none' (the robot's zero pose). 'auto': dds when DDS output\n"
+      "is on and the map names a robot, else none.\n\n"
+      "Examples:\n"
+      "  skinbus-host --map skin.yaml -i can0 -i can1\n"
+      "  skinbus-host --map skin.yaml --replay bus.log --fast --json --no-dds --stats\n"
+      "  candump -L can0 | skinbus-host --map skin.yaml --replay - --json --no-dds\n\n"
+      "Exit status: 0 done, 1 a device or file failed, 2 bad arguments."};
+  HostArgs a;
+  app.add_option("--map", a.map_path, "skin map (YAML, docs/body_map.md)")->required();
+  app.add_option("--robot", a.robot_path, "robot description (URDF); default: the map's");
+  app.add_option("-i,--interface", a.interfaces,
+                 "SocketCAN interface (repeat for several buses); with --replay: the log's "
+                 "interface names, in bus order");
+  app.add_option("--replay", a.replay, "candump -L log to replay ('-': stdin)");
+  app.add_flag("--fast", a.fast, "--replay: as fast as possible (log time is host time)");
+  app.add_option("--joints", a.joints, "auto | dds | none | FILE (joint trajectory CSV)")
+      ->capture_default_str();
+  app.add_flag("--json", a.json, "print contacts as JSON lines on stdout");
+  app.add_flag("--json-status", a.json_status, "print patch status as JSON lines on stdout");
+  app.add_flag("!--no-dds", a.dds, "do not publish on DDS");
+  app.add_option("--domain", a.domain, "DDS domain ID (default: Cyclone DDS's, usually 0)");
+  app.add_option("--duration", a.duration_s, "stop after this many seconds (0: run to the end)")
+      ->capture_default_str();
+  app.add_option("--status-period", a.status_period_s, "seconds between patch status messages")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 3600.0));
+  app.add_option("--backend", a.backend, "network runtime: auto, kernels, portable, onednn")
+      ->capture_default_str();
+  app.add_option("--precision", a.precision, "network precision: float32, bfloat16, int8")
+      ->capture_default_str();
+  app.add_option("--threads", a.threads, "threads per model runtime")->capture_default_str();
+  app.add_option("--ambient", a.ambient, "common-mode rejection: quiet-mean, median, none")
+      ->capture_default_str();
+  app.add_option("--base-frame", a.base_frame, "frame_id of the published contacts")
+      ->capture_default_str();
+  app.add_flag("--stats", a.stats, "print pipeline statistics and latency at the end (stderr)");
+  app.add_flag("-q,--quiet", a.quiet, "do not log events");
+  CLI11_PARSE(app, argc, argv);
+  try {
+    if (a.replay.empty() && a.interfaces.empty()) {
+      throw std::invalid_argument("give -i INTERFACE (live) or --replay LOG");
+    }
+    fusion::AggregatorOptions o;
+    o.runtime.backend = parse_backend(a.backend);
+    o.runtime.precision = parse_precision(a.precision);
+    o.runtime.threads = a.threads;
+    o.common_mode.method = parse_ambient(a.ambient);
+    o.base_frame = a.base_frame;
+    auto map = body_map::load_skin_map_file(a.map_path);
+    if (!map) {
+      std::fprintf(stderr, "skinbus-host: %s\n", map.error().to_string().c_str());
+      return 1;
+    }
+    const std::string map_dir = std::filesystem::path(a.map_path).parent_path().string();
+    std::string robot_path = a.robot_path;
+    if (robot_path.empty() && !map->robot.empty()) {
+      std::filesystem::path p(map->robot);
+      robot_path = p.is_relative() && !map_dir.empty()
+                       ? (std::filesystem::path(map_dir) / p).string()
+                       : p.string();
+    }
+    std::unique_ptr<body_map::RobotModel> robot;
+    if (!robot_path.empty()) {
+      auto rm = body_map::RobotModel::from_urdf_file(robot_path);
+      if (!rm) {
+        std::fprintf(stderr, "skinbus-host: %s\n", rm.error().to_string().c_str());
+        return 1;
+      }
+      robot = std::make_unique<body_map::RobotModel>(std::move(*rm));
+      if (Status st = body_map::validate_skin_map(*map, robot.get()); !st.ok()) {
+        std::fprintf(stderr, "skinbus-host: %s\n", st.error().to_string().c_str());
+        return 1;
+      }
+    }
+    std::vector<std::string> buses = a.interfaces;
+    if (buses.empty()) buses.push_back("can0");
+    auto agg = fusion::Aggregator::create(&*map, map_dir, robot.get(), buses, o);
+    if (!agg) {
+      std::fprintf(stderr, "skinbus-host: %s\n", agg.error().to_string().c_str());
+      return 2;
+    }
+    if (!a.quiet) {
+      std::fprintf(stderr, "skinbus-host: %zu patches in the map, robot %s, models:\n",
+                   map->patches.size(), robot ? robot->name().c_str() : "(none)");
+      for (const std::string& m : (*agg)->model_descriptions()) {
+        std::fprintf(stderr, "  %s\n", m.c_str());
+      }
+    }
+    Outputs out(a);
+    Joints joints(a, robot.get());
+    tools::install_stop_handler();
+    Runner r(a, **agg, out, joints);
+    const int rc = a.replay.empty() ? run_live(a, r) : run_replay(a, r);
+    if (a.stats) {
+      const fusion::AggregatorStats& s = (*agg)->stats();
+      const bus::ReassemblyStats rs = (*agg)->reassembly_stats();
+      std::fprintf(stderr,
+                   "skinbus-host: frames %" PRIu64 " (rejected %" PRIu64 ", integrity %" PRIu64
+                   "), samples %" PRIu64 " (idle %" PRIu64 ", untared %" PRIu64
+                   ", unattributed %" PRIu64 ", superseded %" PRIu64 "), estimated %" PRIu64
+                   " in %" PRIu64 " runs (rejected %" PRIu64 "), publications %" PRIu64 "\n",
+                   s.frames, rs.rejected, rs.integrity_failures, s.samples, s.idle_samples,
+                   s.untared_samples, s.unattributed, s.superseded, s.estimated, s.model_runs,
+                   s.rejected, s.publications);
+      if (!r.latency_us.empty()) {
+        std::fprintf(stderr,
+                     "skinbus-host: latency frame arrival -> publication over %zu samples: "
+                     "p50 %.0f us, p99 %.0f us, max %.0f us\n",
+                     r.latency_us.size(), tools::quantile(r.latency_us, 0.5),
+                     tools::quantile(r.latency_us, 0.99),
+                     *std::max_element(r.latency_us.begin(), r.latency_us.end()));
+      }
+    }
+    return rc;
+  } catch (const std::invalid_argument& e) {
+    std::fprintf(stderr, "skinbus-host: %s\n", e.what());
+    return 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "skinbus-host: %s\n", e.what());
+    return 1;
+  }
+}

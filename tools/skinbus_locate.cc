@@ -1,0 +1,127 @@
+// skinbus-locate: where a patch-local point (node, u, v) lies on the robot, in the base frame.
+//
+//   skinbus-locate --map skin.yaml 3 12.5 -20
+//   echo "3 12.5 -20" | skinbus-locate --map skin.yaml --joints traj.csv --time 1.5 -
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "skinbus/body_map/joint_trajectory.h"
+#include "skinbus/body_map/robot_model.h"
+#include "skinbus/body_map/skin_map.h"
+
+using namespace skinbus;
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "skinbus-locate: maps patch-local coordinates to the robot's base frame, as the host\n"
+      "aggregator places contacts: the point (u, v) on the patch's surface (its geometry in the\n"
+      "skin map), through the patch's pose on its link, through forward kinematics at the joint\n"
+      "positions of a trajectory file at --time (or the zero pose). Prints one line a point:\n"
+      "  node link x_mm y_mm z_mm nx ny nz\n"
+      "Give the point as arguments (NODE U_MM V_MM) or '-' to read such lines from stdin.\n\n"
+      "Example:\n"
+      "  skinbus-locate --map skin.yaml --joints arms.csv --time 2.0 3 12.5 -20"};
+  std::string map_path, robot_path, joints_path;
+  double time_s = 0;
+  std::vector<std::string> point;
+  app.add_option("--map", map_path, "skin map (YAML)")->required();
+  app.add_option("--robot", robot_path, "robot (URDF); default: the map's");
+  app.add_option("--joints", joints_path, "joint trajectory (CSV: time_s,<joint>,...)");
+  app.add_option("--time", time_s, "time into the trajectory, s")->capture_default_str();
+  app.add_option("point", point, "NODE U_MM V_MM, or '-' for stdin");
+  CLI11_PARSE(app, argc, argv);
+  auto map = body_map::load_skin_map_file(map_path);
+  if (!map) {
+    std::fprintf(stderr, "skinbus-locate: %s\n", map.error().to_string().c_str());
+    return 1;
+  }
+  const std::filesystem::path dir = std::filesystem::path(map_path).parent_path();
+  if (robot_path.empty() && !map->robot.empty()) {
+    const std::filesystem::path p(map->robot);
+    robot_path = (p.is_relative() ? dir / p : p).string();
+  }
+  std::unique_ptr<body_map::RobotModel> robot;
+  std::vector<body_map::Pose> poses;
+  if (!robot_path.empty()) {
+    auto r = body_map::RobotModel::from_urdf_file(robot_path);
+    if (!r) {
+      std::fprintf(stderr, "skinbus-locate: %s\n", r.error().to_string().c_str());
+      return 1;
+    }
+    robot = std::make_unique<body_map::RobotModel>(std::move(*r));
+    std::vector<double> q(static_cast<std::size_t>(robot->joint_count()), 0.0);
+    if (!joints_path.empty()) {
+      auto t = body_map::load_joint_trajectory(joints_path);
+      if (!t) {
+        std::fprintf(stderr, "skinbus-locate: %s\n", t.error().to_string().c_str());
+        return 1;
+      }
+      std::vector<double> v(t->names.size());
+      t->sample(time_s, v);
+      for (std::size_t i = 0; i < v.size(); ++i) {
+        const int j = robot->find_joint(t->names[i]);
+        if (j < 0) {
+          std::fprintf(stderr, "skinbus-locate: joint '%s' is not in the robot\n",
+                       t->names[i].c_str());
+          return 2;
+        }
+        q[static_cast<std::size_t>(j)] = v[i];
+      }
+    }
+    poses.resize(static_cast<std::size_t>(robot->link_count()));
+    if (Status st = robot->forward_kinematics(q, poses); !st.ok()) {
+      std::fprintf(stderr, "skinbus-locate: %s\n", st.error().to_string().c_str());
+      return 1;
+    }
+  }
+  auto locate = [&](int node, double u, double v) {
+    const body_map::PatchPlacement* p = map->find_node(node);
+    if (p == nullptr) {
+      std::fprintf(stderr, "skinbus-locate: node %d is not in the map\n", node);
+      return false;
+    }
+    body_map::SurfacePoint s = body_map::link_surface_point(*p, u, v, 0.0);
+    if (robot) {
+      const int l = robot->find_link(p->link);
+      if (l >= 0) {
+        s.point_mm = poses[static_cast<std::size_t>(l)].apply(s.point_mm);
+        s.normal = poses[static_cast<std::size_t>(l)].rotation * s.normal;
+      }
+    }
+    std::printf("%d %s %.3f %.3f %.3f %.6f %.6f %.6f\n", node, p->link.c_str(), s.point_mm.x(),
+                s.point_mm.y(), s.point_mm.z(), s.normal.x(), s.normal.y(), s.normal.z());
+    return true;
+  };
+  bool ok = true;
+  if (point.size() == 1 && point[0] == "-") {
+    std::string line;
+    while (std::getline(std::cin, line)) {
+      std::istringstream in(line);
+      int node;
+      double u, v;
+      if (!(in >> node >> u >> v)) {
+        std::fprintf(stderr, "skinbus-locate: expected 'NODE U_MM V_MM', got '%s'\n", line.c_str());
+        ok = false;
+        continue;
+      }
+      ok = locate(node, u, v) && ok;
+    }
+  } else if (point.size() == 3) {
+    try {
+      ok = locate(std::stoi(point[0]), std::stod(point[1]), std::stod(point[2]));
+    } catch (const std::exception&) {
+      std::fprintf(stderr, "skinbus-locate: NODE U_MM V_MM must be numbers\n");
+      return 2;
+    }
+  } else {
+    std::fprintf(stderr, "skinbus-locate: give NODE U_MM V_MM or '-' (see --help)\n");
+    return 2;
+  }
+  return ok ? 0 : 1;
+}
