@@ -40,6 +40,7 @@ struct HostArgs {
   std::vector<std::string> interfaces;
   std::string replay;
   bool fast = false;
+  bool live_and_replay = false;
   std::string joints = "auto";  // auto | dds | none | FILE
   bool json = false, json_status = false, dds = true;
   int domain = -1;
@@ -290,7 +291,66 @@ bool interface_up(const std::string& name) {
   return ok && (flags & 0x1u) != 0;
 }
 
+// A candump log replayed at recorded speed next to live interfaces: its frames go to one more
+// bus (after the live ones), whatever interface names the log holds.
+class PacedLog {
+ public:
+  PacedLog(std::FILE* f, int bus) : f_(f), reader_(f), bus_(bus) { advance(); }
+  ~PacedLog() {
+    if (f_ != stdin) std::fclose(f_);
+  }
+  // Milliseconds until the next record is due (0: now), or -1 at the end of the log.
+  int wait_ms(uint64_t now_us) {
+    if (!have_) return -1;
+    const uint64_t due = due_us();
+    return due <= now_us ? 0 : static_cast<int>(std::min<uint64_t>((due - now_us) / 1000, 1000));
+  }
+  // Feeds every record due by `now_us`.
+  void feed_due(fusion::Aggregator& agg, uint64_t now_us) {
+    while (have_ && due_us() <= now_us) {
+      agg.on_frame(bus_, rec_.frame, now_us);
+      advance();
+    }
+  }
+  uint64_t bad_lines() const { return reader_.bad_lines(); }
+
+ private:
+  uint64_t due_us() const { return wall_start_us_ + (rec_.timestamp_us - log_start_us_); }
+  void advance() {
+    for (;;) {
+      const auto st = reader_.next(&rec_);
+      if (st == bus::CandumpReader::Status::kEof) {
+        have_ = false;
+        return;
+      }
+      if (st == bus::CandumpReader::Status::kRecord) break;
+    }
+    if (!started_) {
+      started_ = true;
+      log_start_us_ = rec_.timestamp_us;
+      wall_start_us_ = bus::realtime_now_us();
+    }
+    if (rec_.timestamp_us < log_start_us_) rec_.timestamp_us = log_start_us_;
+    have_ = true;
+  }
+  std::FILE* f_;
+  bus::CandumpReader reader_;
+  bus::CandumpRecord rec_;
+  int bus_;
+  bool have_ = false, started_ = false;
+  uint64_t log_start_us_ = 0, wall_start_us_ = 0;
+};
+
 int run_live(const HostArgs& a, Runner& r) {
+  std::unique_ptr<PacedLog> log;
+  if (!a.replay.empty()) {
+    std::FILE* f = a.replay == "-" ? stdin : std::fopen(a.replay.c_str(), "r");
+    if (f == nullptr) {
+      std::fprintf(stderr, "skinbus-host: cannot read '%s'\n", a.replay.c_str());
+      return 1;
+    }
+    log = std::make_unique<PacedLog>(f, static_cast<int>(a.interfaces.size()));
+  }
   bus::SocketCanOptions so;
   so.fd = true;
   so.rcvbuf_bytes = 1 << 20;
@@ -329,8 +389,13 @@ int run_live(const HostArgs& a, Runner& r) {
   while (!tools::stop_requested()) {
     const uint64_t now = bus::realtime_now_us();
     if (now >= end_us) break;
+    int timeout_ms = 20;
+    if (log) {
+      const int w = log->wait_ms(now);
+      if (w >= 0) timeout_ms = std::min(timeout_ms, w);
+    }
     auto n = poller->poll(
-        20,
+        timeout_ms,
         [&](bus::SocketCanPort& port, const bus::CanFrame& frame, const bus::RxMeta& meta) {
           if (frame.error) return;  // controller events: counted by the port
           r.agg.on_frame(bus_of_fd[port.fd()], frame, meta.timestamp_us);
@@ -359,6 +424,7 @@ int run_live(const HostArgs& a, Runner& r) {
       index_fds();
     }
     const uint64_t t = bus::realtime_now_us();
+    if (log) log->feed_due(r.agg, t);
     for (std::size_t i = 0; i < ports.size(); ++i) {
       if (!down[i] || t < retry_us[i]) continue;
       if (!interface_up(a.interfaces[i])) {  // a socket binds to a down interface too
@@ -381,6 +447,10 @@ int run_live(const HostArgs& a, Runner& r) {
   }
   r.next_status_us = 0;
   r.after_frames(bus::realtime_now_us() + kFlushUs, false);
+  if (log && log->bad_lines() > 0) {
+    std::fprintf(stderr, "skinbus-host: %" PRIu64 " log line(s) could not be parsed\n",
+                 log->bad_lines());
+  }
   return 0;
 }
 
@@ -425,7 +495,8 @@ int main(int argc, char** argv) {
       "Examples:\n"
       "  skinbus-host --map skin.yaml -i can0 -i can1\n"
       "  skinbus-host --map skin.yaml --replay bus.log --fast --json --no-dds --stats\n"
-      "  candump -L can0 | skinbus-host --map skin.yaml --replay - --json --no-dds\n\n"
+      "  candump -L can0 | skinbus-host --map skin.yaml --replay - --json --no-dds\n"
+      "  skinbus-host --map skin.yaml -i can0 --replay other_limb.log --live-and-replay\n\n"
       "Exit status: 0 done, 1 a device or file failed, 2 bad arguments."};
   HostArgs a;
   app.add_option("--map", a.map_path, "skin map (YAML, docs/body_map.md)")->required();
@@ -435,6 +506,9 @@ int main(int argc, char** argv) {
                  "interface names, in bus order");
   app.add_option("--replay", a.replay, "candump -L log to replay ('-': stdin)");
   app.add_flag("--fast", a.fast, "--replay: as fast as possible (log time is host time)");
+  app.add_flag("--live-and-replay", a.live_and_replay,
+               "read the -i interfaces live AND replay --replay at recorded speed on one more "
+               "bus (named 'replay')");
   app.add_option("--joints", a.joints, "auto | dds | none | FILE (joint trajectory CSV)")
       ->capture_default_str();
   app.add_flag("--json", a.json, "print contacts as JSON lines on stdout");
@@ -495,6 +569,8 @@ int main(int argc, char** argv) {
       }
     }
     std::vector<std::string> buses = a.interfaces;
+    const bool both = !a.replay.empty() && !a.interfaces.empty() && a.live_and_replay;
+    if (both) buses.push_back("replay");
     if (buses.empty()) buses.push_back("can0");
     auto agg = fusion::Aggregator::create(&*map, map_dir, robot.get(), buses, o);
     if (!agg) {
@@ -512,7 +588,7 @@ int main(int argc, char** argv) {
     Joints joints(a, robot.get());
     tools::install_stop_handler();
     Runner r(a, **agg, out, joints);
-    const int rc = a.replay.empty() ? run_live(a, r) : run_replay(a, r);
+    const int rc = a.replay.empty() || both ? run_live(a, r) : run_replay(a, r);
     if (a.stats) {
       const fusion::AggregatorStats& s = (*agg)->stats();
       const bus::ReassemblyStats rs = (*agg)->reassembly_stats();

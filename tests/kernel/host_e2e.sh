@@ -3,7 +3,8 @@
 # three simulated patch daemons publish on vcan0; skinbus-host reads vcan0 and publishes on DDS
 # (loopback only); skinbus-listen, another process, receives the contacts, which must lie where
 # the scene pressed, in the robot's base frame, within the model's error. Then an interface that
-# goes down and up: no crash, both events in the patch status, contacts again afterwards.
+# goes down and up: no crash, both events in the patch status, contacts again afterwards. At the
+# same time a recorded log (patch 5, pressed) is replayed on a second bus (--live-and-replay).
 # The guest emulates its CPU, so the host keeps up only by estimating each patch's newest sample.
 #
 #   scripts/can_vm.sh --fd-ifaces 1 -- tests/kernel/host_e2e.sh BUILD_DIR
@@ -19,8 +20,9 @@ sed -e "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" \
     -e "s|model: .*|model: $src/fusion/models/nominal_seed_cnn|" session/truth.yaml >map.yaml
 cat >presses.csv <<'CSV'
 # t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
-0.8,3.4,10,-20,2.0,5,1
-1.0,3.4,-30,35,2.5,5,2
+0.8,6.0,10,-20,2.0,5,1
+1.0,6.0,-30,35,2.5,5,2
+1.0,6.0,25,10,1.8,5,5
 CSV
 cat >joints.csv <<'CSV'
 time_s,left_shoulder_pitch_joint,left_elbow_joint
@@ -36,17 +38,21 @@ cat >dds.xml <<'XML'
 XML
 export CYCLONEDDS_URI=file://$work/dds.xml
 domain=$((RANDOM % 200 + 20))
+# The recorded log of patch 5, for the second bus.
+"$bin/skinbus-patchd" --sim -i none --candump-out replay.log --node 5 \
+  --uid "$(printf '0x5b%014x' 5)" --contacts presses.csv --duration 6.5 -q
 
 "$bin/skinbus-listen" --domain "$domain" --timeout 60 --status >listen.jsonl 2>listen.err &
 listener=$!
 "$bin/skinbus-host" --map map.yaml -i vcan0 --joints joints.csv --domain "$domain" --json \
-  --json-status --status-period 0.5 --duration 14 --stats >host.jsonl 2>host.err &
+  --json-status --status-period 0.5 --duration 19 --stats --replay replay.log --live-and-replay \
+  >host.jsonl 2>host.err &
 host=$!
 sleep 2
 pids=()
 for n in 1 2 3; do
   "$bin/skinbus-patchd" --sim -i vcan0 --node "$n" --uid "$(printf '0x5b%014x' "$n")" \
-    --contacts presses.csv --duration 4 -q &
+    --contacts presses.csv --duration 6.5 -q &
   pids+=($!)
 done
 wait "${pids[@]}" || bad "a patch daemon failed"
