@@ -158,6 +158,8 @@ class Joints {
 #endif
 };
 
+constexpr uint64_t kFlushUs = 500'000;  // past every hold time: all contacts end
+
 struct Runner {
   Runner(const HostArgs& a, fusion::Aggregator& g, Outputs& o, Joints& j)
       : args(a), agg(g), out(o), joints(j) {}
@@ -193,6 +195,15 @@ struct Runner {
       next_status_us = now_us + static_cast<uint64_t>(args.status_period_s * 1e6);
     }
   }
+  // The end of the run at host time `end_us`: held contacts run out (an empty publication) and
+  // the final status goes out, without advancing the registry or kinematics timers past the end.
+  void finish(uint64_t end_us) {
+    joints.update(agg, end_us, run_start_us);
+    if (agg.process(end_us + kFlushUs, &contacts)) out.contacts(contacts);
+    agg.status(end_us, &status);
+    print_events();
+    out.status(status);
+  }
   void print_events() {
     if (args.quiet) return;
     for (const fusion::PatchEvent& e : status.events) {
@@ -202,8 +213,6 @@ struct Runner {
     }
   }
 };
-
-constexpr uint64_t kFlushUs = 500'000;  // past every hold time: all contacts end
 
 int run_replay(const HostArgs& a, Runner& r) {
   std::FILE* f = a.replay == "-" ? stdin : std::fopen(a.replay.c_str(), "r");
@@ -266,9 +275,7 @@ int run_replay(const HostArgs& a, Runner& r) {
   }
   const uint64_t end_us = a.fast ? log_us + 1 : bus::realtime_now_us();
   r.after_frames(end_us, !a.fast);
-  // The end of the log: held contacts run out, and the final status goes out.
-  r.next_status_us = 0;
-  r.after_frames(end_us + kFlushUs, false);
+  r.finish(end_us);
   if (reader.bad_lines() > 0) {
     std::fprintf(stderr, "skinbus-host: %" PRIu64 " log line(s) could not be parsed\n",
                  reader.bad_lines());
@@ -445,8 +452,7 @@ int run_live(const HostArgs& a, Runner& r) {
     }
     r.after_frames(t, true);
   }
-  r.next_status_us = 0;
-  r.after_frames(bus::realtime_now_us() + kFlushUs, false);
+  r.finish(bus::realtime_now_us());
   if (log && log->bad_lines() > 0) {
     std::fprintf(stderr, "skinbus-host: %" PRIu64 " log line(s) could not be parsed\n",
                  log->bad_lines());
