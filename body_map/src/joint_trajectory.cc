@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <charconv>
+#include <cmath>
 #include <fstream>
 #include <set>
 #include <sstream>
@@ -10,6 +11,12 @@
 #include "skinbus/common/csv.h"
 
 namespace skinbus::body_map {
+
+namespace {
+// Times and positions beyond this are refused: differences of two of them stay finite, so
+// interpolation never overflows.
+constexpr double kMaxMagnitude = 1e9;
+}  // namespace
 
 void JointTrajectory::sample(double t, std::span<double> out) const {
   const std::size_t n = names.size();
@@ -62,11 +69,15 @@ Result<JointTrajectory> parse_joint_trajectory(const std::string& text, const st
     }
     double v = 0;
     if (!parse_csv_number(fields[0], &v)) return fail("time is not a finite number");
+    if (std::abs(v) > kMaxMagnitude) return fail("time beyond +-1e9 s");
     if (!t.t_s.empty() && v <= t.t_s.back()) return fail("times must increase");
     t.t_s.push_back(v);
     for (std::size_t i = 1; i < fields.size(); ++i) {
       if (!parse_csv_number(fields[i], &v)) {
         return fail("joint '" + t.names[i - 1] + "' is not a finite number");
+      }
+      if (std::abs(v) > kMaxMagnitude) {
+        return fail("joint '" + t.names[i - 1] + "' beyond +-1e9 (rad or mm)");
       }
       t.q.push_back(v);
     }

@@ -42,6 +42,8 @@ TEST(JointTrajectory, ErrorsNameTheLine) {
       {"time_s,a\n0,nan\n", ":2: joint 'a'"},
       {"time_s,a\n1,0\n1,0\n", ":3: times must increase"},
       {"time_s,a\n", "no rows"},
+      {"time_s,a\n0,-1e308\n1,1e308\n", ":2: joint 'a' beyond"},
+      {"time_s,a\n-1.7e308,0\n1.7e308,0\n", ":2: time beyond"},
   };
   for (const Case& c : cases) {
     auto t = parse_joint_trajectory(c.text, "f.csv");

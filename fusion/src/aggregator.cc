@@ -73,6 +73,11 @@ struct Aggregator::Impl {
     PatchEntry* entry = nullptr;
     uint64_t time_us = 0;  // aligned sample time
     uint64_t rx_us = 0;    // host time its last frame arrived
+    // The patch's placement and model when the sample was queued: a heartbeat that arrives
+    // before process() may re-identify the node (another UID, a clash); the sample is then
+    // dropped rather than placed on a patch it did not come from.
+    const body_map::PatchPlacement* placement = nullptr;
+    int model_index = -1;
     std::array<double, kChannels> field{};
     std::array<uint8_t, kChannels> ok{};
   };
@@ -266,6 +271,8 @@ void Aggregator::Impl::on_sample(int bus, uint8_t node, const bus::Sample& smp, 
   }
   p.entry = e;
   p.rx_us = rx_us;
+  p.placement = e->placement;
+  p.model_index = e->model_index;
   auto host = e->clock.to_host_us(smp.timestamp_us);
   p.time_us = host ? *host : rx_us;
   for (int c = 0; c < kChannels; ++c) {
@@ -354,6 +361,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   }
   s.processed_rx.clear();
   if (s.pending_list.empty() && !s.released) return false;
+  bool changed = s.released;  // a contact ended, or (below) one was placed
 
   uint32_t kin_flags = 0;
   if (s.robot != nullptr) {
@@ -375,7 +383,13 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   }
   for (std::size_t k : s.pending_list) {
     Impl::Pending& p = s.pending[k];
-    Impl::Model& m = s.models[static_cast<std::size_t>(p.entry->model_index)];
+    const PatchEntry& e = *p.entry;
+    if (e.duplicate || e.placement == nullptr || e.model_index < 0 || e.placement != p.placement ||
+        e.model_index != p.model_index) {
+      ++s.stats.unattributed;  // re-identified since it was queued
+      continue;
+    }
+    Impl::Model& m = s.models[static_cast<std::size_t>(e.model_index)];
     m.fields.insert(m.fields.end(), p.field.begin(), p.field.end());
     m.ok.insert(m.ok.end(), p.ok.begin(), p.ok.end());
     m.slots.push_back(k);
@@ -427,6 +441,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         continue;
       }
       ++p.entry->contacts;
+      changed = true;
       c.time_us = p.time_us;
       c.last_us = now_us;
       if (!c.used) {
@@ -441,6 +456,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   }
   s.pending_list.clear();
   s.released = false;
+  if (!changed) return false;  // only rejected or dropped samples: nothing new to publish
 
   // Merge and track over every patch's current contact.
   s.scratch_contacts.clear();

@@ -309,6 +309,22 @@ TEST(Aggregator, MissingModelDegradesThePatch) {
   EXPECT_EQ(f.agg->registry().entry(0, 3).state, PatchLinkState::kDegraded);
 }
 
+TEST(Aggregator, ASampleQueuedBeforeItsNodeIsReidentifiedIsDropped) {
+  // Found by fuzzing: a contact sample placed by its node ID, then a heartbeat naming a UID
+  // that is not in the map (or another patch's), before process().
+  for (uint64_t uid : {uint64_t{0xDEAD}, kUid4}) {
+    Fixture f;
+    uint64_t t = 1'000'000;
+    f.n3.sample(*f.agg, t, press(0, 0, 2, 3), true);  // no heartbeat yet: placed by node 3
+    Node other{3, uid};
+    other.heartbeat(*f.agg, t + 100, 1);
+    ContactArray out;
+    EXPECT_FALSE(f.agg->process(t + 200, &out));
+    EXPECT_EQ(f.agg->stats().estimated, 0u);
+    EXPECT_EQ(f.agg->stats().unattributed, 1u);
+  }
+}
+
 TEST(Aggregator, GarbageFramesNeverBecomeContacts) {
   // Random, truncated and corrupted frames between real ones: no crash, no contact from them,
   // and the real press still comes through.

@@ -26,13 +26,14 @@ struct JointTrajectory {
   std::vector<double> q;           // rows x names, row-major
 
   std::size_t rows() const { return t_s.size(); }
-  // The positions at `t_s` into `out` (names.size() entries). Requires rows() > 0.
+  // The positions at `t_s` into `out` (names.size() entries). Requires rows() > 0. A NaN time
+  // gives the last row; the result is always finite for a trajectory the reader accepted.
   void sample(double t_s, std::span<double> out) const;
 };
 
 // Reads the format above. Errors (kParse, kNotFound) name the file, the line and what is wrong:
 // a missing header, a duplicate joint name, a row with the wrong number of fields, a non-finite
-// number, times that do not increase, no rows.
+// number or one beyond +-1e9 (s, rad or mm), times that do not increase, no rows.
 Result<JointTrajectory> parse_joint_trajectory(const std::string& text, const std::string& name);
 Result<JointTrajectory> load_joint_trajectory(const std::string& path);
 
