@@ -22,9 +22,8 @@ def main():
             rows += list(csv.DictReader(f))
     if not rows:
         sys.exit("plot_host.py: empty tables")
-    fig, (ax_lat, ax_cpu) = plt.subplots(1, 2, figsize=(12, 4.5))
-    labels = [f"{r['mode']}\n{r['patches']}p {100 * int(r['touched']) // max(1, int(r['patches']))}%"
-              for r in rows]
+    fig, (ax_lat, ax_cpu) = plt.subplots(1, 2, figsize=(13, 6))
+    labels = [f"{r['mode']} {r['patches']} patches, {r['touched']} touched" for r in rows]
     x = range(len(rows))
     p50 = [float(r["p50_us"]) / 1000 for r in rows]
     p99 = [float(r["p99_us"]) / 1000 for r in rows]
@@ -33,12 +32,12 @@ def main():
     ax_lat.axhline(2.0, color="k", lw=0.8, ls="--", label="goal: p99 <= 2 ms (64 patches)")
     ax_lat.set_yscale("log")
     ax_lat.set_ylabel("frame arrival -> contacts ready (ms)")
-    ax_lat.set_xticks(list(x), labels, fontsize=7)
+    ax_lat.set_xticks(list(x), labels, fontsize=7, rotation=90)
     ax_lat.legend(fontsize=8)
     ax_lat.set_title("latency (no bar: no touched patch)")
     ax_cpu.bar(list(x), [float(r["cpu_percent"]) for r in rows], 0.6, color="tab:green")
     ax_cpu.set_ylabel("CPU (% of one core)")
-    ax_cpu.set_xticks(list(x), labels, fontsize=7)
+    ax_cpu.set_xticks(list(x), labels, fontsize=7, rotation=90)
     ax_cpu.set_title("CPU use while paced at 41.7 Hz")
     fig.suptitle("skinbus-bench host")
     fig.tight_layout()
