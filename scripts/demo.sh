@@ -1,100 +1,175 @@
 #!/usr/bin/env bash
-# The skinbus demo: simulated patches (the patch node daemon on emulated sensors fed by the
-# physics simulator) publish on a CAN bus while presses land on them; the decoder reads the bus.
-#   scripts/demo.sh [--duration SECONDS] [--nodes 1-4]
-# On a kernel with vcan (and the right to create it) the frames cross real SocketCAN; elsewhere
-# they cross a pipe in candump format, exactly as `candump -L can0 | skinbus-decode` would.
+# The skinbus whole-body demo: the project's humanoid (body_map/robots/skinbot.urdf) wears 12
+# simulated patches (cylinder sections on the forearms and upper arms, flat patches on the chest),
+# each its own patch node daemon (skinbus-patchd --sim: emulated MLX90393s fed by the physics
+# simulator). Scripted touches land on them while the arms move (joint states on DDS from
+# skinbus-joints). The host aggregator (skinbus-host) reads the bus, estimates every touched
+# patch with the shipped model, places the contacts on the moving body and publishes them on the
+# DDS topic rt/skin/contacts; skinbus-top draws them in the terminal.
+#
+#   scripts/demo.sh [--duration SECONDS] [--headless] [--out DIR] [--no-setup]
+#
+# On a kernel with vcan (and the right to create it) the patches send on real SocketCAN; elsewhere
+# they send the same frames, in candump -L form, through a pipe to the host, and the demo says so.
+# Either way the bus traffic is in OUT/bus.log (watch it: tail -f out/demo/bus.log).
+#   --headless   no live view: a plain frame every 2 s (logs, tests)
+#   --no-setup   skip scripts/setup.sh and the build (they are quick when done, not instant)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-duration=4
-nodes=1-4
+src=$PWD
+duration=16
+headless=0
+setup=1
+out=out/demo
 while (($#)); do
   case $1 in
     --duration) duration=$2; shift 2 ;;
-    --nodes) nodes=$2; shift 2 ;;
-    -h|--help) sed -n '2,5p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --headless) headless=1; shift ;;
+    --out) out=$2; shift 2 ;;
+    --no-setup) setup=0; shift ;;
+    -h|--help) sed -n '2,19p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
-scripts/setup.sh
-scripts/build.sh
-bin=build/tools
-out=out/demo
+if ((setup)); then
+  scripts/setup.sh
+  scripts/build.sh
+fi
+bin=$src/build/tools
+scene=$src/sim/scenes/whole_body
 mkdir -p "$out"
+out=$(cd "$out" && pwd)
+rm -f "$out"/{bus,host,listen,joints}.log "$out"/{contacts,host}.jsonl "$out"/bus_load.png
 
-echo
-echo "== bus budget for this demo (CAN FD 1/5 Mbit/s, 41.7 Hz per patch) =="
-"$bin/skinbus-budget" --patches "$(build/tools/skinbus-gen --nodes "$nodes" --duration 0 2>&1 | sed -n 's/.* from \([0-9]*\) patches.*/\1/p')"
+pids=()
+cleanup() {
+  for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+  [[ -n ${made_vcan:-} ]] && ip link del "$made_vcan" 2>/dev/null || true
+}
+trap cleanup EXIT
 
-# Presses on the simulated patches (docs/patch_node.md): t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_mm,node
-cat >"$out/presses.csv" <<'CSV'
-# t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
-0.8,1.8,10,-20,1.5,8,1
-1.2,2.2,-35,40,2.0,8,2
-2.0,2.6,25,10,1.0,5,3
-CSV
-node_list=$(python3 -c "import sys
-out=[]
-for part in sys.argv[1].split(','):
-    a,_,b=part.partition('-'); out+=range(int(a),int(b or a)+1)
-print(' '.join(map(str,out)))" "$nodes")
+# ---- The body and its skin ---------------------------------------------------------------------
+"$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir "$out/session" \
+  --upper-arm-links left_upper_arm_link,right_upper_arm_link \
+  --model "$src/fusion/models/nominal_seed_cnn" >/dev/null
+cp "$out/session/truth.yaml" "$out/skin.yaml"
+sed -i "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" "$out/skin.yaml"
+patches=$(grep -c '^  - node:' "$out/skin.yaml")
+echo "== the robot skinbot wears $patches patches (skin map: $out/skin.yaml)"
+awk '/^  - node:/ {n=$3} /^    link:/ {print "   node " n " on " $2}' "$out/skin.yaml" |
+  sort -k4 | awk '{l[$4] = l[$4] " " $2} END {for (k in l) print "   " k ":" l[k]}' | sort
 
+# ---- DDS: loopback only unless the caller configured Cyclone DDS ------------------------------
+if [[ -z ${CYCLONEDDS_URI:-} ]]; then
+  cat >"$out/dds.xml" <<'XML'
+<CycloneDDS><Domain id="any">
+  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
+    <AllowMulticast>false</AllowMulticast></General>
+  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
+    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
+</Domain></CycloneDDS>
+XML
+  export CYCLONEDDS_URI=file://$out/dds.xml
+fi
+domain=${SKINBUS_DEMO_DOMAIN:-$((RANDOM % 200 + 20))}
+echo "== DDS domain $domain ($CYCLONEDDS_URI)"
+
+# ---- The bus: SocketCAN if the kernel has vcan, else a pipe ------------------------------------
 vcan=
 if ip link show vcan0 >/dev/null 2>&1 && [[ $(cat /sys/class/net/vcan0/mtu) == 72 ]]; then
   vcan=vcan0
 elif ip link add dev skinbus0 type vcan 2>/dev/null && ip link set skinbus0 mtu 72 up 2>/dev/null; then
   vcan=skinbus0
-  trap 'ip link del skinbus0 2>/dev/null || true' EXIT
+  made_vcan=skinbus0
 fi
 
-echo
-pids=()
+# Subscribers first: a separate process records every contact array (JSON lines) for the record.
+"$bin/skinbus-listen" --domain "$domain" --status --timeout $((duration + 30)) \
+  >"$out/contacts.jsonl" 2>"$out/listen.log" &
+pids+=($!)
+
+host_args=(--map "$out/skin.yaml" --joints dds --domain "$domain" --json-status
+           --status-period 1 --stats)
+start_patches() {  # extra patchd arguments...
+  local n cfg
+  for ((n = 1; n <= patches; n++)); do
+    cfg=()
+    ((n <= 6)) && cfg=(--config "$scene/limb_patch.yaml")  # arm patches: limbs turn
+    "$bin/skinbus-patchd" --sim "${cfg[@]}" --node "$n" --uid "$(printf '0x5b%014x' "$n")" \
+      --contacts "$scene/presses.csv" --duration "$duration" -q "$@" &
+    pids+=($!)
+  done
+}
+
 if [[ -n $vcan ]]; then
-  echo "== $duration s: simulated patches $nodes (skinbus-patchd --sim, event mode) on SocketCAN $vcan =="
+  echo "== $patches patch daemons on SocketCAN $vcan (CAN FD), host reading it"
   candump -L "$vcan" >"$out/bus.log" &
-  dump=$!
-  sleep 0.3
-  for n in $node_list; do
-    "$bin/skinbus-patchd" --sim -i "$vcan" --node "$n" --contacts "$out/presses.csv" --duration "$duration" -q &
-    pids+=($!)
-  done
-  wait "${pids[@]}"
-  sleep 0.3
-  kill "$dump"
+  pids+=($!)
+  "$bin/skinbus-host" "${host_args[@]}" -i "$vcan" --duration $((duration + 2)) \
+    >"$out/host.jsonl" 2>"$out/host.log" &
+  host=$!
+  pids+=($host)
+  sleep 1
+  start_patches -i "$vcan"
 else
-  echo "== no vcan on this kernel (CONFIG_CAN off or no rights): each simulated patch writes its frames"
-  echo "   as a candump log instead, merged in time order. (scripts/can_vm.sh runs real SocketCAN in a"
-  echo "   VM; see docs/testing.md)"
-  echo "== $duration s: simulated patches $nodes (skinbus-patchd --sim, event mode) =="
-  for n in $node_list; do
-    "$bin/skinbus-patchd" --sim -i none --candump-out "$out/patch_$n.log" --node "$n" --contacts "$out/presses.csv" --duration "$duration" -q &
-    pids+=($!)
-  done
-  wait "${pids[@]}"
-  sort -s -k1,1 "$out"/patch_*.log >"$out/bus.log"
-  rm -f "$out"/patch_*.log
+  echo "== no vcan on this kernel (CONFIG_CAN off, or no right to create it): the $patches patch"
+  echo "   daemons send the same frames as candump -L lines through a pipe to the host"
+  echo "   (scripts/can_vm.sh runs real SocketCAN in a VM; docs/testing.md)"
+  fifo=$out/bus.fifo
+  rm -f "$fifo"
+  mkfifo "$fifo"
+  "$bin/skinbus-host" "${host_args[@]}" --replay - --fast <"$fifo" >"$out/host.jsonl" \
+    2>"$out/host.log" &
+  host=$!
+  pids+=($host)
+  sleep 1
+  # Every daemon writes whole lines into one pipe; tee keeps the bus log.
+  { start_patches -i none --candump-out -; wait; } | tee "$out/bus.log" >"$fifo" &
+  pids+=($!)
 fi
-"$bin/skinbus-decode" --stats "$out/bus.log" >"$out/decoded.txt" 2>"$out/stats.txt"
+"$bin/skinbus-joints" --trajectory "$scene/arms.csv" --domain "$domain" --duration "$duration" \
+  2>"$out/joints.log" &
+pids+=($!)
+
+echo "== $duration s of scripted touches while the arms move (touches: $scene/presses.csv)"
+echo
+top_args=(--map "$out/skin.yaml" --domain "$domain" --width 64 --height 22)
+if ((headless)) || [[ ! -t 1 ]]; then
+  timeout $((duration + 1)) "$bin/skinbus-top" "${top_args[@]}" --plain --period 4 --after 2 ||
+    true
+else
+  timeout $((duration + 1)) "$bin/skinbus-top" "${top_args[@]}" --period 0.25 || true
+fi
+wait "$host" || echo "demo: skinbus-host exited with an error (see $out/host.log)"
+sleep 1
 
 echo
-echo "== the bus, as candump -L shows it (first 6 frames of $(wc -l <"$out/bus.log")) =="
-head -6 "$out/bus.log" | cut -c1-110
+echo "== the bus, as candump -L shows it (first 4 of $(wc -l <"$out/bus.log") frames)"
+head -4 "$out/bus.log" | cut -c1-110
 echo
-echo "== one frame decoded on its own (skinbus-decode --frames) =="
-sed -n 3p "$out/bus.log" | "$bin/skinbus-decode" --frames | head -1 | cut -c1-160
+echo "== the host: $(grep -m1 'frames' "$out/host.log" | sed 's/^skinbus-host: //')"
+grep -m1 'latency' "$out/host.log" | sed 's/^skinbus-host: /   /' || true
 echo
-echo "== decoded messages: heartbeats and the first touched samples (of $(wc -l <"$out/decoded.txt")) =="
-grep -m4 '^heartbeat' "$out/decoded.txt" | cut -c1-160
-grep -m4 'flags=contact' "$out/decoded.txt" | cut -c1-160
+echo "== contacts received over DDS by skinbus-listen (another process), per link"
+python3 - "$out/contacts.jsonl" <<'PY'
+import json, sys
+seen = {}
+arrays = 0
+for line in open(sys.argv[1]):
+    j = json.loads(line)
+    if j["type"] != "contacts":
+        continue
+    arrays += 1
+    for c in j["contacts"]:
+        s = seen.setdefault((c["link"], c["node"]), [0, 0.0])
+        s[0] += 1
+        s[1] = max(s[1], c["depth_mm"])
+print(f"   {arrays} contact arrays")
+for (link, node), (n, d) in sorted(seen.items()):
+    print(f"   {link:22s} node {node:3d}: {n:4d} contacts, deepest {d:.1f} mm")
+PY
+tools/plot_bus_load.py "$out/bus.log" "$out/bus_load.png" || true
 echo
-echo "== samples per patch: idle patches send only heartbeats (event mode) =="
-for n in $node_list; do
-  printf 'node %-3s samples %4d (touched %4d, tail %3d)  heartbeats %d\n' "$n" \
-    "$(grep -c "^sample node=$n " "$out/decoded.txt")" "$(grep -c "^sample node=$n .*flags=contact" "$out/decoded.txt")" \
-    "$(grep -c "^sample node=$n .*event_tail" "$out/decoded.txt")" "$(grep -c "^heartbeat node=$n " "$out/decoded.txt")"
-done
-echo
-echo "== decoder statistics =="
-cat "$out/stats.txt"
-echo
-echo "demo: bus log in $out/bus.log, decoded messages in $out/decoded.txt"
+echo "demo: everything is in $out: skin.yaml, bus.log (candump -L), contacts.jsonl and host.jsonl"
+echo "      (JSON lines), host.log, bus_load.png. Watch a live bus: tail -f $out/bus.log"

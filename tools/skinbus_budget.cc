@@ -3,11 +3,18 @@
 //   skinbus-budget --patches 64 --rate 41.7 --active 0.1
 //   skinbus-budget --classic --nominal-bitrate 500000
 //   skinbus-budget --table    # the table of docs/protocol.md
+//   skinbus-budget --log bus.log --interval-ms 100 --csv load.csv   # measured, over time
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
+#include <cinttypes>
 #include <cstdio>
+#include <map>
+#include <string>
+#include <vector>
 
 #include "skinbus/bus/budget.h"
+#include "skinbus/bus/candump.h"
 
 namespace {
 
@@ -43,6 +50,77 @@ void print_table() {
   }
 }
 
+// The load a candump log put on each of its interfaces, per interval: wire time of its frames
+// (worst-case stuffing, as the budget) over the interval. Prints a summary; writes one CSV row
+// per interval and interface (t_s,interface,frames,load) when `csv_path` is given.
+int log_load(const std::string& log_path, const BusTiming& t, double interval_ms,
+             const std::string& csv_path) {
+  std::FILE* f = log_path == "-" ? stdin : std::fopen(log_path.c_str(), "r");
+  if (f == nullptr) {
+    std::fprintf(stderr, "skinbus-budget: cannot read '%s'\n", log_path.c_str());
+    return 1;
+  }
+  CandumpReader reader(f);
+  CandumpRecord rec;
+  struct Bin {
+    uint64_t frames = 0;
+    double wire_us = 0;
+  };
+  std::map<std::string, std::map<uint64_t, Bin>> bins;  // interface -> interval -> load
+  uint64_t t0 = 0;
+  bool first = true;
+  const double interval_us = interval_ms * 1000;
+  while (true) {
+    const auto st = reader.next(&rec);
+    if (st == CandumpReader::Status::kEof) break;
+    if (st != CandumpReader::Status::kRecord || rec.frame.error) continue;
+    if (first) {
+      t0 = rec.timestamp_us;
+      first = false;
+    }
+    if (rec.timestamp_us < t0) continue;
+    const uint64_t k =
+        static_cast<uint64_t>(static_cast<double>(rec.timestamp_us - t0) / interval_us);
+    Bin& b = bins[std::string(rec.iface)][k];
+    ++b.frames;
+    b.wire_us += frame_time_us(t, rec.frame.len);
+  }
+  if (f != stdin) std::fclose(f);
+  std::FILE* csv = csv_path.empty() ? nullptr : std::fopen(csv_path.c_str(), "w");
+  if (!csv_path.empty() && csv == nullptr) {
+    std::fprintf(stderr, "skinbus-budget: cannot write '%s'\n", csv_path.c_str());
+    return 1;
+  }
+  if (csv) std::fprintf(csv, "t_s,interface,frames,load\n");
+  for (const auto& [iface, per] : bins) {
+    double peak = 0, sum = 0;
+    uint64_t frames = 0;
+    const uint64_t last = per.rbegin()->first;
+    for (uint64_t k = 0; k <= last; ++k) {
+      auto it = per.find(k);
+      const Bin b = it == per.end() ? Bin{} : it->second;
+      const double load = b.wire_us / interval_us;
+      peak = std::max(peak, load);
+      sum += load;
+      frames += b.frames;
+      if (csv) {
+        std::fprintf(csv, "%.3f,%s,%" PRIu64 ",%.5f\n", static_cast<double>(k) * interval_ms / 1000,
+                     iface.c_str(), b.frames, load);
+      }
+    }
+    std::printf("%s: %" PRIu64
+                " frames over %.1f s: mean load %.1f%%, peak %.1f%% (%g ms intervals)\n",
+                iface.c_str(), frames, static_cast<double>(last + 1) * interval_ms / 1000,
+                100 * sum / static_cast<double>(last + 1), 100 * peak, interval_ms);
+  }
+  if (csv) std::fclose(csv);
+  if (reader.bad_lines() > 0) {
+    std::fprintf(stderr, "skinbus-budget: %" PRIu64 " log line(s) could not be parsed\n",
+                 reader.bad_lines());
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -54,7 +132,8 @@ int main(int argc, char** argv) {
       "Examples:\n"
       "  skinbus-budget --patches 64 --active 0.1\n"
       "  skinbus-budget --classic --nominal-bitrate 500000 --patches 8\n"
-      "  skinbus-budget --table\n"};
+      "  skinbus-budget --table\n"
+      "  skinbus-budget --log bus.log --interval-ms 100 --csv load.csv   # a recording's load\n"};
   int patches = 16;
   double rate_hz = 41.7, active = 1.0, nominal = 1e6, data = 5e6, limit = 0.7, hb = 1.0;
   bool classic = false, table = false;
@@ -81,6 +160,14 @@ int main(int argc, char** argv) {
       ->capture_default_str()
       ->check(CLI::Range(0.01, 1.0));
   app.add_flag("--table", table, "print the standard budget table (Markdown) and exit");
+  std::string log_path, csv_path;
+  double interval_ms = 100;
+  app.add_option("--log", log_path,
+                 "measure instead: the load a candump -L log put on each interface ('-': stdin)");
+  app.add_option("--interval-ms", interval_ms, "--log: interval of the load figures, ms")
+      ->capture_default_str()
+      ->check(CLI::Range(1.0, 60000.0));
+  app.add_option("--csv", csv_path, "--log: write t_s,interface,frames,load rows here");
   CLI11_PARSE(app, argc, argv);
 
   if (!classic && data < nominal) {
@@ -95,6 +182,7 @@ int main(int argc, char** argv) {
     return 0;
   }
   const BusTiming t{!classic, nominal, classic ? nominal : data};
+  if (!log_path.empty()) return log_load(log_path, t, interval_ms, csv_path);
   const BudgetResult b = compute_budget(t, PatchTraffic{rate_hz, active, hb}, patches, limit);
   std::printf(
       "bus              %s, %.0f bit/s%s\n", classic ? "classic CAN" : "CAN FD", nominal,

@@ -44,6 +44,7 @@ struct HostArgs {
   std::string joints = "auto";  // auto | dds | none | FILE
   bool json = false, json_status = false, dds = true;
   int domain = -1;
+  std::string ns;
   double duration_s = 0;
   double status_period_s = 1.0;
   std::string backend = "auto", precision = "float32";
@@ -61,6 +62,9 @@ class Outputs {
     if (a.dds) {
       fusion::DdsOptions o;
       if (a.domain >= 0) o.domain_id = static_cast<uint32_t>(a.domain);
+      if (Status st = fusion::apply_namespace(&o, a.ns); !st.ok()) {
+        throw std::invalid_argument(st.error().message);
+      }
       auto p = fusion::SkinPublisher::create(o);
       if (!p) throw std::runtime_error(p.error().to_string());
       pub_ = std::move(*p);
@@ -521,6 +525,9 @@ int main(int argc, char** argv) {
   app.add_flag("--json-status", a.json_status, "print patch status as JSON lines on stdout");
   app.add_flag("!--no-dds", a.dds, "do not publish on DDS");
   app.add_option("--domain", a.domain, "DDS domain ID (default: Cyclone DDS's, usually 0)");
+  app.add_option("--namespace", a.ns,
+                 "publish on rt/NS/skin/contacts and rt/NS/skin/patch_status, for several hosts "
+                 "in one domain (docs/guides/scaling.md)");
   app.add_option("--duration", a.duration_s, "stop after this many seconds (0: run to the end)")
       ->capture_default_str();
   app.add_option("--status-period", a.status_period_s, "seconds between patch status messages")

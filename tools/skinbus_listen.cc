@@ -123,6 +123,10 @@ int main(int argc, char** argv) {
   app.add_flag("--wait-match", wait_match,
                "first wait (within --timeout) until a contacts publisher is matched, and say so "
                "on stderr");
+  std::string ns;
+  app.add_option(
+      "--namespace", ns,
+      "the publishing host's --namespace: topics rt/NS/skin/... (docs/guides/scaling.md)");
   app.add_option("--contacts-topic", options.contacts_topic, "DDS topic of the contacts")
       ->capture_default_str();
   app.add_option("--status-topic", options.patch_status_topic, "DDS topic of the patch status")
@@ -133,6 +137,10 @@ int main(int argc, char** argv) {
     return app.exit(e) == 0 ? 0 : 2;  // --help: 0
   }
   if (domain >= 0) options.domain_id = static_cast<uint32_t>(domain);
+  if (Status st = apply_namespace(&options, ns); !st.ok()) {
+    std::fprintf(stderr, "skinbus-listen: %s\n", st.error().to_string().c_str());
+    return 2;
+  }
 
   tools::install_stop_handler();
   auto sub = SkinSubscriber::create(options);

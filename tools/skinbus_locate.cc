@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -24,7 +25,9 @@ int main(int argc, char** argv) {
       "skin map), through the patch's pose on its link, through forward kinematics at the joint\n"
       "positions of a trajectory file at --time (or the zero pose). Prints one line a point:\n"
       "  node link x_mm y_mm z_mm nx ny nz\n"
-      "Give the point as arguments (NODE U_MM V_MM) or '-' to read such lines from stdin.\n\n"
+      "Give the point as arguments (NODE U_MM V_MM) or '-' to read such lines from stdin; a\n"
+      "stdin line of four numbers, T_S NODE U_MM V_MM, is placed at the trajectory's time T_S\n"
+      "instead of --time (for contacts of a moving robot).\n\n"
       "Example:\n"
       "  skinbus-locate --map skin.yaml --joints arms.csv --time 2.0 3 12.5 -20"};
   std::string map_path, robot_path, joints_path;
@@ -55,31 +58,45 @@ int main(int argc, char** argv) {
       return 1;
     }
     robot = std::make_unique<body_map::RobotModel>(std::move(*r));
-    std::vector<double> q(static_cast<std::size_t>(robot->joint_count()), 0.0);
-    if (!joints_path.empty()) {
-      auto t = body_map::load_joint_trajectory(joints_path);
-      if (!t) {
-        std::fprintf(stderr, "skinbus-locate: %s\n", t.error().to_string().c_str());
-        return 1;
+  }
+  std::optional<body_map::JointTrajectory> traj;
+  if (!joints_path.empty()) {
+    if (!robot) {
+      std::fprintf(stderr, "skinbus-locate: --joints needs a robot (the map's or --robot)\n");
+      return 2;
+    }
+    auto t = body_map::load_joint_trajectory(joints_path);
+    if (!t) {
+      std::fprintf(stderr, "skinbus-locate: %s\n", t.error().to_string().c_str());
+      return 1;
+    }
+    for (const std::string& n : t->names) {
+      if (robot->find_joint(n) < 0) {
+        std::fprintf(stderr, "skinbus-locate: joint '%s' is not in the robot\n", n.c_str());
+        return 2;
       }
-      std::vector<double> v(t->names.size());
-      t->sample(time_s, v);
+    }
+    traj = std::move(*t);
+  }
+  // Forward kinematics at trajectory time `t_s` (the zero pose without a trajectory).
+  auto pose_at = [&](double t_s) -> bool {
+    if (!robot) return true;
+    std::vector<double> q(static_cast<std::size_t>(robot->joint_count()), 0.0);
+    if (traj) {
+      std::vector<double> v(traj->names.size());
+      traj->sample(t_s, v);
       for (std::size_t i = 0; i < v.size(); ++i) {
-        const int j = robot->find_joint(t->names[i]);
-        if (j < 0) {
-          std::fprintf(stderr, "skinbus-locate: joint '%s' is not in the robot\n",
-                       t->names[i].c_str());
-          return 2;
-        }
-        q[static_cast<std::size_t>(j)] = v[i];
+        q[static_cast<std::size_t>(robot->find_joint(traj->names[i]))] = v[i];
       }
     }
     poses.resize(static_cast<std::size_t>(robot->link_count()));
     if (Status st = robot->forward_kinematics(q, poses); !st.ok()) {
       std::fprintf(stderr, "skinbus-locate: %s\n", st.error().to_string().c_str());
-      return 1;
+      return false;
     }
-  }
+    return true;
+  };
+  if (!pose_at(time_s)) return 1;
   auto locate = [&](int node, double u, double v) {
     const body_map::PatchPlacement* p = map->find_node(node);
     if (p == nullptr) {
@@ -103,14 +120,20 @@ int main(int argc, char** argv) {
     std::string line;
     while (std::getline(std::cin, line)) {
       std::istringstream in(line);
-      int node;
-      double u, v;
-      if (!(in >> node >> u >> v)) {
-        std::fprintf(stderr, "skinbus-locate: expected 'NODE U_MM V_MM', got '%s'\n", line.c_str());
+      std::vector<double> f;
+      double x;
+      while (in >> x) f.push_back(x);
+      if (f.size() == 4) {  // T_S NODE U V
+        if (!pose_at(f[0])) return 1;
+        ok = locate(static_cast<int>(f[1]), f[2], f[3]) && ok;
+      } else if (f.size() == 3) {
+        ok = locate(static_cast<int>(f[0]), f[1], f[2]) && ok;
+      } else {
+        std::fprintf(
+            stderr, "skinbus-locate: expected 'NODE U_MM V_MM' or 'T_S NODE U_MM V_MM', got '%s'\n",
+            line.c_str());
         ok = false;
-        continue;
       }
-      ok = locate(node, u, v) && ok;
     }
   } else if (point.size() == 3) {
     try {

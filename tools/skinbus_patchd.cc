@@ -69,12 +69,16 @@ class DaemonSink final : public FrameSink {
 // Set across the re-execution that serves the reboot command, so outputs are appended to.
 constexpr const char* kRestartedEnv = "SKINBUS_PATCHD_RESTARTED";
 
+// Opens an output ("-": stdout). Line-buffered, so every line reaches a pipe in one write: several
+// daemons can share one pipe (`{ patchd ... & patchd ... & } | skinbus-host --replay -`) without
+// their lines tearing.
 std::FILE* open_out(const std::string& path, const char* what) {
-  if (path == "-") return stdout;
-  std::FILE* f = std::fopen(path.c_str(), std::getenv(kRestartedEnv) ? "a" : "w");
+  std::FILE* f =
+      path == "-" ? stdout : std::fopen(path.c_str(), std::getenv(kRestartedEnv) ? "a" : "w");
   if (f == nullptr) {
     throw ConfigError(std::string(what) + " " + path + ": " + std::strerror(errno));
   }
+  std::setvbuf(f, nullptr, _IOLBF, 1024);
   return f;
 }
 

@@ -43,6 +43,14 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--forearm-end", layout.forearm_end_mm, "... to this x (mm)")
       ->capture_default_str();
+  app.add_option("--upper-arm-links", layout.upper_arm_links,
+                 "links that are upper arms (cylinders around -z; none by default)")
+      ->delimiter(',');
+  app.add_option("--upper-arm-radius", layout.upper_arm_radius_mm, "upper arm radius, mm")
+      ->capture_default_str()
+      ->check(CLI::Range(5.0, 1000.0));
+  app.add_option("--model", layout.model, "model file every patch names in the maps")
+      ->capture_default_str();
   app.add_option("--torso-link", layout.torso_link, "link that carries the chest")
       ->capture_default_str();
   app.add_option("--chest-x", layout.chest_x_mm, "chest plane x in the torso link's frame, mm")

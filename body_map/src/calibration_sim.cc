@@ -43,29 +43,51 @@ Result<SkinMap> tile_humanoid(const RobotModel& robot, const HumanoidLayout& lay
     p.model = layout.model;
     map.patches.push_back(p);
   };
-  for (const std::string& link : layout.forearm_links) {
+  // Patches around a limb: the axis `along` (unit, link frame) from `start` to `end` mm, `around`
+  // patches spaced evenly starting at the direction `first` (unit, perpendicular to `along`).
+  auto tile_limb = [&](const std::string& link, const char* what, double radius_mm, double start,
+                       double end, int around, const Eigen::Vector3d& along,
+                       const Eigen::Vector3d& first) -> Status {
     if (robot.find_link(link) < 0) {
-      return make_error(ErrorCode::kNotFound,
-                        "forearm link '" + link + "' is not in robot '" + robot.name() + "'");
+      return make_error(ErrorCode::kNotFound, std::string(what) + " link '" + link +
+                                                  "' is not in robot '" + robot.name() + "'");
     }
     PatchGeometry g;
     g.kind = SurfaceKind::kCylinder;
-    g.radius_mm = layout.forearm_radius_mm;
+    g.radius_mm = radius_mm;
     g.axis = CylinderAxis::kV;
-    const double length = layout.forearm_end_mm - layout.forearm_start_mm;
-    const int along = std::max(1, static_cast<int>(length / kPatchMm));
-    for (int a = 0; a < along; ++a) {
-      const double x = layout.forearm_start_mm + (a + 0.5) * length / along;
-      for (int k = 0; k < layout.patches_around; ++k) {
-        const double phi = 2 * kPi * k / layout.patches_around;
-        const Eigen::Vector3d n(0, std::cos(phi), std::sin(phi));  // outward at the centre
-        const Eigen::Vector3d y = Eigen::Vector3d::UnitX();        // v along the forearm
+    const Eigen::Vector3d second = along.cross(first);
+    const double length = end - start;
+    const int n_along = std::max(1, static_cast<int>(length / kPatchMm));
+    for (int a = 0; a < n_along; ++a) {
+      const double s_mm = start + (a + 0.5) * length / n_along;
+      for (int k = 0; k < around; ++k) {
+        const double phi = 2 * kPi * k / around;
+        const Eigen::Vector3d n = std::cos(phi) * first + std::sin(phi) * second;  // outward
         Eigen::Matrix3d r;
-        r.col(0) = y.cross(n);
-        r.col(1) = y;
+        r.col(0) = along.cross(n);
+        r.col(1) = along;  // v along the limb
         r.col(2) = n;
-        add(link, r, Eigen::Vector3d(x, 0, 0) + layout.forearm_radius_mm * n, g);
+        add(link, r, s_mm * along + radius_mm * n, g);
       }
+    }
+    return Status::Ok();
+  };
+  for (const std::string& link : layout.forearm_links) {
+    if (Status st = tile_limb(link, "forearm", layout.forearm_radius_mm, layout.forearm_start_mm,
+                              layout.forearm_end_mm, layout.patches_around,
+                              Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY());
+        !st.ok()) {
+      return st.error();
+    }
+  }
+  for (const std::string& link : layout.upper_arm_links) {
+    if (Status st =
+            tile_limb(link, "upper arm", layout.upper_arm_radius_mm, layout.upper_arm_start_mm,
+                      layout.upper_arm_end_mm, layout.upper_arm_patches_around,
+                      -Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitX());
+        !st.ok()) {
+      return st.error();
     }
   }
   if (robot.find_link(layout.torso_link) < 0) {

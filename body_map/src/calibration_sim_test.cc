@@ -46,6 +46,31 @@ TEST(CalibrationSim, TilesForearmsAndChest) {
   EXPECT_NE(tile_humanoid(robot, bad).error().message.find("'chest'"), std::string::npos);
 }
 
+TEST(CalibrationSim, TilesUpperArmsFacingForward) {
+  const RobotModel robot = skinbot();
+  HumanoidLayout layout;
+  layout.upper_arm_links = {"left_upper_arm_link", "right_upper_arm_link"};
+  Result<SkinMap> map = tile_humanoid(robot, layout);
+  ASSERT_TRUE(map.ok()) << map.error().to_string();
+  ASSERT_EQ(map->patches.size(), 12u);  // 4 forearm, 2 upper arm, 6 chest
+  for (int i = 4; i < 6; ++i) {
+    const PatchPlacement& p = map->patches[static_cast<std::size_t>(i)];
+    EXPECT_EQ(p.link, i == 4 ? "left_upper_arm_link" : "right_upper_arm_link");
+    EXPECT_EQ(p.node_id, i + 1);
+    // Centre on the cylinder around -z, 145 mm below the shoulder, facing +x; v runs down.
+    const Eigen::Vector3d c = p.pose_on_link.translation_mm;
+    EXPECT_NEAR(c.x(), 40, 1e-9);
+    EXPECT_NEAR(c.z(), -145, 1e-9);
+    EXPECT_NEAR(p.pose_on_link.rotation.col(2).x(), 1, 1e-12);
+    EXPECT_NEAR(p.pose_on_link.rotation.col(1).z(), -1, 1e-12);
+    const Eigen::Vector3d e = link_surface_point(p, 60, 0, 0).point_mm;
+    EXPECT_NEAR(std::hypot(e.x(), e.y()), 40, 1e-9);
+  }
+  layout.upper_arm_links = {"left_bicep"};
+  EXPECT_NE(tile_humanoid(robot, layout).error().message.find("upper arm link 'left_bicep'"),
+            std::string::npos);
+}
+
 TEST(CalibrationSim, SessionsAreConsistentWithTheTruth) {
   const RobotModel robot = skinbot();
   const SkinMap truth = tile_humanoid(robot).value();

@@ -558,6 +558,27 @@ Result<bool> wait_take(dds_entity_t reader, dds_entity_t waitset, const std::str
 
 // ---- SkinPublisher ---------------------------------------------------------------------------
 
+Status apply_namespace(DdsOptions* options, std::string_view ns) {
+  while (!ns.empty() && ns.front() == '/') ns.remove_prefix(1);
+  while (!ns.empty() && ns.back() == '/') ns.remove_suffix(1);
+  if (ns.empty()) return Status::Ok();
+  bool start = true;
+  for (char c : ns) {
+    const bool alpha = (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z');
+    const bool ok = start ? alpha : (alpha || (c >= '0' && c <= '9') || c == '_' || c == '/');
+    if (!ok) {
+      return make_error(ErrorCode::kInvalidArgument,
+                        "namespace '" + std::string(ns) +
+                            "': names start with a letter and hold letters, digits and '_', "
+                            "separated by '/'");
+    }
+    start = c == '/';
+  }
+  options->contacts_topic = "rt/" + std::string(ns) + "/skin/contacts";
+  options->patch_status_topic = "rt/" + std::string(ns) + "/skin/patch_status";
+  return Status::Ok();
+}
+
 Result<std::unique_ptr<SkinPublisher>> SkinPublisher::create(const DdsOptions& options) {
   if (Status s = check_options(options); !s.ok()) return s.error();
   std::unique_ptr<SkinPublisher> p(new SkinPublisher());

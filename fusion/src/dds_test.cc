@@ -752,5 +752,21 @@ TEST(DdsMessagesTest, StandardTypesHaveTheRos2Layouts) {
   }
 }
 
+TEST(DdsNamespaceTest, PutsTheSkinTopicsUnderIt) {
+  DdsOptions o;
+  ASSERT_TRUE(apply_namespace(&o, "").ok());
+  EXPECT_EQ(o.contacts_topic, "rt/skin/contacts");
+  ASSERT_TRUE(apply_namespace(&o, "/robot1/arm_left/").ok());
+  EXPECT_EQ(o.contacts_topic, "rt/robot1/arm_left/skin/contacts");
+  EXPECT_EQ(o.patch_status_topic, "rt/robot1/arm_left/skin/patch_status");
+  EXPECT_EQ(o.joint_states_topic, "rt/joint_states");
+  for (const char* bad : {"1arm", "arm-left", "arm//left", "a b", "arm/_x"}) {
+    DdsOptions b;
+    const Status st = apply_namespace(&b, bad);
+    EXPECT_FALSE(st.ok()) << bad;
+    EXPECT_EQ(b.contacts_topic, "rt/skin/contacts") << bad;
+  }
+}
+
 }  // namespace
 }  // namespace skinbus::fusion

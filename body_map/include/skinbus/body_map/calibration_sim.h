@@ -26,6 +26,13 @@ struct HumanoidLayout {
   double forearm_radius_mm = 45;
   double forearm_start_mm = 20, forearm_end_mm = 250;  // along the link's x axis
   int patches_around = 2;                              // per forearm, evenly spaced
+  // Upper arms (none by default): cylinders around the link's -z axis (the arm hanging down),
+  // from upper_arm_start_mm to upper_arm_end_mm below the shoulder, patches facing forward (+x)
+  // first, then evenly around.
+  std::vector<std::string> upper_arm_links;
+  double upper_arm_radius_mm = 40;
+  double upper_arm_start_mm = 40, upper_arm_end_mm = 250;
+  int upper_arm_patches_around = 1;
   std::string torso_link = "torso_link";
   double chest_x_mm = 110;
   double chest_y_mm[2] = {-160, 160};
@@ -36,7 +43,8 @@ struct HumanoidLayout {
 };
 
 // The skin map of a humanoid tiled per `layout`: as many 140 x 140 mm patches as fit on each
-// forearm (around x along) and on the chest. Errors name a missing link.
+// forearm (around x along), on each upper arm (around -z) and on the chest. Node IDs and UIDs
+// count up in that order. Errors name a missing link.
 Result<SkinMap> tile_humanoid(const RobotModel& robot, const HumanoidLayout& layout = {});
 
 struct SessionOptions {

@@ -48,6 +48,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "skinbus/common/result.h"
@@ -72,6 +73,13 @@ struct DdsOptions {
   // How long publish() may block on a reliable subscriber that lags, ms (>= 0).
   int max_blocking_ms = 10;
 };
+
+// Puts the skin topics under a ROS 2 namespace: "arm_left" gives rt/arm_left/skin/contacts and
+// rt/arm_left/skin/patch_status (ROS 2: /arm_left/skin/...), so several hosts share a domain
+// (docs/guides/scaling.md). rt/joint_states is left alone: every host reads the robot's. The
+// namespace is one or more names of [A-Za-z][A-Za-z0-9_]* separated by '/'; a leading or
+// trailing '/' is ignored; empty leaves the options unchanged. kInvalidArgument otherwise.
+Status apply_namespace(DdsOptions* options, std::string_view ns);
 
 // The two topics SkinPublisher writes and SkinSubscriber reads.
 enum class SkinTopic { kContacts, kPatchStatus };

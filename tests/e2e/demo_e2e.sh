@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# The README's main command, headless and bounded: scripts/demo.sh runs the whole-body demo (12
+# patch daemons, the host, joint states, DDS) and the contacts a separate subscriber received must
+# sit at the right places on the moving body (tests/e2e/check_demo.py).
+#   tests/e2e/demo_e2e.sh BUILD_DIR
+set -euo pipefail
+build=$(cd "${1:?usage: demo_e2e.sh BUILD_DIR}" && pwd)
+src=$(cd "$(dirname "$0")/../.." && pwd)
+work=$(mktemp -d)
+out=$work/demo
+trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
+"$src/scripts/demo.sh" --headless --no-setup --duration 15 --out "$out" >"$work/demo.txt" 2>&1 || {
+  tail -30 "$work/demo.txt"
+  exit 1
+}
+tail -25 "$work/demo.txt"
+"$src/tests/e2e/check_demo.py" "$out" "$src/sim/scenes/whole_body" "$build"

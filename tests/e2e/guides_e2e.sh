@@ -1,0 +1,76 @@
+#!/usr/bin/env bash
+# Runs every `sh` block of the guides (docs/guides/*.md), guide by guide, in a scratch folder that
+# has the repository's body_map/, fusion/, sim/, patch_fw/ and tools/ at hand and build/tools on
+# the PATH: a guide whose commands stop working fails here. `console` blocks need a robot; of
+# those, the systemd units are checked with systemd-analyze verify.
+#   tests/e2e/guides_e2e.sh BUILD_DIR [GUIDE.md ...]
+set -euo pipefail
+build=$(cd "${1:?usage: guides_e2e.sh BUILD_DIR [GUIDE.md ...]}" && pwd)
+shift
+src=$(cd "$(dirname "$0")/../.." && pwd)
+guides=("$@")
+((${#guides[@]})) || guides=("$src"/docs/guides/*.md)
+work=$(mktemp -d)
+trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
+# Loopback-only DDS for the guides that publish.
+cat >"$work/dds.xml" <<'XML'
+<CycloneDDS><Domain id="any">
+  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
+    <AllowMulticast>false</AllowMulticast></General>
+  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
+    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
+</Domain></CycloneDDS>
+XML
+export CYCLONEDDS_URI=file://$work/dds.xml
+export PATH=$build/tools:$PATH
+fail=0
+blocks=0
+for guide in "${guides[@]}"; do
+  name=$(basename "$guide" .md)
+  dir=$work/$name
+  mkdir -p "$dir"
+  for d in body_map fusion sim patch_fw tools; do ln -s "$src/$d" "$dir/$d"; done
+  python3 - "$guide" >"$dir/guide.sh" <<'PY'
+import sys
+out, on, n = ["set -euo pipefail"], False, 0
+for line in open(sys.argv[1]):
+    s = line.rstrip("\n")
+    if not on and s.strip() == "```sh":
+        on, n = True, n + 1
+        out.append(f"echo '--- block {n}'")
+        continue
+    if on and s.strip() == "```":
+        on = False
+        continue
+    if on:
+        out.append(s)
+print("\n".join(out))
+print(f"# {n} blocks")
+PY
+  n=$(grep -c "^echo '--- block" "$dir/guide.sh" || true)
+  ((n)) || continue
+  blocks=$((blocks + n))
+  if (cd "$dir" && timeout 600 bash guide.sh >"$dir/out.txt" 2>&1); then
+    echo "PASS $name: $n block(s)"
+  else
+    echo "FAIL $name: its commands failed; the end of their output:"
+    tail -15 "$dir/out.txt"
+    fail=1
+  fi
+done
+# The systemd units of docs/guides/deploying.md, with the binaries of this build.
+if command -v systemd-analyze >/dev/null; then
+  for unit in "$src"/tools/systemd/*.service; do
+    sed "s|/usr/local/bin/|$build/tools/|" "$unit" >"$work/$(basename "$unit")"
+    if SYSTEMD_LOG_LEVEL=err systemd-analyze verify --man=no "$work/$(basename "$unit")" \
+      >"$work/verify.txt" 2>&1 && ! grep -v 'sys-subsystem-net-devices' "$work/verify.txt" | grep -q .; then
+      echo "PASS $(basename "$unit"): systemd-analyze verify"
+    else
+      echo "FAIL $(basename "$unit"): systemd-analyze verify"
+      cat "$work/verify.txt"
+      fail=1
+    fi
+  done
+fi
+echo "guides: $blocks block(s) run"
+exit $fail
