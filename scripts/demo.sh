@@ -61,17 +61,7 @@ awk '/^  - node:/ {n=$3} /^    link:/ {print "   node " n " on " $2}' "$out/skin
   sort -k4 | awk '{l[$4] = l[$4] " " $2} END {for (k in l) print "   " k ":" l[k]}' | sort
 
 # ---- DDS: loopback only unless the caller configured Cyclone DDS ------------------------------
-if [[ -z ${CYCLONEDDS_URI:-} ]]; then
-  cat >"$out/dds.xml" <<'XML'
-<CycloneDDS><Domain id="any">
-  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>
-XML
-  export CYCLONEDDS_URI=file://$out/dds.xml
-fi
+export CYCLONEDDS_URI=${CYCLONEDDS_URI:-file://$src/tools/dds/loopback.xml}
 domain=${SKINBUS_DEMO_DOMAIN:-$((RANDOM % 200 + 20))}
 echo "== DDS domain $domain ($CYCLONEDDS_URI)"
 

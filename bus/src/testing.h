@@ -10,22 +10,11 @@
 
 #include "skinbus/bus/candump.h"
 #include "skinbus/bus/codec.h"
+#include "skinbus/common/test_seed.h"
 
 namespace skinbus::bus::testing {
 
-// The seed for a randomized test: $SKINBUS_TEST_SEED if set, else fresh entropy. Printed, so
-// a failure can be replayed with SKINBUS_TEST_SEED=<seed>.
-inline uint64_t test_seed(const char* test_name) {
-  uint64_t seed = 0;
-  if (const char* env = std::getenv("SKINBUS_TEST_SEED")) {
-    seed = std::strtoull(env, nullptr, 0);
-  } else {
-    seed = (static_cast<uint64_t>(std::random_device{}()) << 32) ^ std::random_device{}();
-  }
-  std::printf("[ seed     ] %s: SKINBUS_TEST_SEED=%llu\n", test_name,
-              static_cast<unsigned long long>(seed));
-  return seed;
-}
+using skinbus::test_seed;  // skinbus/common/test_seed.h
 
 // A valid message of class `c` with random field values, for node `node` (or broadcast for SYNC).
 inline Message random_message(std::mt19937_64& rng, MessageClass c, FrameKind kind, uint8_t node,

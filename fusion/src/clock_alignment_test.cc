@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include "skinbus/common/test_seed.h"
+
 #include "skinbus/common/stats.h"
 
 #include <algorithm>
@@ -18,19 +20,11 @@ namespace {
 
 using Update = ClockAligner::Update;
 
-// The seed of a randomized test: $SKINBUS_TEST_SEED if set, else fresh entropy; printed so a
-// failure can be replayed with SKINBUS_TEST_SEED=<seed>.
+// The seed of a randomized test (skinbus/common/test_seed.h), named after the running test.
 uint64_t test_seed() {
-  uint64_t seed = 0;
-  if (const char* env = std::getenv("SKINBUS_TEST_SEED")) {
-    seed = std::strtoull(env, nullptr, 0);
-  } else {
-    seed = (static_cast<uint64_t>(std::random_device{}()) << 32) ^ std::random_device{}();
-  }
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  std::printf("[ seed     ] %s.%s: SKINBUS_TEST_SEED=%llu\n", info->test_suite_name(), info->name(),
-              static_cast<unsigned long long>(seed));
-  return seed;
+  const std::string name = std::string(info->test_suite_name()) + "." + info->name();
+  return skinbus::test_seed(name.c_str());
 }
 
 constexpr double kPeriodUs = 1e6 / 41.7;  // patch time between samples

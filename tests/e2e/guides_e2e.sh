@@ -13,15 +13,9 @@ guides=("$@")
 work=$(mktemp -d)
 trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
 # Loopback-only DDS for the guides that publish.
-cat >"$work/dds.xml" <<'XML'
-<CycloneDDS><Domain id="any">
-  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>
-XML
-export CYCLONEDDS_URI=file://$work/dds.xml
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$src/tests/e2e/e2e_lib.sh"
+use_loopback_dds
 export PATH=$build/tools:$PATH
 fail=0
 blocks=0

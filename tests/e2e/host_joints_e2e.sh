@@ -23,6 +23,8 @@ cleanup() {
 }
 trap cleanup EXIT
 cd "$work"
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$src/tests/e2e/e2e_lib.sh"
 fail() {
   echo "FAIL $*"
   for f in *.err; do echo "--- $f"; cat "$f"; done
@@ -31,9 +33,7 @@ fail() {
 
 # The skin map: the true layout skinbus-touchsim puts on the project's robot, every patch with
 # the shipped model (as host_replay_e2e.sh).
-"$bin/skinbus-touchsim" --robot "$urdf" --out-dir session >/dev/null
-sed -e "s|^robot: .*|robot: \"$urdf\"|" \
-    -e "s|model: .*|model: $src/fusion/models/nominal_seed_cnn|" session/truth.yaml >map.yaml
+make_skin_map map.yaml
 
 # The scene: one long press on patch 1 (left_forearm_link) from 0.5 s to 7.8 s of the log;
 # patches 2-5 stay untouched.
@@ -63,15 +63,7 @@ sort -s -k1,1 patch_*.log >bus.log
 
 # DDS on loopback only, in a domain of its own.
 domain=$((RANDOM % 200 + 20))
-cat >dds.xml <<'XML'
-<CycloneDDS><Domain id="any">
-  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>
-XML
-export CYCLONEDDS_URI=file://$work/dds.xml
+use_loopback_dds
 echo "DDS domain $domain (loopback only)"
 
 # Waits up to $2 seconds for the pattern $1 in file $3, written by process $4.

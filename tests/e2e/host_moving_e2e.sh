@@ -12,10 +12,10 @@ bin=$build/tools
 work=$(mktemp -d)
 trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
 cd "$work"
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$src/tests/e2e/e2e_lib.sh"
 
-"$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir session >/dev/null
-sed -e "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" \
-    -e "s|model: .*|model: $src/fusion/models/nominal_seed_cnn|" session/truth.yaml >map.yaml
+make_skin_map map.yaml
 cat >swing.yaml <<'YAML'
 sim:
   limb_swing_deg: 90

@@ -15,12 +15,12 @@ cleanup() {
 }
 trap cleanup EXIT
 cd "$work"
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$src/tests/e2e/e2e_lib.sh"
 
 # The skin map: the true layout skinbus-touchsim puts on the project's robot (cylinder patches
 # on the forearms, flat ones on the chest), every patch with the shipped model.
-"$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir session >/dev/null
-sed -e "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" \
-    -e "s|model: .*|model: $src/fusion/models/nominal_seed_cnn|" session/truth.yaml >map.yaml
+make_skin_map map.yaml
 
 # The scene: presses on patches 1, 2 and 5 (patch 3 and 4 stay untouched), arms held bent.
 cat >presses.csv <<'CSV'
@@ -45,15 +45,7 @@ sort -s -k1,1 patch_*.log >bus.log
 
 # DDS on loopback only, in a domain of its own.
 domain=$((RANDOM % 200 + 20))
-cat >dds.xml <<'XML'
-<CycloneDDS><Domain id="any">
-  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>
-XML
-export CYCLONEDDS_URI=file://$work/dds.xml
+use_loopback_dds
 echo "DDS domain $domain (loopback only)"
 
 "$bin/skinbus-listen" --domain "$domain" --timeout 30 --status >listen.jsonl 2>listen.err &

@@ -11,13 +11,12 @@
 set -euo pipefail
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
 source "$(dirname "$0")/e2e_lib.sh"
-src=$(cd "$(dirname "$0")/../.." && pwd)
+# shellcheck source=../e2e/e2e_lib.sh
+source "$(dirname "$0")/../e2e/e2e_lib.sh"
 e2e_begin host_e2e "${1:-}"
 ip link set lo up 2>/dev/null || true
 
-"$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir session >/dev/null
-sed -e "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" \
-    -e "s|model: .*|model: $src/fusion/models/nominal_seed_cnn|" session/truth.yaml >map.yaml
+make_skin_map map.yaml
 cat >presses.csv <<'CSV'
 # t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
 0.8,6.0,10,-20,2.0,5,1
@@ -28,15 +27,7 @@ cat >joints.csv <<'CSV'
 time_s,left_shoulder_pitch_joint,left_elbow_joint
 0,-0.4,0.6
 CSV
-cat >dds.xml <<'XML'
-<CycloneDDS><Domain id="any">
-  <General><Interfaces><NetworkInterface name="lo"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
-    <Peers><Peer address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>
-XML
-export CYCLONEDDS_URI=file://$work/dds.xml
+use_loopback_dds
 domain=$((RANDOM % 200 + 20))
 # The recorded log of patch 5, for the second bus.
 "$bin/skinbus-patchd" --sim -i none --candump-out replay.log --node 5 \

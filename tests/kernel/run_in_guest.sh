@@ -10,5 +10,6 @@ status=0
 "$here/patchd_e2e.sh" "$build" || status=1
 if [[ -x "$build/tools/skinbus-listen" ]]; then
   "$here/host_e2e.sh" "$build" || status=1
+  "$here/demo_vm.sh" "$build" || status=1
 fi
 exit $status
