@@ -12,7 +12,7 @@
 # On a kernel with vcan (and the right to create it) the patches send on real SocketCAN; elsewhere
 # they send the same frames, in candump -L form, through a pipe to the host, and the demo says so.
 # Either way the bus traffic is in OUT/bus.log (watch it: tail -f out/demo/bus.log).
-#   --headless   no live view: a plain frame every 2 s (logs, tests)
+#   --headless   no live view: a plain frame every 4 s (logs, tests)
 #   --no-setup   skip scripts/setup.sh and the build (they are quick when done, not instant)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -27,7 +27,7 @@ while (($#)); do
     --headless) headless=1; shift ;;
     --out) out=$2; shift 2 ;;
     --no-setup) setup=0; shift ;;
-    -h|--help) sed -n '2,19p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done

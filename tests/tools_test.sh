@@ -171,7 +171,21 @@ fi
 "$bin/skinbus-bench" budget --units nominal,marble 2>"$work/m/err4.txt" >/dev/null; rc=$?
 [[ $rc == 2 ]] && grep -q "unknown unit 'marble'" "$work/m/err4.txt" && ok "skinbus-bench budget: unknown unit" || { bad "budget unknown unit (rc $rc)"; cat "$work/m/err4.txt"; }
 
-for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate; do
+# The host aggregator's edges: bad arguments exit 2 with the reason, a missing map 1.
+mkdir -p "$work/h"
+"$bin/skinbus-touchsim" --robot "$here/../body_map/robots/skinbot.urdf" --out-dir "$work/h" >/dev/null
+host() { timeout 20 "$bin/skinbus-host" "$@"; }
+host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --threads 0 2>"$work/h/e1.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "threads" "$work/h/e1.txt" && ok "skinbus-host: bad --threads" || { bad "host --threads 0 (rc $rc)"; cat "$work/h/e1.txt"; }
+printf 'time_s,left_elbow_joint,tail_joint\n0,0,0\n' >"$work/h/j.csv"
+host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --joints "$work/h/j.csv" 2>"$work/h/e2.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "'tail_joint' is not a movable joint" "$work/h/e2.txt" && ok "skinbus-host: unknown joint in --joints" || { bad "host unknown joint (rc $rc)"; cat "$work/h/e2.txt"; }
+host --map "$work/h/none.yaml" --replay /dev/null --no-dds 2>"$work/h/e3.txt"; rc=$?
+[[ $rc == 1 ]] && grep -q "none.yaml" "$work/h/e3.txt" && ok "skinbus-host: missing map named" || { bad "host missing map (rc $rc)"; cat "$work/h/e3.txt"; }
+host --map "$work/h/truth.yaml" --no-dds 2>"$work/h/e4.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "give -i" "$work/h/e4.txt" && ok "skinbus-host: no input" || { bad "host no input (rc $rc)"; cat "$work/h/e4.txt"; }
+
+for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate; do
   "$bin/$t" --help | grep -q "Examples:\|Example:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
 done
 "$bin/skinbus-bench" --help | grep -q "calibration" && ok "skinbus-bench --help" || bad "skinbus-bench --help"

@@ -51,8 +51,11 @@ void print_table() {
 }
 
 // The load a candump log put on each of its interfaces, per interval: wire time of its frames
-// (worst-case stuffing, as the budget) over the interval. Prints a summary; writes one CSV row
+// (worst-case stuffing, as the budget; each frame timed as the classic or FD frame it is, at the
+// bit rates given) over the interval. Prints a summary; writes one CSV row
 // per interval and interface (t_s,interface,frames,load) when `csv_path` is given.
+constexpr double kMaxIntervals = 1e7;  // a log longer than this many intervals is refused
+
 int log_load(const std::string& log_path, const BusTiming& t, double interval_ms,
              const std::string& csv_path) {
   std::FILE* f = log_path == "-" ? stdin : std::fopen(log_path.c_str(), "r");
@@ -79,11 +82,23 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
       first = false;
     }
     if (rec.timestamp_us < t0) continue;
-    const uint64_t k =
-        static_cast<uint64_t>(static_cast<double>(rec.timestamp_us - t0) / interval_us);
-    Bin& b = bins[std::string(rec.iface)][k];
+    const double k_real = static_cast<double>(rec.timestamp_us - t0) / interval_us;
+    if (k_real > kMaxIntervals) {
+      std::fprintf(stderr,
+                   "skinbus-budget: line %" PRIu64
+                   " lies %.0f s after the first: not one "
+                   "recording (or a bad timestamp); stopped there\n",
+                   reader.line_number(), k_real * interval_ms / 1000);
+      break;
+    }
+    Bin& b = bins[std::string(rec.iface)][static_cast<uint64_t>(k_real)];
     ++b.frames;
-    b.wire_us += frame_time_us(t, rec.frame.len);
+    // Each frame at its own kind: classic frames at the nominal rate, FD data at the data rate
+    // only with bit-rate switching.
+    BusTiming ft = t;
+    ft.fd = rec.frame.fd;
+    if (!rec.frame.fd || !rec.frame.brs) ft.data_bps = t.nominal_bps;
+    b.wire_us += frame_time_us(ft, rec.frame.len);
   }
   if (f != stdin) std::fclose(f);
   std::FILE* csv = csv_path.empty() ? nullptr : std::fopen(csv_path.c_str(), "w");

@@ -33,11 +33,6 @@ std::string fmt(const char* f, double a, double b = 0, double c = 0, double d = 
 }
 
 // A path named inside a file, taken relative to that file's folder.
-std::string beside(const std::string& file, const std::string& path) {
-  if (path.empty() || std::filesystem::path(path).is_absolute()) return path;
-  return (std::filesystem::path(file).parent_path() / path).lexically_normal().string();
-}
-
 struct PatchOutcome {
   const PatchPlacement* initial = nullptr;
   std::string status = "kept";  // calibrated | refused | kept (no touches)
@@ -108,7 +103,7 @@ int main(int argc, char** argv) {
   };
   skinbus::Result<SkinMap> map = load_skin_map_file(map_path);
   if (!map.ok()) return bad(map.error().to_string());
-  if (robot_path.empty()) robot_path = beside(map_path, map.value().robot);
+  if (robot_path.empty()) robot_path = path_beside(map_path, map.value().robot);
   std::optional<RobotModel> robot;
   if (!robot_path.empty()) {
     skinbus::Result<RobotModel> r = RobotModel::from_urdf_file(robot_path);

@@ -132,6 +132,12 @@ class Joints {
     }
     auto t = body_map::load_joint_trajectory(mode);
     if (!t) throw std::runtime_error(t.error().to_string());
+    for (const std::string& n : t->names) {
+      if (robot->find_joint(n) < 0) {
+        throw std::invalid_argument("--joints " + mode + ": joint '" + n +
+                                    "' is not a movable joint of robot '" + robot->name() + "'");
+      }
+    }
     traj_ = std::move(*t);
     have_traj_ = true;
     q_.resize(traj_.names.size());
@@ -181,7 +187,7 @@ struct Runner {
     joints.update(agg, now_us, run_start_us);
     if (agg.process(now_us, &contacts)) {
       out.contacts(contacts);
-      if (measure_latency) {
+      if (measure_latency && args.stats) {  // kept only when asked for: it grows with the run
         const uint64_t done = bus::realtime_now_us();
         for (uint64_t rx : agg.processed_rx_us()) {
           latency_us.push_back(static_cast<double>(done > rx ? done - rx : 0));
@@ -227,8 +233,8 @@ int run_replay(const HostArgs& a, Runner& r) {
   bus::CandumpReader reader(f);
   bus::CandumpRecord rec;
   std::map<std::string, int, std::less<>> bus_of;  // interface name -> bus index
-  std::vector<std::string> names = a.interfaces;
-  for (std::size_t i = 0; i < names.size(); ++i) bus_of[names[i]] = static_cast<int>(i);
+  for (std::size_t i = 0; i < a.interfaces.size(); ++i)
+    bus_of[a.interfaces[i]] = static_cast<int>(i);
   uint64_t log_start_us = 0, wall_start_us = 0, last_process_us = 0, log_us = 0;
   bool first = true;
   const uint64_t end_log_us = a.duration_s > 0 ? static_cast<uint64_t>(a.duration_s * 1e6) : 0;
@@ -244,14 +250,14 @@ int run_replay(const HostArgs& a, Runner& r) {
       r.next_status_us = r.run_start_us;
       first = false;
     }
-    log_us = rec.timestamp_us;
+    // Daemons sharing a pipe can write a line a little out of time order: never before the start.
+    log_us = std::max(rec.timestamp_us, log_start_us);
     if (end_log_us > 0 && log_us - log_start_us > end_log_us) break;
     auto it = bus_of.find(rec.iface);
     int b = 0;
     if (it != bus_of.end()) {
       b = it->second;
-    } else if (bus_of.size() < static_cast<std::size_t>(fusion::kMaxBuses) &&
-               a.interfaces.empty()) {
+    } else if (a.interfaces.empty()) {
       b = 0;  // a log of one interface, or every interface onto bus 0 when none is named
     } else {
       continue;
@@ -561,13 +567,8 @@ int main(int argc, char** argv) {
       return 1;
     }
     const std::string map_dir = std::filesystem::path(a.map_path).parent_path().string();
-    std::string robot_path = a.robot_path;
-    if (robot_path.empty() && !map->robot.empty()) {
-      std::filesystem::path p(map->robot);
-      robot_path = p.is_relative() && !map_dir.empty()
-                       ? (std::filesystem::path(map_dir) / p).string()
-                       : p.string();
-    }
+    const std::string robot_path =
+        a.robot_path.empty() ? body_map::path_beside(a.map_path, map->robot) : a.robot_path;
     std::unique_ptr<body_map::RobotModel> robot;
     if (!robot_path.empty()) {
       auto rm = body_map::RobotModel::from_urdf_file(robot_path);
@@ -609,10 +610,11 @@ int main(int argc, char** argv) {
                    "skinbus-host: frames %" PRIu64 " (rejected %" PRIu64 ", integrity %" PRIu64
                    "), samples %" PRIu64 " (idle %" PRIu64 ", untared %" PRIu64
                    ", unattributed %" PRIu64 ", superseded %" PRIu64 "), estimated %" PRIu64
-                   " in %" PRIu64 " runs (rejected %" PRIu64 "), publications %" PRIu64 "\n",
+                   " in %" PRIu64 " runs (rejected %" PRIu64 "), publications %" PRIu64
+                   ", unknown joint names %" PRIu64 "\n",
                    s.frames, rs.rejected, rs.integrity_failures, s.samples, s.idle_samples,
                    s.untared_samples, s.unattributed, s.superseded, s.estimated, s.model_runs,
-                   s.rejected, s.publications);
+                   s.rejected, s.publications, s.unknown_joints);
       if (!r.latency_us.empty()) {
         std::fprintf(stderr,
                      "skinbus-host: latency frame arrival -> publication over %zu samples: "

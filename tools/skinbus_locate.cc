@@ -44,11 +44,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "skinbus-locate: %s\n", map.error().to_string().c_str());
     return 1;
   }
-  const std::filesystem::path dir = std::filesystem::path(map_path).parent_path();
-  if (robot_path.empty() && !map->robot.empty()) {
-    const std::filesystem::path p(map->robot);
-    robot_path = (p.is_relative() ? dir / p : p).string();
-  }
+  if (robot_path.empty()) robot_path = body_map::path_beside(map_path, map->robot);
   std::unique_ptr<body_map::RobotModel> robot;
   std::vector<body_map::Pose> poses;
   if (!robot_path.empty()) {

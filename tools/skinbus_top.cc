@@ -219,9 +219,7 @@ int main(int argc, char** argv) {
   }
   std::unique_ptr<body_map::RobotModel> robot;
   if (!map->robot.empty()) {
-    std::filesystem::path p(map->robot);
-    if (p.is_relative()) p = std::filesystem::path(map_path).parent_path() / p;
-    auto r = body_map::RobotModel::from_urdf_file(p.string());
+    auto r = body_map::RobotModel::from_urdf_file(body_map::path_beside(map_path, map->robot));
     if (!r) {
       std::fprintf(stderr, "skinbus-top: %s\n", r.error().to_string().c_str());
       return 1;

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <numbers>
@@ -383,6 +384,11 @@ Status save_skin_map_file(const SkinMap& map, const std::string& path) {
   out.close();
   if (!out) return make_error(ErrorCode::kIo, "writing skin map " + path + " failed");
   return Status::Ok();
+}
+
+std::string path_beside(const std::string& map_path, const std::string& path) {
+  if (path.empty() || std::filesystem::path(path).is_absolute()) return path;
+  return (std::filesystem::path(map_path).parent_path() / path).lexically_normal().string();
 }
 
 }  // namespace skinbus::body_map

@@ -48,7 +48,6 @@ struct Aggregator::Impl {
   const body_map::SkinMap* map = nullptr;
   const body_map::RobotModel* robot = nullptr;
   AggregatorOptions options;
-  std::vector<std::string> bus_names;
   std::vector<bus::Reassembler> reassemblers;
   PatchRegistry registry;
   ContactTracker tracker;
@@ -107,15 +106,13 @@ struct Aggregator::Impl {
 
   std::vector<uint64_t> bad_reported;  // per bus: bad frames already reported
   std::vector<uint64_t> processed_rx;  // rx times of the samples of the last process()
+  std::vector<int> link_of_placement;  // robot link index of each skin-map entry, -1: none
+  PatchContact placed;                 // the contact being placed
   std::vector<PatchContact> scratch_contacts;
   std::vector<BodyContact> scratch_out;
 
   Impl(const body_map::SkinMap* m, std::vector<std::string> names, const AggregatorOptions& o)
-      : map(m),
-        options(o),
-        bus_names(names),
-        registry(m, std::move(names), o.registry),
-        tracker(o.tracker) {}
+      : map(m), options(o), registry(m, std::move(names), o.registry), tracker(o.tracker) {}
 
   static std::size_t slot(int bus, uint8_t node) {
     return static_cast<std::size_t>(bus) * 128 + (node & 0x7F);
@@ -140,6 +137,18 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
                                                        " buses, not " +
                                                        std::to_string(bus_names.size()));
   }
+  if (Status st = check_options(options.tracker); !st.ok()) return st.error();
+  const RuntimeOptions& ro = options.runtime;
+  const CommonModeOptions& cm = options.common_mode;
+  if (ro.threads < 1 || ro.threads > 64 || !(cm.quiet_fraction > 0 && cm.quiet_fraction <= 1) ||
+      cm.min_sensors < 1 || options.registry.stale_us == 0 ||
+      options.registry.offline_us < options.registry.stale_us || options.contact_hold_us == 0 ||
+      !(options.ambient_flag_ut > 0)) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "aggregator options: runtime threads 1..64, common-mode quiet fraction in "
+                      "(0, 1] and min sensors >= 1, 0 < stale <= offline time, a contact hold > 0, "
+                      "an ambient flag level > 0");
+  }
   auto impl = std::make_unique<Impl>(map, bus_names, options);
   impl->robot = robot;
   impl->reassemblers.reserve(bus_names.size());
@@ -154,6 +163,9 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
     impl->q.assign(static_cast<std::size_t>(robot->joint_count()), 0.0);
     impl->link_poses.resize(static_cast<std::size_t>(robot->link_count()));
     impl->prismatic.assign(impl->q.size(), false);
+    for (const body_map::PatchPlacement& p : map->patches) {
+      impl->link_of_placement.push_back(robot->find_link(p.link));
+    }
     for (int l = 0; l < robot->link_count(); ++l) {
       const body_map::LinkJoint& j = robot->link(l).joint;
       if (j.type == body_map::JointType::kPrismatic && j.q_index >= 0) {
@@ -292,11 +304,13 @@ void Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, co
   const body_map::SurfacePoint sp = body_map::link_surface_point(pl, est.u_mm, est.v_mm, 0.0);
   Eigen::Vector3d point = sp.point_mm, normal = sp.normal;
   if (robot != nullptr) {
-    const int link = robot->find_link(pl.link);
+    const int link = link_of_placement[static_cast<std::size_t>(&pl - map->patches.data())];
     if (link >= 0) {
       const body_map::Pose& pose = link_poses[static_cast<std::size_t>(link)];
       point = pose.apply(point);
       normal = pose.rotation * normal;
+    } else {
+      flags |= kContactUnmapped;  // the link is not in the robot: its frame taken as the base
     }
   }
   for (int i = 0; i < 3; ++i) {
@@ -330,13 +344,18 @@ void Aggregator::set_joint_state(std::span<const std::string> names,
     }
   }
   const std::size_t n = std::min(names.size(), positions.size());
+  bool mapped = false;
   for (std::size_t i = 0; i < n; ++i) {
     const int j = s.name_index[i];
-    if (j < 0 || !std::isfinite(positions[i])) continue;
+    if (j < 0) continue;
     const double scale =
         prismatic_in_metres && s.prismatic[static_cast<std::size_t>(j)] ? 1000.0 : 1.0;
-    s.q[static_cast<std::size_t>(j)] = positions[i] * scale;
+    const double v = positions[i] * scale;
+    if (!std::isfinite(v)) continue;  // NaN, Inf, or a huge value that overflowed the scaling
+    s.q[static_cast<std::size_t>(j)] = v;
+    mapped = true;
   }
+  if (!mapped) return;  // nothing this robot knows: still no kinematics (or the last known)
   s.have_joints = true;
   s.joints_stamp_us = stamp_us;
   if (s.joints_stale_reported) {
@@ -364,14 +383,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   bool changed = s.released;  // a contact ended, or (below) one was placed
 
   uint32_t kin_flags = 0;
+  bool fk_done = false;
   if (s.robot != nullptr) {
     if (!s.have_joints) {
       kin_flags |= kContactNoKinematics;
     } else if (now_us > s.joints_stamp_us + s.options.kinematics_stale_us) {
       kin_flags |= kContactStaleKinematics;
-    }
-    if (!s.robot->forward_kinematics(s.q, s.link_poses).ok()) {
-      kin_flags |= kContactStaleKinematics;  // cannot happen with finite q; keep last poses
     }
   }
 
@@ -429,17 +446,25 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       if (est.flags & kEstimateOutsidePatch) flags |= kContactOutsidePatch;
       if (est.flags & kEstimateDepthRange) flags |= kContactDepthRange;
       if (est.flags & kEstimateMasked) flags |= kContactMaskedChannels;
-      Impl::Current& c = s.current[k];
-      s.place(*p.entry, est, m, flags, &c.contact);
+      if (!fk_done) {  // once per call, and only when something is placed
+        fk_done = true;
+        if (s.robot != nullptr && !s.robot->forward_kinematics(s.q, s.link_poses).ok()) {
+          kin_flags |= kContactStaleKinematics;  // cannot happen with finite q; last poses kept
+          flags |= kContactStaleKinematics;
+        }
+      }
+      PatchContact& placed = s.placed;  // placed aside: a bad estimate never erases a held one
+      s.place(*p.entry, est, m, flags, &placed);
       bool finite = true;
       for (int i = 0; i < 3; ++i) {
-        finite =
-            finite && std::isfinite(c.contact.position_mm[i]) && std::isfinite(c.contact.normal[i]);
+        finite = finite && std::isfinite(placed.position_mm[i]) && std::isfinite(placed.normal[i]);
       }
       if (!finite) {
         ++s.stats.rejected;
         continue;
       }
+      Impl::Current& c = s.current[k];
+      c.contact = placed;
       ++p.entry->contacts;
       changed = true;
       c.time_us = p.time_us;

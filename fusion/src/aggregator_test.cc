@@ -297,6 +297,48 @@ TEST(Aggregator, KinematicsPlaceContactsAndStaleStatesAreFlagged) {
   EXPECT_TRUE(has_event(f.events(t), PatchEventKind::kKinematicsFresh));
 }
 
+TEST(Aggregator, BadOptionsAreRefused) {
+  const body_map::SkinMap map = two_patch_map();
+  AggregatorOptions o;
+  o.runtime.threads = 0;
+  auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o);
+  ASSERT_FALSE(a.ok());
+  EXPECT_EQ(a.error().code, ErrorCode::kInvalidArgument);
+  o = {};
+  o.tracker.gate_mm = -1;
+  EXPECT_FALSE(Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o).ok());
+  o = {};
+  o.registry.offline_us = 1;  // before stale
+  EXPECT_FALSE(Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o).ok());
+}
+
+TEST(Aggregator, JointStatesOfOtherJointsAreNotKinematics) {
+  Fixture f({}, /*with_robot=*/true);
+  uint64_t t = 1'000'000;
+  f.n3.heartbeat(*f.agg, t, 1);
+  const std::vector<std::string> names = {"not_a_joint"};
+  const std::vector<double> q = {1.0};
+  f.agg->set_joint_state(names, q, t);
+  f.n3.sample(*f.agg, t += kPeriodUs, press(40, 0, 2.5, 7), true);
+  ContactArray out;
+  ASSERT_TRUE(f.agg->process(t, &out));
+  ASSERT_EQ(out.contacts.size(), 1u);
+  EXPECT_TRUE(out.contacts[0].flags & kContactNoKinematics);
+}
+
+TEST(Aggregator, ALinkMissingFromTheRobotIsFlagged) {
+  body_map::SkinMap map = two_patch_map();
+  map.patches[0].link = "tail";  // not in the test robot
+  Fixture f({}, /*with_robot=*/true, map);
+  uint64_t t = 1'000'000;
+  f.n3.heartbeat(*f.agg, t, 1);
+  f.n3.sample(*f.agg, t += kPeriodUs, press(0, 20, 2.5, 7), true);
+  ContactArray out;
+  ASSERT_TRUE(f.agg->process(t, &out));
+  ASSERT_EQ(out.contacts.size(), 1u);
+  EXPECT_TRUE(out.contacts[0].flags & kContactUnmapped);
+}
+
 TEST(Aggregator, MissingModelDegradesThePatch) {
   Fixture f({}, false, two_patch_map("no/such/model"));
   uint64_t t = 1'000'000;

@@ -1,6 +1,9 @@
 // Names of the aggregator's states and events (contacts.h).
 #include "skinbus/fusion/contacts.h"
 
+#include <cinttypes>
+#include <cstdio>
+
 namespace skinbus::fusion {
 
 std::string_view patch_link_state_name(PatchLinkState s) {
@@ -55,6 +58,12 @@ std::string_view patch_event_name(PatchEventKind k) {
       return "kinematics_fresh";
   }
   return "unknown";
+}
+
+std::string format_uid(uint64_t uid) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "%016" PRIx64, uid);
+  return buf;
 }
 
 }  // namespace skinbus::fusion

@@ -11,12 +11,6 @@ namespace {
 
 using Json = nlohmann::ordered_json;
 
-std::string hex_uid(uint64_t uid) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "%016" PRIx64, uid);
-  return buf;
-}
-
 }  // namespace
 
 std::vector<std::string> contact_flag_names(uint32_t flags) {
@@ -54,7 +48,7 @@ std::string contacts_to_json(const ContactArray& a) {
     o["depth_mm"] = c.depth_mm;
     o["force_n"] = c.force_n;
     o["node"] = c.node;
-    o["hardware_uid"] = hex_uid(c.hardware_uid);
+    o["hardware_uid"] = format_uid(c.hardware_uid);
     o["link"] = c.link;
     o["u_mm"] = c.u_mm;
     o["v_mm"] = c.v_mm;
@@ -76,7 +70,7 @@ std::string patch_status_to_json(const PatchStatusArray& s) {
   for (const PatchStatus& p : s.patches) {
     Json o;
     o["node"] = p.node;
-    o["hardware_uid"] = hex_uid(p.hardware_uid);
+    o["hardware_uid"] = format_uid(p.hardware_uid);
     o["interface"] = p.interface;
     o["link"] = p.link;
     o["state"] = std::string(patch_link_state_name(p.state));
@@ -101,7 +95,7 @@ std::string patch_status_to_json(const PatchStatusArray& s) {
     events.push_back({{"time_us", e.time_us},
                       {"event", std::string(patch_event_name(e.kind))},
                       {"node", e.node},
-                      {"hardware_uid", hex_uid(e.hardware_uid)},
+                      {"hardware_uid", format_uid(e.hardware_uid)},
                       {"detail", e.detail}});
   }
   j["events"] = std::move(events);

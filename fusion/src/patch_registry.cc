@@ -9,10 +9,10 @@ namespace skinbus::fusion {
 
 namespace {
 
-std::string hex_uid(uint64_t uid) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "%016" PRIx64, uid);
-  return buf;
+// Time from `then` to `now`, 0 if the clock went back (a host clock step never looks like a
+// long silence, nor a negative one).
+uint64_t elapsed_us(uint64_t now, uint64_t then) {
+  return now > then ? now - then : 0;
 }
 
 }  // namespace
@@ -92,7 +92,7 @@ PatchEntry& PatchRegistry::touch(int bus, uint8_t node, uint64_t now_us) {
   } else if (e.state == PatchLinkState::kStale || e.state == PatchLinkState::kOffline) {
     char buf[96];
     std::snprintf(buf, sizeof buf, "node %u heard again after %.1f s", node,
-                  static_cast<double>(now_us - e.last_heard_us) * 1e-6);
+                  static_cast<double>(elapsed_us(now_us, e.last_heard_us)) * 1e-6);
     emit(PatchEventKind::kReturned, e, now_us, buf);
     e.state = e.have_heartbeat ? PatchLinkState::kOnline : PatchLinkState::kDiscovering;
     update_state(e, now_us);
@@ -109,7 +109,7 @@ void PatchRegistry::assign_uid(PatchEntry& e, uint64_t uid, uint64_t now_us) {
   if (it == by_uid_.end()) {
     char buf[128];
     std::snprintf(buf, sizeof buf, "node %u: hardware UID %s is not in the skin map", e.node,
-                  hex_uid(uid).c_str());
+                  format_uid(uid).c_str());
     emit(PatchEventKind::kUnknownPatch, e, now_us, buf);
     return;
   }
@@ -119,13 +119,13 @@ void PatchRegistry::assign_uid(PatchEntry& e, uint64_t uid, uint64_t now_us) {
     char buf[160];
     std::snprintf(buf, sizeof buf,
                   "node %u: UID %s is mapped as node %d in the skin map; placed by its UID", e.node,
-                  hex_uid(uid).c_str(), e.placement->node_id);
+                  format_uid(uid).c_str(), e.placement->node_id);
     emit(PatchEventKind::kUnknownPatch, e, now_us, buf);
   }
   if (e.model_index < 0) {
     char buf[128];
     std::snprintf(buf, sizeof buf, "node %u: no usable model for UID %s", e.node,
-                  hex_uid(uid).c_str());
+                  format_uid(uid).c_str());
     emit(PatchEventKind::kNoModel, e, now_us, buf);
   }
 }
@@ -134,7 +134,8 @@ void PatchRegistry::update_state(PatchEntry& e, uint64_t now_us) {
   if (!e.have_heartbeat) return;  // still discovering
   std::string why;
   if (e.duplicate) {
-    why = "node ID claimed by UIDs " + hex_uid(e.hardware_uid) + " and " + hex_uid(e.other_uid);
+    why =
+        "node ID claimed by UIDs " + format_uid(e.hardware_uid) + " and " + format_uid(e.other_uid);
   } else if (e.placement == nullptr) {
     why = "UID not in the skin map";
   } else if (e.model_index < 0) {
@@ -165,7 +166,7 @@ void PatchRegistry::on_heartbeat(int bus, uint8_t node, const bus::Heartbeat& hb
     assign_uid(e, hb.hardware_uid, now_us);
   } else if (hb.hardware_uid != e.hardware_uid) {
     // Two boards on one ID, or a board swapped. Within the window it is a clash.
-    const bool clash = now_us - e.last_heartbeat_us < options_.duplicate_window_us;
+    const bool clash = elapsed_us(now_us, e.last_heartbeat_us) < options_.duplicate_window_us;
     if (clash) {
       if (!e.duplicate || e.other_uid != hb.hardware_uid) {
         e.duplicate = true;
@@ -174,7 +175,8 @@ void PatchRegistry::on_heartbeat(int bus, uint8_t node, const bus::Heartbeat& hb
         std::snprintf(buf, sizeof buf,
                       "DUPLICATE node ID %u: hardware UIDs %s and %s both send with it; its "
                       "samples are dropped until one stops",
-                      node, hex_uid(e.hardware_uid).c_str(), hex_uid(hb.hardware_uid).c_str());
+                      node, format_uid(e.hardware_uid).c_str(),
+                      format_uid(hb.hardware_uid).c_str());
         emit(PatchEventKind::kDuplicateId, e, now_us, buf);
       }
       e.other_uid_last_us = now_us;
@@ -184,16 +186,18 @@ void PatchRegistry::on_heartbeat(int bus, uint8_t node, const bus::Heartbeat& hb
     // The first UID went quiet for the window: the new board owns the ID.
     char buf[160];
     std::snprintf(buf, sizeof buf, "node %u now belongs to UID %s (was %s)", node,
-                  hex_uid(hb.hardware_uid).c_str(), hex_uid(e.hardware_uid).c_str());
+                  format_uid(hb.hardware_uid).c_str(), format_uid(e.hardware_uid).c_str());
     emit(PatchEventKind::kDiscovered, e, now_us, buf);
     e.duplicate = false;
     e.clock.reset();
     assign_uid(e, hb.hardware_uid, now_us);
-  } else if (e.duplicate && now_us - e.other_uid_last_us >= options_.duplicate_window_us) {
+    e.have_heartbeat = false;  // another board: its uptime is not compared with the old one's
+  } else if (e.duplicate &&
+             elapsed_us(now_us, e.other_uid_last_us) >= options_.duplicate_window_us) {
     e.duplicate = false;  // the intruder stopped
     char buf[128];
     std::snprintf(buf, sizeof buf, "node %u: UID %s no longer heard; the ID is unique again", node,
-                  hex_uid(e.other_uid).c_str());
+                  format_uid(e.other_uid).c_str());
     emit(PatchEventKind::kOnline, e, now_us, buf);
   }
   if (e.have_heartbeat && hb.uptime_s < e.last_heartbeat.uptime_s) {

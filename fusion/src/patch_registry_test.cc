@@ -148,6 +148,21 @@ TEST(PatchRegistry, BoardSwappedAfterSilenceTakesTheId) {
   EXPECT_EQ(r.entry(0, 3).hardware_uid, kUidB);
   EXPECT_EQ(r.entry(0, 3).placement, nullptr);  // B is not in the map
   EXPECT_EQ(r.entry(0, 3).state, PatchLinkState::kDegraded);
+  EXPECT_EQ(r.entry(0, 3).reboots, 0u);  // B's uptime is not compared with A's
+  EXPECT_FALSE(has(kinds(r), PatchEventKind::kRebooted));
+}
+
+TEST(PatchRegistry, AHostClockStepBackIsNotASilenceOrAClash) {
+  const auto map = one_patch_map();
+  PatchRegistry r(&map, {"can0"});
+  r.set_models({0});
+  r.on_heartbeat(0, 3, heartbeat(kUidA, 10), 100 * kS);
+  r.on_heartbeat(0, 3, heartbeat(kUidB, 20), 99 * kS);  // the clock stepped back 1 s
+  EXPECT_TRUE(r.entry(0, 3).duplicate);                 // still a clash, not a swap
+  r.on_heartbeat(0, 3, heartbeat(kUidA, 11), 98 * kS);
+  EXPECT_TRUE(r.entry(0, 3).duplicate);  // and not cleared by the negative interval
+  bus::Sample s;
+  EXPECT_EQ(r.on_sample(0, 3, s, 0, 98 * kS + 1), nullptr);
 }
 
 TEST(PatchRegistry, SequenceGapsAreCounted) {

@@ -121,6 +121,10 @@ Status validate_geometry(const PatchGeometry& g);
 Result<SkinMap> load_skin_map_text(const std::string& yaml, const RobotModel* robot = nullptr);
 Result<SkinMap> load_skin_map_file(const std::string& path, const RobotModel* robot = nullptr);
 
+// A path named in the map file `map_path` (its robot, a model), as the tools open it: relative
+// paths are relative to the map file's folder; absolute and empty ones are returned as they are.
+std::string path_beside(const std::string& map_path, const std::string& path);
+
 // Checks a map built in code the same way the loader checks a file.
 Status validate_skin_map(const SkinMap& map, const RobotModel* robot = nullptr);
 

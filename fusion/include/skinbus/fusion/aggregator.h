@@ -18,8 +18,8 @@
 //
 // Time: `rx_us` / `now_us` are host times (CLOCK_REALTIME microseconds, as SocketCAN stamps
 // frames; replayed logs use their own stamps). A contact's time is its sample's patch timestamp
-// mapped to host time by the patch's clock aligner (clock_alignment.h), or the receive time
-// until the aligner has converged.
+// mapped to host time by the patch's clock aligner (clock_alignment.h; offset-only until its
+// window spans 2 s), or the receive time where the aligner gives no mapping.
 //
 // Kinematics: set_joint_state() gives joint positions by name (any subset of the robot's movable
 // joints; unknown names are counted and ignored). Contacts placed with joint states older than

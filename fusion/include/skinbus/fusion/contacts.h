@@ -83,6 +83,9 @@ enum class PatchEventKind : uint8_t {
 };
 std::string_view patch_event_name(PatchEventKind k);
 
+// A hardware UID as 16 lower-case hex digits, as logs, events and JSON print it.
+std::string format_uid(uint64_t uid);
+
 struct PatchEvent {
   uint64_t time_us = 0;
   PatchEventKind kind = PatchEventKind::kDiscovered;
