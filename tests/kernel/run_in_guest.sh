@@ -12,4 +12,5 @@ if [[ -x "$build/tools/skinbus-listen" ]]; then
   "$here/host_e2e.sh" "$build" || status=1
   "$here/demo_vm.sh" "$build" || status=1
 fi
+"$here/guides_vm.sh" "$build" || status=1
 exit $status
