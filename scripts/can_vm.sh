@@ -9,6 +9,14 @@
 # stdout, stderr, exit status and result files out, so the output reaching the
 # caller is never mixed with kernel console noise.
 #
+# Two more modes, for tests that need a real system rather than a chroot:
+#   --ctucanfd  QEMU emulates a CTU CAN FD controller (PCI, two channels, can0 and can1,
+#               on one emulated bus); Debian's kernel lacks its driver, so it is built
+#               out of tree from Debian's kernel source and headers packages, once per
+#               kernel, and cached next to the kernel.
+#   --systemd   the guest boots systemd as PID 1 (with udevd, journald) on a writable
+#               overlay of the host root, and runs the command from a unit.
+#
 # The kernel package is fetched with `apt-get download` and unpacked into a cache;
 # it is never installed into /boot.
 set -euo pipefail
@@ -22,6 +30,28 @@ readonly BOOT_MODULES=(virtio_ring virtio virtio_pci_modern_dev virtio_pci_legac
                        virtio_pci netfs fscache 9pnet 9pnet_virtio 9p)
 # Modules loaded in every guest (modprobe pulls in can and can-dev).
 readonly CAN_MODULES=(can-raw vcan)
+# --systemd: the initramfs also carries overlayfs, for the writable root.
+readonly OVERLAY_MODULE=overlay
+# --ctucanfd: the driver of QEMU's ctucan_pci device, built by build_ctucanfd
+# (ctucanfd_pci needs ctucanfd, which needs can-dev).
+readonly CTUCANFD_MODULES=(ctucanfd ctucanfd_pci)
+# --systemd: units the test guest does not need, masked so that it boots quickly
+# under emulation (the command's unit needs only basic.target: journald, udevd and
+# the device coldplug). Boot-time updates of caches in /etc and /var, clocks,
+# consoles, timers and whatever the host enables are left out.
+readonly SYSTEMD_MASK=(systemd-firstboot.service systemd-remount-fs.service
+    systemd-machine-id-commit.service systemd-hwdb-update.service
+    systemd-journal-catalog-update.service systemd-update-done.service ldconfig.service
+    systemd-update-utmp.service systemd-random-seed.service systemd-timesyncd.service
+    systemd-sysctl.service systemd-journal-flush.service
+    systemd-pstore.service systemd-binfmt.service proc-sys-fs-binfmt_misc.automount
+    systemd-modules-load.service modprobe@.service systemd-sysusers.service
+    console-setup.service keyboard-setup.service apparmor.service e2scrub_reap.service
+    systemd-boot-system-token.service systemd-boot-random-seed.service
+    dev-hugepages.mount dev-mqueue.mount sys-kernel-debug.mount sys-kernel-tracing.mount
+    sys-kernel-config.mount sys-fs-fuse-connections.mount
+    timers.target cryptsetup.target veritysetup.target integritysetup.target
+    remote-fs.target swap.target)
 
 # Where the guest sees things inside the chroot (on its private tmpfs /tmp).
 readonly GUEST_DIR=/tmp/skinbus-vm
@@ -32,8 +62,9 @@ readonly GUEST_KROOT=$GUEST_DIR/kernel  # unpacked kernel package, for modprobe 
 # 8 KiB default.
 readonly MSIZE=262144
 
-# Debian packages this script relies on (can-utils only for the usual tests).
-readonly HOST_PACKAGES="qemu-system-x86 busybox-static kmod iproute2 xz-utils can-utils"
+# Debian packages this script relies on (can-utils only for the usual tests;
+# make and gcc-12 to build the --ctucanfd driver, udev for --systemd).
+readonly HOST_PACKAGES="qemu-system-x86 busybox-static kmod iproute2 xz-utils can-utils make gcc-12 udev"
 
 # Host variables passed through to the command (glob patterns), besides --env.
 readonly PASS_ENV=(PATH LD_LIBRARY_PATH HOME USER LOGNAME LANG LANGUAGE 'LC_*' TZ
@@ -63,8 +94,13 @@ Options:
   --out-dir DIR        after the run, copy the files the command wrote into
                        \$SKINBUS_VM_OUT to DIR on the host (created if missing)
   --memory MB          guest memory (default 512; /tmp gets half of it)
+  --ctucanfd           add a CTU CAN FD controller (QEMU's ctucan_pci): two real CAN
+                       FD channels, can0 and can1, on one emulated bus, driver loaded,
+                       interfaces down and unconfigured (set bit timing with ip link)
+  --systemd            boot systemd as PID 1 on a writable root (see below)
   --verbose            show the guest's kernel console log on stderr afterwards
   --prepare            only fetch and unpack the kernel and build the initramfs
+                       (with --ctucanfd: and build the controller's driver)
   --help               show this help
 
 Inside the guest:
@@ -82,12 +118,25 @@ Inside the guest:
     (plain modprobe cannot find them: the host has no /lib/modules for this kernel).
   - stdin is /dev/null; the loopback interface is up; there is no other network.
 
+With --systemd the guest's PID 1 is the host's systemd (/lib/systemd/systemd), on
+an overlay whose lower layer is the host root (read-only, 9p) and whose upper layer
+is a tmpfs: the whole file system is writable (/etc, /usr/local, the build tree),
+and every change is gone when the guest powers off. The boot goes as far as
+basic.target (journald, udevd, the device coldplug), with many units masked for
+speed; then a unit runs COMMAND, as above (clean environment, the caller's working
+directory, \$SKINBUS_VM_OUT), and powers off when it ends. /lib/modules holds the
+guest kernel's modules, so plain modprobe works (udev loads no drivers by itself:
+the emulated machine's own would cost seconds), and systemctl, journalctl,
+udevadm and systemd-networkd behave as on a real machine.
+
 The command's stdout and stderr reach the caller's after the guest powers off, and
 the exit status is the command's. 124 means the timeout hit, 125 that the guest
 failed to boot or set up (the console log tail is printed).
 
 Cache: \${SKINBUS_CACHE_DIR:-\$HOME/.cache/skinbus}/can-vm (about 450 MB), refreshed
-when the candidate of Debian's $META_PKG package changes.
+when the candidate of Debian's $META_PKG package changes; the --ctucanfd driver
+is rebuilt with it (downloading about 150 MB of Debian kernel source and headers
+packages, deleted after the build; its log stays in ctucanfd.log).
 Host packages needed: $HOST_PACKAGES.
 EOF
 }
@@ -127,6 +176,16 @@ check_host_tools() {
     # The initramfs has no libc, so busybox must be the static build.
     if [[ $(dpkg-query -W -f='${db:Status-Status}' busybox-static 2>/dev/null) != installed ]]; then
         missing+=("busybox-static")
+    fi
+    if (( CTUCANFD )); then
+        # The kernel headers package names gcc-12 as its compiler.
+        for tool in make gcc-12 dpkg-deb tar; do
+            command -v "$tool" >/dev/null || missing+=("$tool")
+        done
+    fi
+    if (( SYSTEMD )); then
+        [[ -x /lib/systemd/systemd ]] || missing+=("systemd")
+        [[ -x /lib/systemd/systemd-udevd ]] || missing+=("udev")
     fi
     if (( ${#missing[@]} )); then
         die "missing on this host: ${missing[*]}
@@ -226,6 +285,8 @@ for m in ${BOOT_MODULES[*]}; do
 done
 if mount -t 9p -o trans=virtio,version=9p2000.L,msize=$MSIZE share /share; then
     sh /share/guest.sh || echo "can_vm: guest setup failed (\$?)"
+    # --systemd: guest.sh has built the new root and moved the share into it.
+    [ -e /switch-root ] && exec switch_root /newroot /lib/systemd/systemd
     umount /share
 else
     echo "can_vm: cannot mount the run share"
@@ -252,7 +313,7 @@ build_initramfs() {
     tmp=$(mktemp -d "$CACHE/tmp.initramfs.XXXXXX")
     mkdir -p "$tmp/root"/{bin,dev,proc,sys,mnt,share,kroot,lib/modules}
     cp /bin/busybox "$tmp/root/bin/busybox"
-    for m in "${BOOT_MODULES[@]}"; do
+    for m in "${BOOT_MODULES[@]}" "$OVERLAY_MODULE"; do
         src=$(find "$CACHE/kernel/lib/modules/$kv/kernel" -name "$m.ko" -o -name "$m.ko.*" | head -n1)
         [[ -n $src ]] || die "module $m not found in $KPKG"
         copy_module "$src" "$tmp/root/lib/modules/$m.ko"
@@ -286,16 +347,22 @@ cached_kernel() {
     cat "$CACHE/kernel/stamp" 2>/dev/null || true
 }
 
-# Identifies the initramfs: kernel package plus the text of /init.
+# Identifies the initramfs: kernel package plus the text of /init and the modules.
 initramfs_stamp() {
-    echo "$KPKG $KVER $(init_script | sha256sum | cut -c1-16)"
+    echo "$KPKG $KVER $({ init_script; echo "${BOOT_MODULES[*]} $OVERLAY_MODULE"; } | sha256sum | cut -c1-16)"
+}
+
+# The --ctucanfd driver lives inside the kernel folder, so a new kernel drops it.
+have_ctucanfd() {
+    [[ $(cat "$CACHE/kernel/ctucanfd.stamp" 2>/dev/null) == "$KPKG $KVER" ]]
 }
 
 cache_is_current() {
     [[ $(cached_kernel) == "$KPKG $KVER" ]] &&
     [[ -f $CACHE/kernel/vmlinux || -f $CACHE/kernel/vmlinux.none ]] &&
     [[ -f $CACHE/initramfs.cpio ]] &&
-    [[ $(cat "$CACHE/initramfs.stamp" 2>/dev/null) == "$(initramfs_stamp)" ]]
+    [[ $(cat "$CACHE/initramfs.stamp" 2>/dev/null) == "$(initramfs_stamp)" ]] &&
+    { (( ! CTUCANFD )) || have_ctucanfd; }
 }
 
 # Bring the cache up to date; the caller holds the exclusive lock.
@@ -325,6 +392,69 @@ update_cache() {
           $(cat "$CACHE/initramfs.stamp" 2>/dev/null) != "$(initramfs_stamp)" ]]; then
         build_initramfs "$kv" "$(initramfs_stamp)"
     fi
+    if (( CTUCANFD )) && ! have_ctucanfd; then
+        build_ctucanfd "$kv"
+    fi
+}
+
+# apt-get download PACKAGE=VERSION... into the current directory; on failure
+# (missing or outdated lists make it 404) refresh the lists and retry once.
+download_debs() {
+    (apt-get download -q=2 "$@") >>"$CACHE/apt.log" 2>&1 && return 0
+    apt_update
+    (apt-get download -q=2 "$@") >>"$CACHE/apt.log" 2>&1 ||
+        { cat "$CACHE/apt.log" >&2; die "cannot download $*"; }
+}
+
+# The driver of QEMU's ctucan_pci device (drivers/net/can/ctucanfd: ctucanfd.ko and
+# ctucanfd_pci.ko). Debian's kernel does not build it (CONFIG_CAN_CTUCANFD_PCI is not
+# set), so build it out of tree, exactly for the cached kernel, from Debian's own
+# packages of the same version: the source tarball (only the driver's folder is
+# unpacked), the headers of this flavour and of all flavours, and kbuild. The modules
+# are unsigned: the kernel loads them and marks itself tainted. They go into the
+# kernel's lib/modules/$kv/extra, so modprobe finds them and a new kernel drops them.
+build_ctucanfd() {
+    local kv=$1 series flavour tmp hdr log=$CACHE/ctucanfd.log m
+    [[ $kv =~ ^([0-9]+\.[0-9]+)\.[0-9]+-[0-9]+-([a-z0-9]+)$ ]] ||
+        die "cannot tell the kernel series and flavour from '$kv'"
+    series=${BASH_REMATCH[1]} flavour=${BASH_REMATCH[2]}
+    note "building the CTU CAN FD driver for $kv from Debian's linux-source-$series $KVER"
+    tmp=$(mktemp -d "$CACHE/tmp.ctucanfd.XXXXXX")
+    : >"$CACHE/apt.log"
+    (cd "$tmp" && download_debs "linux-source-$series=$KVER" "linux-headers-$kv=$KVER" \
+        "linux-headers-${kv%-"$flavour"}-common=$KVER" "linux-kbuild-$series=$KVER")
+    mkdir "$tmp/root" "$tmp/src"
+    for m in "$tmp"/linux-headers-*.deb "$tmp"/linux-kbuild-*.deb; do
+        dpkg -x "$m" "$tmp/root"
+    done
+    hdr=$tmp/root/usr/src/linux-headers-$kv
+    [[ -f $hdr/Makefile ]] || die "no usr/src/linux-headers-$kv in linux-headers-$kv"
+    # The flavour's Makefile includes the common one by its installed path.
+    sed -i "s|^include /usr/src/|include $tmp/root/usr/src/|" "$hdr/Makefile"
+    # Stream the tarball (1.4 GB unpacked) and keep only the driver's folder.
+    if ! dpkg-deb --fsys-tarfile "$tmp"/linux-source-*.deb |
+         tar -xOf - "./usr/src/linux-source-$series.tar.xz" | xz -dc |
+         tar -xf - -C "$tmp/src" --strip-components=5 "linux-source-$series/drivers/net/can/ctucanfd"; then
+        rm -rf "$tmp"
+        die "cannot unpack drivers/net/can/ctucanfd from linux-source-$series"
+    fi
+    rm -f "$tmp"/*.deb
+    # Two small files: -j2 at most, the machine is shared.
+    if ! env -u MAKEFLAGS -u MAKELEVEL make -C "$hdr" M="$tmp/src" -j2 \
+             CONFIG_CAN_CTUCANFD=m CONFIG_CAN_CTUCANFD_PCI=m modules >"$log" 2>&1; then
+        tail -n 20 "$log" >&2
+        rm -rf "$tmp"
+        die "building the CTU CAN FD driver failed (log: $log)"
+    fi
+    mkdir -p "$CACHE/kernel/lib/modules/$kv/extra"
+    for m in "${CTUCANFD_MODULES[@]}"; do
+        [[ $("$(find_tool modinfo)" -F vermagic "$tmp/src/$m.ko") == "$kv "* ]] ||
+            die "$m.ko was not built for $kv (log: $log)"
+        cp "$tmp/src/$m.ko" "$CACHE/kernel/lib/modules/$kv/extra/"
+    done
+    "$(find_tool depmod)" -b "$CACHE/kernel" "$kv"
+    echo "$KPKG $KVER" >"$CACHE/kernel/ctucanfd.stamp"
+    rm -rf "$tmp"
 }
 
 # Make the cache current and set KERNEL_IMAGE and INITRD. Runs hold a shared
@@ -356,26 +486,89 @@ prepare() {
 # One run
 # ---------------------------------------------------------------------------
 
+# guest.sh, first part: mount the host root at $r. In the default mode it is the
+# chroot, read-only; with --systemd it is the lower layer of an overlay whose
+# upper layer is a tmpfs that takes every write, so systemd, udev and the command
+# can write anywhere.
+guest_root_lines() {
+    if (( SYSTEMD )); then
+        cat <<EOF
+r=/newroot
+insmod /lib/modules/$OVERLAY_MODULE.ko || exit 1
+mkdir -p /lower /rw \$r
+mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=$MSIZE host /lower || exit 1
+mount -t tmpfs -o mode=755 tmpfs /rw
+mkdir -p /rw/upper /rw/work
+mount -t overlay -o lowerdir=/lower,upperdir=/rw/upper,workdir=/rw/work overlay \$r || exit 1
+EOF
+    else
+        cat <<EOF
+r=/mnt
+mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=$MSIZE host \$r || exit 1
+EOF
+    fi
+}
+
+# guest.sh, last part: run setup.sh and run.sh in the chroot and record the
+# command's exit status; or, with --systemd, make systemd boot to the unit that
+# does so, and leave the switch to the new root to /init.
+guest_run_lines() {
+    if (( SYSTEMD )); then
+        local kv
+        kv=$(ls "$CACHE/kernel/lib/modules")
+        cat <<EOF
+# The guest kernel's modules where modprobe and udev look for them.
+mkdir -p \$r/lib/modules/$kv
+mount --bind \$r$GUEST_KROOT/lib/modules/$kv \$r/lib/modules/$kv || exit 1
+# The unit that runs the command, the target that boots to it, and the masks.
+cp /share/unit.sh \$r$GUEST_DIR/
+cp /share/skinbus-vm.service /share/skinbus-vm.target \$r/etc/systemd/system/
+ln -sf skinbus-vm.target \$r/etc/systemd/system/default.target
+for u in ${SYSTEMD_MASK[*]}; do ln -sf /dev/null \$r/etc/systemd/system/\$u; done
+# /tmp is a fresh tmpfs already: systemd-tmpfiles must not empty it at boot (its
+# tmp.conf says D), which would take $GUEST_DIR and the share's files with it.
+mkdir -p \$r/etc/tmpfiles.d
+echo 'd /tmp 1777 root root -' >\$r/etc/tmpfiles.d/tmp.conf
+# udev loads no drivers by itself (80-drivers.rules, emptied): under emulation the
+# machine's ATA, floppy, KVM and crypto modules cost seconds, and none is used.
+# setup.sh loads the CAN modules.
+mkdir -p \$r/etc/udev/rules.d
+: >\$r/etc/udev/rules.d/80-drivers.rules
+# The share goes along: unit.sh writes the command's output and status there.
+mkdir -p \$r$GUEST_DIR/share
+mount --move /share \$r$GUEST_DIR/share || exit 1
+touch /switch-root
+EOF
+    else
+        cat <<EOF
+# Through the host's sh: a bare "chroot \$r modprobe" would run busybox's own
+# modprobe applet, which lacks -d.
+chroot \$r /bin/sh -e $GUEST_DIR/setup.sh || exit 1
+chroot \$r /usr/bin/env -i /bin/sh $GUEST_DIR/run.sh </dev/null >/share/stdout 2>/share/stderr
+echo \$? >/share/status
+EOF
+    fi
+}
+
 # guest.sh: run by the initramfs busybox sh. Mounts the host root and builds the
-# chroot around it, then runs setup.sh and run.sh in there and records the
-# command's exit status.
+# file system around it (chroot, or the new root for systemd), then runs the
+# command (guest_run_lines).
 write_guest_script() {
     cat >"$SHARE/guest.sh" <<EOF
 set -u
 export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
-r=/mnt
 # cache=loose: the guest keeps what it read in its page cache, which makes
 # loading binaries and libraries several times faster than uncached 9p. Fine for
 # a read-only view that lives for one run. The run share stays uncached, so
 # everything written there is on the host when the guest powers off.
-mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=$MSIZE host \$r || exit 1
+$(guest_root_lines)
 mount -t proc proc \$r/proc
 mount -t sysfs sysfs \$r/sys
 mount -t devtmpfs devtmpfs \$r/dev
 mkdir -p \$r/dev/pts \$r/dev/shm
 mount -t devpts devpts \$r/dev/pts
 mount -t tmpfs tmpfs \$r/dev/shm
-mount -t tmpfs tmpfs \$r/run
+mount -t tmpfs -o mode=755 tmpfs \$r/run
 # Stage the kernel dir before the tmpfs on /tmp can hide it (the cache may
 # live under the host's /tmp).
 mount --bind \$r$(shquote "$CACHE/kernel") /kroot || exit 1
@@ -392,11 +585,44 @@ mkdir -p \$r$GUEST_OUT \$r$GUEST_KROOT
 mount --bind /share/out \$r$GUEST_OUT || exit 1
 mount --move /kroot \$r$GUEST_KROOT || exit 1
 cp /share/setup.sh /share/run.sh \$r$GUEST_DIR/
-# Through the host's sh: a bare "chroot \$r modprobe" would run busybox's own
-# modprobe applet, which lacks -d.
-chroot \$r /bin/sh -e $GUEST_DIR/setup.sh || exit 1
-chroot \$r /usr/bin/env -i /bin/sh $GUEST_DIR/run.sh </dev/null >/share/stdout 2>/share/stderr
-echo \$? >/share/status
+$(guest_run_lines)
+EOF
+}
+
+# --systemd: the units that run the command once the guest has booted to
+# basic.target, and unit.sh, which runs setup.sh and run.sh there.
+write_systemd_units() {
+    cat >"$SHARE/skinbus-vm.target" <<EOF
+[Unit]
+Description=can_vm.sh: run the command
+Requires=basic.target
+After=basic.target
+Wants=skinbus-vm.service
+AllowIsolate=yes
+EOF
+    cat >"$SHARE/skinbus-vm.service" <<EOF
+[Unit]
+Description=can_vm.sh: the command
+# Power off when the command ends (its status is on the share by then).
+SuccessAction=poweroff-force
+FailureAction=poweroff-force
+[Service]
+Type=exec
+ExecStart=/bin/sh $GUEST_DIR/unit.sh
+StandardInput=null
+StandardOutput=journal+console
+StandardError=journal+console
+TimeoutStartSec=infinity
+EOF
+    cat >"$SHARE/unit.sh" <<EOF
+d=$GUEST_DIR
+cut -d' ' -f1 /proc/uptime >\$d/share/uptime
+# Devices found at boot (the CAN controller) processed, modules loaded.
+udevadm settle --timeout=60 || echo "can_vm: udevadm settle timed out"
+/bin/sh -e \$d/setup.sh || exit 1
+udevadm settle --timeout=60 || echo "can_vm: udevadm settle timed out"
+/usr/bin/env -i /bin/sh \$d/run.sh </dev/null >\$d/share/stdout 2>\$d/share/stderr
+echo \$? >\$d/share/status
 EOF
 }
 
@@ -406,6 +632,12 @@ write_setup_script() {
     local i
     {
         echo "modprobe -a -d $GUEST_KROOT ${CAN_MODULES[*]} ${EXTRA_MODULES[*]}"
+        if (( CTUCANFD )); then
+            # Probing registers both channels before modprobe returns.
+            echo "modprobe -d $GUEST_KROOT ctucanfd_pci"
+            echo "test -e /sys/class/net/can0 && test -e /sys/class/net/can1 ||"
+            echo "  { echo 'can_vm: the CTU CAN FD driver found no can0 and can1' >&2; exit 1; }"
+        fi
         echo "ip link set lo up"
         for (( i = 0; i < FD_IFACES; i++ )); do
             echo "ip link add dev vcan$i type vcan"
@@ -464,6 +696,16 @@ run_vm() {
     write_setup_script
     write_run_script
     (( VERBOSE )) || append+=" quiet"
+    local devices=()
+    if (( SYSTEMD )); then
+        write_systemd_units
+        # The host's /etc/fstab describes the host, not this guest.
+        append+=" fstab=no"
+    fi
+    if (( CTUCANFD )); then
+        # One CTU CAN FD controller whose two channels share one emulated bus.
+        devices+=(-object "can-bus,id=skinbus" -device "ctucan_pci,canbus0=skinbus,canbus1=skinbus")
+    fi
 
     # KVM guests hang on these machines, so emulate (TCG). -cpu max lets binaries
     # built for newer x86-64 levels (AVX2) run; a second vCPU made boots slower.
@@ -477,6 +719,7 @@ run_vm() {
             -kernel "$KERNEL_IMAGE" -initrd "$INITRD" -append "$append" \
             -virtfs "local,path=/,mount_tag=host,security_model=none,readonly=on,multidevs=remap" \
             -virtfs "local,path=$(qemu_path "$SHARE"),mount_tag=share,security_model=none,multidevs=remap" \
+            "${devices[@]}" \
         </dev/null >"$console" 2>&1 &
     qemu_pid=$!
     trap 'interrupted=130; kill -TERM $qemu_pid 2>/dev/null' INT
@@ -494,6 +737,9 @@ run_vm() {
     if (( VERBOSE )); then
         echo "----- guest console -----" >&2
         cat "$console" >&2
+        if [[ -f $SHARE/uptime ]]; then
+            note "systemd started the command $(<"$SHARE/uptime") s after the guest's kernel"
+        fi
     fi
     if [[ -n $OUT_DIR ]]; then
         mkdir -p "$OUT_DIR"
@@ -522,7 +768,7 @@ run_vm() {
 }
 
 main() {
-    TIMEOUT=300 FD_IFACES=1 CLASSIC_IFACES=1 MEMORY=512 VERBOSE=0 OUT_DIR=""
+    TIMEOUT=300 FD_IFACES=1 CLASSIC_IFACES=1 MEMORY=512 VERBOSE=0 OUT_DIR="" CTUCANFD=0 SYSTEMD=0
     EXTRA_MODULES=() EXTRA_ENV=() COMMAND=()
     local prepare_only=0 mods
     while (( $# )); do
@@ -542,6 +788,8 @@ main() {
                 esac
                 shift 2 ;;
             --verbose) VERBOSE=1; shift ;;
+            --ctucanfd) CTUCANFD=1; shift ;;
+            --systemd) SYSTEMD=1; shift ;;
             --) shift; COMMAND=("$@"); break ;;
             *) die "unknown argument '$1' (see --help)" ;;
         esac

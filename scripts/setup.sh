@@ -20,6 +20,9 @@ packages=(
   clang libclang-rt-14-dev
   # CAN: can-utils are the real peer in tests; the kernel tests boot Debian's kernel in QEMU
   can-utils iproute2 kmod qemu-system-x86 busybox-static xz-utils zstd cpio
+  # the deploying guide's VM test: systemd-udevd in the guest, and the emulated CTU CAN FD
+  # controller's driver, built against Debian's kernel headers (scripts/can_vm.sh --ctucanfd)
+  udev make gcc-12
   # reports and plots
   python3 python3-matplotlib
 )
