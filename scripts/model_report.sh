@@ -53,6 +53,9 @@ dataset test_nominal --plan random-test --count 2000 --seed 7
 dataset grid_nominal --plan grid
 dataset grid_fabricated --plan grid --fabricated
 dataset grid_anisotropic --plan grid --fabricated --anisotropy 0.05
+# Ten times as many press locations for the small network (ramps at 8 mm/s: a quarter of the
+# samples per press, as --stride 4 keeps of the 2 mm/s ones).
+dataset halton12k_nominal --plan halton --count 12000 --speed 8 --seed 5
 
 # Networks for the estimator table (all on the Halton set).
 train nominal_seed_cnn 35 halton1200_nominal --name nominal_seed_cnn --stride 4 --patience 20 --plateau 5
@@ -60,6 +63,10 @@ train cnn_w0.5 12 halton1200_nominal --width 0.5 --stride 4 --patience 20 --plat
 train cnn_w0.25 8 halton1200_nominal --width 0.25 --stride 4 --patience 20 --plateau 5
 train cnn_w0.125 6 halton1200_nominal --width 0.125 --stride 4 --patience 20 --plateau 5
 train mlp_256x256 5 halton1200_nominal --arch mlp --hidden 256,256 --stride 4 --patience 20 --plateau 5
+# The small network: an MLP 48-128-128-128-128-4 on ten times the press locations, its XY loss
+# weighted by depth (docs/benchmarks/models.md: what each part pays).
+train mlp_128x128x128x128_12k 30 halton12k_nominal --arch mlp --hidden 128,128,128,128 \
+  --batch 256 --epochs 150 --patience 40 --plateau 8 --xy-weight-depth 1.0 --xy-weight-floor 0.3
 # The seed recipe per unit: the seed CNN on that unit's 19 x 19 grid.
 for unit in nominal fabricated anisotropic; do
   train "seed_recipe_$unit" 12 "grid_$unit" --stride 2 --patience 20 --plateau 5
@@ -67,7 +74,7 @@ done
 
 "$bin/skinbus-bench" models --test "$work/test_nominal.csv" --train "$work/grid_nominal.csv" \
   --model "$work/nominal_seed_cnn" --model "$work/cnn_w0.5" --model "$work/cnn_w0.25" \
-  --model "$work/cnn_w0.125" --model "$work/mlp_256x256" \
+  --model "$work/cnn_w0.125" --model "$work/mlp_256x256" --model "$work/mlp_128x128x128x128_12k" \
   --csv docs/benchmarks/models.csv --errors-csv "$work/model_errors.csv" \
   --plot docs/benchmarks/models | tee "$work/models_table.md"
 "$bin/skinbus-bench" budget --seed-model "nominal=$work/seed_recipe_nominal" \

@@ -124,6 +124,15 @@ int main(int argc, char** argv) {
   app.add_option("--select-depth", o.select_min_depth_mm,
                  "validation XY error counts presses at least this deep, mm")
       ->capture_default_str();
+  app.add_option("--xy-weight-depth", o.xy_full_weight_depth_mm,
+                 "weight the XY loss of presses shallower than this by (depth / this)^2, mm "
+                 "(0: plain MSE, the seed's)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 10.0));
+  app.add_option("--xy-weight-floor", o.xy_weight_floor,
+                 "least XY weight factor of the shallowest presses (squared like the rest)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
   app.add_option("--stride", o.sample_stride, "keep every n-th training sample of a ramp")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));

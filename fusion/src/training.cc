@@ -10,6 +10,7 @@
 #include <numeric>
 #include <random>
 #include <set>
+#include <sstream>
 
 #include "skinbus/common/stats.h"
 
@@ -306,10 +307,16 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
     if (Status s = load_weights(net, *base); !s.ok()) return s.error();
   }
 
-  auto make_xy = [&](const std::vector<int64_t>& rows, torch::Tensor& x, torch::Tensor& y) {
+  // Inputs, normalised targets and per-output loss weights (all 1 unless the XY loss is
+  // depth-weighted).
+  const bool weighted = o.xy_full_weight_depth_mm > 0;
+  auto make_xy = [&](const std::vector<int64_t>& rows, torch::Tensor& x, torch::Tensor& y,
+                     torch::Tensor& w) {
     std::vector<double> field(rows.size() * static_cast<std::size_t>(channels));
     y = torch::empty({static_cast<int64_t>(rows.size()), outputs}, torch::kFloat32);
+    w = torch::ones({static_cast<int64_t>(rows.size()), outputs}, torch::kFloat32);
     float* py = y.data_ptr<float>();
+    float* pw = w.data_ptr<float>();
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const std::size_t r = static_cast<std::size_t>(rows[i]);
       std::copy(data.field(r), data.field(r) + channels,
@@ -319,12 +326,21 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
         py[i * outputs + j] =
             static_cast<float>((t[j] - meta.output_mean[j]) / meta.output_scale[j]);
       }
+      if (weighted) {
+        const double f = std::clamp(data.depth_mm[r] / o.xy_full_weight_depth_mm,
+                                    std::clamp(o.xy_weight_floor, 0.0, 1.0), 1.0);
+        for (int j = 0; j < std::min(outputs, 2); ++j)
+          pw[i * outputs + j] = static_cast<float>(f * f);
+      }
     }
     x = normalised_inputs(meta, field, static_cast<int64_t>(rows.size()));
   };
-  torch::Tensor x_train, y_train, x_val, y_val;
-  make_xy(train_rows, x_train, y_train);
-  make_xy(val_rows, x_val, y_val);
+  torch::Tensor x_train, y_train, w_train, x_val, y_val, w_val;
+  make_xy(train_rows, x_train, y_train, w_train);
+  make_xy(val_rows, x_val, y_val, w_val);
+  auto loss_of = [&](const torch::Tensor& pred, const torch::Tensor& y, const torch::Tensor& w) {
+    return weighted ? ((pred - y).square() * w).mean() : torch::mse_loss(pred, y);
+  };
   std::vector<double> val_depth(val_rows.size());
   for (std::size_t i = 0; i < val_rows.size(); ++i)
     val_depth[i] = data.depth_mm[static_cast<std::size_t>(val_rows[i])];
@@ -352,7 +368,7 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
     rep.epoch = epoch;
     rep.epochs = o.max_epochs;
     rep.train_loss = train_loss;
-    rep.val_loss = torch::mse_loss(pred, y_val).item<double>();
+    rep.val_loss = loss_of(pred, y_val, w_val).item<double>();
     const float* pp = pred.data_ptr<float>();
     const float* py = y_val.data_ptr<float>();
     std::vector<double> xy, xy_deep, depth, force;
@@ -396,8 +412,9 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
       const int64_t e = std::min(n, b + o.batch_size);
       torch::Tensor idx = perm.slice(0, b, e);
       torch::Tensor xb = x_train.index_select(0, idx), yb = y_train.index_select(0, idx);
+      torch::Tensor wb = weighted ? w_train.index_select(0, idx) : w_train;
       opt.zero_grad();
-      torch::Tensor loss = torch::mse_loss(net->forward(xb), yb);
+      torch::Tensor loss = loss_of(net->forward(xb), yb, wb);
       const double l = loss.item<double>();
       if (!std::isfinite(l)) {
         return make_error(ErrorCode::kNotConverged,
@@ -447,6 +464,12 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
   m.metrics["val_depth_mean_mm"] = best_report.val_depth_mean_mm;
   m.metrics["val_force_mean_n"] = best_report.val_force_mean_n;
   m.metrics["select_min_depth_mm"] = o.select_min_depth_mm;
+  if (weighted) {
+    std::ostringstream w;
+    w << "XY terms weighted by clamp(depth / " << o.xy_full_weight_depth_mm << " mm, "
+      << o.xy_weight_floor << ", 1)^2";
+    m.info["xy_loss"] = w.str();
+  }
   m.metrics["train_seconds"] = best_report.elapsed_s;
   if (Status s = validate_model(result.model); !s.ok()) return s.error();
   return result;

@@ -110,6 +110,51 @@ TEST(Training, SameSeedSameModel) {
   EXPECT_NE(a->model.tensors[0].data, c->model.tensors[0].data);
 }
 
+TEST(Training, DepthWeightedLossIsMseWhenEveryWeightIsOne) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const sim::Dataset train = ramp_set(nominal, sim::plan_halton(30, 60), kSeed);
+  TrainOptions o = quick_options();
+  o.max_epochs = 3;
+  Result<TrainResult> plain = train_model(train, o);
+  o.xy_full_weight_depth_mm = 1.5;
+  o.xy_weight_floor = 1.0;  // every factor clamped to 1: the weighted loss is the MSE
+  Result<TrainResult> ones = train_model(train, o);
+  ASSERT_TRUE(plain.ok() && ones.ok());
+  ASSERT_EQ(plain->model.tensors.size(), ones->model.tensors.size());
+  for (std::size_t i = 0; i < plain->model.tensors.size(); ++i) {
+    const auto& a = plain->model.tensors[i].data;
+    const auto& b = ones->model.tensors[i].data;
+    ASSERT_EQ(a.size(), b.size());
+    for (std::size_t k = 0; k < a.size(); ++k) {
+      ASSERT_NEAR(a[k], b[k], 1e-4) << plain->model.tensors[i].name << "[" << k << "]";
+    }
+  }
+  for (std::size_t e = 0; e < plain->history.size(); ++e) {
+    EXPECT_NEAR(plain->history[e].train_loss, ones->history[e].train_loss,
+                1e-5 * plain->history[e].train_loss);
+  }
+  EXPECT_EQ(plain->model.meta.info.count("xy_loss"), 0u);
+  EXPECT_NE(ones->model.meta.info.at("xy_loss").find("1.5 mm"), std::string::npos);
+}
+
+TEST(Training, DepthWeightedLossLocalisesDeepPressesBetter) {
+  // Shallow presses cannot be localised; under a plain MSE their XY targets dominate the loss.
+  // Weighting them down spends the network on presses it can localise.
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const sim::Dataset train = ramp_set(nominal, sim::plan_halton(200, 60), kSeed);
+  const sim::Dataset test = test_set(nominal, 300, kSeed + 1);
+  TrainOptions o = quick_options();
+  o.max_epochs = 60;
+  Result<TrainResult> plain = train_model(train, o);
+  o.xy_full_weight_depth_mm = 1.5;
+  Result<TrainResult> weighted = train_model(train, o);
+  ASSERT_TRUE(plain.ok() && weighted.ok());
+  const Errors p = evaluate(plain->model, test), w = evaluate(weighted->model, test);
+  std::printf("XY (>= 1 mm deep): plain MSE %.2f mm, depth-weighted %.2f mm\n", p.xy_deep_mm,
+              w.xy_deep_mm);
+  EXPECT_LT(w.xy_deep_mm, 0.9 * p.xy_deep_mm);
+}
+
 TEST(Training, FineTuningImprovesAMismatchedUnit) {
   const sim::PatchDesign design;
   const sim::PatchModel nominal = sim::PatchModel::nominal(design).value();

@@ -4,8 +4,9 @@
 // train_model() reads a sim::Dataset (the one dataset format, any number of sensors), normalises
 // inputs (per channel) and targets (u_mm, v_mm, depth_mm, force_n; per output), splits
 // train/validation by indentation location (all samples of presses at one (u, v) fall on one
-// side: neighbouring samples of a press never leak across), trains with AdamW and MSE, clips the
-// gradient norm, and keeps the epoch with the best validation score. The score is the mean XY
+// side: neighbouring samples of a press never leak across), trains with AdamW and MSE (optionally
+// with the XY terms of shallow presses weighted down, TrainOptions::xy_full_weight_depth_mm), clips
+// the gradient norm, and keeps the epoch with the best validation score. The score is the mean XY
 // error of validation samples at least `select_min_depth_mm` deep plus the mean depth error:
 // shallow presses cannot be localised and would swamp a plain validation loss. Everything is
 // seeded: the same data, options and thread count give the same model.
@@ -29,7 +30,7 @@ namespace skinbus::fusion {
 
 struct EpochReport {
   int epoch = 0, epochs = 0;
-  double train_loss = 0;         // MSE of normalised outputs
+  double train_loss = 0;         // MSE of normalised outputs (weighted as the training loss)
   double val_loss = 0;           // the same on the validation split
   double val_xy_mean_mm = 0;     // all validation samples
   double val_xy_deep_mm = 0;     // validation samples >= select_min_depth_mm deep
@@ -53,6 +54,12 @@ struct TrainOptions {
   double grad_clip_norm = 1.0;
   double validation_fraction = 0.2;  // of the press locations
   double select_min_depth_mm = 1.0;
+  // Depth-weighted XY loss: a sample's two XY squared errors are weighted by f^2, f = true depth
+  // / xy_full_weight_depth_mm clamped to [xy_weight_floor, 1], so presses too shallow to localise
+  // stop dominating the loss (their XY targets are noise to the network) while still pulling
+  // their answers towards the likely region. 0: plain MSE (the seed's).
+  double xy_full_weight_depth_mm = 0;
+  double xy_weight_floor = 0;
   int sample_stride = 1;   // keep every n-th sample of the training split (ramps are dense)
   double max_seconds = 0;  // stop after this long (0: no limit); the best epoch so far is kept
   uint64_t seed = 1;
