@@ -489,12 +489,12 @@ int bench_models(const ModelsBenchArgs& a) {
         peak_before, peak_after);
     for (const Measured& m : rows) {
       if (m.macs > 0 && m.kind.find("float32") != std::string::npos) {
+        const double floor_us = 2e-3 * m.macs / peak_before;
         std::printf(
             "  %s: floor %.1f us per sample at %.0f GFLOP/s; batch 1 runs at %.0f %% of that "
             "peak, batch 64 (one thread) at %.0f %%\n",
-            m.name.c_str(), 2e-3 * m.macs / peak_before, peak_before,
-            100.0 * 2e-3 * m.macs / peak_before / m.batch1_us,
-            100.0 * 2e-3 * m.macs / peak_before / m.batch64_1t_us);
+            m.name.c_str(), floor_us, peak_before, 100.0 * floor_us / m.batch1_us,
+            100.0 * floor_us / m.batch64_1t_us);
       }
     }
     std::printf("\n");

@@ -307,16 +307,17 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
     if (Status s = load_weights(net, *base); !s.ok()) return s.error();
   }
 
-  // Inputs, normalised targets and per-output loss weights (all 1 unless the XY loss is
-  // depth-weighted).
+  // Inputs, normalised targets and, when the XY loss is depth-weighted, per-output loss weights
+  // (left undefined otherwise: the plain MSE needs none).
   const bool weighted = o.xy_full_weight_depth_mm > 0;
+  const double weight_floor = std::clamp(o.xy_weight_floor, 0.0, 1.0);
   auto make_xy = [&](const std::vector<int64_t>& rows, torch::Tensor& x, torch::Tensor& y,
                      torch::Tensor& w) {
     std::vector<double> field(rows.size() * static_cast<std::size_t>(channels));
     y = torch::empty({static_cast<int64_t>(rows.size()), outputs}, torch::kFloat32);
-    w = torch::ones({static_cast<int64_t>(rows.size()), outputs}, torch::kFloat32);
+    if (weighted) w = torch::ones({static_cast<int64_t>(rows.size()), outputs}, torch::kFloat32);
     float* py = y.data_ptr<float>();
-    float* pw = w.data_ptr<float>();
+    float* pw = weighted ? w.data_ptr<float>() : nullptr;
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const std::size_t r = static_cast<std::size_t>(rows[i]);
       std::copy(data.field(r), data.field(r) + channels,
@@ -327,8 +328,8 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
             static_cast<float>((t[j] - meta.output_mean[j]) / meta.output_scale[j]);
       }
       if (weighted) {
-        const double f = std::clamp(data.depth_mm[r] / o.xy_full_weight_depth_mm,
-                                    std::clamp(o.xy_weight_floor, 0.0, 1.0), 1.0);
+        const double f =
+            std::clamp(data.depth_mm[r] / o.xy_full_weight_depth_mm, weight_floor, 1.0);
         for (int j = 0; j < std::min(outputs, 2); ++j)
           pw[i * outputs + j] = static_cast<float>(f * f);
       }
