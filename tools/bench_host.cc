@@ -30,6 +30,7 @@
 #include "bench_host.h"
 #include "skinbus/bus/budget.h"
 #include "skinbus/bus/codec.h"
+#include "skinbus/bus/socketcan.h"
 #include "skinbus/fusion/aggregator.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
@@ -43,12 +44,6 @@ constexpr double kRateHz = 41.7;
 // Latencies of samples in the first half second are left out: the first model runs touch cold
 // memory and wake the worker threads (a start-up cost, not a steady-state one).
 constexpr uint64_t kWarmUpUs = 500'000;
-
-uint64_t now_us() {
-  timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<uint64_t>(ts.tv_sec) * 1'000'000ull + static_cast<uint64_t>(ts.tv_nsec) / 1000;
-}
 
 double cpu_s() {
   timespec ts;
@@ -215,18 +210,18 @@ bool run_paced(const Setup& s, int threads, Result* r) {
   fusion::ContactArray out;
   std::vector<double> lat;
   lat.reserve(s.frames.size());
-  const uint64_t t_start = now_us() + 1000;
+  const uint64_t t_start = bus::monotonic_now_us() + 1000;
   const double cpu0 = cpu_s();
   bool fed = false;
   uint64_t next_tick = 0;
   for (std::size_t i = 0; i < s.frames.size(); ++i) {
     const TimedFrame& f = s.frames[i];
     const uint64_t due = t_start + f.at_us;
-    uint64_t t = now_us();
+    uint64_t t = bus::monotonic_now_us();
     if (t < due) {
       if (fed) {
         if (agg->process(t, &out)) {
-          const uint64_t done = now_us();
+          const uint64_t done = bus::monotonic_now_us();
           for (uint64_t rx : agg->processed_rx_us()) {
             if (rx >= t_start + kWarmUpUs) lat.push_back(static_cast<double>(done - rx));
           }
@@ -237,7 +232,7 @@ bool run_paced(const Setup& s, int threads, Result* r) {
         }
         fed = false;
       }
-      t = now_us();
+      t = bus::monotonic_now_us();
       if (t < due) std::this_thread::sleep_for(std::chrono::microseconds(due - t));
     }
     // The frame is stamped with its arrival time (as the kernel stamps it), not with when this
@@ -245,16 +240,16 @@ bool run_paced(const Setup& s, int threads, Result* r) {
     agg->on_frame(f.bus, f.frame, due);
     fed = true;
   }
-  uint64_t t = now_us();
+  uint64_t t = bus::monotonic_now_us();
   if (agg->process(t, &out)) {
-    const uint64_t done = now_us();
+    const uint64_t done = bus::monotonic_now_us();
     for (uint64_t rx : agg->processed_rx_us()) {
       if (rx >= t_start + kWarmUpUs) lat.push_back(static_cast<double>(done - rx));
     }
   }
   // Idle to the end of the last period, as the daemon's poll loop (20 ms timeouts, a tick every
   // 100 ms): an event-mode bus with nothing touched still costs its timers.
-  while ((t = now_us()) < t_start + s.end_us) {
+  while ((t = bus::monotonic_now_us()) < t_start + s.end_us) {
     (void)agg->process(t, &out);
     if (t >= next_tick) {
       agg->tick(t);
@@ -263,7 +258,7 @@ bool run_paced(const Setup& s, int threads, Result* r) {
     std::this_thread::sleep_for(
         std::chrono::microseconds(std::min<uint64_t>(20'000, t_start + s.end_us - t)));
   }
-  const double wall = static_cast<double>(now_us() - t_start) * 1e-6;
+  const double wall = static_cast<double>(bus::monotonic_now_us() - t_start) * 1e-6;
   r->cpu_percent = 100 * (cpu_s() - cpu0) / wall;
   if (!lat.empty()) {
     r->p50_us = quantile(lat, 0.5);

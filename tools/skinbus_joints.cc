@@ -4,7 +4,6 @@
 //   skinbus-joints --trajectory arms.csv                      # 100 Hz, holds the last row
 //   skinbus-joints --trajectory arms.csv --duration 2.5       # then the stream stops
 //   skinbus-joints --trajectory arms.csv --robot skinbot.urdf --domain 5 --wait-match 20
-#include <time.h>
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
@@ -20,6 +19,7 @@
 
 #include "skinbus/body_map/joint_trajectory.h"
 #include "skinbus/body_map/robot_model.h"
+#include "skinbus/bus/socketcan.h"
 #include "skinbus/fusion/dds.h"
 #include "tool_util.h"
 
@@ -30,12 +30,6 @@ namespace {
 constexpr int kExitFailed = 1;  // a file, DDS, or no subscriber within --wait-match
 constexpr int kExitUsage = 2;   // bad arguments
 constexpr auto kSlice = std::chrono::milliseconds(50);  // how often sleeps look at Ctrl-C
-
-uint64_t realtime_now_us() {
-  timespec ts{};
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return static_cast<uint64_t>(ts.tv_sec) * 1000000u + static_cast<uint64_t>(ts.tv_nsec) / 1000u;
-}
 
 // Sleeps until `t` in slices, so that SIGINT / SIGTERM end the tool promptly. False if a stop
 // was requested.
@@ -177,7 +171,7 @@ int main(int argc, char** argv) {
   const auto period =
       std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / rate_hz));
   const Clock::time_point t0 = Clock::now();
-  const uint64_t t0_us = realtime_now_us();
+  const uint64_t t0_us = bus::realtime_now_us();
   if (!quiet) {
     std::string names;
     for (const std::string& n : traj->names) names += (names.empty() ? "" : ", ") + n;
@@ -206,7 +200,7 @@ int main(int argc, char** argv) {
     const double t_s = std::chrono::duration<double>(now - t0).count();
     traj->sample(t_s, q);
     for (std::size_t i = 0; i < q.size(); ++i) q[i] *= scale[i];
-    const uint64_t stamp_us = realtime_now_us();
+    const uint64_t stamp_us = bus::realtime_now_us();
     const Status st = (*pub)->publish(traj->names, q, stamp_us);
     if (st.ok()) {
       ++published;

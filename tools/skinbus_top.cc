@@ -12,15 +12,12 @@
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <map>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
-#include "skinbus/bus/socketcan.h"
 #include "skinbus/fusion/contacts.h"
 #include "skinbus/fusion/contacts_json.h"
 #include "skinbus/fusion/dds.h"

@@ -4,11 +4,11 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
-#include <fstream>
 #include <set>
 #include <sstream>
 
 #include "skinbus/common/csv.h"
+#include "skinbus/common/yaml_reader.h"
 
 namespace skinbus::body_map {
 
@@ -88,11 +88,9 @@ Result<JointTrajectory> parse_joint_trajectory(const std::string& text, const st
 }
 
 Result<JointTrajectory> load_joint_trajectory(const std::string& path) {
-  std::ifstream f(path);
-  if (!f) return make_error(ErrorCode::kNotFound, "cannot read joint trajectory '" + path + "'");
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return parse_joint_trajectory(ss.str(), path);
+  Result<std::string> text = read_text_file(path, "joint trajectory");
+  if (!text.ok()) return text.error();
+  return parse_joint_trajectory(*text, path);
 }
 
 std::string joint_trajectory_to_csv(const JointTrajectory& t) {

@@ -155,9 +155,8 @@ ClockAligner::Update ClockAligner::update(uint32_t patch_time_us, uint64_t host_
   if (backward) {
     // A reordered sample earlier than the line allows cannot be trusted either way: drop it.
     if (too_early) return Update::kReordered;
-    insert(x, host - x);
     ++samples_;
-    refit();
+    if (insert(x, host - x)) refit();
     return Update::kReordered;
   }
 
@@ -185,13 +184,12 @@ ClockAligner::Update ClockAligner::update(uint32_t patch_time_us, uint64_t host_
   last_raw_ = patch_time_us;
   last_x_ = x;
   last_host_ = host;
-  insert(x, host - x);
   ++samples_;
-  refit();
+  if (insert(x, host - x)) refit();
   return Update::kOk;
 }
 
-void ClockAligner::insert(int64_t x, int64_t y) {
+bool ClockAligner::insert(int64_t x, int64_t y) {
   const int64_t key = bucket_of(x);
   std::size_t i = points_.size();
   while (i > 0 && points_[i - 1].key > key) --i;
@@ -199,15 +197,17 @@ void ClockAligner::insert(int64_t x, int64_t y) {
     // Same bucket: keep the earlier arrival relative to the current line's slope.
     Point& p = points_[i - 1];
     const double score_new = static_cast<double>(y) - b_ * static_cast<double>(x - p.x);
-    if (score_new < static_cast<double>(p.y)) p = Point{x, y, key};
-    return;
+    if (score_new >= static_cast<double>(p.y)) return false;
+    p = Point{x, y, key};
+    return true;
   }
   if (points_.size() >= static_cast<std::size_t>(options_.window)) {
-    if (i == 0) return;  // older than everything the full window keeps
+    if (i == 0) return false;  // older than everything the full window keeps
     points_.erase(points_.begin());
     --i;
   }
   points_.insert(points_.begin() + static_cast<std::ptrdiff_t>(i), Point{x, y, key});
+  return true;
 }
 
 void ClockAligner::refit() {

@@ -3,7 +3,6 @@
 #include "skinbus/fusion/dds.h"
 
 #include <dds/dds.h>
-#include <time.h>
 
 #include <cmath>
 #include <cstdlib>
@@ -13,6 +12,8 @@
 
 #include "ros2_common.h"
 #include "skin_msgs.h"
+
+#include "skinbus/bus/socketcan.h"
 
 namespace skinbus::fusion {
 
@@ -91,12 +92,6 @@ constexpr uint8_t kPatchLinkStateMax = static_cast<uint8_t>(PatchLinkState::kOff
 constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kKinematicsFresh);
 constexpr double kMmPerM = 1000.0;
 constexpr double kUsPerS = 1e6;
-
-uint64_t realtime_us() {
-  timespec ts{};
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return static_cast<uint64_t>(ts.tv_sec) * 1000000u + static_cast<uint64_t>(ts.tv_nsec) / 1000u;
-}
 
 // ---- errors ------------------------------------------------------------------------------
 
@@ -351,11 +346,12 @@ char* c_str(const std::string& s) {
   return const_cast<char*>(s.c_str());
 }
 
+// A sequence over `v`'s elements, which the writer only reads (as c_str: no const in C types).
 template <typename Seq, typename T>
-void set_sequence(Seq* seq, std::vector<T>& v) {
+void set_sequence(Seq* seq, const std::vector<T>& v) {
   seq->_maximum = static_cast<uint32_t>(v.size());
   seq->_length = static_cast<uint32_t>(v.size());
-  seq->_buffer = v.empty() ? nullptr : v.data();
+  seq->_buffer = v.empty() ? nullptr : const_cast<T*>(v.data());
   seq->_release = false;
 }
 
@@ -868,7 +864,7 @@ void JointStateSubscriber::on_data_available(int32_t reader, void* self) {
 }
 
 void JointStateSubscriber::drain(int32_t reader) {
-  const uint64_t now_us = realtime_us();
+  const uint64_t now_us = bus::realtime_now_us();
   JointStateSample newest;
   bool have = false;
   uint64_t rejected = 0;
@@ -963,14 +959,13 @@ Status JointStatePublisher::publish(const std::vector<std::string>& names,
 
   std::vector<char*> name_ptrs(names.size());
   for (std::size_t i = 0; i < names.size(); ++i) name_ptrs[i] = c_str(names[i]);
-  std::vector<double> pos = positions;
   std::vector<double> none;
   static const std::string kEmpty;
   JointStateMsg msg{};
   msg.header.stamp = *stamp;
   msg.header.frame_id = c_str(kEmpty);
   set_sequence(&msg.name, name_ptrs);
-  set_sequence(&msg.position, pos);
+  set_sequence(&msg.position, positions);
   set_sequence(&msg.velocity, none);
   set_sequence(&msg.effort, none);
   return write(writer_, &msg, options_.joint_states_topic);

@@ -42,12 +42,7 @@ void PatchRegistry::set_models(const std::vector<int>& model_of_placement) {
 
 void PatchRegistry::emit(PatchEventKind kind, const PatchEntry& e, uint64_t now_us,
                          std::string detail) {
-  if (events_.size() >= options_.max_events) {
-    ++events_dropped_;
-    return;
-  }
-  events_.push_back({now_us, kind, e.node, e.hardware_uid,
-                     bus_names_[static_cast<std::size_t>(e.bus)] + ": " + std::move(detail)});
+  add_event(kind, now_us, std::move(detail), e.bus, e.node);
 }
 
 void PatchRegistry::add_event(PatchEventKind kind, uint64_t now_us, std::string detail, int bus,

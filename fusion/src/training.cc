@@ -468,7 +468,7 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
   if (weighted) {
     std::ostringstream w;
     w << "XY terms weighted by clamp(depth / " << o.xy_full_weight_depth_mm << " mm, "
-      << o.xy_weight_floor << ", 1)^2";
+      << weight_floor << ", 1)^2";
     m.info["xy_loss"] = w.str();
   }
   m.metrics["train_seconds"] = best_report.elapsed_s;

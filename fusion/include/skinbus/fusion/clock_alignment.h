@@ -145,7 +145,9 @@ class ClockAligner {
 
   void seed(uint32_t raw, int64_t host);
   void jump(uint32_t raw, int64_t host);
-  void insert(int64_t x, int64_t y);
+  // Adds (x, y) to the window; false when the window is unchanged (the point lost to its
+  // bucket's or fell off the full window), so the line need not be refitted.
+  bool insert(int64_t x, int64_t y);
   void refit();
   int64_t bucket_of(int64_t x) const;
   // Host time - x of the line at unwrapped patch time x (relative to ref_y_).
