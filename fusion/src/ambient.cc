@@ -5,19 +5,13 @@
 #include <array>
 #include <cmath>
 
+#include "skinbus/common/stats.h"
+
 namespace skinbus::fusion {
 
 namespace {
 
 constexpr int kMaxSensors = 64;
-
-// Median of the first n values of `v` (reorders them).
-double median_of(double* v, int n) {
-  std::nth_element(v, v + n / 2, v + n);
-  const double hi = v[n / 2];
-  if (n % 2 == 1) return hi;
-  return 0.5 * (hi + *std::max_element(v, v + n / 2));
-}
 
 }  // namespace
 
@@ -48,7 +42,7 @@ CommonModeEstimate estimate_common_mode(std::span<const double> field_ut,
   double med[3];
   for (int a = 0; a < 3; ++a) {
     for (int i = 0; i < n; ++i) tmp[static_cast<std::size_t>(i)] = field_ut[3 * use[i] + a];
-    med[a] = median_of(tmp.data(), n);
+    med[a] = median_in_place(tmp.data(), n);
   }
   if (options.method == CommonModeMethod::kMedian) {
     for (int a = 0; a < 3; ++a) e.field_ut[a] = med[a];

@@ -3,17 +3,12 @@
 #include <algorithm>
 #include <cmath>
 
+#include "skinbus/common/stats.h"
+
 namespace skinbus::patch_fw {
 
 namespace {
 constexpr int kN = bus::kSensorCount;
-
-double median(double* v, int n) {
-  std::nth_element(v, v + n / 2, v + n);
-  const double hi = v[n / 2];
-  if (n % 2) return hi;
-  return 0.5 * (hi + *std::max_element(v, v + n / 2));
-}
 }  // namespace
 
 ContactGate::ContactGate(GateConfig config) : config_(config) {
@@ -82,7 +77,7 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
       int k = 0;
       for (int i = 0; i < kN; ++i)
         if (usable & (1u << i)) axis_vals[k++] = dev[3 * i + a];
-      common[a] = median(axis_vals, k);
+      common[a] = median_in_place(axis_vals, k);
     }
   }
   double score = 0;

@@ -23,4 +23,13 @@ inline double mean(const std::vector<double>& v) {
   return v.empty() ? std::nan("") : s / static_cast<double>(v.size());
 }
 
+// The median of the first n (>= 1) values at `v`, reordering them in place (no allocation); the
+// mean of the two middle values for even n.
+inline double median_in_place(double* v, int n) {
+  std::nth_element(v, v + n / 2, v + n);
+  const double hi = v[n / 2];
+  if (n % 2 == 1) return hi;
+  return 0.5 * (hi + *std::max_element(v, v + n / 2));
+}
+
 }  // namespace skinbus
