@@ -59,10 +59,10 @@ def main():
               f"{len(got)} of {len(ref)}")
     errs = {n: [] for n in truth}
     wrong = []
+    allowed = set(filter(None, a.flags_allowed.split(",")))
     for arr in got:
         for c in arr["contacts"]:
             n = c["node"]
-            allowed = set(filter(None, a.flags_allowed.split(",")))
             if n not in truth or c["link"] != truth[n][0] or c["track_id"] == 0 \
                     or ("no_kinematics" in c["flags"] and "no_kinematics" not in allowed):
                 wrong.append(n)

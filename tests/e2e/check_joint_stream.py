@@ -59,6 +59,15 @@ def trajectory_end(path):
     return last
 
 
+def locate(a, joints, times):
+    """(link, point) of the press (node, u, v) at each time of `times`, from one skinbus-locate
+    run (a "T NODE U V" line per time)."""
+    query = "".join(f"{t:.6f} {a.press}\n" for t in times)
+    out = subprocess.run([a.locate, "--map", a.map, "--joints", joints, "-"], input=query,
+                         capture_output=True, text=True, check=True).stdout.splitlines()
+    return [(f[1], tuple(float(x) for x in f[2:5])) for f in (line.split() for line in out)]
+
+
 class Truth:
     """Where skinbus-locate puts the press (node, u, v) along a trajectory, on a 10 ms grid."""
 
@@ -66,16 +75,9 @@ class Truth:
         self.step = 0.01
         self.end_s = end_s
         n = int(round(end_s / self.step)) + 1
-        self.points = [self.locate(a, joints, i * self.step) for i in range(n)]
-        self.link = self.locate(a, joints, 0.0, with_link=True)[0]
-
-    @staticmethod
-    def locate(a, joints, t, with_link=False):
-        out = subprocess.run([a.locate, "--map", a.map, "--joints", joints, "--time", f"{t:.6f}",
-                              "-"], input=a.press + "\n", capture_output=True, text=True,
-                             check=True).stdout.split()
-        point = tuple(float(x) for x in out[2:5])
-        return (out[1], point) if with_link else point
+        located = locate(a, joints, [i * self.step for i in range(n)])
+        self.points = [point for _, point in located]
+        self.link = located[0][0]
 
     def at(self, t):
         t = min(max(t, 0.0), self.end_s)
@@ -133,7 +135,7 @@ def main():
     stream = Truth(a, a.trajectory, trajectory_end(a.trajectory))
     last_pose = stream.at(stream.end_s)
     start_pose = stream.at(0.0)
-    hold_pose = Truth.locate(a, a.hold, 0.0) if a.hold else None
+    hold_pose = locate(a, a.hold, [0.0])[0][1] if a.hold else None
     restart = a.restart if a.restart is not None else float("inf")
     us = 1e-6
 
