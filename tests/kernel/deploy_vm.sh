@@ -92,12 +92,9 @@ sim:
 YAML
 
 # The guide's console lines, in order.
-awk '/^```console/ {on = 1; next} /^```/ {on = 0} on && /^[$#] / {print}' "$guide" >lines.txt
+guide_commands "$guide" >lines.txt
 host_bus=0 skipped=()
-while IFS= read -r line; do
-  cmd=${line#??}
-  cmd=${cmd%%  #*}
-  cmd=${cmd%"${cmd##*[! ]}"}
+while IFS= read -r cmd; do
   cmd=${cmd//build\/tools\//$bin/}
   # From the persistent-name steps on, the guide's can0 is the host's controller: channel 1.
   [[ $cmd == udevadm\ info* ]] && host_bus=1

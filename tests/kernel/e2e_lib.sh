@@ -4,6 +4,9 @@
 #   ok NAME / bad NAME         one PASS / FAIL line
 #   check_same NAME EXPECTED GOT   PASS when the two message lists are equal and not empty
 #   e2e_end NAME               the summary line; returns non-zero if anything failed
+#   guide_commands GUIDE.md [PROMPT]   the commands of the guide's `console` blocks, one a line:
+#                              lines starting with PROMPT (an awk regex, default "[$#] ") without
+#                              it, without a trailing "  # comment" and trailing spaces
 e2e_begin() {
   bin=$(cd "${2:?usage: $1.sh BUILD_DIR}" && pwd)/tools
   work=${SKINBUS_VM_OUT:-$(mktemp -d)}/$1
@@ -23,6 +26,10 @@ check_same() {
     bad "$1: decoded output differs from what was sent ($(wc -l <"$2") sent, $(wc -l <"$3") decoded)"
     diff "$2" "$3" | cut -c1-160 | head -10 || true
   fi
+}
+guide_commands() {
+  awk -v prompt="^(${2:-[\$#] })" '/^```console/ {on = 1; next} /^```/ {on = 0; next}
+    on && $0 ~ prompt {sub(prompt, ""); sub(/  #.*/, ""); sub(/ +$/, ""); print}' "$1"
 }
 e2e_end() {
   echo "$1: $pass passed, $fail failed"

@@ -23,11 +23,8 @@ sleep 1.5
 skipped=() deployed=()
 for guide in "$src/docs/guides/debugging.md" "$src/docs/guides/deploying.md"; do
   # (no process substitution: the guest has no /dev/fd)
-  awk '/^```console/ {on = 1; next} /^```/ {on = 0} on && /^[$#] / {print}' "$guide" >lines.txt
-  while IFS= read -r line; do
-    cmd=${line#??}
-    cmd=${cmd%%  #*}
-    cmd=${cmd%"${cmd##*[! ]}"}
+  guide_commands "$guide" >lines.txt
+  while IFS= read -r cmd; do
     guide_cmd=$cmd
     cmd=${cmd//can0/vcan0}
     case $cmd in
@@ -67,12 +64,10 @@ skinbus-patchd --sim -i skintorso --node 7 --uid 0x5b00000000000007 \
   --contacts scaling_presses.csv --duration 80 -q &
 torso=$!
 sleep 1.5
-awk '/^```console/ {on = 1; next} /^```/ {on = 0} on && /^(host [A-Z])?\$ / {print}' \
-  "$src/docs/guides/scaling.md" >lines.txt
+guide_commands "$src/docs/guides/scaling.md" '(host [A-Z])?[$] ' >lines.txt
 hosts=()
 n=0
-while IFS= read -r line; do
-  cmd=${line#*$ }
+while IFS= read -r cmd; do
   n=$((n + 1))
   case $cmd in
     skinbus-host*)
