@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -23,10 +24,15 @@ using detail::kMaxVectors;
 // Samples per pass of the kernel backends: their activations (16 x 16 cells x 256 floats for
 // the seed CNN's widest layer) stay in L2 while the weights stream once per pass.
 constexpr int kKernelChunk = 16;
-// K steps (floats, or bfloat16 pairs) per pass of the kernels over a weight panel.
+// K steps per pass of the kernels over a weight panel: bfloat16 pairs and int8 quads in blocks of
+// 64, whose panel slice (64 x 64 columns, 16 KB) stays in L1 while every row block passes over
+// it; floats in blocks of 256 (64 KB, from L2), as measured faster: each pass loads and stores
+// its rows' accumulators, and the float32 kernel's loads keep up from L2.
 constexpr int kKBlock = 64;
+constexpr int kKBlockF32 = 256;
 constexpr std::size_t kAlign = 64;
 constexpr int kMaxThreads = 64;
+constexpr int kMaxSpinUs = 100000;
 // kInt8 runs a layer in int8 when it carries at least 1/kInt8MinShare of the multiply-adds.
 constexpr int64_t kInt8MinShare = 20;
 
@@ -58,13 +64,31 @@ class Aligned {
   std::size_t n_ = 0;
 };
 
+// Spins (with the CPU's pause hint) until `done()` or `spin_us` have passed. A sleeping thread's
+// futex wake-up costs tens to hundreds of microseconds on a virtual machine, as much as a batch of
+// a few samples: the pool's threads spin this long before they sleep.
+template <typename Done>
+void spin_until(int spin_us, Done done) {
+  if (spin_us <= 0) return;
+  const auto until = std::chrono::steady_clock::now() + std::chrono::microseconds(spin_us);
+  for (;;) {
+    for (int i = 0; i < 64; ++i) {
+      if (done()) return;
+#if defined(__x86_64__) || defined(__i386__)
+      __builtin_ia32_pause();
+#endif
+    }
+    if (std::chrono::steady_clock::now() >= until) return;
+  }
+}
+
 // A persistent pool: the caller runs part 0, worker w runs part w; every worker acknowledges
 // every job, so no worker reads a job while the next is being posted.
 class WorkerPool {
  public:
   using Fn = void (*)(void* ctx, int part);
 
-  explicit WorkerPool(int workers, bool single_openmp) {
+  WorkerPool(int workers, int spin_us, bool single_openmp) : spin_us_(spin_us) {
     for (int w = 0; w < workers; ++w) {
       threads_.emplace_back([this, w, single_openmp] { loop(w + 1, single_openmp); });
     }
@@ -92,6 +116,7 @@ class WorkerPool {
     generation_.fetch_add(1, std::memory_order_release);
     generation_.notify_all();
     fn(ctx, 0);
+    spin_until(spin_us_, [&] { return pending_.load(std::memory_order_acquire) == 0; });
     for (int p = pending_.load(std::memory_order_acquire); p != 0;
          p = pending_.load(std::memory_order_acquire)) {
       pending_.wait(p, std::memory_order_acquire);
@@ -103,6 +128,7 @@ class WorkerPool {
     if (single_openmp) detail::set_openmp_threads(1);
     uint32_t seen = 0;
     for (;;) {
+      spin_until(spin_us_, [&] { return generation_.load(std::memory_order_acquire) != seen; });
       generation_.wait(seen, std::memory_order_acquire);
       seen = generation_.load(std::memory_order_acquire);
       if (stop_.load(std::memory_order_relaxed)) return;
@@ -111,6 +137,7 @@ class WorkerPool {
     }
   }
 
+  const int spin_us_;
   std::vector<std::thread> threads_;
   std::atomic<uint32_t> generation_{0};
   std::atomic<int> pending_{0};
@@ -406,11 +433,10 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
         const int total = n * nt;
         const bool relu = !l.conv && l.relu;
         const std::size_t panel = b.offset + b.panel * static_cast<std::size_t>(t);
-        // K in blocks whose panel slice (kKBlock x 64 floats = 16 KB) stays in L1 while every
-        // row block passes over it.
         const int k_steps = l.int8 ? l.k_quads : bf16 ? l.k_pairs : l.k;
-        for (int k0 = 0; k0 < k_steps; k0 += kKBlock) {
-          const int kn = std::min(kKBlock, k_steps - k0);
+        const int k_block = l.int8 || bf16 ? kKBlock : kKBlockF32;
+        for (int k0 = 0; k0 < k_steps; k0 += k_block) {
+          const int kn = std::min(k_block, k_steps - k0);
           const bool last_k = k0 + kn == k_steps;
           const float* bias = t == 0 && k0 == 0 ? l.bias.data() + b.col0 : nullptr;
           const std::ptrdiff_t a_k = l.int8 ? 4 * k0 : bf16 ? 2 * k0 : k0;
@@ -579,6 +605,11 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
                                                        std::to_string(kMaxThreads) + ", got " +
                                                        std::to_string(options.threads));
   }
+  if (options.spin_us < 0 || options.spin_us > kMaxSpinUs) {
+    return make_error(ErrorCode::kInvalidArgument, "spin_us must be 0.." +
+                                                       std::to_string(kMaxSpinUs) + ", got " +
+                                                       std::to_string(options.spin_us));
+  }
   auto impl = std::make_unique<Impl>();
   Impl& im = *impl;
   im.opt = options;
@@ -674,7 +705,7 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
     s.index.assign(static_cast<std::size_t>(im.chunk), 0);
     s.raw.assign(static_cast<std::size_t>(im.chunk * im.outputs), 0.0);
   }
-  im.pool = std::make_unique<WorkerPool>(options.threads - 1, im.dnn != nullptr);
+  im.pool = std::make_unique<WorkerPool>(options.threads - 1, options.spin_us, im.dnn != nullptr);
   return NetworkRuntime(std::move(impl));
 }
 

@@ -3,12 +3,15 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
 #include <random>
 #include <string>
+#include <thread>
+#include <tuple>
 #include <vector>
 
 #include "skinbus/fusion/evaluation.h"
@@ -136,14 +139,21 @@ INSTANTIATE_TEST_SUITE_P(Backends, TorchEqualityTest,
 
 TEST(NetworkRuntimeTest, ThreadsGiveTheSameResultsAsOneThread) {
   const ModelFile model = model_for("cnn");
-  for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kOneDnn}) {
+  // Workers that spin between calls (the default), that sleep at once (spin_us 0), and that
+  // have fallen asleep because the caller paused longer than their spin.
+  for (auto [b, spin_us, pause_us] :
+       {std::tuple{RuntimeBackend::kKernels, 200, 0}, std::tuple{RuntimeBackend::kKernels, 0, 0},
+        std::tuple{RuntimeBackend::kKernels, 50, 2000},
+        std::tuple{RuntimeBackend::kOneDnn, 200, 0}}) {
     RuntimeOptions o1, o2;
     o1.backend = o2.backend = b;
     o2.threads = 2;
+    o2.spin_us = spin_us;
     auto one = NetworkRuntime::create(model, o1);
     auto two = NetworkRuntime::create(model, o2);
     ASSERT_TRUE(one.ok() && two.ok());
-    for (int batch : {1, 2, 7, 33, 64}) {
+    for (int batch : {1, 2, 7, 33, 64, 64}) {
+      std::this_thread::sleep_for(std::chrono::microseconds(pause_us));
       const std::vector<double> f = fields(batch, 5);
       std::vector<double> y1(static_cast<std::size_t>(batch) * 4), y2(y1.size());
       ASSERT_TRUE(one->run_outputs(f, batch, y1).ok());
@@ -256,6 +266,13 @@ TEST(NetworkRuntimeTest, RefusesACorruptModel) {
   RuntimeOptions bad_threads;
   bad_threads.threads = 0;
   EXPECT_FALSE(NetworkRuntime::create(model_for("mlp"), bad_threads).ok());
+  for (int spin_us : {-1, 100001}) {
+    RuntimeOptions bad_spin;
+    bad_spin.spin_us = spin_us;
+    auto rt = NetworkRuntime::create(model_for("mlp"), bad_spin);
+    ASSERT_FALSE(rt.ok());
+    EXPECT_NE(rt.error().message.find("spin_us"), std::string::npos) << rt.error().message;
+  }
 }
 
 TEST(NetworkRuntimeTest, Bfloat16IsUnsupportedOnOneDnn) {

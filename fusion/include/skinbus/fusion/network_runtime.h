@@ -24,9 +24,12 @@
 // threads that live as long as the runtime. run() allocates nothing with the kernel backends
 // (the oneDNN backend allocates small execution contexts inside the library). A batch is split
 // into `threads` contiguous parts; the calling thread computes the first part, workers the
-// others, and run() returns when all are done. A runtime serves one caller at a time: run() and
-// run_outputs() must not be called concurrently on the same object (use one runtime per thread
-// or a lock); different runtimes are independent.
+// others, and run() returns when all are done. With threads > 1, the workers waiting for the next
+// call and the caller waiting for the workers spin for up to RuntimeOptions::spin_us before they
+// sleep (waking a sleeping thread costs tens to hundreds of microseconds on a virtual machine, as
+// much as a small batch): each call keeps every thread busy that much longer. A runtime serves one
+// caller at a time: run() and run_outputs() must not be called concurrently on the same object (use
+// one runtime per thread or a lock); different runtimes are independent.
 //
 // Backends (RuntimeOptions::backend):
 //   kAuto     the fastest measured on this machine class (docs/benchmarks/runtime.md): kKernels
@@ -103,6 +106,7 @@ struct RuntimeOptions {
   RuntimeBackend backend = RuntimeBackend::kAuto;
   RuntimePrecision precision = RuntimePrecision::kFloat32;
   int threads = 1;         // calling thread + (threads - 1) persistent workers; 1..64
+  int spin_us = 200;       // threads > 1: spin this long before sleeping; 0..100000, 0 = never
   InputLimits limits;      // saturation threshold for check_sample()
   double margin_mm = 2.0;  // flag_range() margins
   double margin_depth_mm = 0.2;
