@@ -13,18 +13,21 @@ namespace {
 // ---- portable ----------------------------------------------------------------------------------
 
 template <int R, int V>
-void gemm_f32_portable(const float* const* a, const float* b, int k, float* const* c,
-                       const float* bias, bool relu) {
+void gemm_f32_portable(const float* const* a, const float* const* b, int segments, int k,
+                       float* const* c, const float* bias, bool relu) {
   constexpr int kCols = kLanes * V;
   float acc[R][kCols];
   for (int i = 0; i < R; ++i) {
     for (int j = 0; j < kCols; ++j) acc[i][j] = bias != nullptr ? bias[j] : c[i][j];
   }
-  for (int kk = 0; kk < k; ++kk) {
-    const float* bk = b + static_cast<std::ptrdiff_t>(kk) * kCols;
-    for (int i = 0; i < R; ++i) {
-      const float av = a[i][kk];
-      for (int j = 0; j < kCols; ++j) acc[i][j] += av * bk[j];
+  for (int seg = 0; seg < segments; ++seg) {
+    const float* const* as = a + static_cast<std::ptrdiff_t>(seg) * R;
+    for (int kk = 0; kk < k; ++kk) {
+      const float* bk = b[seg] + static_cast<std::ptrdiff_t>(kk) * kCols;
+      for (int i = 0; i < R; ++i) {
+        const float av = as[i][kk];
+        for (int j = 0; j < kCols; ++j) acc[i][j] += av * bk[j];
+      }
     }
   }
   for (int i = 0; i < R; ++i) {
@@ -154,28 +157,32 @@ void pool_portable(const float* x, int cells, int ld, int c, float* out) {
   __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,fma,avx512vnni")))
 
 template <int R, int V>
-SKINBUS_AVX512 void gemm_f32_avx512(const float* const* a, const float* b, int k, float* const* c,
-                                    const float* bias, bool relu) {
+SKINBUS_AVX512 void gemm_f32_avx512(const float* const* a, const float* const* b, int segments,
+                                    int k, float* const* c, const float* bias, bool relu) {
   __m512 acc[R][V];
-  const float* ap[R];
 #pragma GCC unroll 8
   for (int i = 0; i < R; ++i) {
-    ap[i] = a[i];
 #pragma GCC unroll 4
     for (int v = 0; v < V; ++v) {
       acc[i][v] = _mm512_loadu_ps((bias != nullptr ? bias : c[i]) + kLanes * v);
     }
   }
-  for (int kk = 0; kk < k; ++kk) {
-    __m512 bv[V];
-#pragma GCC unroll 4
-    for (int v = 0; v < V; ++v) bv[v] = _mm512_loadu_ps(b + kLanes * v);
-    b += kLanes * V;
+  for (int seg = 0; seg < segments; ++seg) {
+    const float* ap[R];
 #pragma GCC unroll 8
-    for (int i = 0; i < R; ++i) {
-      const __m512 av = _mm512_set1_ps(ap[i][kk]);
+    for (int i = 0; i < R; ++i) ap[i] = a[seg * R + i];
+    const float* bp = b[seg];
+    for (int kk = 0; kk < k; ++kk) {
+      __m512 bv[V];
 #pragma GCC unroll 4
-      for (int v = 0; v < V; ++v) acc[i][v] = _mm512_fmadd_ps(av, bv[v], acc[i][v]);
+      for (int v = 0; v < V; ++v) bv[v] = _mm512_loadu_ps(bp + kLanes * v);
+      bp += kLanes * V;
+#pragma GCC unroll 8
+      for (int i = 0; i < R; ++i) {
+        const __m512 av = _mm512_set1_ps(ap[i][kk]);
+#pragma GCC unroll 4
+        for (int v = 0; v < V; ++v) acc[i][v] = _mm512_fmadd_ps(av, bv[v], acc[i][v]);
+      }
     }
   }
   const __m512 zero = _mm512_setzero_ps();

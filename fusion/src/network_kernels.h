@@ -2,7 +2,8 @@
 //
 // Every layer is a sum of small matrix products C[rows, cols] (+)= A[rows, K] * B[K, cols]:
 // a fully connected layer is one, a 3x3 convolution one per in-bounds tap (rows are the output
-// cells whose neighbour at that tap lies inside the grid, A rows are those neighbours). A kernel
+// cells whose neighbour at that tap lies inside the grid, A rows are those neighbours; or, for a
+// float32 batch, rows are the samples' same cell and one call sums all of its taps). A kernel
 // computes R rows (1..kMaxRows, each row given by its own pointer, so taps and samples gather
 // freely) by 16 * V columns (V = 1..kMaxVectors) of a packed panel of B:
 //   float32:  panel[k][16 * V]              (K rows of 16 * V floats)
@@ -11,6 +12,10 @@
 //   int8:     panel[k / 4][16 * V][4]       (quads of K, the vpdpbusd layout: A rows unsigned
 //                                            8-bit, B signed 8-bit, K padded to a multiple of 4
 //                                            with zeros)
+// The float32 kernels sum `segments` such products into the same accumulators, in order:
+// segment s multiplies the R rows a[s * R .. s * R + R) by the panel b[s] (one call covers every
+// in-bounds tap of a group of output rows, so the accumulators never leave the registers between
+// taps); the other kernels take one A and one panel.
 // The accumulators start from `bias` (16 * V floats) when it is not null, else from C; the
 // result is stored to C, through max(0, .) when `relu`. The int8 kernels sum exact int32 products
 // over their K and add sum * a_scale[row] * w_scale[column] to that float start.
@@ -24,8 +29,8 @@ inline constexpr int kMaxRows = 6;
 inline constexpr int kMaxVectors = 4;
 inline constexpr int kLanes = 16;  // floats per column vector
 
-using GemmF32 = void (*)(const float* const* a, const float* b, int k, float* const* c,
-                         const float* bias, bool relu);
+using GemmF32 = void (*)(const float* const* a, const float* const* b, int segments, int k,
+                         float* const* c, const float* bias, bool relu);
 using GemmBf16 = void (*)(const uint16_t* const* a, const uint16_t* b, int k_pairs, float* const* c,
                           const float* bias, bool relu);
 using GemmI8 = void (*)(const uint8_t* const* a, const int8_t* b, int k_quads, float* const* c,

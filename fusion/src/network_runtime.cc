@@ -30,6 +30,10 @@ constexpr int kKernelChunk = 16;
 // its rows' accumulators, and the float32 kernel's loads keep up from L2.
 constexpr int kKBlock = 64;
 constexpr int kKBlockF32 = 256;
+// A batch of at least this many samples runs float32 convolutions cell by cell (every tap of a
+// cell in one kernel call, the samples as rows); smaller ones tap by tap (the cells as rows).
+constexpr int kByCellMinSamples = 4;
+constexpr int kMaxTaps = 9;
 constexpr std::size_t kAlign = 64;
 constexpr int kMaxThreads = 64;
 constexpr int kMaxSpinUs = 100000;
@@ -171,6 +175,12 @@ struct Tap {
   std::vector<int> chunk_out, chunk_in;
 };
 
+// The in-bounds taps of one output cell, in the order of Impl::taps.
+struct CellTaps {
+  std::vector<int> tap;      // index into Impl::taps
+  std::vector<int> in_cell;  // the input cell each reads
+};
+
 // Per thread: input, activations and scratch, sized at create.
 struct Slot {
   Aligned<float> x;            // normalised input rows (kernel backends)
@@ -202,7 +212,8 @@ struct NetworkRuntime::Impl {
   const KernelSet* ks = nullptr;
   bool bf16 = false, int8 = false;
   std::vector<KernelLayer> layers;
-  std::vector<Tap> taps;  // centre first
+  std::vector<Tap> taps;            // centre first
+  std::vector<CellTaps> cell_taps;  // per output cell
   int last_conv = -1;
   Aligned<float> w32;
   Aligned<uint16_t> w16;
@@ -215,6 +226,9 @@ struct NetworkRuntime::Impl {
 
   Status build_kernels(const ModelFile& model);
   void forward_kernels(Slot& s, int n);
+  // One column block of a float32 convolution over n samples, cell by cell (ReLU included).
+  void forward_cell_block(const KernelLayer& l, const ColBlock& b, const float* a32, int a_ld,
+                          float* out, int n) const;
   // Runs the first n rows of slot's input; fills slot.raw (n x outputs, physical units).
   void forward(int slot, int n);
   float* input(int slot) {
@@ -252,6 +266,14 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
         }
       }
       if (!tap.out_cell.empty()) taps.push_back(std::move(tap));
+    }
+    cell_taps.resize(static_cast<std::size_t>(a.grid_rows * a.grid_cols));
+    for (std::size_t t = 0; t < taps.size(); ++t) {
+      for (std::size_t p = 0; p < taps[t].out_cell.size(); ++p) {
+        CellTaps& ct = cell_taps[static_cast<std::size_t>(taps[t].out_cell[p])];
+        ct.tap.push_back(static_cast<int>(t));
+        ct.in_cell.push_back(taps[t].in_cell[p]);
+      }
     }
   }
   // Layer shapes and packed sizes.
@@ -404,6 +426,36 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
   return Status::Ok();
 }
 
+void NetworkRuntime::Impl::forward_cell_block(const KernelLayer& l, const ColBlock& b,
+                                              const float* a32, int a_ld, float* out, int n) const {
+  const float* a_rows[kMaxTaps * kMaxRows];
+  const float* panels[kMaxTaps];
+  float* c_rows[kMaxRows];
+  const int blocks = (n + kMaxRows - 1) / kMaxRows;
+  for (int cell = 0; cell < cells; ++cell) {
+    const CellTaps& ct = cell_taps[static_cast<std::size_t>(cell)];
+    const int segments = static_cast<int>(ct.tap.size());
+    for (int seg = 0; seg < segments; ++seg) {
+      panels[seg] = w32.data() + b.offset +
+                    b.panel * static_cast<std::size_t>(ct.tap[static_cast<std::size_t>(seg)]);
+    }
+    // Samples in `blocks` row blocks of nearly equal size (16 = 6 + 5 + 5, not 6 + 6 + 4).
+    for (int block = 0; block < blocks; ++block) {
+      const int r0 = n * block / blocks, r = n * (block + 1) / blocks - r0;
+      for (int i = 0; i < r; ++i) {
+        const std::ptrdiff_t sample_row = static_cast<std::ptrdiff_t>(r0 + i) * cells;
+        c_rows[i] = out + (sample_row + cell) * l.n_ld + b.col0;
+        for (int seg = 0; seg < segments; ++seg) {
+          a_rows[seg * r + i] =
+              a32 + (sample_row + ct.in_cell[static_cast<std::size_t>(seg)]) * a_ld;
+        }
+      }
+      ks->f32[r - 1][b.vectors - 1](a_rows, panels, segments, l.k, c_rows, l.bias.data() + b.col0,
+                                    l.relu);
+    }
+  }
+}
+
 void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
   const float* a32 = s.x.data();
   int a_ld = cnn ? kLanes : round_up(channels, kLanes);
@@ -424,7 +476,15 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
         s.q_scale[static_cast<std::size_t>(row)] = ks->quantise_u8(a32 + at, a_ld, s.q.data() + at);
       }
     }
+    // float32 convolutions of a batch: cell by cell, each call summing every in-bounds tap of up
+    // to kMaxRows samples' same cell (the same products in the same order as tap by tap, so the
+    // same bits, without storing and reloading the accumulators between taps).
+    const bool by_cell = l.conv && !l.int8 && !bf16 && n >= kByCellMinSamples;
     for (const ColBlock& b : l.blocks) {
+      if (by_cell) {
+        forward_cell_block(l, b, a32, a_ld, out, n);
+        continue;
+      }
       const int ntaps = l.conv ? static_cast<int>(taps.size()) : 1;
       const int cols = kLanes * b.vectors;
       for (int t = 0; t < ntaps; ++t) {
@@ -465,15 +525,15 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
               ks->bf16[r - 1][b.vectors - 1](h_rows, w16.data() + panel + 2 * k0 * cols, kn, c_rows,
                                              bias, relu && last_k);
             } else {
-              ks->f32[r - 1][b.vectors - 1](a_rows, w32.data() + panel + k0 * cols, kn, c_rows,
-                                            bias, relu && last_k);
+              const float* panel_k = w32.data() + panel + k0 * cols;
+              ks->f32[r - 1][b.vectors - 1](a_rows, &panel_k, 1, kn, c_rows, bias, relu && last_k);
             }
           }
         }
       }
     }
     const int count = n * rows_per_sample * l.n_ld;
-    if (l.conv && (!bf16 || static_cast<int>(li) == last_conv)) {
+    if (l.conv && !by_cell && (!bf16 || static_cast<int>(li) == last_conv)) {
       // A convolution's rows finish at different taps: ReLU afterwards (in the conversion to
       // bfloat16 when the next layer reads that).
       ks->relu(out, count);

@@ -171,19 +171,25 @@ TEST(NetworkRuntimeTest, ThreadsGiveTheSameResultsAsOneThread) {
   }
 }
 
+// A batch runs float32 convolutions cell by cell (all taps of a cell per kernel call), one sample
+// tap by tap: the same products in the same order, so the same bits.
 TEST(NetworkRuntimeTest, ABatchGivesTheSameAsOneSampleAtATime) {
   const ModelFile model = model_for("cnn_w025");
-  auto rt = NetworkRuntime::create(model, {});
-  ASSERT_TRUE(rt.ok());
-  const int batch = 20;
-  const std::vector<double> f = fields(batch, 9);
-  std::vector<ContactEstimate> est(batch);
-  ASSERT_TRUE(rt->run(f, batch, est).ok());
-  for (int i = 0; i < batch; ++i) {
-    const ContactEstimate e = rt->estimate(
-        std::span<const double>(f).subspan(static_cast<std::size_t>(i) * kChannels, kChannels));
-    EXPECT_EQ(e.u_mm, est[static_cast<std::size_t>(i)].u_mm);
-    EXPECT_EQ(e.depth_mm, est[static_cast<std::size_t>(i)].depth_mm);
+  for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kPortable}) {
+    RuntimeOptions o;
+    o.backend = b;
+    auto rt = NetworkRuntime::create(model, o);
+    ASSERT_TRUE(rt.ok());
+    const int batch = 20;
+    const std::vector<double> f = fields(batch, 9);
+    std::vector<ContactEstimate> est(batch);
+    ASSERT_TRUE(rt->run(f, batch, est).ok());
+    for (int i = 0; i < batch; ++i) {
+      const ContactEstimate e = rt->estimate(
+          std::span<const double>(f).subspan(static_cast<std::size_t>(i) * kChannels, kChannels));
+      EXPECT_EQ(e.u_mm, est[static_cast<std::size_t>(i)].u_mm) << rt->kernel_name();
+      EXPECT_EQ(e.depth_mm, est[static_cast<std::size_t>(i)].depth_mm) << rt->kernel_name();
+    }
   }
 }
 
