@@ -81,9 +81,8 @@ Pool make_pool(uint64_t seed) {
   patch.tare(env, 32, base);
   auto to_lsb = [](std::span<const double> tared, std::array<int16_t, bus::kChannelCount>* out) {
     for (int c = 0; c < bus::kChannelCount; ++c) {
-      const double v = std::clamp(
-          std::round(tared[static_cast<std::size_t>(c)] / bus::kFieldUtPerLsb), -32767.0, 32767.0);
-      (*out)[static_cast<std::size_t>(c)] = static_cast<int16_t>(v);
+      (*out)[static_cast<std::size_t>(c)] =
+          bus::field_ut_to_lsb(tared[static_cast<std::size_t>(c)]);
     }
   };
   std::vector<double> tared(base.size());

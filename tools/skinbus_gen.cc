@@ -57,13 +57,13 @@ Sample make_sample(const Pattern& p, int node_index, int node_count, double t_s,
     const double g = amp * std::exp(-(dx * dx + dy * dy) / (2 * 25.0 * 25.0));
     const double f[3] = {g * dx / 40.0, g * dy / 40.0, -g};
     for (int a = 0; a < kAxisCount; ++a) {
-      const double lsb = std::round((f[a] + noise(rng)) / kFieldUtPerLsb);
-      // Beyond the wire's range: clipped, and flagged as the protocol requires.
-      if (lsb > kFieldMaxLsb || lsb < -kFieldMaxLsb) {
+      bool clipped = false;
+      s.field_lsb[sensor * 3 + a] = field_ut_to_lsb(f[a] + noise(rng), &clipped);
+      // At or beyond the wire's range: clipped, and flagged as the protocol requires.
+      if (clipped) {
         s.saturation_mask = static_cast<uint16_t>(s.saturation_mask | (1u << sensor));
         s.flags |= sample_flags::kSaturated;
       }
-      s.field_lsb[sensor * 3 + a] = static_cast<int16_t>(std::clamp(lsb, -32767.0, 32767.0));
     }
   }
   if (amp > 20.0) s.flags |= sample_flags::kContact;

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <map>
 #include <random>
 
@@ -60,6 +61,28 @@ Info golden_info() {
   i.max_rate_chz = 10000;
   i.conversion_time_us = 2000;
   return i;
+}
+
+TEST(CodecTest, FieldToWireUnitsRoundsClampsAndFlagsClipping) {
+  bool clipped = true;
+  EXPECT_EQ(field_ut_to_lsb(12.34, &clipped), 123);
+  EXPECT_FALSE(clipped);
+  EXPECT_EQ(field_ut_to_lsb(-12.36, &clipped), -124);
+  EXPECT_FALSE(clipped);
+  EXPECT_EQ(field_ut_to_lsb(3276.6, &clipped), 32766);
+  EXPECT_FALSE(clipped);
+  // Reaching the limit is clipping too: the wire cannot tell 3276.7 uT from more.
+  EXPECT_EQ(field_ut_to_lsb(3276.7, &clipped), kFieldMaxLsb);
+  EXPECT_TRUE(clipped);
+  EXPECT_EQ(field_ut_to_lsb(-5000.0, &clipped), -kFieldMaxLsb);
+  EXPECT_TRUE(clipped);
+  for (double bad :
+       {std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
+    clipped = false;
+    EXPECT_EQ(field_ut_to_lsb(bad, &clipped), 0);
+    EXPECT_TRUE(clipped);
+  }
+  EXPECT_EQ(field_ut_to_lsb(0.04), 0);  // the flag is optional
 }
 
 TEST(CodecTest, CrcCheckValue) {

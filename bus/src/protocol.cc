@@ -1,9 +1,19 @@
 #include "skinbus/bus/protocol.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <vector>
 
 namespace skinbus::bus {
+
+int16_t field_ut_to_lsb(double field_ut, bool* clipped) {
+  const double lsb = std::round(field_ut / kFieldUtPerLsb);
+  const bool finite = std::isfinite(lsb);
+  if (clipped != nullptr) *clipped = !(std::fabs(lsb) < kFieldMaxLsb);
+  if (!finite) return 0;
+  return static_cast<int16_t>(std::clamp(lsb, -double{kFieldMaxLsb}, double{kFieldMaxLsb}));
+}
 
 std::string_view message_class_name(MessageClass c) {
   switch (c) {

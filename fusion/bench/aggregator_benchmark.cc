@@ -25,9 +25,7 @@ constexpr int kMaxPatches = 120;
 std::array<int16_t, bus::kChannelCount> to_lsb(std::span<const double> tared_ut) {
   std::array<int16_t, bus::kChannelCount> out{};
   for (int c = 0; c < bus::kChannelCount; ++c) {
-    out[static_cast<std::size_t>(c)] = static_cast<int16_t>(
-        std::clamp(std::round(tared_ut[static_cast<std::size_t>(c)] / bus::kFieldUtPerLsb),
-                   -32767.0, 32767.0));
+    out[static_cast<std::size_t>(c)] = bus::field_ut_to_lsb(tared_ut[static_cast<std::size_t>(c)]);
   }
   return out;
 }

@@ -73,9 +73,8 @@ struct Node {
     if (fault_mask) s.flags |= bus::sample_flags::kSensorFault;
     s.fault_mask = fault_mask;
     for (int c = 0; c < bus::kChannelCount; ++c) {
-      const double lsb = std::round(tared_ut[static_cast<std::size_t>(c)] / bus::kFieldUtPerLsb);
       s.field_lsb[static_cast<std::size_t>(c)] =
-          static_cast<int16_t>(std::clamp(lsb, -32767.0, 32767.0));
+          bus::field_ut_to_lsb(tared_ut[static_cast<std::size_t>(c)]);
     }
     send(a, bus::Message{node, seq_sample++, bus::FrameKind::kFd, s}, rx_us);
   }

@@ -8,14 +8,6 @@ namespace skinbus::patch_fw {
 namespace {
 constexpr uint64_t kLedHalfPeriodUs = 250000;  // identify blink: 2 Hz
 
-int16_t to_lsb(double field_ut, bool* clipped) {
-  const double lsb = std::round(field_ut / bus::kFieldUtPerLsb);
-  *clipped = !(std::fabs(lsb) < bus::kFieldMaxLsb);
-  if (!std::isfinite(lsb)) return 0;
-  return static_cast<int16_t>(
-      std::clamp(lsb, -double{bus::kFieldMaxLsb}, double{bus::kFieldMaxLsb}));
-}
-
 uint16_t saturating_u16(uint64_t v) {
   return static_cast<uint16_t>(std::min<uint64_t>(v, 0xFFFF));
 }
@@ -119,7 +111,8 @@ void PatchNode::take_sample(bool synced) {
     const int sensor = i / 3;
     if (out.fault_mask & (1u << sensor)) continue;
     bool clipped = false;
-    out.field_lsb[i] = to_lsb(tared ? gate_out_.tared_ut[i] : s.field_ut[i], &clipped);
+    out.field_lsb[i] =
+        bus::field_ut_to_lsb(tared ? gate_out_.tared_ut[i] : s.field_ut[i], &clipped);
     if (clipped) out.saturation_mask = static_cast<uint16_t>(out.saturation_mask | 1u << sensor);
   }
   uint16_t flags = 0;

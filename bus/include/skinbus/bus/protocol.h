@@ -99,6 +99,11 @@ inline constexpr int kChannelCount = kSensorCount * kAxisCount;
 inline constexpr double kFieldUtPerLsb = 0.1;   // wire unit of magnetic field: 0.1 uT
 inline constexpr int16_t kFieldMaxLsb = 32767;  // +-3276.7 uT; clipped values set saturation
 
+// A field in uT in the wire's units (kFieldUtPerLsb), rounded to the nearest and clamped to
+// +-kFieldMaxLsb. `*clipped`, when given, is set to whether the value reached the limit or was
+// not finite (NaN and Inf give 0): the sender must then flag the sensor saturated.
+int16_t field_ut_to_lsb(double field_ut, bool* clipped = nullptr);
+
 // Sample flags (Sample::flags).
 namespace sample_flags {
 inline constexpr uint16_t kContact = 1u << 0;        // the patch's gate sees a contact
