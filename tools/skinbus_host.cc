@@ -132,11 +132,8 @@ class Joints {
     }
     auto t = body_map::load_joint_trajectory(mode);
     if (!t) throw std::runtime_error(t.error().to_string());
-    for (const std::string& n : t->names) {
-      if (robot->find_joint(n) < 0) {
-        throw std::invalid_argument("--joints " + mode + ": joint '" + n +
-                                    "' is not a movable joint of robot '" + robot->name() + "'");
-      }
+    if (Status st = robot->check_joint_names(t->names); !st.ok()) {
+      throw std::invalid_argument("--joints " + mode + ": " + st.error().message);
     }
     traj_ = std::move(*t);
     have_traj_ = true;

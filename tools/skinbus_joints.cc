@@ -119,19 +119,13 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "skinbus-joints: %s\n", robot.error().to_string().c_str());
       return kExitFailed;
     }
+    if (Status st = robot->check_joint_names(traj->names); !st.ok()) {
+      std::fprintf(stderr, "skinbus-joints: %s: %s\n", trajectory_path.c_str(),
+                   st.error().message.c_str());
+      return kExitUsage;
+    }
     for (std::size_t i = 0; i < traj->names.size(); ++i) {
-      if (robot->find_joint(traj->names[i]) < 0) {
-        std::fprintf(stderr,
-                     "skinbus-joints: %s: joint '%s' is not a movable joint of robot '%s'\n",
-                     trajectory_path.c_str(), traj->names[i].c_str(), robot->name().c_str());
-        return kExitUsage;
-      }
-      for (int l = 0; l < robot->link_count(); ++l) {
-        const body_map::LinkJoint& j = robot->link(l).joint;
-        if (j.joint_name == traj->names[i] && j.type == body_map::JointType::kPrismatic) {
-          scale[i] = 1e-3;
-        }
-      }
+      if (robot->joint_is_prismatic(robot->find_joint(traj->names[i]))) scale[i] = 1e-3;
     }
   }
 

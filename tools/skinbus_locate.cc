@@ -65,11 +65,9 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "skinbus-locate: %s\n", t.error().to_string().c_str());
       return 1;
     }
-    for (const std::string& n : t->names) {
-      if (robot->find_joint(n) < 0) {
-        std::fprintf(stderr, "skinbus-locate: joint '%s' is not in the robot\n", n.c_str());
-        return 2;
-      }
+    if (Status st = robot->check_joint_names(t->names); !st.ok()) {
+      std::fprintf(stderr, "skinbus-locate: %s\n", st.error().message.c_str());
+      return 2;
     }
     traj = std::move(*t);
   }

@@ -241,11 +241,8 @@ int main(int argc, char** argv) {
   if (robot) {
     v.q.assign(static_cast<std::size_t>(robot->joint_count()), 0.0);
     joint_scale.assign(v.q.size(), 1.0);
-    for (int l = 0; l < robot->link_count(); ++l) {
-      const body_map::LinkJoint& j = robot->link(l).joint;
-      if (j.type == body_map::JointType::kPrismatic && j.q_index >= 0) {
-        joint_scale[static_cast<std::size_t>(j.q_index)] = 1000.0;
-      }
+    for (int j = 0; j < robot->joint_count(); ++j) {
+      if (robot->joint_is_prismatic(j)) joint_scale[static_cast<std::size_t>(j)] = 1000.0;
     }
   }
   tools::install_stop_handler();

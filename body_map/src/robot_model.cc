@@ -356,6 +356,7 @@ Result<RobotModel> RobotModel::from_urdf_string(const std::string& xml) {
     lj.q_index = model.joint_count();
     model.joint_names_.push_back(lj.joint_name);
     model.limits_.push_back(limits);
+    model.prismatic_.push_back(lj.type == JointType::kPrismatic);
   }
 
   // Mimic joints: follow the chain of leaders to a joint with an entry in q, composing
@@ -413,6 +414,16 @@ int RobotModel::find_joint(std::string_view name) const {
     if (joint_names_[j] == name) return static_cast<int>(j);
   }
   return -1;
+}
+
+Status RobotModel::check_joint_names(std::span<const std::string> names) const {
+  for (const std::string& n : names) {
+    if (find_joint(n) < 0) {
+      return make_error(ErrorCode::kNotFound,
+                        "joint '" + n + "' is not a movable joint of robot '" + name_ + "'");
+    }
+  }
+  return Status::Ok();
 }
 
 namespace {

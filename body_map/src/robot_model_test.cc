@@ -498,6 +498,19 @@ TEST(RobotModelTest, PrismaticAndMimicJointsByHand) {
   EXPECT_EQ(model->find_joint("finger_joint"), -1);  // mimic joints have no entry in q
   EXPECT_EQ(model->find_joint("hinge_mirror"), -1);
   EXPECT_EQ(model->link_count(), 6);
+  // Units of q: the slide in mm; the hinge in rad although its mimic follower is prismatic.
+  EXPECT_TRUE(model->joint_is_prismatic(0));
+  EXPECT_FALSE(model->joint_is_prismatic(1));
+  const std::vector<std::string> good = {"hinge", "slide"};
+  EXPECT_TRUE(model->check_joint_names(good).ok());
+  for (const char* bad : {"finger_joint", "ghost"}) {
+    const std::vector<std::string> names = {"slide", bad};
+    const Status st = model->check_joint_names(names);
+    ASSERT_FALSE(st.ok()) << bad;
+    EXPECT_EQ(st.error().code, ErrorCode::kNotFound);
+    EXPECT_EQ(st.error().message,
+              "joint '" + std::string(bad) + "' is not a movable joint of robot 'slider'");
+  }
 
   const JointLimits& slide = model->joint_limits(0);
   EXPECT_TRUE(slide.bounded);

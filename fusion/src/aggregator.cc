@@ -166,11 +166,8 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
     for (const body_map::PatchPlacement& p : map->patches) {
       impl->link_of_placement.push_back(robot->find_link(p.link));
     }
-    for (int l = 0; l < robot->link_count(); ++l) {
-      const body_map::LinkJoint& j = robot->link(l).joint;
-      if (j.type == body_map::JointType::kPrismatic && j.q_index >= 0) {
-        impl->prismatic[static_cast<std::size_t>(j.q_index)] = true;
-      }
+    for (int j = 0; j < robot->joint_count(); ++j) {
+      impl->prismatic[static_cast<std::size_t>(j)] = robot->joint_is_prismatic(j);
     }
   }
 

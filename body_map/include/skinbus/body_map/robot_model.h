@@ -74,6 +74,12 @@ class RobotModel {
   const JointLimits& joint_limits(int j) const { return limits_[j]; }
   // Index of the movable joint called `name` in q, or -1 (also -1 for fixed and mimic joints).
   int find_joint(std::string_view name) const;
+  // Whether movable joint j is prismatic: its entry of q is in mm (ROS 2 joint states carry
+  // metres). Its own type only: a prismatic mimic follower does not make a revolute leader one.
+  bool joint_is_prismatic(int j) const { return prismatic_[j]; }
+  // OK when every name is a movable joint of this robot, else kNotFound naming the first that is
+  // not ("joint 'x' is not a movable joint of robot 'r'": absent, fixed or a mimic follower).
+  Status check_joint_names(std::span<const std::string> names) const;
 
   // The pose of every link in the root frame for joint positions `q` (joint_count() entries):
   // link_poses[i] maps link i's points into the root frame. Errors: wrong sizes
@@ -90,6 +96,7 @@ class RobotModel {
   std::vector<Link> links_;
   std::vector<std::string> joint_names_;
   std::vector<JointLimits> limits_;
+  std::vector<bool> prismatic_;  // per movable joint
 };
 
 }  // namespace skinbus::body_map
