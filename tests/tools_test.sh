@@ -62,6 +62,32 @@ printf '0,0\n1,x\n' >"$work/badpoints.csv"
 [[ $rc != 0 ]] && grep -q "unknown --plan 'spiral'" "$work/e6.txt" && ok "unknown plan named" || bad "unknown plan"
 "$bin/skinbus-dataset" --plan grid -o /nonexistent/dir/x.csv 2>"$work/e7.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "/nonexistent/dir/x.csv" "$work/e7.txt" && ok "unwritable dataset path named" || bad "unwritable dataset path"
+# Per-unit identification: a fabricated unit's presses -> a unit file -> data from that file
+# that matches the unit (the same presses and noise seed from the unit, the file and the
+# nominal model).
+mkdir -p "$work/id"
+"$bin/skinbus-dataset" --plan grid --grid 9 --pitch 15 --fabricated --uid 0x5B07 -o "$work/id/unit.csv" 2>/dev/null
+"$bin/skinbus-identify" "$work/id/unit.csv" -o "$work/id/unit.json" >"$work/id/fit.txt" 2>"$work/id/fit.err"; rc=$?
+[[ $rc == 0 ]] && grep -q "^fit (.*): residual RMS" "$work/id/fit.txt" && grep -q '"format": "skinbus-unit 1"' "$work/id/unit.json" &&
+  ok "skinbus-identify fits a unit and writes its file" || { bad "skinbus-identify (rc $rc)"; cat "$work/id/fit.txt" "$work/id/fit.err"; }
+same_presses=(--plan random-test --count 150 --uid 0x5B07)
+"$bin/skinbus-dataset" "${same_presses[@]}" --fabricated -o "$work/id/test_unit.csv" 2>/dev/null
+"$bin/skinbus-dataset" "${same_presses[@]}" --unit "$work/id/unit.json" -o "$work/id/test_identified.csv" 2>/dev/null
+"$bin/skinbus-dataset" "${same_presses[@]}" -o "$work/id/test_nominal.csv" 2>/dev/null
+grep -q "^# unit: identified " "$work/id/test_identified.csv" && ok "a dataset names the unit file it simulates" || bad "dataset unit header"
+"$here/e2e/check_unit_fields.py" "$work/id/test_unit.csv" "$work/id/test_identified.csv" "$work/id/test_nominal.csv" >"$work/id/cmp.txt"; rc=$?
+[[ $rc == 0 ]] && ok "identified unit's fields match the unit: $(cut -c6- "$work/id/cmp.txt")" || { bad "identified unit fields"; cat "$work/id/cmp.txt"; }
+printf '{"format": "skinbus-unit 1", "spread_mm": 10, "lateral_mm": 2, "magnets": [{"u_mm": 0}]}\n' >"$work/id/bad.json"
+"$bin/skinbus-dataset" --plan grid --unit "$work/id/bad.json" -o "$work/id/x.csv" 2>"$work/id/bad.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "bad.json: magnets\[0\].v_mm is missing" "$work/id/bad.txt" && ok "corrupt unit file: the field named" || { bad "corrupt unit file"; cat "$work/id/bad.txt"; }
+"$bin/skinbus-dataset" --plan grid --unit "$work/id/unit.json" --fabricated -o "$work/id/x.csv" 2>"$work/id/both.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "exclusive" "$work/id/both.txt" && ok "--unit with --fabricated refused" || bad "--unit with --fabricated"
+head -400 "$work/id/unit.csv" >"$work/id/few.csv"
+"$bin/skinbus-identify" "$work/id/few.csv" -o "$work/id/few.json" >/dev/null 2>"$work/id/few.txt"; rc=$?
+[[ $rc == 1 ]] && grep -q "degenerate" "$work/id/few.txt" && [[ ! -e $work/id/few.json ]] &&
+  ok "too few presses: a clear error and no unit file" || { bad "identify with too few presses (rc $rc)"; cat "$work/id/few.txt"; }
+"$bin/skinbus-identify" --help | grep -q "noise units" && ok "skinbus-identify --help" || bad "skinbus-identify --help"
+
 "$bin/skinbus-crlb" --depths 2 --step 10 --csv "$work/crlb.csv" >"$work/crlb.txt" &&
   grep -q "^| 2.0 |" "$work/crlb.txt" && ok "skinbus-crlb table" || bad "skinbus-crlb table"
 if [[ -x /usr/bin/python3 ]] && /usr/bin/python3 -c "import matplotlib" 2>/dev/null; then

@@ -10,8 +10,10 @@
 #include <string>
 
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/unit_parameters.h"
 
 int main(int argc, char** argv) {
+  using namespace skinbus;
   using namespace skinbus::sim;
   CLI::App app{
       "skinbus-dataset: indentation datasets from the simulated patch, in the project's CSV "
@@ -30,7 +32,10 @@ int main(int argc, char** argv) {
       "keeping contact samples only.\n\n"
       "Examples:\n"
       "  skinbus-dataset --plan grid -o train.csv\n"
-      "  skinbus-dataset --plan random-test --count 2000 -o test.csv\n"};
+      "  skinbus-dataset --plan random-test --count 2000 -o test.csv\n"
+      "  skinbus-dataset --plan halton --count 12000 --unit unit7.json -o unit7_train.csv\n"
+      "    (training data from a unit identified by skinbus-identify; the noise seed is still\n"
+      "    --uid's)\n"};
   std::string plan = "grid", out_path, points_path;
   int grid = 19, count = 361;
   double pitch = 7.5, jitter = 0.5, max_depth = 4.0, speed = 2.0, rate = 41.7;
@@ -73,6 +78,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--seed", seed, "seed of random plans")->capture_default_str();
   app.add_option("--points", points_path, "list plan: file of press points");
+  std::string unit_path;
+  app.add_option("--unit", unit_path,
+                 "unit file (skinbus-identify): simulate that identified unit instead of the "
+                 "nominal or a --fabricated one")
+      ->check(CLI::ExistingFile);
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
 
@@ -84,8 +94,19 @@ int main(int argc, char** argv) {
       design.radius_mm = radius;
     }
     design.anisotropy = anisotropy;
-    auto model = fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
-                            : PatchModel::nominal(design);
+    if (fabricated && !unit_path.empty()) {
+      throw std::invalid_argument("--fabricated and --unit are exclusive: one unit at a time");
+    }
+    Result<PatchModel> model = make_error(ErrorCode::kInvalidArgument, "no model");
+    if (!unit_path.empty()) {
+      auto params = read_unit_parameters(unit_path);
+      if (!params.ok()) throw std::runtime_error(params.error().message);
+      model = PatchModel::from_parameters(design, *params);
+      if (!model.ok()) throw std::runtime_error(unit_path + ": " + model.error().message);
+    } else {
+      model = fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
+                         : PatchModel::nominal(design);
+    }
     if (!model.ok()) throw std::runtime_error(model.error().message);
     SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
     const double half = (grid - 1) / 2.0 * pitch;
@@ -118,7 +139,9 @@ int main(int argc, char** argv) {
     char uid_text[32];
     std::snprintf(uid_text, sizeof uid_text, "0x%016llx", static_cast<unsigned long long>(uid));
     d.meta["unit_uid"] = uid_text;
-    d.meta["unit"] = fabricated ? "fabricated" : "nominal";
+    d.meta["unit"] = !unit_path.empty() ? "identified " + unit_path
+                     : fabricated       ? "fabricated"
+                                        : "nominal";
     const auto t1 = std::chrono::steady_clock::now();
     auto s = write_dataset_csv(d, out_path);
     if (!s.ok()) throw std::runtime_error(s.error().message);

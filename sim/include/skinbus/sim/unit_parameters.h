@@ -15,8 +15,11 @@
 // Plain data; copying costs (magnets + sensors) small structs.
 #pragma once
 
+#include <string>
+#include <string_view>
 #include <vector>
 
+#include "skinbus/common/result.h"
 #include "skinbus/sim/vec3.h"
 
 namespace skinbus::sim {
@@ -44,5 +47,24 @@ struct UnitParameters {
   std::vector<MagnetParameters> magnets;  // design order: u index fastest
   std::vector<SensorParameters> sensors;  // design order: u index fastest
 };
+
+// ---- Unit files ------------------------------------------------------------------------------
+// A unit's parameters as JSON (format "skinbus-unit 1", docs/physics_estimator.md "Unit files"):
+// lengths in mm, moments in A m^2, `source` a free note (where the numbers came from). Numbers
+// carry 17 significant digits: reading back what was written gives the same bits.
+
+// The file's text. Allocates.
+std::string unit_parameters_json(const UnitParameters& params, std::string_view source = {});
+// Writes unit_parameters_json() to `path`. Errors: kIo (cannot write, the message names the path).
+Status write_unit_parameters(const UnitParameters& params, const std::string& path,
+                             std::string_view source = {});
+// Parses a unit file's text. Errors: kParse (not JSON, another format or major version, a field
+// missing or of the wrong type or size: the message names it). Counts against a design and
+// physical sanity (finite, spread > 0, rotations) are checked by PatchModel::from_parameters().
+// `source`, when not null, receives the file's note. Allocates.
+Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string* source = nullptr);
+// Reads and parses `path`. Errors: kNotFound (no file), else as parse_unit_parameters() with the
+// path in the message.
+Result<UnitParameters> read_unit_parameters(const std::string& path, std::string* source = nullptr);
 
 }  // namespace skinbus::sim

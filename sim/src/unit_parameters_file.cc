@@ -1,0 +1,197 @@
+// Unit files: UnitParameters as JSON ("skinbus-unit 1").
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "skinbus/common/yaml_reader.h"
+#include "skinbus/sim/unit_parameters.h"
+
+namespace skinbus::sim {
+namespace {
+
+using json = nlohmann::json;
+
+constexpr const char* kFormat = "skinbus-unit";
+constexpr int kMajorVersion = 1;
+
+json vec(const Vec3<double>& v) {
+  return json::array({v.x, v.y, v.z});
+}
+
+// Reads a JSON document field by field; the first problem is kept with the field's path.
+class Reader {
+ public:
+  bool ok() const { return error_.empty(); }
+  const std::string& error() const { return error_; }
+
+  double number(const json& j, const char* key, const std::string& where) {
+    if (!ok()) return 0;
+    const auto it = j.find(key);
+    if (it == j.end() || !it->is_number()) {
+      fail(where + key + (it == j.end() ? " is missing" : " is not a number"));
+      return 0;
+    }
+    return it->get<double>();
+  }
+  Vec3<double> triple(const json& j, const char* key, const std::string& where) {
+    if (!ok()) return {};
+    const auto it = j.find(key);
+    if (it == j.end()) {
+      fail(where + key + " is missing");
+      return {};
+    }
+    return triple_of(*it, where + key);
+  }
+  // `node` must be an array of 3 numbers; `name` names it in the error.
+  Vec3<double> triple_of(const json& node, const std::string& name) {
+    if (!ok()) return {};
+    if (!node.is_array() || node.size() != 3) {
+      fail(name + " must be an array of 3 numbers");
+      return {};
+    }
+    double v[3];
+    for (std::size_t i = 0; i < 3; ++i) {
+      if (!node[i].is_number()) {
+        fail(name + "[" + std::to_string(i) + "] is not a number");
+        return {};
+      }
+      v[i] = node[i].get<double>();
+    }
+    return {v[0], v[1], v[2]};
+  }
+  const json* array(const json& j, const char* key) {
+    if (!ok()) return nullptr;
+    const auto it = j.find(key);
+    if (it == j.end() || !it->is_array()) {
+      fail(std::string(key) + " must be an array");
+      return nullptr;
+    }
+    return &*it;
+  }
+  void fail(const std::string& what) {
+    if (ok()) error_ = what;
+  }
+
+ private:
+  std::string error_;
+};
+
+}  // namespace
+
+std::string unit_parameters_json(const UnitParameters& p, std::string_view source) {
+  json j;
+  j["format"] = std::string(kFormat) + " " + std::to_string(kMajorVersion);
+  j["source"] = std::string(source);
+  j["units"] = {{"length", "mm"}, {"moment", "A m^2"}};
+  j["spread_mm"] = p.spread_mm;
+  j["lateral_mm"] = p.lateral_mm;
+  json magnets = json::array();
+  for (const MagnetParameters& m : p.magnets) {
+    magnets.push_back(
+        {{"u_mm", m.u_mm}, {"v_mm", m.v_mm}, {"h_mm", m.h_mm}, {"moment_am2", vec(m.moment_am2)}});
+  }
+  j["magnets"] = std::move(magnets);
+  json sensors = json::array();
+  for (const SensorParameters& s : p.sensors) {
+    sensors.push_back(
+        {{"u_mm", s.u_mm},
+         {"v_mm", s.v_mm},
+         {"h_mm", s.h_mm},
+         {"mounting", {vec(s.mounting.r[0]), vec(s.mounting.r[1]), vec(s.mounting.r[2])}},
+         {"gain", vec(s.gain)}});
+  }
+  j["sensors"] = std::move(sensors);
+  // nlohmann::json writes doubles with 17 significant digits: the round trip is exact.
+  return j.dump(1) + "\n";
+}
+
+Status write_unit_parameters(const UnitParameters& params, const std::string& path,
+                             std::string_view source) {
+  std::ofstream out(path, std::ios::trunc);
+  if (!out) {
+    return make_error(ErrorCode::kIo, "unit file " + path + ": " + std::strerror(errno));
+  }
+  out << unit_parameters_json(params, source);
+  out.close();
+  if (!out) return make_error(ErrorCode::kIo, "unit file " + path + ": write failed");
+  return Status::Ok();
+}
+
+Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string* source) {
+  const json j = json::parse(text.begin(), text.end(), nullptr, /*allow_exceptions=*/false);
+  if (j.is_discarded() || !j.is_object()) {
+    return make_error(ErrorCode::kParse, "not a JSON object");
+  }
+  const auto format = j.find("format");
+  const std::string want = std::string(kFormat) + " " + std::to_string(kMajorVersion);
+  if (format == j.end() || !format->is_string() ||
+      format->get<std::string>().rfind(std::string(kFormat) + " ", 0) != 0) {
+    return make_error(ErrorCode::kParse, "not a unit file (format is not '" + want + "')");
+  }
+  if (format->get<std::string>() != want) {
+    return make_error(ErrorCode::kParse, "format '" + format->get<std::string>() +
+                                             "': this reader knows '" + want + "'");
+  }
+  Reader r;
+  UnitParameters p;
+  p.spread_mm = r.number(j, "spread_mm", "");
+  p.lateral_mm = r.number(j, "lateral_mm", "");
+  if (const json* magnets = r.array(j, "magnets")) {
+    for (std::size_t i = 0; i < magnets->size() && r.ok(); ++i) {
+      const json& m = (*magnets)[i];
+      const std::string where = "magnets[" + std::to_string(i) + "].";
+      if (!m.is_object()) {
+        r.fail("magnets[" + std::to_string(i) + "] is not an object");
+        break;
+      }
+      MagnetParameters mp;
+      mp.u_mm = r.number(m, "u_mm", where);
+      mp.v_mm = r.number(m, "v_mm", where);
+      mp.h_mm = r.number(m, "h_mm", where);
+      mp.moment_am2 = r.triple(m, "moment_am2", where);
+      p.magnets.push_back(mp);
+    }
+  }
+  if (const json* sensors = r.array(j, "sensors")) {
+    for (std::size_t i = 0; i < sensors->size() && r.ok(); ++i) {
+      const json& s = (*sensors)[i];
+      const std::string where = "sensors[" + std::to_string(i) + "].";
+      if (!s.is_object()) {
+        r.fail("sensors[" + std::to_string(i) + "] is not an object");
+        break;
+      }
+      SensorParameters sp;
+      sp.u_mm = r.number(s, "u_mm", where);
+      sp.v_mm = r.number(s, "v_mm", where);
+      sp.h_mm = r.number(s, "h_mm", where);
+      sp.gain = r.triple(s, "gain", where);
+      const auto mounting = s.find("mounting");
+      if (mounting == s.end() || !mounting->is_array() || mounting->size() != 3) {
+        r.fail(where + "mounting must be 3 rows of 3 numbers");
+      } else {
+        for (std::size_t row = 0; row < 3 && r.ok(); ++row) {
+          sp.mounting.r[row] =
+              r.triple_of((*mounting)[row], where + "mounting[" + std::to_string(row) + "]");
+        }
+      }
+      p.sensors.push_back(sp);
+    }
+  }
+  if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
+  if (source != nullptr) {
+    const auto it = j.find("source");
+    *source = it != j.end() && it->is_string() ? it->get<std::string>() : std::string();
+  }
+  return p;
+}
+
+Result<UnitParameters> read_unit_parameters(const std::string& path, std::string* source) {
+  Result<std::string> text = read_text_file(path, "unit file");
+  if (!text.ok()) return text.error();
+  Result<UnitParameters> p = parse_unit_parameters(*text, source);
+  if (!p.ok()) return make_error(p.error().code, "unit file " + path + ": " + p.error().message);
+  return p;
+}
+
+}  // namespace skinbus::sim

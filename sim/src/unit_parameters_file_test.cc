@@ -1,0 +1,109 @@
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/unit_parameters.h"
+
+namespace skinbus::sim {
+namespace {
+
+UnitParameters fabricated_unit() {
+  auto m = PatchModel::fabricated(PatchDesign{}, 0x5B00000000000001ull, FabricationVariation{});
+  EXPECT_TRUE(m.ok());
+  return m->parameters();
+}
+
+bool same_bits(double a, double b) {
+  return std::memcmp(&a, &b, sizeof a) == 0;
+}
+
+TEST(UnitParametersFileTest, RoundTripIsExactAndRebuildsTheSameUnit) {
+  const UnitParameters p = fabricated_unit();
+  std::string source;
+  auto back = parse_unit_parameters(unit_parameters_json(p, "fit of unit 7"), &source);
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_EQ(source, "fit of unit 7");
+  ASSERT_EQ(back->magnets.size(), p.magnets.size());
+  ASSERT_EQ(back->sensors.size(), p.sensors.size());
+  EXPECT_TRUE(same_bits(back->spread_mm, p.spread_mm));
+  EXPECT_TRUE(same_bits(back->lateral_mm, p.lateral_mm));
+  for (std::size_t i = 0; i < p.magnets.size(); ++i) {
+    EXPECT_TRUE(same_bits(back->magnets[i].h_mm, p.magnets[i].h_mm)) << i;
+    EXPECT_TRUE(same_bits(back->magnets[i].moment_am2.z, p.magnets[i].moment_am2.z)) << i;
+  }
+  for (std::size_t i = 0; i < p.sensors.size(); ++i) {
+    EXPECT_TRUE(same_bits(back->sensors[i].gain.y, p.sensors[i].gain.y)) << i;
+    EXPECT_TRUE(same_bits(back->sensors[i].mounting.r[2].x, p.sensors[i].mounting.r[2].x)) << i;
+  }
+  // The rebuilt model computes the same fields as the original unit.
+  auto original = PatchModel::from_parameters(PatchDesign{}, p);
+  auto rebuilt = PatchModel::from_parameters(PatchDesign{}, *back);
+  ASSERT_TRUE(original.ok() && rebuilt.ok());
+  std::vector<double> a(static_cast<std::size_t>(original->channel_count()));
+  std::vector<double> b(a.size());
+  const Contact press[1] = {{3.0, -7.5, 2.0, 5.0}};
+  original->contact_field_ut(press, a);
+  rebuilt->contact_field_ut(press, b);
+  for (std::size_t c = 0; c < a.size(); ++c) EXPECT_TRUE(same_bits(a[c], b[c])) << c;
+}
+
+TEST(UnitParametersFileTest, WritesAndReadsAFile) {
+  const UnitParameters p = fabricated_unit();
+  const std::string path = ::testing::TempDir() + "/unit_parameters_file_test.json";
+  ASSERT_TRUE(write_unit_parameters(p, path, "test").ok());
+  auto back = read_unit_parameters(path);
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_EQ(back->magnets.size(), p.magnets.size());
+  std::remove(path.c_str());
+  auto missing = read_unit_parameters(path);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_EQ(missing.error().code, ErrorCode::kNotFound);
+  EXPECT_NE(missing.error().message.find(path), std::string::npos);
+  EXPECT_FALSE(write_unit_parameters(p, "/nonexistent-dir/unit.json").ok());
+}
+
+// Every kind of damage gets a kParse error naming what is wrong.
+TEST(UnitParametersFileTest, CorruptFilesAreRefusedWithTheField) {
+  const std::string good = unit_parameters_json(fabricated_unit());
+  auto refused = [](const std::string& text, const std::string& want) {
+    auto r = parse_unit_parameters(text);
+    ASSERT_FALSE(r.ok()) << "accepted: " << want;
+    EXPECT_EQ(r.error().code, ErrorCode::kParse);
+    EXPECT_NE(r.error().message.find(want), std::string::npos) << r.error().message;
+  };
+  auto replaced = [&](const std::string& from, const std::string& to) {
+    std::string t = good;
+    const std::size_t at = t.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    return t.replace(at, from.size(), to);
+  };
+  refused("", "not a JSON object");
+  refused("[1, 2]", "not a JSON object");
+  refused(good.substr(0, good.size() / 2), "not a JSON object");
+  refused(replaced("\"skinbus-unit 1\"", "\"skinbus-dataset 1\""), "not a unit file");
+  refused(replaced("\"skinbus-unit 1\"", "\"skinbus-unit 2\""), "this reader knows");
+  refused(replaced("\"spread_mm\"", "\"spread\""), "spread_mm is missing");
+  refused(replaced("\"lateral_mm\":", "\"lateral_mm\": \"2\", \"x\":"), "lateral_mm is not");
+  refused(replaced("\"magnets\": [", "\"magnets\": 3, \"m\": ["), "magnets must be an array");
+  refused(replaced("\"moment_am2\": [", "\"moment_am2\": [1, "), "magnets[0].moment_am2 must");
+  refused(replaced("\"gain\": [", "\"gain\": [null, "), "sensors[0].gain");
+  refused(replaced("\"mounting\": [", "\"mounting\": [[1, 2], "), "sensors[0].mounting");
+}
+
+TEST(UnitParametersFileTest, APlausibleFileWithTheWrongCountsIsRefusedByTheModel) {
+  UnitParameters p = fabricated_unit();
+  p.magnets.pop_back();
+  auto back = parse_unit_parameters(unit_parameters_json(p));
+  ASSERT_TRUE(back.ok());  // the format is fine; the design does not match
+  auto m = PatchModel::from_parameters(PatchDesign{}, *back);
+  ASSERT_FALSE(m.ok());
+  EXPECT_NE(m.error().message.find("magnets"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace skinbus::sim

@@ -1,0 +1,134 @@
+// skinbus-identify: fit one patch unit's physical parameters from its own presses and write them
+// as a unit file, for skinbus-dataset --unit (training data from the unit's own physics) and the
+// physics estimator.
+//
+//   skinbus-identify unit7_presses.csv -o unit7.json --held-out unit7_check.csv
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <cstdio>
+#include <optional>
+#include <string>
+
+#include "skinbus/fusion/unit_identification.h"
+#include "skinbus/sim/dataset.h"
+#include "skinbus/sim/unit_parameters.h"
+
+namespace {
+
+using namespace skinbus;
+
+constexpr int kExitOk = 0, kExitFailed = 1, kExitUsage = 2;
+// Above this many noise units the model class misses something (docs/physics_estimator.md).
+constexpr double kResidualWarn = 1.1;
+
+void print_quality(const char* what, const fusion::FitQuality& nominal,
+                   const fusion::FitQuality& fitted) {
+  std::printf("%s (%d samples): residual RMS %.3f noise units identified, %.3f nominal\n", what,
+              fitted.rows, fitted.rms, nominal.rms);
+  for (std::size_t b = 0; b < fitted.bins.size(); ++b) {
+    const fusion::DepthBinResidual& f = fitted.bins[b];
+    if (f.rows == 0) continue;
+    const double nom = b < nominal.bins.size() ? nominal.bins[b].rms : 0.0;
+    std::printf("  depth %.0f-%.0f mm  n=%-5d identified %.3f  nominal %.3f\n", f.depth_lo_mm,
+                f.depth_hi_mm, f.rows, f.rms, nom);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "skinbus-identify: fit one patch unit's physical parameters (magnet positions, moments and\n"
+      "tilts, sensor positions, mountings and gains, the lattice's spread; 440 numbers for the\n"
+      "standard patch) from that unit's own presses with Ceres, and write them as a unit file\n"
+      "(docs/physics_estimator.md, \"Unit files\").\n\n"
+      "Input: a dataset in the project's CSV format (docs/dataset_format.md) of presses at known\n"
+      "positions and depths, e.g. an indentation robot's ramp protocol: 361 presses on the\n"
+      "seed's 19 x 19 grid take ~4 s to fit; at least ~20 presses spread over the patch.\n"
+      "The fit reports its residual in sensor-noise units, overall and per depth bin: about 1\n"
+      "means the model explains the unit down to the noise; clearly above 1 (> 1.1) means the\n"
+      "unit has physics the model class does not contain (e.g. an anisotropic lattice): use\n"
+      "the learned correction on top (docs/models.md).\n\n"
+      "Examples:\n"
+      "  skinbus-dataset --plan grid --fabricated --uid 0x5B07 -o unit7.csv\n"
+      "  skinbus-identify unit7.csv -o unit7.json\n"
+      "  skinbus-dataset --plan halton --count 12000 --unit unit7.json -o unit7_train.csv\n"};
+  std::string presses_path, out_path, held_out_path;
+  bool cylinder = false;
+  double radius = 45;
+  fusion::IdentificationOptions opt;
+  app.add_option("presses", presses_path, "the unit's presses (dataset CSV)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  app.add_option("-o,--output", out_path, "unit file to write (JSON)")->required();
+  app.add_option("--held-out", held_out_path,
+                 "other presses of the same unit (dataset CSV): residual on data not fitted")
+      ->check(CLI::ExistingFile);
+  app.add_flag("--cylinder", cylinder, "the patch is wrapped on a cylinder (skin on a limb)");
+  app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
+  app.add_option("--tip-radius", opt.tip_radius_mm, "the indenter's round tip radius, mm")
+      ->capture_default_str();
+  app.add_option("--depths-per-press", opt.depths_per_press, "samples kept per press")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 64));
+  app.add_option("--min-depth", opt.min_depth_mm, "shallower samples are not used, mm")
+      ->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  sim::PatchDesign design;
+  if (cylinder) {
+    design.surface = sim::SurfaceKind::kCylinder;
+    design.radius_mm = radius;
+  }
+  Result<sim::Dataset> presses = sim::read_dataset_csv(presses_path);
+  if (!presses.ok()) {
+    std::fprintf(stderr, "skinbus-identify: %s\n", presses.error().to_string().c_str());
+    return kExitFailed;
+  }
+  std::optional<sim::Dataset> held_out;
+  if (!held_out_path.empty()) {
+    Result<sim::Dataset> h = sim::read_dataset_csv(held_out_path);
+    if (!h.ok()) {
+      std::fprintf(stderr, "skinbus-identify: %s\n", h.error().to_string().c_str());
+      return kExitFailed;
+    }
+    held_out = std::move(h).value();
+  }
+  std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (a few seconds) ...\n",
+               presses->rows(), presses_path.c_str());
+  const auto t0 = std::chrono::steady_clock::now();
+  Result<fusion::IdentifiedUnit> id =
+      fusion::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr);
+  if (!id.ok()) {
+    std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
+    return id.error().code == ErrorCode::kInvalidArgument ? kExitUsage : kExitFailed;
+  }
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::printf("identified from %d presses (%d samples) in %.1f s, %d iterations\n", id->presses,
+              id->rows_used, seconds, id->iterations);
+  print_quality("fit", id->nominal_fit, id->fit);
+  if (held_out) print_quality("held out", id->nominal_held_out, id->held_out);
+  const double judged = held_out ? id->held_out.rms : id->fit.rms;
+  if (judged > kResidualWarn) {
+    std::printf(
+        "warning: residual %.2f > %.1f noise units: this unit has physics the model does not "
+        "contain; add the learned correction (docs/models.md)\n",
+        judged, kResidualWarn);
+  }
+  char residuals[96];
+  std::snprintf(residuals, sizeof residuals, "residual %.3f noise units (fit)", id->fit.rms);
+  std::string source = "skinbus-identify " + presses_path + ": " + std::to_string(id->presses) +
+                       " presses, " + residuals;
+  if (held_out) {
+    std::snprintf(residuals, sizeof residuals, ", %.3f (held out)", id->held_out.rms);
+    source += residuals;
+  }
+  if (Status st = sim::write_unit_parameters(id->parameters, out_path, source); !st.ok()) {
+    std::fprintf(stderr, "skinbus-identify: %s\n", st.error().to_string().c_str());
+    return kExitFailed;
+  }
+  std::fprintf(stderr, "skinbus-identify: wrote %s\n", out_path.c_str());
+  return kExitOk;
+}
