@@ -30,14 +30,14 @@ dataset() {  # name, skinbus-dataset arguments...
   local name=$1; shift
   [[ -f $work/$name.csv ]] || "$bin/skinbus-dataset" "$@" -o "$work/$name.csv"
 }
-train() {  # name, minutes, data, skinbus-train arguments...
+train() {  # name, minutes, data, skinbus-train arguments... (test split: $test_split)
   local name=$1 minutes=$2 data=$3; shift 3
   if [[ -f $work/$name.json ]]; then
     echo "model_report: $name: cached"
     return
   fi
   echo "model_report: training $name (at most $minutes min)"
-  if ! "$bin/skinbus-train" "$work/$data.csv" -o "$work/$name" --test "$work/test_nominal.csv" \
+  if ! "$bin/skinbus-train" "$work/$data.csv" -o "$work/$name" --test "$work/${test_split:-test_nominal}.csv" \
       --threads "$threads" --max-minutes "$minutes" --seed 1 "$@" >"$work/$name.log" 2>&1; then
     echo "model_report: training $name failed; its log:" >&2
     tail -20 "$work/$name.log" >&2
@@ -67,6 +67,18 @@ train mlp_256x256 5 halton1200_nominal --arch mlp --hidden 256,256 --stride 4 --
 # weighted by depth (docs/benchmarks/models.md: what each part pays).
 train mlp_128x128x128x128_12k 30 halton12k_nominal --arch mlp --hidden 128,128,128,128 \
   --batch 256 --epochs 150 --patience 40 --plateau 8 --xy-weight-depth 1.0 --xy-weight-floor 0.3
+# A unit's own small network within the 361-press budget: identify the fabricated unit from
+# its 19 x 19 grid, simulate 12000 presses of the identified unit, train the small network on
+# them; tested on the fabricated unit itself.
+[[ -f $work/fabricated_identified.json ]] ||
+  "$bin/skinbus-identify" "$work/grid_fabricated.csv" -o "$work/fabricated_identified.json" |
+  tee "$work/fabricated_identified.txt"
+dataset halton12k_fabricated_identified --plan halton --count 12000 --speed 8 --seed 5 \
+  --unit "$work/fabricated_identified.json"
+dataset test_fabricated --plan random-test --count 2000 --seed 7 --fabricated
+test_split=test_fabricated train mlp_128x128x128x128_12k_fabricated_identified 30 \
+  halton12k_fabricated_identified --arch mlp --hidden 128,128,128,128 \
+  --batch 256 --epochs 150 --patience 40 --plateau 8 --xy-weight-depth 1.0 --xy-weight-floor 0.3
 # The seed recipe per unit: the seed CNN on that unit's 19 x 19 grid.
 for unit in nominal fabricated anisotropic; do
   train "seed_recipe_$unit" 12 "grid_$unit" --stride 2 --patience 20 --plateau 5
@@ -77,6 +89,10 @@ done
   --model "$work/cnn_w0.125" --model "$work/mlp_256x256" --model "$work/mlp_128x128x128x128_12k" \
   --csv docs/benchmarks/models.csv --errors-csv "$work/model_errors.csv" \
   --plot docs/benchmarks/models | tee "$work/models_table.md"
+"$bin/skinbus-bench" models --test "$work/test_fabricated.csv" --no-reduced \
+  --model "$work/nominal_seed_cnn" --model "$work/seed_recipe_fabricated" \
+  --model "$work/mlp_128x128x128x128_12k" --model "$work/mlp_128x128x128x128_12k_fabricated_identified" \
+  --csv docs/benchmarks/models_fabricated.csv | tee "$work/models_fabricated_table.md"
 "$bin/skinbus-bench" budget --seed-model "nominal=$work/seed_recipe_nominal" \
   --seed-model "fabricated=$work/seed_recipe_fabricated" \
   --seed-model "anisotropic=$work/seed_recipe_anisotropic" \
