@@ -152,10 +152,14 @@ Status parse(const YAML::Node& root, PatchNodeSettings* s) {
   }
   if (const YAML::Node g = root["gate"]; g && !r.error) {
     r.only(g, "gate",
-           {"on_threshold_ut", "off_threshold_ut", "off_samples", "tare_samples", "drift_tau_s",
+           {"on_threshold_ut", "off_threshold_ut", "rms_on_threshold_ut", "rms_off_threshold_ut",
+            "rms_smoothing_samples", "off_samples", "tare_samples", "drift_tau_s",
             "drift_max_ut_per_s", "drift_holdoff_s"});
     r.get_double(g, "on_threshold_ut", "gate.", 0.1, 10000, &s->gate.on_threshold_ut);
     r.get_double(g, "off_threshold_ut", "gate.", 0.1, 10000, &s->gate.off_threshold_ut);
+    r.get_double(g, "rms_on_threshold_ut", "gate.", 0.01, 10000, &s->gate.rms_on_threshold_ut);
+    r.get_double(g, "rms_off_threshold_ut", "gate.", 0.01, 10000, &s->gate.rms_off_threshold_ut);
+    r.get_int(g, "rms_smoothing_samples", "gate.", 1, 1000, &s->gate.rms_smoothing_samples);
     r.get_int(g, "off_samples", "gate.", 1, 1000, &s->gate.off_samples);
     r.get_int(g, "tare_samples", "gate.", 1, 10000, &s->gate.tare_samples);
     r.get_double(g, "drift_tau_s", "gate.", 0.0, 1e6, &s->gate.drift_tau_s);
@@ -274,6 +278,10 @@ Status validate_settings(PatchNodeSettings* s) {
     return bad(ErrorCode::kInvalidArgument,
                "gate.off_threshold_ut must not exceed gate.on_threshold_ut (hysteresis)");
   }
+  if (s->gate.rms_off_threshold_ut > s->gate.rms_on_threshold_ut) {
+    return bad(ErrorCode::kInvalidArgument,
+               "gate.rms_off_threshold_ut must not exceed gate.rms_on_threshold_ut (hysteresis)");
+  }
   // Rate against the chip's conversion time and the bus.
   const double max_hz = SensorArray::max_rate_hz(s->array);
   if (!(s->rate_hz >= 1.0) || s->rate_hz > max_hz) {
@@ -342,6 +350,9 @@ std::string settings_to_yaml(const PatchNodeSettings& s) {
     << "\n  identify_led: " << line(s.gpio.identify_led) << "\n  sync_in: " << line(s.gpio.sync_in)
     << "\ngate:\n  on_threshold_ut: " << s.gate.on_threshold_ut
     << "\n  off_threshold_ut: " << s.gate.off_threshold_ut
+    << "\n  rms_on_threshold_ut: " << s.gate.rms_on_threshold_ut
+    << "\n  rms_off_threshold_ut: " << s.gate.rms_off_threshold_ut
+    << "\n  rms_smoothing_samples: " << s.gate.rms_smoothing_samples
     << "\n  off_samples: " << s.gate.off_samples << "\n  tare_samples: " << s.gate.tare_samples
     << "\n  drift_tau_s: " << s.gate.drift_tau_s
     << "\n  drift_max_ut_per_s: " << s.gate.drift_max_ut_per_s

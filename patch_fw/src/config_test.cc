@@ -49,7 +49,7 @@ i2c:
     - {channel: 0, addresses: [0x0C, 0x0D, 0x0E, 0x0F]}
 sensor: {gain_sel: 5, oversampling: 2, digital_filter: 3, resolution_z: 1}
 gpio: {chip: gpiochip2, drdy: [5, 6], mux_reset: 7, identify_led: 8, sync_in: 9}
-gate: {on_threshold_ut: 20, off_threshold_ut: 10}
+gate: {on_threshold_ut: 20, off_threshold_ut: 10, rms_on_threshold_ut: 1.5, rms_smoothing_samples: 6}
 sim: {enabled: true, random_presses_per_min: 6, seed: 9}
 )";
   ASSERT_TRUE(load_and_validate(yaml, &s).ok()) << error_of(yaml);
@@ -68,6 +68,8 @@ sim: {enabled: true, random_presses_per_min: 6, seed: 9}
   EXPECT_EQ(s.gpio.drdy_lines, (std::vector<unsigned>{5, 6}));
   EXPECT_EQ(*s.gpio.sync_in, 9u);
   EXPECT_DOUBLE_EQ(s.gate.on_threshold_ut, 20);
+  EXPECT_DOUBLE_EQ(s.gate.rms_on_threshold_ut, 1.5);
+  EXPECT_EQ(s.gate.rms_smoothing_samples, 6);
   EXPECT_TRUE(s.sim.enabled);
   EXPECT_TRUE(s.node.simulated);
 }
@@ -110,6 +112,8 @@ TEST(ConfigTest, ErrorsNameTheSetting) {
       {"i2c: {channels: [{channel: 5, addresses: [0x0C]}]}", "i2c.channels[0].channel"},
       {"gpio: {drdy: [3], sync_in: 3}", "gpio.sync_in: line 3 is already used"},
       {"gate: {on_threshold_ut: 5, off_threshold_ut: 9}", "gate.off_threshold_ut"},
+      {"gate: {rms_on_threshold_ut: 0.5, rms_off_threshold_ut: 0.9}", "gate.rms_off_threshold_ut"},
+      {"gate: {rms_smoothing_samples: 0}", "gate.rms_smoothing_samples"},
       {"sensor: {oversampling: 3, digital_filter: 7}", "rate_hz 41.70: the sensors allow at most"},
       {"sensor: {gain_sel: 9}", "sensor.gain_sel"},
       {"node: [1, 2]", "node"},

@@ -20,6 +20,7 @@ void ContactGate::start_tare() {
   tare_sum_.fill(0);
   tare_count_.fill(0);
   based_ = 0;
+  smooth_.fill(0);
   contact_ = false;
   below_ = 0;
 }
@@ -56,6 +57,7 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
     out->contact = false;
     out->tared = tare_left_ == 0 && based_ != 0;
     out->score_ut = 0;
+    out->rms_ut = 0;
     out->unbased_mask = static_cast<uint16_t>(~based_);
     return;
   }
@@ -80,23 +82,39 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
       common[a] = median_in_place(axis_vals, k);
     }
   }
-  double score = 0;
+  const double smooth_alpha = 1.0 / std::max(config_.rms_smoothing_samples, 1);
+  double score = 0, total_sq = 0;
   for (int i = 0; i < kN; ++i) {
-    if (!(usable & (1u << i))) continue;
+    if (!(usable & (1u << i))) {
+      for (int a = 0; a < 3; ++a) smooth_[3 * i + a] = 0;
+      continue;
+    }
     double sq = 0;
-    for (int a = 0; a < 3; ++a) sq += (dev[3 * i + a] - common[a]) * (dev[3 * i + a] - common[a]);
+    for (int a = 0; a < 3; ++a) {
+      const double d = dev[3 * i + a] - common[a];
+      sq += d * d;
+      double& m = smooth_[3 * i + a];
+      m += smooth_alpha * (d - m);
+      total_sq += m * m;
+    }
     score = std::max(score, std::sqrt(sq));
     for (int a = 0; a < 3; ++a) out->tared_ut[3 * i + a] = dev[3 * i + a];
   }
+  const double rms = n_usable > 0 ? std::sqrt(total_sq / (3.0 * n_usable)) : 0.0;
   out->score_ut = score;
+  out->rms_ut = rms;
 
-  // Hysteresis.
+  // Hysteresis. A contact the score saw ends by the score alone (the smoothed rms would hold it
+  // a few samples past the release); one only the rms saw ends by both.
+  const bool score_on = score > config_.on_threshold_ut;
   if (!contact_) {
-    if (score > config_.on_threshold_ut) {
+    if (score_on || rms > config_.rms_on_threshold_ut) {
       contact_ = true;
+      score_seen_ = score_on;
       below_ = 0;
     }
-  } else if (score < config_.off_threshold_ut) {
+  } else if (score_seen_ |= score_on, score < config_.off_threshold_ut &&
+                                          (score_seen_ || rms < config_.rms_off_threshold_ut)) {
     if (++below_ >= config_.off_samples) contact_ = false;
   } else {
     below_ = 0;

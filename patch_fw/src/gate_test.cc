@@ -191,14 +191,17 @@ TEST(GateTest, DetectsLightPressesOnThePhysicsAndNeverFiresOnNoise) {
     gate.update(s, &out);
   };
   const int hour = static_cast<int>(3600e6 / kPeriodUs);
-  double worst_idle = 0;
+  double worst_idle = 0, worst_idle_rms = 0;
   for (int k = 0; k < hour; ++k) {
     feed({});
-    ASSERT_FALSE(out.contact) << "false contact at sample " << k << ", score " << out.score_ut;
+    ASSERT_FALSE(out.contact) << "false contact at sample " << k << ", score " << out.score_ut
+                              << ", rms " << out.rms_ut;
     worst_idle = std::max(worst_idle, out.score_ut);
+    worst_idle_rms = std::max(worst_idle_rms, out.rms_ut);
   }
-  // Detection rate of single presses (5 mm tip), over the sensor grid (|u|, |v| <= 50 mm) and
-  // over the whole patch (the outer 20 mm lie beyond the outermost sensors).
+  // Detection rate of presses (5 mm tip) held for kHoldSamples, over the sensor grid (|u|, |v| <=
+  // 50 mm) and over the whole patch (the outer 20 mm lie beyond the outermost sensors).
+  constexpr int kHoldSamples = 10, kReleaseSamples = 15;
   sim::Rng rng(11);
   for (double depth : {0.5, 1.0, 2.0}) {
     int inner = 0, inner_hit = 0, all_hit = 0;
@@ -209,13 +212,20 @@ TEST(GateTest, DetectsLightPressesOnThePhysicsAndNeverFiresOnNoise) {
       c.v_mm = rng.uniform(-65, 65);
       c.depth_mm = depth;
       c.tip_radius_mm = 5;
-      feed({c});
+      // Held for kHoldSamples: detected if the gate turns on while it lasts.
+      bool hit = false;
+      for (int k = 0; k < kHoldSamples; ++k) {
+        feed({c});
+        hit = hit || out.contact;
+      }
       const bool is_inner = std::fabs(c.u_mm) <= 50 && std::fabs(c.v_mm) <= 50;
       inner += is_inner;
-      inner_hit += is_inner && out.contact;
-      all_hit += out.contact;
-      for (int k = 0; k < 5; ++k) feed({});
-      ASSERT_FALSE(out.contact);
+      inner_hit += is_inner && hit;
+      all_hit += hit;
+      // Released: over within kReleaseSamples (the rms path's smoothing decays).
+      for (int k = 0; k < kReleaseSamples; ++k) feed({});
+      ASSERT_FALSE(out.contact) << "still in contact " << kReleaseSamples << " samples after a "
+                                << depth << " mm press at " << c.u_mm << ", " << c.v_mm;
     }
     const double inner_rate = static_cast<double>(inner_hit) / inner;
     const double all_rate = static_cast<double>(all_hit) / presses;
@@ -228,8 +238,64 @@ TEST(GateTest, DetectsLightPressesOnThePhysicsAndNeverFiresOnNoise) {
       EXPECT_GE(all_rate, 0.95) << depth;
     }
   }
-  std::printf("idle: largest score %.2f uT in an hour (on threshold %.1f uT)\n", worst_idle,
-              gate.config().on_threshold_ut);
+  std::printf(
+      "idle: largest score %.2f uT in an hour (on threshold %.1f uT), largest rms %.2f uT "
+      "(on threshold %.1f uT)\n",
+      worst_idle, gate.config().on_threshold_ut, worst_idle_rms, gate.config().rms_on_threshold_ut);
+}
+
+// A press at the patch's centre moves every sensor a little and none much (the checkerboard of
+// magnets): the largest-sensor score stays under its threshold at any depth, the RMS catches it.
+TEST(GateTest, DetectsPressesAtThePatchCentreByTheirRms) {
+  auto model = sim::PatchModel::nominal(sim::PatchDesign{});
+  ASSERT_TRUE(model.ok());
+  sim::SimulatedPatch patch(std::move(model).value(), 5);
+  sim::Environment env;
+  ContactGate gate;
+  GateOutput out;
+  ArraySample s;
+  uint64_t t = 0;
+  auto feed = [&](const std::vector<sim::Contact>& contacts) {
+    patch.measure(contacts, env, s.field_ut);
+    s.timestamp_us = t += kPeriodUs;
+    gate.update(s, &out);
+  };
+  for (int k = 0; k < 100; ++k) feed({});
+  ASSERT_FALSE(out.contact);
+  for (double depth : {1.0, 2.0, 3.0, 4.0}) {
+    sim::Contact c;
+    c.depth_mm = depth;
+    c.tip_radius_mm = 5;
+    // Held for 20 samples (130 ms); the rms path needs a few to rise.
+    int onset = -1;
+    double max_score = 0;
+    for (int k = 0; k < 20; ++k) {
+      feed({c});
+      max_score = std::max(max_score, out.score_ut);
+      if (out.contact && onset < 0) onset = k;
+    }
+    std::printf("centre press %.1f mm: score %.2f uT, rms %.2f uT, contact from sample %d\n", depth,
+                max_score, out.rms_ut, onset);
+    EXPECT_LT(max_score, gate.config().on_threshold_ut) << depth << " mm: the rms decides";
+    if (depth >= 2.0) {
+      EXPECT_GE(onset, 0) << depth;
+      EXPECT_LE(onset, 8) << depth;
+      EXPECT_TRUE(out.contact) << depth << ": held as long as the press";
+    }
+    // Released: the contact ends once the smoothed rms has decayed (a few samples).
+    int end = -1;
+    for (int k = 0; k < 30 && end < 0; ++k) {
+      feed({});
+      if (!out.contact) end = k;
+    }
+    EXPECT_GE(end, 0) << depth << ": the contact never ended";
+    EXPECT_LE(end, 15) << depth;
+  }
+  // Idle again: no contact.
+  for (int k = 0; k < 200; ++k) {
+    feed({});
+    ASSERT_FALSE(out.contact) << k;
+  }
 }
 
 }  // namespace

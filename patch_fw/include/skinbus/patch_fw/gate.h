@@ -6,11 +6,20 @@
 // `drift_tau_s`, each step clamped to `drift_max_ut_per_s`, and only after `drift_holdoff_s`
 // without contact, so a held press is never absorbed: during contact the baseline is frozen.
 //
-// Contact gating with hysteresis on a score: the largest deviation from the baseline over the
-// healthy sensors (vector norm, uT) after removing the deviation common to all sensors (the
-// per-axis median), so a uniform ambient change (the Earth's field as a limb turns) does not
-// read as a touch while a local press does. Contact starts when the score exceeds
-// `on_threshold_ut` and ends after `off_samples` samples below `off_threshold_ut`.
+// Contact gating with hysteresis on two scores of the deviations from the baseline after removing
+// the deviation common to all sensors (the per-axis median), so a uniform ambient change (the
+// Earth's field as a limb turns) does not read as a touch while a local press does:
+//  * score: the largest over the healthy sensors (vector norm, uT): a press near a sensor;
+//  * rms: the RMS over every healthy channel (uT) of those deviations smoothed over about
+//    `rms_smoothing_samples` samples (an exponential average, reset by a tare): a press that
+//    moves many sensors a little, such as one at the patch's centre, where the checkerboard of
+//    magnets keeps every single sensor's change small (a 4 mm press there: score under 6 uT at
+//    any depth). The smoothing trades a few samples of latency on this path for a third of
+//    the noise; the score path stays immediate.
+// Contact starts when either exceeds its on threshold and ends after `off_samples` samples below
+// the off thresholds: the score's alone once the score has crossed its on threshold during the
+// contact (the smoothing would hold a strong press a few samples past its release), both for a
+// contact only the rms has seen.
 //
 // A sensor that turns faulty keeps its old baseline; one without a baseline (faulty through the
 // tare, or newly recovered) takes its next untouched reading as baseline and is left out of the
@@ -29,6 +38,9 @@ namespace skinbus::patch_fw {
 struct GateConfig {
   double on_threshold_ut = 9.0;  // idle noise peaks near 6.5 uT in an hour (gate_test.cc)
   double off_threshold_ut = 6.0;
+  double rms_on_threshold_ut = 0.75;  // idle rms peaks near 0.52 uT in an hour (gate_test.cc)
+  double rms_off_threshold_ut = 0.65;
+  int rms_smoothing_samples = 4;
   int off_samples = 3;
   int tare_samples = 16;
   double drift_tau_s = 20.0;
@@ -41,8 +53,9 @@ struct GateOutput {
   bool tare_active = false;     // baseline capture in progress (no contact decisions)
   bool tared = false;           // a baseline is held for every healthy sensor
   bool drift_tracking = false;  // the baseline moved this sample
-  double score_ut = 0;
-  uint16_t unbased_mask = 0;  // sensors without a baseline yet (report them faulty)
+  double score_ut = 0;          // largest sensor deviation (see above)
+  double rms_ut = 0;            // RMS channel deviation (see above)
+  uint16_t unbased_mask = 0;    // sensors without a baseline yet (report them faulty)
   // Field minus baseline, uT (0 for faulty or unbased sensors).
   std::array<double, bus::kChannelCount> tared_ut{};
 };
@@ -62,10 +75,12 @@ class ContactGate {
   GateConfig config_;
   std::array<double, bus::kChannelCount> baseline_{};
   std::array<double, bus::kChannelCount> tare_sum_{};
+  std::array<double, bus::kChannelCount> smooth_{};  // smoothed deviations (rms path)
   std::array<int, bus::kSensorCount> tare_count_{};
   uint16_t based_ = 0;  // bit i: sensor i has a baseline
   int tare_left_ = 0;
   bool contact_ = false;
+  bool score_seen_ = false;  // the score crossed its on threshold during this contact
   int below_ = 0;
   uint64_t last_time_us_ = 0;
   uint64_t last_contact_us_ = 0;
