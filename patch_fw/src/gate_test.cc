@@ -174,22 +174,31 @@ TEST(GateTest, TareCommandTakesANewBaseline) {
   EXPECT_NEAR(out.tared_ut[12], 0, 3);
 }
 
+// A gate fed by the simulated patch with its sensor noise model, one sample per kPeriodUs.
+struct PhysicsGate {
+  PhysicsGate(sim::PatchModel model, uint64_t noise_seed) : patch(std::move(model), noise_seed) {}
+  void feed(const std::vector<sim::Contact>& contacts) {
+    patch.measure(contacts, env, sample.field_ut);
+    sample.timestamp_us = t_us += kPeriodUs;
+    gate.update(sample, &out);
+  }
+  sim::SimulatedPatch patch;
+  sim::Environment env;
+  ContactGate gate;
+  GateOutput out;
+  ArraySample sample;
+  uint64_t t_us = 0;
+};
+
 // On the patch physics with the sensor noise model: an hour of idle noise never gates on, and
 // presses of 1 mm over the sensor grid (2 mm anywhere) do.
 TEST(GateTest, DetectsLightPressesOnThePhysicsAndNeverFiresOnNoise) {
   auto model = sim::PatchModel::fabricated(sim::PatchDesign{}, 77, sim::FabricationVariation{});
   ASSERT_TRUE(model.ok());
-  sim::SimulatedPatch patch(std::move(model).value(), 3);
-  sim::Environment env;
-  ContactGate gate;
-  GateOutput out;
-  ArraySample s;
-  uint64_t t = 0;
-  auto feed = [&](const std::vector<sim::Contact>& contacts) {
-    patch.measure(contacts, env, s.field_ut);
-    s.timestamp_us = t += kPeriodUs;
-    gate.update(s, &out);
-  };
+  PhysicsGate g(std::move(model).value(), 3);
+  ContactGate& gate = g.gate;
+  const GateOutput& out = g.out;
+  auto feed = [&](const std::vector<sim::Contact>& contacts) { g.feed(contacts); };
   const int hour = static_cast<int>(3600e6 / kPeriodUs);
   double worst_idle = 0, worst_idle_rms = 0;
   for (int k = 0; k < hour; ++k) {
@@ -249,17 +258,10 @@ TEST(GateTest, DetectsLightPressesOnThePhysicsAndNeverFiresOnNoise) {
 TEST(GateTest, DetectsPressesAtThePatchCentreByTheirRms) {
   auto model = sim::PatchModel::nominal(sim::PatchDesign{});
   ASSERT_TRUE(model.ok());
-  sim::SimulatedPatch patch(std::move(model).value(), 5);
-  sim::Environment env;
-  ContactGate gate;
-  GateOutput out;
-  ArraySample s;
-  uint64_t t = 0;
-  auto feed = [&](const std::vector<sim::Contact>& contacts) {
-    patch.measure(contacts, env, s.field_ut);
-    s.timestamp_us = t += kPeriodUs;
-    gate.update(s, &out);
-  };
+  PhysicsGate g(std::move(model).value(), 5);
+  const ContactGate& gate = g.gate;
+  const GateOutput& out = g.out;
+  auto feed = [&](const std::vector<sim::Contact>& contacts) { g.feed(contacts); };
   for (int k = 0; k < 100; ++k) feed({});
   ASSERT_FALSE(out.contact);
   for (double depth : {1.0, 2.0, 3.0, 4.0}) {
