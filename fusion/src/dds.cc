@@ -459,6 +459,10 @@ Result<ContactArray> from_msg(const ContactArrayMsg& m, const std::string& topic
     b.track_id = c.track_id;
     b.patch_count = c.patch_count;
     b.flags = c.flags;
+    auto first_seen =
+        from_time(c.first_seen, what + ": " + field_name("contacts", i, "first_seen"));
+    if (!first_seen.ok()) return first_seen.error();
+    b.first_seen_us = *first_seen;
   }
   if (Status st = s.status(); !st.ok()) return st.error();
   return out;
@@ -650,6 +654,10 @@ Status SkinPublisher::publish(const ContactArray& contacts) {
     m.track_id = c.track_id;
     m.patch_count = c.patch_count;
     m.flags = c.flags;
+    auto first_seen =
+        to_time(c.first_seen_us, what + ": " + field_name("contacts", i, "first_seen_us"));
+    if (!first_seen.ok()) return first_seen.error();
+    m.first_seen = *first_seen;
   }
   ContactArrayMsg msg{};
   msg.header.stamp = *stamp;

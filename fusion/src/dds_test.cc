@@ -155,6 +155,7 @@ ContactArray random_contacts(std::mt19937_64& rng, uint64_t stamp_us, int n) {
     c.track_id = static_cast<uint32_t>(1 + u64(rng) % 100000);
     c.patch_count = static_cast<uint32_t>(1 + u64(rng) % 3);
     c.flags = static_cast<uint32_t>(u64(rng) & 0xFF);
+    c.first_seen_us = a.stamp_us - u64(rng) % 5'000'000u;
     a.contacts.push_back(c);
   }
   return a;
@@ -183,6 +184,7 @@ void expect_same(const ContactArray& got, const ContactArray& want) {
     EXPECT_EQ(g.track_id, w.track_id);
     EXPECT_EQ(g.patch_count, w.patch_count);
     EXPECT_EQ(g.flags, w.flags);
+    EXPECT_EQ(g.first_seen_us, w.first_seen_us);
   }
 }
 
@@ -530,6 +532,7 @@ TEST(DdsTest, ListenToolInAnotherProcessPrintsThePublishedValues) {
       EXPECT_EQ(c.at("track_id").get<uint32_t>(), w.track_id);
       EXPECT_EQ(c.at("patch_count").get<uint32_t>(), w.patch_count);
       EXPECT_EQ(c.at("flags").get<std::vector<std::string>>(), contact_flag_names(w.flags));
+      EXPECT_EQ(c.at("first_seen_us").get<uint64_t>(), w.first_seen_us);
     }
   }
   EXPECT_EQ(n, 3);

@@ -94,7 +94,7 @@ class SkinPublisher {
   SkinPublisher& operator=(const SkinPublisher&) = delete;
 
   // Publishes one array on rt/skin/contacts: lengths mm -> m, stamp_us -> Time, base_frame ->
-  // header.frame_id. first_seen_us is not carried (the message has no field for it).
+  // header.frame_id, first_seen_us -> first_seen (Time).
   // kInvalidArgument (nothing published) when a number is not finite, naming it; kOutOfRange
   // when stamp_us does not fit builtin_interfaces/Time (after 2038-01-19); kUnavailable when a
   // reliable subscriber lagged for max_blocking_ms.
