@@ -126,6 +126,18 @@ patchd --sim -c "$work/typo.yaml" --check >/dev/null 2>"$work/p6.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "nod (line 2): unknown setting" "$work/p6.txt" && ok "patchd: misspelt setting refused" || bad "patchd: misspelt setting (rc $rc)"
 patchd --sim --contacts /nonexistent.csv -i none --candump-out /dev/null 2>"$work/p7.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "sim.contacts: contact script /nonexistent.csv" "$work/p7.txt" && ok "patchd: missing contact script named" || bad "patchd: missing contact script (rc $rc)"
+# Event mode on the simulated physics: a press near a sensor and one at the patch's centre (no
+# single sensor passes the gate's score threshold there; the rms path sees it) each give one
+# block of contact samples, then the tail.
+for at in "10,10" "0,0"; do
+  printf 't_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node\n1.0,2.5,%s,1.5,8,4\n' "$at" >"$work/press.csv"
+  patchd --sim -q -i none --candump-out /dev/null --node 4 --mode event --contacts "$work/press.csv" \
+    --duration 4 --expect "$work/press_sent.txt" 2>/dev/null
+  runs=$(grep -o 'flags=[a-z_,]*' "$work/press_sent.txt" | sed -E 's/.*event_tail.*/T/; s/.*contact.*/C/' | uniq | tr -d '\n')
+  n=$(grep -c 'flags=[a-z_,]*contact' "$work/press_sent.txt")
+  [[ $runs == CT && $n -ge 40 ]] && ok "patchd event mode: a press at $at is one contact block ($n samples) then the tail" ||
+    bad "patchd event mode, press at $at: runs '$runs', $n contact samples"
+done
 patchd --sim -i nocan0 --duration 1 2>"$work/p8.txt"; rc=$?
 [[ $rc == 1 ]] && grep -q "can.interface: .*nocan0" "$work/p8.txt" && ok "patchd: missing CAN interface named" || { bad "patchd: missing CAN interface (rc $rc)"; cat "$work/p8.txt"; }
 patchd --sim -c "$work/dup.yaml" --check >/dev/null 2>&1; rc=$?
@@ -203,6 +215,8 @@ mkdir -p "$work/h"
 host() { timeout 20 "$bin/skinbus-host" "$@"; }
 host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --threads 0 2>"$work/h/e1.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "threads" "$work/h/e1.txt" && ok "skinbus-host: bad --threads" || { bad "host --threads 0 (rc $rc)"; cat "$work/h/e1.txt"; }
+host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --threads 2 --spin-us -1 2>"$work/h/e1b.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "spin_us must be 0..100000" "$work/h/e1b.txt" && ok "skinbus-host: bad --spin-us" || { bad "host --spin-us -1 (rc $rc)"; cat "$work/h/e1b.txt"; }
 printf 'time_s,left_elbow_joint,tail_joint\n0,0,0\n' >"$work/h/j.csv"
 host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --joints "$work/h/j.csv" 2>"$work/h/e2.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "'tail_joint' is not a movable joint" "$work/h/e2.txt" && ok "skinbus-host: unknown joint in --joints" || { bad "host unknown joint (rc $rc)"; cat "$work/h/e2.txt"; }

@@ -138,16 +138,17 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
                                                        std::to_string(bus_names.size()));
   }
   if (Status st = check_options(options.tracker); !st.ok()) return st.error();
-  const RuntimeOptions& ro = options.runtime;
+  if (Status st = check_runtime_options(options.runtime); !st.ok()) {
+    return make_error(st.error().code, "aggregator options: runtime: " + st.error().message);
+  }
   const CommonModeOptions& cm = options.common_mode;
-  if (ro.threads < 1 || ro.threads > 64 || !(cm.quiet_fraction > 0 && cm.quiet_fraction <= 1) ||
-      cm.min_sensors < 1 || options.registry.stale_us == 0 ||
-      options.registry.offline_us < options.registry.stale_us || options.contact_hold_us == 0 ||
-      !(options.ambient_flag_ut > 0)) {
+  if (!(cm.quiet_fraction > 0 && cm.quiet_fraction <= 1) || cm.min_sensors < 1 ||
+      options.registry.stale_us == 0 || options.registry.offline_us < options.registry.stale_us ||
+      options.contact_hold_us == 0 || !(options.ambient_flag_ut > 0)) {
     return make_error(ErrorCode::kInvalidArgument,
-                      "aggregator options: runtime threads 1..64, common-mode quiet fraction in "
-                      "(0, 1] and min sensors >= 1, 0 < stale <= offline time, a contact hold > 0, "
-                      "an ambient flag level > 0");
+                      "aggregator options: common-mode quiet fraction in (0, 1] and min sensors "
+                      ">= 1, 0 < stale <= offline time, a contact hold > 0, an ambient flag level "
+                      "> 0");
   }
   auto impl = std::make_unique<Impl>(map, bus_names, options);
   impl->robot = robot;

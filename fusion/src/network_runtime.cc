@@ -657,9 +657,7 @@ void run_part(void* ctx, int part) {
 
 }  // namespace
 
-Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
-                                              const RuntimeOptions& options) {
-  if (Status st = validate_model(model); !st.ok()) return st.error();
+Status check_runtime_options(const RuntimeOptions& options) {
   if (options.threads < 1 || options.threads > kMaxThreads) {
     return make_error(ErrorCode::kInvalidArgument, "threads must be 1.." +
                                                        std::to_string(kMaxThreads) + ", got " +
@@ -670,6 +668,13 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
                                                        std::to_string(kMaxSpinUs) + ", got " +
                                                        std::to_string(options.spin_us));
   }
+  return Status::Ok();
+}
+
+Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
+                                              const RuntimeOptions& options) {
+  if (Status st = validate_model(model); !st.ok()) return st.error();
+  if (Status st = check_runtime_options(options); !st.ok()) return st.error();
   auto impl = std::make_unique<Impl>();
   Impl& im = *impl;
   im.opt = options;

@@ -115,7 +115,12 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
     }
   } else if (score_seen_ |= score_on, score < config_.off_threshold_ut &&
                                           (score_seen_ || rms < config_.rms_off_threshold_ut)) {
-    if (++below_ >= config_.off_samples) contact_ = false;
+    if (++below_ >= config_.off_samples) {
+      contact_ = false;
+      // The rms path starts afresh: its smoothed deviations would otherwise still carry the
+      // press for a few samples and turn a contact the score ended straight back on.
+      smooth_.fill(0);
+    }
   } else {
     below_ = 0;
   }

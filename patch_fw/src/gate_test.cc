@@ -300,5 +300,30 @@ TEST(GateTest, DetectsPressesAtThePatchCentreByTheirRms) {
   }
 }
 
+// A press the score saw ends once at its release: the rms path, still carrying the press in its
+// smoothing, must not turn the contact straight back on.
+TEST(GateTest, APressEndsOnceAtItsRelease) {
+  for (auto [u, v] : {std::pair{10.0, 10.0}, std::pair{-20.0, 5.0}, std::pair{0.0, 0.0}}) {
+    auto model = sim::PatchModel::nominal(sim::PatchDesign{});
+    ASSERT_TRUE(model.ok());
+    PhysicsGate g(std::move(model).value(), 9);
+    for (int k = 0; k < 50; ++k) g.feed({});
+    sim::Contact c;
+    c.u_mm = u;
+    c.v_mm = v;
+    c.depth_mm = 1.5;
+    c.tip_radius_mm = 8;
+    int starts = 0;
+    bool was = false;
+    for (int k = 0; k < 100; ++k) {
+      g.feed(k < 40 ? std::vector<sim::Contact>{c} : std::vector<sim::Contact>{});
+      starts += g.out.contact && !was;
+      was = g.out.contact;
+    }
+    EXPECT_EQ(starts, 1) << "press at " << u << ", " << v;
+    EXPECT_FALSE(g.out.contact) << "press at " << u << ", " << v;
+  }
+}
+
 }  // namespace
 }  // namespace skinbus::patch_fw

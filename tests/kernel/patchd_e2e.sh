@@ -61,9 +61,7 @@ stats_clean() {
 }
 
 # ---- a. Three daemons at once on CAN FD; b. one on classic CAN.
-# Times are seconds since each daemon started; the last column names the node pressed. Presses
-# stay off the patch centre and the points 60 mm from it along u and v: there the simulated
-# patch's field changes by only ~4 uT for a 1 mm press, under the gate's 12 uT on-threshold.
+# Times are seconds since each daemon started; the last column names the node pressed.
 cat >contacts.csv <<'EOF'
 t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
 2.5,3.5,30,-30,1.5,8,3

@@ -112,6 +112,11 @@ struct RuntimeOptions {
   double margin_depth_mm = 0.2;
 };
 
+// kInvalidArgument naming the first option out of range (threads 1..64, spin_us 0..100000):
+// what NetworkRuntime::create() checks of its options, for callers that hold options before
+// they have a model.
+Status check_runtime_options(const RuntimeOptions& options);
+
 class NetworkRuntime {
  public:
   // Validates `model` (validate_model) and builds the runtime. Errors: kInvalidArgument for a
