@@ -14,7 +14,7 @@ build=${SKINBUS_FUZZ_BUILD_DIR:-build-fuzz}
 
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ missing: run scripts/setup.sh" >&2; exit 1; }
 cmake -S . -B "$build" -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DSKINBUS_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-targets=(frame_decoder reassembler candump settings body_map model_file aggregator joint_trajectory)
+targets=(frame_decoder reassembler candump settings body_map model_file aggregator joint_trajectory unit_file)
 cmake --build "$build" -j2 --target "${targets[@]/#/fuzz_}"
 
 scratch=$(mktemp -d)
