@@ -459,9 +459,12 @@ Result<ContactArray> from_msg(const ContactArrayMsg& m, const std::string& topic
     b.track_id = c.track_id;
     b.patch_count = c.patch_count;
     b.flags = c.flags;
-    auto first_seen =
-        from_time(c.first_seen, what + ": " + field_name("contacts", i, "first_seen"));
-    if (!first_seen.ok()) return first_seen.error();
+    auto first_seen = from_time(c.first_seen, {});  // the name only on an error
+    if (!first_seen.ok()) {
+      return make_error(
+          first_seen.error().code,
+          what + ": " + field_name("contacts", i, "first_seen") + first_seen.error().message);
+    }
     b.first_seen_us = *first_seen;
   }
   if (Status st = s.status(); !st.ok()) return st.error();
@@ -654,9 +657,12 @@ Status SkinPublisher::publish(const ContactArray& contacts) {
     m.track_id = c.track_id;
     m.patch_count = c.patch_count;
     m.flags = c.flags;
-    auto first_seen =
-        to_time(c.first_seen_us, what + ": " + field_name("contacts", i, "first_seen_us"));
-    if (!first_seen.ok()) return first_seen.error();
+    auto first_seen = to_time(c.first_seen_us, {});  // the name only on an error
+    if (!first_seen.ok()) {
+      return make_error(
+          first_seen.error().code,
+          what + ": " + field_name("contacts", i, "first_seen_us") + first_seen.error().message);
+    }
     m.first_seen = *first_seen;
   }
   ContactArrayMsg msg{};

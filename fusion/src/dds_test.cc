@@ -340,6 +340,14 @@ TEST(DdsTest, NonFiniteValuesAreRefused) {
   s = pub->publish(bad);
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().code, ErrorCode::kOutOfRange) << s.error().message;
+  // A first_seen_us it cannot hold either: named, nothing published.
+  bad = random_contacts(rng, now_us(), 2);
+  bad.contacts[1].first_seen_us = uint64_t{1} << 62;
+  s = pub->publish(bad);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, ErrorCode::kOutOfRange) << s.error().message;
+  EXPECT_NE(s.error().message.find("contacts[1].first_seen_us"), std::string::npos)
+      << s.error().message;
 
   PatchStatusArray bad_status = sample_status(now_us());
   bad_status.patches[1].clock_drift_ppm = INFINITY;
