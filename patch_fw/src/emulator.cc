@@ -61,8 +61,8 @@ Setup setup_from(const std::array<uint16_t, mlx::kRegCount>& regs, uint8_t axes)
 std::array<uint16_t, 4> convert(const Setup& s, const sim::Vec3<double>& field_ut,
                                 double temperature_c) {
   std::array<uint16_t, 4> codes{};
-  const double t = std::round(kEmulatedTemperatureCode25C +
-                              (temperature_c - 25.0) * kEmulatedTemperatureLsbPerC);
+  const double t =
+      std::round(mlx::kTemperatureCode25C + (temperature_c - 25.0) * mlx::kTemperatureLsbPerC);
   codes[0] = static_cast<uint16_t>(std::isfinite(t) ? std::clamp(t, 0.0, 65535.0) : 0.0);
   const double f[3] = {field_ut.x, field_ut.y, field_ut.z};
   for (int i = 0; i < 3; ++i) {

@@ -17,6 +17,8 @@ class FixedField final : public FieldSource {
  public:
   sim::Vec3<double> field[4] = {{12.3, -45.6, 78.9}, {-300, 200, -100}, {0, 0, 0}, {0, 0, 0}};
   sim::Vec3<double> field_ut(int sensor, uint64_t) override { return field[sensor]; }
+  double temperature_c(int, uint64_t) override { return temperature; }
+  double temperature = 25.0;
 };
 
 class DriverTest : public ::testing::Test {
@@ -93,6 +95,32 @@ TEST_F(DriverTest, ReadingTooEarlyIsTheErrorBit) {
   EXPECT_EQ(chip.stats().error_bits, 1u);
   clock.advance_us(chip.conversion_time_us());
   EXPECT_TRUE(chip.read_measurement(&r).ok());
+}
+
+// The die temperature through a T-only single measurement: the chip's code read back with the
+// datasheet's transfer, after the conversion time with T (the emulator refuses an early read).
+TEST_F(DriverTest, MeasuresTheDieTemperature) {
+  ASSERT_TRUE(chip.reset().ok());
+  Mlx90393Settings s;
+  s.chip.osr = 2;
+  ASSERT_TRUE(chip.configure(s).ok());
+  for (double t : {25.0, -12.3, 61.7}) {
+    field.temperature = t;
+    const uint64_t before = clock.now_us();
+    Result<double> got = chip.measure_temperature_c();
+    ASSERT_TRUE(got.ok()) << got.error().to_string();
+    EXPECT_NEAR(*got, t, 0.5 / m::kTemperatureLsbPerC + 1e-9) << t;
+    sim::Mlx90393Config with_t = s.chip;
+    with_t.temperature = true;
+    EXPECT_GE(clock.now_us() - before, sim::mlx90393_conversion_time_us(with_t));
+  }
+  // A field measurement still works after it.
+  Mlx90393Reading r;
+  EXPECT_TRUE(measure(chip, &r).ok());
+  bus.faults(0).nak = true;
+  Result<double> gone = chip.measure_temperature_c();
+  ASSERT_FALSE(gone.ok());
+  EXPECT_EQ(gone.error().code, ErrorCode::kUnavailable);
 }
 
 TEST_F(DriverTest, NakWhenTheChipVanishes) {

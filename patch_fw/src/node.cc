@@ -66,7 +66,7 @@ bus::Heartbeat PatchNode::heartbeat() const {
   hb.i2c_errors = saturating_u16(array_->i2c_errors());
   hb.can_errors = can_errors_;
   hb.saturation_count = saturation_count_;
-  hb.temperature_cdeg = 0;  // no board temperature sensor is read (see docs/patch_node.md)
+  hb.temperature_cdeg = temperature_cdeg_;
   return hb;
 }
 
@@ -205,6 +205,16 @@ void PatchNode::on_frame(const bus::CanFrame& frame) {
   }
 }
 
+void PatchNode::measure_temperature() {
+  temperature_due_ = false;
+  Result<double> t = array_->temperature_c();
+  if (!t.ok()) {
+    ++stats_.temperature_errors;
+    return;
+  }
+  temperature_cdeg_ = static_cast<int16_t>(std::clamp(std::round(*t * 100.0), -32768.0, 32767.0));
+}
+
 uint64_t PatchNode::poll() {
   uint64_t now = clock_->now_us();
   // Identify LED: blink while active, off after.
@@ -218,6 +228,9 @@ uint64_t PatchNode::poll() {
   // recognises the restart (uptime back to 0) before anything else arrives.
   if (now >= next_heartbeat_us_) {
     send_message(bus::Message{config_.node_id, seq_heartbeat_++, config_.kind, heartbeat()});
+    // The next heartbeat carries a temperature measured in the meantime (below).
+    temperature_due_ = true;
+    if (config_.mode == bus::PatchMode::kOff) measure_temperature();
     ++stats_.heartbeats_sent;
     next_heartbeat_us_ += uint64_t{config_.heartbeat_period_ms} * 1000u;
     if (next_heartbeat_us_ <= now)
@@ -228,12 +241,19 @@ uint64_t PatchNode::poll() {
       if (pending_sync_) {
         pending_sync_ = false;
         take_sample(true);
+        if (temperature_due_) measure_temperature();
       }
     } else if (now >= next_sample_us_) {
       take_sample(false);
       const uint64_t period = period_us();
       next_sample_us_ += period;
       now = clock_->now_us();
+      // Right after a sample, when the temperature conversion fits before the next one: the
+      // samples keep their schedule (a sample period too short for it keeps the last value).
+      if (temperature_due_ && next_sample_us_ > now + array_->temperature_time_us()) {
+        measure_temperature();
+        now = clock_->now_us();
+      }
       if (next_sample_us_ + period <= now) {  // fell behind: skip, do not burst
         ++stats_.overruns;
         next_sample_us_ = now + period;

@@ -129,6 +129,12 @@ TEST(NodeTest, StreamModeSendsEverySampleAtTheRate) {
   for (int16_t v : last.field_lsb) EXPECT_LT(std::abs(v), 80) << "more than 8 uT at rest";
   EXPECT_TRUE(samples.front().flags & bus::sample_flags::kTareActive);
   const bus::Heartbeat& hb = beats.back();
+  // The die temperature of a sensor, measured between samples (the timestamps above stay one
+  // period apart): the simulated environment's, to the chip's 1/45.2 degC step.
+  const double want_c = h.board->physics->temperature_c(0, h.clock.now_us());
+  EXPECT_NEAR(hb.temperature_cdeg, want_c * 100.0, 3.0) << want_c;
+  EXPECT_EQ(beats.front().temperature_cdeg, 0) << "the first heartbeat precedes any measurement";
+  EXPECT_EQ(h.node->stats().temperature_errors, 0u);
   EXPECT_EQ(hb.state, bus::PatchState::kRunning);
   EXPECT_EQ(hb.mode, bus::PatchMode::kStream);
   EXPECT_EQ(hb.rate_chz, 4170);

@@ -1,6 +1,7 @@
 #include "skinbus/patch_fw/sensor_array.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <set>
 
@@ -109,6 +110,29 @@ Status SensorArray::init() {
                       "no MLX90393 answers on " + std::string(bus_->name()) + ":" + missing);
   }
   return Status::Ok();
+}
+
+Result<double> SensorArray::temperature_c() {
+  for (int i : order_) {
+    const SensorHealth& h = health_[i];
+    if (h.faulty || !sensors_[i].configured()) continue;
+    Status st = select(config_.slots[i].channel);
+    if (!st.ok()) {
+      fail(i, st.error());
+      continue;
+    }
+    Result<double> t = sensors_[i].measure_temperature_c();
+    if (t.ok()) return t;
+    fail(i, t.error());
+  }
+  return make_error(ErrorCode::kUnavailable, "no sensor answered a temperature measurement");
+}
+
+uint32_t SensorArray::temperature_time_us() const {
+  sim::Mlx90393Config with_t = config_.settings.chip;
+  with_t.temperature = true;
+  // The conversion and four short I2C transactions (mux select, SM, RM and a margin).
+  return static_cast<uint32_t>(std::ceil(sim::mlx90393_conversion_time_us(with_t))) + 1000u;
 }
 
 Status SensorArray::sample(ArraySample* out) {

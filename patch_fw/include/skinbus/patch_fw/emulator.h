@@ -53,8 +53,8 @@
 //   power_cycle() discard any measurement.
 // - Codes: X/Y/Z = sim::mlx90393_code(field, sensitivity of the axis, RES of the axis): RES 0/1
 //   signed (two's complement on the wire), RES 2/3 unsigned around 32768 / 16384. TCMP_EN,
-//   offsets, OSR2, BIST and Z_SERIES are ignored. T = round(kEmulatedTemperatureCode25C +
-//   (t_c - 25) * kEmulatedTemperatureLsbPerC), clamped to 0..65535, in every RES.
+//   offsets, OSR2, BIST and Z_SERIES are ignored. T = round(mlx90393::kTemperatureCode25C +
+//   (t_c - 25) * mlx90393::kTemperatureLsbPerC), clamped to 0..65535, in every RES.
 // - RT: answers a status, resets the registers to the power-on defaults (kDefaultConf1/2/3,
 //   others 0), discards measurements, then NAKs every message for kResetTimeUs (only the read
 //   of RT's own answer in the same transaction is still acknowledged).
@@ -73,10 +73,6 @@
 #include "skinbus/sim/vec3.h"
 
 namespace skinbus::patch_fw {
-
-// The emulated temperature code: the datasheet's typical 46244 LSB at 25 degC, 45.2 LSB/degC.
-inline constexpr double kEmulatedTemperatureCode25C = 46244.0;
-inline constexpr double kEmulatedTemperatureLsbPerC = 45.2;
 
 // The field a chip sees: `sensor` is the index given when the chip was added.
 class FieldSource {

@@ -72,6 +72,11 @@ class Mlx90393 {
   Status read_measurement(Mlx90393Reading* out);
   // One XYZ conversion, microseconds, for the configured settings.
   uint32_t conversion_time_us() const;
+  // The die temperature, degC: SM of T, a wait of the conversion time with T, RM of T, the
+  // datasheet's typical transfer (46244 LSB at 25 degC, 45.2 LSB/degC; uncalibrated, a few degC
+  // off on a real chip). Errors as the commands'. Blocks for the conversion (~2-4 ms at the
+  // default settings); the chip must not be converting already.
+  Result<double> measure_temperature_c();
 
  private:
   // Sends `cmd` and reads the status and `data_len` data bytes into `in` (1 + data_len).

@@ -42,6 +42,13 @@ inline constexpr uint8_t kAxisY = 0x4;
 inline constexpr uint8_t kAxisZ = 0x8;
 inline constexpr uint8_t kAxesXyz = kAxisX | kAxisY | kAxisZ;
 
+// Temperature output (datasheet typical): code = 46244 at 25 degC, 45.2 LSB/degC.
+inline constexpr double kTemperatureCode25C = 46244.0;
+inline constexpr double kTemperatureLsbPerC = 45.2;
+constexpr double temperature_c_from_code(uint16_t code) {
+  return 25.0 + (static_cast<double>(code) - kTemperatureCode25C) / kTemperatureLsbPerC;
+}
+
 // Status byte.
 inline constexpr uint8_t kStatusBurstMode = 1u << 7;
 inline constexpr uint8_t kStatusWocMode = 1u << 6;

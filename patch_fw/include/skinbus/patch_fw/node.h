@@ -62,7 +62,8 @@ struct NodeStats {
   uint64_t send_errors = 0;
   uint64_t sample_errors = 0;
   uint64_t syncs = 0;
-  uint64_t overruns = 0;  // sample deadlines missed by more than one period
+  uint64_t overruns = 0;            // sample deadlines missed by more than one period
+  uint64_t temperature_errors = 0;  // heartbeats whose temperature could not be measured
 };
 
 class PatchNode {
@@ -91,6 +92,8 @@ class PatchNode {
 
  private:
   void take_sample(bool synced);
+  // One sensor's die temperature into temperature_cdeg_ (blocks a few ms; see poll()).
+  void measure_temperature();
   void send_message(const bus::Message& msg);
   void apply(const bus::Command& cmd);
   uint64_t period_us() const;
@@ -114,6 +117,8 @@ class PatchNode {
   uint8_t seq_sample_ = 0, seq_heartbeat_ = 0, seq_ack_ = 0, seq_info_ = 0;
   uint16_t saturation_count_ = 0;
   uint16_t can_errors_ = 0;
+  int16_t temperature_cdeg_ = 0;  // last measured die temperature (0 until the first)
+  bool temperature_due_ = false;  // a heartbeat went out since the last measurement
 };
 
 }  // namespace skinbus::patch_fw

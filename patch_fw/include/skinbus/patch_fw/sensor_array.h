@@ -79,6 +79,13 @@ class SensorArray {
   Status init();
   // Takes one sample (blocks for one conversion time through the Clock).
   Status sample(ArraySample* out);
+  // The die temperature of the first healthy sensor that answers, degC
+  // (Mlx90393::measure_temperature_c: blocks for one conversion with T, ~2-4 ms). Call between
+  // samples. A sensor that fails is counted as in sample() and the next is tried; kUnavailable
+  // when none answers.
+  Result<double> temperature_c();
+  // How long temperature_c() blocks when the first sensor answers, microseconds.
+  uint32_t temperature_time_us() const;
 
   const SensorArrayConfig& config() const { return config_; }
   const SensorHealth& health(int sensor) const { return health_[sensor]; }
