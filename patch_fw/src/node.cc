@@ -241,7 +241,12 @@ uint64_t PatchNode::poll() {
       if (pending_sync_) {
         pending_sync_ = false;
         take_sample(true);
-        if (temperature_due_) measure_temperature();
+        // SYNCs come at the host's pace: measure only when the configured rate leaves room for
+        // the conversion besides the sample.
+        if (temperature_due_ && period_us() > array_->temperature_time_us() +
+                                                  SensorArray::cycle_time_us(array_->config())) {
+          measure_temperature();
+        }
       }
     } else if (now >= next_sample_us_) {
       take_sample(false);

@@ -180,6 +180,9 @@ TEST(NodeTest, OffModeSendsOnlyHeartbeats) {
   EXPECT_TRUE(h.of<bus::Sample>(ms).empty());
   EXPECT_EQ(h.of<bus::Heartbeat>(ms).size(), 5u);
   EXPECT_EQ(h.node->stats().samples_taken, 0u);
+  // Without samples the temperature is measured at each heartbeat, for the next one.
+  const double want_c = h.board->physics->temperature_c(0, h.clock.now_us());
+  EXPECT_NEAR(h.of<bus::Heartbeat>(ms).back().temperature_cdeg, want_c * 100.0, 3.0);
 }
 
 TEST(NodeTest, EveryCommandIsAcknowledgedAndTakesEffect) {
