@@ -107,14 +107,15 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
   // Hysteresis. A contact the score saw ends by the score alone (the smoothed rms would hold it
   // a few samples past the release); one only the rms saw ends by both.
   const bool score_on = score > config_.on_threshold_ut;
+  if (contact_ && score_on) score_seen_ = true;
   if (!contact_) {
     if (score_on || rms > config_.rms_on_threshold_ut) {
       contact_ = true;
       score_seen_ = score_on;
       below_ = 0;
     }
-  } else if (score_seen_ |= score_on, score < config_.off_threshold_ut &&
-                                          (score_seen_ || rms < config_.rms_off_threshold_ut)) {
+  } else if (score < config_.off_threshold_ut &&
+             (score_seen_ || rms < config_.rms_off_threshold_ut)) {
     if (++below_ >= config_.off_samples) {
       contact_ = false;
       // The rms path starts afresh: its smoothed deviations would otherwise still carry the
