@@ -190,10 +190,7 @@ Status Mlx90393::read_measurement(Mlx90393Reading* out) {
 
 Result<double> Mlx90393::measure_temperature_c() {
   if (Status st = start_single(m::kAxisT); !st.ok()) return st.error();
-  sim::Mlx90393Config with_t = settings_.chip;
-  with_t.temperature = true;
-  clock_->sleep_until_us(clock_->now_us() + static_cast<uint64_t>(std::ceil(
-                                                sim::mlx90393_conversion_time_us(with_t))));
+  clock_->sleep_until_us(clock_->now_us() + temperature_conversion_time_us(settings_.chip));
   const uint8_t cmd[1] = {static_cast<uint8_t>(m::kCmdReadMeasurement | m::kAxisT)};
   uint8_t in[3];
   if (Status st = command(cmd, in, false); !st.ok()) return st.error();
@@ -205,6 +202,12 @@ Result<double> Mlx90393::measure_temperature_c() {
   }
   ++stats_.measurements;
   return m::temperature_c_from_code(static_cast<uint16_t>(in[1] << 8 | in[2]));
+}
+
+uint32_t Mlx90393::temperature_conversion_time_us(const sim::Mlx90393Config& chip) {
+  sim::Mlx90393Config with_t = chip;
+  with_t.temperature = true;
+  return static_cast<uint32_t>(std::ceil(sim::mlx90393_conversion_time_us(with_t)));
 }
 
 uint32_t Mlx90393::conversion_time_us() const {

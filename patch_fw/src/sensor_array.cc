@@ -129,10 +129,8 @@ Result<double> SensorArray::temperature_c() {
 }
 
 uint32_t SensorArray::temperature_time_us() const {
-  sim::Mlx90393Config with_t = config_.settings.chip;
-  with_t.temperature = true;
-  // The conversion and four short I2C transactions (mux select, SM, RM and a margin).
-  return static_cast<uint32_t>(std::ceil(sim::mlx90393_conversion_time_us(with_t))) + 1000u;
+  // The conversion and three short I2C transactions (mux select, SM, RM) with a margin.
+  return Mlx90393::temperature_conversion_time_us(config_.settings.chip) + 1000u;
 }
 
 Status SensorArray::sample(ArraySample* out) {

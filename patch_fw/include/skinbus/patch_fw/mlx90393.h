@@ -77,6 +77,8 @@ class Mlx90393 {
   // off on a real chip). Errors as the commands'. Blocks for the conversion (~2-4 ms at the
   // default settings); the chip must not be converting already.
   Result<double> measure_temperature_c();
+  // One conversion with T (what measure_temperature_c() waits) for `chip`, microseconds.
+  static uint32_t temperature_conversion_time_us(const sim::Mlx90393Config& chip);
 
  private:
   // Sends `cmd` and reads the status and `data_len` data bytes into `in` (1 + data_len).
