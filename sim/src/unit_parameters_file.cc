@@ -43,6 +43,13 @@ class Reader {
     }
     return triple_of(*it, where + key);
   }
+  // A magnet's or sensor's surface position: u_mm, v_mm, h_mm.
+  template <typename Part>
+  void position(const json& j, const std::string& where, Part* part) {
+    part->u_mm = number(j, "u_mm", where);
+    part->v_mm = number(j, "v_mm", where);
+    part->h_mm = number(j, "h_mm", where);
+  }
   // `node` must be an array of 3 numbers; `name` names it in the error.
   Vec3<double> triple_of(const json& node, const std::string& name) {
     if (!ok()) return {};
@@ -60,14 +67,24 @@ class Reader {
     }
     return {v[0], v[1], v[2]};
   }
-  const json* array(const json& j, const char* key) {
-    if (!ok()) return nullptr;
+  // Calls fn(element, "key[i].") for every element of the array `key`, each of which must be an
+  // object; stops at the first problem.
+  template <typename Fn>
+  void each_object(const json& j, const char* key, Fn fn) {
+    if (!ok()) return;
     const auto it = j.find(key);
     if (it == j.end() || !it->is_array()) {
       fail(std::string(key) + " must be an array");
-      return nullptr;
+      return;
     }
-    return &*it;
+    for (std::size_t i = 0; i < it->size() && ok(); ++i) {
+      const std::string name = std::string(key) + "[" + std::to_string(i) + "]";
+      if (!(*it)[i].is_object()) {
+        fail(name + " is not an object");
+        return;
+      }
+      fn((*it)[i], name + ".");
+    }
   }
   void fail(const std::string& what) {
     if (ok()) error_ = what;
@@ -137,47 +154,27 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string*
   UnitParameters p;
   p.spread_mm = r.number(j, "spread_mm", "");
   p.lateral_mm = r.number(j, "lateral_mm", "");
-  if (const json* magnets = r.array(j, "magnets")) {
-    for (std::size_t i = 0; i < magnets->size() && r.ok(); ++i) {
-      const json& m = (*magnets)[i];
-      const std::string where = "magnets[" + std::to_string(i) + "].";
-      if (!m.is_object()) {
-        r.fail("magnets[" + std::to_string(i) + "] is not an object");
-        break;
+  r.each_object(j, "magnets", [&](const json& m, const std::string& where) {
+    MagnetParameters mp;
+    r.position(m, where, &mp);
+    mp.moment_am2 = r.triple(m, "moment_am2", where);
+    p.magnets.push_back(mp);
+  });
+  r.each_object(j, "sensors", [&](const json& s, const std::string& where) {
+    SensorParameters sp;
+    r.position(s, where, &sp);
+    sp.gain = r.triple(s, "gain", where);
+    const auto mounting = s.find("mounting");
+    if (mounting == s.end() || !mounting->is_array() || mounting->size() != 3) {
+      r.fail(where + "mounting must be 3 rows of 3 numbers");
+    } else {
+      for (std::size_t row = 0; row < 3 && r.ok(); ++row) {
+        sp.mounting.r[row] =
+            r.triple_of((*mounting)[row], where + "mounting[" + std::to_string(row) + "]");
       }
-      MagnetParameters mp;
-      mp.u_mm = r.number(m, "u_mm", where);
-      mp.v_mm = r.number(m, "v_mm", where);
-      mp.h_mm = r.number(m, "h_mm", where);
-      mp.moment_am2 = r.triple(m, "moment_am2", where);
-      p.magnets.push_back(mp);
     }
-  }
-  if (const json* sensors = r.array(j, "sensors")) {
-    for (std::size_t i = 0; i < sensors->size() && r.ok(); ++i) {
-      const json& s = (*sensors)[i];
-      const std::string where = "sensors[" + std::to_string(i) + "].";
-      if (!s.is_object()) {
-        r.fail("sensors[" + std::to_string(i) + "] is not an object");
-        break;
-      }
-      SensorParameters sp;
-      sp.u_mm = r.number(s, "u_mm", where);
-      sp.v_mm = r.number(s, "v_mm", where);
-      sp.h_mm = r.number(s, "h_mm", where);
-      sp.gain = r.triple(s, "gain", where);
-      const auto mounting = s.find("mounting");
-      if (mounting == s.end() || !mounting->is_array() || mounting->size() != 3) {
-        r.fail(where + "mounting must be 3 rows of 3 numbers");
-      } else {
-        for (std::size_t row = 0; row < 3 && r.ok(); ++row) {
-          sp.mounting.r[row] =
-              r.triple_of((*mounting)[row], where + "mounting[" + std::to_string(row) + "]");
-        }
-      }
-      p.sensors.push_back(sp);
-    }
-  }
+    p.sensors.push_back(sp);
+  });
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
   if (source != nullptr) {
     const auto it = j.find("source");
