@@ -97,16 +97,18 @@ int main(int argc, char** argv) {
     if (fabricated && !unit_path.empty()) {
       throw std::invalid_argument("--fabricated and --unit are exclusive: one unit at a time");
     }
-    Result<PatchModel> model = make_error(ErrorCode::kInvalidArgument, "no model");
-    if (!unit_path.empty()) {
-      auto params = read_unit_parameters(unit_path);
-      if (!params.ok()) throw std::runtime_error(params.error().message);
-      model = PatchModel::from_parameters(design, *params);
-      if (!model.ok()) throw std::runtime_error(unit_path + ": " + model.error().message);
-    } else {
-      model = fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
-                         : PatchModel::nominal(design);
-    }
+    auto make_model = [&]() -> Result<PatchModel> {
+      if (unit_path.empty()) {
+        return fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
+                          : PatchModel::nominal(design);
+      }
+      Result<UnitParameters> params = read_unit_parameters(unit_path);  // names the file
+      if (!params.ok()) return params.error();
+      Result<PatchModel> m = PatchModel::from_parameters(design, *params);
+      if (!m.ok()) return make_error(m.error().code, unit_path + ": " + m.error().message);
+      return m;
+    };
+    Result<PatchModel> model = make_model();
     if (!model.ok()) throw std::runtime_error(model.error().message);
     SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
     const double half = (grid - 1) / 2.0 * pitch;
