@@ -24,10 +24,6 @@ using Clock = std::chrono::steady_clock;
 constexpr int kGrid = 19;
 constexpr double kPitchMm = 7.5;
 constexpr double kHalfExtentMm = (kGrid - 1) / 2.0 * kPitchMm;
-// Identification residual (RMS, noise units, on the unit's own presses) above which the model is
-// taken to miss something and the learned correction is applied: a correct model leaves ~1.01
-// (the tare's own noise adds ~1.6 %).
-constexpr double kResidualGate = 1.1;
 
 struct Unit {
   std::string name;
@@ -253,9 +249,9 @@ int bench_budget(const BudgetBenchArgs& a) {
           id_s + fit_s, id->held_out.rms);
       if (plan == "grid") {
         // The pipeline as deployed: the correction is used only when the identification says
-        // the model misses something (residual above kResidualGate noise units on the unit's
+        // the model misses something (residual above kModelMissesResidual noise units on the unit's
         // own presses); otherwise it could only add its own noise.
-        const bool gate = id->fit.rms > kResidualGate;
+        const bool gate = id->fit.rms > kModelMissesResidual;
         add_row(
             "best: identified unit (grid) + physics LM, + learned correction if residual > 1.1",
             [&](const double* f) {

@@ -19,8 +19,6 @@ namespace {
 using namespace skinbus;
 
 constexpr int kExitOk = 0, kExitFailed = 1, kExitUsage = 2;
-// Above this many noise units the model class misses something (docs/physics_estimator.md).
-constexpr double kResidualWarn = 1.1;
 
 void print_quality(const char* what, const fusion::FitQuality& nominal,
                    const fusion::FitQuality& fitted) {
@@ -111,11 +109,11 @@ int main(int argc, char** argv) {
   print_quality("fit", id->nominal_fit, id->fit);
   if (held_out) print_quality("held out", id->nominal_held_out, id->held_out);
   const double judged = held_out ? id->held_out.rms : id->fit.rms;
-  if (judged > kResidualWarn) {
+  if (judged > fusion::kModelMissesResidual) {
     std::printf(
         "warning: residual %.2f > %.1f noise units: this unit has physics the model does not "
         "contain; add the learned correction (docs/models.md)\n",
-        judged, kResidualWarn);
+        judged, fusion::kModelMissesResidual);
   }
   char residuals[96];
   std::snprintf(residuals, sizeof residuals, "residual %.3f noise units (fit)", id->fit.rms);

@@ -43,6 +43,12 @@
 
 namespace skinbus::fusion {
 
+// Identification residual (RMS, noise units, on the unit's own presses) above which the model is
+// taken to miss physics the unit has, and a learned correction on top pays off: a correct model
+// leaves ~1.01 (the tare's own noise adds ~1.6 %), an anisotropic lattice 1.24
+// (docs/benchmarks/models.md, the 361-press budget).
+inline constexpr double kModelMissesResidual = 1.1;
+
 struct DepthBinResidual {
   double depth_lo_mm = 0, depth_hi_mm = 0;  // [lo, hi)
   int rows = 0;
