@@ -217,6 +217,8 @@ host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --threads 0 2>"$work
 [[ $rc == 2 ]] && grep -q "threads" "$work/h/e1.txt" && ok "skinbus-host: bad --threads" || { bad "host --threads 0 (rc $rc)"; cat "$work/h/e1.txt"; }
 host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --threads 2 --spin-us -1 2>"$work/h/e1b.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "spin_us must be 0..100000" "$work/h/e1b.txt" && ok "skinbus-host: bad --spin-us" || { bad "host --spin-us -1 (rc $rc)"; cat "$work/h/e1b.txt"; }
+host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --convolution fast 2>"$work/h/e1c.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q -- "--convolution: auto, direct or winograd" "$work/h/e1c.txt" && ok "skinbus-host: bad --convolution" || { bad "host --convolution fast (rc $rc)"; cat "$work/h/e1c.txt"; }
 printf 'time_s,left_elbow_joint,tail_joint\n0,0,0\n' >"$work/h/j.csv"
 host --map "$work/h/truth.yaml" --replay /dev/null --no-dds --joints "$work/h/j.csv" 2>"$work/h/e2.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "'tail_joint' is not a movable joint" "$work/h/e2.txt" && ok "skinbus-host: unknown joint in --joints" || { bad "host unknown joint (rc $rc)"; cat "$work/h/e2.txt"; }

@@ -299,17 +299,26 @@ int bench_models(const ModelsBenchArgs& a) {
         reference == nullptr) {
       reference = &m;
     }
-    std::vector<RuntimePrecision> precisions = {RuntimePrecision::kFloat32};
+    // The default runtime, then, for a CNN, float32 with direct convolutions (the measurement
+    // behind the default's choice of Winograd), then the reduced precisions.
+    struct Variant {
+      RuntimePrecision precision;
+      RuntimeConvolution convolution;
+    };
+    std::vector<Variant> variants = {{RuntimePrecision::kFloat32, RuntimeConvolution::kAuto}};
+    if (cnn) variants.push_back({RuntimePrecision::kFloat32, RuntimeConvolution::kDirect});
     if (a.reduced) {
-      precisions.push_back(RuntimePrecision::kBfloat16);
-      precisions.push_back(RuntimePrecision::kInt8);
+      variants.push_back({RuntimePrecision::kBfloat16, RuntimeConvolution::kAuto});
+      variants.push_back({RuntimePrecision::kInt8, RuntimeConvolution::kAuto});
     }
-    for (RuntimePrecision p : precisions) {
+    RuntimeConvolution default_convolution = RuntimeConvolution::kDirect;
+    for (const auto [p, conv] : variants) {
       auto rts = std::make_shared<std::array<std::unique_ptr<NetworkRuntime>, 2>>();
       bool ok = true;
       for (int t = 1; t <= 2; ++t) {
         RuntimeOptions o;
         o.precision = p;
+        o.convolution = conv;
         o.threads = t;
         Result<NetworkRuntime> rt = NetworkRuntime::create(m, o);
         if (!rt.ok()) {
@@ -322,13 +331,21 @@ int bench_models(const ModelsBenchArgs& a) {
             std::make_unique<NetworkRuntime>(std::move(rt.value()));
       }
       if (!ok) continue;
+      // Direct convolutions are a row of their own only where the default is not direct.
+      if (conv == RuntimeConvolution::kAuto && p == RuntimePrecision::kFloat32) {
+        default_convolution = (*rts)[0]->convolution();
+      } else if (conv == RuntimeConvolution::kDirect &&
+                 default_convolution == RuntimeConvolution::kDirect) {
+        continue;
+      }
       keep.push_back(rts);
       Candidate c;
       c.name = m.meta.name + (p == RuntimePrecision::kFloat32
                                   ? std::string()
                                   : std::string(" ") + runtime_precision_name(p));
+      if (conv == RuntimeConvolution::kDirect) c.name += " direct";
       c.kind = std::string("runtime ") + (*rts)[0]->kernel_name();
-      c.macs = static_cast<double>(m.macs());
+      c.macs = static_cast<double>((*rts)[0]->macs());
       c.run = [rts, field, channels](int begin, int end, int batch, int threads,
                                      ContactEstimate* out) {
         NetworkRuntime& rt = *(*rts)[static_cast<std::size_t>(std::clamp(threads, 1, 2) - 1)];
@@ -485,15 +502,16 @@ int bench_models(const ModelsBenchArgs& a) {
     const double peak_after = fma_peak_gflops();
     std::printf(
         "This machine: an AVX-512 FMA loop reached %.0f GFLOP/s on one core before the estimators\n"
-        "and %.0f after (a network's float32 floor is 2 x its multiply-adds / that peak).\n",
+        "and %.0f after (a network's float32 floor is 2 x the multiply-adds it computes / that\n"
+        "peak; Winograd convolutions compute fewer than direct ones).\n",
         peak_before, peak_after);
     for (const Measured& m : rows) {
       if (m.macs > 0 && m.kind.find("float32") != std::string::npos) {
         const double floor_us = 2e-3 * m.macs / peak_before;
         std::printf(
-            "  %s: floor %.1f us per sample at %.0f GFLOP/s; batch 1 runs at %.0f %% of that "
-            "peak, batch 64 (one thread) at %.0f %%\n",
-            m.name.c_str(), floor_us, peak_before, 100.0 * floor_us / m.batch1_us,
+            "  %s: %.2f M multiply-adds, floor %.1f us per sample at %.0f GFLOP/s; batch 1 runs "
+            "at %.0f %% of that peak, batch 64 (one thread) at %.0f %%\n",
+            m.name.c_str(), 1e-6 * m.macs, floor_us, peak_before, 100.0 * floor_us / m.batch1_us,
             100.0 * floor_us / m.batch64_1t_us);
       }
     }

@@ -47,7 +47,7 @@ struct HostArgs {
   std::string ns;
   double duration_s = 0;
   double status_period_s = 1.0;
-  std::string backend = "auto", precision = "float32";
+  std::string backend = "auto", precision = "float32", convolution = "auto";
   std::string ambient = "quiet-mean";
   int threads = 1;
   int spin_us = fusion::RuntimeOptions{}.spin_us;
@@ -483,6 +483,13 @@ fusion::RuntimePrecision parse_precision(const std::string& s) {
   throw std::invalid_argument("--precision: float32, bfloat16 or int8");
 }
 
+fusion::RuntimeConvolution parse_convolution(const std::string& s) {
+  if (s == "auto") return fusion::RuntimeConvolution::kAuto;
+  if (s == "direct") return fusion::RuntimeConvolution::kDirect;
+  if (s == "winograd") return fusion::RuntimeConvolution::kWinograd;
+  throw std::invalid_argument("--convolution: auto, direct or winograd");
+}
+
 fusion::CommonModeMethod parse_ambient(const std::string& s) {
   if (s == "none") return fusion::CommonModeMethod::kNone;
   if (s == "median") return fusion::CommonModeMethod::kMedian;
@@ -541,6 +548,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--precision", a.precision, "network precision: float32, bfloat16, int8")
       ->capture_default_str();
+  app.add_option("--convolution", a.convolution,
+                 "CNN convolutions: auto (Winograd for float32 where it computes less), direct, "
+                 "winograd")
+      ->capture_default_str();
   app.add_option("--threads", a.threads, "threads per model runtime")->capture_default_str();
   app.add_option("--spin-us", a.spin_us,
                  "with --threads > 1: how long the runtime's threads spin for the next batch "
@@ -561,6 +572,7 @@ int main(int argc, char** argv) {
     fusion::AggregatorOptions o;
     o.runtime.backend = parse_backend(a.backend);
     o.runtime.precision = parse_precision(a.precision);
+    o.runtime.convolution = parse_convolution(a.convolution);
     o.runtime.threads = a.threads;
     o.runtime.spin_us = a.spin_us;
     o.common_mode.method = parse_ambient(a.ambient);

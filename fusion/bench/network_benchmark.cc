@@ -1,5 +1,6 @@
 // The host network runtime against LibTorch: batch 1 on one thread, batch 64 on one and two
-// threads, for every backend and precision, the seed CNN at widths 1, 0.5, 0.25, 0.125 and an
+// threads, for every backend and precision (float32 on the kernels also with direct convolutions
+// where the default is Winograd), the seed CNN at widths 1, 0.5, 0.25, 0.125 and an
 // MLP 48-256-256-4. Results and the command line: docs/benchmarks/runtime.md.
 //
 // Arguments of every benchmark: model (0..3: CNN width 1, 0.5, 0.25, 0.125; 4: MLP), batch,
@@ -59,12 +60,14 @@ void set_counters(benchmark::State& state, int batch) {
       batch, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
 
-void runtime(benchmark::State& state, RuntimeBackend backend, RuntimePrecision precision) {
+void runtime(benchmark::State& state, RuntimeBackend backend, RuntimePrecision precision,
+             RuntimeConvolution convolution = RuntimeConvolution::kAuto) {
   const int which = static_cast<int>(state.range(0));
   const int batch = static_cast<int>(state.range(1));
   RuntimeOptions o;
   o.backend = backend;
   o.precision = precision;
+  o.convolution = convolution;
   o.threads = static_cast<int>(state.range(2));
   auto rt = NetworkRuntime::create(model(which), o);
   if (!rt.ok()) {
@@ -114,6 +117,9 @@ void args(benchmark::internal::Benchmark* b) {
 }
 
 BENCHMARK_CAPTURE(runtime, kernels_f32, RuntimeBackend::kKernels, RuntimePrecision::kFloat32)
+    ->Apply(args);
+BENCHMARK_CAPTURE(runtime, kernels_f32_direct, RuntimeBackend::kKernels, RuntimePrecision::kFloat32,
+                  RuntimeConvolution::kDirect)
     ->Apply(args);
 BENCHMARK_CAPTURE(runtime, kernels_bf16, RuntimeBackend::kKernels, RuntimePrecision::kBfloat16)
     ->Apply(args);

@@ -140,6 +140,66 @@ void pool_portable(const float* x, int cells, int ld, int c, float* out) {
   for (int j = 0; j < c; ++j) avg[j] *= inv;
 }
 
+// The Winograd F(2x2, 3x3) transforms on any element type with + and - (a float, or a vector of
+// 16 floats): the 1-D steps, then the 2-D ones as a 1-D step over the columns and over the rows.
+template <typename T>
+[[gnu::always_inline]] inline void winograd_bt(const T& x0, const T& x1, const T& x2, const T& x3,
+                                               T* out, int stride) {
+  out[0] = x0 - x2;
+  out[stride] = x1 + x2;
+  out[2 * stride] = x2 - x1;
+  out[3 * stride] = x1 - x3;
+}
+
+// in: 4x4 row-major tile d; out: B^T d B, row-major.
+template <typename T>
+[[gnu::always_inline]] inline void winograd_input_tile(const T (&d)[16], T (&v)[16]) {
+  T t[16];  // B^T d
+  for (int col = 0; col < 4; ++col)
+    winograd_bt(d[col], d[4 + col], d[8 + col], d[12 + col], t + col, 4);
+  for (int row = 0; row < 4; ++row) {
+    const T* r = t + 4 * row;
+    winograd_bt(r[0], r[1], r[2], r[3], v + 4 * row, 1);
+  }
+}
+
+// in: 4x4 row-major products m; out: A^T m A, 2x2 row-major.
+template <typename T>
+[[gnu::always_inline]] inline void winograd_output_tile(const T (&m)[16], T (&y)[4]) {
+  T t[8];  // A^T m, 2x4
+  for (int col = 0; col < 4; ++col) {
+    t[col] = m[col] + m[4 + col] + m[8 + col];
+    t[4 + col] = m[4 + col] - m[8 + col] - m[12 + col];
+  }
+  for (int row = 0; row < 2; ++row) {
+    const T* r = t + 4 * row;
+    y[2 * row] = r[0] + r[1] + r[2];
+    y[2 * row + 1] = r[1] - r[2] - r[3];
+  }
+}
+
+void winograd_input_portable(const float* const* d, float* const* v, int c) {
+  for (int j = 0; j < c; ++j) {
+    float x[16], y[16];
+    for (int p = 0; p < 16; ++p) x[p] = d[p][j];
+    winograd_input_tile(x, y);
+    for (int p = 0; p < 16; ++p) v[p][j] = y[p];
+  }
+}
+
+void winograd_output_portable(const float* const* m, float* const* y, int c, const float* bias,
+                              bool relu) {
+  for (int j = 0; j < c; ++j) {
+    float x[16], out[4];
+    for (int p = 0; p < 16; ++p) x[p] = m[p][j];
+    winograd_output_tile(x, out);
+    for (int q = 0; q < 4; ++q) {
+      const float r = out[q] + bias[j];
+      y[q][j] = relu && r < 0.0f ? 0.0f : r;
+    }
+  }
+}
+
 // ---- AVX-512 -----------------------------------------------------------------------------------
 
 // The compiler's max and conversion intrinsics start from an "undefined" vector it then reports
@@ -361,6 +421,34 @@ SKINBUS_AVX512 void pool_avx512(const float* x, int cells, int ld, int c, float*
   }
 }
 
+SKINBUS_AVX512 void winograd_input_avx512(const float* const* d, float* const* v, int c) {
+  for (int j = 0; j < c; j += kLanes) {
+    __m512 x[16], y[16];
+#pragma GCC unroll 16
+    for (int p = 0; p < 16; ++p) x[p] = _mm512_loadu_ps(d[p] + j);
+    winograd_input_tile(x, y);
+#pragma GCC unroll 16
+    for (int p = 0; p < 16; ++p) _mm512_storeu_ps(v[p] + j, y[p]);
+  }
+}
+
+SKINBUS_AVX512 void winograd_output_avx512(const float* const* m, float* const* y, int c,
+                                           const float* bias, bool relu) {
+  const __m512 zero = _mm512_setzero_ps();
+  for (int j = 0; j < c; j += kLanes) {
+    __m512 x[16], out[4];
+#pragma GCC unroll 16
+    for (int p = 0; p < 16; ++p) x[p] = _mm512_loadu_ps(m[p] + j);
+    winograd_output_tile(x, out);
+    const __m512 b = _mm512_loadu_ps(bias + j);
+#pragma GCC unroll 4
+    for (int q = 0; q < 4; ++q) {
+      const __m512 r = _mm512_add_ps(out[q], b);
+      _mm512_storeu_ps(y[q] + j, relu ? _mm512_max_ps(r, zero) : r);
+    }
+  }
+}
+
 SKINBUS_AVX512_BF16 void to_bf16_avx512(const float* in, uint16_t* out, int n, bool relu) {
   const __m512 zero = _mm512_setzero_ps();
   int i = 0;
@@ -424,6 +512,8 @@ KernelSet make_portable() {
   k.quantise_u8 = &quantise_u8_portable;
   k.relu = &relu_portable;
   k.pool = &pool_portable;
+  k.winograd_input = &winograd_input_portable;
+  k.winograd_output = &winograd_output_portable;
   return k;
 }
 
@@ -464,6 +554,8 @@ const KernelSet* avx512_kernels() {
     fill<F32Avx512>(s.f32, RowSeq{});
     s.relu = &relu_avx512;
     s.pool = &pool_avx512;
+    s.winograd_input = &winograd_input_avx512;
+    s.winograd_output = &winograd_output_avx512;
     if (has_avx512_bf16()) {
       fill<Bf16Avx512>(s.bf16, RowSeq{});
       s.to_bf16 = &to_bf16_avx512;

@@ -43,6 +43,16 @@ using QuantiseU8 = float (*)(const float* x, int n, uint8_t* out);
 using ToBf16 = void (*)(const float* in, uint16_t* out, int n, bool relu);
 // max(0, .) over `n` floats in place.
 using ReluF32 = void (*)(float* x, int n);
+// Winograd F(2x2, 3x3) transforms, over `c` channels (a multiple of 16) of one tile:
+// input:  d[16] rows, the 4x4 input cells of the tile in row-major order (cells outside the grid
+//         point at zeros) -> v[16] rows, B^T d B, position p = 4 * row + col.
+// output: m[16] rows, the tile's products at the 16 positions -> y[4] rows, the 2x2 output cells
+//         A^T m A + bias (row-major; cells outside the grid point at scratch), through max(0, .)
+//         when `relu`.
+// B^T = [1 0 -1 0; 0 1 1 0; 0 -1 1 0; 0 1 0 -1], A^T = [1 1 1 0; 0 1 -1 -1]: additions only.
+using WinogradInput = void (*)(const float* const* d, float* const* v, int c);
+using WinogradOutput = void (*)(const float* const* m, float* const* y, int c, const float* bias,
+                                bool relu);
 // Global average and max over `cells` rows of `ld` floats (`c` <= ld used): out[0, c) the
 // averages, out[c, 2c) the maxima.
 using PoolF32 = void (*)(const float* x, int cells, int ld, int c, float* out);
@@ -56,6 +66,8 @@ struct KernelSet {
   ToBf16 to_bf16 = nullptr;
   ReluF32 relu = nullptr;
   PoolF32 pool = nullptr;
+  WinogradInput winograd_input = nullptr;
+  WinogradOutput winograd_output = nullptr;
 };
 
 // Plain C++ kernels for any CPU (bf16 entries emulate vdpbf16ps exactly enough for tests; int8

@@ -34,11 +34,20 @@ constexpr int kKBlockF32 = 256;
 // cell in one kernel call, the samples as rows); smaller ones tap by tap (the cells as rows).
 constexpr int kByCellMinSamples = 4;
 constexpr int kMaxTaps = 9;
+// Winograd F(2x2, 3x3): a 4x4 input tile and 16 products per 2x2 output tile.
+constexpr int kWinogradPoints = 16;
+// kAuto runs Winograd for the convolutions with at least this many input channels: narrower
+// ones spend more on the transforms and the 16 short kernel calls per row block than they save
+// (measured on the seed CNN at widths 1 to 0.125; docs/benchmarks/runtime.md).
+constexpr int kWinogradMinInputs = 32;
 constexpr std::size_t kAlign = 64;
 constexpr int kMaxThreads = 64;
 constexpr int kMaxSpinUs = 100000;
-// kInt8 runs a layer in int8 when it carries at least 1/kInt8MinShare of the multiply-adds.
-constexpr int64_t kInt8MinShare = 20;
+// kInt8 runs a layer in int8 when it carries at least 1/kInt8MinShare of the multiply-adds
+// (seed CNN: conv1-conv3, fc0, fc1). 1/20 (conv2, conv3, fc0) moved the trained model's XY by
+// 0.10 mm instead of 0.13 mm, but was only 1.9x as fast as Winograd float32 at batch 1, not 2.3x
+// (docs/benchmarks/runtime.md).
+constexpr int64_t kInt8MinShare = 40;
 
 int round_up(int n, int m) {
   return (n + m - 1) / m * m;
@@ -160,7 +169,8 @@ struct ColBlock {
 
 struct KernelLayer {
   bool conv = false, relu = true;
-  bool int8 = false;  // u8 activations x s8 weights (else float32 or bfloat16 as the runtime)
+  bool int8 = false;      // u8 activations x s8 weights (else float32 or bfloat16 as the runtime)
+  bool winograd = false;  // a float32 convolution as Winograd F(2x2, 3x3): 16 panels, not taps
   int k = 0, k_pairs = 0, k_quads = 0, n = 0, n_ld = 0;
   std::vector<ColBlock> blocks;  // offsets into w8 when int8, else w32 or w16
   Aligned<float> bias;           // n_ld
@@ -181,6 +191,13 @@ struct CellTaps {
   std::vector<int> in_cell;  // the input cell each reads
 };
 
+// One 2x2 output tile of the grid for Winograd convolutions: its 4x4 input cells (row-major,
+// -1 outside the grid: zero padding) and its 2x2 output cells (-1 outside: discarded).
+struct WinogradTile {
+  int in_cell[kWinogradPoints];
+  int out_cell[4];
+};
+
 // Per thread: input, activations and scratch, sized at create.
 struct Slot {
   Aligned<float> x;            // normalised input rows (kernel backends)
@@ -191,6 +208,9 @@ struct Slot {
   std::vector<uint8_t> ok;     // channel mask scratch
   std::vector<int> index;      // chunk row -> sample
   std::vector<double> raw;     // chunk outputs, physical units
+  Aligned<float> wv;           // Winograd: transformed input [point][row][a_ld]
+  Aligned<float> wm;           // Winograd: products of one column block [point][row][64]
+  Aligned<float> sink;         // Winograd: where output cells outside the grid go
 };
 
 }  // namespace
@@ -214,6 +234,11 @@ struct NetworkRuntime::Impl {
   std::vector<KernelLayer> layers;
   std::vector<Tap> taps;            // centre first
   std::vector<CellTaps> cell_taps;  // per output cell
+  bool winograd = false;            // float32 convolutions may run as Winograd F(2x2, 3x3)
+  int winograd_min_inputs = 0;      // ... those with at least this many input channels
+  int64_t macs = 0;                 // multiply-adds per sample as computed
+  std::vector<WinogradTile> wtiles;
+  Aligned<float> zeros;  // a zero row as wide as the widest layer
   int last_conv = -1;
   Aligned<float> w32;
   Aligned<uint16_t> w16;
@@ -229,6 +254,9 @@ struct NetworkRuntime::Impl {
   // One column block of a float32 convolution over n samples, cell by cell (ReLU included).
   void forward_cell_block(const KernelLayer& l, const ColBlock& b, const float* a32, int a_ld,
                           float* out, int n) const;
+  // A float32 convolution over n samples as Winograd F(2x2, 3x3) (bias and ReLU included).
+  void forward_winograd(const KernelLayer& l, Slot& s, const float* a32, int a_ld, float* out,
+                        int n) const;
   // Runs the first n rows of slot's input; fills slot.raw (n x outputs, physical units).
   void forward(int slot, int n);
   float* input(int slot) {
@@ -267,6 +295,22 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
       }
       if (!tap.out_cell.empty()) taps.push_back(std::move(tap));
     }
+    if (winograd) {
+      for (int ty = 0; ty < a.grid_rows; ty += 2) {
+        for (int tx = 0; tx < a.grid_cols; tx += 2) {
+          WinogradTile tile;
+          auto cell = [&](int r, int c) {
+            return r < 0 || r >= a.grid_rows || c < 0 || c >= a.grid_cols ? -1
+                                                                          : r * a.grid_cols + c;
+          };
+          for (int p = 0; p < kWinogradPoints; ++p) {
+            tile.in_cell[p] = cell(ty - 1 + p / 4, tx - 1 + p % 4);
+          }
+          for (int q = 0; q < 4; ++q) tile.out_cell[q] = cell(ty + q / 2, tx + q % 2);
+          wtiles.push_back(tile);
+        }
+      }
+    }
     cell_taps.resize(static_cast<std::size_t>(a.grid_rows * a.grid_cols));
     for (std::size_t t = 0; t < taps.size(); ++t) {
       for (std::size_t p = 0; p < taps[t].out_cell.size(); ++p) {
@@ -287,6 +331,7 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
   int64_t tap_cells = 0;  // in-bounds (cell, tap) pairs of a convolution
   for (const Tap& tap : taps) tap_cells += static_cast<int64_t>(tap.out_cell.size());
   const int64_t total_macs = model.macs();
+  bool any_winograd = false;
   auto add_layer = [&](const std::string& name, bool conv, int out, bool relu) {
     KernelLayer l;
     l.conv = conv;
@@ -298,12 +343,16 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     // accuracy for little speed (docs/benchmarks/runtime.md).
     const int64_t layer_macs = static_cast<int64_t>(in) * out * (conv ? tap_cells : 1);
     l.int8 = int8 && !layers.empty() && relu && layer_macs * kInt8MinShare >= total_macs;
+    l.winograd = conv && winograd && in >= winograd_min_inputs;
+    any_winograd = any_winograd || l.winograd;
+    macs += l.winograd ? int64_t{kWinogradPoints} * static_cast<int64_t>(wtiles.size()) * in * out
+                       : layer_macs;
     l.k = in;
     l.k_pairs = (in + 1) / 2;
     l.k_quads = (in + 3) / 4;
     l.n = out;
     l.n_ld = round_up(out, kLanes);
-    const int ntaps = conv ? static_cast<int>(taps.size()) : 1;
+    const int ntaps = l.winograd ? kWinogradPoints : conv ? static_cast<int>(taps.size()) : 1;
     const int k_rows = l.int8 ? 4 * l.k_quads : bf16 ? 2 * l.k_pairs : l.k;
     std::size_t& at = l.int8 ? packed8 : packed;
     for (int col0 = 0; col0 < l.n_ld; col0 += kLanes * kMaxVectors) {
@@ -333,6 +382,7 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     add_layer("fc" + std::to_string(k), false, a.hidden[k], true);
   }
   add_layer("head", false, outputs, false);
+  winograd = any_winograd;
   // An int8 kernel call sums at most 4 * kKBlock = 256 products of at most 255 * 127 in int32:
   // no overflow whatever the layer's size.
 
@@ -348,10 +398,39 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     KernelLayer& l = layers[li];
     const float* w = src[li].w->data.data();
     std::copy(src[li].b->data.begin(), src[li].b->data.end(), l.bias.data());
-    const int ntaps = l.conv ? static_cast<int>(taps.size()) : 1;
+    const int ntaps = l.winograd ? kWinogradPoints : l.conv ? static_cast<int>(taps.size()) : 1;
+    // Winograd: U = G g G^T of every (output, input) pair's 3x3 kernel g, in double, rounded
+    // once to float; G = [1 0 0; 1/2 1/2 1/2; 1/2 -1/2 1/2; 0 0 1].
+    std::vector<float> u;
+    if (l.winograd) {
+      static constexpr double kG[4][3] = {{1, 0, 0}, {0.5, 0.5, 0.5}, {0.5, -0.5, 0.5}, {0, 0, 1}};
+      u.resize(static_cast<std::size_t>(l.n) * static_cast<std::size_t>(l.k) * kWinogradPoints);
+      for (std::size_t pair = 0; pair < static_cast<std::size_t>(l.n) * l.k; ++pair) {
+        const float* g = w + pair * 9;
+        double gt[4][3];  // G g
+        for (int r = 0; r < 4; ++r) {
+          for (int c = 0; c < 3; ++c) {
+            gt[r][c] = 0;
+            for (int e = 0; e < 3; ++e) gt[r][c] += kG[r][e] * g[e * 3 + c];
+          }
+        }
+        for (int r = 0; r < 4; ++r) {
+          for (int c = 0; c < 4; ++c) {
+            double sum = 0;
+            for (int e = 0; e < 3; ++e) sum += gt[r][e] * kG[c][e];
+            u[pair * kWinogradPoints + static_cast<std::size_t>(r * 4 + c)] =
+                static_cast<float>(sum);
+          }
+        }
+      }
+    }
     auto weight = [&](int o, int i, int t) -> float {
       if (o >= l.n || i >= l.k) return 0.0f;
       if (!l.conv) return w[static_cast<std::size_t>(o) * l.k + i];
+      if (l.winograd) {
+        return u[(static_cast<std::size_t>(o) * l.k + i) * kWinogradPoints +
+                 static_cast<std::size_t>(t)];
+      }
       return w[(static_cast<std::size_t>(o) * l.k + i) * 9 + static_cast<std::size_t>(t)];
     };
     if (l.int8) {
@@ -375,7 +454,7 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     for (const ColBlock& b : l.blocks) {
       const int cols = kLanes * b.vectors;
       for (int t = 0; t < ntaps; ++t) {
-        const int wt = l.conv ? taps[static_cast<std::size_t>(t)].weight_tap : 0;
+        const int wt = l.winograd ? t : l.conv ? taps[static_cast<std::size_t>(t)].weight_tap : 0;
         const std::size_t base = b.offset + b.panel * static_cast<std::size_t>(t);
         if (l.int8) {
           for (int kq = 0; kq < l.k_quads; ++kq) {
@@ -413,7 +492,14 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
   if (cnn)
     widest = std::max(widest, round_up(2 * layers[static_cast<std::size_t>(last_conv)].n, kLanes));
   const std::size_t rows = static_cast<std::size_t>(chunk) * static_cast<std::size_t>(cells);
+  const std::size_t tile_rows = static_cast<std::size_t>(chunk) * wtiles.size();
+  zeros.assign(static_cast<std::size_t>(widest));
   for (Slot& s : slots) {
+    if (winograd) {
+      s.wv.assign(kWinogradPoints * tile_rows * static_cast<std::size_t>(widest));
+      s.wm.assign(kWinogradPoints * tile_rows * kLanes * kMaxVectors);
+      s.sink.assign(static_cast<std::size_t>(widest));
+    }
     s.x.assign(static_cast<std::size_t>(chunk) * static_cast<std::size_t>(x_row));
     s.f0.assign(rows * static_cast<std::size_t>(widest));
     s.f1.assign(rows * static_cast<std::size_t>(widest));
@@ -456,6 +542,68 @@ void NetworkRuntime::Impl::forward_cell_block(const KernelLayer& l, const ColBlo
   }
 }
 
+void NetworkRuntime::Impl::forward_winograd(const KernelLayer& l, Slot& s, const float* a32,
+                                            int a_ld, float* out, int n) const {
+  const int tiles = static_cast<int>(wtiles.size());
+  const int rows = n * tiles;  // row = sample * tiles + tile
+  const std::ptrdiff_t point_rows = rows;
+  constexpr int kMld = kLanes * kMaxVectors;
+  const float* d[kWinogradPoints];
+  float* v[kWinogradPoints];
+  // Input transform of every tile of every sample, all a_ld channels (the pad ones are zero).
+  for (int row = 0; row < rows; ++row) {
+    const int sample = row / tiles;
+    const WinogradTile& tile = wtiles[static_cast<std::size_t>(row % tiles)];
+    for (int p = 0; p < kWinogradPoints; ++p) {
+      const int cell = tile.in_cell[p];
+      d[p] = cell < 0 ? zeros.data()
+                      : a32 + (static_cast<std::ptrdiff_t>(sample) * cells + cell) * a_ld;
+      v[p] = s.wv.data() + (p * point_rows + row) * a_ld;
+    }
+    ks->winograd_input(d, v, a_ld);
+  }
+  const float* a_rows[kMaxRows];
+  float* c_rows[kMaxRows];
+  const float* m[kWinogradPoints];
+  float* y[4];
+  const int blocks = (rows + kMaxRows - 1) / kMaxRows;
+  for (const ColBlock& b : l.blocks) {
+    const int cols = kLanes * b.vectors;
+    // The 16 products of every row for this block's columns: one matrix product per point.
+    for (int p = 0; p < kWinogradPoints; ++p) {
+      const float* panel = w32.data() + b.offset + b.panel * static_cast<std::size_t>(p);
+      for (int k0 = 0; k0 < l.k; k0 += kKBlockF32) {
+        const int kn = std::min(kKBlockF32, l.k - k0);
+        const float* panel_k = panel + static_cast<std::ptrdiff_t>(k0) * cols;
+        // Rows in `blocks` blocks of nearly equal size.
+        for (int block = 0; block < blocks; ++block) {
+          const int r0 = rows * block / blocks, r = rows * (block + 1) / blocks - r0;
+          for (int i = 0; i < r; ++i) {
+            const std::ptrdiff_t at = p * point_rows + r0 + i;
+            a_rows[i] = s.wv.data() + at * a_ld + k0;
+            c_rows[i] = s.wm.data() + at * kMld;
+          }
+          ks->f32[r - 1][b.vectors - 1](a_rows, &panel_k, 1, kn, c_rows,
+                                        k0 == 0 ? zeros.data() : nullptr, false);
+        }
+      }
+    }
+    // Output transform, bias and ReLU into the cells.
+    for (int row = 0; row < rows; ++row) {
+      const int sample = row / tiles;
+      const WinogradTile& tile = wtiles[static_cast<std::size_t>(row % tiles)];
+      for (int p = 0; p < kWinogradPoints; ++p) m[p] = s.wm.data() + (p * point_rows + row) * kMld;
+      for (int q = 0; q < 4; ++q) {
+        const int cell = tile.out_cell[q];
+        y[q] = cell < 0
+                   ? s.sink.data()
+                   : out + (static_cast<std::ptrdiff_t>(sample) * cells + cell) * l.n_ld + b.col0;
+      }
+      ks->winograd_output(m, y, cols, l.bias.data() + b.col0, l.relu);
+    }
+  }
+}
+
 void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
   const float* a32 = s.x.data();
   int a_ld = cnn ? kLanes : round_up(channels, kLanes);
@@ -481,6 +629,10 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
     // same bits, without storing and reloading the accumulators between taps).
     const bool by_cell = l.conv && !l.int8 && !bf16 && n >= kByCellMinSamples;
     for (const ColBlock& b : l.blocks) {
+      if (l.winograd) {
+        forward_winograd(l, s, a32, a_ld, out, n);  // every column block at once
+        break;
+      }
       if (by_cell) {
         forward_cell_block(l, b, a32, a_ld, out, n);
         continue;
@@ -533,7 +685,7 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
       }
     }
     const int count = n * rows_per_sample * l.n_ld;
-    if (l.conv && !by_cell && (!bf16 || static_cast<int>(li) == last_conv)) {
+    if (l.conv && !by_cell && !l.winograd && (!bf16 || static_cast<int>(li) == last_conv)) {
       // A convolution's rows finish at different taps: ReLU afterwards (in the conversion to
       // bfloat16 when the next layer reads that).
       ks->relu(out, count);
@@ -729,6 +881,11 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
     im.ks = &detail::portable_kernels();
   }
   im.backend = be;
+  if (options.convolution == RuntimeConvolution::kWinograd &&
+      (im.bf16 || im.int8 || be == RuntimeBackend::kOneDnn)) {
+    return make_error(ErrorCode::kUnsupported,
+                      "Winograd convolutions run float32 on the kernels or portable backend only");
+  }
   im.slots.resize(static_cast<std::size_t>(options.threads));
   if (be == RuntimeBackend::kOneDnn) {
     auto net = detail::OneDnnNet::create(model, options.threads);
@@ -741,7 +898,22 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
       im.dnn = std::move(net.value());
       im.chunk = detail::kOneDnnMaxChunk;
       im.kernel_name = "onednn float32";
+      im.macs = model.macs();
     }
+  }
+  // Convolutions: Winograd for float32 on this library's kernels when it needs fewer products
+  // than the in-bounds taps (a 1-D grid side of n has 3n - 2 in-bounds (cell, tap) pairs, 1 when
+  // n is 1; Winograd 16 per 2x2 tile), for the layers with kWinogradMinInputs inputs or more
+  // unless asked for every layer.
+  if (im.cnn && !im.bf16 && !im.int8 && !im.dnn) {
+    auto side_taps = [](int n) { return n == 1 ? 1 : 3 * n - 2; };
+    const int64_t direct = static_cast<int64_t>(side_taps(a.grid_rows)) * side_taps(a.grid_cols);
+    const int64_t winograd =
+        int64_t{kWinogradPoints} * ((a.grid_rows + 1) / 2) * ((a.grid_cols + 1) / 2);
+    im.winograd = options.convolution == RuntimeConvolution::kWinograd ||
+                  (options.convolution == RuntimeConvolution::kAuto && winograd < direct);
+    im.winograd_min_inputs =
+        options.convolution == RuntimeConvolution::kWinograd ? 0 : kWinogradMinInputs;
   }
   // Where each channel lands in an input row.
   if (im.dnn) {
@@ -764,6 +936,7 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
     if (be == RuntimeBackend::kPortable) {
       im.kernel_name = std::string("portable ") + runtime_precision_name(options.precision);
     }
+    if (im.winograd) im.kernel_name += " winograd";
   }
   for (Slot& s : im.slots) {
     s.ok.assign(static_cast<std::size_t>(im.channels), 1);
@@ -876,6 +1049,12 @@ RuntimeBackend NetworkRuntime::backend() const {
 }
 RuntimePrecision NetworkRuntime::precision() const {
   return impl_->opt.precision;
+}
+int64_t NetworkRuntime::macs() const {
+  return impl_->macs;
+}
+RuntimeConvolution NetworkRuntime::convolution() const {
+  return impl_->winograd ? RuntimeConvolution::kWinograd : RuntimeConvolution::kDirect;
 }
 const char* NetworkRuntime::kernel_name() const {
   return impl_->kernel_name.c_str();

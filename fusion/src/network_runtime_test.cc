@@ -78,6 +78,7 @@ Difference difference(const std::vector<double>& a, const std::vector<double>& b
 struct EqualityCase {
   std::string model;
   RuntimeBackend backend;
+  RuntimeConvolution convolution = RuntimeConvolution::kAuto;
 };
 
 class TorchEqualityTest : public ::testing::TestWithParam<EqualityCase> {};
@@ -88,6 +89,7 @@ TEST_P(TorchEqualityTest, MatchesLibTorchForEveryBatchAndThreadCount) {
   for (int threads : {1, 2}) {
     RuntimeOptions o;
     o.backend = p.backend;
+    o.convolution = p.convolution;
     o.threads = threads;
     auto rt = NetworkRuntime::create(model, o);
     ASSERT_TRUE(rt.ok()) << rt.error().to_string();
@@ -122,20 +124,28 @@ TEST_P(TorchEqualityTest, MatchesLibTorchForEveryBatchAndThreadCount) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Backends, TorchEqualityTest,
-                         ::testing::Values(EqualityCase{"cnn", RuntimeBackend::kKernels},
-                                           EqualityCase{"cnn_w025", RuntimeBackend::kKernels},
-                                           EqualityCase{"mlp", RuntimeBackend::kKernels},
-                                           EqualityCase{"cnn", RuntimeBackend::kOneDnn},
-                                           EqualityCase{"cnn_w025", RuntimeBackend::kOneDnn},
-                                           EqualityCase{"mlp", RuntimeBackend::kOneDnn},
-                                           EqualityCase{"cnn", RuntimeBackend::kPortable},
-                                           EqualityCase{"cnn_w025", RuntimeBackend::kPortable},
-                                           EqualityCase{"mlp", RuntimeBackend::kPortable}),
-                         [](const auto& param_info) {
-                           return param_info.param.model + "_" +
-                                  runtime_backend_name(param_info.param.backend);
-                         });
+INSTANTIATE_TEST_SUITE_P(
+    Backends, TorchEqualityTest,
+    ::testing::Values(EqualityCase{"cnn", RuntimeBackend::kKernels},
+                      EqualityCase{"cnn_w025", RuntimeBackend::kKernels},
+                      EqualityCase{"mlp", RuntimeBackend::kKernels},
+                      EqualityCase{"cnn", RuntimeBackend::kOneDnn},
+                      EqualityCase{"cnn_w025", RuntimeBackend::kOneDnn},
+                      EqualityCase{"mlp", RuntimeBackend::kOneDnn},
+                      EqualityCase{"cnn", RuntimeBackend::kKernels, RuntimeConvolution::kDirect},
+                      EqualityCase{"cnn_w025", RuntimeBackend::kKernels,
+                                   RuntimeConvolution::kDirect},
+                      EqualityCase{"cnn", RuntimeBackend::kPortable},
+                      EqualityCase{"cnn", RuntimeBackend::kPortable, RuntimeConvolution::kDirect},
+                      EqualityCase{"cnn_w025", RuntimeBackend::kPortable},
+                      EqualityCase{"mlp", RuntimeBackend::kPortable}),
+    [](const auto& param_info) {
+      const EqualityCase& c = param_info.param;
+      return c.model + "_" + runtime_backend_name(c.backend) +
+             (c.convolution == RuntimeConvolution::kAuto
+                  ? std::string()
+                  : std::string("_") + runtime_convolution_name(c.convolution));
+    });
 
 TEST(NetworkRuntimeTest, ThreadsGiveTheSameResultsAsOneThread) {
   const ModelFile model = model_for("cnn");
@@ -171,13 +181,18 @@ TEST(NetworkRuntimeTest, ThreadsGiveTheSameResultsAsOneThread) {
   }
 }
 
-// A batch runs float32 convolutions cell by cell (all taps of a cell per kernel call), one sample
-// tap by tap: the same products in the same order, so the same bits.
+// A batch runs direct float32 convolutions cell by cell (all taps of a cell per kernel call), one
+// sample tap by tap: the same products in the same order, so the same bits. Winograd computes
+// every row alone in the same order whatever the batch: the same bits too.
 TEST(NetworkRuntimeTest, ABatchGivesTheSameAsOneSampleAtATime) {
   const ModelFile model = model_for("cnn_w025");
-  for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kPortable}) {
+  for (auto [b, conv] : {std::pair{RuntimeBackend::kKernels, RuntimeConvolution::kDirect},
+                         std::pair{RuntimeBackend::kPortable, RuntimeConvolution::kDirect},
+                         std::pair{RuntimeBackend::kKernels, RuntimeConvolution::kWinograd},
+                         std::pair{RuntimeBackend::kPortable, RuntimeConvolution::kWinograd}}) {
     RuntimeOptions o;
     o.backend = b;
+    o.convolution = conv;
     auto rt = NetworkRuntime::create(model, o);
     ASSERT_TRUE(rt.ok());
     const int batch = 20;
@@ -191,6 +206,101 @@ TEST(NetworkRuntimeTest, ABatchGivesTheSameAsOneSampleAtATime) {
       EXPECT_EQ(e.depth_mm, est[static_cast<std::size_t>(i)].depth_mm) << rt->kernel_name();
     }
   }
+}
+
+// Winograd tiles cover the grid in 2x2 blocks: on odd sides the last tile reads zero padding
+// beyond the grid and discards outputs there; on 1x1 every tile cell but one is outside.
+TEST(NetworkRuntimeTest, WinogradMatchesLibTorchOnEveryGridSide) {
+  for (int side : {1, 2, 3, 5}) {
+    auto model = random_model(seed_cnn(0.25, side, side), side * side, 3);
+    ASSERT_TRUE(model.ok()) << model.error().to_string();
+    const int channels = 3 * side * side;
+    for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kPortable}) {
+      RuntimeOptions o;
+      o.backend = b;
+      o.convolution = RuntimeConvolution::kWinograd;
+      auto rt = NetworkRuntime::create(*model, o);
+      ASSERT_TRUE(rt.ok()) << rt.error().to_string();
+      ASSERT_EQ(rt->convolution(), RuntimeConvolution::kWinograd);
+      for (int batch : {1, 9}) {
+        std::mt19937 rng(static_cast<uint32_t>(side * 100 + batch));
+        std::uniform_real_distribution<double> u(-250.0, 250.0);
+        std::vector<double> f(static_cast<std::size_t>(batch * channels));
+        for (double& v : f) v = u(rng);
+        auto want = torch_forward(*model, f, batch, 1);
+        ASSERT_TRUE(want.ok()) << want.error().to_string();
+        std::vector<double> got(static_cast<std::size_t>(batch) * 4);
+        ASSERT_TRUE(rt->run_outputs(f, batch, got).ok());
+        for (std::size_t i = 0; i < got.size(); ++i) {
+          ASSERT_NEAR(got[i], (*want)[i], kTorchToleranceMm)
+              << rt->kernel_name() << " side " << side << " batch " << batch << " value " << i;
+        }
+      }
+    }
+  }
+}
+
+// kAuto takes Winograd where it computes fewer products than the in-bounds taps, for layers of
+// 32 inputs or more, and only for float32 on this library's kernels; asking for it elsewhere is
+// refused by name.
+TEST(NetworkRuntimeTest, ChoosesWinogradWhereItComputesLess) {
+  auto kernels = [](const ModelFile& m, RuntimePrecision p, RuntimeConvolution c) {
+    RuntimeOptions o;
+    o.backend = RuntimeBackend::kPortable;
+    o.precision = p;
+    o.convolution = c;
+    return NetworkRuntime::create(m, o);
+  };
+  const ModelFile cnn = model_for("cnn");
+  auto four = kernels(cnn, RuntimePrecision::kFloat32, RuntimeConvolution::kAuto);
+  ASSERT_TRUE(four.ok());
+  EXPECT_EQ(four->convolution(), RuntimeConvolution::kWinograd);
+  EXPECT_NE(std::string(four->kernel_name()).find("winograd"), std::string::npos);
+  // 4x4 grid: 100 in-bounds (cell, tap) pairs direct, 4 tiles x 16 Winograd, for conv1-conv3
+  // (conv0 has 3 inputs: direct), or every convolution when asked.
+  const int64_t wide = 32 * 64 + 64 * 128 + 128 * 256;
+  EXPECT_EQ(cnn.macs() - four->macs(), (100 - 64) * wide);
+  auto every = kernels(cnn, RuntimePrecision::kFloat32, RuntimeConvolution::kWinograd);
+  ASSERT_TRUE(every.ok());
+  EXPECT_EQ(cnn.macs() - every->macs(), (100 - 64) * (wide + 3 * 32));
+  auto direct = kernels(cnn, RuntimePrecision::kFloat32, RuntimeConvolution::kDirect);
+  ASSERT_TRUE(direct.ok());
+  EXPECT_EQ(direct->convolution(), RuntimeConvolution::kDirect);
+  EXPECT_EQ(direct->macs(), cnn.macs());
+  // Width 0.125: every convolution has fewer than 32 inputs.
+  auto narrow = random_model(seed_cnn(0.125, 4, 4), 16, 3);
+  ASSERT_TRUE(narrow.ok());
+  auto rt_narrow = kernels(*narrow, RuntimePrecision::kFloat32, RuntimeConvolution::kAuto);
+  ASSERT_TRUE(rt_narrow.ok());
+  EXPECT_EQ(rt_narrow->convolution(), RuntimeConvolution::kDirect);
+  // 3x3 grid: 49 pairs direct against 4 tiles x 16.
+  auto three = random_model(seed_cnn(1.0, 3, 3), 9, 3);
+  ASSERT_TRUE(three.ok());
+  auto rt3 = kernels(*three, RuntimePrecision::kFloat32, RuntimeConvolution::kAuto);
+  ASSERT_TRUE(rt3.ok());
+  EXPECT_EQ(rt3->convolution(), RuntimeConvolution::kDirect);
+  // MLPs have no convolution; reduced precisions run direct ones.
+  auto mlp = kernels(model_for("mlp"), RuntimePrecision::kFloat32, RuntimeConvolution::kWinograd);
+  ASSERT_TRUE(mlp.ok());
+  EXPECT_EQ(mlp->convolution(), RuntimeConvolution::kDirect);
+  auto i8 = kernels(cnn, RuntimePrecision::kInt8, RuntimeConvolution::kAuto);
+  ASSERT_TRUE(i8.ok());
+  EXPECT_EQ(i8->convolution(), RuntimeConvolution::kDirect);
+  auto refused = kernels(cnn, RuntimePrecision::kInt8, RuntimeConvolution::kWinograd);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code, ErrorCode::kUnsupported);
+  EXPECT_NE(refused.error().message.find("Winograd"), std::string::npos);
+  RuntimeOptions o;
+  o.backend = RuntimeBackend::kOneDnn;
+  o.convolution = RuntimeConvolution::kWinograd;
+  auto dnn = NetworkRuntime::create(cnn, o);
+  ASSERT_FALSE(dnn.ok());
+  EXPECT_EQ(dnn.error().code, ErrorCode::kUnsupported);
+  o.convolution = RuntimeConvolution::kAuto;
+  auto dnn_auto = NetworkRuntime::create(cnn, o);
+  ASSERT_TRUE(dnn_auto.ok());
+  EXPECT_EQ(dnn_auto->convolution(), RuntimeConvolution::kDirect);
+  EXPECT_EQ(dnn_auto->macs(), cnn.macs());
 }
 
 TEST(NetworkRuntimeTest, RejectsUnusableSamplesWithTheReasonAndNoNaN) {

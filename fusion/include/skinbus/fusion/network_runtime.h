@@ -43,24 +43,42 @@
 // Precision (RuntimeOptions::precision):
 //   kFloat32   matches LibTorch on the same weights to well below 1e-3 mm.
 //   kBfloat16  weights and activations rounded to bfloat16, products accumulated in float32
-//              (vdpbf16ps); about 1.8-2x the float32 speed. On random models the outputs differ
-//              from float32 by at most 0.01-0.5 % of each output's scale (0.005 mm on the seed
-//              CNN, 0.2 mm on an MLP at a 40 mm scale; docs/benchmarks/runtime.md). create()
+//              (vdpbf16ps), convolutions direct; on the seed CNN about 1.9x the speed of direct
+//              float32, 1.4x Winograd float32. On random models the outputs differ from float32
+//              by at most 0.01-0.5 % of each output's scale (0.005 mm on the seed CNN, 0.2 mm on
+//              an MLP at a 40 mm scale; docs/benchmarks/runtime.md). create()
 //              returns kUnsupported when the CPU lacks AVX512_BF16 (kKernels/kAuto) or the
 //              backend is kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
-//   kInt8      the layers that carry at least 1/20 of the multiply-adds and whose input is a
-//              ReLU output (seed CNN: conv2, conv3, fc0 = 92 % of the work) run as unsigned 8-bit
-//              activations x signed 8-bit weights with exact int32 sums (vpdpbusd); the first
-//              layer (signed fields), the head and the small layers stay float32. Weights:
-//              symmetric per output channel and 3x3 tap (scale max |w| / 127), quantised at
-//              create(). Activations: per input row (a grid cell of one sample, or one sample),
-//              scale max / 255 of that row, computed during the run (no calibration data), so a
-//              sample's result does not depend on its batch. Scales, bias, ReLU and pooling in
-//              float32. About 2.6-2.8x the float32 speed on the seed CNN, 2.3x at width 0.5,
-//              1.7x at 0.25, 2.2x on the MLP; on a trained seed CNN the outputs move about as
-//              much as with bfloat16 (XY mean error +0.1 %; docs/benchmarks/runtime.md). create()
-//              returns kUnsupported when the CPU lacks AVX512_VNNI (kKernels/kAuto) or the backend
-//              is kOneDnn; kPortable computes the same integer sums on any CPU (slowly, for tests).
+//   kInt8      the layers that carry at least 1/40 of the multiply-adds and whose input is a
+//              ReLU output (seed CNN: conv1, conv2, conv3, fc0, fc1 = 99 % of the work) run as
+//              unsigned 8-bit activations x signed 8-bit weights with exact int32 sums
+//              (vpdpbusd); the first layer (signed fields), the head and the small layers stay
+//              float32. Weights: symmetric per output channel and 3x3 tap (scale max |w| / 127),
+//              quantised at create(). Activations: per input row (a grid cell of one sample, or
+//              one sample), scale max / 255 of that row, computed during the run (no calibration
+//              data), so a sample's result does not depend on its batch. Scales, bias, ReLU and
+//              pooling in float32; convolutions direct. On the seed CNN about 2.3x the speed of
+//              float32 with Winograd convolutions (3x direct float32); on a trained seed CNN the
+//              XY mean error moves by +0.13 % (docs/benchmarks/runtime.md). create() returns
+//              kUnsupported when the CPU lacks AVX512_VNNI (kKernels/kAuto) or the backend is
+//              kOneDnn; kPortable computes the same integer sums on any CPU (slowly, for tests).
+// Convolutions (RuntimeOptions::convolution; kKernels and kPortable, float32):
+//   kDirect    the in-bounds taps of the grid, each a product of the cells' rows by the tap's
+//              weights (on the seed CNN's 4x4 grid: 100 (cell, tap) pairs per channel pair).
+//   kWinograd  Winograd F(2x2, 3x3): the grid in 2x2 output tiles, each tile's 4x4 input
+//              transformed (B^T d B, additions only), 16 products per tile and channel pair with
+//              weights transformed at create() (G g G^T, computed in double, stored in float32),
+//              and the result transformed back (A^T m A) with bias and ReLU. On a 4x4 grid: 64
+//              products per channel pair instead of 100, for 16/9 the conv weight bytes. Still
+//              float32 throughout; the outputs differ from kDirect by rounding only (LibTorch
+//              equality holds for both; docs/benchmarks/runtime.md).
+//   kAuto      Winograd for the float32 convolutions with at least 32 input channels (narrower
+//              ones run faster direct) when the grid needs fewer products with it (16 per tile
+//              against the in-bounds taps: true on square grids from 4x4 up, false on 2x2 and
+//              3x3), else kDirect. On the seed CNN: conv1-conv3 Winograd, 1.4x the speed of
+//              kDirect at batch 1. kWinograd runs every convolution so. bfloat16 and int8 always
+//              run direct; create() returns kUnsupported for kWinograd with them or with the
+//              oneDNN backend.
 #pragma once
 
 #include <cstdint>
@@ -75,6 +93,7 @@ namespace skinbus::fusion {
 
 enum class RuntimeBackend : uint8_t { kAuto, kKernels, kPortable, kOneDnn };
 enum class RuntimePrecision : uint8_t { kFloat32, kBfloat16, kInt8 };
+enum class RuntimeConvolution : uint8_t { kAuto, kDirect, kWinograd };
 
 constexpr const char* runtime_backend_name(RuntimeBackend b) {
   switch (b) {
@@ -102,9 +121,22 @@ constexpr const char* runtime_precision_name(RuntimePrecision p) {
   return "unknown";
 }
 
+constexpr const char* runtime_convolution_name(RuntimeConvolution c) {
+  switch (c) {
+    case RuntimeConvolution::kAuto:
+      return "auto";
+    case RuntimeConvolution::kDirect:
+      return "direct";
+    case RuntimeConvolution::kWinograd:
+      return "winograd";
+  }
+  return "unknown";
+}
+
 struct RuntimeOptions {
   RuntimeBackend backend = RuntimeBackend::kAuto;
   RuntimePrecision precision = RuntimePrecision::kFloat32;
+  RuntimeConvolution convolution = RuntimeConvolution::kAuto;
   int threads = 1;         // calling thread + (threads - 1) persistent workers; 1..64
   int spin_us = 200;       // threads > 1: spin this long before sleeping; 0..100000, 0 = never
   InputLimits limits;      // saturation threshold for check_sample()
@@ -150,7 +182,14 @@ class NetworkRuntime {
   int threads() const;
   RuntimeBackend backend() const;  // the backend in use (kAuto resolved)
   RuntimePrecision precision() const;
-  // A short description of the kernels in use, e.g. "kernels avx512 float32".
+  // Multiply-adds per sample as this runtime computes them: ModelFile::macs() with direct
+  // convolutions, 16 per 2x2 tile and channel pair for Winograd ones (the transforms' additions
+  // not counted). For a float32 floor: 2 x macs() / the FMA peak.
+  int64_t macs() const;
+  // The convolution algorithm in use: kWinograd when any convolution runs so, else kDirect (also
+  // for MLPs and the oneDNN backend).
+  RuntimeConvolution convolution() const;
+  // A short description of the kernels in use, e.g. "kernels avx512 float32 winograd".
   const char* kernel_name() const;
 
   struct Impl;
