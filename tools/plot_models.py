@@ -39,16 +39,26 @@ def main():
         pts = [(float(r[column]), deep_mean.get(r["estimator"], float("nan")), r["estimator"])
                for r in table]
         pts = [p for p in pts if p[0] > 0 and p[1] == p[1]]
-        # One colour per model, one marker per precision; only the float32 rows are labelled.
-        families = list(dict.fromkeys(n.replace(" bfloat16", "").replace(" int8", "")
-                                      for _, _, n in pts))
+        # One colour per model, one marker per precision (and for float32 with direct
+        # convolutions where the default is Winograd); only the default float32 rows are labelled.
+        def family_of(name):
+            for suffix in (" bfloat16", " int8", " direct"):
+                name = name.replace(suffix, "")
+            return name
+
+        def marker_of(name):
+            return ("s" if name.endswith(" bfloat16") else "^" if name.endswith(" int8")
+                    else "D" if name.endswith(" direct") else "o")
+
+        families = list(dict.fromkeys(family_of(n) for _, _, n in pts))
         for t, e, name in pts:
-            family = name.replace(" bfloat16", "").replace(" int8", "")
-            marker = "s" if name.endswith(" bfloat16") else "^" if name.endswith(" int8") else "o"
+            family = family_of(name)
+            marker = marker_of(name)
             ax.scatter(t, e, s=40, marker=marker, color="C%d" % (families.index(family) % 10))
             if marker == "o":
                 ax.annotate(name, (t, e), textcoords="offset points", xytext=(5, 4), fontsize=8)
-        for marker, label in (("o", "float32 / other"), ("s", "bfloat16"), ("^", "int8")):
+        for marker, label in (("o", "float32 / other"), ("D", "float32, direct convolutions"),
+                              ("s", "bfloat16"), ("^", "int8")):
             ax.scatter([], [], marker=marker, color="0.4", label=label)
         front, best = [], float("inf")
         for t, e, _ in sorted(pts):
