@@ -330,6 +330,13 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
   std::size_t packed = 0, packed8 = 0;
   int64_t tap_cells = 0;  // in-bounds (cell, tap) pairs of a convolution
   for (const Tap& tap : taps) tap_cells += static_cast<int64_t>(tap.out_cell.size());
+  // kAuto: Winograd only where its 16 products per tile are fewer than the in-bounds taps (the
+  // 4x4 grid: 64 against 100; 3x3: 64 against 49).
+  if (winograd && opt.convolution == RuntimeConvolution::kAuto &&
+      int64_t{kWinogradPoints} * static_cast<int64_t>(wtiles.size()) >= tap_cells) {
+    winograd = false;
+    wtiles.clear();
+  }
   const int64_t total_macs = model.macs();
   bool any_winograd = false;
   auto add_layer = [&](const std::string& name, bool conv, int out, bool relu) {
@@ -628,57 +635,58 @@ void NetworkRuntime::Impl::forward_kernels(Slot& s, int n) {
     // to kMaxRows samples' same cell (the same products in the same order as tap by tap, so the
     // same bits, without storing and reloading the accumulators between taps).
     const bool by_cell = l.conv && !l.int8 && !bf16 && n >= kByCellMinSamples;
-    for (const ColBlock& b : l.blocks) {
-      if (l.winograd) {
-        forward_winograd(l, s, a32, a_ld, out, n);  // every column block at once
-        break;
-      }
-      if (by_cell) {
-        forward_cell_block(l, b, a32, a_ld, out, n);
-        continue;
-      }
-      const int ntaps = l.conv ? static_cast<int>(taps.size()) : 1;
-      const int cols = kLanes * b.vectors;
-      for (int t = 0; t < ntaps; ++t) {
-        const Tap* tap = l.conv ? &taps[static_cast<std::size_t>(t)] : nullptr;
-        const int nt = l.conv ? static_cast<int>(tap->out_cell.size()) : 1;
-        const int total = n * nt;
-        const bool relu = !l.conv && l.relu;
-        const std::size_t panel = b.offset + b.panel * static_cast<std::size_t>(t);
-        const int k_steps = l.int8 ? l.k_quads : bf16 ? l.k_pairs : l.k;
-        const int k_block = l.int8 || bf16 ? kKBlock : kKBlockF32;
-        for (int k0 = 0; k0 < k_steps; k0 += k_block) {
-          const int kn = std::min(k_block, k_steps - k0);
-          const bool last_k = k0 + kn == k_steps;
-          const float* bias = t == 0 && k0 == 0 ? l.bias.data() + b.col0 : nullptr;
-          const std::ptrdiff_t a_k = l.int8 ? 4 * k0 : bf16 ? 2 * k0 : k0;
-          for (int r0 = 0; r0 < total; r0 += kMaxRows) {
-            const int r = std::min(kMaxRows, total - r0);
-            for (int i = 0; i < r; ++i) {
-              const int in_row = l.conv ? tap->chunk_in[r0 + i] : r0 + i;
-              const int out_row = l.conv ? tap->chunk_out[r0 + i] : r0 + i;
-              const std::ptrdiff_t a_off = static_cast<std::ptrdiff_t>(in_row) * a_ld + a_k;
-              const std::ptrdiff_t c_off = static_cast<std::ptrdiff_t>(out_row) * l.n_ld + b.col0;
-              c_rows[i] = out + c_off;
-              if (l.int8) {
-                q_rows[i] = s.q.data() + a_off;
-                q_scales[i] = s.q_scale[static_cast<std::size_t>(in_row)];
-              } else {
-                a_rows[i] = a32 + a_off;
-                if (bf16) h_rows[i] = s.h.data() + a_off;
+    if (l.winograd) {
+      forward_winograd(l, s, a32, a_ld, out, n);
+    } else {
+      for (const ColBlock& b : l.blocks) {
+        if (by_cell) {
+          forward_cell_block(l, b, a32, a_ld, out, n);
+          continue;
+        }
+        const int ntaps = l.conv ? static_cast<int>(taps.size()) : 1;
+        const int cols = kLanes * b.vectors;
+        for (int t = 0; t < ntaps; ++t) {
+          const Tap* tap = l.conv ? &taps[static_cast<std::size_t>(t)] : nullptr;
+          const int nt = l.conv ? static_cast<int>(tap->out_cell.size()) : 1;
+          const int total = n * nt;
+          const bool relu = !l.conv && l.relu;
+          const std::size_t panel = b.offset + b.panel * static_cast<std::size_t>(t);
+          const int k_steps = l.int8 ? l.k_quads : bf16 ? l.k_pairs : l.k;
+          const int k_block = l.int8 || bf16 ? kKBlock : kKBlockF32;
+          for (int k0 = 0; k0 < k_steps; k0 += k_block) {
+            const int kn = std::min(k_block, k_steps - k0);
+            const bool last_k = k0 + kn == k_steps;
+            const float* bias = t == 0 && k0 == 0 ? l.bias.data() + b.col0 : nullptr;
+            const std::ptrdiff_t a_k = l.int8 ? 4 * k0 : bf16 ? 2 * k0 : k0;
+            for (int r0 = 0; r0 < total; r0 += kMaxRows) {
+              const int r = std::min(kMaxRows, total - r0);
+              for (int i = 0; i < r; ++i) {
+                const int in_row = l.conv ? tap->chunk_in[r0 + i] : r0 + i;
+                const int out_row = l.conv ? tap->chunk_out[r0 + i] : r0 + i;
+                const std::ptrdiff_t a_off = static_cast<std::ptrdiff_t>(in_row) * a_ld + a_k;
+                const std::ptrdiff_t c_off = static_cast<std::ptrdiff_t>(out_row) * l.n_ld + b.col0;
+                c_rows[i] = out + c_off;
+                if (l.int8) {
+                  q_rows[i] = s.q.data() + a_off;
+                  q_scales[i] = s.q_scale[static_cast<std::size_t>(in_row)];
+                } else {
+                  a_rows[i] = a32 + a_off;
+                  if (bf16) h_rows[i] = s.h.data() + a_off;
+                }
               }
-            }
-            if (l.int8) {
-              ks->i8[r - 1][b.vectors - 1](
-                  q_rows, w8.data() + panel + 4 * k0 * cols, kn, c_rows, bias, q_scales,
-                  l.w_scale.data() + static_cast<std::ptrdiff_t>(t) * l.n_ld + b.col0,
-                  relu && last_k);
-            } else if (bf16) {
-              ks->bf16[r - 1][b.vectors - 1](h_rows, w16.data() + panel + 2 * k0 * cols, kn, c_rows,
-                                             bias, relu && last_k);
-            } else {
-              const float* panel_k = w32.data() + panel + k0 * cols;
-              ks->f32[r - 1][b.vectors - 1](a_rows, &panel_k, 1, kn, c_rows, bias, relu && last_k);
+              if (l.int8) {
+                ks->i8[r - 1][b.vectors - 1](
+                    q_rows, w8.data() + panel + 4 * k0 * cols, kn, c_rows, bias, q_scales,
+                    l.w_scale.data() + static_cast<std::ptrdiff_t>(t) * l.n_ld + b.col0,
+                    relu && last_k);
+              } else if (bf16) {
+                ks->bf16[r - 1][b.vectors - 1](h_rows, w16.data() + panel + 2 * k0 * cols, kn,
+                                               c_rows, bias, relu && last_k);
+              } else {
+                const float* panel_k = w32.data() + panel + k0 * cols;
+                ks->f32[r - 1][b.vectors - 1](a_rows, &panel_k, 1, kn, c_rows, bias,
+                                              relu && last_k);
+              }
             }
           }
         }
@@ -901,17 +909,12 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
       im.macs = model.macs();
     }
   }
-  // Convolutions: Winograd for float32 on this library's kernels when it needs fewer products
-  // than the in-bounds taps (a 1-D grid side of n has 3n - 2 in-bounds (cell, tap) pairs, 1 when
-  // n is 1; Winograd 16 per 2x2 tile), for the layers with kWinogradMinInputs inputs or more
+  // Convolutions: Winograd a candidate for float32 on this library's kernels; build_kernels()
+  // keeps it where it computes less, for the layers with kWinogradMinInputs inputs or more,
   // unless asked for every layer.
-  if (im.cnn && !im.bf16 && !im.int8 && !im.dnn) {
-    auto side_taps = [](int n) { return n == 1 ? 1 : 3 * n - 2; };
-    const int64_t direct = static_cast<int64_t>(side_taps(a.grid_rows)) * side_taps(a.grid_cols);
-    const int64_t winograd =
-        int64_t{kWinogradPoints} * ((a.grid_rows + 1) / 2) * ((a.grid_cols + 1) / 2);
-    im.winograd = options.convolution == RuntimeConvolution::kWinograd ||
-                  (options.convolution == RuntimeConvolution::kAuto && winograd < direct);
+  if (im.cnn && !im.bf16 && !im.int8 && !im.dnn &&
+      options.convolution != RuntimeConvolution::kDirect) {
+    im.winograd = true;
     im.winograd_min_inputs =
         options.convolution == RuntimeConvolution::kWinograd ? 0 : kWinogradMinInputs;
   }
