@@ -37,10 +37,10 @@ ModelFile model_for(const std::string& which, uint64_t seed = 11) {
 }
 
 // Tared fields of realistic scale: tens to hundreds of uT.
-std::vector<double> fields(int batch, uint32_t seed) {
+std::vector<double> fields(int batch, uint32_t seed, int channels = kChannels) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-250.0, 250.0);
-  std::vector<double> f(static_cast<std::size_t>(batch) * kChannels);
+  std::vector<double> f(static_cast<std::size_t>(batch) * static_cast<std::size_t>(channels));
   for (double& v : f) v = u(rng);
   return f;
 }
@@ -214,7 +214,6 @@ TEST(NetworkRuntimeTest, WinogradMatchesLibTorchOnEveryGridSide) {
   for (int side : {1, 2, 3, 5}) {
     auto model = random_model(seed_cnn(0.25, side, side), side * side, 3);
     ASSERT_TRUE(model.ok()) << model.error().to_string();
-    const int channels = 3 * side * side;
     for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kPortable}) {
       RuntimeOptions o;
       o.backend = b;
@@ -223,10 +222,8 @@ TEST(NetworkRuntimeTest, WinogradMatchesLibTorchOnEveryGridSide) {
       ASSERT_TRUE(rt.ok()) << rt.error().to_string();
       ASSERT_EQ(rt->convolution(), RuntimeConvolution::kWinograd);
       for (int batch : {1, 9}) {
-        std::mt19937 rng(static_cast<uint32_t>(side * 100 + batch));
-        std::uniform_real_distribution<double> u(-250.0, 250.0);
-        std::vector<double> f(static_cast<std::size_t>(batch * channels));
-        for (double& v : f) v = u(rng);
+        const std::vector<double> f =
+            fields(batch, static_cast<uint32_t>(side * 100 + batch), 3 * side * side);
         auto want = torch_forward(*model, f, batch, 1);
         ASSERT_TRUE(want.ok()) << want.error().to_string();
         std::vector<double> got(static_cast<std::size_t>(batch) * 4);
