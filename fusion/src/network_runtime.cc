@@ -53,6 +53,19 @@ int round_up(int n, int m) {
   return (n + m - 1) / m * m;
 }
 
+// `rows` kernel rows split into the fewest blocks of at most kMaxRows, of nearly equal size
+// (16 = 6 + 5 + 5, not 6 + 6 + 4): block `block` of row_blocks(rows) is [first, first + count).
+int row_blocks(int rows) {
+  return (rows + kMaxRows - 1) / kMaxRows;
+}
+struct RowBlock {
+  int first, count;
+};
+RowBlock row_block(int rows, int block, int blocks) {
+  const int first = rows * block / blocks;
+  return {first, rows * (block + 1) / blocks - first};
+}
+
 // A zero-filled, 64-byte aligned array.
 template <typename T>
 class Aligned {
@@ -524,7 +537,7 @@ void NetworkRuntime::Impl::forward_cell_block(const KernelLayer& l, const ColBlo
   const float* a_rows[kMaxTaps * kMaxRows];
   const float* panels[kMaxTaps];
   float* c_rows[kMaxRows];
-  const int blocks = (n + kMaxRows - 1) / kMaxRows;
+  const int blocks = row_blocks(n);
   for (int cell = 0; cell < cells; ++cell) {
     const CellTaps& ct = cell_taps[static_cast<std::size_t>(cell)];
     const int segments = static_cast<int>(ct.tap.size());
@@ -532,9 +545,8 @@ void NetworkRuntime::Impl::forward_cell_block(const KernelLayer& l, const ColBlo
       panels[seg] = w32.data() + b.offset +
                     b.panel * static_cast<std::size_t>(ct.tap[static_cast<std::size_t>(seg)]);
     }
-    // Samples in `blocks` row blocks of nearly equal size (16 = 6 + 5 + 5, not 6 + 6 + 4).
     for (int block = 0; block < blocks; ++block) {
-      const int r0 = n * block / blocks, r = n * (block + 1) / blocks - r0;
+      const auto [r0, r] = row_block(n, block, blocks);
       for (int i = 0; i < r; ++i) {
         const std::ptrdiff_t sample_row = static_cast<std::ptrdiff_t>(r0 + i) * cells;
         c_rows[i] = out + (sample_row + cell) * l.n_ld + b.col0;
@@ -573,7 +585,7 @@ void NetworkRuntime::Impl::forward_winograd(const KernelLayer& l, Slot& s, const
   float* c_rows[kMaxRows];
   const float* m[kWinogradPoints];
   float* y[4];
-  const int blocks = (rows + kMaxRows - 1) / kMaxRows;
+  const int blocks = row_blocks(rows);
   for (const ColBlock& b : l.blocks) {
     const int cols = kLanes * b.vectors;
     // The 16 products of every row for this block's columns: one matrix product per point.
@@ -582,9 +594,8 @@ void NetworkRuntime::Impl::forward_winograd(const KernelLayer& l, Slot& s, const
       for (int k0 = 0; k0 < l.k; k0 += kKBlockF32) {
         const int kn = std::min(kKBlockF32, l.k - k0);
         const float* panel_k = panel + static_cast<std::ptrdiff_t>(k0) * cols;
-        // Rows in `blocks` blocks of nearly equal size.
         for (int block = 0; block < blocks; ++block) {
-          const int r0 = rows * block / blocks, r = rows * (block + 1) / blocks - r0;
+          const auto [r0, r] = row_block(rows, block, blocks);
           for (int i = 0; i < r; ++i) {
             const std::ptrdiff_t at = p * point_rows + r0 + i;
             a_rows[i] = s.wv.data() + at * a_ld + k0;
