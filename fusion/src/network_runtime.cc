@@ -247,8 +247,7 @@ struct NetworkRuntime::Impl {
   std::vector<KernelLayer> layers;
   std::vector<Tap> taps;            // centre first
   std::vector<CellTaps> cell_taps;  // per output cell
-  bool winograd = false;            // float32 convolutions may run as Winograd F(2x2, 3x3)
-  int winograd_min_inputs = 0;      // ... those with at least this many input channels
+  bool winograd = false;            // some float32 convolutions run as Winograd F(2x2, 3x3)
   int64_t macs = 0;                 // multiply-adds per sample as computed
   std::vector<WinogradTile> wtiles;
   Aligned<float> zeros;  // a zero row as wide as the widest layer
@@ -285,6 +284,11 @@ const char* output_names[4] = {"u_mm", "v_mm", "depth_mm", "force_n"};
 
 Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
   const Architecture& a = model.meta.architecture;
+  // Convolutions: Winograd a candidate for float32 (kept below where it computes less), for the
+  // layers with kWinogradMinInputs inputs or more unless asked for every layer.
+  winograd = cnn && !bf16 && !int8 && opt.convolution != RuntimeConvolution::kDirect;
+  const int winograd_min_inputs =
+      opt.convolution == RuntimeConvolution::kWinograd ? 0 : kWinogradMinInputs;
   // Taps of the grid, centre first (it covers every cell, so it initialises every row).
   if (cnn) {
     for (int t : {4, 0, 1, 2, 3, 5, 6, 7, 8}) {
@@ -919,15 +923,6 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
       im.kernel_name = "onednn float32";
       im.macs = model.macs();
     }
-  }
-  // Convolutions: Winograd a candidate for float32 on this library's kernels; build_kernels()
-  // keeps it where it computes less, for the layers with kWinogradMinInputs inputs or more,
-  // unless asked for every layer.
-  if (im.cnn && !im.bf16 && !im.int8 && !im.dnn &&
-      options.convolution != RuntimeConvolution::kDirect) {
-    im.winograd = true;
-    im.winograd_min_inputs =
-        options.convolution == RuntimeConvolution::kWinograd ? 0 : kWinogradMinInputs;
   }
   // Where each channel lands in an input row.
   if (im.dnn) {
