@@ -10,8 +10,8 @@
 //   bfloat16: panel[k / 2][16 * V][2]       (pairs of K, the vdpbf16ps layout; K padded to even
 //                                            with zeros, A rows likewise zero at the pad)
 //   int8:     panel[k / 4][16 * V][4]       (quads of K, the vpdpbusd layout: A rows unsigned
-//                                            8-bit, B signed 8-bit, K padded to a multiple of 4
-//                                            with zeros)
+//                                            8-bit in 0..kActMax, B signed 8-bit in -127..127, K
+//                                            padded to a multiple of 4 with zeros)
 // The float32 kernels sum `segments` such products into the same accumulators, in order:
 // segment s multiplies the R rows a[s * R .. s * R + R) by the panel b[s] (one call covers every
 // in-bounds tap of a group of output rows, so the accumulators never leave the registers between
@@ -22,12 +22,18 @@
 #pragma once
 
 #include <cstdint>
+#include <string_view>
 
 namespace skinbus::fusion::detail {
 
 inline constexpr int kMaxRows = 6;
 inline constexpr int kMaxVectors = 4;
 inline constexpr int kLanes = 16;  // floats per column vector
+// int8 activations are quantised to 0..kActMax: 7 bits, so that every instruction set computes
+// the same exact int32 sums: a pair of products (AVX2 vpmaddubsw's 16-bit intermediate) stays
+// within 2 x 127 x 127 = 32258 < 32767, and NEON's signed dot product takes them as they are.
+inline constexpr int kActMax = 127;
+inline constexpr float kActMaxF = 127.0f;
 
 using GemmF32 = void (*)(const float* const* a, const float* const* b, int segments, int k,
                          float* const* c, const float* bias, bool relu);
@@ -35,9 +41,9 @@ using GemmBf16 = void (*)(const uint16_t* const* a, const uint16_t* b, int k_pai
                           const float* bias, bool relu);
 using GemmI8 = void (*)(const uint8_t* const* a, const int8_t* b, int k_quads, float* const* c,
                         const float* bias, const float* a_scale, const float* w_scale, bool relu);
-// Quantises `n` floats (one activation row, >= 0 after ReLU; negatives clamp to 0) to unsigned
-// 8 bits: out = round(x / scale) with scale = max(x) / 255. Returns the scale: 0 when every
-// value is 0, NaN when any value is not finite (so the sample's outputs become NaN).
+// Quantises `n` floats (one activation row, >= 0 after ReLU; negatives clamp to 0) to 0..kActMax:
+// out = round(x / scale) with scale = max(x) / kActMax. Returns the scale: 0 when every value is
+// 0, NaN when any value is not finite (so the sample's outputs become NaN).
 using QuantiseU8 = float (*)(const float* x, int n, uint8_t* out);
 // Rounds `n` floats to bfloat16 (round to nearest even), applying max(0, .) first when `relu`.
 using ToBf16 = void (*)(const float* in, uint16_t* out, int n, bool relu);
@@ -60,8 +66,9 @@ using PoolF32 = void (*)(const float* x, int cells, int ld, int c, float* out);
 struct KernelSet {
   const char* name = "";
   GemmF32 f32[kMaxRows][kMaxVectors] = {};
-  GemmBf16 bf16[kMaxRows][kMaxVectors] = {};  // null when the CPU lacks AVX512_BF16
-  GemmI8 i8[kMaxRows][kMaxVectors] = {};      // null when the CPU lacks AVX512_VNNI
+  GemmBf16 bf16[kMaxRows][kMaxVectors] = {};  // null where the set has no bfloat16 kernels
+  GemmI8 i8[kMaxRows][kMaxVectors] = {};      // null where the set has no int8 kernels
+  const char* i8_name = "";                   // the int8 instructions, e.g. "avx512-vnni"
   QuantiseU8 quantise_u8 = nullptr;
   ToBf16 to_bf16 = nullptr;
   ReluF32 relu = nullptr;
@@ -70,12 +77,32 @@ struct KernelSet {
   WinogradOutput winograd_output = nullptr;
 };
 
+// The instruction sets the kernels are written for, widest first.
+enum class KernelIsa : uint8_t { kAvx512, kAvx2, kNeon, kPortable };
+
 // Plain C++ kernels for any CPU (bf16 entries emulate vdpbf16ps exactly enough for tests; int8
-// entries compute the same integer sums as vpdpbusd).
+// entries compute the same integer sums as every vector set).
 const KernelSet& portable_kernels();
-// AVX-512 kernels when the CPU has AVX-512F (and AVX512_BF16 for the bf16 entries, AVX512_VNNI
-// for the int8 entries), else null.
+// AVX-512 kernels when the CPU has AVX-512F/VL/BW/DQ and FMA, else null. bfloat16 runs vdpbf16ps
+// with AVX512_BF16, int8 vpdpbusd with AVX512_VNNI; without them those entries are the AVX2
+// set's.
 const KernelSet* avx512_kernels();
+// AVX2 + FMA kernels (x86-64-v3) when the CPU has them, else null. float32 in 8-float halves of
+// each 16-column vector (a tile of R rows x 16V columns runs as column groups that fit the 16
+// ymm registers); int8 as vpmaddubsw + vpmaddwd, or vpdpbusd (AVX-VNNI) where present; bfloat16
+// widened to float32 and summed with FMA.
+const KernelSet* avx2_kernels();
+// NEON kernels on aarch64 (int8 with the dot-product instructions where present), else null.
+const KernelSet* neon_kernels();
+// The set for `isa`, or null when this CPU or build lacks it (portable: always).
+const KernelSet* kernels_for(KernelIsa isa);
+const char* kernel_isa_name(KernelIsa isa);  // "avx512", "avx2", "neon", "portable"
+bool parse_kernel_isa(std::string_view name, KernelIsa* isa);
+// The cap named by the environment variable SKINBUS_MAX_ISA (avx512, avx2, neon, portable;
+// anything else: portable), read once; kAvx512 (no cap) when unset.
+KernelIsa env_isa_cap();
+// The widest set this CPU has, at most `cap`: the portable set when none.
+const KernelSet& best_kernels(KernelIsa cap);
 
 // Round-to-nearest-even conversion of one float to bfloat16 bits (finite inputs).
 inline uint16_t to_bf16_bits(float f) {

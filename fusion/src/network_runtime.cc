@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <string_view>
 #include <thread>
 #include <vector>
 
@@ -17,6 +18,13 @@ namespace skinbus::fusion {
 namespace {
 
 using detail::KernelSet;
+// RuntimeOptions::max_isa names the kernel sets in their order.
+static_assert(static_cast<int>(RuntimeIsa::kAvx512) ==
+                  static_cast<int>(detail::KernelIsa::kAvx512) &&
+              static_cast<int>(RuntimeIsa::kAvx2) == static_cast<int>(detail::KernelIsa::kAvx2) &&
+              static_cast<int>(RuntimeIsa::kNeon) == static_cast<int>(detail::KernelIsa::kNeon) &&
+              static_cast<int>(RuntimeIsa::kPortable) ==
+                  static_cast<int>(detail::KernelIsa::kPortable));
 using detail::kLanes;
 using detail::kMaxRows;
 using detail::kMaxVectors;
@@ -880,25 +888,32 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
   im.out_scale = meta.output_scale;
 
   // Backend and kernels.
-  const KernelSet* avx = detail::avx512_kernels();
   im.bf16 = options.precision == RuntimePrecision::kBfloat16;
   im.int8 = options.precision == RuntimePrecision::kInt8;
   if (!im.bf16 && !im.int8 && options.precision != RuntimePrecision::kFloat32) {
     return make_error(ErrorCode::kInvalidArgument, "unknown precision");
   }
+  const KernelSet& best = detail::best_kernels(
+      std::max(detail::env_isa_cap(), static_cast<detail::KernelIsa>(options.max_isa)));
   RuntimeBackend be = options.backend;
-  if (be == RuntimeBackend::kAuto)
-    be = avx != nullptr || im.bf16 || im.int8 ? RuntimeBackend::kKernels : RuntimeBackend::kOneDnn;
+  // kAuto: this library's kernels for the widest instruction set the CPU has, on every CPU.
+  // oneDNN was slower than them everywhere it was measured, and 50x slower than the portable
+  // kernels on AVX2 (docs/benchmarks/runtime.md): it runs only when asked for.
+  if (be == RuntimeBackend::kAuto) be = RuntimeBackend::kKernels;
   if (be == RuntimeBackend::kOneDnn && (im.bf16 || im.int8)) {
     return make_error(ErrorCode::kUnsupported, "the oneDNN backend serves float32 only");
   }
   if (be == RuntimeBackend::kKernels) {
-    im.ks = avx != nullptr ? avx : &detail::portable_kernels();
-    if (im.bf16 && (avx == nullptr || avx->bf16[0][0] == nullptr)) {
-      return make_error(ErrorCode::kUnsupported, "bfloat16 needs a CPU with AVX512_BF16");
+    im.ks = &best;
+    if (im.bf16 && best.bf16[0][0] == nullptr) {
+      return make_error(ErrorCode::kUnsupported,
+                        std::string("bfloat16 has no kernels for this CPU (kernels ") + best.name +
+                            "): it needs AVX2 or AVX-512; the portable backend emulates it");
     }
-    if (im.int8 && (avx == nullptr || avx->i8[0][0] == nullptr)) {
-      return make_error(ErrorCode::kUnsupported, "int8 needs a CPU with AVX512_VNNI");
+    if (im.int8 && best.i8[0][0] == nullptr) {
+      return make_error(ErrorCode::kUnsupported,
+                        std::string("int8 has no kernels for this CPU (kernels ") + best.name +
+                            "): it needs AVX2, AVX-512 or NEON; the portable backend emulates it");
     }
   } else if (be == RuntimeBackend::kPortable) {
     im.ks = &detail::portable_kernels();
@@ -912,10 +927,7 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
   im.slots.resize(static_cast<std::size_t>(options.threads));
   if (be == RuntimeBackend::kOneDnn) {
     auto net = detail::OneDnnNet::create(model, options.threads);
-    if (!net.ok() && options.backend == RuntimeBackend::kAuto) {
-      im.backend = be = RuntimeBackend::kPortable;
-      im.ks = &detail::portable_kernels();
-    } else if (!net.ok()) {
+    if (!net.ok()) {
       return net.error();
     } else {
       im.dnn = std::move(net.value());
@@ -942,6 +954,9 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
     if (Status st = im.build_kernels(model); !st.ok()) return st.error();
     im.kernel_name =
         std::string("kernels ") + im.ks->name + " " + runtime_precision_name(options.precision);
+    if (im.int8 && std::string_view(im.ks->i8_name) != im.ks->name) {
+      im.kernel_name += std::string(" (") + im.ks->i8_name + ")";
+    }
     if (be == RuntimeBackend::kPortable) {
       im.kernel_name = std::string("portable ") + runtime_precision_name(options.precision);
     }

@@ -32,35 +32,40 @@
 // one runtime per thread or a lock); different runtimes are independent.
 //
 // Backends (RuntimeOptions::backend):
-//   kAuto     the fastest measured on this machine class (docs/benchmarks/runtime.md): kKernels
-//             where the CPU has AVX-512, else kOneDnn for float32, kPortable if oneDNN refuses.
+//   kAuto     kKernels, on every CPU (the fastest measured everywhere; docs/benchmarks/runtime.md).
 //   kKernels  this library's register-blocked kernels on packed weights; convolutions compute
-//             only the in-bounds taps of the grid. AVX-512 code is selected at run time
-//             (float32: AVX-512F; bfloat16: AVX512_BF16; int8: AVX512_VNNI); without it float32
-//             falls back to the portable kernels.
+//             only the in-bounds taps of the grid. The widest instruction set the CPU has (and
+//             RuntimeOptions::max_isa allows) is selected at run time: AVX-512 (F/VL/BW/DQ;
+//             bfloat16 with AVX512_BF16, int8 with AVX512_VNNI, else those two from the AVX2
+//             set), AVX2 + FMA (int8 with AVX-VNNI where present, else vpmaddubsw), NEON on
+//             aarch64; else the portable kernels.
 //   kPortable the same plan with plain C++ kernels (any CPU; for comparison and fallback).
-//   kOneDnn   oneDNN primitives (convolution with fused ReLU, inner product), float32 only.
+//   kOneDnn   oneDNN primitives (convolution with fused ReLU, inner product), float32 only; only
+//             when asked for (slower than kKernels on every CPU measured).
 // Precision (RuntimeOptions::precision):
 //   kFloat32   matches LibTorch on the same weights to well below 1e-3 mm.
 //   kBfloat16  weights and activations rounded to bfloat16, products accumulated in float32
-//              (vdpbf16ps), convolutions direct; on the seed CNN about 1.9x the speed of direct
-//              float32, 1.4x Winograd float32. On random models the outputs differ from float32
-//              by at most 0.01-0.5 % of each output's scale (0.005 mm on the seed CNN, 0.2 mm on
-//              an MLP at a 40 mm scale; docs/benchmarks/runtime.md). create()
-//              returns kUnsupported when the CPU lacks AVX512_BF16 (kKernels/kAuto) or the
-//              backend is kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
+//              (vdpbf16ps on AVX512_BF16; widened to float32 and FMA on AVX2, which saves
+//              memory traffic, not arithmetic), convolutions direct; on the seed CNN with
+//              AVX512_BF16 about 1.9x the speed of direct float32, 1.4x Winograd float32. On random
+//              models the outputs differ from float32 by at most 0.01-0.5 % of each output's scale
+//              (0.005 mm on the seed CNN, 0.2 mm on an MLP at a 40 mm scale;
+//              docs/benchmarks/runtime.md). create() returns kUnsupported when the kernels have no
+//              bfloat16 for this CPU (kKernels/ kAuto without AVX2 or AVX-512) or the backend is
+//              kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
 //   kInt8      the layers that carry at least 1/40 of the multiply-adds and whose input is a
 //              ReLU output (seed CNN: conv1, conv2, conv3, fc0, fc1 = 99 % of the work) run as
-//              unsigned 8-bit activations x signed 8-bit weights with exact int32 sums
-//              (vpdpbusd); the first layer (signed fields), the head and the small layers stay
-//              float32. Weights: symmetric per output channel and 3x3 tap (scale max |w| / 127),
-//              quantised at create(). Activations: per input row (a grid cell of one sample, or
-//              one sample), scale max / 255 of that row, computed during the run (no calibration
-//              data), so a sample's result does not depend on its batch. Scales, bias, ReLU and
-//              pooling in float32; convolutions direct. On the seed CNN about 2.3x the speed of
-//              float32 with Winograd convolutions (3x direct float32); on a trained seed CNN the
-//              XY mean error moves by +0.13 % (docs/benchmarks/runtime.md). create() returns
-//              kUnsupported when the CPU lacks AVX512_VNNI (kKernels/kAuto) or the backend is
+//              7-bit unsigned activations (0..127) x signed 8-bit weights with exact int32 sums
+//              (vpdpbusd on AVX512_VNNI or AVX-VNNI, vpmaddubsw + vpmaddwd on AVX2, sdot on
+//              NEON); 7 bits so that every instruction set computes the same exact sums, and a
+//              sample's result is the same on every CPU. The first layer (signed fields), the
+//              head and the small layers stay float32. Weights: symmetric per output channel and
+//              3x3 tap (scale max |w| / 127), quantised at create(). Activations: per input row
+//              (a grid cell of one sample, or one sample), scale max / 127 of that row,
+//              computed during the run (no calibration data), so a sample's result does not
+//              depend on its batch. Scales, bias, ReLU and pooling in float32; convolutions
+//              direct. Speed and the error it adds: docs/benchmarks/runtime.md. create()
+//              returns kUnsupported when the kernels have no int8 for this CPU or the backend is
 //              kOneDnn; kPortable computes the same integer sums on any CPU (slowly, for tests).
 // Convolutions (RuntimeOptions::convolution; kKernels and kPortable, float32):
 //   kDirect    the in-bounds taps of the grid, each a product of the cells' rows by the tap's
@@ -94,6 +99,8 @@ namespace skinbus::fusion {
 enum class RuntimeBackend : uint8_t { kAuto, kKernels, kPortable, kOneDnn };
 enum class RuntimePrecision : uint8_t { kFloat32, kBfloat16, kInt8 };
 enum class RuntimeConvolution : uint8_t { kAuto, kDirect, kWinograd };
+// The instruction sets of the kernel backend, widest first; RuntimeOptions::max_isa caps them.
+enum class RuntimeIsa : uint8_t { kAvx512, kAvx2, kNeon, kPortable };
 
 constexpr const char* runtime_backend_name(RuntimeBackend b) {
   switch (b) {
@@ -133,10 +140,27 @@ constexpr const char* runtime_convolution_name(RuntimeConvolution c) {
   return "unknown";
 }
 
+constexpr const char* runtime_isa_name(RuntimeIsa i) {
+  switch (i) {
+    case RuntimeIsa::kAvx512:
+      return "avx512";
+    case RuntimeIsa::kAvx2:
+      return "avx2";
+    case RuntimeIsa::kNeon:
+      return "neon";
+    case RuntimeIsa::kPortable:
+      return "portable";
+  }
+  return "unknown";
+}
+
 struct RuntimeOptions {
   RuntimeBackend backend = RuntimeBackend::kAuto;
   RuntimePrecision precision = RuntimePrecision::kFloat32;
   RuntimeConvolution convolution = RuntimeConvolution::kAuto;
+  // kKernels: the widest instruction set the kernels may use (kAvx512: every one the CPU has).
+  // The environment variable SKINBUS_MAX_ISA (same names) caps it further, for a whole process.
+  RuntimeIsa max_isa = RuntimeIsa::kAvx512;
   int threads = 1;         // calling thread + (threads - 1) persistent workers; 1..64
   int spin_us = 200;       // threads > 1: spin this long before sleeping; 0..100000, 0 = never
   InputLimits limits;      // saturation threshold for check_sample()
