@@ -1,6 +1,5 @@
 #include "bench_models.h"
 
-#include <immintrin.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -48,58 +47,12 @@ struct Measured {
   std::vector<ContactEstimate> estimates;
 };
 
-// The machine's float32 multiply-add peak on one core, GFLOP/s: 12 independent AVX-512 FMA chains
-// (named, so they stay in registers) for about 50 ms, best of 5 (0 without AVX-512). Printed
-// before and after the estimators, so a table from a loaded or slower machine says so: a
-// network's float32 floor is 2 x MACs / this peak.
-__attribute__((target("avx512f,fma"))) double fma_peak_avx512_gflops() {
-  constexpr long kIterations = 400000;
-  // (loads and stores, not set1/reduce: GCC 12 warns inside those intrinsics)
-  // Every chain starts elsewhere, so the compiler cannot merge them.
-  float init[12 * 16], fa[16], fb[16];
-  for (int k = 0; k < 12 * 16; ++k) init[k] = 1.0f + 1e-3f * static_cast<float>(k);
-  for (int k = 0; k < 16; ++k) {
-    fa[k] = 0.999999f;
-    fb[k] = 1e-7f;
-  }
-  const __m512 a = _mm512_loadu_ps(fa), b = _mm512_loadu_ps(fb);
-  __m512 c0 = _mm512_loadu_ps(init), c1 = _mm512_loadu_ps(init + 16),
-         c2 = _mm512_loadu_ps(init + 32), c3 = _mm512_loadu_ps(init + 48),
-         c4 = _mm512_loadu_ps(init + 64), c5 = _mm512_loadu_ps(init + 80),
-         c6 = _mm512_loadu_ps(init + 96), c7 = _mm512_loadu_ps(init + 112),
-         c8 = _mm512_loadu_ps(init + 128), c9 = _mm512_loadu_ps(init + 144),
-         c10 = _mm512_loadu_ps(init + 160), c11 = _mm512_loadu_ps(init + 176);
-  double best = 0;
-  for (int rep = 0; rep < 5; ++rep) {
-    const auto t0 = Clock::now();
-    for (long i = 0; i < kIterations; ++i) {
-      c0 = _mm512_fmadd_ps(c0, a, b);
-      c1 = _mm512_fmadd_ps(c1, a, b);
-      c2 = _mm512_fmadd_ps(c2, a, b);
-      c3 = _mm512_fmadd_ps(c3, a, b);
-      c4 = _mm512_fmadd_ps(c4, a, b);
-      c5 = _mm512_fmadd_ps(c5, a, b);
-      c6 = _mm512_fmadd_ps(c6, a, b);
-      c7 = _mm512_fmadd_ps(c7, a, b);
-      c8 = _mm512_fmadd_ps(c8, a, b);
-      c9 = _mm512_fmadd_ps(c9, a, b);
-      c10 = _mm512_fmadd_ps(c10, a, b);
-      c11 = _mm512_fmadd_ps(c11, a, b);
-    }
-    const double s = std::chrono::duration<double>(Clock::now() - t0).count();
-    best = std::max(best, 2.0 * 16 * 12 * static_cast<double>(kIterations) / s * 1e-9);
-  }
-  float sink = 0;
-  for (__m512 c : {c0, c1, c2, c3, c4, c5, c6, c7, c8, c9, c10, c11}) {
-    _mm512_storeu_ps(init, c);
-    for (float v : init) sink += v;
-  }
-  if (!std::isfinite(sink)) std::fprintf(stderr, "skinbus-bench: FMA probe overflowed\n");
-  return best;
-}
-
-double fma_peak_gflops() {
-  return __builtin_cpu_supports("avx512f") ? fma_peak_avx512_gflops() : 0.0;
+// The machine's float32 multiply-add peak on one core, GFLOP/s, with the widest vectors it has
+// (bench_cpu.cc). Printed before and after the estimators, so a table from a loaded or slower
+// machine says so: a network's float32 floor is 2 x MACs / this peak.
+double best_fma_peak_gflops() {
+  const double avx512 = fma_peak_gflops(RuntimeIsa::kAvx512);
+  return avx512 > 0 ? avx512 : fma_peak_gflops(RuntimeIsa::kAvx2);
 }
 
 // Marks `k` estimates rejected (a batch the estimator refused as a whole).
@@ -473,7 +426,7 @@ int bench_models(const ModelsBenchArgs& a) {
     candidates.push_back(std::move(c));
   }
 
-  const double peak_before = fma_peak_gflops();
+  const double peak_before = best_fma_peak_gflops();
   std::vector<Measured> rows;
   const Truth truth{{test.u_mm.data(), static_cast<std::size_t>(n)},
                     {test.v_mm.data(), static_cast<std::size_t>(n)},
@@ -499,7 +452,7 @@ int bench_models(const ModelsBenchArgs& a) {
       "CRLB RMS XY bound of the bin.\n\n",
       a.test_path.c_str(), n, nxy, nz);
   if (peak_before > 0) {
-    const double peak_after = fma_peak_gflops();
+    const double peak_after = best_fma_peak_gflops();
     std::printf(
         "This machine: an AVX-512 FMA loop reached %.0f GFLOP/s on one core before the estimators\n"
         "and %.0f after (a network's float32 floor is 2 x the multiply-adds it computes / that\n"

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "skinbus/fusion/evaluation.h"
+#include "skinbus/fusion/network_runtime.h"
 #include "skinbus/sim/dataset.h"
 
 namespace skinbus::tools {
@@ -35,6 +36,23 @@ std::array<double, fusion::kDepthBins> mean_per_bin(std::span<const double> valu
 
 void add_models_options(CLI::App* sub, ModelsBenchArgs& a);
 int bench_models(const ModelsBenchArgs& a);
+
+// `skinbus-bench cpu` (bench_cpu.cc): one network on every kernel set this CPU has, float32 and
+// int8, batch 1 and batched on 1 and 2 threads, against the FMA peak measured here, LibTorch at
+// its best and the portable kernels, with the errors on the same presses.
+struct CpuBenchArgs {
+  std::string model_path;  // default: the shipped seed CNN
+  std::string test_path;   // default: simulated on the nominal patch
+  int samples = 2000;
+  int latency_samples = 500;
+  int reps = 5;
+  std::string csv, plot;
+};
+void add_cpu_options(CLI::App* sub, CpuBenchArgs& a);
+int bench_cpu(const CpuBenchArgs& a);
+// The float32 multiply-add peak of one core with `isa`'s vector width (GFLOP/s; 0 where this CPU
+// or build has no such vectors, and for the portable kernels).
+double fma_peak_gflops(fusion::RuntimeIsa isa);
 
 // `skinbus-bench budget`: accuracy at a fixed robot-time budget (361 presses per unit).
 struct BudgetBenchArgs {

@@ -250,6 +250,13 @@ int main(int argc, char** argv) {
       "lookup, physics LM): latency, throughput and error per depth bin against the CRLB");
   skinbus::tools::add_models_options(models, ma);
   skinbus::tools::BudgetBenchArgs ba;
+  skinbus::tools::CpuBenchArgs cpua;
+  CLI::App* cpu = app.add_subcommand(
+      "cpu",
+      "one network (default: the shipped seed CNN) on every kernel set this CPU has (AVX-512, "
+      "AVX2, NEON, portable), float32 and int8: batch 1 and batched on 1 and 2 threads against the "
+      "FMA peak measured here, LibTorch at its best, and the errors on the same presses");
+  skinbus::tools::add_cpu_options(cpu, cpua);
   CLI::App* budget = app.add_subcommand(
       "budget",
       "accuracy from one unit's 361 presses (the seed's robot-time budget): the seed recipe "
@@ -284,5 +291,6 @@ int main(int argc, char** argv) {
   if (ambient->parsed()) return skinbus::tools::bench_ambient(aa);
   if (host->parsed()) return skinbus::tools::bench_host(ha);
   if (models->parsed()) return skinbus::tools::bench_models(ma);
+  if (cpu->parsed()) return skinbus::tools::bench_cpu(cpua);
   return bench_fk(fk_robot, fk_calls);
 }

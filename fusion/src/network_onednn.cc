@@ -164,7 +164,10 @@ Status OneDnnNetImpl::build(const ModelFile& model, int slots) {
     for (std::size_t k = 0; cnn_ && k < a.conv_channels.size(); ++k) {
       const int c_out = a.conv_channels[k];
       const std::string name = "conv" + std::to_string(k);
-      memory::desc src = k == 0 ? memory::desc({n, c_in, rows_, cols_}, Dt::f32, Tag::nhwc) : prev;
+      // Every layout left to oneDNN: with the input's channel-last layout forced on the first
+      // convolution, oneDNN 2.6 has JIT convolutions only on AVX-512 (brgconv) and ran the
+      // reference loop (ref:any) on AVX2, 50x slower; the input is reordered into its choice.
+      memory::desc src = k == 0 ? memory::desc({n, c_in, rows_, cols_}, Dt::f32, Tag::any) : prev;
       memory::desc w({c_out, c_in, 3, 3}, Dt::f32, Tag::any);
       memory::desc b({c_out}, Dt::f32, Tag::x);
       memory::desc dst({n, c_out, rows_, cols_}, Dt::f32, Tag::any);
@@ -227,7 +230,19 @@ Status OneDnnNetImpl::build(const ModelFile& model, int slots) {
       };
       memory src;
       if (cnn_) {
-        src = memory(convs[0].src, eng_, s.input.data());
+        // The input rows are channel-last (input_row()); reordered when the first convolution
+        // wants another layout.
+        const memory::desc user({n, 3, rows_, cols_}, Dt::f32, Tag::nhwc);
+        src = memory(user, eng_, s.input.data());
+        if (convs[0].src != user) {
+          memory m(convs[0].src, eng_);
+          Step st;
+          st.prim = dnnl::reorder(src, m);
+          st.keep = {src, m};
+          st.args = {arg(DNNL_ARG_FROM, src), arg(DNNL_ARG_TO, m)};
+          ch.conv.push_back(std::move(st));
+          src = m;
+        }
         for (const Layer& l : convs) {
           memory dst(l.dst, eng_);
           ch.conv.push_back(step(l, src, dst));

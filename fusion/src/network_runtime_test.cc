@@ -45,14 +45,16 @@ std::vector<double> fields(int batch, uint32_t seed, int channels = kChannels) {
   return f;
 }
 
-bool has_avx512_bf16() {
+// Whether the kernels chosen for this CPU (within SKINBUS_MAX_ISA) have bfloat16 / int8: AVX-512
+// and AVX2 both do; the portable backend emulates both everywhere.
+bool kernels_have_bf16() {
   RuntimeOptions o;
   o.backend = RuntimeBackend::kKernels;
   o.precision = RuntimePrecision::kBfloat16;
   return NetworkRuntime::create(model_for("cnn_w025"), o).ok();
 }
 
-bool has_avx512_vnni() {
+bool kernels_have_int8() {
   RuntimeOptions o;
   o.backend = RuntimeBackend::kKernels;
   o.precision = RuntimePrecision::kInt8;
@@ -401,7 +403,7 @@ TEST(NetworkRuntimeTest, Bfloat16IsUnsupportedOnOneDnn) {
 // Stated tolerance: max difference from float32 within 1.5 % of each output's scale (0.6 mm for
 // u and v at a 40 mm scale), mean within 0.3 %.
 TEST(NetworkRuntimeTest, Bfloat16StaysCloseToFloat32) {
-  if (!has_avx512_bf16()) GTEST_SKIP() << "CPU without AVX512_BF16";
+  if (!kernels_have_bf16()) GTEST_SKIP() << "no bfloat16 kernels for this CPU";
   for (const std::string which : {"cnn", "cnn_w025", "mlp"}) {
     const ModelFile model = model_for(which);
     RuntimeOptions o32, o16;
@@ -453,7 +455,7 @@ TEST(NetworkRuntimeTest, Int8IsUnsupportedOnOneDnnAndNamed) {
 // output's scale (1.2 mm for u and v at a 40 mm scale), mean within 0.75 %.
 TEST(NetworkRuntimeTest, Int8StaysCloseToFloat32) {
   for (RuntimeBackend b : {RuntimeBackend::kKernels, RuntimeBackend::kPortable}) {
-    if (b == RuntimeBackend::kKernels && !has_avx512_vnni()) continue;
+    if (b == RuntimeBackend::kKernels && !kernels_have_int8()) continue;
     for (const std::string which : {"cnn", "cnn_w025", "mlp"}) {
       const ModelFile model = model_for(which);
       RuntimeOptions o32, o8;
@@ -482,11 +484,12 @@ TEST(NetworkRuntimeTest, Int8StaysCloseToFloat32) {
   }
 }
 
-// The AVX-512 VNNI kernels and the portable emulation compute the same integer sums; they may
+// The int8 kernels (AVX-512 VNNI, AVX2, NEON) and the portable emulation compute the same integer
+// sums; they may
 // differ only where float32 rounding of the first layer or the dequantisation moves a value
 // across a quantisation step.
 TEST(NetworkRuntimeTest, Int8KernelsMatchThePortableEmulation) {
-  if (!has_avx512_vnni()) GTEST_SKIP() << "CPU without AVX512_VNNI";
+  if (!kernels_have_int8()) GTEST_SKIP() << "no int8 kernels for this CPU";
   for (const std::string which : {"cnn_w025", "mlp"}) {
     const ModelFile model = model_for(which);
     RuntimeOptions ok, op;
@@ -511,7 +514,7 @@ TEST(NetworkRuntimeTest, Int8KernelsMatchThePortableEmulation) {
 // Activation scales are per sample: a sample's int8 result does not depend on its batch, the
 // thread count or where in a chunk it lands.
 TEST(NetworkRuntimeTest, Int8SamplesAreIndependentOfTheirBatch) {
-  if (!has_avx512_vnni()) GTEST_SKIP() << "CPU without AVX512_VNNI";
+  if (!kernels_have_int8()) GTEST_SKIP() << "no int8 kernels for this CPU";
   const ModelFile model = model_for("cnn");
   RuntimeOptions o1, o2;
   o1.precision = o2.precision = RuntimePrecision::kInt8;
@@ -592,7 +595,7 @@ TEST(NetworkRuntimeTest, ReducedPrecisionKeepsTheTrainedModelsXYError) {
     }
     std::printf("\n");
   }
-  if (compared == 0) GTEST_SKIP() << "this CPU has neither AVX512_BF16 nor AVX512_VNNI";
+  if (compared == 0) GTEST_SKIP() << "no bfloat16 or int8 kernels for this CPU";
 }
 
 }  // namespace

@@ -41,15 +41,23 @@ struct NetImpl : torch::nn::Module {
   }
 
   // x: [batch, channels], normalised.
-  torch::Tensor forward(torch::Tensor x) {
+  torch::Tensor forward(torch::Tensor x) { return layers(grid_input(x)); }
+
+  // A CNN's input grid [batch, 3, rows, cols] (zeros where no sensor sits); an MLP's x as it is.
+  torch::Tensor grid_input(torch::Tensor x) {
+    if (arch.kind != ArchitectureKind::kCnn) return x;
+    const int64_t b = x.size(0);
+    const int64_t sensors = cell_index.size(0);
+    const int64_t cells = arch.grid_rows * arch.grid_cols;
+    torch::Tensor per_sensor = x.view({b, sensors, 3});
+    torch::Tensor grid = torch::zeros({b, cells, 3}, x.options());
+    grid = grid.index_copy(1, cell_index, per_sensor);
+    return grid.permute({0, 2, 1}).reshape({b, 3, arch.grid_rows, arch.grid_cols}).contiguous();
+  }
+
+  // The layers, from grid_input()'s tensor to the normalised outputs.
+  torch::Tensor layers(torch::Tensor x) {
     if (arch.kind == ArchitectureKind::kCnn) {
-      const int64_t b = x.size(0);
-      const int64_t sensors = cell_index.size(0);
-      const int64_t cells = arch.grid_rows * arch.grid_cols;
-      torch::Tensor per_sensor = x.view({b, sensors, 3});
-      torch::Tensor grid = torch::zeros({b, cells, 3}, x.options());
-      grid = grid.index_copy(1, cell_index, per_sensor);
-      x = grid.permute({0, 2, 1}).reshape({b, 3, arch.grid_rows, arch.grid_cols});
       for (auto& conv : convs) x = torch::relu(conv->forward(x));
       torch::Tensor avg = x.mean({2, 3});
       torch::Tensor mx = std::get<0>(x.flatten(2).max(2));
@@ -491,6 +499,7 @@ struct TorchRunner::Impl {
   ModelMeta meta;
   int threads;
   Net net;
+  torch::Tensor prepared;  // prepare()'s input grid
 };
 
 TorchRunner::TorchRunner(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -533,6 +542,30 @@ Status TorchRunner::run(std::span<const double> field_ut, int batch, std::span<d
   });
   if (!done.ok()) return done.error();
   return Status::Ok();
+}
+
+Status TorchRunner::prepare(std::span<const double> field_ut, int batch) {
+  const ModelMeta& m = impl_->meta;
+  if (batch <= 0 || field_ut.size() != static_cast<std::size_t>(batch) * m.channels()) {
+    return make_error(ErrorCode::kInvalidArgument, "field_ut must hold batch x channels values");
+  }
+  Result<bool> done = guarded("LibTorch", [&]() -> Result<bool> {
+    if (torch::get_num_threads() != impl_->threads) torch::set_num_threads(impl_->threads);
+    c10::InferenceMode inference;
+    impl_->prepared = impl_->net->grid_input(normalised_inputs(m, field_ut, batch));
+    return true;
+  });
+  if (!done.ok()) return done.error();
+  return Status::Ok();
+}
+
+double TorchRunner::forward_prepared() {
+  if (!impl_->prepared.defined()) return std::nan("");
+  Result<double> y = guarded("LibTorch", [&]() -> Result<double> {
+    c10::InferenceMode inference;
+    return impl_->net->layers(impl_->prepared).data_ptr<float>()[0];
+  });
+  return y.ok() ? *y : std::nan("");
 }
 
 Result<std::vector<double>> torch_forward(const ModelFile& model, std::span<const double> field_ut,

@@ -107,6 +107,14 @@ class TorchRunner {
   // `batch` samples of tared fields (batch x channels, uT) -> batch x outputs, physical units.
   Status run(std::span<const double> field_ut, int batch, std::span<double> outputs);
 
+  // LibTorch at its best, the peer the benchmarks time the host runtime against: prepare()
+  // turns `batch` samples into the network's input tensor once (normalised; a CNN's grid) and
+  // sets the runner's thread count; forward_prepared() then runs only the layers on it under
+  // c10::InferenceMode and returns the first normalised output (NaN before prepare() or on a
+  // LibTorch error), with no conversion in or out.
+  Status prepare(std::span<const double> field_ut, int batch);
+  double forward_prepared();
+
  private:
   struct Impl;
   explicit TorchRunner(std::unique_ptr<Impl> impl);

@@ -1,0 +1,400 @@
+// `skinbus-bench cpu`: the host runtime on every instruction set this CPU has, against the CPU's
+// own float32 limit and LibTorch at its best, with the error on the same presses.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <string>
+#include <vector>
+
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
+#include "bench_models.h"
+#include "skinbus/fusion/evaluation.h"
+#include "skinbus/fusion/model_file.h"
+#include "skinbus/fusion/network_runtime.h"
+#include "skinbus/sim/dataset.h"
+#include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/simulated_patch.h"
+#include "tool_util.h"
+#ifdef SKINBUS_HAVE_TORCH
+#include "skinbus/fusion/training.h"
+#endif
+
+#ifndef SKINBUS_SOURCE_DIR
+#define SKINBUS_SOURCE_DIR "."
+#endif
+
+namespace skinbus::tools {
+namespace {
+
+using namespace skinbus::fusion;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+#if defined(__x86_64__)
+// 12 independent FMA chains of `Vec` (named, so they stay in registers) for about 50 ms, best of
+// 5: the core's float32 multiply-add peak in GFLOP/s with that vector width.
+#define SKINBUS_FMA_PEAK(NAME, ATTR, VEC, LANES, LOAD, FMA, STORE)                                 \
+  ATTR double NAME() {                                                                             \
+    constexpr long kIterations = 400000;                                                           \
+    float init[12 * LANES], fa[LANES], fb[LANES];                                                  \
+    for (int k = 0; k < 12 * LANES; ++k) init[k] = 1.0f + 1e-3f * static_cast<float>(k);           \
+    for (int k = 0; k < LANES; ++k) {                                                              \
+      fa[k] = 0.999999f;                                                                           \
+      fb[k] = 1e-7f;                                                                               \
+    }                                                                                              \
+    const VEC a = LOAD(fa), b = LOAD(fb);                                                          \
+    VEC c0 = LOAD(init), c1 = LOAD(init + LANES), c2 = LOAD(init + 2 * LANES),                     \
+        c3 = LOAD(init + 3 * LANES), c4 = LOAD(init + 4 * LANES), c5 = LOAD(init + 5 * LANES),     \
+        c6 = LOAD(init + 6 * LANES), c7 = LOAD(init + 7 * LANES), c8 = LOAD(init + 8 * LANES),     \
+        c9 = LOAD(init + 9 * LANES), c10 = LOAD(init + 10 * LANES), c11 = LOAD(init + 11 * LANES); \
+    double best = 0;                                                                               \
+    for (int rep = 0; rep < 5; ++rep) {                                                            \
+      const auto t0 = Clock::now();                                                                \
+      for (long i = 0; i < kIterations; ++i) {                                                     \
+        c0 = FMA(c0, a, b);                                                                        \
+        c1 = FMA(c1, a, b);                                                                        \
+        c2 = FMA(c2, a, b);                                                                        \
+        c3 = FMA(c3, a, b);                                                                        \
+        c4 = FMA(c4, a, b);                                                                        \
+        c5 = FMA(c5, a, b);                                                                        \
+        c6 = FMA(c6, a, b);                                                                        \
+        c7 = FMA(c7, a, b);                                                                        \
+        c8 = FMA(c8, a, b);                                                                        \
+        c9 = FMA(c9, a, b);                                                                        \
+        c10 = FMA(c10, a, b);                                                                      \
+        c11 = FMA(c11, a, b);                                                                      \
+      }                                                                                            \
+      best = std::max(                                                                             \
+          best, 2.0 * LANES * 12 * static_cast<double>(kIterations) / seconds_since(t0) * 1e-9);   \
+    }                                                                                              \
+    float sink = 0;                                                                                \
+    for (VEC c : {c0, c1, c2, c3, c4, c5, c6, c7, c8, c9, c10, c11}) {                             \
+      STORE(init, c);                                                                              \
+      for (int k = 0; k < LANES; ++k) sink += init[k];                                             \
+    }                                                                                              \
+    if (!std::isfinite(sink)) std::fprintf(stderr, "skinbus-bench: FMA probe overflowed\n");       \
+    return best;                                                                                   \
+  }
+
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+SKINBUS_FMA_PEAK(fma_peak_avx512, __attribute__((target("avx512f,fma"))), __m512, 16,
+                 _mm512_loadu_ps, _mm512_fmadd_ps, _mm512_storeu_ps)
+SKINBUS_FMA_PEAK(fma_peak_avx2, __attribute__((target("avx2,fma"))), __m256, 8, _mm256_loadu_ps,
+                 _mm256_fmadd_ps, _mm256_storeu_ps)
+#pragma GCC diagnostic pop
+#undef SKINBUS_FMA_PEAK
+#endif
+
+struct Row {
+  std::string kernels, precision;
+  RuntimeIsa isa = RuntimeIsa::kPortable;
+  bool torch = false;
+  double macs = 0, peak_gflops = 0;
+  double batch1_us = 0, batch64_1t_us = 0, batch64_2t_us = 0;
+  double xy_mean_mm = 0, xy_deep_mm = 0, depth_mean_mm = 0;
+  double floor_us() const { return peak_gflops > 0 ? 2.0 * macs / (peak_gflops * 1e3) : 0; }
+};
+
+// printf into a std::string.
+template <typename... Args>
+std::string format(const char* fmt, Args... args) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, fmt, args...);
+  return buf;
+}
+
+// Median of `reps` timings of `fn` (seconds), divided by `per`: microseconds per unit.
+template <typename Fn>
+double median_us(int reps, int per, Fn fn) {
+  std::vector<double> t;
+  for (int r = 0; r < reps; ++r) {
+    const auto t0 = Clock::now();
+    fn();
+    t.push_back(seconds_since(t0) * 1e6 / per);
+  }
+  std::sort(t.begin(), t.end());
+  return t[t.size() / 2];
+}
+
+}  // namespace
+
+double fma_peak_gflops(RuntimeIsa isa) {
+#if defined(__x86_64__)
+  __builtin_cpu_init();
+  const bool fma = __builtin_cpu_supports("fma");
+  if (isa == RuntimeIsa::kAvx512 && fma && __builtin_cpu_supports("avx512f")) {
+    return fma_peak_avx512();
+  }
+  if (isa == RuntimeIsa::kAvx2 && fma && __builtin_cpu_supports("avx2")) return fma_peak_avx2();
+#else
+  (void)isa;
+#endif
+  return 0.0;
+}
+
+void add_cpu_options(CLI::App* sub, CpuBenchArgs& a) {
+  sub->add_option("--model", a.model_path,
+                  "the network timed (model file stem; default: the shipped seed CNN, "
+                  "fusion/models/nominal_seed_cnn)");
+  sub->add_option("--test", a.test_path,
+                  "off-grid test presses for the error columns (default: 2000 simulated on the "
+                  "nominal patch, as skinbus-dataset --plan random-test)")
+      ->check(CLI::ExistingFile);
+  sub->add_option("--samples", a.samples, "test presses used (errors, batched timing)")
+      ->check(CLI::Range(64, 100000));
+  sub->add_option("--latency-samples", a.latency_samples, "samples timed one at a time")
+      ->check(CLI::Range(10, 100000));
+  sub->add_option("--reps", a.reps, "repetitions of each timing; the median is reported")
+      ->check(CLI::Range(1, 50));
+  sub->add_option("--csv", a.csv, "write the table as CSV");
+  sub->add_option("--plot", a.plot, "write a PNG (tools/plot_cpu.py, needs python3-matplotlib)");
+}
+
+int bench_cpu(const CpuBenchArgs& a) {
+  const std::string model_path =
+      a.model_path.empty() ? std::string(SKINBUS_SOURCE_DIR) + "/fusion/models/nominal_seed_cnn"
+                           : a.model_path;
+  Result<ModelFile> model = read_model(model_path);
+  if (!model.ok()) {
+    std::fprintf(stderr, "skinbus-bench: %s\n", model.error().to_string().c_str());
+    return 2;
+  }
+  sim::Dataset test;
+  if (!a.test_path.empty()) {
+    Result<sim::Dataset> d = sim::read_dataset_csv(a.test_path);
+    if (!d.ok()) {
+      std::fprintf(stderr, "skinbus-bench: %s\n", d.error().to_string().c_str());
+      return 2;
+    }
+    test = std::move(d.value());
+  } else {
+    std::fprintf(stderr, "skinbus-bench: simulating %d test presses on the nominal patch ...\n",
+                 a.samples);
+    Result<sim::PatchModel> pm = sim::PatchModel::nominal(sim::PatchDesign{});
+    if (!pm.ok()) {
+      std::fprintf(stderr, "skinbus-bench: %s\n", pm.error().to_string().c_str());
+      return 2;
+    }
+    sim::SimulatedPatch patch(*pm, 7);
+    test = sim::generate_random_test_set(patch, a.samples, 67.5, 4.0, 7);
+  }
+  const int channels = test.channels();
+  const int n = std::min(a.samples, static_cast<int>(test.rows()));
+  if (channels != model->meta.channels() || n < 64) {
+    std::fprintf(stderr,
+                 "skinbus-bench: the test set has %d channels and %d rows; the model takes "
+                 "%d channels and the benchmark needs 64 rows\n",
+                 channels, n, model->meta.channels());
+    return 2;
+  }
+  const std::span<const double> field(test.field_ut.data(), static_cast<std::size_t>(n) * channels);
+  const Truth truth{{test.u_mm.data(), static_cast<std::size_t>(n)},
+                    {test.v_mm.data(), static_cast<std::size_t>(n)},
+                    {test.depth_mm.data(), static_cast<std::size_t>(n)},
+                    {test.force_n.data(), static_cast<std::size_t>(n)}};
+  const int lat_n = std::min(n, a.latency_samples);
+  std::vector<ContactEstimate> est(static_cast<std::size_t>(n));
+  auto errors = [&](Row& r) {
+    const ErrorSummary s = summarize_errors(est, truth);
+    r.xy_mean_mm = s.all.xy_mean_mm;
+    r.xy_deep_mm = xy_mean_from_bin(s);
+    r.depth_mean_mm = s.all.depth_mean_mm;
+  };
+
+  std::vector<Row> rows;
+  for (RuntimeIsa isa :
+       {RuntimeIsa::kAvx512, RuntimeIsa::kAvx2, RuntimeIsa::kNeon, RuntimeIsa::kPortable}) {
+    const double peak = fma_peak_gflops(isa);
+    for (RuntimePrecision p : {RuntimePrecision::kFloat32, RuntimePrecision::kInt8}) {
+      RuntimeOptions o;
+      o.backend =
+          isa == RuntimeIsa::kPortable ? RuntimeBackend::kPortable : RuntimeBackend::kKernels;
+      o.max_isa = isa;
+      o.precision = p;
+      Result<NetworkRuntime> rt1 = NetworkRuntime::create(*model, o);
+      o.threads = 2;
+      Result<NetworkRuntime> rt2 = NetworkRuntime::create(*model, o);
+      if (!rt1.ok() || !rt2.ok()) continue;
+      // The kernels fall back to a narrower set when the CPU lacks this one: each set once.
+      const std::string name = rt1->kernel_name();
+      if (isa != RuntimeIsa::kPortable &&
+          name.find(std::string(" ") + runtime_isa_name(isa)) == std::string::npos) {
+        continue;
+      }
+      std::fprintf(stderr, "skinbus-bench: %s ...\n", name.c_str());
+      Row r;
+      r.kernels = name;
+      r.precision = runtime_precision_name(p);
+      r.isa = isa;
+      r.macs = static_cast<double>(rt1->macs());
+      r.peak_gflops = peak;
+      const int reps = isa == RuntimeIsa::kPortable ? 1 : a.reps;
+      auto batched = [&](NetworkRuntime& rt) {
+        for (int b = 0; b < n; b += 64) {
+          const int k = std::min(64, n - b);
+          (void)rt.run(field.subspan(static_cast<std::size_t>(b) * channels,
+                                     static_cast<std::size_t>(k) * channels),
+                       k, {est.data() + b, static_cast<std::size_t>(k)});
+        }
+      };
+      r.batch1_us = median_us(reps, lat_n, [&] {
+        for (int i = 0; i < lat_n; ++i) {
+          (void)rt1->run(field.subspan(static_cast<std::size_t>(i) * channels, channels), 1,
+                         {est.data() + i, 1});
+        }
+      });
+      r.batch64_1t_us = median_us(reps, n, [&] { batched(*rt1); });
+      r.batch64_2t_us = median_us(reps, n, [&] { batched(*rt2); });
+      errors(r);
+      rows.push_back(r);
+    }
+  }
+#ifdef SKINBUS_HAVE_TORCH
+  {
+    std::fprintf(stderr, "skinbus-bench: LibTorch ...\n");
+    Row r;
+    r.kernels = "LibTorch (forward on a prepared tensor, inference mode)";
+    r.precision = "float32";
+    r.torch = true;
+    r.macs = static_cast<double>(model->macs());
+    Result<TorchRunner> t1 = TorchRunner::create(*model, 1), t2 = TorchRunner::create(*model, 2);
+    if (!t1.ok() || !t2.ok()) {
+      std::fprintf(stderr, "skinbus-bench: LibTorch: %s\n",
+                   (t1.ok() ? t2.error() : t1.error()).to_string().c_str());
+      return 2;
+    }
+    double sink = 0;
+    // Batch 1: one prepared sample, run lat_n times (LibTorch at its best: no conversion).
+    (void)t1->prepare(field.subspan(0, channels), 1);
+    r.batch1_us = median_us(a.reps, lat_n, [&] {
+      for (int i = 0; i < lat_n; ++i) sink += t1->forward_prepared();
+    });
+    for (int t = 1; t <= 2; ++t) {
+      TorchRunner& tr = t == 1 ? *t1 : *t2;
+      (void)tr.prepare(field.subspan(0, static_cast<std::size_t>(64) * channels), 64);
+      const int calls = n / 64;
+      const double us = median_us(a.reps, calls * 64, [&] {
+        for (int i = 0; i < calls; ++i) sink += tr.forward_prepared();
+      });
+      (t == 1 ? r.batch64_1t_us : r.batch64_2t_us) = us;
+    }
+    if (!std::isfinite(sink)) std::fprintf(stderr, "skinbus-bench: LibTorch returned NaN\n");
+    // Its errors, through the ordinary path (untimed).
+    const ModelMeta& meta = model->meta;
+    std::vector<double> y(static_cast<std::size_t>(n) * meta.outputs.size());
+    if (t1->run(field, n, y).ok()) {
+      auto at = [&](const char* name) {
+        const auto it = std::find(meta.outputs.begin(), meta.outputs.end(), name);
+        return it == meta.outputs.end() ? -1 : static_cast<int>(it - meta.outputs.begin());
+      };
+      const int iu = at("u_mm"), iv = at("v_mm"), id = at("depth_mm"), iforce = at("force_n");
+      const std::size_t no = meta.outputs.size();
+      for (int i = 0; i < n; ++i) {
+        const double* yi = y.data() + static_cast<std::size_t>(i) * no;
+        est[static_cast<std::size_t>(i)] = {yi[iu],      yi[iv],
+                                            yi[id],      iforce >= 0 ? yi[iforce] : 0.0,
+                                            kEstimateOk, RejectReason::kNone};
+        flag_range(est[static_cast<std::size_t>(i)], meta.half_u_mm, meta.half_v_mm,
+                   meta.max_depth_mm);
+      }
+      errors(r);
+    }
+    rows.push_back(r);
+  }
+#endif
+
+  // The table.
+  std::printf("Model: %s (%.2f M multiply-adds per sample as defined). Test presses: %d (%s).\n",
+              model->meta.name.c_str(), static_cast<double>(model->macs()) * 1e-6, n,
+              a.test_path.empty() ? "simulated, nominal patch, seed 7" : a.test_path.c_str());
+  std::printf(
+      "Floor: 2 x multiply-adds the kernels compute / the FMA peak measured here with "
+      "that vector width, one core.\n\n");
+  std::printf(
+      "| kernels | precision | FMA peak (GFLOP/s) | floor (µs) | batch 1 (µs) | x floor | "
+      "batch 64, 1 thread (µs/sample) | batch 64, 2 threads (µs/sample) | XY mean (mm) "
+      "| XY >= 1 mm (mm) | depth mean (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|"
+      "---:|---:|\n");
+  for (const Row& r : rows) {
+    std::printf("| %s | %s | %s | %s | %.1f | %s | %.1f | %.1f | %.3f | %.3f | %.3f |\n",
+                r.kernels.c_str(), r.precision.c_str(),
+                r.peak_gflops > 0 ? std::to_string(static_cast<int>(r.peak_gflops)).c_str() : "",
+                r.peak_gflops > 0 ? format("%.1f", r.floor_us()).c_str() : "", r.batch1_us,
+                r.peak_gflops > 0 ? format("%.2f", r.batch1_us / r.floor_us()).c_str() : "",
+                r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
+  }
+  // Goals, per instruction set.
+  const Row* torch = nullptr;
+  for (const Row& r : rows) {
+    if (r.torch) torch = &r;
+  }
+  std::printf("\nGoals (issue: fast and correct on the CPUs robots carry):\n");
+  for (const Row& f : rows) {
+    if (f.torch || f.precision != "float32" || f.isa == RuntimeIsa::kPortable) continue;
+    std::printf("- %s:\n", f.kernels.c_str());
+    if (f.peak_gflops > 0) {
+      const double x = f.batch1_us / f.floor_us();
+      std::printf("  - float32 batch 1 within 1.3x of the floor: %.2fx, %s\n", x,
+                  x <= 1.3 ? "met" : "NOT met");
+    }
+    for (const Row& q : rows) {
+      if (q.isa != f.isa || q.precision != "int8") continue;
+      const double s1 = f.batch1_us / q.batch1_us, s64 = f.batch64_1t_us / q.batch64_1t_us;
+      const double dxy = (q.xy_mean_mm - f.xy_mean_mm) / f.xy_mean_mm * 100;
+      std::printf(
+          "  - int8 >= 1.8x float32 within 2 %% XY: %.2fx at batch 1, %.2fx at batch 64 "
+          "(1 thread), XY %+.2f %%: %s\n",
+          s1, s64, dxy, s1 >= 1.8 && s64 >= 1.8 && std::fabs(dxy) <= 2 ? "met" : "NOT met");
+      if (torch != nullptr) {
+        const double t = torch->batch1_us / q.batch1_us;
+        std::printf("  - int8 vs LibTorch at its best, batch 1: %.1fx\n", t);
+      }
+    }
+    if (torch != nullptr) {
+      const double t = torch->batch1_us / f.batch1_us;
+      std::printf("  - >= 3x faster than LibTorch at its best at batch 1 (float32): %.1fx, %s\n", t,
+                  t >= 3 ? "met" : "NOT met");
+    }
+  }
+  if (!a.csv.empty()) {
+    std::FILE* f = std::fopen(a.csv.c_str(), "w");
+    if (f == nullptr) {
+      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
+      return 1;
+    }
+    std::fprintf(f,
+                 "kernels,precision,isa,fma_peak_gflops,floor_us,batch1_us,batch64_1t_us,"
+                 "batch64_2t_us,xy_mean_mm,xy_deep_mm,depth_mean_mm\n");
+    for (const Row& r : rows) {
+      std::fprintf(f, "\"%s\",%s,%s,%.1f,%.2f,%.2f,%.2f,%.2f,%.4f,%.4f,%.4f\n", r.kernels.c_str(),
+                   r.precision.c_str(), r.torch ? "libtorch" : runtime_isa_name(r.isa),
+                   r.peak_gflops, r.floor_us(), r.batch1_us, r.batch64_1t_us, r.batch64_2t_us,
+                   r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
+    }
+    if (std::fclose(f) != 0) {
+      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
+      return 1;
+    }
+    if (!a.plot.empty()) {
+      const std::string cmd = "python3 " + std::string(SKINBUS_SOURCE_DIR) + "/tools/plot_cpu.py " +
+                              a.csv + " " + a.plot;
+      if (std::system(cmd.c_str()) != 0) {
+        std::fprintf(stderr, "skinbus-bench: plotting failed: %s\n", cmd.c_str());
+        return 1;
+      }
+    }
+  }
+  return 0;
+}
+
+}  // namespace skinbus::tools
