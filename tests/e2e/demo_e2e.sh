@@ -15,3 +15,12 @@ trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi'
 }
 tail -25 "$work/demo.txt"
 "$src/tests/e2e/check_demo.py" "$out" "$src/sim/scenes/whole_body" "$build"
+# Under an instruction-set cap (the e2e_demo_avx2 test), the host must have run those kernels.
+if [[ -n ${SKINBUS_MAX_ISA:-} ]]; then
+  grep -q "(kernels $SKINBUS_MAX_ISA " "$out/host.log" || {
+    echo "FAIL: SKINBUS_MAX_ISA=$SKINBUS_MAX_ISA but the host ran:"
+    grep "kernels\|portable\|onednn" "$out/host.log" || true
+    exit 1
+  }
+  echo "PASS: the host ran the $SKINBUS_MAX_ISA kernels"
+fi
