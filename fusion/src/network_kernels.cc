@@ -199,6 +199,9 @@ const KernelSet* avx512_kernels() {
 const KernelSet* avx2_kernels() {
   return nullptr;
 }
+const KernelSet* avx2_dot_product_kernels() {
+  return nullptr;
+}
 #endif
 #if !defined(__aarch64__)
 const KernelSet* neon_kernels() {

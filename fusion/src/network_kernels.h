@@ -92,6 +92,10 @@ const KernelSet* avx512_kernels();
 // ymm registers); int8 as vpmaddubsw + vpmaddwd, or vpdpbusd (AVX-VNNI) where present; bfloat16
 // widened to float32 and summed with FMA.
 const KernelSet* avx2_kernels();
+// The AVX2 set with its int8 entries in the ymm dot-product form: AVX-VNNI (as avx2_kernels()
+// runs it) where the CPU has it, else the same kernels in the EVEX form on AVX512_VNNI + VL CPUs;
+// null elsewhere. For tests: it checks the dot-product variant on CPUs without AVX-VNNI.
+const KernelSet* avx2_dot_product_kernels();
 // NEON kernels on aarch64 (int8 with the dot-product instructions where present), else null.
 const KernelSet* neon_kernels();
 // The set for `isa`, or null when this CPU or build lacks it (portable: always).

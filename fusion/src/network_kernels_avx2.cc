@@ -28,6 +28,9 @@ namespace {
 
 #define SKINBUS_AVX2 __attribute__((target("avx2,fma")))
 #define SKINBUS_AVX2_VNNI __attribute__((target("avx2,fma,avxvnni")))
+// The same ymm dot product in its EVEX form (AVX512_VNNI + VL): what tests run on AVX-512 CPUs
+// without AVX-VNNI, so that the dot-product variant of these kernels is checked there too.
+#define SKINBUS_AVX2_VNNI_EVEX __attribute__((target("avx2,fma,avx512f,avx512vl,avx512vnni")))
 
 constexpr int kHalf = 8;  // floats per ymm
 
@@ -182,10 +185,13 @@ SKINBUS_AVX2 void gemm_f32_avx2(const float* const* a, const float* const* b, in
 #define SKINBUS_MADD_STEP(acc, av, bv) \
   _mm256_add_epi32(acc, _mm256_madd_epi16(_mm256_maddubs_epi16(av, bv), ones))
 #define SKINBUS_VNNI_STEP(acc, av, bv) _mm256_dpbusd_avx_epi32(acc, av, bv)
+#define SKINBUS_VNNI_EVEX_STEP(acc, av, bv) _mm256_dpbusd_epi32(acc, av, bv)
 SKINBUS_I8_PASS(SKINBUS_AVX2, i8_pass_madd, SKINBUS_MADD_STEP)
 SKINBUS_I8_PASS(SKINBUS_AVX2_VNNI, i8_pass_vnni, SKINBUS_VNNI_STEP)
+SKINBUS_I8_PASS(SKINBUS_AVX2_VNNI_EVEX, i8_pass_vnni_evex, SKINBUS_VNNI_EVEX_STEP)
 #undef SKINBUS_MADD_STEP
 #undef SKINBUS_VNNI_STEP
+#undef SKINBUS_VNNI_EVEX_STEP
 #undef SKINBUS_I8_PASS
 
 // The int32 sums of R rows x 16V columns into sums[R][16V]. The multiply-add form needs two
@@ -205,14 +211,24 @@ template <int R, int V>
   i8_pass_vnni_rows<R, V>(a, b, k_quads, sums);
 }
 
-template <int R, int V, bool kVnni>
+template <int R, int V>
+[[gnu::noinline]] SKINBUS_AVX2_VNNI_EVEX void sums_i8_vnni_evex(const uint8_t* const* a,
+                                                                const int8_t* b, int k_quads,
+                                                                int32_t* sums) {
+  i8_pass_vnni_evex_rows<R, V>(a, b, k_quads, sums);
+}
+
+// kDot: 0 vpmaddubsw + vpmaddwd, 1 AVX-VNNI, 2 the EVEX form of the same dot product.
+template <int R, int V, int kDot>
 SKINBUS_AVX2 void gemm_i8_avx2(const uint8_t* const* a, const int8_t* b, int k_quads,
                                float* const* c, const float* bias, const float* a_scale,
                                const float* w_scale, bool relu) {
   constexpr int kCols = kLanes * V;
   alignas(32) int32_t sums[R * kCols];
-  if constexpr (kVnni) {
+  if constexpr (kDot == 1) {
     sums_i8_vnni<R, V>(a, b, k_quads, sums);
+  } else if constexpr (kDot == 2) {
+    sums_i8_vnni_evex<R, V>(a, b, k_quads, sums);
   } else {
     sums_i8_madd<R, V>(a, b, k_quads, sums);
   }
@@ -438,16 +454,25 @@ struct Bf16Avx2 {
 };
 template <int R, int V>
 struct I8Avx2 {
-  static GemmI8 get() { return &gemm_i8_avx2<R, V, false>; }
+  static GemmI8 get() { return &gemm_i8_avx2<R, V, 0>; }
 };
 template <int R, int V>
 struct I8AvxVnni {
-  static GemmI8 get() { return &gemm_i8_avx2<R, V, true>; }
+  static GemmI8 get() { return &gemm_i8_avx2<R, V, 1>; }
+};
+template <int R, int V>
+struct I8AvxVnniEvex {
+  static GemmI8 get() { return &gemm_i8_avx2<R, V, 2>; }
 };
 
 bool has_avx2() {
   __builtin_cpu_init();
   return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+}
+
+bool has_avx512_vnni_vl() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx512vnni") && __builtin_cpu_supports("avx512vl");
 }
 
 bool has_avx_vnni() {
@@ -479,6 +504,24 @@ const KernelSet* avx2_kernels() {
     s.pool = &pool_avx2;
     s.winograd_input = &winograd_input_avx2;
     s.winograd_output = &winograd_output_avx2;
+    return s;
+  }();
+  return k.f32[0][0] != nullptr ? &k : nullptr;
+}
+
+const KernelSet* avx2_dot_product_kernels() {
+  static const KernelSet k = [] {
+    KernelSet s;
+    const KernelSet* base = avx2_kernels();
+    if (base == nullptr) return s;
+    if (has_avx_vnni()) {
+      s = *base;  // avx2_kernels() runs the VEX form already
+    } else if (has_avx512_vnni_vl()) {
+      s = *base;
+      fill<I8AvxVnniEvex>(s.i8, RowSeq{});
+      s.i8_name = "avx512-vnni ymm";
+    }
+    s.name = "avx2 (dot product)";
     return s;
   }();
   return k.f32[0][0] != nullptr ? &k : nullptr;

@@ -37,6 +37,10 @@ std::vector<const KernelSet*> vector_sets() {
     if (static_cast<int>(isa) < static_cast<int>(cap)) continue;
     if (const KernelSet* k = kernels_for(isa)) out.push_back(k);
   }
+  // The AVX2 int8 kernels' dot-product form (AVX-VNNI, or its EVEX twin on AVX-512 CPUs).
+  if (static_cast<int>(cap) <= static_cast<int>(KernelIsa::kAvx2)) {
+    if (const KernelSet* k = avx2_dot_product_kernels()) out.push_back(k);
+  }
   return out;
 }
 
