@@ -34,12 +34,13 @@ namespace {
 
 constexpr int kHalf = 8;  // floats per ymm
 
-// Column vectors per pass for R rows: float32 keeps 2 R W accumulators and, for W > 1, the R
-// broadcast A values in registers (R = 1: 8 + 1, 2: 12 + 2, 3: 12 + 3; from 4 rows one vector:
-// up to 12 accumulators and the two B halves).
+// ymm columns (8 floats) per float32 pass for R rows: 2 R H accumulators plus the operands in
+// the 16 ymm registers, at least 8 accumulators to cover the FMA latency where the rows allow:
+// R = 1: 8 (+ A, B), 2: 6 x 2 = 12 (+ 2 A, B), 3: 4 x 3 = 12 (+ 3 A, B), 4: 3 x 4 = 12 (+ 3 B,
+// A), 5: 2 x 5 = 10, 6: 2 x 6 = 12 (+ 2 B, A).
 template <int R>
-constexpr int f32_group() {
-  return R == 1 ? 4 : R == 2 ? 3 : R == 3 ? 2 : 1;
+constexpr int f32_ymm_group() {
+  return R == 1 ? 8 : R == 2 ? 6 : R == 3 ? 4 : R == 4 ? 3 : 2;
 }
 // int8 and bfloat16 need more temporaries per product: fewer columns, and rows beyond 4 split
 // into a second pass (see row_split).
@@ -51,13 +52,14 @@ constexpr int min_int(int a, int b) {
   return a < b ? a : b;
 }
 
-// R rows x W vectors starting at column `col` of a panel `ldb` floats wide.
-template <int R, int W>
+// R rows x H ymm columns starting at column `col` of a panel `ldb` floats wide. From 4 rows the
+// B vectors of a K step stay in registers and each row's A value is broadcast once; below, the
+// R A values stay and each B vector is loaded once.
+template <int R, int H>
 [[gnu::always_inline]] SKINBUS_AVX2 inline void f32_pass(const float* const* a,
                                                          const float* const* b, int segments, int k,
                                                          float* const* c, const float* bias,
                                                          bool relu, int col, int ldb) {
-  constexpr int H = 2 * W;
   __m256 acc[R][H];
 #pragma GCC unroll 8
   for (int i = 0; i < R; ++i) {
@@ -72,13 +74,15 @@ template <int R, int W>
     for (int i = 0; i < R; ++i) ap[i] = a[seg * R + i];
     const float* bp = b[seg] + col;
     for (int kk = 0; kk < k; ++kk) {
-      if constexpr (W == 1) {
-        const __m256 b0 = _mm256_loadu_ps(bp), b1 = _mm256_loadu_ps(bp + kHalf);
+      if constexpr (R >= 4) {
+        __m256 bv[H];
+#pragma GCC unroll 8
+        for (int h = 0; h < H; ++h) bv[h] = _mm256_loadu_ps(bp + kHalf * h);
 #pragma GCC unroll 8
         for (int i = 0; i < R; ++i) {
           const __m256 av = _mm256_broadcast_ss(ap[i] + kk);
-          acc[i][0] = _mm256_fmadd_ps(av, b0, acc[i][0]);
-          acc[i][1] = _mm256_fmadd_ps(av, b1, acc[i][1]);
+#pragma GCC unroll 8
+          for (int h = 0; h < H; ++h) acc[i][h] = _mm256_fmadd_ps(av, bv[h], acc[i][h]);
         }
       } else {
         __m256 av[R];
@@ -107,14 +111,15 @@ template <int R, int W>
 template <int R, int V>
 SKINBUS_AVX2 void gemm_f32_avx2(const float* const* a, const float* const* b, int segments, int k,
                                 float* const* c, const float* bias, bool relu) {
-  constexpr int W = min_int(V, f32_group<R>());
-  constexpr int kFull = V / W, kRest = V % W;
-#pragma GCC unroll 4
+  constexpr int kYmm = 2 * V;
+  constexpr int H = min_int(kYmm, f32_ymm_group<R>());
+  constexpr int kFull = kYmm / H, kRest = kYmm % H;
+#pragma GCC unroll 8
   for (int g = 0; g < kFull; ++g) {
-    f32_pass<R, W>(a, b, segments, k, c, bias, relu, kLanes * W * g, kLanes * V);
+    f32_pass<R, H>(a, b, segments, k, c, bias, relu, kHalf * H * g, kLanes * V);
   }
   if constexpr (kRest > 0) {
-    f32_pass<R, kRest>(a, b, segments, k, c, bias, relu, kLanes * W * kFull, kLanes * V);
+    f32_pass<R, kRest>(a, b, segments, k, c, bias, relu, kHalf * H * kFull, kLanes * V);
   }
 }
 
