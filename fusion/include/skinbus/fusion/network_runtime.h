@@ -41,7 +41,8 @@
 //             aarch64; else the portable kernels.
 //   kPortable the same plan with plain C++ kernels (any CPU; for comparison and fallback).
 //   kOneDnn   oneDNN primitives (convolution with fused ReLU, inner product), float32 only; only
-//             when asked for (slower than kKernels on every CPU measured).
+//             when asked for (slower than kKernels on every CPU measured). Builds without oneDNN
+//             (SKINBUS_ONEDNN=OFF, as the Arm build) refuse it with kUnsupported.
 // Precision (RuntimeOptions::precision):
 //   kFloat32   matches LibTorch on the same weights to well below 1e-3 mm.
 //   kBfloat16  weights and activations rounded to bfloat16, products accumulated in float32
