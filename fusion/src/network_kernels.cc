@@ -204,6 +204,9 @@ const KernelSet* avx2_kernels() {
 const KernelSet* neon_kernels() {
   return nullptr;
 }
+const KernelSet* neon_widening_kernels() {
+  return nullptr;
+}
 #endif
 
 const KernelSet* kernels_for(KernelIsa isa) {

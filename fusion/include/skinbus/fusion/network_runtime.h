@@ -38,7 +38,8 @@
 //             RuntimeOptions::max_isa allows) is selected at run time: AVX-512 (F/VL/BW/DQ;
 //             bfloat16 with AVX512_BF16, int8 with AVX512_VNNI, else those two from the AVX2
 //             set), AVX2 + FMA (int8 with AVX-VNNI where present, else vpmaddubsw), NEON on
-//             aarch64; else the portable kernels.
+//             aarch64 (int8 with SDOT where the CPU has the dot-product instructions, else
+//             widening multiplies); else the portable kernels.
 //   kPortable the same plan with plain C++ kernels (any CPU; for comparison and fallback).
 //   kOneDnn   oneDNN primitives (convolution with fused ReLU, inner product), float32 only; only
 //             when asked for (slower than kKernels on every CPU measured). Builds without oneDNN
@@ -46,13 +47,13 @@
 // Precision (RuntimeOptions::precision):
 //   kFloat32   matches LibTorch on the same weights to well below 1e-3 mm.
 //   kBfloat16  weights and activations rounded to bfloat16, products accumulated in float32
-//              (vdpbf16ps on AVX512_BF16; widened to float32 and FMA on AVX2, which saves
-//              memory traffic, not arithmetic), convolutions direct; on the seed CNN with
+//              (vdpbf16ps on AVX512_BF16; widened to float32 and FMA on AVX2 and NEON, which
+//              saves memory traffic, not arithmetic), convolutions direct; on the seed CNN with
 //              AVX512_BF16 about 1.9x the speed of direct float32, 1.4x Winograd float32. On random
 //              models the outputs differ from float32 by at most 0.01-0.5 % of each output's scale
 //              (0.005 mm on the seed CNN, 0.2 mm on an MLP at a 40 mm scale;
 //              docs/benchmarks/runtime.md). create() returns kUnsupported when the kernels have no
-//              bfloat16 for this CPU (kKernels/ kAuto without AVX2 or AVX-512) or the backend is
+//              bfloat16 for this CPU (kKernels/ kAuto on x86 without AVX2) or the backend is
 //              kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
 //   kInt8      the layers that carry at least 1/40 of the multiply-adds and whose input is a
 //              ReLU output (seed CNN: conv1, conv2, conv3, fc0, fc1 = 99 % of the work) run as
