@@ -67,4 +67,4 @@ if [[ ${SKINBUS_SKIP_X86_QEMU:-0} != 1 ]]; then
   expect_line "kernels in use|PASSED|FAILED" "kernels in use: kernels avx2 int8" \
     qemu-x86_64 -cpu "$haswell" build/fusion/fusion_network_runtime_isa_test
 fi
-echo "arm_test.sh: the aarch64 runtime tests passed under qemu-aarch64 (max, cortex-a53)"
+echo "arm_test.sh: passed (aarch64 under qemu-aarch64 max and cortex-a53$([[ ${SKINBUS_SKIP_X86_QEMU:-0} == 1 ]] || echo "; x86 AVX2 under qemu-x86_64 Haswell"))"
