@@ -22,7 +22,9 @@ namespace skinbus::fusion::detail {
 namespace {
 
 // The dot-product instructions are an Armv8.2 extension (FEAT_DotProd): every CPU that has them
-// implements Armv8.2, and GCC's arm_neon.h declares their intrinsics for that architecture.
+// implements Armv8.2, and GCC's arm_neon.h declares their intrinsics for that architecture. (The
+// aarch64 build is made with GCC, Debian's g++-aarch64-linux-gnu; clang 14's arm_neon.h declares
+// them only when the whole file is compiled with +dotprod, which this attribute cannot replace.)
 #define SKINBUS_DOTPROD __attribute__((target("arch=armv8.2-a+dotprod")))
 
 constexpr int kQuarter = 4;  // floats (or int32 sums) per q register
