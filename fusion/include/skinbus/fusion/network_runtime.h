@@ -53,7 +53,7 @@
 //              models the outputs differ from float32 by at most 0.01-0.5 % of each output's scale
 //              (0.005 mm on the seed CNN, 0.2 mm on an MLP at a 40 mm scale;
 //              docs/benchmarks/runtime.md). create() returns kUnsupported when the kernels have no
-//              bfloat16 for this CPU (kKernels/ kAuto on x86 without AVX2) or the backend is
+//              bfloat16 for this CPU (kKernels/ kAuto without AVX2 or AVX-512) or the backend is
 //              kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
 //   kInt8      the layers that carry at least 1/40 of the multiply-adds and whose input is a
 //              ReLU output (seed CNN: conv1, conv2, conv3, fc0, fc1 = 99 % of the work) run as
