@@ -23,6 +23,9 @@ packages=(
   # the deploying guide's VM test: systemd-udevd in the guest, and the emulated CTU CAN FD
   # controller's driver, built against Debian's kernel headers (scripts/can_vm.sh --ctucanfd)
   udev make gcc-12
+  # the Arm build of the network runtime, its tests under user-mode QEMU (scripts/arm_test.sh;
+  # GoogleTest for arm64 is built from libgtest-dev's sources)
+  g++-aarch64-linux-gnu qemu-user
   # reports and plots
   python3 python3-matplotlib
 )

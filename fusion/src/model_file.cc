@@ -1,6 +1,6 @@
 #include "skinbus/fusion/model_file.h"
 
-#include "skinbus/common/yaml_reader.h"
+#include "skinbus/common/text_file.h"
 
 #include <algorithm>
 #include <cmath>

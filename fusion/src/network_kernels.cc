@@ -207,6 +207,9 @@ const KernelSet* avx2_dot_product_kernels() {
 const KernelSet* neon_kernels() {
   return nullptr;
 }
+const KernelSet* neon_widening_kernels() {
+  return nullptr;
+}
 #endif
 
 const KernelSet* kernels_for(KernelIsa isa) {

@@ -96,8 +96,13 @@ const KernelSet* avx2_kernels();
 // runs it) where the CPU has it, else the same kernels in the EVEX form on AVX512_VNNI + VL CPUs;
 // null elsewhere. For tests: it checks the dot-product variant on CPUs without AVX-VNNI.
 const KernelSet* avx2_dot_product_kernels();
-// NEON kernels on aarch64 (int8 with the dot-product instructions where present), else null.
+// NEON kernels on aarch64, else null. float32 with FMA in column groups that fit the 32 q
+// registers; int8 with SDOT (the dot-product instructions, HWCAP_ASIMDDP) where the CPU has them,
+// else widening multiplies (SMULL + SADALP); bfloat16 widened to float32 and summed with FMA.
 const KernelSet* neon_kernels();
+// The NEON set with its int8 entries on the widening path even where the CPU has the dot-product
+// instructions (so that tests check both int8 paths on one CPU); null off aarch64.
+const KernelSet* neon_widening_kernels();
 // The set for `isa`, or null when this CPU or build lacks it (portable: always).
 const KernelSet* kernels_for(KernelIsa isa);
 const char* kernel_isa_name(KernelIsa isa);  // "avx512", "avx2", "neon", "portable"

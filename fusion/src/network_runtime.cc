@@ -904,17 +904,7 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
     return make_error(ErrorCode::kUnsupported, "the oneDNN backend serves float32 only");
   }
   if (be == RuntimeBackend::kKernels) {
-    im.ks = &best;
-    if (im.bf16 && best.bf16[0][0] == nullptr) {
-      return make_error(ErrorCode::kUnsupported,
-                        std::string("bfloat16 has no kernels for this CPU (kernels ") + best.name +
-                            "): it needs AVX2 or AVX-512; the portable backend emulates it");
-    }
-    if (im.int8 && best.i8[0][0] == nullptr) {
-      return make_error(ErrorCode::kUnsupported,
-                        std::string("int8 has no kernels for this CPU (kernels ") + best.name +
-                            "): it needs AVX2, AVX-512 or NEON; the portable backend emulates it");
-    }
+    im.ks = &best;  // every set serves every precision (a CPU with none: the portable kernels)
   } else if (be == RuntimeBackend::kPortable) {
     im.ks = &detail::portable_kernels();
   }

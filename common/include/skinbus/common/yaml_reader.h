@@ -1,6 +1,7 @@
 // skinbus/common/yaml_reader.h: reading YAML settings files with errors that name the setting
 // and its line, and writing strings that read back identically. Shared by every file format of
 // the project that is YAML (patch node settings, skin maps). Header-only; link skinbus::yaml.
+// Also gives read_text_file (skinbus/common/text_file.h).
 #pragma once
 
 #include <yaml-cpp/yaml.h>
@@ -19,6 +20,7 @@
 #include <vector>
 
 #include "skinbus/common/result.h"
+#include "skinbus/common/text_file.h"
 
 namespace skinbus {
 
@@ -203,15 +205,6 @@ inline Result<YAML::Node> parse_yaml_text(const std::string& text) {
     return make_error(ErrorCode::kParse, "line " + std::to_string(e.mark.line + 1) + ", column " +
                                              std::to_string(e.mark.column + 1) + ": " + e.msg);
   }
-}
-
-// Reads a whole text file; `what` names it in the error ("config file", "skin map").
-inline Result<std::string> read_text_file(const std::string& path, const std::string& what) {
-  std::ifstream in(path);
-  if (!in) return make_error(ErrorCode::kNotFound, what + " " + path + ": " + std::strerror(errno));
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
 }
 
 }  // namespace skinbus

@@ -38,21 +38,23 @@
 //             RuntimeOptions::max_isa allows) is selected at run time: AVX-512 (F/VL/BW/DQ;
 //             bfloat16 with AVX512_BF16, int8 with AVX512_VNNI, else those two from the AVX2
 //             set), AVX2 + FMA (int8 with AVX-VNNI where present, else vpmaddubsw), NEON on
-//             aarch64; else the portable kernels.
+//             aarch64 (int8 with SDOT where the CPU has the dot-product instructions, else
+//             widening multiplies); else the portable kernels.
 //   kPortable the same plan with plain C++ kernels (any CPU; for comparison and fallback).
 //   kOneDnn   oneDNN primitives (convolution with fused ReLU, inner product), float32 only; only
-//             when asked for (slower than kKernels on every CPU measured).
+//             when asked for (slower than kKernels on every CPU measured). Builds without oneDNN
+//             (SKINBUS_ONEDNN=OFF, as the Arm build) refuse it with kUnsupported.
 // Precision (RuntimeOptions::precision):
 //   kFloat32   matches LibTorch on the same weights to well below 1e-3 mm.
 //   kBfloat16  weights and activations rounded to bfloat16, products accumulated in float32
-//              (vdpbf16ps on AVX512_BF16; widened to float32 and FMA on AVX2, which saves
-//              memory traffic, not arithmetic), convolutions direct; on the seed CNN with
+//              (vdpbf16ps on AVX512_BF16; widened to float32 and FMA on AVX2 and NEON, which
+//              saves memory traffic, not arithmetic), convolutions direct; on the seed CNN with
 //              AVX512_BF16 about 1.9x the speed of direct float32, 1.4x Winograd float32. On random
 //              models the outputs differ from float32 by at most 0.01-0.5 % of each output's scale
 //              (0.005 mm on the seed CNN, 0.2 mm on an MLP at a 40 mm scale;
-//              docs/benchmarks/runtime.md). create() returns kUnsupported when the kernels have no
-//              bfloat16 for this CPU (kKernels/ kAuto without AVX2 or AVX-512) or the backend is
-//              kOneDnn; kPortable emulates it on any CPU (slowly, for tests).
+//              docs/benchmarks/runtime.md). create() returns kUnsupported when the backend is
+//              kOneDnn; kKernels serves it on every CPU (on one without AVX2, AVX-512 or NEON
+//              with the portable kernels, slowly); kPortable emulates it anywhere (for tests).
 //   kInt8      the layers that carry at least 1/40 of the multiply-adds and whose input is a
 //              ReLU output (seed CNN: conv1, conv2, conv3, fc0, fc1 = 99 % of the work) run as
 //              7-bit unsigned activations (0..127) x signed 8-bit weights with exact int32 sums
@@ -65,8 +67,9 @@
 //              computed during the run (no calibration data), so a sample's result does not
 //              depend on its batch. Scales, bias, ReLU and pooling in float32; convolutions
 //              direct. Speed and the error it adds: docs/benchmarks/runtime.md. create()
-//              returns kUnsupported when the kernels have no int8 for this CPU or the backend is
-//              kOneDnn; kPortable computes the same integer sums on any CPU (slowly, for tests).
+//              returns kUnsupported when the backend is kOneDnn; kKernels serves it on every CPU
+//              (the portable kernels where no vector set is), and kPortable computes the same
+//              integer sums anywhere (slowly, for tests).
 // Convolutions (RuntimeOptions::convolution; kKernels and kPortable, float32):
 //   kDirect    the in-bounds taps of the grid, each a product of the cells' rows by the tap's
 //              weights (on the seed CNN's 4x4 grid: 100 (cell, tap) pairs per channel pair).
