@@ -76,6 +76,10 @@ SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_KINEMATICS_ST
                       PatchEventKind::kKinematicsStale);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_KINEMATICS_FRESH,
                       PatchEventKind::kKinematicsFresh);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_HOST_LAGGING,
+                      PatchEventKind::kHostLagging);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_HOST_CAUGHT_UP,
+                      PatchEventKind::kHostCaughtUp);
 #undef SKINBUS_SAME_CONSTANT
 
 namespace {
@@ -89,7 +93,7 @@ using JointStateMsg = sensor_msgs_msg_dds__JointState_;
 using TimeMsg = builtin_interfaces_msg_dds__Time_;
 
 constexpr uint8_t kPatchLinkStateMax = static_cast<uint8_t>(PatchLinkState::kOffline);
-constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kKinematicsFresh);
+constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kHostCaughtUp);
 constexpr double kMmPerM = 1000.0;
 constexpr double kUsPerS = 1e6;
 
