@@ -18,8 +18,10 @@
 //       kEmpty: `out` is left as it is.
 //
 // Extrapolation error: a joint accelerating at a rad/s^2 is off by a*e^2/2 after e seconds, so
-// 30 ms at 10 rad/s^2 is 4.5 mrad, 2.3 mm at 0.5 m from the joint; holding the last entry
-// instead would be off by the joint speed times e (15 mrad, 7.5 mm at 0.5 rad/s).
+// 50 ms at 4 rad/s^2 is 5 mrad, 2.5 mm at 0.5 m from the joint; holding the last entry instead
+// would be off by the joint speed times e (25 mrad, 12.5 mm at 0.5 rad/s). A stream of joint
+// states at 100 Hz or more is extrapolated by at most a period plus its delivery time; the
+// allowance only matters when a state comes late.
 //
 // Order: add() with a stamp older than the newest entry is refused (kOutOfOrder) and leaves the
 // history as it is; an equal stamp overwrites the newest entry (kMerged: several publishers of
@@ -42,7 +44,7 @@ struct JointHistoryOptions {
   // must exceed the oldest sample the caller still places (the aggregator's max_lag_us).
   std::size_t capacity = 512;
   // How far past either end of the entries pose_at() still extrapolates (kExtrapolated).
-  uint64_t extrapolation_us = 30'000;
+  uint64_t extrapolation_us = 50'000;
 };
 
 class JointHistory {
