@@ -86,10 +86,13 @@ struct Aggregator::Impl {
   std::vector<Pending> pending;           // kMaxBuses * 128
   std::vector<std::size_t> pending_list;  // indices into pending
 
-  // The current contact of each patch that has one.
+  // The current contact of each patch that has one, in its link's frame (position and normal;
+  // flags without the kinematics ones): every publication places all of them with the pose at
+  // its own stamp, so one array is one instant of the robot.
   struct Current {
     bool used = false;
     PatchContact contact;
+    int link = -1;         // robot link index; -1: the base frame (no robot, or unmapped)
     uint64_t time_us = 0;  // aligned sample time
     uint64_t last_us = 0;  // host time of its last contact sample
   };
@@ -131,9 +134,13 @@ struct Aggregator::Impl {
   }
 
   void on_sample(int bus, uint8_t node, const bus::Sample& s, uint32_t missing, uint64_t rx_us);
-  // Places `est` of sample time `time_us` in the base frame; false when no pose can be had.
-  bool place(const PatchEntry& e, const ContactEstimate& est, const Model& m, uint32_t flags,
-             uint64_t time_us, PatchContact* out);
+  // Places `est` on its patch's link: the contact in the link's frame; *link the robot link
+  // (-1: the link frame is the base frame).
+  void place(const PatchEntry& e, const ContactEstimate& est, const Model& m, uint32_t flags,
+             PatchContact* out, int* link);
+  // `c` (in the frame of `link`) into the base frame with the pose at `time_us`; false when no
+  // pose can be had.
+  bool to_base(int link, uint64_t time_us, PatchContact* c);
   // The positions at `time_us` (cached per time) into q_at; ORs the kinematics flags into
   // *flags.
   const std::vector<double>& pose_at(uint64_t time_us, uint32_t* flags);
@@ -349,27 +356,20 @@ const std::vector<double>& Aggregator::Impl::pose_at(uint64_t time_us, uint32_t*
   return q_at;
 }
 
-bool Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, const Model& m,
-                             uint32_t flags, uint64_t time_us, PatchContact* out) {
+void Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, const Model& m,
+                             uint32_t flags, PatchContact* out, int* link) {
   const body_map::PatchPlacement& pl = *e.placement;
   // The contact point on the undeformed skin surface; depth is reported alongside.
   const body_map::SurfacePoint sp = body_map::link_surface_point(pl, est.u_mm, est.v_mm, 0.0);
-  Eigen::Vector3d point = sp.point_mm, normal = sp.normal;
+  *link = -1;
   if (robot != nullptr) {
-    const int link = link_of_placement[static_cast<std::size_t>(&pl - map->patches.data())];
-    if (link >= 0) {
-      // The link's pose at the sample's own time.
-      auto pose = robot->link_pose(pose_at(time_us, &flags), link);
-      if (!pose) return false;  // cannot happen with finite positions: never a guessed place
-      point = pose->apply(point);
-      normal = pose->rotation * normal;
-    } else {
-      flags |= kContactUnmapped;  // the link is not in the robot: its frame taken as the base
-    }
+    *link = link_of_placement[static_cast<std::size_t>(&pl - map->patches.data())];
+    // The link is not in the robot: its frame taken as the base.
+    if (*link < 0) flags |= kContactUnmapped;
   }
   for (int i = 0; i < 3; ++i) {
-    out->position_mm[i] = point[i];
-    out->normal[i] = normal[i];
+    out->position_mm[i] = sp.point_mm[i];
+    out->normal[i] = sp.normal[i];
   }
   out->depth_mm = est.depth_mm;
   out->force_n = est.force_n;
@@ -380,6 +380,21 @@ bool Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, co
   out->hardware_uid = e.hardware_uid != 0 ? e.hardware_uid : pl.hardware_uid;
   out->link = pl.link;
   out->flags = flags;
+}
+
+bool Aggregator::Impl::to_base(int link, uint64_t time_us, PatchContact* c) {
+  if (link < 0) return true;
+  // The link's pose at that time.
+  auto pose = robot->link_pose(pose_at(time_us, &c->flags), link);
+  if (!pose) return false;  // cannot happen with finite positions: never a guessed place
+  const Eigen::Vector3d p =
+      pose->apply(Eigen::Vector3d(c->position_mm[0], c->position_mm[1], c->position_mm[2]));
+  const Eigen::Vector3d n =
+      pose->rotation * Eigen::Vector3d(c->normal[0], c->normal[1], c->normal[2]);
+  for (int i = 0; i < 3; ++i) {
+    c->position_mm[i] = p[i];
+    c->normal[i] = n[i];
+  }
   return true;
 }
 
@@ -569,7 +584,9 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       if (est.flags & kEstimateDepthRange) flags |= kContactDepthRange;
       if (est.flags & kEstimateMasked) flags |= kContactMaskedChannels;
       PatchContact& placed = s.placed;  // placed aside: a bad estimate never erases a held one
-      bool finite = s.place(*p.entry, est, m, flags, p.time_us, &placed);
+      int link = -1;
+      s.place(*p.entry, est, m, flags, &placed, &link);
+      bool finite = true;
       for (int i = 0; i < 3; ++i) {
         finite = finite && std::isfinite(placed.position_mm[i]) && std::isfinite(placed.normal[i]);
       }
@@ -579,6 +596,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       }
       Impl::Current& c = s.current[k];
       c.contact = placed;
+      c.link = link;
       ++p.entry->contacts;
       changed = true;
       c.time_us = p.time_us;
@@ -594,15 +612,18 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   s.released = false;
   if (!changed) return false;  // only rejected, late or dropped samples: nothing to publish
 
-  // Merge and track over every patch's current contact.
+  // Every patch's current contact in the base frame at one instant, the newest sample time (a
+  // held contact, the press still on its patch, goes with its limb to where it is then); then
+  // merge and track.
   s.scratch_contacts.clear();
   uint64_t stamp = 0;
   std::sort(s.current_list.begin(), s.current_list.end());
-  for (std::size_t k : s.current_list) {
-    s.scratch_contacts.push_back(s.current[k].contact);
-    stamp = std::max(stamp, s.current[k].time_us);
-  }
+  for (std::size_t k : s.current_list) stamp = std::max(stamp, s.current[k].time_us);
   if (stamp == 0) stamp = now_us;
+  for (std::size_t k : s.current_list) {
+    PatchContact& c = s.scratch_contacts.emplace_back(s.current[k].contact);
+    if (!s.to_base(s.current[k].link, stamp, &c)) s.scratch_contacts.pop_back();
+  }
   out->stamp_us = stamp;
   out->base_frame = s.options.base_frame;
   out->contacts.clear();

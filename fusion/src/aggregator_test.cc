@@ -370,6 +370,32 @@ TEST(Aggregator, LateSamplesArePlacedWithThePoseAtTheirOwnTime) {
   EXPECT_EQ(f.agg->stats().late_superseded, 0u);
 }
 
+TEST(Aggregator, OnePublicationIsOneInstantOfTheRobot) {
+  // Patch 3's contact is held while patch 4's newer sample is published: both are placed with
+  // the pose at the array's stamp (the newest sample), patch 3's press going with the arm.
+  Fixture f({}, /*with_robot=*/true);
+  uint64_t t = 1'000'000;
+  const Swing swing{t, 2.0};
+  f.n3.heartbeat(*f.agg, t, 1);
+  f.n4.heartbeat(*f.agg, t, 1);
+  swing.feed(*f.agg, t, t + 100'000);
+  ContactArray out;
+  f.n3.sample_at(*f.agg, t + 20'000, press(40, 0, 2.5, 33));
+  ASSERT_TRUE(f.agg->process(t + 21'000, &out));
+  f.n4.sample_at(*f.agg, t + 50'000, press(12, -20, 2.5, 34));
+  ASSERT_TRUE(f.agg->process(t + 51'000, &out));
+  ASSERT_EQ(out.contacts.size(), 2u);
+  ASSERT_GE(out.stamp_us, t + 45'000);
+  const double theta = swing.at(out.stamp_us);
+  for (const BodyContact& c : out.contacts) {
+    const auto want = on_arm((c.node == 4 ? 150 : 0) + c.u_mm, c.v_mm, theta);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_NEAR(c.position_mm[k], want[static_cast<std::size_t>(k)], 1e-6) << "node " << +c.node;
+    }
+    EXPECT_EQ(c.flags & (kContactStaleKinematics | kContactNoKinematics), 0u);
+  }
+}
+
 TEST(Aggregator, SamplesTheJointHistoryDoesNotCoverAreFlagged) {
   AggregatorOptions o;
   o.max_lag_us = 0;  // no lag bound: samples of any age are placed

@@ -34,7 +34,10 @@
 // first joint state contacts use the zero pose, flagged kContactNoKinematics. When the newest
 // state is older than `kinematics_stale_us` a kKinematicsStale event is queued once (tick()), and
 // kKinematicsFresh when states resume. Without a robot model, link frames are taken as the base
-// frame. Forward kinematics runs per placed contact, along its link's chain only.
+// frame. A publication is one instant: its stamp is the newest sample time among its contacts,
+// and every contact in it is placed with the pose at that stamp (a contact held from an older
+// sample, the press still on its patch, goes with its limb). Forward kinematics runs per
+// published contact, along its link's chain only.
 //
 // Lag: falling behind may cost latency, never correctness. A queued sample whose time is more
 // than `max_lag_us` (100 ms) before process()'s `now_us` is superseded: not estimated, counted
@@ -114,8 +117,10 @@ struct AggregatorStats {
   uint64_t model_runs = 0;       // batched runs
   uint64_t unknown_joints = 0;   // joint names not in the robot model
   uint64_t joint_states_out_of_order = 0;  // stamped before the newest joint state: ignored
-  uint64_t kinematics_uncovered = 0;  // contacts placed outside the joint-state history (flagged)
-  uint64_t publications = 0;          // ContactArrays produced by process()
+  // Contacts published with a pose the joint-state history did not cover (flagged), counted per
+  // publication.
+  uint64_t kinematics_uncovered = 0;
+  uint64_t publications = 0;  // ContactArrays produced by process()
 };
 
 class Aggregator {
