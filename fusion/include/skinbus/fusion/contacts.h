@@ -20,13 +20,13 @@ enum BodyContactFlag : uint32_t {
   // The joint states do not cover the sample's time (they stopped, or began after it, more than
   // the extrapolation allowance before or after it): the nearest known pose was used.
   kContactStaleKinematics = 1u << 0,
-  kContactNoKinematics = 1u << 1,     // no joint state yet: the robot's zero pose was used
-  kContactMerged = 1u << 2,           // several patches saw this press (merged into one)
-  kContactOutsidePatch = 1u << 3,     // the estimate lies beyond the patch edge (kept, flagged)
-  kContactDepthRange = 1u << 4,       // depth beyond what the model knows (kept, flagged)
-  kContactMaskedChannels = 1u << 5,   // some sensors were left out (dead or saturated)
-  kContactAmbientLarge = 1u << 6,     // the common-mode field removed was large (> limit)
-  kContactUnmapped = 1u << 7,         // the patch has no skin-map entry: position is patch-frame
+  kContactNoKinematics = 1u << 1,    // no joint state yet: the robot's zero pose was used
+  kContactMerged = 1u << 2,          // several patches saw this press (merged into one)
+  kContactOutsidePatch = 1u << 3,    // the estimate lies beyond the patch edge (kept, flagged)
+  kContactDepthRange = 1u << 4,      // depth beyond what the model knows (kept, flagged)
+  kContactMaskedChannels = 1u << 5,  // some sensors were left out (dead or saturated)
+  kContactAmbientLarge = 1u << 6,    // the common-mode field removed was large (> limit)
+  kContactUnmapped = 1u << 7,        // the patch has no skin-map entry: position is patch-frame
 };
 
 // One contact in the robot's base frame.
