@@ -715,13 +715,11 @@ int main(int argc, char** argv) {
                  "the lag bound: a sample that cannot be published within this many ms of its "
                  "time is superseded, not estimated (0: no bound; --fast replays bound by log time "
                  "only)")
-      ->capture_default_str()
-      ->check(CLI::Range(0.0, 60'000.0));
+      ->capture_default_str();
   app.add_option("--model-delay-us", a.model_delay_us,
                  "test aid: every estimate busy-waits this many us more, as on a slower CPU "
                  "(tests of the lag bound)")
       ->capture_default_str()
-      ->check(CLI::Range(0, 1'000'000))
       ->group("Testing");
   app.add_flag("--stats", a.stats, "print pipeline statistics and latency at the end (stderr)");
   app.add_flag("-q,--quiet", a.quiet, "do not log events");
@@ -729,6 +727,12 @@ int main(int argc, char** argv) {
   try {
     if (a.replay.empty() && a.interfaces.empty()) {
       throw std::invalid_argument("give -i INTERFACE (live) or --replay LOG");
+    }
+    if (!(a.max_lag_ms >= 0 && a.max_lag_ms <= 60'000)) {
+      throw std::invalid_argument("--max-lag-ms: 0 (no bound) to 60000");
+    }
+    if (a.model_delay_us < 0 || a.model_delay_us > 1'000'000) {
+      throw std::invalid_argument("--model-delay-us: 0 to 1000000");
     }
     if (a.live && (a.replay.empty() || a.fast || a.live_and_replay)) {
       throw std::invalid_argument("--live: with --replay, without --fast or --live-and-replay");
