@@ -156,7 +156,8 @@ class Joints {
   void update(fusion::Aggregator& agg, uint64_t now_us, uint64_t run_start_us) {
     if (have_traj_) {
       // The file's rows since the last call, at their own times (the history then interpolates
-      // exactly as the file does), then the pose now.
+      // exactly as the file does), then the pose now, at most every 10 ms (between rows the file
+      // is a straight line, which the history extends exactly; the loop may pass far more often).
       const double t_s = static_cast<double>(now_us - run_start_us) * 1e-6;
       for (; next_row_ < traj_.rows() && traj_.t_s[next_row_] < t_s; ++next_row_) {
         const double row_s = traj_.t_s[next_row_];
@@ -166,8 +167,11 @@ class Joints {
         agg.set_joint_state(traj_.names, row,
                             run_start_us + static_cast<uint64_t>(std::llround(row_s * 1e6)));
       }
-      traj_.sample(t_s, q_);
-      agg.set_joint_state(traj_.names, q_, now_us);
+      if (last_now_us_ == 0 || now_us >= last_now_us_ + 10'000) {
+        traj_.sample(t_s, q_);
+        agg.set_joint_state(traj_.names, q_, now_us);
+        last_now_us_ = now_us;
+      }
     }
 #ifdef SKINBUS_HAVE_DDS
     if (sub_ && sub_->take_all(&states_) > 0) {
@@ -202,6 +206,7 @@ class Joints {
   bool have_traj_ = false;
   body_map::JointTrajectory traj_;
   std::size_t next_row_ = 0;
+  uint64_t last_now_us_ = 0;  // when the pose "now" was last fed
   std::vector<double> q_;
 #ifdef SKINBUS_HAVE_DDS
   std::unique_ptr<fusion::JointStateSubscriber> sub_;
