@@ -99,10 +99,11 @@ JointHistory::Coverage JointHistory::pose_at(uint64_t t_us, std::span<double> ou
     }
     lo = a;
   }
-  const double t0 = static_cast<double>(stamp(lo));
-  const double t1 = static_cast<double>(stamp(lo + 1));
-  const double w = (static_cast<double>(t_us) - t0) / (t1 - t0);  // stamps strictly increase
-  blend(row(lo), row(lo + 1), w, out.first(n));
+  // Differences first: exact for any stamps (strictly increasing, so the span is not 0).
+  const uint64_t t0 = stamp(lo), span = stamp(lo + 1) - t0;
+  const double offset =
+      t_us >= t0 ? static_cast<double>(t_us - t0) : -static_cast<double>(t0 - t_us);
+  blend(row(lo), row(lo + 1), offset / static_cast<double>(span), out.first(n));
   return coverage;
 }
 

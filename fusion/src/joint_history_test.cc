@@ -55,6 +55,19 @@ TEST(JointHistory, ExtrapolatesALittleAndNamesWhatLiesBeyond) {
   EXPECT_NEAR(q[0], 0.0, 1e-12);
 }
 
+TEST(JointHistory, StampsBeyondDoublePrecisionStillInterpolate) {
+  // Host times are microseconds; far beyond 2^53 a double cannot tell neighbours apart.
+  const uint64_t base = (uint64_t{1} << 62) + 1;
+  JointHistory h(1, {});
+  h.add(base, std::vector<double>{0.0});
+  h.add(base + 10, std::vector<double>{1.0});
+  std::vector<double> q(1);
+  EXPECT_EQ(h.pose_at(base + 3, q), Coverage::kInterpolated);
+  EXPECT_NEAR(q[0], 0.3, 1e-12);
+  EXPECT_EQ(h.pose_at(base - 5, q), Coverage::kExtrapolated);
+  EXPECT_NEAR(q[0], -0.5, 1e-12);
+}
+
 TEST(JointHistory, WrappingJointsTakeTheShorterWay) {
   JointHistory h(2, {true, false});
   const double a = std::numbers::pi - 0.1, b = -std::numbers::pi + 0.1;
