@@ -6,10 +6,12 @@
 //   frames --on_frame()--> reassembly (one bus::Reassembler per bus)
 //          --> registry (patch_registry.h: discovery, states, reboots, duplicate IDs, clocks)
 //          --> samples flagged `contact` are queued, newest per patch; all others end here
-//   process() --> common-mode (ambient) rejection (ambient.h) --> the per-patch models, one
+//   process() --> the lag bound (samples too old to publish in time are superseded)
+//          --> common-mode (ambient) rejection (ambient.h) --> the per-patch models, one
 //          batched run per model file over every patch with a queued sample (network_runtime.h)
 //          --> patch (u, v, depth) -> surface point and normal on the patch's geometry -> the
-//          patch's link (skin map) -> the base frame (forward kinematics from joint states)
+//          patch's link (skin map) -> the base frame (forward kinematics at the pose of the
+//          sample's time, from the joint-state history)
 //          --> merge across patches and track (contact_tracker.h) --> ContactArray
 //
 // Skip what a scene does not need: an idle patch costs its heartbeat once a second (event
@@ -46,8 +48,9 @@
 // the samples that could not be published within max_lag_us of their time (it takes them in turn
 // across calls, so every patch is served when not all fit). The first late sample of an episode
 // queues a kHostLagging event (status topic and log); tick() queues kHostCaughtUp with the count
-// once none has been late for `lag_quiet_us`. Every contact that is published is still placed at
-// its own sample's time.
+// once none has been late for `lag_quiet_us`. Every contact that is published is still placed
+// with the robot's pose at its publication's stamp, a sample time, never at the time the host
+// got to it.
 //
 // Nothing here throws; no NaN or Inf leaves: non-finite estimates are rejections, counted.
 // Not thread-safe: one thread feeds, processes and reads.
