@@ -46,7 +46,9 @@
 // (late_superseded). Given `clock_us` (the host clock of now_us), process() also bounds the time
 // its own model runs take: it measures each model's cost per sample and, before a run, supersedes
 // the samples that could not be published within max_lag_us of their time (it takes them in turn
-// across calls, so every patch is served when not all fit). The first late sample of an episode
+// across calls, so every patch is served when not all fit). When a single estimate takes longer
+// than the bound, the bound cannot be met: each run then takes the first sample still in time,
+// in turn, and publishes it late by about one estimate. The first late sample of an episode
 // queues a kHostLagging event (status topic and log); tick() queues kHostCaughtUp with the count
 // once none has been late for `lag_quiet_us`. Every contact that is published is still placed
 // with the robot's pose at its publication's stamp, a sample time, never at the time the host
