@@ -226,6 +226,10 @@ host --map "$work/h/none.yaml" --replay /dev/null --no-dds 2>"$work/h/e3.txt"; r
 [[ $rc == 1 ]] && grep -q "none.yaml" "$work/h/e3.txt" && ok "skinbus-host: missing map named" || { bad "host missing map (rc $rc)"; cat "$work/h/e3.txt"; }
 host --map "$work/h/truth.yaml" --no-dds 2>"$work/h/e4.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "give -i" "$work/h/e4.txt" && ok "skinbus-host: no input" || { bad "host no input (rc $rc)"; cat "$work/h/e4.txt"; }
+host --map "$work/h/truth.yaml" --no-dds --replay - --live --fast </dev/null 2>"$work/h/e5.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q -- "--live: with --replay, without --fast" "$work/h/e5.txt" && ok "skinbus-host: --live with --fast" || { bad "host --live --fast (rc $rc)"; cat "$work/h/e5.txt"; }
+host --map "$work/h/truth.yaml" --no-dds --replay /dev/null --max-lag-ms -5 2>"$work/h/e6.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q -- "--max-lag-ms" "$work/h/e6.txt" && ok "skinbus-host: bad --max-lag-ms" || { bad "host --max-lag-ms -5 (rc $rc)"; cat "$work/h/e6.txt"; }
 
 for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate; do
   "$bin/$t" --help | grep -q "Examples:\|Example:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
