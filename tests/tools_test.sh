@@ -230,6 +230,8 @@ host --map "$work/h/truth.yaml" --no-dds --replay - --live --fast </dev/null 2>"
 [[ $rc == 2 ]] && grep -q -- "--live: with --replay, without --fast" "$work/h/e5.txt" && ok "skinbus-host: --live with --fast" || { bad "host --live --fast (rc $rc)"; cat "$work/h/e5.txt"; }
 host --map "$work/h/truth.yaml" --no-dds --replay /dev/null --max-lag-ms -5 2>"$work/h/e6.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q -- "--max-lag-ms" "$work/h/e6.txt" && ok "skinbus-host: bad --max-lag-ms" || { bad "host --max-lag-ms -5 (rc $rc)"; cat "$work/h/e6.txt"; }
+host --map "$work/h/truth.yaml" --no-dds --replay /dev/null --isa sse 2>"$work/h/e7.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q -- "--isa: avx512, avx2, neon or portable" "$work/h/e7.txt" && ok "skinbus-host: bad --isa" || { bad "host --isa sse (rc $rc)"; cat "$work/h/e7.txt"; }
 
 for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate; do
   grep -q "Examples:\|Example:\|skinbus-dbc:" <<<"$("$bin/$t" --help)" && ok "$t --help" || bad "$t --help"

@@ -200,6 +200,10 @@ std::unique_ptr<fusion::Aggregator> make_aggregator(const Setup& s, const HostBe
                                                     bool paced) {
   fusion::AggregatorOptions o;
   o.runtime.threads = a.threads;
+  o.runtime.precision = a.precision == "int8"       ? fusion::RuntimePrecision::kInt8
+                        : a.precision == "bfloat16" ? fusion::RuntimePrecision::kBfloat16
+                                                    : fusion::RuntimePrecision::kFloat32;
+  fusion::parse_runtime_isa(a.isa, &o.runtime.max_isa);
   o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
   o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
   if (paced) o.clock_us = bus::monotonic_now_us;
@@ -208,6 +212,11 @@ std::unique_ptr<fusion::Aggregator> make_aggregator(const Setup& s, const HostBe
   if (!agg) {
     std::fprintf(stderr, "skinbus-bench host: %s\n", agg.error().to_string().c_str());
     return nullptr;
+  }
+  static bool said = false;  // the kernels in use, once
+  if (!said) {
+    said = true;
+    for (const std::string& m : (*agg)->model_descriptions()) std::printf("model: %s\n", m.c_str());
   }
   return std::move(*agg);
 }
@@ -319,6 +328,14 @@ void add_host_options(CLI::App* sub, HostBenchArgs& a) {
   sub->add_option("--mode", a.mode, "stream (idle patches send samples) or event")
       ->capture_default_str();
   sub->add_option("--threads", a.threads, "threads of each model runtime")->capture_default_str();
+  sub->add_option("--precision", a.precision, "network precision")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"float32", "bfloat16", "int8"}));
+  sub->add_option("--isa", a.isa,
+                  "the widest instruction set the kernels may use (avx2: what an AVX2-only CPU "
+                  "runs)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"avx512", "avx2", "neon", "portable"}));
   sub->add_option("--max-lag-ms", a.max_lag_ms,
                   "the aggregator's lag bound (0: none): samples it cannot publish within this "
                   "of their time are superseded (counted as late)")
@@ -341,10 +358,10 @@ int bench_host(const HostBenchArgs& a) {
   const Pool pool = make_pool(0xB0B0);
   std::printf(
       "host aggregator: %s mode, 41.7 Hz, SYNC'd patches, CAN FD 1/5 Mbit/s buses of up "
-      "to 85%% load, %.0f s per configuration, model runtime threads %d, %u cores, lag bound "
-      "%g ms, model delay %d us\n",
-      a.mode.c_str(), a.seconds, a.threads, std::thread::hardware_concurrency(), a.max_lag_ms,
-      a.model_delay_us);
+      "to 85%% load, %.0f s per configuration, model runtime threads %d (%s, at most %s), %u "
+      "cores, lag bound %g ms, model delay %d us\n",
+      a.mode.c_str(), a.seconds, a.threads, a.precision.c_str(), a.isa.c_str(),
+      std::thread::hardware_concurrency(), a.max_lag_ms, a.model_delay_us);
   std::printf("\n%8s %6s %8s %10s %10s %10s %8s %12s %14s %10s %8s\n", "patches", "buses",
               "touched", "p50 us", "p99 us", "max us", "CPU %", "us/period", "us/idle patch",
               "estimated", "late");

@@ -55,7 +55,7 @@ struct HostArgs {
   std::string ns;
   double duration_s = 0;
   double status_period_s = 1.0;
-  std::string backend = "auto", precision = "float32", convolution = "auto";
+  std::string backend = "auto", precision = "float32", convolution = "auto", isa = "avx512";
   std::string ambient = "quiet-mean";
   int threads = 1;
   int spin_us = fusion::RuntimeOptions{}.spin_us;
@@ -623,6 +623,12 @@ fusion::RuntimeBackend parse_backend(const std::string& s) {
   throw std::invalid_argument("--backend: auto, kernels, portable or onednn");
 }
 
+fusion::RuntimeIsa parse_isa(const std::string& s) {
+  fusion::RuntimeIsa isa = fusion::RuntimeIsa::kAvx512;
+  if (fusion::parse_runtime_isa(s, &isa)) return isa;
+  throw std::invalid_argument("--isa: avx512, avx2, neon or portable");
+}
+
 fusion::RuntimePrecision parse_precision(const std::string& s) {
   if (s == "float32") return fusion::RuntimePrecision::kFloat32;
   if (s == "bfloat16") return fusion::RuntimePrecision::kBfloat16;
@@ -702,6 +708,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--precision", a.precision, "network precision: float32, bfloat16, int8")
       ->capture_default_str();
+  app.add_option("--isa", a.isa,
+                 "the widest instruction set the kernels may use: avx512 (every one this CPU "
+                 "has), avx2, neon, portable; the log names the kernels in use")
+      ->capture_default_str();
   app.add_option("--convolution", a.convolution,
                  "CNN convolutions: auto (Winograd for float32 where it computes less), direct, "
                  "winograd")
@@ -745,6 +755,7 @@ int main(int argc, char** argv) {
     fusion::AggregatorOptions o;
     o.runtime.backend = parse_backend(a.backend);
     o.runtime.precision = parse_precision(a.precision);
+    o.runtime.max_isa = parse_isa(a.isa);
     o.runtime.convolution = parse_convolution(a.convolution);
     o.runtime.threads = a.threads;
     o.runtime.spin_us = a.spin_us;
