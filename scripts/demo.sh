@@ -109,7 +109,7 @@ else
   fifo=$out/bus.fifo
   rm -f "$fifo"
   mkfifo "$fifo"
-  "$bin/skinbus-host" "${host_args[@]}" --replay - --fast <"$fifo" >"$out/host.jsonl" \
+  "$bin/skinbus-host" "${host_args[@]}" --replay - --live <"$fifo" >"$out/host.jsonl" \
     2>"$out/host.log" &
   host=$!
   pids+=($host)

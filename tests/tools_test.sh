@@ -86,7 +86,7 @@ head -400 "$work/id/unit.csv" >"$work/id/few.csv"
 "$bin/skinbus-identify" "$work/id/few.csv" -o "$work/id/few.json" >/dev/null 2>"$work/id/few.txt"; rc=$?
 [[ $rc == 1 ]] && grep -q "degenerate" "$work/id/few.txt" && [[ ! -e $work/id/few.json ]] &&
   ok "too few presses: a clear error and no unit file" || { bad "identify with too few presses (rc $rc)"; cat "$work/id/few.txt"; }
-"$bin/skinbus-identify" --help | grep -q "noise units" && ok "skinbus-identify --help" || bad "skinbus-identify --help"
+grep -q "noise units" <<<"$("$bin/skinbus-identify" --help)" && ok "skinbus-identify --help" || bad "skinbus-identify --help"
 
 "$bin/skinbus-crlb" --depths 2 --step 10 --csv "$work/crlb.csv" >"$work/crlb.txt" &&
   grep -q "^| 2.0 |" "$work/crlb.txt" && ok "skinbus-crlb table" || bad "skinbus-crlb table"
@@ -197,7 +197,7 @@ if [[ -x $bin/skinbus-train ]]; then
   [[ $rc == 2 ]] && grep -q "cut.csv" "$work/m/err1.txt" && ok "skinbus-train: corrupt dataset named" || { bad "skinbus-train corrupt dataset (rc $rc)"; cat "$work/m/err1.txt"; }
   "$bin/skinbus-train" "$work/m/train.csv" -o "$work/m/x" --base "$work/m/none" 2>"$work/m/err2.txt"; rc=$?
   [[ $rc == 2 ]] && grep -q "not_found" "$work/m/err2.txt" && ok "skinbus-train: missing base model" || { bad "skinbus-train missing base (rc $rc)"; cat "$work/m/err2.txt"; }
-  "$bin/skinbus-train" --help | grep -q "Examples:" && ok "skinbus-train --help" || bad "skinbus-train --help"
+  grep -q "Examples:" <<<"$("$bin/skinbus-train" --help)" && ok "skinbus-train --help" || bad "skinbus-train --help"
   "$bin/skinbus-bench" models --test "$work/m/test.csv" --train "$work/m/train.csv" --model "$work/m/mlp" \
     --latency-samples 5 --no-physics >"$work/m/bench.md" 2>/dev/null; rc=$?
   [[ $rc == 0 ]] && grep -q "^| mlp | runtime" "$work/m/bench.md" && grep -q "^| nearest-neighbour lookup" "$work/m/bench.md" &&
@@ -226,11 +226,17 @@ host --map "$work/h/none.yaml" --replay /dev/null --no-dds 2>"$work/h/e3.txt"; r
 [[ $rc == 1 ]] && grep -q "none.yaml" "$work/h/e3.txt" && ok "skinbus-host: missing map named" || { bad "host missing map (rc $rc)"; cat "$work/h/e3.txt"; }
 host --map "$work/h/truth.yaml" --no-dds 2>"$work/h/e4.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "give -i" "$work/h/e4.txt" && ok "skinbus-host: no input" || { bad "host no input (rc $rc)"; cat "$work/h/e4.txt"; }
+host --map "$work/h/truth.yaml" --no-dds --replay - --live --fast </dev/null 2>"$work/h/e5.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q -- "--live: with --replay, without --fast" "$work/h/e5.txt" && ok "skinbus-host: --live with --fast" || { bad "host --live --fast (rc $rc)"; cat "$work/h/e5.txt"; }
+host --map "$work/h/truth.yaml" --no-dds --replay /dev/null --max-lag-ms -5 2>"$work/h/e6.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q -- "--max-lag-ms" "$work/h/e6.txt" && ok "skinbus-host: bad --max-lag-ms" || { bad "host --max-lag-ms -5 (rc $rc)"; cat "$work/h/e6.txt"; }
+host --map "$work/h/truth.yaml" --no-dds --replay /dev/null --isa sse 2>"$work/h/e7.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q -- "--isa: avx512, avx2, neon or portable" "$work/h/e7.txt" && ok "skinbus-host: bad --isa" || { bad "host --isa sse (rc $rc)"; cat "$work/h/e7.txt"; }
 
 for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate; do
-  "$bin/$t" --help | grep -q "Examples:\|Example:\|skinbus-dbc:" && ok "$t --help" || bad "$t --help"
+  grep -q "Examples:\|Example:\|skinbus-dbc:" <<<"$("$bin/$t" --help)" && ok "$t --help" || bad "$t --help"
 done
-"$bin/skinbus-bench" --help | grep -q "calibration" && ok "skinbus-bench --help" || bad "skinbus-bench --help"
+grep -q "calibration" <<<"$("$bin/skinbus-bench" --help)" && ok "skinbus-bench --help" || bad "skinbus-bench --help"
 
 echo "$pass passed, $fail failed"
 ((fail == 0))

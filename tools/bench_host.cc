@@ -14,6 +14,10 @@
 //    published its contact (the ContactArray ready for the outputs; the DDS write is not
 //    included), over the samples after a 0.5 s warm-up. CPU use: the process's CPU time over the
 //    wall time of the run (to the end of its last period).
+//    With the lag bound on (--max-lag-ms, the aggregator's default 100 ms) the aggregator
+//    reads the clock and supersedes the samples it cannot publish in time ("late"); the latency
+//    is then over the samples it published. --model-delay-us makes every estimate slower, as a
+//    slower CPU would.
 //  - unpaced: the same frames fed as fast as possible: host time per period, and per idle patch
 //    per period (the 0 % touched rows).
 #include <time.h>
@@ -188,23 +192,37 @@ struct Result {
   int patches = 0, buses = 0, touched = 0;
   double p50_us = NAN, p99_us = NAN, max_us = NAN, cpu_percent = NAN;
   double period_us = NAN, idle_patch_us = NAN;
-  uint64_t estimated = 0, publications = 0;
+  uint64_t estimated = 0, publications = 0, late = 0;
 };
 
-std::unique_ptr<fusion::Aggregator> make_aggregator(const Setup& s, int threads) {
+// `paced`: on the monotonic clock (the frames' times), with the lag bound measuring the runs.
+std::unique_ptr<fusion::Aggregator> make_aggregator(const Setup& s, const HostBenchArgs& a,
+                                                    bool paced) {
   fusion::AggregatorOptions o;
-  o.runtime.threads = threads;
+  o.runtime.threads = a.threads;
+  o.runtime.precision = a.precision == "int8"       ? fusion::RuntimePrecision::kInt8
+                        : a.precision == "bfloat16" ? fusion::RuntimePrecision::kBfloat16
+                                                    : fusion::RuntimePrecision::kFloat32;
+  fusion::parse_runtime_isa(a.isa, &o.runtime.max_isa);
+  o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
+  o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
+  if (paced) o.clock_us = bus::monotonic_now_us;
   const char* src = SKINBUS_SOURCE_DIR;
-  auto a = fusion::Aggregator::create(&s.map, src, nullptr, s.buses, o);
-  if (!a) {
-    std::fprintf(stderr, "skinbus-bench host: %s\n", a.error().to_string().c_str());
+  auto agg = fusion::Aggregator::create(&s.map, src, nullptr, s.buses, o);
+  if (!agg) {
+    std::fprintf(stderr, "skinbus-bench host: %s\n", agg.error().to_string().c_str());
     return nullptr;
   }
-  return std::move(*a);
+  static bool said = false;  // the kernels in use, once
+  if (!said) {
+    said = true;
+    for (const std::string& m : (*agg)->model_descriptions()) std::printf("model: %s\n", m.c_str());
+  }
+  return std::move(*agg);
 }
 
-bool run_paced(const Setup& s, int threads, Result* r) {
-  auto agg = make_aggregator(s, threads);
+bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
+  auto agg = make_aggregator(s, a, true);
   if (!agg) return false;
   fusion::ContactArray out;
   std::vector<double> lat;
@@ -266,11 +284,12 @@ bool run_paced(const Setup& s, int threads, Result* r) {
   }
   r->estimated = agg->stats().estimated;
   r->publications = agg->stats().publications;
+  r->late = agg->stats().late_superseded;
   return true;
 }
 
-bool run_unpaced(const Setup& s, int threads, Result* r) {
-  auto agg = make_aggregator(s, threads);
+bool run_unpaced(const Setup& s, const HostBenchArgs& a, Result* r) {
+  auto agg = make_aggregator(s, a, false);
   if (!agg) return false;
   fusion::ContactArray out;
   // Warm-up: the heartbeats (identification), outside the timing.
@@ -309,6 +328,24 @@ void add_host_options(CLI::App* sub, HostBenchArgs& a) {
   sub->add_option("--mode", a.mode, "stream (idle patches send samples) or event")
       ->capture_default_str();
   sub->add_option("--threads", a.threads, "threads of each model runtime")->capture_default_str();
+  sub->add_option("--precision", a.precision, "network precision")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"float32", "bfloat16", "int8"}));
+  sub->add_option("--isa", a.isa,
+                  "the widest instruction set the kernels may use (avx2: what an AVX2-only CPU "
+                  "runs)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"avx512", "avx2", "neon", "portable"}));
+  sub->add_option("--max-lag-ms", a.max_lag_ms,
+                  "the aggregator's lag bound (0: none): samples it cannot publish within this "
+                  "of their time are superseded (counted as late)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 60'000.0));
+  sub->add_option("--model-delay-us", a.model_delay_us,
+                  "every estimate busy-waits this many us more, as on a slower CPU (paced runs "
+                  "only)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1'000'000));
   sub->add_option("--csv", a.csv, "write the table as CSV here");
 }
 
@@ -321,10 +358,13 @@ int bench_host(const HostBenchArgs& a) {
   const Pool pool = make_pool(0xB0B0);
   std::printf(
       "host aggregator: %s mode, 41.7 Hz, SYNC'd patches, CAN FD 1/5 Mbit/s buses of up "
-      "to 85%% load, %.0f s per configuration, model runtime threads %d, %u cores\n",
-      a.mode.c_str(), a.seconds, a.threads, std::thread::hardware_concurrency());
-  std::printf("\n%8s %6s %8s %10s %10s %10s %8s %12s %14s %10s\n", "patches", "buses", "touched",
-              "p50 us", "p99 us", "max us", "CPU %", "us/period", "us/idle patch", "estimated");
+      "to 85%% load, %.0f s per configuration, model runtime threads %d (%s, at most %s), %u "
+      "cores, lag bound %g ms, model delay %d us\n",
+      a.mode.c_str(), a.seconds, a.threads, a.precision.c_str(), a.isa.c_str(),
+      std::thread::hardware_concurrency(), a.max_lag_ms, a.model_delay_us);
+  std::printf("\n%8s %6s %8s %10s %10s %10s %8s %12s %14s %10s %8s\n", "patches", "buses",
+              "touched", "p50 us", "p99 us", "max us", "CPU %", "us/period", "us/idle patch",
+              "estimated", "late");
   std::vector<Result> rows;
   for (int n : a.patches) {
     for (double pct : a.touched_percent) {
@@ -333,13 +373,14 @@ int bench_host(const HostBenchArgs& a) {
       r.patches = n;
       r.buses = static_cast<int>(s.buses.size());
       r.touched = s.touched;
-      if (!run_paced(s, a.threads, &r) || !run_unpaced(s, a.threads, &r)) return 1;
-      std::printf("%8d %6d %7.0f%% %10.0f %10.0f %10.0f %8.1f %12.1f %14s %10llu\n", n, r.buses,
-                  pct, r.p50_us, r.p99_us, r.max_us, r.cpu_percent, r.period_us,
-                  std::isfinite(r.idle_patch_us)
-                      ? std::to_string(r.idle_patch_us).substr(0, 6).c_str()
-                      : "-",
-                  static_cast<unsigned long long>(r.estimated));
+      // Unpaced runs time the host's own work: not with an artificial delay.
+      if (!run_paced(s, a, &r) || (a.model_delay_us == 0 && !run_unpaced(s, a, &r))) return 1;
+      std::printf(
+          "%8d %6d %7.0f%% %10.0f %10.0f %10.0f %8.1f %12.1f %14s %10llu %8llu\n", n, r.buses, pct,
+          r.p50_us, r.p99_us, r.max_us, r.cpu_percent, r.period_us,
+          std::isfinite(r.idle_patch_us) ? std::to_string(r.idle_patch_us).substr(0, 6).c_str()
+                                         : "-",
+          static_cast<unsigned long long>(r.estimated), static_cast<unsigned long long>(r.late));
       std::fflush(stdout);
       rows.push_back(r);
     }
@@ -348,15 +389,16 @@ int bench_host(const HostBenchArgs& a) {
       "\nlatency: last frame of a sample on the bus -> its ContactArray ready (p50/p99/max "
       "over every touched sample; '-' rows have none). CPU %%: process CPU time / wall "
       "time while paced. us/period: host time per 1/41.7 s period when fed as fast as "
-      "possible; us/idle patch: that over the patches, with none touched.\n");
+      "possible; us/idle patch: that over the patches, with none touched. late: samples the lag "
+      "bound superseded while paced.\n");
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
     f << "mode,patches,buses,touched,p50_us,p99_us,max_us,cpu_percent,us_per_period,us_per_idle_"
-         "patch\n";
+         "patch,late\n";
     for (const Result& r : rows) {
       f << a.mode << ',' << r.patches << ',' << r.buses << ',' << r.touched << ',' << r.p50_us
         << ',' << r.p99_us << ',' << r.max_us << ',' << r.cpu_percent << ',' << r.period_us << ','
-        << r.idle_patch_us << '\n';
+        << r.idle_patch_us << ',' << r.late << '\n';
     }
   }
   return 0;

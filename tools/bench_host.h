@@ -15,6 +15,10 @@ struct HostBenchArgs {
   double seconds = 5;
   std::string mode = "stream";
   int threads = 1;
+  std::string precision = "float32";  // the network runtime's precision
+  std::string isa = "avx512";         // the widest instruction set of its kernels
+  double max_lag_ms = 100;            // the aggregator's lag bound (0: none)
+  int model_delay_us = 0;             // test aid: every estimate this much slower
   std::string csv;
 };
 

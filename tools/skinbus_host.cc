@@ -5,15 +5,22 @@
 //   skinbus-host --map skin.yaml -i can0 -i can1
 //   skinbus-host --map skin.yaml --replay bus.log --fast --json --no-dds
 //   candump -L can0 | skinbus-host --map skin.yaml --replay - --json
+#include <fcntl.h>
+#include <poll.h>
+#include <unistd.h>
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cinttypes>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -40,6 +47,7 @@ struct HostArgs {
   std::vector<std::string> interfaces;
   std::string replay;
   bool fast = false;
+  bool live = false;  // --replay is a live pipe
   bool live_and_replay = false;
   std::string joints = "auto";  // auto | dds | none | FILE
   bool json = false, json_status = false, dds = true;
@@ -47,12 +55,14 @@ struct HostArgs {
   std::string ns;
   double duration_s = 0;
   double status_period_s = 1.0;
-  std::string backend = "auto", precision = "float32", convolution = "auto";
+  std::string backend = "auto", precision = "float32", convolution = "auto", isa = "avx512";
   std::string ambient = "quiet-mean";
   int threads = 1;
   int spin_us = fusion::RuntimeOptions{}.spin_us;
   bool stats = false, quiet = false;
   std::string base_frame = "base_link";
+  double max_lag_ms = 100;
+  int model_delay_us = 0;
 };
 
 // Publication sinks: JSON lines on stdout, DDS.
@@ -140,29 +150,68 @@ class Joints {
     have_traj_ = true;
     q_.resize(traj_.names.size());
   }
-  // Feeds the aggregator the joint state for host time `now_us`; `run_start_us` is time zero of
-  // a trajectory file.
+  // Feeds the aggregator the joint states up to host time `now_us`; `run_start_us` is time zero
+  // of a trajectory file. The aggregator keeps them as a history and places each sample at the
+  // pose of its own time, so every state counts, stamped with when it was measured.
   void update(fusion::Aggregator& agg, uint64_t now_us, uint64_t run_start_us) {
     if (have_traj_) {
-      traj_.sample(static_cast<double>(now_us - run_start_us) * 1e-6, q_);
-      agg.set_joint_state(traj_.names, q_, now_us);
+      // The file's rows since the last call, at their own times (the history then interpolates
+      // exactly as the file does), then the pose now, at most every 10 ms (between rows the file
+      // is a straight line, which the history extends exactly; the loop may pass far more often).
+      const double t_s = static_cast<double>(now_us - run_start_us) * 1e-6;
+      for (; next_row_ < traj_.rows() && traj_.t_s[next_row_] < t_s; ++next_row_) {
+        const double row_s = traj_.t_s[next_row_];
+        if (row_s <= 0) continue;  // before time zero: the first state (below) holds it
+        const std::span<const double> row(&traj_.q[next_row_ * traj_.names.size()],
+                                          traj_.names.size());
+        agg.set_joint_state(traj_.names, row,
+                            run_start_us + static_cast<uint64_t>(std::llround(row_s * 1e6)));
+      }
+      if (last_now_us_ == 0 || now_us >= last_now_us_ + 10'000) {
+        traj_.sample(t_s, q_);
+        agg.set_joint_state(traj_.names, q_, now_us);
+        last_now_us_ = now_us;
+      }
     }
 #ifdef SKINBUS_HAVE_DDS
-    if (sub_) {
-      fusion::JointStateSample js;
-      if (sub_->take_latest(&js)) {
-        agg.set_joint_state(js.names, js.positions, js.received_us, /*prismatic_in_metres=*/true);
+    if (sub_ && sub_->take_all(&states_) > 0) {
+      for (const fusion::JointStateSample& js : states_) {
+        agg.set_joint_state(js.names, js.positions, stamp_of(js), /*prismatic_in_metres=*/true);
       }
     }
 #endif
   }
 
  private:
+#ifdef SKINBUS_HAVE_DDS
+  // When the state was measured: its header stamp (the publisher's CLOCK_REALTIME), unless that
+  // is implausible for this host's clock (more than kAheadUs after its arrival or kBehindUs
+  // before it: clocks not synchronised), then its arrival time, said once on stderr.
+  static constexpr uint64_t kAheadUs = 200'000, kBehindUs = 2'000'000;
+  uint64_t stamp_of(const fusion::JointStateSample& js) {
+    const bool plausible = js.stamp_us != 0 && js.stamp_us <= js.received_us + kAheadUs &&
+                           js.received_us <= js.stamp_us + kBehindUs;
+    if (plausible) return js.stamp_us;
+    if (!warned_) {
+      warned_ = true;
+      std::fprintf(stderr,
+                   "skinbus-host: WARNING joint-state stamps are %.3f s from this host's clock: "
+                   "using their arrival times instead (synchronise the clocks; contacts of a "
+                   "moving robot are then placed with the delivery delay)\n",
+                   (static_cast<double>(js.stamp_us) - static_cast<double>(js.received_us)) * 1e-6);
+    }
+    return js.received_us;
+  }
+#endif
   bool have_traj_ = false;
   body_map::JointTrajectory traj_;
+  std::size_t next_row_ = 0;
+  uint64_t last_now_us_ = 0;  // when the pose "now" was last fed
   std::vector<double> q_;
 #ifdef SKINBUS_HAVE_DDS
   std::unique_ptr<fusion::JointStateSubscriber> sub_;
+  std::vector<fusion::JointStateSample> states_;
+  bool warned_ = false;
 #endif
 };
 
@@ -207,6 +256,7 @@ struct Runner {
   // the final status goes out, without advancing the registry or kinematics timers past the end.
   void finish(uint64_t end_us) {
     joints.update(agg, end_us, run_start_us);
+    if (agg.process(end_us, &contacts)) out.contacts(contacts);  // what is still queued
     if (agg.process(end_us + kFlushUs, &contacts)) out.contacts(contacts);
     agg.status(end_us, &status);
     print_events();
@@ -277,7 +327,10 @@ int run_replay(const HostArgs& a, Runner& r) {
         if (due > now) std::this_thread::sleep_for(std::chrono::microseconds(due - now));
         now = bus::realtime_now_us();
       }
-      rx_us = now;
+      // Behind (a slow pipeline): the frames that were due are read before the next process()
+      // (the newest sample of a patch supersedes its older ones) and keep the time they were
+      // due, so a late loop shows as latency and its samples keep their own times.
+      rx_us = std::min(due, now);
     }
     r.agg.on_frame(b, rec.frame, rx_us);
   }
@@ -320,10 +373,11 @@ class PacedLog {
     const uint64_t due = due_us();
     return due <= now_us ? 0 : static_cast<int>(std::min<uint64_t>((due - now_us) / 1000, 1000));
   }
-  // Feeds every record due by `now_us`.
+  // Feeds every record due by `now_us`, stamped with when it was due (its arrival on the
+  // replayed bus, as the kernel stamps a live frame), not with when this loop got to it.
   void feed_due(fusion::Aggregator& agg, uint64_t now_us) {
     while (have_ && due_us() <= now_us) {
-      agg.on_frame(bus_, rec_.frame, now_us);
+      agg.on_frame(bus_, rec_.frame, due_us());
       advance();
     }
   }
@@ -468,12 +522,111 @@ int run_live(const HostArgs& a, Runner& r) {
   return 0;
 }
 
+// A candump -L stream written as it is read (`candump -L can0 | skinbus-host --replay - --live`,
+// or patch daemons writing into a pipe): the pipe is read without blocking, like a socket, and
+// the pipeline runs after every read, on the host's clock. Each frame keeps the time in its line
+// (when it was on the bus) if that is plausible for this host (not in the future, at most 10 s
+// old), else the time it was read; a host that falls behind thus sees how old the frames are.
+int run_live_pipe(const HostArgs& a, Runner& r) {
+  const int fd = a.replay == "-" ? STDIN_FILENO : ::open(a.replay.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) {
+    std::fprintf(stderr, "skinbus-host: cannot read '%s': %s\n", a.replay.c_str(),
+                 std::strerror(errno));
+    return 1;
+  }
+  const int flags = ::fcntl(fd, F_GETFL);
+  if (flags < 0 || ::fcntl(fd, F_SETFL, flags | O_NONBLOCK) < 0) {
+    std::fprintf(stderr, "skinbus-host: '%s': %s\n", a.replay.c_str(), std::strerror(errno));
+    if (fd != STDIN_FILENO) ::close(fd);
+    return 1;
+  }
+  std::map<std::string, int, std::less<>> bus_of;  // interface name -> bus index
+  for (std::size_t i = 0; i < a.interfaces.size(); ++i)
+    bus_of[a.interfaces[i]] = static_cast<int>(i);
+  constexpr uint64_t kMaxAgeUs = 10'000'000;
+  constexpr std::size_t kReadMax = 1 << 20;  // per pass, so the pipeline runs under a flood too
+  std::string pending;                       // the start of a line not yet complete
+  std::vector<char> chunk(64 * 1024);
+  uint64_t bad_lines = 0;
+  r.run_start_us = bus::realtime_now_us();
+  r.next_status_us = r.run_start_us;
+  const uint64_t end_us =
+      a.duration_s > 0 ? r.run_start_us + static_cast<uint64_t>(a.duration_s * 1e6) : UINT64_MAX;
+  bool eof = false;
+  int rc = 0;
+  while (!eof && !tools::stop_requested()) {
+    if (bus::realtime_now_us() >= end_us) break;
+    pollfd p{fd, POLLIN, 0};
+    const int n = ::poll(&p, 1, 20);
+    if (n < 0 && errno != EINTR) {
+      std::fprintf(stderr, "skinbus-host: poll: %s\n", std::strerror(errno));
+      rc = 1;
+      break;
+    }
+    std::size_t read_total = 0;
+    while (n > 0 && read_total < kReadMax) {
+      const ssize_t got = ::read(fd, chunk.data(), chunk.size());
+      if (got == 0) {
+        eof = true;
+        break;
+      }
+      if (got < 0) {
+        if (errno == EINTR) continue;
+        if (errno != EAGAIN && errno != EWOULDBLOCK) {
+          std::fprintf(stderr, "skinbus-host: read: %s\n", std::strerror(errno));
+          rc = 1;
+          eof = true;
+        }
+        break;
+      }
+      read_total += static_cast<std::size_t>(got);
+      const uint64_t read_us = bus::realtime_now_us();
+      pending.append(chunk.data(), static_cast<std::size_t>(got));
+      std::size_t start = 0;
+      for (std::size_t nl; (nl = pending.find('\n', start)) != std::string::npos; start = nl + 1) {
+        bus::CandumpRecord rec;
+        const std::string_view line(pending.data() + start, nl - start);
+        const bus::CandumpError e = bus::parse_candump_line(line, &rec);
+        if (e == bus::CandumpError::kEmpty) continue;
+        if (e != bus::CandumpError::kNone) {
+          ++bad_lines;
+          continue;
+        }
+        int b = 0;
+        if (auto it = bus_of.find(rec.iface); it != bus_of.end()) {
+          b = it->second;
+        } else if (!a.interfaces.empty()) {
+          continue;  // an interface not named with -i
+        }
+        const bool plausible =
+            rec.timestamp_us <= read_us && read_us - rec.timestamp_us <= kMaxAgeUs;
+        r.agg.on_frame(b, rec.frame, plausible ? rec.timestamp_us : read_us);
+      }
+      pending.erase(0, start);
+    }
+    r.after_frames(bus::realtime_now_us(), true);
+  }
+  r.finish(bus::realtime_now_us());
+  if (bad_lines > 0) {
+    std::fprintf(stderr, "skinbus-host: %" PRIu64 " line(s) could not be parsed\n", bad_lines);
+  }
+  ::fcntl(fd, F_SETFL, flags);  // the descriptor may be shared (a terminal, a parent's pipe)
+  if (fd != STDIN_FILENO) ::close(fd);
+  return rc;
+}
+
 fusion::RuntimeBackend parse_backend(const std::string& s) {
   if (s == "auto") return fusion::RuntimeBackend::kAuto;
   if (s == "kernels") return fusion::RuntimeBackend::kKernels;
   if (s == "portable") return fusion::RuntimeBackend::kPortable;
   if (s == "onednn") return fusion::RuntimeBackend::kOneDnn;
   throw std::invalid_argument("--backend: auto, kernels, portable or onednn");
+}
+
+fusion::RuntimeIsa parse_isa(const std::string& s) {
+  fusion::RuntimeIsa isa = fusion::RuntimeIsa::kAvx512;
+  if (fusion::parse_runtime_isa(s, &isa)) return isa;
+  throw std::invalid_argument("--isa: avx512, avx2, neon or portable");
 }
 
 fusion::RuntimePrecision parse_precision(const std::string& s) {
@@ -512,11 +665,15 @@ int main(int argc, char** argv) {
       "appearing, going stale, rebooting, duplicate IDs, ...) are logged on stderr.\n\n"
       "Joint states (--joints): 'dds' (rt/joint_states), a trajectory file (CSV: time_s,<joint>,\n"
       "...; docs/aggregator.md), or 'none' (the robot's zero pose). 'auto': dds when DDS output\n"
-      "is on and the map names a robot, else none.\n\n"
+      "is on and the map names a robot, else none. Every contact is placed with the robot's pose\n"
+      "at its own sample's time (from the joint states' stamps), however late it is estimated.\n\n"
+      "Falling behind: a sample the host cannot publish within --max-lag-ms of its time is\n"
+      "superseded (not estimated); a host_lagging event says so on the status topic and here,\n"
+      "host_caught_up when it caught up.\n\n"
       "Examples:\n"
       "  skinbus-host --map skin.yaml -i can0 -i can1\n"
       "  skinbus-host --map skin.yaml --replay bus.log --fast --json --no-dds --stats\n"
-      "  candump -L can0 | skinbus-host --map skin.yaml --replay - --json --no-dds\n"
+      "  candump -L can0 | skinbus-host --map skin.yaml --replay - --live --json --no-dds\n"
       "  skinbus-host --map skin.yaml -i can0 --replay other_limb.log --live-and-replay\n\n"
       "Exit status: 0 done, 1 a device or file failed, 2 bad arguments."};
   HostArgs a;
@@ -527,6 +684,9 @@ int main(int argc, char** argv) {
                  "interface names, in bus order");
   app.add_option("--replay", a.replay, "candump -L log to replay ('-': stdin)");
   app.add_flag("--fast", a.fast, "--replay: as fast as possible (log time is host time)");
+  app.add_flag("--live", a.live,
+               "--replay: the log is written as it is read (a pipe from candump -L or from patch "
+               "daemons): read it as it comes, on the host's clock, as a CAN interface");
   app.add_flag("--live-and-replay", a.live_and_replay,
                "read the -i interfaces live AND replay --replay at recorded speed on one more "
                "bus (named 'replay')");
@@ -548,6 +708,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--precision", a.precision, "network precision: float32, bfloat16, int8")
       ->capture_default_str();
+  app.add_option("--isa", a.isa,
+                 "the widest instruction set the kernels may use: avx512 (every one this CPU "
+                 "has), avx2, neon, portable; the log names the kernels in use")
+      ->capture_default_str();
   app.add_option("--convolution", a.convolution,
                  "CNN convolutions: auto (Winograd for float32 where it computes less), direct, "
                  "winograd")
@@ -562,6 +726,16 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--base-frame", a.base_frame, "frame_id of the published contacts")
       ->capture_default_str();
+  app.add_option("--max-lag-ms", a.max_lag_ms,
+                 "the lag bound: a sample that cannot be published within this many ms of its "
+                 "time is superseded, not estimated (0: no bound; --fast replays bound by log time "
+                 "only)")
+      ->capture_default_str();
+  app.add_option("--model-delay-us", a.model_delay_us,
+                 "test aid: every estimate busy-waits this many us more, as on a slower CPU "
+                 "(tests of the lag bound)")
+      ->capture_default_str()
+      ->group("Testing");
   app.add_flag("--stats", a.stats, "print pipeline statistics and latency at the end (stderr)");
   app.add_flag("-q,--quiet", a.quiet, "do not log events");
   CLI11_PARSE(app, argc, argv);
@@ -569,14 +743,29 @@ int main(int argc, char** argv) {
     if (a.replay.empty() && a.interfaces.empty()) {
       throw std::invalid_argument("give -i INTERFACE (live) or --replay LOG");
     }
+    if (!(a.max_lag_ms >= 0 && a.max_lag_ms <= 60'000)) {
+      throw std::invalid_argument("--max-lag-ms: 0 (no bound) to 60000");
+    }
+    if (a.model_delay_us < 0 || a.model_delay_us > 1'000'000) {
+      throw std::invalid_argument("--model-delay-us: 0 to 1000000");
+    }
+    if (a.live && (a.replay.empty() || a.fast || a.live_and_replay)) {
+      throw std::invalid_argument("--live: with --replay, without --fast or --live-and-replay");
+    }
     fusion::AggregatorOptions o;
     o.runtime.backend = parse_backend(a.backend);
     o.runtime.precision = parse_precision(a.precision);
+    o.runtime.max_isa = parse_isa(a.isa);
     o.runtime.convolution = parse_convolution(a.convolution);
     o.runtime.threads = a.threads;
     o.runtime.spin_us = a.spin_us;
     o.common_mode.method = parse_ambient(a.ambient);
     o.base_frame = a.base_frame;
+    o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
+    o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
+    // On the host's clock the bound covers the model runs' own time too; a log replayed as fast
+    // as possible has only its own time.
+    if (!(a.fast && !a.replay.empty() && !a.live_and_replay)) o.clock_us = bus::realtime_now_us;
     auto map = body_map::load_skin_map_file(a.map_path);
     if (!map) {
       std::fprintf(stderr, "skinbus-host: %s\n", map.error().to_string().c_str());
@@ -618,19 +807,24 @@ int main(int argc, char** argv) {
     Joints joints(a, robot.get());
     tools::install_stop_handler();
     Runner r(a, **agg, out, joints);
-    const int rc = a.replay.empty() || both ? run_live(a, r) : run_replay(a, r);
+    const int rc = a.live                     ? run_live_pipe(a, r)
+                   : a.replay.empty() || both ? run_live(a, r)
+                                              : run_replay(a, r);
     if (a.stats) {
       const fusion::AggregatorStats& s = (*agg)->stats();
       const bus::ReassemblyStats rs = (*agg)->reassembly_stats();
       std::fprintf(stderr,
                    "skinbus-host: frames %" PRIu64 " (rejected %" PRIu64 ", integrity %" PRIu64
                    "), samples %" PRIu64 " (idle %" PRIu64 ", untared %" PRIu64
-                   ", unattributed %" PRIu64 ", superseded %" PRIu64 "), estimated %" PRIu64
-                   " in %" PRIu64 " runs (rejected %" PRIu64 "), publications %" PRIu64
-                   ", unknown joint names %" PRIu64 "\n",
+                   ", unattributed %" PRIu64 ", superseded %" PRIu64 ", late %" PRIu64
+                   "), estimated %" PRIu64 " in %" PRIu64 " runs (rejected %" PRIu64
+                   "), publications %" PRIu64 ", unknown joint names %" PRIu64
+                   ", joint states out of order %" PRIu64
+                   ", contacts outside the joint states %" PRIu64 "\n",
                    s.frames, rs.rejected, rs.integrity_failures, s.samples, s.idle_samples,
-                   s.untared_samples, s.unattributed, s.superseded, s.estimated, s.model_runs,
-                   s.rejected, s.publications, s.unknown_joints);
+                   s.untared_samples, s.unattributed, s.superseded, s.late_superseded, s.estimated,
+                   s.model_runs, s.rejected, s.publications, s.unknown_joints,
+                   s.joint_states_out_of_order, s.kinematics_uncovered);
       if (!r.latency_us.empty()) {
         std::fprintf(stderr,
                      "skinbus-host: latency frame arrival -> publication over %zu samples: "

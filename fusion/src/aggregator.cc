@@ -2,10 +2,12 @@
 #include "skinbus/fusion/aggregator.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <optional>
 
 #include "skinbus/bus/protocol.h"
 #include "skinbus/fusion/evaluation.h"
@@ -63,6 +65,8 @@ struct Aggregator::Impl {
     std::vector<std::size_t> slots;  // pending_ index of each row
     std::vector<ContactEstimate> out;
     std::vector<uint32_t> ambient_flags;
+    double us_per_sample = 0;          // measured cost of a run per sample (0: not yet measured)
+    std::vector<std::size_t> refused;  // admit(): the samples a run cannot take in time
   };
   std::vector<Model> models;
 
@@ -83,10 +87,13 @@ struct Aggregator::Impl {
   std::vector<Pending> pending;           // kMaxBuses * 128
   std::vector<std::size_t> pending_list;  // indices into pending
 
-  // The current contact of each patch that has one.
+  // The current contact of each patch that has one, in its link's frame (position and normal;
+  // flags without the kinematics ones): every publication places all of them with the pose at
+  // its own stamp, so one array is one instant of the robot.
   struct Current {
     bool used = false;
     PatchContact contact;
+    int link = -1;         // robot link index; -1: the base frame (no robot, or unmapped)
     uint64_t time_us = 0;  // aligned sample time
     uint64_t last_us = 0;  // host time of its last contact sample
   };
@@ -94,15 +101,24 @@ struct Aggregator::Impl {
   std::vector<std::size_t> current_list;
   bool released = false;  // a contact ended since the last publication
 
-  // Kinematics.
-  std::vector<double> q;
-  std::vector<bool> prismatic;  // per entry of q
-  std::vector<body_map::Pose> link_poses;
-  bool have_joints = false;
-  uint64_t joints_stamp_us = 0;
+  // Kinematics: the joint-state history (null without a robot) and the pose of the last
+  // placement (reused while the sample time is the same).
+  std::optional<JointHistory> history;
+  std::vector<double> q_new;   // the state set_joint_state() builds
+  std::vector<double> q_at;    // the positions at q_at_us
+  std::vector<double> q_zero;  // the zero pose (before the first joint state)
+  uint64_t q_at_us = 0;
+  bool q_at_valid = false;  // q_at holds the pose at q_at_us for the current history
+  JointHistory::Coverage q_at_coverage = JointHistory::Coverage::kEmpty;
+  std::vector<bool> prismatic;  // per joint
   bool joints_stale_reported = false;
   std::vector<std::string> last_names;  // name -> index cache
   std::vector<int> name_index;
+
+  // The lag bound: the current episode of late samples.
+  bool lag_episode = false;
+  uint64_t lag_episode_start_us = 0, lag_last_late_us = 0, lag_count = 0, lag_worst_us = 0;
+  std::size_t next_first_slot = 0;  // where the next cost-limited admission starts (fairness)
 
   std::vector<uint64_t> bad_reported;  // per bus: bad frames already reported
   std::vector<uint64_t> processed_rx;  // rx times of the samples of the last process()
@@ -119,8 +135,21 @@ struct Aggregator::Impl {
   }
 
   void on_sample(int bus, uint8_t node, const bus::Sample& s, uint32_t missing, uint64_t rx_us);
+  // Places `est` on its patch's link: the contact in the link's frame; *link the robot link
+  // (-1: the link frame is the base frame).
   void place(const PatchEntry& e, const ContactEstimate& est, const Model& m, uint32_t flags,
-             PatchContact* out);
+             PatchContact* out, int* link);
+  // `c` (in the frame of `link`) into the base frame with the pose at `time_us`; false when no
+  // pose can be had.
+  bool to_base(int link, uint64_t time_us, PatchContact* c);
+  // The positions at `time_us` (cached per time) into q_at; ORs the kinematics flags into
+  // *flags.
+  const std::vector<double>& pose_at(uint64_t time_us, uint32_t* flags);
+  // A queued sample superseded by the lag bound at host time `now_us`.
+  void late(const Pending& p, uint64_t now_us, double us_per_sample);
+  // Keeps the samples of m.slots that one run can publish within max_lag_us of their time, when
+  // the host clock is known; the others are superseded as late.
+  void admit(Model& m, uint64_t now_us);
 };
 
 Aggregator::Aggregator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -150,6 +179,12 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
                       ">= 1, 0 < stale <= offline time, a contact hold > 0, an ambient flag level "
                       "> 0");
   }
+  if (options.joint_history.capacity < 2 || options.joint_history.capacity > (1u << 20) ||
+      options.model_delay_us > 1'000'000 || options.lag_quiet_us == 0) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "aggregator options: a joint history of 2 to 2^20 entries, a model delay "
+                      "of at most 1 s, a lag quiet time > 0");
+  }
   auto impl = std::make_unique<Impl>(map, bus_names, options);
   impl->robot = robot;
   impl->reassemblers.reserve(bus_names.size());
@@ -161,15 +196,25 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
   impl->pending_list.reserve(impl->pending.size());
   impl->current_list.reserve(impl->current.size());
   if (robot != nullptr) {
-    impl->q.assign(static_cast<std::size_t>(robot->joint_count()), 0.0);
-    impl->link_poses.resize(static_cast<std::size_t>(robot->link_count()));
-    impl->prismatic.assign(impl->q.size(), false);
+    const std::size_t joints = static_cast<std::size_t>(robot->joint_count());
+    impl->prismatic.assign(joints, false);
+    std::vector<bool> wrapping(joints, false);  // continuous joints
     for (const body_map::PatchPlacement& p : map->patches) {
       impl->link_of_placement.push_back(robot->find_link(p.link));
     }
     for (int j = 0; j < robot->joint_count(); ++j) {
       impl->prismatic[static_cast<std::size_t>(j)] = robot->joint_is_prismatic(j);
     }
+    for (int l = 0; l < robot->link_count(); ++l) {
+      const body_map::LinkJoint& lj = robot->link(l).joint;
+      const int j =
+          lj.type == body_map::JointType::kContinuous ? robot->find_joint(lj.joint_name) : -1;
+      if (j >= 0) wrapping[static_cast<std::size_t>(j)] = true;
+    }
+    impl->history.emplace(joints, std::move(wrapping), options.joint_history);
+    impl->q_new.assign(joints, 0.0);
+    impl->q_at.assign(joints, 0.0);
+    impl->q_zero.assign(joints, 0.0);
   }
 
   // One runtime per distinct model file; the patches that share a file share its batch.
@@ -295,25 +340,37 @@ void Aggregator::Impl::on_sample(int bus, uint8_t node, const bus::Sample& smp, 
   }
 }
 
+const std::vector<double>& Aggregator::Impl::pose_at(uint64_t time_us, uint32_t* flags) {
+  if (history->empty()) {
+    *flags |= kContactNoKinematics;
+    return q_zero;
+  }
+  if (!q_at_valid || q_at_us != time_us) {
+    q_at_coverage = history->pose_at(time_us, q_at);
+    q_at_us = time_us;
+    q_at_valid = true;
+  }
+  if (q_at_coverage == JointHistory::Coverage::kOutside) {
+    *flags |= kContactStaleKinematics;  // the nearest state: not the pose at the sample's time
+    ++stats.kinematics_uncovered;
+  }
+  return q_at;
+}
+
 void Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, const Model& m,
-                             uint32_t flags, PatchContact* out) {
+                             uint32_t flags, PatchContact* out, int* link) {
   const body_map::PatchPlacement& pl = *e.placement;
   // The contact point on the undeformed skin surface; depth is reported alongside.
   const body_map::SurfacePoint sp = body_map::link_surface_point(pl, est.u_mm, est.v_mm, 0.0);
-  Eigen::Vector3d point = sp.point_mm, normal = sp.normal;
+  *link = -1;
   if (robot != nullptr) {
-    const int link = link_of_placement[static_cast<std::size_t>(&pl - map->patches.data())];
-    if (link >= 0) {
-      const body_map::Pose& pose = link_poses[static_cast<std::size_t>(link)];
-      point = pose.apply(point);
-      normal = pose.rotation * normal;
-    } else {
-      flags |= kContactUnmapped;  // the link is not in the robot: its frame taken as the base
-    }
+    *link = link_of_placement[static_cast<std::size_t>(&pl - map->patches.data())];
+    // The link is not in the robot: its frame taken as the base.
+    if (*link < 0) flags |= kContactUnmapped;
   }
   for (int i = 0; i < 3; ++i) {
-    out->position_mm[i] = point[i];
-    out->normal[i] = normal[i];
+    out->position_mm[i] = sp.point_mm[i];
+    out->normal[i] = sp.normal[i];
   }
   out->depth_mm = est.depth_mm;
   out->force_n = est.force_n;
@@ -326,11 +383,86 @@ void Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, co
   out->flags = flags;
 }
 
+bool Aggregator::Impl::to_base(int link, uint64_t time_us, PatchContact* c) {
+  if (link < 0) return true;
+  // The link's pose at that time.
+  auto pose = robot->link_pose(pose_at(time_us, &c->flags), link);
+  if (!pose) return false;  // cannot happen with finite positions: never a guessed place
+  const Eigen::Vector3d p =
+      pose->apply(Eigen::Vector3d(c->position_mm[0], c->position_mm[1], c->position_mm[2]));
+  const Eigen::Vector3d n =
+      pose->rotation * Eigen::Vector3d(c->normal[0], c->normal[1], c->normal[2]);
+  for (int i = 0; i < 3; ++i) {
+    c->position_mm[i] = p[i];
+    c->normal[i] = n[i];
+  }
+  return true;
+}
+
+void Aggregator::Impl::late(const Pending& p, uint64_t now_us, double us_per_sample) {
+  ++stats.late_superseded;
+  const uint64_t age_us = now_us > p.time_us ? now_us - p.time_us : 0;
+  lag_last_late_us = now_us;
+  lag_worst_us = std::max(lag_worst_us, age_us);
+  ++lag_count;
+  if (lag_episode) return;
+  lag_episode = true;
+  lag_episode_start_us = now_us;
+  char buf[320];
+  const bool never = us_per_sample > static_cast<double>(options.max_lag_us);
+  std::snprintf(buf, sizeof buf,
+                "the host fell behind: samples that cannot be published within %.0f ms of their "
+                "time are superseded, not estimated (this one %.1f ms old; model runs take %.2f ms "
+                "a sample%s)",
+                static_cast<double>(options.max_lag_us) * 1e-3, static_cast<double>(age_us) * 1e-3,
+                us_per_sample * 1e-3,
+                never ? ", more than the bound: one sample a run, published late" : "");
+  registry.add_event(PatchEventKind::kHostLagging, now_us, buf);
+}
+
+void Aggregator::Impl::admit(Model& m, uint64_t now_us) {
+  if (options.max_lag_us == 0 || !options.clock_us || m.slots.empty()) return;
+  const uint64_t t = std::max(now_us, options.clock_us());
+  // Served in turn: slot order, starting where the last cost-limited admission stopped.
+  std::sort(m.slots.begin(), m.slots.end());
+  const auto first = std::lower_bound(m.slots.begin(), m.slots.end(), next_first_slot);
+  std::rotate(m.slots.begin(), first, m.slots.end());
+  std::size_t admitted = 0;
+  uint64_t deadline = UINT64_MAX;  // the earliest deadline of the admitted samples
+  m.refused.clear();
+  for (std::size_t i = 0; i < m.slots.size(); ++i) {
+    const std::size_t k = m.slots[i];
+    const uint64_t own = pending[k].time_us + options.max_lag_us;
+    const double end = static_cast<double>(t) + m.us_per_sample * static_cast<double>(admitted + 1);
+    if (end > static_cast<double>(std::min(deadline, own))) {
+      m.refused.push_back(k);
+      continue;
+    }
+    deadline = std::min(deadline, own);
+    m.slots[admitted++] = k;
+  }
+  if (admitted == 0) {
+    // Not even one estimate fits (the model takes longer than the bound): the first sample
+    // still in time, in turn, is estimated anyway. Contacts keep coming, late by about one
+    // estimate; the bound cannot be met on this CPU, and the places are still right.
+    for (std::size_t i = 0; i < m.refused.size(); ++i) {
+      if (t <= pending[m.refused[i]].time_us + options.max_lag_us) {
+        m.slots[admitted++] = m.refused[i];
+        m.refused.erase(m.refused.begin() + static_cast<std::ptrdiff_t>(i));
+        break;
+      }
+    }
+  }
+  for (std::size_t k : m.refused) late(pending[k], t, m.us_per_sample);
+  if (!m.refused.empty() && admitted > 0) next_first_slot = m.slots[admitted - 1] + 1;
+  m.slots.resize(admitted);
+}
+
 void Aggregator::set_joint_state(std::span<const std::string> names,
                                  std::span<const double> positions, uint64_t stamp_us,
                                  bool prismatic_in_metres) {
   Impl& s = *impl_;
-  if (s.robot == nullptr) return;
+  if (!s.history) return;  // no robot
   const bool same = names.size() == s.last_names.size() &&
                     std::equal(names.begin(), names.end(), s.last_names.begin());
   if (!same) {
@@ -341,6 +473,13 @@ void Aggregator::set_joint_state(std::span<const std::string> names,
       if (s.name_index[i] < 0) ++s.stats.unknown_joints;
     }
   }
+  // The newest state (the zero pose before the first) with this state's joints set.
+  const std::span<const double> newest = s.history->newest();
+  if (newest.empty()) {
+    std::fill(s.q_new.begin(), s.q_new.end(), 0.0);
+  } else {
+    std::copy(newest.begin(), newest.end(), s.q_new.begin());
+  }
   const std::size_t n = std::min(names.size(), positions.size());
   bool mapped = false;
   for (std::size_t i = 0; i < n; ++i) {
@@ -350,12 +489,15 @@ void Aggregator::set_joint_state(std::span<const std::string> names,
         prismatic_in_metres && s.prismatic[static_cast<std::size_t>(j)] ? 1000.0 : 1.0;
     const double v = positions[i] * scale;
     if (!std::isfinite(v)) continue;  // NaN, Inf, or a huge value that overflowed the scaling
-    s.q[static_cast<std::size_t>(j)] = v;
+    s.q_new[static_cast<std::size_t>(j)] = v;
     mapped = true;
   }
   if (!mapped) return;  // nothing this robot knows: still no kinematics (or the last known)
-  s.have_joints = true;
-  s.joints_stamp_us = stamp_us;
+  if (s.history->add(stamp_us, s.q_new) == JointHistory::AddResult::kOutOfOrder) {
+    ++s.stats.joint_states_out_of_order;
+    return;
+  }
+  s.q_at_valid = false;
   if (s.joints_stale_reported) {
     s.joints_stale_reported = false;
     s.registry.add_event(PatchEventKind::kKinematicsFresh, stamp_us, "joint states resumed");
@@ -380,22 +522,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   if (s.pending_list.empty() && !s.released) return false;
   bool changed = s.released;  // a contact ended, or (below) one was placed
 
-  uint32_t kin_flags = 0;
-  bool fk_done = false;
-  if (s.robot != nullptr) {
-    if (!s.have_joints) {
-      kin_flags |= kContactNoKinematics;
-    } else if (now_us > s.joints_stamp_us + s.options.kinematics_stale_us) {
-      kin_flags |= kContactStaleKinematics;
-    }
-  }
-
-  // Batch the queued samples per model.
-  for (Impl::Model& m : s.models) {
-    m.fields.clear();
-    m.ok.clear();
-    m.slots.clear();
-  }
+  // Sort the queued samples per model; those already older than the lag bound go.
+  for (Impl::Model& m : s.models) m.slots.clear();
   for (std::size_t k : s.pending_list) {
     Impl::Pending& p = s.pending[k];
     const PatchEntry& e = *p.entry;
@@ -405,13 +533,23 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       continue;
     }
     Impl::Model& m = s.models[static_cast<std::size_t>(e.model_index)];
-    m.fields.insert(m.fields.end(), p.field.begin(), p.field.end());
-    m.ok.insert(m.ok.end(), p.ok.begin(), p.ok.end());
+    if (s.options.max_lag_us > 0 && now_us > p.time_us + s.options.max_lag_us) {
+      s.late(p, now_us, m.us_per_sample);
+      continue;
+    }
     m.slots.push_back(k);
   }
   for (Impl::Model& m : s.models) {
+    s.admit(m, now_us);  // with the host clock: what this run can still publish in time
     const int batch = static_cast<int>(m.slots.size());
     if (batch == 0) continue;
+    m.fields.clear();
+    m.ok.clear();
+    for (std::size_t k : m.slots) {
+      const Impl::Pending& p = s.pending[k];
+      m.fields.insert(m.fields.end(), p.field.begin(), p.field.end());
+      m.ok.insert(m.ok.end(), p.ok.begin(), p.ok.end());
+    }
     // Common-mode rejection, per sample, before the network.
     std::vector<uint32_t>& amb_flags = m.ambient_flags;
     amb_flags.assign(m.slots.size(), 0);
@@ -425,13 +563,28 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       }
     }
     m.out.resize(m.slots.size());
-    if (!m.runtime->run(m.fields, batch, m.out, m.ok).ok()) continue;
+    const auto run_start = std::chrono::steady_clock::now();
+    const bool ran = m.runtime->run(m.fields, batch, m.out, m.ok).ok();
+    if (s.options.model_delay_us > 0) {  // test aid: a slower CPU
+      const auto until = std::chrono::steady_clock::now() +
+                         std::chrono::microseconds(s.options.model_delay_us * batch);
+      while (std::chrono::steady_clock::now() < until) {
+      }
+    }
+    // The cost per sample: up at once, down slowly (a cost under-estimated breaks the bound).
+    const double cost =
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - run_start)
+            .count() /
+        batch;
+    m.us_per_sample = cost > m.us_per_sample ? cost : 0.8 * m.us_per_sample + 0.2 * cost;
+    if (!ran) continue;
     ++s.stats.model_runs;
     s.stats.estimated += static_cast<uint64_t>(batch);
     for (int b = 0; b < batch; ++b) {
       const std::size_t k = m.slots[static_cast<std::size_t>(b)];
       const ContactEstimate& est = m.out[static_cast<std::size_t>(b)];
       Impl::Pending& p = s.pending[k];
+      s.processed_rx.push_back(p.rx_us);
       if (!est.valid()) {
         ++s.stats.rejected;
         continue;
@@ -440,19 +593,13 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         ++s.stats.no_contact;
         continue;
       }
-      uint32_t flags = kin_flags | amb_flags[static_cast<std::size_t>(b)];
+      uint32_t flags = amb_flags[static_cast<std::size_t>(b)];
       if (est.flags & kEstimateOutsidePatch) flags |= kContactOutsidePatch;
       if (est.flags & kEstimateDepthRange) flags |= kContactDepthRange;
       if (est.flags & kEstimateMasked) flags |= kContactMaskedChannels;
-      if (!fk_done) {  // once per call, and only when something is placed
-        fk_done = true;
-        if (s.robot != nullptr && !s.robot->forward_kinematics(s.q, s.link_poses).ok()) {
-          kin_flags |= kContactStaleKinematics;  // cannot happen with finite q; last poses kept
-          flags |= kContactStaleKinematics;
-        }
-      }
       PatchContact& placed = s.placed;  // placed aside: a bad estimate never erases a held one
-      s.place(*p.entry, est, m, flags, &placed);
+      int link = -1;
+      s.place(*p.entry, est, m, flags, &placed, &link);
       bool finite = true;
       for (int i = 0; i < 3; ++i) {
         finite = finite && std::isfinite(placed.position_mm[i]) && std::isfinite(placed.normal[i]);
@@ -463,6 +610,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       }
       Impl::Current& c = s.current[k];
       c.contact = placed;
+      c.link = link;
       ++p.entry->contacts;
       changed = true;
       c.time_us = p.time_us;
@@ -473,23 +621,23 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       }
     }
   }
-  for (std::size_t k : s.pending_list) {
-    s.pending[k].used = false;
-    s.processed_rx.push_back(s.pending[k].rx_us);
-  }
+  for (std::size_t k : s.pending_list) s.pending[k].used = false;
   s.pending_list.clear();
   s.released = false;
-  if (!changed) return false;  // only rejected or dropped samples: nothing new to publish
+  if (!changed) return false;  // only rejected, late or dropped samples: nothing to publish
 
-  // Merge and track over every patch's current contact.
+  // Every patch's current contact in the base frame at one instant, the newest sample time (a
+  // held contact, the press still on its patch, goes with its limb to where it is then); then
+  // merge and track.
   s.scratch_contacts.clear();
   uint64_t stamp = 0;
   std::sort(s.current_list.begin(), s.current_list.end());
-  for (std::size_t k : s.current_list) {
-    s.scratch_contacts.push_back(s.current[k].contact);
-    stamp = std::max(stamp, s.current[k].time_us);
-  }
+  for (std::size_t k : s.current_list) stamp = std::max(stamp, s.current[k].time_us);
   if (stamp == 0) stamp = now_us;
+  for (std::size_t k : s.current_list) {
+    PatchContact& c = s.scratch_contacts.emplace_back(s.current[k].contact);
+    if (!s.to_base(s.current[k].link, stamp, &c)) s.scratch_contacts.pop_back();
+  }
   out->stamp_us = stamp;
   out->base_frame = s.options.base_frame;
   out->contacts.clear();
@@ -521,14 +669,28 @@ void Aggregator::tick(uint64_t now_us) {
       s.bad_reported[b] = bad;
     }
   }
-  if (s.robot != nullptr && s.have_joints && !s.joints_stale_reported &&
-      now_us > s.joints_stamp_us + s.options.kinematics_stale_us) {
+  if (s.history && !s.history->empty() && !s.joints_stale_reported &&
+      now_us > s.history->newest_us() + s.options.kinematics_stale_us) {
     s.joints_stale_reported = true;
-    char buf[128];
+    char buf[160];
     std::snprintf(buf, sizeof buf,
-                  "joint states stopped %.2f s ago: contacts use the last known pose (flagged)",
-                  static_cast<double>(now_us - s.joints_stamp_us) * 1e-6);
+                  "joint states stopped %.2f s ago: contacts after them use the last known pose "
+                  "(flagged)",
+                  static_cast<double>(now_us - s.history->newest_us()) * 1e-6);
     s.registry.add_event(PatchEventKind::kKinematicsStale, now_us, buf);
+  }
+  if (s.lag_episode && now_us > s.lag_last_late_us + s.options.lag_quiet_us) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "the host caught up: %llu sample(s) superseded over %.2f s, the oldest %.1f ms "
+                  "old",
+                  static_cast<unsigned long long>(s.lag_count),
+                  static_cast<double>(s.lag_last_late_us - s.lag_episode_start_us) * 1e-6,
+                  static_cast<double>(s.lag_worst_us) * 1e-3);
+    s.registry.add_event(PatchEventKind::kHostCaughtUp, now_us, buf);
+    s.lag_episode = false;
+    s.lag_count = 0;
+    s.lag_worst_us = 0;
   }
 }
 

@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <random>
@@ -63,6 +65,12 @@ struct Node {
     hb.hardware_uid = uid;
     hb.uptime_s = uptime_s;
     send(a, bus::Message{node, seq_hb++, bus::FrameKind::kFd, hb}, rx_us);
+  }
+  // A sample taken at host time `rx_us` (the patch clock set to follow the host's, as a real
+  // patch's does however late the host processes it).
+  void sample_at(Aggregator& a, uint64_t rx_us, std::span<const double> tared_ut) {
+    clock_us = static_cast<uint32_t>(rx_us);
+    sample(a, rx_us, tared_ut, true);
   }
   void sample(Aggregator& a, uint64_t rx_us, std::span<const double> tared_ut, bool contact,
               uint16_t fault_mask = 0) {
@@ -285,6 +293,7 @@ TEST(Aggregator, KinematicsPlaceContactsAndStaleStatesAreFlagged) {
   EXPECT_EQ(f.agg->stats().unknown_joints, 1u);
   // The joint-state stream stops: contacts keep flowing, flagged, and an event says so.
   t += 300'000;
+  f.n3.clock_us += 300'000;  // the patch samples on: its clock moves with the host's
   f.agg->tick(t);
   EXPECT_TRUE(has_event(f.events(t), PatchEventKind::kKinematicsStale));
   f.n3.sample(*f.agg, t, press(40, 0, 2.5, 9), true);
@@ -294,6 +303,287 @@ TEST(Aggregator, KinematicsPlaceContactsAndStaleStatesAreFlagged) {
   EXPECT_NEAR(out.contacts[0].position_mm[1], 40, 3);  // the last known pose
   f.agg->set_joint_state(names, q, t + 1000);
   EXPECT_TRUE(has_event(f.events(t), PatchEventKind::kKinematicsFresh));
+}
+
+// The test robot's shoulder turns at `rad_per_s` from `t0_us`: joint states every 10 ms from
+// `from_us` to `to_us` (inclusive), stamped with their own times.
+struct Swing {
+  uint64_t t0_us;
+  double rad_per_s;
+  double at(uint64_t t_us) const {
+    return rad_per_s * (static_cast<double>(t_us) - static_cast<double>(t0_us)) * 1e-6;
+  }
+  void feed(Aggregator& a, uint64_t from_us, uint64_t to_us) const {
+    const std::vector<std::string> names = {"shoulder"};
+    for (uint64_t t = from_us; t <= to_us; t += 10'000) {
+      const std::vector<double> q = {at(t)};
+      a.set_joint_state(names, q, t);
+    }
+  }
+};
+
+// Where a point (x, y) of the arm link lies in the base frame with the shoulder at `theta`.
+std::array<double, 3> on_arm(double x_mm, double y_mm, double theta) {
+  return {std::cos(theta) * x_mm - std::sin(theta) * y_mm,
+          std::sin(theta) * x_mm + std::cos(theta) * y_mm, 100.0};
+}
+
+TEST(Aggregator, LateSamplesArePlacedWithThePoseAtTheirOwnTime) {
+  // The arm turns at 1 rad/s; each press is estimated 80 ms after it was sampled, while joint
+  // states kept coming. The contact must sit where the press was when sampled (the pose at its
+  // own time), not where that point of the arm is when the host gets to it (~13 mm away).
+  AggregatorOptions o;
+  o.max_lag_us = 100'000;
+  Fixture f(o, /*with_robot=*/true);
+  uint64_t t = 1'000'000;
+  const Swing swing{t, 1.0};
+  f.n4.heartbeat(*f.agg, t, 1);
+  swing.feed(*f.agg, t, t);
+  ContactArray out;
+  double worst_mm = 0, moved_mm = 1e9;
+  for (int i = 0; i < 6; ++i) {
+    const uint64_t sampled = t + kPeriodUs;
+    f.n4.sample_at(*f.agg, sampled, press(12, -20, 2.5, 20 + static_cast<uint64_t>(i)));
+    const uint64_t late = sampled + 80'000;
+    swing.feed(*f.agg, t + 10'000, late);  // the states keep coming while the host is busy
+    t = late - late % 10'000;
+    ASSERT_TRUE(f.agg->process(late, &out));
+    ASSERT_EQ(out.contacts.size(), 1u);
+    const BodyContact& c = out.contacts[0];
+    EXPECT_EQ(c.flags & (kContactStaleKinematics | kContactNoKinematics), 0u);
+    // out.stamp_us is the sample's time (the patch clock mapped to the host's).
+    ASSERT_GE(out.stamp_us, sampled - 5'000);
+    ASSERT_LE(out.stamp_us, sampled + 1'000);
+    // Exactly the forward kinematics of the pose at that time, for the estimated (u, v)...
+    const auto want = on_arm(150 + c.u_mm, c.v_mm, swing.at(out.stamp_us));
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(c.position_mm[k], want[static_cast<std::size_t>(k)], 1e-6);
+    // ...so within the model's error of the press, where the pose at process() time is not.
+    const auto truth = on_arm(150 + 12, -20, swing.at(out.stamp_us));
+    const auto then = on_arm(150 + 12, -20, swing.at(late));
+    worst_mm =
+        std::max(worst_mm, std::hypot(c.position_mm[0] - truth[0], c.position_mm[1] - truth[1]));
+    moved_mm = std::min(moved_mm, std::hypot(then[0] - truth[0], then[1] - truth[1]));
+  }
+  EXPECT_LT(worst_mm, 3.0);
+  EXPECT_GT(moved_mm, 4 * 3.0) << "the arm must move far more than the model's error";
+  EXPECT_EQ(f.agg->stats().late_superseded, 0u);
+}
+
+TEST(Aggregator, OnePublicationIsOneInstantOfTheRobot) {
+  // Patch 3's contact is held while patch 4's newer sample is published: both are placed with
+  // the pose at the array's stamp (the newest sample), patch 3's press going with the arm.
+  Fixture f({}, /*with_robot=*/true);
+  uint64_t t = 1'000'000;
+  const Swing swing{t, 2.0};
+  f.n3.heartbeat(*f.agg, t, 1);
+  f.n4.heartbeat(*f.agg, t, 1);
+  swing.feed(*f.agg, t, t + 100'000);
+  ContactArray out;
+  f.n3.sample_at(*f.agg, t + 20'000, press(40, 0, 2.5, 33));
+  ASSERT_TRUE(f.agg->process(t + 21'000, &out));
+  f.n4.sample_at(*f.agg, t + 50'000, press(12, -20, 2.5, 34));
+  ASSERT_TRUE(f.agg->process(t + 51'000, &out));
+  ASSERT_EQ(out.contacts.size(), 2u);
+  ASSERT_GE(out.stamp_us, t + 45'000);
+  const double theta = swing.at(out.stamp_us);
+  for (const BodyContact& c : out.contacts) {
+    const auto want = on_arm((c.node == 4 ? 150 : 0) + c.u_mm, c.v_mm, theta);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_NEAR(c.position_mm[k], want[static_cast<std::size_t>(k)], 1e-6) << "node " << +c.node;
+    }
+    EXPECT_EQ(c.flags & (kContactStaleKinematics | kContactNoKinematics), 0u);
+  }
+}
+
+TEST(Aggregator, SamplesTheJointHistoryDoesNotCoverAreFlagged) {
+  AggregatorOptions o;
+  o.max_lag_us = 0;  // no lag bound: samples of any age are placed
+  o.joint_history.extrapolation_us = 50'000;
+  Fixture f(o, /*with_robot=*/true);
+  uint64_t t = 1'000'000;
+  const Swing swing{t, 1.0};
+  f.n3.heartbeat(*f.agg, t, 1);
+  ContactArray out;
+  // Sampled 200 ms before the first joint state: the oldest pose, flagged.
+  const uint64_t early = t + kPeriodUs;
+  f.n3.sample_at(*f.agg, early, press(40, 0, 2.5, 30));
+  swing.feed(*f.agg, early + 200'000, early + 400'000);
+  ASSERT_TRUE(f.agg->process(early + 400'000, &out));
+  ASSERT_EQ(out.contacts.size(), 1u);
+  EXPECT_TRUE(out.contacts[0].flags & kContactStaleKinematics);
+  auto want = on_arm(out.contacts[0].u_mm, out.contacts[0].v_mm, swing.at(early + 200'000));
+  EXPECT_NEAR(out.contacts[0].position_mm[0], want[0], 1e-6);
+  EXPECT_NEAR(out.contacts[0].position_mm[1], want[1], 1e-6);
+  EXPECT_EQ(f.agg->stats().kinematics_uncovered, 1u);
+  // Sampled 30 ms after the newest state: extrapolated along the arm's motion, not flagged.
+  const uint64_t newest = early + 400'000;
+  f.n3.sample_at(*f.agg, newest + 30'000, press(40, 0, 2.5, 31));
+  ASSERT_TRUE(f.agg->process(newest + 31'000, &out));
+  ASSERT_EQ(out.contacts.size(), 1u);
+  EXPECT_EQ(out.contacts[0].flags & kContactStaleKinematics, 0u);
+  want = on_arm(out.contacts[0].u_mm, out.contacts[0].v_mm, swing.at(out.stamp_us));
+  EXPECT_NEAR(out.contacts[0].position_mm[0], want[0], 1e-6);
+  EXPECT_NEAR(out.contacts[0].position_mm[1], want[1], 1e-6);
+  // Sampled 120 ms after the newest state: the newest pose, flagged.
+  f.n3.sample_at(*f.agg, newest + 120'000, press(40, 0, 2.5, 32));
+  ASSERT_TRUE(f.agg->process(newest + 121'000, &out));
+  ASSERT_EQ(out.contacts.size(), 1u);
+  EXPECT_TRUE(out.contacts[0].flags & kContactStaleKinematics);
+  want = on_arm(out.contacts[0].u_mm, out.contacts[0].v_mm, swing.at(newest));
+  EXPECT_NEAR(out.contacts[0].position_mm[0], want[0], 1e-6);
+  EXPECT_NEAR(out.contacts[0].position_mm[1], want[1], 1e-6);
+  EXPECT_EQ(f.agg->stats().kinematics_uncovered, 2u);
+  // A joint state stamped before the newest is ignored and counted.
+  const std::vector<std::string> names = {"shoulder"};
+  const std::vector<double> q = {2.0};
+  f.agg->set_joint_state(names, q, newest - 5'000);
+  EXPECT_EQ(f.agg->stats().joint_states_out_of_order, 1u);
+}
+
+TEST(Aggregator, SamplesOlderThanTheLagBoundAreSupersededAndReportedOnce) {
+  AggregatorOptions o;
+  o.max_lag_us = 100'000;
+  o.lag_quiet_us = 500'000;
+  Fixture f(o);
+  uint64_t t = 1'000'000;
+  f.n3.heartbeat(*f.agg, t, 1);
+  f.n4.heartbeat(*f.agg, t, 1);
+  ContactArray out;
+  // In time: estimated.
+  f.n3.sample_at(*f.agg, t += kPeriodUs, press(0, 0, 2, 40));
+  ASSERT_TRUE(f.agg->process(t + 90'000, &out));
+  EXPECT_EQ(f.agg->stats().late_superseded, 0u);
+  // The host got to the next ones 150 ms late: superseded, nothing placed, one event.
+  for (int i = 0; i < 3; ++i) {
+    t += 150'000;
+    f.n3.sample_at(*f.agg, t, press(0, 0, 2, 41));
+    f.n4.sample_at(*f.agg, t, press(10, 0, 2, 42));
+    if (f.agg->process(t + 150'000, &out)) {
+      EXPECT_TRUE(out.contacts.empty());  // only the held contact ending
+    }
+    f.agg->tick(t + 150'000);
+  }
+  EXPECT_EQ(f.agg->stats().late_superseded, 6u);
+  EXPECT_EQ(f.agg->stats().estimated, 1u);
+  auto ev = f.events(t);
+  EXPECT_EQ(
+      std::count_if(ev.begin(), ev.end(),
+                    [](const PatchEvent& e) { return e.kind == PatchEventKind::kHostLagging; }),
+      1);
+  EXPECT_FALSE(has_event(ev, PatchEventKind::kHostCaughtUp));
+  // In time again; after the quiet time the episode ends with its count.
+  t += 200'000;
+  f.n3.sample_at(*f.agg, t, press(0, 0, 2, 43));
+  ASSERT_TRUE(f.agg->process(t + 1000, &out));
+  f.agg->tick(t + 1000);
+  EXPECT_FALSE(has_event(f.events(t), PatchEventKind::kHostCaughtUp)) << "not quiet long enough";
+  f.agg->tick(t + 600'000);
+  ev = f.events(t + 600'000);
+  ASSERT_TRUE(has_event(ev, PatchEventKind::kHostCaughtUp));
+  for (const PatchEvent& e : ev) {
+    if (e.kind == PatchEventKind::kHostCaughtUp) {
+      EXPECT_NE(e.detail.find("6 sample"), std::string::npos) << e.detail;
+    }
+  }
+}
+
+TEST(Aggregator, ASlowModelIsKeptWithinTheLagBoundAndServesEveryPatch) {
+  // Every estimate costs 40 ms (a slow CPU); two patches are pressed each period but only one
+  // estimate fits in the 60 ms bound (both would take 80 ms). The host supersedes what it cannot
+  // publish in time, alternates between the patches, and every publication stays within the
+  // bound.
+  const auto start = std::chrono::steady_clock::now();
+  const uint64_t base_us = 1'000'000;
+  auto clock = [start, base_us]() {
+    return base_us + static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
+                                               std::chrono::steady_clock::now() - start)
+                                               .count());
+  };
+  AggregatorOptions o;
+  o.max_lag_us = 60'000;
+  o.model_delay_us = 40'000;
+  o.clock_us = clock;
+  Fixture f(o);
+  f.n3.heartbeat(*f.agg, clock(), 1);
+  f.n4.heartbeat(*f.agg, clock(), 1);
+  ContactArray out;
+  auto sample = [&](Node& n, uint64_t seed) {
+    n.sample_at(*f.agg, clock(), press(n.node == 3 ? -20 : 20, 0, 2, seed));
+  };
+  // The first run measures the cost (one sample).
+  sample(f.n3, 50);
+  ASSERT_TRUE(f.agg->process(clock(), &out));
+  double worst_ms = 0;
+  for (int i = 0; i < 12; ++i) {
+    sample(f.n3, 51 + static_cast<uint64_t>(i));
+    sample(f.n4, 71 + static_cast<uint64_t>(i));
+    const bool published = f.agg->process(clock(), &out);
+    const uint64_t done = clock();
+    EXPECT_LE(f.agg->processed_rx_us().size(), 1u) << "two estimates do not fit in the bound";
+    if (published) {
+      EXPECT_LE(out.stamp_us, done);
+      for (uint64_t rx : f.agg->processed_rx_us()) {
+        worst_ms = std::max(worst_ms, static_cast<double>(done - rx) * 1e-3);
+      }
+    }
+  }
+  std::printf("worst lag %.1f ms, late %llu, estimated %llu\n", worst_ms,
+              static_cast<unsigned long long>(f.agg->stats().late_superseded),
+              static_cast<unsigned long long>(f.agg->stats().estimated));
+  EXPECT_LT(worst_ms, 60 + 15) << "published beyond the bound (15 ms of scheduling slack)";
+  EXPECT_GE(f.agg->stats().late_superseded, 8u);
+  EXPECT_GE(f.agg->registry().entry(0, 3).contacts, 4u) << "both patches take turns";
+  EXPECT_GE(f.agg->registry().entry(0, 4).contacts, 4u) << "both patches take turns";
+  EXPECT_TRUE(has_event(f.events(clock()), PatchEventKind::kHostLagging));
+}
+
+TEST(Aggregator, AModelSlowerThanTheBoundStillPublishesInTurn) {
+  // Every estimate takes 60 ms, the bound is 40 ms: no run can meet it. The host still estimates
+  // one sample a run (the first in time, the patches in turn) rather than none, late by about
+  // one estimate, and reports the episode.
+  const auto start = std::chrono::steady_clock::now();
+  const uint64_t base_us = 1'000'000;
+  auto clock = [start, base_us]() {
+    return base_us + static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
+                                               std::chrono::steady_clock::now() - start)
+                                               .count());
+  };
+  AggregatorOptions o;
+  o.max_lag_us = 40'000;
+  o.model_delay_us = 60'000;
+  o.clock_us = clock;
+  Fixture f(o);
+  f.n3.heartbeat(*f.agg, clock(), 1);
+  f.n4.heartbeat(*f.agg, clock(), 1);
+  ContactArray out;
+  f.n3.sample_at(*f.agg, clock(), press(-20, 0, 2, 60));
+  ASSERT_TRUE(f.agg->process(clock(), &out));  // measures the cost
+  double worst_ms = 0;
+  int one = 0;  // runs that took exactly one sample
+  for (int i = 0; i < 6; ++i) {
+    f.n3.sample_at(*f.agg, clock(), press(-20, 0, 2, 61 + static_cast<uint64_t>(i)));
+    f.n4.sample_at(*f.agg, clock(), press(20, 0, 2, 71 + static_cast<uint64_t>(i)));
+    f.agg->process(clock(), &out);
+    const uint64_t done = clock();
+    EXPECT_LE(f.agg->processed_rx_us().size(), 1u) << "at most one sample a run";
+    one += f.agg->processed_rx_us().size() == 1 ? 1 : 0;
+    for (uint64_t rx : f.agg->processed_rx_us()) {
+      worst_ms = std::max(worst_ms, static_cast<double>(done - rx) * 1e-3);
+    }
+  }
+  // (A run with none: this machine stalled for the whole bound between queueing and process().)
+  EXPECT_GE(one, 5);
+  EXPECT_LT(worst_ms, 60 + 20) << "late by about one estimate (20 ms of scheduling slack)";
+  EXPECT_GE(f.agg->registry().entry(0, 3).contacts, 3u) << "both patches take turns";
+  EXPECT_GE(f.agg->registry().entry(0, 4).contacts, 2u) << "both patches take turns";
+  EXPECT_GE(f.agg->stats().late_superseded, 6u);
+  bool said = false;
+  for (const PatchEvent& e : f.events(clock())) {
+    said = said || (e.kind == PatchEventKind::kHostLagging &&
+                    e.detail.find("more than the bound") != std::string::npos);
+  }
+  EXPECT_TRUE(said);
 }
 
 TEST(Aggregator, BadOptionsAreRefused) {

@@ -56,6 +56,10 @@ std::string_view patch_event_name(PatchEventKind k) {
       return "kinematics_stale";
     case PatchEventKind::kKinematicsFresh:
       return "kinematics_fresh";
+    case PatchEventKind::kHostLagging:
+      return "host_lagging";
+    case PatchEventKind::kHostCaughtUp:
+      return "host_caught_up";
   }
   return "unknown";
 }

@@ -76,6 +76,10 @@ SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_KINEMATICS_ST
                       PatchEventKind::kKinematicsStale);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_KINEMATICS_FRESH,
                       PatchEventKind::kKinematicsFresh);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_HOST_LAGGING,
+                      PatchEventKind::kHostLagging);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_HOST_CAUGHT_UP,
+                      PatchEventKind::kHostCaughtUp);
 #undef SKINBUS_SAME_CONSTANT
 
 namespace {
@@ -89,7 +93,7 @@ using JointStateMsg = sensor_msgs_msg_dds__JointState_;
 using TimeMsg = builtin_interfaces_msg_dds__Time_;
 
 constexpr uint8_t kPatchLinkStateMax = static_cast<uint8_t>(PatchLinkState::kOffline);
-constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kKinematicsFresh);
+constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kHostCaughtUp);
 constexpr double kMmPerM = 1000.0;
 constexpr double kUsPerS = 1e6;
 
@@ -879,8 +883,7 @@ void JointStateSubscriber::on_data_available(int32_t reader, void* self) {
 
 void JointStateSubscriber::drain(int32_t reader) {
   const uint64_t now_us = bus::realtime_now_us();
-  JointStateSample newest;
-  bool have = false;
+  std::vector<JointStateSample> got;
   uint64_t rejected = 0;
   while (true) {
     Loan loan(reader, 16);
@@ -897,28 +900,44 @@ void JointStateSubscriber::drain(int32_t reader) {
         ++rejected;
         continue;
       }
-      newest.stamp_us = *stamp;
-      newest.received_us = now_us;
-      newest.names.resize(m.name._length);
-      for (uint32_t k = 0; k < m.name._length; ++k) newest.names[k] = from_c_str(m.name._buffer[k]);
-      newest.positions.assign(m.position._buffer, m.position._buffer + m.position._length);
-      have = true;
+      JointStateSample& js = got.emplace_back();
+      js.stamp_us = *stamp;
+      js.received_us = now_us;
+      js.names.resize(m.name._length);
+      for (uint32_t k = 0; k < m.name._length; ++k) js.names[k] = from_c_str(m.name._buffer[k]);
+      js.positions.assign(m.position._buffer, m.position._buffer + m.position._length);
     }
   }
   std::lock_guard<std::mutex> lock(mutex_);
   rejected_ += rejected;
-  if (have) {
-    latest_ = std::move(newest);
-    fresh_ = true;
+  for (JointStateSample& js : got) {
+    if (queue_.size() >= kQueueMax) {
+      queue_.pop_front();
+      ++overflowed_;
+    }
+    queue_.push_back(std::move(js));
   }
 }
 
 bool JointStateSubscriber::take_latest(JointStateSample* out) {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!fresh_) return false;
-  *out = std::move(latest_);
-  fresh_ = false;
+  if (queue_.empty()) return false;
+  *out = std::move(queue_.back());
+  queue_.clear();
   return true;
+}
+
+std::size_t JointStateSubscriber::take_all(std::vector<JointStateSample>* out) {
+  out->clear();
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (JointStateSample& js : queue_) out->push_back(std::move(js));
+  queue_.clear();
+  return out->size();
+}
+
+uint64_t JointStateSubscriber::overflowed_samples() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return overflowed_;
 }
 
 uint64_t JointStateSubscriber::rejected_samples() const {

@@ -218,7 +218,8 @@ PatchStatusArray sample_status(uint64_t stamp_us) {
   s.patches = {a, b};
   s.events = {{stamp_us - 10, PatchEventKind::kRebooted, 3, a.hardware_uid, "uptime 5 s < 9 s"},
               {stamp_us - 5, PatchEventKind::kInterfaceDown, 0, 0, "can1: bus-off"},
-              {stamp_us - 1, PatchEventKind::kKinematicsFresh, 0, 0, ""}};
+              {stamp_us - 2, PatchEventKind::kKinematicsFresh, 0, 0, ""},
+              {stamp_us - 1, PatchEventKind::kHostCaughtUp, 0, 0, "3 superseded"}};
   return s;
 }
 
@@ -391,7 +392,7 @@ TEST(DdsTest, BadOptionsAreRefused) {
   EXPECT_NE(s.error().message.find("domain_id 233"), std::string::npos);
 }
 
-TEST(DdsTest, JointStatesRoundTripAndTakeLatestGivesTheNewest) {
+TEST(DdsTest, JointStatesRoundTripTakeLatestGivesTheNewestTakeAllGivesEach) {
   const DdsOptions o = test_options("joints");
   auto pub = must(JointStatePublisher::create(o));
   auto sub = must(JointStateSubscriber::create(o));
@@ -437,6 +438,26 @@ TEST(DdsTest, JointStatesRoundTripAndTakeLatestGivesTheNewest) {
   EXPECT_LE(sample.received_us, now_us());
   EXPECT_FALSE(sub->take_latest(&sample)) << "the newest was already taken";
   EXPECT_EQ(sub->rejected_samples(), 0u);
+
+  // take_all: every sample, in order, each once.
+  for (int k = 3; k < 8; ++k) {
+    const std::vector<double> q = {0.1 * k, 0, 0, 0};
+    ASSERT_TRUE(pub->publish(names, q, t0 + static_cast<uint64_t>(k) * 1000).ok());
+  }
+  std::vector<JointStateSample> all, got;
+  while (all.size() < 5) {
+    ASSERT_LT(std::chrono::steady_clock::now(), take_end) << "samples never arrived";
+    sub->take_all(&got);
+    for (JointStateSample& s : got) all.push_back(std::move(s));
+    if (all.size() < 5) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  ASSERT_EQ(all.size(), 5u);
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    EXPECT_EQ(all[i].stamp_us, t0 + (3 + i) * 1000);
+    EXPECT_NEAR(all[i].positions[0], 0.1 * static_cast<double>(3 + i), kTol);
+  }
+  EXPECT_EQ(sub->take_all(&got), 0u);
+  EXPECT_EQ(sub->overflowed_samples(), 0u);
 }
 
 // ---- another process: the real skinbus-listen ----------------------------------------------

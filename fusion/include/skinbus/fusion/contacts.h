@@ -17,14 +17,16 @@ namespace skinbus::fusion {
 // Bits of BodyContact::flags.
 enum BodyContactFlag : uint32_t {
   kContactOk = 0,
-  kContactStaleKinematics = 1u << 0,  // joint states older than the limit: last known pose used
-  kContactNoKinematics = 1u << 1,     // no joint state yet: the robot's zero pose was used
-  kContactMerged = 1u << 2,           // several patches saw this press (merged into one)
-  kContactOutsidePatch = 1u << 3,     // the estimate lies beyond the patch edge (kept, flagged)
-  kContactDepthRange = 1u << 4,       // depth beyond what the model knows (kept, flagged)
-  kContactMaskedChannels = 1u << 5,   // some sensors were left out (dead or saturated)
-  kContactAmbientLarge = 1u << 6,     // the common-mode field removed was large (> limit)
-  kContactUnmapped = 1u << 7,         // the patch has no skin-map entry: position is patch-frame
+  // The joint states do not cover the sample's time (they stopped, or began after it, more than
+  // the extrapolation allowance before or after it): the nearest known pose was used.
+  kContactStaleKinematics = 1u << 0,
+  kContactNoKinematics = 1u << 1,    // no joint state yet: the robot's zero pose was used
+  kContactMerged = 1u << 2,          // several patches saw this press (merged into one)
+  kContactOutsidePatch = 1u << 3,    // the estimate lies beyond the patch edge (kept, flagged)
+  kContactDepthRange = 1u << 4,      // depth beyond what the model knows (kept, flagged)
+  kContactMaskedChannels = 1u << 5,  // some sensors were left out (dead or saturated)
+  kContactAmbientLarge = 1u << 6,    // the common-mode field removed was large (> limit)
+  kContactUnmapped = 1u << 7,        // the patch has no skin-map entry: position is patch-frame
 };
 
 // One contact in the robot's base frame.
@@ -80,6 +82,8 @@ enum class PatchEventKind : uint8_t {
   kInterfaceUp,      // it came back
   kKinematicsStale,  // joint states stopped
   kKinematicsFresh,  // joint states resumed
+  kHostLagging,      // the host fell behind: late samples are superseded (detail: the bound)
+  kHostCaughtUp,     // it caught up (detail: how many were superseded, the oldest)
 };
 std::string_view patch_event_name(PatchEventKind k);
 

@@ -45,6 +45,7 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -161,9 +162,12 @@ struct JointStateSample {
   std::vector<double> positions;  // rad or m, one per name
 };
 
-// Reads rt/joint_states in the background (a Cyclone DDS listener) and keeps only the newest.
+// Reads rt/joint_states in the background (a Cyclone DDS listener) and queues what arrives, up to
+// kQueueMax samples (the oldest are dropped beyond that, counted).
 class JointStateSubscriber {
  public:
+  static constexpr std::size_t kQueueMax = 1024;  // 10 s of 100 Hz, 1 s of 1 kHz
+
   static Result<std::unique_ptr<JointStateSubscriber>> create(const DdsOptions& options);
   // Deletes the reader first (waiting for a running listener callback to end).
   ~JointStateSubscriber();
@@ -174,6 +178,14 @@ class JointStateSubscriber {
   // *out and returns true; returns false (*out untouched) when none arrived since. Samples that
   // arrived in between are skipped. Thread-safe against the listener (and other callers).
   bool take_latest(JointStateSample* out);
+
+  // Non-blocking: moves every sample that arrived since the previous take, in arrival order,
+  // into *out (cleared first; its capacity is reused) and returns how many. For a consumer that
+  // keeps a history of the states (skinbus-host). Thread-safe, as take_latest.
+  std::size_t take_all(std::vector<JointStateSample>* out);
+
+  // Samples dropped because kQueueMax were waiting (nobody took them in time). Thread-safe.
+  uint64_t overflowed_samples() const;
 
   // Samples refused since create(): name and position counts differ, a position is not
   // finite, or the stamp is negative or malformed. Thread-safe.
@@ -192,9 +204,8 @@ class JointStateSubscriber {
   int32_t reader_ = 0;
   int32_t match_waitset_ = 0;
   mutable std::mutex mutex_;  // guards the members below (the listener runs on DDS threads)
-  JointStateSample latest_;
-  bool fresh_ = false;  // latest_ not yet taken
-  uint64_t rejected_ = 0;
+  std::deque<JointStateSample> queue_;  // arrived, not yet taken, oldest first
+  uint64_t rejected_ = 0, overflowed_ = 0;
 };
 
 // Writes rt/joint_states (simulated scenes, tests).

@@ -92,6 +92,7 @@
 #include <cstdint>
 #include <memory>
 #include <span>
+#include <string_view>
 
 #include "skinbus/common/result.h"
 #include "skinbus/fusion/estimate.h"
@@ -155,6 +156,18 @@ constexpr const char* runtime_isa_name(RuntimeIsa i) {
       return "portable";
   }
   return "unknown";
+}
+
+// Reads an instruction-set name as runtime_isa_name() writes it; false for any other text.
+constexpr bool parse_runtime_isa(std::string_view name, RuntimeIsa* isa) {
+  for (RuntimeIsa i :
+       {RuntimeIsa::kAvx512, RuntimeIsa::kAvx2, RuntimeIsa::kNeon, RuntimeIsa::kPortable}) {
+    if (name == runtime_isa_name(i)) {
+      *isa = i;
+      return true;
+    }
+  }
+  return false;
 }
 
 struct RuntimeOptions {
