@@ -117,7 +117,14 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
   r.get_uint64(p, "uid", path + ".", &uid);
   out->hardware_uid = uid;
   r.get_string(p, "link", path + ".", &out->link);
-  get_vector<3>(r, p, "position_mm", path + ".", &out->pose_on_link.translation_mm);
+  if (get_vector<3>(r, p, "position_mm", path + ".", &out->pose_on_link.translation_mm) &&
+      !(out->pose_on_link.translation_mm.norm() <= kMaxPatchOffsetMm)) {
+    r.fail(path + ".position_mm", p["position_mm"],
+           "the patch is " + std::to_string(out->pose_on_link.translation_mm.norm() * 1e-3) +
+               " m from its link's origin, more than the " +
+               std::to_string(static_cast<int>(kMaxPatchOffsetMm * 1e-3)) +
+               " m any robot link spans (mm expected)");
+  }
   if (p["rpy_deg"] && p["quaternion_wxyz"]) {
     r.fail(path + ".quaternion_wxyz", p["quaternion_wxyz"], "give rpy_deg or quaternion_wxyz");
   }
