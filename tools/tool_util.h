@@ -14,8 +14,10 @@
 #include <ctime>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <vector>
 
+#include "skinbus/common/atomic_file.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/common/text_file.h"
 
@@ -141,6 +143,45 @@ inline std::FILE* open_input_stream(const std::string& path, const std::string& 
   if (f == nullptr) throw std::runtime_error(what + " " + path + ": " + std::strerror(errno));
   fd->release();
   return f;
+}
+
+// printf appended to `out` (an output built in memory, then written with write_output).
+[[gnu::format(printf, 2, 3)]] inline void appendf(std::string& out, const char* fmt, ...) {
+  char buf[512];
+  va_list ap;
+  va_start(ap, fmt);
+  const int n = std::vsnprintf(buf, sizeof buf, fmt, ap);
+  va_end(ap);
+  if (n < 0) return;
+  if (static_cast<std::size_t>(n) < sizeof buf) {
+    out.append(buf, static_cast<std::size_t>(n));
+    return;
+  }
+  std::string big(static_cast<std::size_t>(n) + 1, '\0');
+  va_start(ap, fmt);
+  std::vsnprintf(big.data(), big.size(), fmt, ap);
+  va_end(ap);
+  out.append(big.data(), static_cast<std::size_t>(n));
+}
+
+// Writes an output file whole: to a temporary name beside it, checked, synced and renamed
+// (skinbus/common/atomic_file.h), so that a reader never finds it torn or empty. '-' is standard
+// output (checked). Throws std::runtime_error naming the file when the write fails.
+inline void write_output(const std::string& path, std::string_view text, const std::string& what) {
+  if (path == "-") {
+    errno = 0;
+    if (std::fwrite(text.data(), 1, text.size(), stdout) != text.size() ||
+        std::fflush(stdout) != 0) {
+      const int e = errno != 0 ? errno : EIO;
+      if (e == EPIPE) std::_Exit(kExitBrokenPipe);
+      throw std::runtime_error("writing " + what +
+                               " to standard output failed: " + std::strerror(e));
+    }
+    return;
+  }
+  if (Status s = write_file_atomic(path, text, what); !s.ok()) {
+    throw std::runtime_error(s.error().message);
+  }
 }
 
 }  // namespace skinbus::tools

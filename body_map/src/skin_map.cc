@@ -10,6 +10,7 @@
 #include <numbers>
 #include <sstream>
 
+#include "skinbus/common/atomic_file.h"
 #include "skinbus/common/yaml_reader.h"
 
 namespace skinbus::body_map {
@@ -385,12 +386,7 @@ std::string skin_map_to_yaml(const SkinMap& map) {
 }
 
 Status save_skin_map_file(const SkinMap& map, const std::string& path) {
-  std::ofstream out(path);
-  if (!out) return make_error(ErrorCode::kIo, "cannot write skin map " + path);
-  out << skin_map_to_yaml(map);
-  out.close();
-  if (!out) return make_error(ErrorCode::kIo, "writing skin map " + path + " failed");
-  return Status::Ok();
+  return write_file_atomic(path, skin_map_to_yaml(map), "skin map");  // never a torn map
 }
 
 std::string path_beside(const std::string& map_path, const std::string& path) {
