@@ -1029,6 +1029,15 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "skinbus-host: %s\n", agg.error().to_string().c_str());
       return 2;
     }
+    if (!a.quiet) {
+      std::fprintf(stderr, "skinbus-host: %zu patches in the map, robot %s, models:\n",
+                   map->patches.size(), robot ? robot->name().c_str() : "(none)");
+      for (const std::string& m : (*agg)->model_descriptions()) {
+        std::fprintf(stderr, "  %s\n", m.c_str());
+      }
+    }
+    Outputs out(a);
+    Joints joints(a, robot.get());
     if ((*agg)->model_descriptions().empty() && !a.allow_no_models) {
       fusion::PatchStatusArray why;
       (*agg)->status(0, &why);
@@ -1042,15 +1051,6 @@ int main(int argc, char** argv) {
                    a.map_path.c_str());
       return 1;
     }
-    if (!a.quiet) {
-      std::fprintf(stderr, "skinbus-host: %zu patches in the map, robot %s, models:\n",
-                   map->patches.size(), robot ? robot->name().c_str() : "(none)");
-      for (const std::string& m : (*agg)->model_descriptions()) {
-        std::fprintf(stderr, "  %s\n", m.c_str());
-      }
-    }
-    Outputs out(a);
-    Joints joints(a, robot.get());
     tools::install_stop_handler();
     Runner r(a, **agg, out, joints);
     const int rc = a.live                     ? run_live_pipe(a, r)
