@@ -142,7 +142,10 @@ exec 3>&-
 wait "$host"
 host_rc=$?
 
-python3 - "$out" "$duration" "$host_rc" <<'PY'
+# The summary (and the plot, with the Python that has matplotlib, when one has).
+py=python3
+[[ -x /usr/bin/python3 ]] && /usr/bin/python3 -c 'import matplotlib' 2>/dev/null && py=/usr/bin/python3
+"$py" - "$out" "$duration" "$host_rc" <<'PY'
 import csv, glob, re, sys
 out, duration, host_rc = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
 err = open("host.err").read()
