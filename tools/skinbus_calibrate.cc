@@ -17,6 +17,7 @@
 #include "skinbus/body_map/calibration.h"
 #include "skinbus/body_map/touch_log.h"
 #include "skinbus/common/atomic_file.h"
+#include "tool_util.h"
 
 #ifndef SKINBUS_SOURCE_DIR
 #define SKINBUS_SOURCE_DIR "."

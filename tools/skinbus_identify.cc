@@ -13,6 +13,7 @@
 #include "skinbus/fusion/unit_identification.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/unit_parameters.h"
+#include "tool_util.h"
 
 namespace {
 

@@ -15,6 +15,7 @@
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/common/line_reader.h"
+#include "tool_util.h"
 
 using namespace skinbus;
 

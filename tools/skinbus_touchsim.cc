@@ -13,6 +13,7 @@
 
 #include "skinbus/body_map/calibration_sim.h"
 #include "skinbus/common/atomic_file.h"
+#include "tool_util.h"
 
 int main(int argc, char** argv) {
   using namespace skinbus::body_map;

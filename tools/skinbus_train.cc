@@ -12,6 +12,7 @@
 #include "skinbus/fusion/evaluation.h"
 #include "skinbus/fusion/training.h"
 #include "skinbus/sim/dataset.h"
+#include "tool_util.h"
 
 namespace {
 

@@ -86,6 +86,17 @@ inline void install_stop_handler() {
   sigprocmask(SIG_UNBLOCK, &pipe_set, nullptr);
 }
 
+// Every tool starts with SIGPIPE at its default action (unblocked), whatever its parent set: a
+// tool whose reader went away ends at once, as the shell expects (`skinbus-x | head -1`).
+inline const bool kSigpipeDefaultAtStart = [] {
+  std::signal(SIGPIPE, SIG_DFL);
+  sigset_t pipe_set;
+  sigemptyset(&pipe_set);
+  sigaddset(&pipe_set, SIGPIPE);
+  sigprocmask(SIG_UNBLOCK, &pipe_set, nullptr);
+  return true;
+}();
+
 // Sleeps `us` microseconds in slices of at most 50 ms; false (at once) when a stop was
 // requested. A replay never sleeps through a stop, whatever the log's timestamps say.
 inline bool sleep_unless_stopped(uint64_t us) {
