@@ -309,7 +309,7 @@ class LogClock {
       ++back_lines_;
       max_back_us_ = std::max(max_back_us_, back);
       if (back > kRebaseUs) {
-        offset_ += static_cast<int64_t>(last_) - static_cast<int64_t>(ts_us);
+        offset_ = static_cast<int64_t>(last_) - static_cast<int64_t>(ts_us);  // on from last_
         max_ts_ = ts_us;
         ++rebases_;
         std::snprintf(buf, sizeof buf,
