@@ -88,7 +88,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
   if (!sim::write_dataset_csv(*d, out).ok()) fail("a dataset that read does not write");
   Result<sim::Dataset> once = sim::read_dataset_csv(out);
   if (!once.ok()) fail(("a written dataset does not read: " + once.error().message).c_str());
-  if (once->rows() != d->rows() || once->channels() != d->channels()) fail("rows or channels changed");
+  if (once->rows() != d->rows() || once->channels() != d->channels())
+    fail("rows or channels changed");
   if (!sim::write_dataset_csv(*once, out).ok()) fail("a dataset that read does not write (2)");
   Result<sim::Dataset> twice = sim::read_dataset_csv(out);
   if (!twice.ok() || !same(*once, *twice)) fail("the second round trip changed a number");
