@@ -71,6 +71,7 @@ mkfifo bus.fifo
 "$bin/skinbus-host" --map map.yaml --replay bus.fifo --live --joints dds --domain "$domain" \
   --status-period 1 --stats >/dev/null 2>host.err &
 host=$!
+pids+=("$host")
 exec 3>bus.fifo  # held open: the daemons come and go, the stream does not end
 incarnation=0
 start_patch() {  # start_patch NODE UID_NODE -> pid in $started

@@ -232,16 +232,16 @@ struct Runner {
   uint64_t next_status_us = 0, next_tick_us = 0;
   fusion::ContactArray contacts;
   fusion::PatchStatusArray status;
-  std::vector<double> latency_us;
+  tools::LatencyHistogram latency_us;  // fixed memory, however long the run
 
   void after_frames(uint64_t now_us, bool measure_latency) {
     joints.update(agg, now_us, run_start_us);
     if (agg.process(now_us, &contacts)) {
       out.contacts(contacts);
-      if (measure_latency && args.stats) {  // kept only when asked for: it grows with the run
+      if (measure_latency && args.stats) {
         const uint64_t done = bus::realtime_now_us();
         for (uint64_t rx : agg.processed_rx_us()) {
-          latency_us.push_back(static_cast<double>(done > rx ? done - rx : 0));
+          latency_us.add(static_cast<double>(done > rx ? done - rx : 0));
         }
       }
     }
@@ -1071,13 +1071,12 @@ int main(int argc, char** argv) {
                    s.untared_samples, s.unattributed, s.superseded, s.late_superseded, s.estimated,
                    s.model_runs, s.rejected, s.publications, s.unknown_joints,
                    s.joint_states_out_of_order, s.kinematics_uncovered);
-      if (!r.latency_us.empty()) {
+      if (r.latency_us.count() > 0) {
         std::fprintf(stderr,
                      "skinbus-host: latency frame arrival -> publication over %zu samples: "
                      "p50 %.0f us, p99 %.0f us, max %.0f us\n",
-                     r.latency_us.size(), tools::quantile(r.latency_us, 0.5),
-                     tools::quantile(r.latency_us, 0.99),
-                     *std::max_element(r.latency_us.begin(), r.latency_us.end()));
+                     static_cast<std::size_t>(r.latency_us.count()), r.latency_us.quantile(0.5),
+                     r.latency_us.quantile(0.99), r.latency_us.max());
       }
     }
     return rc;

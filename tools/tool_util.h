@@ -156,6 +156,41 @@ inline std::FILE* open_input_stream(const std::string& path, const std::string& 
   return f;
 }
 
+// Latencies (or any positive durations) in fixed memory, for a run of any length: counts in
+// buckets 1 % wide from 1 us to 1000 s, the exact maximum. quantile() answers within 1 %.
+class LatencyHistogram {
+ public:
+  static constexpr double kRatio = 1.01;
+  static constexpr std::size_t kBuckets = 2084;  // 1.01^2083 > 1e9 us
+  void add(double us) {
+    const double v = std::max(us, 1.0);
+    const auto b = static_cast<std::size_t>(std::log(v) / std::log(kRatio));
+    ++counts_[std::min(b, kBuckets - 1)];
+    ++n_;
+    max_ = std::max(max_, us);
+  }
+  uint64_t count() const { return n_; }
+  double max() const { return max_; }
+  // The q-quantile (0..1): the upper edge of the bucket it falls in, at most the maximum.
+  double quantile(double q) const {
+    if (n_ == 0) return 0;
+    const auto want = static_cast<uint64_t>(std::ceil(q * static_cast<double>(n_)));
+    uint64_t seen = 0;
+    for (std::size_t b = 0; b < kBuckets; ++b) {
+      seen += counts_[b];
+      if (seen >= std::max<uint64_t>(want, 1)) {
+        return std::min(std::pow(kRatio, static_cast<double>(b + 1)), max_);
+      }
+    }
+    return max_;
+  }
+
+ private:
+  std::vector<uint64_t> counts_ = std::vector<uint64_t>(kBuckets, 0);
+  uint64_t n_ = 0;
+  double max_ = 0;
+};
+
 // printf appended to `out` (an output built in memory, then written with write_output).
 [[gnu::format(printf, 2, 3)]] inline void appendf(std::string& out, const char* fmt, ...) {
   char buf[512];
