@@ -9,8 +9,8 @@
 #include <utility>
 #include <vector>
 
-#include "skinbus/patch_fw/mlx90393_protocol.h"
-#include "skinbus/sim/mlx90393.h"
+#include "skinbus/mlx90393/measurement.h"
+#include "skinbus/mlx90393/protocol.h"
 
 namespace skinbus::patch_fw {
 namespace {
@@ -37,7 +37,7 @@ class TestField final : public FieldSource {
   std::vector<std::pair<int, uint64_t>> calls;
 };
 
-// Register-field values of a configuration, and what the sim model makes of it.
+// Register-field values of a configuration, and what the chip makes of it.
 struct Cfg {
   uint8_t gain = 7, res_x = 0, res_y = 0, res_z = 0, osr = 0, filt = 0;
 
@@ -45,21 +45,21 @@ struct Cfg {
   uint16_t conf3() const {
     return static_cast<uint16_t>(osr | filt << 2 | res_x << 5 | res_y << 7 | res_z << 9);
   }
-  sim::Mlx90393Config sim(bool temperature, uint8_t res_xy) const {
+  mlx90393::Config chip(bool temperature, uint8_t res_xy) const {
     return {gain, res_xy, res_z, osr, filt, temperature};
   }
   uint64_t conversion_us(bool temperature) const {
-    return static_cast<uint64_t>(std::ceil(sim::mlx90393_conversion_time_us(sim(temperature, 0))));
+    return static_cast<uint64_t>(std::ceil(mlx90393::conversion_time_us(chip(temperature, 0))));
   }
   // Wire words X, Y, Z for a field.
   std::array<uint16_t, 3> codes(const sim::Vec3<double>& f, bool* any_saturated = nullptr) const {
     bool sx = false, sy = false, sz = false;
     const auto x =
-        sim::mlx90393_code(f.x, sim::mlx90393_sensitivity_xy_ut(sim(false, res_x)), res_x, &sx);
+        mlx90393::output_code(f.x, mlx90393::sensitivity_xy_ut(chip(false, res_x)), res_x, &sx);
     const auto y =
-        sim::mlx90393_code(f.y, sim::mlx90393_sensitivity_xy_ut(sim(false, res_y)), res_y, &sy);
+        mlx90393::output_code(f.y, mlx90393::sensitivity_xy_ut(chip(false, res_y)), res_y, &sy);
     const auto z =
-        sim::mlx90393_code(f.z, sim::mlx90393_sensitivity_z_ut(sim(false, res_x)), res_z, &sz);
+        mlx90393::output_code(f.z, mlx90393::sensitivity_z_ut(chip(false, res_x)), res_z, &sz);
     if (any_saturated) *any_saturated = sx || sy || sz;
     return {static_cast<uint16_t>(x & 0xFFFF), static_cast<uint16_t>(y & 0xFFFF),
             static_cast<uint16_t>(z & 0xFFFF)};
