@@ -5,13 +5,15 @@
 
 #include <cmath>
 
-#include "skinbus/patch_fw/emulator.h"
 #include "skinbus/patch_fw/tca9546a.h"
+#include "skinbus/patch_sim/emulator.h"
 
 namespace skinbus::patch_fw {
 namespace {
 
 namespace m = mlx90393;
+using patch_sim::EmulatedI2cBus;
+using patch_sim::FieldSource;
 
 class FixedField final : public FieldSource {
  public:

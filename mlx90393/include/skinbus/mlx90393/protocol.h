@@ -1,7 +1,7 @@
 // skinbus/mlx90393/protocol.h: the MLX90393's I2C command protocol, as data.
 //
 // Shared by the driver (skinbus/patch_fw/mlx90393.h) and the chip emulator
-// (skinbus/patch_fw/emulator.h) so the two cannot disagree on a bit. From the MLX90393
+// (skinbus/patch_sim/emulator.h) so the two cannot disagree on a bit. From the MLX90393
 // datasheet (command set, status byte, volatile register map, timing). What the settings in
 // the registers do to a measurement is measurement.h.
 //

@@ -1,5 +1,4 @@
-#include "skinbus/patch_fw/emulator.h"
-#include "skinbus/patch_fw/tca9546a.h"
+#include "skinbus/patch_sim/emulator.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,10 +8,13 @@
 
 #include "skinbus/mlx90393/measurement.h"
 #include "skinbus/mlx90393/protocol.h"
+#include "skinbus/patch_fw/tca9546a.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 
 namespace mlx = mlx90393;
+using patch_fw::format_hex_byte;
+using patch_fw::I2cMessage;
 
 namespace {
 
@@ -280,13 +282,13 @@ struct EmulatedI2cBus::Chip {
   }
 };
 
-EmulatedI2cBus::EmulatedI2cBus(Clock* clock, FieldSource* source)
+EmulatedI2cBus::EmulatedI2cBus(patch_fw::Clock* clock, FieldSource* source)
     : clock_(clock), source_(source) {}
 EmulatedI2cBus::~EmulatedI2cBus() = default;
 
 Status EmulatedI2cBus::add_mux(uint8_t address) {
   if (mux_address_) return make_error(ErrorCode::kInvalidArgument, "emulator: mux already added");
-  if (address < kTca9546aAddressMin || address > kTca9546aAddressMax) {
+  if (address < patch_fw::kTca9546aAddressMin || address > patch_fw::kTca9546aAddressMax) {
     return make_error(ErrorCode::kInvalidArgument,
                       "emulator: mux address " + format_hex_byte(address) + " outside 0x70..0x77");
   }
@@ -408,4 +410,4 @@ void EmulatedI2cBus::mux_reset() {
   mux_active_ = 0;
 }
 
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

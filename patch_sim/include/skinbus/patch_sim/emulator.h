@@ -1,7 +1,7 @@
-// skinbus/patch_fw/emulator.h: MLX90393 and TCA9546A emulators behind the I2cBus interface.
+// skinbus/patch_sim/emulator.h: MLX90393 and TCA9546A emulators behind the I2cBus interface.
 //
-// EmulatedI2cBus is an I2C bus with chips on it, spoken to exactly as LinuxI2cBus is: one
-// combined transaction of write/read messages. It carries an optional TCA9546A multiplexer
+// EmulatedI2cBus is an I2C bus with chips on it, spoken to exactly as patch_fw's LinuxI2cBus is:
+// one combined transaction of write/read messages. It carries an optional TCA9546A multiplexer
 // whose four downstream channels hold MLX90393s, and MLX90393s on the trunk itself. Each
 // MLX90393 emulates the command protocol (skinbus/mlx90393/protocol.h) at the transaction
 // level: status byte (mode, error, reset and data-count bits), volatile registers, single and
@@ -73,7 +73,7 @@
 #include "skinbus/patch_fw/i2c.h"
 #include "skinbus/sim/vec3.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 
 // The field a chip sees: `sensor` is the index given when the chip was added.
 class FieldSource {
@@ -106,10 +106,10 @@ struct Mlx90393Counters {
   uint64_t early_reads = 0;   // RM while the conversion was still running
 };
 
-class EmulatedI2cBus final : public I2cBus {
+class EmulatedI2cBus final : public patch_fw::I2cBus {
  public:
   // `clock` and `source` are not owned and must outlive the bus.
-  EmulatedI2cBus(Clock* clock, FieldSource* source);
+  EmulatedI2cBus(patch_fw::Clock* clock, FieldSource* source);
   ~EmulatedI2cBus() override;
 
   // Puts a TCA9546A at `address` (0x70..0x77) on the trunk. Call at most once.
@@ -121,7 +121,7 @@ class EmulatedI2cBus final : public I2cBus {
   // powers up idle with the default registers, RS pending.
   Status add_mlx90393(int channel, uint8_t address, int sensor);
 
-  Status transfer(std::span<I2cMessage> messages) override;
+  Status transfer(std::span<patch_fw::I2cMessage> messages) override;
   std::string_view name() const override { return "emulator"; }
 
   // Test and simulation side; `sensor` is the FieldSource index of a chip. An unknown index is
@@ -143,7 +143,7 @@ class EmulatedI2cBus final : public I2cBus {
   struct Chip;  // internal
 
  private:
-  Clock* clock_;
+  patch_fw::Clock* clock_;
   FieldSource* source_;
   std::optional<uint8_t> mux_address_;
   uint8_t mux_control_ = 0;  // the register
@@ -153,4 +153,4 @@ class EmulatedI2cBus final : public I2cBus {
   uint64_t transactions_ = 0;
 };
 
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

@@ -1,5 +1,5 @@
 // The chip emulators, driven only through transfer() with raw bytes, as a driver would.
-#include "skinbus/patch_fw/emulator.h"
+#include "skinbus/patch_sim/emulator.h"
 
 #include <gtest/gtest.h>
 
@@ -12,10 +12,12 @@
 #include "skinbus/mlx90393/measurement.h"
 #include "skinbus/mlx90393/protocol.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 namespace {
 
 namespace mlx = mlx90393;
+using patch_fw::I2cMessage;
+using patch_fw::ManualClock;
 using Bytes = std::vector<uint8_t>;
 
 constexpr uint8_t kMux = 0x70;
@@ -613,4 +615,4 @@ TEST(EmulatorDeathTest, UnknownSensorAborts) {
 }
 
 }  // namespace
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim
