@@ -87,11 +87,12 @@ TEST(PlateKernelTest, KelvinFunctionAndShape) {
 }
 
 TEST(Mlx90393NoiseTest, FallsAsMoreSamplesAreAveraged) {
-  Mlx90393Config c{0, 1, 0, 1, 2, false};
-  EXPECT_LT(mlx90393_noise_xy_ut(c), mlx90393_noise_xy_ut(Mlx90393Config{7, 0, 0, 0, 0, false}));
-  // The anchors at 3 samples per axis (OSR 0, DIG_FILT 0), 1/sqrt(samples) from there.
-  EXPECT_DOUBLE_EQ(mlx90393_noise_xy_ut(Mlx90393Config{7, 0, 0, 0, 0, false}), 1.4);
-  EXPECT_DOUBLE_EQ(mlx90393_noise_z_ut(Mlx90393Config{7, 0, 0, 0, 0, false}), 2.3);
+  const mlx90393::Config fastest{7, 0, 0, 0, 0, false};  // 3 ADC samples per axis
+  const mlx90393::Config c{0, 1, 0, 1, 2, false};        // 12
+  EXPECT_LT(mlx90393_noise_xy_ut(c), mlx90393_noise_xy_ut(fastest));
+  // The anchors at the fastest settings, 1/sqrt(samples) from there.
+  EXPECT_DOUBLE_EQ(mlx90393_noise_xy_ut(fastest), 1.4);
+  EXPECT_DOUBLE_EQ(mlx90393_noise_z_ut(fastest), 2.3);
   EXPECT_DOUBLE_EQ(mlx90393_noise_z_ut(c), 2.3 * std::sqrt(3.0 / 12.0));
 }
 

@@ -14,7 +14,8 @@
 
 namespace skinbus::sim {
 
-// The simulator's name for the chip's settings (PatchDesign::sensor_config).
+// The chip's settings under the name the simulator's callers have used for
+// PatchDesign::sensor_config (tools/); new code names mlx90393::Config.
 using Mlx90393Config = mlx90393::Config;
 
 // Noise anchor (assumption): RMS at OSR = 0, DIG_FILT = 0 (3 ADC samples per axis).
