@@ -41,20 +41,20 @@ struct Setup {
 
 Setup setup_from(const std::array<uint16_t, mlx::kRegCount>& regs, uint8_t axes) {
   const uint16_t c1 = regs[mlx::kRegConf1], c3 = regs[mlx::kRegConf3];
-  mlx90393::Config c;
+  mlx::Config c;
   c.gain_sel = static_cast<uint8_t>(field(c1, mlx::kGainSelShift, 3));
   c.res_xy = static_cast<uint8_t>(field(c3, mlx::kResXShift, 2));
   c.res_z = static_cast<uint8_t>(field(c3, mlx::kResZShift, 2));
   c.osr = static_cast<uint8_t>(field(c3, mlx::kOsrShift, 2));
   c.dig_filt = static_cast<uint8_t>(field(c3, mlx::kDigFiltShift, 3));
   c.temperature = (axes & mlx::kAxisT) != 0;
-  mlx90393::Config cy = c;  // RES_Y kept apart from RES_X
+  mlx::Config cy = c;  // RES_Y kept apart from RES_X
   cy.res_xy = static_cast<uint8_t>(field(c3, mlx::kResYShift, 2));
   Setup s;
-  s.sensitivity_ut = {mlx90393::sensitivity_xy_ut(c), mlx90393::sensitivity_xy_ut(cy),
-                      mlx90393::sensitivity_z_ut(c)};
+  s.sensitivity_ut = {mlx::sensitivity_xy_ut(c), mlx::sensitivity_xy_ut(cy),
+                      mlx::sensitivity_z_ut(c)};
   s.res = {c.res_xy, cy.res_xy, c.res_z};
-  s.conversion_us = static_cast<uint64_t>(std::ceil(mlx90393::conversion_time_us(c)));
+  s.conversion_us = static_cast<uint64_t>(std::ceil(mlx::conversion_time_us(c)));
   return s;
 }
 
@@ -66,8 +66,8 @@ std::array<uint16_t, 4> convert(const Setup& s, const sim::Vec3<double>& field_u
   const double f[3] = {field_ut.x, field_ut.y, field_ut.z};
   for (int i = 0; i < 3; ++i) {
     bool saturated = false;
-    const int32_t code = mlx90393::output_code(f[i], s.sensitivity_ut[static_cast<size_t>(i)],
-                                               s.res[static_cast<size_t>(i)], &saturated);
+    const int32_t code = mlx::output_code(f[i], s.sensitivity_ut[static_cast<size_t>(i)],
+                                          s.res[static_cast<size_t>(i)], &saturated);
     codes[static_cast<size_t>(i) + 1] = static_cast<uint16_t>(code & 0xFFFF);  // two's complement
   }
   return codes;

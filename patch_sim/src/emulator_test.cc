@@ -47,21 +47,18 @@ struct Cfg {
   uint16_t conf3() const {
     return static_cast<uint16_t>(osr | filt << 2 | res_x << 5 | res_y << 7 | res_z << 9);
   }
-  mlx90393::Config chip(bool temperature, uint8_t res_xy) const {
+  mlx::Config chip(bool temperature, uint8_t res_xy) const {
     return {gain, res_xy, res_z, osr, filt, temperature};
   }
   uint64_t conversion_us(bool temperature) const {
-    return static_cast<uint64_t>(std::ceil(mlx90393::conversion_time_us(chip(temperature, 0))));
+    return static_cast<uint64_t>(std::ceil(mlx::conversion_time_us(chip(temperature, 0))));
   }
   // Wire words X, Y, Z for a field.
   std::array<uint16_t, 3> codes(const sim::Vec3<double>& f, bool* any_saturated = nullptr) const {
     bool sx = false, sy = false, sz = false;
-    const auto x =
-        mlx90393::output_code(f.x, mlx90393::sensitivity_xy_ut(chip(false, res_x)), res_x, &sx);
-    const auto y =
-        mlx90393::output_code(f.y, mlx90393::sensitivity_xy_ut(chip(false, res_y)), res_y, &sy);
-    const auto z =
-        mlx90393::output_code(f.z, mlx90393::sensitivity_z_ut(chip(false, res_x)), res_z, &sz);
+    const auto x = mlx::output_code(f.x, mlx::sensitivity_xy_ut(chip(false, res_x)), res_x, &sx);
+    const auto y = mlx::output_code(f.y, mlx::sensitivity_xy_ut(chip(false, res_y)), res_y, &sy);
+    const auto z = mlx::output_code(f.z, mlx::sensitivity_z_ut(chip(false, res_x)), res_z, &sz);
     if (any_saturated) *any_saturated = sx || sy || sz;
     return {static_cast<uint16_t>(x & 0xFFFF), static_cast<uint16_t>(y & 0xFFFF),
             static_cast<uint16_t>(z & 0xFFFF)};
