@@ -9,8 +9,9 @@
 //
 // Sources: the MLX90393 datasheet: sensitivity table at HALLCONF 0xC; conversion time
 // TCONV = 67 + 64 * 2^OSR * (2 + 2^DIG_FILT) us per magnetic axis and 67 + 192 * 2^OSR2 us for
-// temperature; output format per RES; typical temperature transfer. docs/sim/physics.md lists
-// them with the simulator's other parameters.
+// temperature (computed here with OSR in place of OSR2: the driver leaves OSR2 at its power-on
+// 0, so the wait is never short); output format per RES; typical temperature transfer.
+// docs/sim/physics.md lists them with the simulator's other parameters.
 #pragma once
 
 #include <cstdint>
