@@ -28,6 +28,8 @@ packages=(
   g++-aarch64-linux-gnu qemu-user
   # reports and plots
   python3 python3-matplotlib
+  # the red-team suite and the soak measure peak memory (GNU time)
+  time
 )
 
 missing=()

@@ -15,6 +15,7 @@
 
 #include "skinbus/bus/budget.h"
 #include "skinbus/bus/candump.h"
+#include "tool_util.h"
 
 namespace {
 
@@ -58,9 +59,11 @@ constexpr double kMaxIntervals = 1e7;  // a log longer than this many intervals 
 
 int log_load(const std::string& log_path, const BusTiming& t, double interval_ms,
              const std::string& csv_path) {
-  std::FILE* f = log_path == "-" ? stdin : std::fopen(log_path.c_str(), "r");
-  if (f == nullptr) {
-    std::fprintf(stderr, "skinbus-budget: cannot read '%s'\n", log_path.c_str());
+  std::FILE* f = nullptr;
+  try {
+    f = log_path == "-" ? stdin : skinbus::tools::open_input_stream(log_path, "candump log");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "skinbus-budget: %s\n", e.what());
     return 1;
   }
   CandumpReader reader(f);
@@ -69,7 +72,9 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
     uint64_t frames = 0;
     double wire_us = 0;
   };
-  std::map<std::string, std::map<uint64_t, Bin>> bins;  // interface -> interval -> load
+  std::map<std::string, std::map<uint64_t, Bin>, std::less<>> bins;  // interface -> interval
+  constexpr std::size_t kMaxInterfaces = 64;
+  bool warned_ifaces = false;
   uint64_t t0 = 0;
   bool first = true;
   const double interval_us = interval_ms * 1000;
@@ -91,7 +96,22 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
                    reader.line_number(), k_real * interval_ms / 1000);
       break;
     }
-    Bin& b = bins[std::string(rec.iface)][static_cast<uint64_t>(k_real)];
+    auto per = bins.find(rec.iface);
+    if (per == bins.end()) {
+      if (bins.size() >= kMaxInterfaces) {  // more names than any machine has: skipped, said once
+        if (!warned_ifaces) {
+          warned_ifaces = true;
+          std::fprintf(stderr,
+                       "skinbus-budget: line %" PRIu64
+                       ": more than %zu interface names; "
+                       "frames of the others are skipped\n",
+                       reader.line_number(), kMaxInterfaces);
+        }
+        continue;
+      }
+      per = bins.emplace(std::string(rec.iface), std::map<uint64_t, Bin>{}).first;
+    }
+    Bin& b = per->second[static_cast<uint64_t>(k_real)];
     ++b.frames;
     // Each frame at its own kind: classic frames at the nominal rate, FD data at the data rate
     // only with bit-rate switching.
@@ -101,12 +121,14 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
     b.wire_us += frame_time_us(ft, rec.frame.len);
   }
   if (f != stdin) std::fclose(f);
-  std::FILE* csv = csv_path.empty() ? nullptr : std::fopen(csv_path.c_str(), "w");
-  if (!csv_path.empty() && csv == nullptr) {
-    std::fprintf(stderr, "skinbus-budget: cannot write '%s'\n", csv_path.c_str());
+  if (reader.read_error() != 0) {
+    std::fprintf(stderr, "skinbus-budget: %s: read failed after line %" PRIu64 ": %s\n",
+                 log_path.c_str(), reader.line_number(), std::strerror(reader.read_error()));
     return 1;
   }
-  if (csv) std::fprintf(csv, "t_s,interface,frames,load\n");
+  const bool csv = !csv_path.empty();
+  std::string csv_text;  // written whole at the end (a temporary file, renamed)
+  if (csv) csv_text = "t_s,interface,frames,load\n";
   for (const auto& [iface, per] : bins) {
     double peak = 0, sum = 0;
     uint64_t frames = 0;
@@ -119,8 +141,9 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
       sum += load;
       frames += b.frames;
       if (csv) {
-        std::fprintf(csv, "%.3f,%s,%" PRIu64 ",%.5f\n", static_cast<double>(k) * interval_ms / 1000,
-                     iface.c_str(), b.frames, load);
+        skinbus::tools::appendf(csv_text, "%.3f,%s,%" PRIu64 ",%.5f\n",
+                                static_cast<double>(k) * interval_ms / 1000, iface.c_str(),
+                                b.frames, load);
       }
     }
     std::printf("%s: %" PRIu64
@@ -128,7 +151,14 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
                 iface.c_str(), frames, static_cast<double>(last + 1) * interval_ms / 1000,
                 100 * sum / static_cast<double>(last + 1), 100 * peak, interval_ms);
   }
-  if (csv) std::fclose(csv);
+  if (csv) {
+    try {
+      skinbus::tools::write_output(csv_path, csv_text, "bus load CSV");
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "skinbus-budget: %s\n", e.what());
+      return 1;
+    }
+  }
   if (reader.bad_lines() > 0) {
     std::fprintf(stderr, "skinbus-budget: %" PRIu64 " log line(s) could not be parsed\n",
                  reader.bad_lines());

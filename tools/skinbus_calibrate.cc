@@ -16,6 +16,8 @@
 
 #include "skinbus/body_map/calibration.h"
 #include "skinbus/body_map/touch_log.h"
+#include "skinbus/common/atomic_file.h"
+#include "tool_util.h"
 
 #ifndef SKINBUS_SOURCE_DIR
 #define SKINBUS_SOURCE_DIR "."
@@ -238,9 +240,7 @@ int main(int argc, char** argv) {
   if (!plot_path.empty()) report += "\n![residuals](" + plot_path + ")\n";
 
   auto write = [](const std::string& path, const std::string& text) {
-    std::ofstream f(path);
-    f << text;
-    return static_cast<bool>(f);
+    return skinbus::write_file_atomic(path, text, "output file").ok();
   };
   if (!plot_path.empty() && residuals_path.empty()) residuals_path = plot_path + ".csv";
   if (!residuals_path.empty()) {

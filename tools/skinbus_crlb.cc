@@ -73,17 +73,15 @@ int main(int argc, char** argv) {
   const Mlx90393Config& cfg = model->design().sensor_config;
   if (noise_xy <= 0) noise_xy = mlx90393_noise_xy_ut(cfg);
   if (noise_z <= 0) noise_z = mlx90393_noise_z_ut(cfg);
-  std::FILE* out = nullptr;
-  if (!csv.empty()) {
-    out = std::fopen(csv.c_str(), "w");
-    if (!out) {
-      std::fprintf(stderr, "skinbus-crlb: cannot write '%s'\n", csv.c_str());
-      return 1;
-    }
-    std::fprintf(out, "# tip_radius_mm: %.3f\n", tip_radius);
-    std::fprintf(out, "# noise_xy_ut: %.4f\n# noise_z_ut: %.4f\n# ambient_nuisance: %d\n", noise_xy,
-                 noise_z, ambient);
-    std::fprintf(out, "depth_mm,u_mm,v_mm,sd_u_mm,sd_v_mm,sd_xy_mm,sd_depth_mm,identifiable\n");
+  // The CSV is built in memory and written whole at the end (a temporary file, renamed).
+  std::string out;
+  const bool want_csv = !csv.empty();
+  if (want_csv) {
+    skinbus::tools::appendf(out, "# tip_radius_mm: %.3f\n", tip_radius);
+    skinbus::tools::appendf(out,
+                            "# noise_xy_ut: %.4f\n# noise_z_ut: %.4f\n# ambient_nuisance: %d\n",
+                            noise_xy, noise_z, ambient);
+    out += "depth_mm,u_mm,v_mm,sd_u_mm,sd_v_mm,sd_xy_mm,sd_depth_mm,identifiable\n";
   }
   std::printf(
       "Cramer-Rao bound, nominal flat patch, noise %.2f uT (x, y) / %.2f uT (z)%s, tip radius %.1f "
@@ -109,9 +107,9 @@ int main(int argc, char** argv) {
         } else {
           ++unident;
         }
-        if (out) {
-          std::fprintf(out, "%g,%g,%g,%.6g,%.6g,%.6g,%.6g,%d\n", depth, u, v, p.sd_u_mm, p.sd_v_mm,
-                       p.sd_xy_mm, p.sd_depth_mm, p.identifiable);
+        if (want_csv) {
+          skinbus::tools::appendf(out, "%g,%g,%g,%.6g,%.6g,%.6g,%.6g,%d\n", depth, u, v, p.sd_u_mm,
+                                  p.sd_v_mm, p.sd_xy_mm, p.sd_depth_mm, p.identifiable);
         }
       }
     }
@@ -119,6 +117,13 @@ int main(int argc, char** argv) {
     std::printf("| %.1f | %.3f | %.3f | %.3f | %.4f | %.4f | %.4f | %d |\n", depth, a.mean,
                 a.median, a.p95, b.mean, b.median, b.p95, unident);
   }
-  if (out) std::fclose(out);
+  if (want_csv) {
+    try {
+      skinbus::tools::write_output(csv, out, "CRLB table");
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "skinbus-crlb: %s\n", e.what());
+      return 1;
+    }
+  }
   return 0;
 }

@@ -11,6 +11,7 @@
 
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/unit_parameters.h"
+#include "tool_util.h"
 
 int main(int argc, char** argv) {
   using namespace skinbus;

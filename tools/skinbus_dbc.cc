@@ -31,10 +31,7 @@ int main(int argc, char** argv) {
     const std::string dbc =
         bus::generate_dbc(classic ? bus::FrameKind::kClassic : bus::FrameKind::kFd,
                           static_cast<uint8_t>(ids.front()), static_cast<uint8_t>(ids.back()));
-    std::FILE* out = out_path.empty() ? stdout : std::fopen(out_path.c_str(), "w");
-    if (!out) throw std::runtime_error("cannot write '" + out_path + "'");
-    std::fwrite(dbc.data(), 1, dbc.size(), out);
-    if (out != stdout) std::fclose(out);
+    tools::write_output(out_path.empty() ? "-" : out_path, dbc, "DBC file");
   } catch (const std::exception& e) {
     std::fprintf(stderr, "skinbus-dbc: %s\n", e.what());
     return 1;

@@ -46,6 +46,20 @@ class Decoder {
   bool done() const { return opt_.max_messages && printed_ >= opt_.max_messages; }
 
   void on_frame(const CanFrame& f, uint64_t rx_us, std::string_view iface, const char* where) {
+    Reassembler* reasm = reassembler(iface);
+    if (reasm == nullptr) {  // more interface names than any machine has: not a real log
+      ++bad_lines_;
+      ++too_many_ifaces_;
+      if (limiter_.allow(rx_us)) {
+        print_suppressed();
+        std::fprintf(stderr,
+                     "skinbus-decode: %s: interface '%.*s' is one more than the %zu this log may "
+                     "name; its frames are skipped\n",
+                     where, static_cast<int>(std::min<std::size_t>(iface.size(), 64)), iface.data(),
+                     kMaxInterfaces);
+      }
+      return;
+    }
     if (f.error) {
       const std::string what = describe_bus_error(decode_error_frame(f));
       if (!opt_.quiet) print_prefixed(rx_us, iface, ("bus-error " + what).c_str());
@@ -54,7 +68,7 @@ class Decoder {
     }
     if (opt_.frames && selected_frame(f) && !opt_.quiet)
       print_prefixed(rx_us, iface, ("frame " + describe_frame(f)).c_str());
-    const FeedResult r = reassembler(iface).feed(f, rx_us);
+    const FeedResult r = reasm->feed(f, rx_us);
     switch (r.status) {
       case FeedStatus::kMessage:
         on_message(*r.message, r.missing_before, rx_us, iface);
@@ -74,6 +88,12 @@ class Decoder {
     ++bad_lines_;
     if (!limiter_.allow(now_us)) return;
     print_suppressed();
+    if (e == CandumpError::kLineTooLong) {
+      std::fprintf(stderr, "skinbus-decode: %s:%" PRIu64 ": %s: longer than %zu bytes, skipped\n",
+                   source_.c_str(), line, std::string(candump_error_name(e)).c_str(),
+                   kCandumpMaxLineBytes);
+      return;
+    }
     while (!text.empty() && (text.back() == '\n' || text.back() == '\r')) text.remove_suffix(1);
     std::fprintf(stderr, "skinbus-decode: %s:%" PRIu64 ": %s: '%.*s'\n", source_.c_str(), line,
                  std::string(candump_error_name(e)).c_str(),
@@ -84,6 +104,15 @@ class Decoder {
 
   void finish(uint64_t now_us) {
     for (auto& [name, r] : reasm_) r->expire(now_us + 1000000000ull);
+    // Gaps the end of the stream confirmed: to their patches.
+    for (auto& [key, c] : per_patch_) {
+      auto it = reasm_.find(key.first);
+      if (it == reasm_.end()) continue;
+      for (int cls = 0; cls < kMessageClassCount; ++cls) {
+        c.missing += it->second->take_unreported_losses(static_cast<MessageClass>(cls),
+                                                        static_cast<uint8_t>(key.second));
+      }
+    }
   }
 
   void print_stats(std::FILE* out) const {
@@ -112,6 +141,10 @@ class Decoder {
       std::fprintf(
           out, "%-12s %-6d %10" PRIu64 " %10" PRIu64 " %8" PRIu64 " %6" PRIu64 " %8" PRIu64 "\n",
           key.first.c_str(), key.second, c.samples, c.heartbeats, c.acks, c.infos, c.missing);
+    }
+    if (too_many_ifaces_) {
+      std::fprintf(out, "(%" PRIu64 " frames on interfaces beyond the first %zu skipped)\n",
+                   too_many_ifaces_, kMaxInterfaces);
     }
     if (limiter_.total_suppressed()) {
       std::fprintf(out, "(%" PRIu64 " error reports suppressed by rate limiting)\n",
@@ -153,12 +186,15 @@ class Decoder {
     if (!opt_.quiet) print_prefixed(rx_us, iface, format_message(m).c_str());
   }
 
+  // Every line out is checked: a reader gone (`| head`) ends the tool at once and quietly, a
+  // failed write (a full disk) with a message.
   void print_prefixed(uint64_t rx_us, std::string_view iface, const char* text) {
     if (opt_.timestamps) {
-      std::printf("(%010" PRIu64 ".%06" PRIu64 ") %.*s %s\n", rx_us / 1000000, rx_us % 1000000,
-                  static_cast<int>(iface.size()), iface.data(), text);
+      tools::out_printf("skinbus-decode", "(%010" PRIu64 ".%06" PRIu64 ") %.*s %s\n",
+                        rx_us / 1000000, rx_us % 1000000, static_cast<int>(iface.size()),
+                        iface.data(), text);
     } else {
-      std::printf("%s\n", text);
+      tools::out_printf("skinbus-decode", "%s\n", text);
     }
   }
 
@@ -180,13 +216,16 @@ class Decoder {
 
   Options opt_;
   // Node IDs are per bus: one reassembler per interface, created on first sight (a log may
-  // interleave several, as `candump -L any` writes it).
-  Reassembler& reassembler(std::string_view iface) {
+  // interleave several, as `candump -L any` writes it), at most kMaxInterfaces of them (nullptr
+  // beyond: memory stays bounded whatever names a log holds).
+  static constexpr std::size_t kMaxInterfaces = 64;
+  Reassembler* reassembler(std::string_view iface) {
     auto it = reasm_.find(iface);
     if (it == reasm_.end()) {
+      if (reasm_.size() >= kMaxInterfaces) return nullptr;
       it = reasm_.emplace(std::string(iface), std::make_unique<Reassembler>(reasm_config_)).first;
     }
-    return *it->second;
+    return it->second.get();
   }
 
   Reassembler::Config reasm_config_;
@@ -197,18 +236,29 @@ class Decoder {
   uint64_t bad_lines_ = 0;
   uint64_t bus_errors_ = 0;
   uint64_t printed_ = 0;
+  uint64_t too_many_ifaces_ = 0;
 };
 
 int run_log(Decoder& dec, std::FILE* in, const std::string& name) {
   dec.set_source(name);
-  CandumpReader reader(in);
+  // Waits of at most 100 ms on a quiet pipe, so that Ctrl-C ends a decoder reading stdin at once.
+  CandumpReader reader(in, /*wait_ms=*/100);
   CandumpRecord rec;
   char where[64];
   uint64_t last_us = 0;
   for (;;) {
     if (tools::stop_requested() || dec.done()) break;
     const auto st = reader.next(&rec);
-    if (st == CandumpReader::Status::kEof) break;
+    if (st == CandumpReader::Status::kWait) continue;
+    if (st == CandumpReader::Status::kEof) {
+      if (reader.read_error() != 0) {
+        dec.finish(last_us);
+        throw std::runtime_error(name + ": read failed after line " +
+                                 std::to_string(reader.line_number()) + ": " +
+                                 std::strerror(reader.read_error()));
+      }
+      break;
+    }
     if (st == CandumpReader::Status::kBadLine) {
       dec.report_line_error(reader.line_number(), reader.error(), reader.line(), last_us);
       continue;
@@ -350,13 +400,12 @@ int main(int argc, char** argv) {
           run_log(dec, stdin, "stdin");
           continue;
         }
-        std::FILE* in = std::fopen(f.c_str(), "r");
-        if (!in) throw std::runtime_error("cannot open '" + f + "': " + std::strerror(errno));
+        std::FILE* in = tools::open_input_stream(f, "candump log");
         run_log(dec, in, f);
         std::fclose(in);
       }
     }
-    std::fflush(stdout);
+    tools::check_stdout("skinbus-decode", /*flush=*/true);
     if (stats) dec.print_stats(stderr);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "skinbus-decode: %s\n", e.what());

@@ -63,6 +63,8 @@ struct HostArgs {
   std::string base_frame = "base_link";
   double max_lag_ms = 100;
   int model_delay_us = 0;
+  bool allow_no_models = false;
+  double max_gap_s = 10;
 };
 
 // Publication sinks: JSON lines on stdout, DDS.
@@ -85,11 +87,13 @@ class Outputs {
       throw std::runtime_error("this build has no DDS (Cyclone DDS not found): use --no-dds");
 #endif
   }
+  // JSON lines are flushed one by one and checked: a reader gone (`| head`) ends the host at
+  // once and quietly, a failed write (a full disk) with a message and status 1.
   void contacts(const fusion::ContactArray& c) {
     if (json_) {
       std::fputs(fusion::contacts_to_json(c).c_str(), stdout);
       std::fputc('\n', stdout);
-      std::fflush(stdout);
+      tools::check_stdout("skinbus-host", /*flush=*/true);
     }
 #ifdef SKINBUS_HAVE_DDS
     if (pub_) {
@@ -103,7 +107,7 @@ class Outputs {
     if (json_status_) {
       std::fputs(fusion::patch_status_to_json(s).c_str(), stdout);
       std::fputc('\n', stdout);
-      std::fflush(stdout);
+      tools::check_stdout("skinbus-host", /*flush=*/true);
     }
 #ifdef SKINBUS_HAVE_DDS
     if (pub_) {
@@ -228,16 +232,16 @@ struct Runner {
   uint64_t next_status_us = 0, next_tick_us = 0;
   fusion::ContactArray contacts;
   fusion::PatchStatusArray status;
-  std::vector<double> latency_us;
+  tools::LatencyHistogram latency_us;  // fixed memory, however long the run
 
   void after_frames(uint64_t now_us, bool measure_latency) {
     joints.update(agg, now_us, run_start_us);
     if (agg.process(now_us, &contacts)) {
       out.contacts(contacts);
-      if (measure_latency && args.stats) {  // kept only when asked for: it grows with the run
+      if (measure_latency && args.stats) {
         const uint64_t done = bus::realtime_now_us();
         for (uint64_t rx : agg.processed_rx_us()) {
-          latency_us.push_back(static_cast<double>(done > rx ? done - rx : 0));
+          latency_us.add(static_cast<double>(done > rx ? done - rx : 0));
         }
       }
     }
@@ -272,51 +276,236 @@ struct Runner {
   }
 };
 
-int run_replay(const HostArgs& a, Runner& r) {
-  std::FILE* f = a.replay == "-" ? stdin : std::fopen(a.replay.c_str(), "r");
-  if (f == nullptr) {
-    std::fprintf(stderr, "skinbus-host: cannot read '%s'\n", a.replay.c_str());
-    return 1;
+// The time of a replayed log, made usable: monotonic in file order (the order frames were
+// received in), and without waits nobody would sit through. Every change is reported: a
+// kLogTime event on the status topic and a line on stderr (first occurrences), and a summary at
+// the end.
+//   - A line stamped before an earlier one by up to kRebaseUs (daemons sharing a pipe, a
+//     shuffled log) is taken at the time reached so far (its frames are not dropped).
+//   - A step back of more than kRebaseUs (the recording host's clock was set back) continues the
+//     log's time from where it was: later lines keep their spacing.
+//   - With a gap cap (replays at recorded speed), a forward jump of more than max_gap_us (a
+//     recording paused, or a damaged stamp years ahead) is replayed as max_gap_us of silence:
+//     long enough for every patch to go offline, short enough to be waited for.
+class LogClock {
+ public:
+  static constexpr uint64_t kRebaseUs = 1'000'000;
+  LogClock(std::string source, uint64_t max_gap_us)
+      : source_(std::move(source)), max_gap_us_(max_gap_us) {}
+
+  // The adjusted time of a line stamped `ts_us` (line number `line`); events go to `agg` at
+  // host time `event_us`.
+  uint64_t adjust(uint64_t ts_us, uint64_t line, fusion::Aggregator& agg, uint64_t event_us) {
+    ++lines_;
+    if (!started_) {
+      started_ = true;
+      max_ts_ = ts_us;
+      last_ = ts_us;
+      return ts_us;
+    }
+    char buf[256];
+    if (ts_us < max_ts_) {
+      const uint64_t back = max_ts_ - ts_us;
+      ++back_lines_;
+      max_back_us_ = std::max(max_back_us_, back);
+      if (back > kRebaseUs) {
+        offset_ = static_cast<int64_t>(last_) - static_cast<int64_t>(ts_us);  // on from last_
+        max_ts_ = ts_us;
+        ++rebases_;
+        std::snprintf(buf, sizeof buf,
+                      "%s:%" PRIu64
+                      ": the log's time goes back %.3f s (its clock was set back?): "
+                      "continued from the time reached",
+                      source_.c_str(), line, static_cast<double>(back) * 1e-6);
+        report(agg, event_us, buf);
+      } else if (back_lines_ == 1) {
+        std::snprintf(buf, sizeof buf,
+                      "%s:%" PRIu64
+                      ": stamped %.3f s before an earlier line: lines out of time "
+                      "order are taken in file order (counted; summary at the end)",
+                      source_.c_str(), line, static_cast<double>(back) * 1e-6);
+        report(agg, event_us, buf);
+      }
+    } else {
+      const uint64_t ahead = ts_us - max_ts_;
+      if (max_gap_us_ > 0 && ahead > max_gap_us_) {
+        offset_ -= static_cast<int64_t>(ahead - max_gap_us_);
+        ++gaps_;
+        std::snprintf(buf, sizeof buf,
+                      "%s:%" PRIu64
+                      ": the log's time jumps %.1f s ahead: replayed as %.0f s of "
+                      "silence",
+                      source_.c_str(), line, static_cast<double>(ahead) * 1e-6,
+                      static_cast<double>(max_gap_us_) * 1e-6);
+        report(agg, event_us, buf);
+      }
+      max_ts_ = ts_us;
+    }
+    const int64_t t = static_cast<int64_t>(ts_us) + offset_;
+    last_ = std::max(last_, t > 0 ? static_cast<uint64_t>(t) : 0);
+    return last_;
   }
-  bus::CandumpReader reader(f);
+  // The end of the replay: a summary of what was adjusted (stderr and an event), if anything.
+  void summarise(fusion::Aggregator& agg, uint64_t event_us) {
+    char buf[256];
+    if (back_lines_ > 0) {
+      std::snprintf(buf, sizeof buf,
+                    "%s: %" PRIu64 " of %" PRIu64
+                    " line(s) stamped before an earlier one (at most "
+                    "%.3f s back; %" PRIu64
+                    " step(s) of more than %.0f s continued from the time "
+                    "reached)",
+                    source_.c_str(), back_lines_, lines_, static_cast<double>(max_back_us_) * 1e-6,
+                    rebases_, static_cast<double>(kRebaseUs) * 1e-6);
+      report(agg, event_us, buf);
+    }
+    if (gaps_ > 0) {
+      std::snprintf(buf, sizeof buf,
+                    "%s: %" PRIu64 " silence(s) longer than %.0f s replayed as %.0f s",
+                    source_.c_str(), gaps_, static_cast<double>(max_gap_us_) * 1e-6,
+                    static_cast<double>(max_gap_us_) * 1e-6);
+      report(agg, event_us, buf);
+    }
+  }
+  // Throws when most of the log runs backwards: not a recording in time order (a reversed or
+  // shuffled file), whose contacts would come out of order and mostly superseded.
+  void check_end() const {
+    if (lines_ >= 10 && 2 * back_lines_ > lines_) {
+      throw std::runtime_error(source_ + ": " + std::to_string(back_lines_) + " of its " +
+                               std::to_string(lines_) +
+                               " lines are stamped before an earlier line: the log is not in time "
+                               "order (sort it first: sort -s -k1,1 LOG)");
+    }
+  }
+
+ private:
+  void report(fusion::Aggregator& agg, uint64_t event_us, const std::string& text) {
+    agg.add_event(fusion::PatchEventKind::kLogTime, event_us, text);
+  }
+  std::string source_;
+  uint64_t max_gap_us_;
+  bool started_ = false;
+  uint64_t max_ts_ = 0;  // the latest stamp of the current timeline
+  uint64_t last_ = 0;    // the latest adjusted time given
+  int64_t offset_ = 0;
+  uint64_t lines_ = 0, back_lines_ = 0, max_back_us_ = 0, rebases_ = 0, gaps_ = 0;
+};
+
+// The bus of each interface name of a log: the -i names in order, or (none named) bus 0 for
+// every name. Frames of names not given are counted, reported once per name (stderr and a
+// kBadFrames event), and at the end a log none of whose frames was on a named interface is an
+// error: nothing was read.
+class LogInterfaces {
+ public:
+  static constexpr std::size_t kMaxNamesReported = 16;
+  explicit LogInterfaces(const std::vector<std::string>& names) : names_(names) {
+    for (std::size_t i = 0; i < names.size(); ++i) bus_of_[names[i]] = static_cast<int>(i);
+  }
+  // The bus of a frame on `iface`, or -1 (skipped, counted).
+  int bus(std::string_view iface, fusion::Aggregator& agg, uint64_t event_us) {
+    ++frames_;
+    if (names_.empty()) {
+      ++used_;
+      return 0;
+    }
+    if (auto it = bus_of_.find(iface); it != bus_of_.end()) {
+      ++used_;
+      return it->second;
+    }
+    ++skipped_;
+    if (skipped_names_.size() < kMaxNamesReported &&
+        std::find(skipped_names_.begin(), skipped_names_.end(), iface) == skipped_names_.end()) {
+      skipped_names_.emplace_back(iface);
+      agg.add_event(fusion::PatchEventKind::kBadFrames, event_us,
+                    "frames on interface '" + skipped_names_.back() +
+                        "' are skipped: it is not one of the -i names (" + joined() + ")");
+    }
+    return -1;
+  }
+  // Throws when frames were read and none was on a named interface.
+  void check_end(const std::string& source) const {
+    if (frames_ > 0 && used_ == 0) {
+      std::string seen;
+      for (const std::string& n : skipped_names_) seen += (seen.empty() ? "" : ", ") + n;
+      throw std::runtime_error(source + ": none of its " + std::to_string(frames_) +
+                               " frames is on an interface named with -i (" + joined() +
+                               "); the log has " + seen);
+    }
+  }
+  uint64_t skipped() const { return skipped_; }
+  std::string joined() const {
+    std::string out;
+    for (const std::string& n : names_) out += (out.empty() ? "" : ", ") + n;
+    return out;
+  }
+
+ private:
+  std::vector<std::string> names_;
+  std::map<std::string, int, std::less<>> bus_of_;
+  std::vector<std::string> skipped_names_;
+  uint64_t frames_ = 0, used_ = 0, skipped_ = 0;
+};
+
+// A replay at recorded speed replays a silence of the log for at most this long.
+uint64_t max_gap_us(const HostArgs& a) {
+  return static_cast<uint64_t>(std::llround(a.max_gap_s * 1e6));
+}
+
+// Opens the --replay input ('-': stdin); a directory or a missing file throws with its name.
+std::FILE* open_replay(const std::string& path) {
+  return path == "-" ? stdin : tools::open_input_stream(path, "candump log");
+}
+
+// Throws when the read of a log failed (not its end).
+void check_read(const bus::CandumpReader& reader, const std::string& source) {
+  if (reader.read_error() != 0) {
+    throw std::runtime_error(source + ": read failed after line " +
+                             std::to_string(reader.line_number()) + ": " +
+                             std::strerror(reader.read_error()));
+  }
+}
+
+int run_replay(const HostArgs& a, Runner& r) {
+  std::FILE* f = open_replay(a.replay);
+  const std::string source = a.replay == "-" ? "stdin" : a.replay;
+  // Waits of at most 100 ms on a quiet pipe: a stop request ends the replay at once.
+  bus::CandumpReader reader(f, /*wait_ms=*/100);
   bus::CandumpRecord rec;
-  std::map<std::string, int, std::less<>> bus_of;  // interface name -> bus index
-  for (std::size_t i = 0; i < a.interfaces.size(); ++i)
-    bus_of[a.interfaces[i]] = static_cast<int>(i);
+  LogInterfaces ifaces(a.interfaces);
+  LogClock clock(source, a.fast ? 0 : max_gap_us(a));
   uint64_t log_start_us = 0, wall_start_us = 0, last_process_us = 0, log_us = 0;
+  int frames_since_process = 0;
   bool first = true;
   const uint64_t end_log_us = a.duration_s > 0 ? static_cast<uint64_t>(a.duration_s * 1e6) : 0;
   for (;;) {
     if (tools::stop_requested()) break;
     const auto st = reader.next(&rec);
+    if (st == bus::CandumpReader::Status::kWait) continue;
     if (st == bus::CandumpReader::Status::kEof) break;
     if (st == bus::CandumpReader::Status::kBadLine) continue;  // counted by the reader
+    const uint64_t event_us = a.fast ? log_us : bus::realtime_now_us();
     if (first) {
-      log_start_us = rec.timestamp_us;
+      log_start_us = clock.adjust(rec.timestamp_us, reader.line_number(), r.agg, event_us);
+      log_us = log_start_us;
       wall_start_us = bus::realtime_now_us();
       r.run_start_us = a.fast ? log_start_us : wall_start_us;
       r.next_status_us = r.run_start_us;
       first = false;
-    }
-    // Daemons sharing a pipe can write a line a little out of time order: never before the start.
-    log_us = std::max(rec.timestamp_us, log_start_us);
-    if (end_log_us > 0 && log_us - log_start_us > end_log_us) break;
-    auto it = bus_of.find(rec.iface);
-    int b = 0;
-    if (it != bus_of.end()) {
-      b = it->second;
-    } else if (a.interfaces.empty()) {
-      b = 0;  // a log of one interface, or every interface onto bus 0 when none is named
     } else {
-      continue;
+      log_us = clock.adjust(rec.timestamp_us, reader.line_number(), r.agg, event_us);
     }
+    if (end_log_us > 0 && log_us - log_start_us > end_log_us) break;
+    const int b = ifaces.bus(rec.iface, r.agg, event_us);
+    if (b < 0) continue;
     uint64_t rx_us;
     if (a.fast) {
       rx_us = log_us;
-      // Batch what arrived within 1 ms of log time, as a poll loop would.
-      if (rx_us > last_process_us + 1000) {
+      // Batch what arrived within 1 ms of log time, as a poll loop would (or 64 frames, where the
+      // log's time stands still).
+      if (rx_us > last_process_us + 1000 || ++frames_since_process >= 64) {
         r.after_frames(rx_us, false);
         last_process_us = rx_us;
+        frames_since_process = 0;
       }
     } else {
       const uint64_t due = wall_start_us + (log_us - log_start_us);
@@ -324,7 +513,7 @@ int run_replay(const HostArgs& a, Runner& r) {
       if (due > now) {
         r.after_frames(now, true);  // the bus is quiet until the next frame: publish now
         now = bus::realtime_now_us();
-        if (due > now) std::this_thread::sleep_for(std::chrono::microseconds(due - now));
+        if (due > now && !tools::sleep_unless_stopped(due - now)) break;
         now = bus::realtime_now_us();
       }
       // Behind (a slow pipeline): the frames that were due are read before the next process()
@@ -335,13 +524,22 @@ int run_replay(const HostArgs& a, Runner& r) {
     r.agg.on_frame(b, rec.frame, rx_us);
   }
   const uint64_t end_us = a.fast ? log_us + 1 : bus::realtime_now_us();
+  clock.summarise(r.agg, end_us);
   r.after_frames(end_us, !a.fast);
   r.finish(end_us);
+  if (f != stdin) std::fclose(f);
   if (reader.bad_lines() > 0) {
     std::fprintf(stderr, "skinbus-host: %" PRIu64 " log line(s) could not be parsed\n",
                  reader.bad_lines());
   }
-  if (f != stdin) std::fclose(f);
+  if (ifaces.skipped() > 0) {
+    std::fprintf(stderr,
+                 "skinbus-host: %" PRIu64 " frame(s) on interfaces not named with -i skipped\n",
+                 ifaces.skipped());
+  }
+  check_read(reader, source);
+  ifaces.check_end(source);
+  clock.check_end();
   return 0;
 }
 
@@ -363,7 +561,15 @@ bool interface_up(const std::string& name) {
 // bus (after the live ones), whatever interface names the log holds.
 class PacedLog {
  public:
-  PacedLog(std::FILE* f, int bus) : f_(f), reader_(f), bus_(bus) { advance(); }
+  PacedLog(std::FILE* f, std::string source, int bus, uint64_t gap_us, fusion::Aggregator& agg)
+      : f_(f),
+        source_(std::move(source)),
+        reader_(f),
+        bus_(bus),
+        agg_(agg),
+        clock_(source_, gap_us) {
+    advance();
+  }
   ~PacedLog() {
     if (f_ != stdin) std::fclose(f_);
   }
@@ -382,6 +588,12 @@ class PacedLog {
     }
   }
   uint64_t bad_lines() const { return reader_.bad_lines(); }
+  // At the end: the log's time adjustments summarised; throws when its read failed.
+  void finish(uint64_t now_us) {
+    clock_.summarise(agg_, now_us);
+    check_read(reader_, source_);
+    clock_.check_end();
+  }
 
  private:
   uint64_t due_us() const { return wall_start_us_ + (rec_.timestamp_us - log_start_us_); }
@@ -394,18 +606,22 @@ class PacedLog {
       }
       if (st == bus::CandumpReader::Status::kRecord) break;
     }
+    rec_.timestamp_us =
+        clock_.adjust(rec_.timestamp_us, reader_.line_number(), agg_, bus::realtime_now_us());
     if (!started_) {
       started_ = true;
       log_start_us_ = rec_.timestamp_us;
       wall_start_us_ = bus::realtime_now_us();
     }
-    if (rec_.timestamp_us < log_start_us_) rec_.timestamp_us = log_start_us_;
     have_ = true;
   }
   std::FILE* f_;
+  std::string source_;
   bus::CandumpReader reader_;
   bus::CandumpRecord rec_;
   int bus_;
+  fusion::Aggregator& agg_;
+  LogClock clock_;
   bool have_ = false, started_ = false;
   uint64_t log_start_us_ = 0, wall_start_us_ = 0;
 };
@@ -413,12 +629,8 @@ class PacedLog {
 int run_live(const HostArgs& a, Runner& r) {
   std::unique_ptr<PacedLog> log;
   if (!a.replay.empty()) {
-    std::FILE* f = a.replay == "-" ? stdin : std::fopen(a.replay.c_str(), "r");
-    if (f == nullptr) {
-      std::fprintf(stderr, "skinbus-host: cannot read '%s'\n", a.replay.c_str());
-      return 1;
-    }
-    log = std::make_unique<PacedLog>(f, static_cast<int>(a.interfaces.size()));
+    log = std::make_unique<PacedLog>(open_replay(a.replay), a.replay == "-" ? "stdin" : a.replay,
+                                     static_cast<int>(a.interfaces.size()), max_gap_us(a), r.agg);
   }
   bus::SocketCanOptions so;
   so.fd = true;
@@ -514,6 +726,7 @@ int run_live(const HostArgs& a, Runner& r) {
     }
     r.after_frames(t, true);
   }
+  if (log) log->finish(bus::realtime_now_us());
   r.finish(bus::realtime_now_us());
   if (log && log->bad_lines() > 0) {
     std::fprintf(stderr, "skinbus-host: %" PRIu64 " log line(s) could not be parsed\n",
@@ -528,11 +741,11 @@ int run_live(const HostArgs& a, Runner& r) {
 // (when it was on the bus) if that is plausible for this host (not in the future, at most 10 s
 // old), else the time it was read; a host that falls behind thus sees how old the frames are.
 int run_live_pipe(const HostArgs& a, Runner& r) {
-  const int fd = a.replay == "-" ? STDIN_FILENO : ::open(a.replay.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) {
-    std::fprintf(stderr, "skinbus-host: cannot read '%s': %s\n", a.replay.c_str(),
-                 std::strerror(errno));
-    return 1;
+  int fd = STDIN_FILENO;
+  if (a.replay != "-") {
+    Result<UniqueFd> opened = open_input_file(a.replay, "candump log");
+    if (!opened.ok()) throw std::runtime_error(opened.error().message);
+    fd = opened->release();
   }
   const int flags = ::fcntl(fd, F_GETFL);
   if (flags < 0 || ::fcntl(fd, F_SETFL, flags | O_NONBLOCK) < 0) {
@@ -540,9 +753,9 @@ int run_live_pipe(const HostArgs& a, Runner& r) {
     if (fd != STDIN_FILENO) ::close(fd);
     return 1;
   }
-  std::map<std::string, int, std::less<>> bus_of;  // interface name -> bus index
-  for (std::size_t i = 0; i < a.interfaces.size(); ++i)
-    bus_of[a.interfaces[i]] = static_cast<int>(i);
+  LogInterfaces ifaces(a.interfaces);
+  const std::string source = a.replay == "-" ? "stdin" : a.replay;
+  bool skipping = false;  // inside a line longer than bus::kCandumpMaxLineBytes
   constexpr uint64_t kMaxAgeUs = 10'000'000;
   constexpr std::size_t kReadMax = 1 << 20;  // per pass, so the pipeline runs under a flood too
   std::string pending;                       // the start of a line not yet complete
@@ -586,23 +799,28 @@ int run_live_pipe(const HostArgs& a, Runner& r) {
       for (std::size_t nl; (nl = pending.find('\n', start)) != std::string::npos; start = nl + 1) {
         bus::CandumpRecord rec;
         const std::string_view line(pending.data() + start, nl - start);
+        if (skipping || line.size() > bus::kCandumpMaxLineBytes) {  // the end of a long line
+          skipping = false;
+          ++bad_lines;
+          continue;
+        }
         const bus::CandumpError e = bus::parse_candump_line(line, &rec);
         if (e == bus::CandumpError::kEmpty) continue;
         if (e != bus::CandumpError::kNone) {
           ++bad_lines;
           continue;
         }
-        int b = 0;
-        if (auto it = bus_of.find(rec.iface); it != bus_of.end()) {
-          b = it->second;
-        } else if (!a.interfaces.empty()) {
-          continue;  // an interface not named with -i
-        }
+        const int b = ifaces.bus(rec.iface, r.agg, read_us);
+        if (b < 0) continue;
         const bool plausible =
             rec.timestamp_us <= read_us && read_us - rec.timestamp_us <= kMaxAgeUs;
         r.agg.on_frame(b, rec.frame, plausible ? rec.timestamp_us : read_us);
       }
       pending.erase(0, start);
+      if (pending.size() > bus::kCandumpMaxLineBytes) {  // no end in sight: memory stays bounded
+        pending.clear();
+        skipping = true;
+      }
     }
     r.after_frames(bus::realtime_now_us(), true);
   }
@@ -612,6 +830,7 @@ int run_live_pipe(const HostArgs& a, Runner& r) {
   }
   ::fcntl(fd, F_SETFL, flags);  // the descriptor may be shared (a terminal, a parent's pipe)
   if (fd != STDIN_FILENO) ::close(fd);
+  if (rc == 0) ifaces.check_end(source);
   return rc;
 }
 
@@ -675,7 +894,11 @@ int main(int argc, char** argv) {
       "  skinbus-host --map skin.yaml --replay bus.log --fast --json --no-dds --stats\n"
       "  candump -L can0 | skinbus-host --map skin.yaml --replay - --live --json --no-dds\n"
       "  skinbus-host --map skin.yaml -i can0 --replay other_limb.log --live-and-replay\n\n"
-      "Exit status: 0 done, 1 a device or file failed, 2 bad arguments."};
+      "A log's time that goes backwards or jumps ahead is taken in file order and reported\n"
+      "(log_time events); frames on interfaces not named with -i are skipped and reported.\n\n"
+      "Exit status: 0 done, 1 a device or file failed (or no usable model, or no frame on the\n"
+      "named interfaces), 2 bad arguments; ended by SIGPIPE when the reader of its output\n"
+      "went away."};
   HostArgs a;
   app.add_option("--map", a.map_path, "skin map (YAML, docs/body_map.md)")->required();
   app.add_option("--robot", a.robot_path, "robot description (URDF); default: the map's");
@@ -736,6 +959,13 @@ int main(int argc, char** argv) {
                  "(tests of the lag bound)")
       ->capture_default_str()
       ->group("Testing");
+  app.add_option("--max-gap-s", a.max_gap_s,
+                 "--replay at recorded speed: a silence in the log longer than this is replayed "
+                 "as this long (reported as a log_time event), s")
+      ->capture_default_str();
+  app.add_flag("--allow-no-models", a.allow_no_models,
+               "run even when no patch of the map has a usable model (patch status only); "
+               "without it that is an error (exit 1)");
   app.add_flag("--stats", a.stats, "print pipeline statistics and latency at the end (stderr)");
   app.add_flag("-q,--quiet", a.quiet, "do not log events");
   CLI11_PARSE(app, argc, argv);
@@ -745,6 +975,9 @@ int main(int argc, char** argv) {
     }
     if (!(a.max_lag_ms >= 0 && a.max_lag_ms <= 60'000)) {
       throw std::invalid_argument("--max-lag-ms: 0 (no bound) to 60000");
+    }
+    if (!(a.max_gap_s >= 0.1 && a.max_gap_s <= 86400)) {
+      throw std::invalid_argument("--max-gap-s: 0.1 to 86400");
     }
     if (a.model_delay_us < 0 || a.model_delay_us > 1'000'000) {
       throw std::invalid_argument("--model-delay-us: 0 to 1000000");
@@ -805,6 +1038,19 @@ int main(int argc, char** argv) {
     }
     Outputs out(a);
     Joints joints(a, robot.get());
+    if ((*agg)->model_descriptions().empty() && !a.allow_no_models) {
+      fusion::PatchStatusArray why;
+      (*agg)->status(0, &why);
+      for (const fusion::PatchEvent& e : why.events) {
+        std::fprintf(stderr, "skinbus-host: %s: %s\n",
+                     std::string(fusion::patch_event_name(e.kind)).c_str(), e.detail.c_str());
+      }
+      std::fprintf(stderr,
+                   "skinbus-host: no patch of %s has a usable model: nothing to estimate "
+                   "(--allow-no-models runs anyway, for the patch status only)\n",
+                   a.map_path.c_str());
+      return 1;
+    }
     tools::install_stop_handler();
     Runner r(a, **agg, out, joints);
     const int rc = a.live                     ? run_live_pipe(a, r)
@@ -825,13 +1071,12 @@ int main(int argc, char** argv) {
                    s.untared_samples, s.unattributed, s.superseded, s.late_superseded, s.estimated,
                    s.model_runs, s.rejected, s.publications, s.unknown_joints,
                    s.joint_states_out_of_order, s.kinematics_uncovered);
-      if (!r.latency_us.empty()) {
+      if (r.latency_us.count() > 0) {
         std::fprintf(stderr,
                      "skinbus-host: latency frame arrival -> publication over %zu samples: "
                      "p50 %.0f us, p99 %.0f us, max %.0f us\n",
-                     r.latency_us.size(), tools::quantile(r.latency_us, 0.5),
-                     tools::quantile(r.latency_us, 0.99),
-                     *std::max_element(r.latency_us.begin(), r.latency_us.end()));
+                     static_cast<std::size_t>(r.latency_us.count()), r.latency_us.quantile(0.5),
+                     r.latency_us.quantile(0.99), r.latency_us.max());
       }
     }
     return rc;

@@ -13,6 +13,7 @@
 #include "skinbus/fusion/unit_identification.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/unit_parameters.h"
+#include "tool_util.h"
 
 namespace {
 
@@ -106,6 +107,10 @@ int main(int argc, char** argv) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::printf("identified from %d presses (%d samples) in %.1f s, %d iterations\n", id->presses,
               id->rows_used, seconds, id->iterations);
+  if (id->masked_values > 0) {
+    std::printf("%d field value(s) not finite (dead channels): left out of the fit\n",
+                id->masked_values);
+  }
   print_quality("fit", id->nominal_fit, id->fit);
   if (held_out) print_quality("held out", id->nominal_held_out, id->held_out);
   const double judged = held_out ? id->held_out.rms : id->fit.rms;

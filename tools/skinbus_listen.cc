@@ -27,7 +27,7 @@ constexpr int kSliceMs = 200;  // how often the loops look at Ctrl-C and the tim
 void print_line(const std::string& line) {
   std::fputs(line.c_str(), stdout);
   std::fputc('\n', stdout);
-  std::fflush(stdout);
+  tools::check_stdout("skinbus-listen", /*flush=*/true);
 }
 
 // "HH:MM:SS.mmm" local time of a CLOCK_REALTIME stamp.
@@ -58,7 +58,7 @@ void print_table(const ContactArray& a, bool* header_done) {
                 c.position_mm[1], c.position_mm[2], c.depth_mm, c.force_n,
                 flags.empty() ? "-" : flags.c_str());
   }
-  std::fflush(stdout);
+  tools::check_stdout("skinbus-listen", /*flush=*/true);
 }
 
 void print_table(const PatchStatusArray& s) {
@@ -78,7 +78,7 @@ void print_table(const PatchStatusArray& s) {
                 std::string(patch_event_name(e.kind)).c_str(), static_cast<unsigned>(e.node),
                 e.hardware_uid, e.detail.c_str());
   }
-  std::fflush(stdout);
+  tools::check_stdout("skinbus-listen", /*flush=*/true);
 }
 
 // A malformed sample (dropped, reported) or a DDS failure (fatal)?

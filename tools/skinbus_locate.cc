@@ -14,6 +14,8 @@
 #include "skinbus/body_map/joint_trajectory.h"
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
+#include "skinbus/common/line_reader.h"
+#include "tool_util.h"
 
 using namespace skinbus;
 
@@ -111,7 +113,14 @@ int main(int argc, char** argv) {
   bool ok = true;
   if (point.size() == 1 && point[0] == "-") {
     std::string line;
-    while (std::getline(std::cin, line)) {
+    for (BoundedLine got; (got = getline_bounded(std::cin, line, 4096)) != BoundedLine::kEof;) {
+      if (got == BoundedLine::kTooLong) {
+        std::fprintf(stderr,
+                     "skinbus-locate: a line of standard input is longer than 4096 "
+                     "bytes: skipped\n");
+        ok = false;
+        continue;
+      }
       std::istringstream in(line);
       std::vector<double> f;
       double x;

@@ -48,6 +48,7 @@ class DaemonSink final : public FrameSink {
   std::string log_iface = "can0";
   std::FILE* expect = nullptr;
   bus::Reassembler own;
+  int write_errno = 0;  // a write to the log or the expect file failed (the loop ends on it)
 
   Status send(const bus::CanFrame& frame) override {
     Status st;
@@ -55,12 +56,19 @@ class DaemonSink final : public FrameSink {
     const uint64_t t_us = bus::realtime_now_us();
     if (log != nullptr) {
       const std::string line = bus::format_candump_line(frame, t_us, log_iface);
-      std::fprintf(log, "%s\n", line.c_str());
+      errno = 0;
+      if (std::fprintf(log, "%s\n", line.c_str()) < 0 && write_errno == 0) {
+        write_errno = errno != 0 ? errno : EIO;
+      }
     }
     if (expect != nullptr && st.ok()) {
       const bus::FeedResult r = own.feed(frame, bus::monotonic_now_us());
       if (r.status == bus::FeedStatus::kMessage) {
-        std::fprintf(expect, "%s\n", bus::format_message(*r.message).c_str());
+        errno = 0;
+        if (std::fprintf(expect, "%s\n", bus::format_message(*r.message).c_str()) < 0 &&
+            write_errno == 0) {
+          write_errno = errno != 0 ? errno : EIO;
+        }
       }
     }
     return st;
@@ -305,6 +313,10 @@ int main(int argc, char** argv) {
     uint64_t foreign_same_id = 0;
     while (!tools::stop_requested()) {
       uint64_t next = patch.poll();
+      if (sink.write_errno != 0) {  // the log's reader went away (EPIPE) or its disk is full
+        tools::exit_on_write_error("skinbus-patchd", "the candump log or --expect file",
+                                   sink.write_errno);
+      }
       if (patch.reboot_requested()) {
         info("reboot requested: restarting");
         if (log) std::fflush(log);
@@ -376,8 +388,12 @@ int main(int argc, char** argv) {
         }
       }
     }
-    if (log) std::fflush(log);
-    if (expect) std::fflush(expect);
+    errno = 0;
+    if ((log && (std::fflush(log) != 0 || std::ferror(log))) ||
+        (expect && (std::fflush(expect) != 0 || std::ferror(expect)))) {
+      tools::exit_on_write_error("skinbus-patchd", "the candump log or --expect file",
+                                 errno != 0 ? errno : EIO);
+    }
     const NodeStats& s = patch.stats();
     char done[256];
     std::snprintf(done, sizeof done,

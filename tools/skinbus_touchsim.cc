@@ -8,9 +8,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 
 #include "skinbus/body_map/calibration_sim.h"
+#include "skinbus/common/atomic_file.h"
+#include "tool_util.h"
 
 int main(int argc, char** argv) {
   using namespace skinbus::body_map;
@@ -109,12 +112,15 @@ int main(int argc, char** argv) {
       return fail(st.error().to_string());
     }
   }
-  std::ofstream csv(dir + "touches.csv");
+  std::ostringstream csv;
   csv << "# skinbus touch log: simulated session, seed " << o.seed << ", " << o.touches_per_patch
       << " touches per patch, probe noise " << o.probe_noise_mm << " mm, estimate noise "
       << o.estimate_noise_mm << " mm, outliers " << o.outlier_fraction << "\n"
       << touch_log_to_csv(s.value().log);
-  if (!csv) return fail("cannot write " + dir + "touches.csv");
+  if (skinbus::Status st = skinbus::write_file_atomic(dir + "touches.csv", csv.str(), "touch log");
+      !st.ok()) {
+    return fail(st.error().message);
+  }
   int outliers = 0;
   for (bool b : s.value().outlier) outliers += b;
   std::printf(

@@ -12,6 +12,7 @@
 #include "skinbus/fusion/evaluation.h"
 #include "skinbus/fusion/training.h"
 #include "skinbus/sim/dataset.h"
+#include "tool_util.h"
 
 namespace {
 
@@ -198,6 +199,12 @@ int main(int argc, char** argv) {
                  o.select_min_depth_mm, r->model.meta.metrics["val_xy_deep_mean_mm"],
                  r->model.meta.metrics["val_depth_mean_mm"], r->train_locations,
                  r->validation_locations);
+    if (r->masked_rows > 0) {
+      std::fprintf(stderr,
+                   "skinbus-train: %d of %zu rows left out: a NaN field value (a network cannot "
+                   "leave a channel out; docs/models.md)\n",
+                   r->masked_rows, data->rows());
+    }
     if (test) evaluate_into(r->model, *test, o.threads);
     r->model.meta.info["data"] = data_path;
     if (Status s = write_model(r->model, out_path); !s.ok()) {

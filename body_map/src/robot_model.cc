@@ -9,6 +9,8 @@
 // right leg, waist, left arm, right arm).
 #include "skinbus/body_map/robot_model.h"
 
+#include "skinbus/common/text_file.h"
+
 #include <console_bridge/console.h>
 #include <urdf_parser/urdf_parser.h>
 
@@ -195,12 +197,9 @@ Result<RobotModel> RobotModel::from_urdf_file(const std::string& path) {
   if (!std::filesystem::is_regular_file(path, ec)) {
     return make_error(ErrorCode::kNotFound, "URDF file '" + path + "' is not a regular file");
   }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return make_error(ErrorCode::kIo, "cannot open URDF file '" + path + "'");
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) return make_error(ErrorCode::kIo, "cannot read URDF file '" + path + "'");
-  Result<RobotModel> model = from_urdf_string(text.str());
+  Result<std::string> text = read_text_file(path, "URDF file");  // bounded (64 MiB)
+  if (!text.ok()) return text.error();
+  Result<RobotModel> model = from_urdf_string(text.value());
   if (!model.ok()) {
     return make_error(model.error().code, "URDF file '" + path + "': " + model.error().message);
   }

@@ -10,6 +10,7 @@
 #include <numbers>
 #include <sstream>
 
+#include "skinbus/common/atomic_file.h"
 #include "skinbus/common/yaml_reader.h"
 
 namespace skinbus::body_map {
@@ -117,7 +118,14 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
   r.get_uint64(p, "uid", path + ".", &uid);
   out->hardware_uid = uid;
   r.get_string(p, "link", path + ".", &out->link);
-  get_vector<3>(r, p, "position_mm", path + ".", &out->pose_on_link.translation_mm);
+  if (get_vector<3>(r, p, "position_mm", path + ".", &out->pose_on_link.translation_mm) &&
+      !(out->pose_on_link.translation_mm.norm() <= kMaxPatchOffsetMm)) {
+    r.fail(path + ".position_mm", p["position_mm"],
+           "the patch is " + std::to_string(out->pose_on_link.translation_mm.norm() * 1e-3) +
+               " m from its link's origin, more than the " +
+               std::to_string(static_cast<int>(kMaxPatchOffsetMm * 1e-3)) +
+               " m any robot link spans (mm expected)");
+  }
   if (p["rpy_deg"] && p["quaternion_wxyz"]) {
     r.fail(path + ".quaternion_wxyz", p["quaternion_wxyz"], "give rpy_deg or quaternion_wxyz");
   }
@@ -378,12 +386,7 @@ std::string skin_map_to_yaml(const SkinMap& map) {
 }
 
 Status save_skin_map_file(const SkinMap& map, const std::string& path) {
-  std::ofstream out(path);
-  if (!out) return make_error(ErrorCode::kIo, "cannot write skin map " + path);
-  out << skin_map_to_yaml(map);
-  out.close();
-  if (!out) return make_error(ErrorCode::kIo, "writing skin map " + path + " failed");
-  return Status::Ok();
+  return write_file_atomic(path, skin_map_to_yaml(map), "skin map");  // never a torn map
 }
 
 std::string path_beside(const std::string& map_path, const std::string& path) {

@@ -123,6 +123,10 @@ TEST(SkinMap, ErrorsNameTheKeyAndLine) {
        "hardware UID 0x0000000000000001 is already node 3"},
       {head + "    uid: -5\n", "not a 64-bit unsigned integer"},
       {head + "    uid: \" -5\"\n", "not a 64-bit unsigned integer"},
+      // A patch farther from its link than any robot spans (its contacts would be dropped as
+      // absurd downstream, silently).
+      {"patches:\n  - node: 3\n    link: l\n    position_mm: [100000000, 45, 0]\n",
+       "patches[0].position_mm (line 4): the patch is 100000.000000 m from its link's origin"},
   };
   for (const Case& c : cases) {
     Result<SkinMap> m = load_skin_map_text(c.yaml);
@@ -136,6 +140,11 @@ TEST(SkinMap, ErrorsNameTheKeyAndLine) {
   ASSERT_TRUE(arc.ok()) << arc.error().to_string();
   EXPECT_NEAR(arc.value().patches[0].geometry.size_u_mm, 50 * std::numbers::pi / 2, 1e-9);
   EXPECT_EQ(load_skin_map_file("/nonexistent/map.yaml").error().code, ErrorCode::kNotFound);
+  EXPECT_NE(load_skin_map_file("/tmp").error().message.find("is a directory"), std::string::npos);
+  // 10 m is still a place on a (large) robot.
+  EXPECT_TRUE(load_skin_map_text("patches:\n  - node: 3\n    link: l\n    position_mm: [0, 0, "
+                                 "10000]\n")
+                  .ok());
 }
 
 TEST(SkinMap, RefusesImproperRotationsInCode) {

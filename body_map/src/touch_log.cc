@@ -6,8 +6,11 @@
 #include <fstream>
 #include <set>
 #include <sstream>
+#include <unordered_map>
 
 #include "skinbus/common/csv.h"
+#include "skinbus/common/line_reader.h"
+#include "skinbus/common/text_file.h"
 
 namespace skinbus::body_map {
 
@@ -29,8 +32,16 @@ Result<TouchLog> read_touch_log(std::istream& in) {
   int line_no = 0;
   bool have_header = false;
   std::set<std::string> seen_joints;
-  while (std::getline(in, line)) {
+  // Each touch's values (bit for bit) -> its line: a row given twice is refused, since the
+  // calibration would count it as two measurements and claim more certainty than it has.
+  std::unordered_map<std::string, int> line_of_touch;
+  for (BoundedLine got;
+       (got = getline_bounded(in, line, kMaxTouchLogLineBytes)) != BoundedLine::kEof;) {
     ++line_no;
+    if (got == BoundedLine::kTooLong) {
+      return parse_error(line_no,
+                         "longer than " + std::to_string(kMaxTouchLogLineBytes) + " bytes");
+    }
     if (is_csv_comment_or_blank(line)) continue;
     const std::vector<std::string_view> f = split_csv_fields(line);
     if (!have_header) {
@@ -114,6 +125,20 @@ Result<TouchLog> read_touch_log(std::istream& in) {
                          "a base-frame touch needs the joint positions (q:<joint> "
                          "columns) of that moment");
     }
+    std::string key(reinterpret_cast<const char*>(&r.node_id), sizeof r.node_id);
+    key.push_back(r.frame == ProbeFrame::kLink ? 'l' : 'b');
+    for (double x : {r.probe_mm.x(), r.probe_mm.y(), r.probe_mm.z(), r.u_mm, r.v_mm, r.depth_mm}) {
+      key.append(reinterpret_cast<const char*>(&x), sizeof x);
+    }
+    for (double q : r.joint_positions) key.append(reinterpret_cast<const char*>(&q), sizeof q);
+    if (auto [it, fresh] = line_of_touch.emplace(std::move(key), line_no); !fresh) {
+      return parse_error(line_no, "repeats the touch of line " + std::to_string(it->second) +
+                                      " exactly: a touch counted twice would shrink the "
+                                      "calibration's uncertainty; give each touch once");
+    }
+    if (log.touches.size() >= kMaxTouches) {
+      return parse_error(line_no, "more than " + std::to_string(kMaxTouches) + " touches");
+    }
     log.touches.push_back(std::move(r));
   }
   if (!have_header) return make_error(ErrorCode::kParse, "touch log: no header line");
@@ -121,10 +146,9 @@ Result<TouchLog> read_touch_log(std::istream& in) {
 }
 
 Result<TouchLog> load_touch_log_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) {
-    return make_error(ErrorCode::kNotFound, "touch log " + path + ": " + std::strerror(errno));
-  }
+  Result<std::string> text = read_text_file(path, "touch log", 256u << 20);
+  if (!text.ok()) return text.error();
+  std::istringstream in(std::move(text).value());
   Result<TouchLog> log = read_touch_log(in);
   if (!log.ok()) return make_error(log.error().code, path + ": " + log.error().message);
   return log;

@@ -43,6 +43,13 @@ TEST(TouchLog, ErrorsNameLineAndColumn) {
       {kHeader + "\n3,link,1,2,3,4,5\n", "7 fields"},
       {kHeader + "\n3,base,1,2,3,4,5,6\n", "needs the joint positions"},
       {kHeader + ",q:a\n3,base,1,2,3,4,5,6,x\n", "q:a 'x'"},
+      // Every row given twice: accepted, the calibration's uncertainty shrank by sqrt(2).
+      {kHeader + "\n3,link,1,2,3,4,5,6\n4,link,1,2,3,4,5,6\n3,link,1.0,2,3,4,5,6e0\n",
+       "line 4: repeats the touch of line 2 exactly"},
+      {kHeader + ",q:a\n3,base,1,2,3,4,5,6,0.5\n3,base,1,2,3,4,5,6,0.5\n",
+       "line 3: repeats the touch of line 2"},
+      {kHeader + "\n3,link,1,2,3,4,5," + std::string(100000, '6') + "\n",
+       "line 2: longer than 65536 bytes"},
   };
   for (const auto& [text, says] : cases) {
     Result<TouchLog> log = parse(text);
@@ -52,6 +59,10 @@ TEST(TouchLog, ErrorsNameLineAndColumn) {
         << "expected '" << says << "' in: " << log.error().message;
   }
   EXPECT_EQ(load_touch_log_file("/nonexistent.csv").error().code, ErrorCode::kNotFound);
+  EXPECT_NE(load_touch_log_file("/tmp").error().message.find("is a directory"), std::string::npos);
+  // The same probe point with another joint state, or another estimate, is another touch.
+  EXPECT_TRUE(parse(kHeader + ",q:a\n3,base,1,2,3,4,5,6,0.5\n3,base,1,2,3,4,5,6,0.6\n").ok());
+  EXPECT_TRUE(parse(kHeader + "\n3,link,1,2,3,4,5,6\n3,link,1,2,3,4,5,6.5\n").ok());
 }
 
 TEST(TouchLog, WritesWhatItReads) {

@@ -25,6 +25,8 @@ std::string_view candump_error_name(CandumpError e) {
       return "bad_fd_flags";
     case CandumpError::kUnsupported:
       return "unsupported";
+    case CandumpError::kLineTooLong:
+      return "line_too_long";
   }
   return "unknown";
 }
@@ -225,20 +227,26 @@ std::string format_candump_line(const CanFrame& frame, uint64_t timestamp_us,
   return std::string(buf, format_candump_line(frame, timestamp_us, iface, buf));
 }
 
-CandumpReader::~CandumpReader() {
-  std::free(buf_);
-}
-
 CandumpReader::Status CandumpReader::next(CandumpRecord* record) {
   for (;;) {
-    len_ = static_cast<long>(getline(&buf_, &cap_, stream_));
-    if (len_ < 0) {
-      len_ = 0;
-      return Status::kEof;
+    line_ = {};
+    switch (lines_.next(&line_)) {
+      case LineReader::Status::kLine:
+        break;
+      case LineReader::Status::kTooLong:
+        error_ = CandumpError::kLineTooLong;
+        ++bad_lines_;
+        return Status::kBadLine;
+      case LineReader::Status::kEof:
+        return Status::kEof;
+      case LineReader::Status::kError:
+        read_error_ = lines_.error_number();
+        return Status::kEof;
+      case LineReader::Status::kWait:
+        if (wait_) return Status::kWait;
+        continue;  // a signal interrupted a blocking read: go on reading
     }
-    ++line_number_;
-    const CandumpError e =
-        parse_candump_line(std::string_view(buf_, static_cast<std::size_t>(len_)), record);
+    const CandumpError e = parse_candump_line(line_, record);
     if (e == CandumpError::kEmpty) continue;
     if (e != CandumpError::kNone) {
       error_ = e;

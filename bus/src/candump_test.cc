@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cerrno>
+
 #include <cstdio>
 #include <random>
 #include <string>
@@ -148,6 +150,38 @@ TEST(CandumpTest, ReaderCountsBadLinesAndKeepsGoing) {
   EXPECT_EQ(bad_lines, (std::vector<uint64_t>{2, 5}));
   EXPECT_EQ(reader.bad_lines(), 2u);
   EXPECT_EQ(reader.records(), 3u);
+}
+
+TEST(CandumpTest, ReaderSkipsOverlongLinesAndCountsThem) {
+  // A line of 10 MB of zeros between two good lines: one bad line with its number, nothing kept.
+  std::string text = "(1.000000) can0 123#11\n";
+  text += std::string(10'000'000, '0') + "\n";
+  text += "(1.000001) can0 124#22\n";
+  std::FILE* f = fmemopen(text.data(), text.size(), "r");
+  ASSERT_NE(f, nullptr);
+  CandumpReader reader(f);
+  CandumpRecord r;
+  ASSERT_EQ(reader.next(&r), CandumpReader::Status::kRecord);
+  ASSERT_EQ(reader.next(&r), CandumpReader::Status::kBadLine);
+  EXPECT_EQ(reader.error(), CandumpError::kLineTooLong);
+  EXPECT_EQ(candump_error_name(reader.error()), "line_too_long");
+  EXPECT_EQ(reader.line_number(), 2u);
+  ASSERT_EQ(reader.next(&r), CandumpReader::Status::kRecord);
+  EXPECT_EQ(r.frame.id, 0x124u);
+  EXPECT_EQ(reader.line_number(), 3u);
+  EXPECT_EQ(reader.next(&r), CandumpReader::Status::kEof);
+  EXPECT_EQ(reader.read_error(), 0);
+  std::fclose(f);
+}
+
+TEST(CandumpTest, ReaderReportsAFailedReadInsteadOfAnEmptyLog) {
+  std::FILE* f = std::fopen("/", "r");  // a directory opens, and every read fails
+  ASSERT_NE(f, nullptr);
+  CandumpReader reader(f);
+  CandumpRecord r;
+  EXPECT_EQ(reader.next(&r), CandumpReader::Status::kEof);
+  EXPECT_EQ(reader.read_error(), EISDIR);
+  std::fclose(f);
 }
 
 }  // namespace

@@ -13,14 +13,48 @@ Reassembler::Reassembler(const Config& config)
       senders_(static_cast<std::size_t>(kNodeMask + 1) * kMessageClassCount),
       last_uptime_s_(static_cast<std::size_t>(kNodeMask + 1), kNoUptime) {}
 
+void Reassembler::confirm_gaps(Sender& snd, uint64_t now_us, bool force) {
+  if (snd.pending == 0) return;
+  std::size_t keep = 0;
+  for (std::size_t i = 0; i < snd.pending; ++i) {
+    if (force || now_us > snd.pending_deadline_us[i]) {
+      ++snd.lost_unreported;
+      ++stats_.gaps;
+    } else {
+      snd.pending_seq[keep] = snd.pending_seq[i];
+      snd.pending_deadline_us[keep] = snd.pending_deadline_us[i];
+      ++keep;
+    }
+  }
+  snd.pending = static_cast<uint8_t>(keep);
+  if (keep == 0) --senders_pending_;
+}
+
+uint32_t Reassembler::take_unreported_losses(MessageClass c, uint8_t node) {
+  Sender& snd = sender(c, node & kNodeMask);
+  const uint32_t n = snd.lost_unreported;
+  snd.lost_unreported = 0;
+  return n;
+}
+
 void Reassembler::forget_node(uint8_t node) {
-  for (int c = 0; c < kMessageClassCount; ++c)
-    sender(static_cast<MessageClass>(c), node) = Sender{};
+  for (int c = 0; c < kMessageClassCount; ++c) {
+    Sender& snd = sender(static_cast<MessageClass>(c), node);
+    confirm_gaps(snd, 0, /*force=*/true);
+    const uint32_t lost = snd.lost_unreported;
+    snd = Sender{};
+    snd.lost_unreported = lost;
+  }
 }
 
 void Reassembler::reset() {
   for (Slot& s : slots_) s.used = false;
-  for (Sender& s : senders_) s = Sender{};
+  for (Sender& s : senders_) {
+    confirm_gaps(s, 0, /*force=*/true);
+    const uint32_t lost = s.lost_unreported;
+    s = Sender{};
+    s.lost_unreported = lost;
+  }
   std::fill(last_uptime_s_.begin(), last_uptime_s_.end(), kNoUptime);
   in_use_ = 0;
 }
@@ -60,6 +94,9 @@ Reassembler::Slot* Reassembler::allocate_slot(uint64_t rx_time_us) {
 
 void Reassembler::expire(uint64_t now_us) {
   last_expire_us_ = now_us;
+  if (senders_pending_ > 0) {
+    for (Sender& snd : senders_) confirm_gaps(snd, now_us, /*force=*/false);
+  }
   if (in_use_ == 0) return;
   for (Slot& s : slots_) {
     if (s.used && now_us > s.first_rx_us && now_us - s.first_rx_us > config_.timeout_us) {
@@ -104,22 +141,43 @@ FeedResult Reassembler::complete(MessageClass c, uint8_t node, uint8_t seq, Fram
       return r;
     }
   }
+  confirm_gaps(snd, rx_time_us, /*force=*/false);
   if (snd.valid) {
     const auto ahead = static_cast<uint8_t>(seq - snd.last_seq);
     if (ahead == 0) {
       snd.last_seq = seq;  // same sequence, other content: a restart or a wrap while quiet
     } else if (ahead < 128) {
-      r.missing_before = ahead - 1u;
-      stats_.gaps += ahead - 1u;
+      const uint32_t missing = ahead - 1u;
+      if (missing > 0 && missing + snd.pending <= kPendingGaps) {
+        // Perhaps only reordered: lost if still missing after the timeout.
+        if (snd.pending == 0) ++senders_pending_;
+        for (uint32_t k = 1; k <= missing; ++k) {
+          snd.pending_seq[snd.pending] = static_cast<uint8_t>(snd.last_seq + k);
+          snd.pending_deadline_us[snd.pending] = rx_time_us + config_.timeout_us;
+          ++snd.pending;
+        }
+      } else {
+        snd.lost_unreported += missing;
+        stats_.gaps += missing;
+      }
       snd.last_seq = seq;
-    } else if (rx_time_us - snd.last_rx_us <= config_.timeout_us) {
+    } else if (within_timeout(rx_time_us, snd.last_rx_us)) {
       ++stats_.reorders;  // an older message completed late: emitted, history unchanged
+      for (std::size_t i = 0; i < snd.pending; ++i) {
+        if (snd.pending_seq[i] != seq) continue;
+        // It was waiting as missing: not lost after all.
+        snd.pending_seq[i] = snd.pending_seq[snd.pending - 1u];
+        snd.pending_deadline_us[i] = snd.pending_deadline_us[snd.pending - 1u];
+        if (--snd.pending == 0) --senders_pending_;
+        break;
+      }
     } else {
       // Behind, but after a silence longer than any reordering can last: the sender restarted
       // or 128 or more messages were lost. Take its sequence as the new reference; the jump is
       // counted forward (mod 256) as missing messages.
       ++stats_.resyncs;
-      r.missing_before = ahead - 1u;
+      confirm_gaps(snd, rx_time_us, /*force=*/true);
+      snd.lost_unreported += ahead - 1u;
       stats_.gaps += ahead - 1u;
       snd.last_seq = seq;
     }
@@ -127,6 +185,8 @@ FeedResult Reassembler::complete(MessageClass c, uint8_t node, uint8_t seq, Fram
     snd.valid = true;
     snd.last_seq = seq;
   }
+  r.missing_before = snd.lost_unreported;
+  snd.lost_unreported = 0;
   if (snd.last_seq == seq) snd.last_rx_us = rx_time_us;
   snd.recent_seq[snd.ring_pos] = seq;
   snd.recent_crc[snd.ring_pos] = crc;
@@ -175,7 +235,7 @@ FeedResult Reassembler::feed(const CanFrame& frame, uint64_t rx_time_us) {
     // new message, which must not be dropped.)
     const Sender& snd = sender(c, v.node);
     if (snd.have_last && snd.last_seq == seq && snd.last_kind == v.kind &&
-        rx_time_us - snd.last_rx_us <= config_.timeout_us &&
+        within_timeout(rx_time_us, snd.last_rx_us) &&
         std::memcmp(snd.last_payload.data() + v.payload_offset, v.part_data, v.part_len) == 0) {
       ++stats_.duplicates;
       return FeedResult{FeedStatus::kDuplicate, DecodeError::kNone, nullptr, 0};

@@ -122,6 +122,24 @@ struct Aggregator::Impl {
 
   std::vector<uint64_t> bad_reported;  // per bus: bad frames already reported
   std::vector<uint64_t> processed_rx;  // rx times of the samples of the last process()
+  // Per patch slot: contact samples in a row the model gave no estimate for. From
+  // kNoEstimateRun on, the patch is degraded with the reason until an estimate succeeds.
+  static constexpr uint32_t kNoEstimateRun = 10;
+  std::vector<uint32_t> no_estimate_run;
+  // Counts a sample of `p` the model gave no usable estimate for (`why`), or (empty) one it did.
+  void estimate_outcome(Pending& p, const char* why, uint64_t now_us) {
+    uint32_t& run = no_estimate_run[slot(p.entry->bus, p.entry->node)];
+    if (why == nullptr) {
+      run = 0;
+      if (!p.entry->estimator_problem.empty()) registry.set_estimator_problem(*p.entry, "", now_us);
+      return;
+    }
+    if (++run < kNoEstimateRun || !p.entry->estimator_problem.empty()) return;
+    registry.set_estimator_problem(*p.entry,
+                                   "no estimate from its model for " + std::to_string(run) +
+                                       " contact samples in a row (" + why + ")",
+                                   now_us);
+  }
   std::vector<int> link_of_placement;  // robot link index of each skin-map entry, -1: none
   PatchContact placed;                 // the contact being placed
   std::vector<PatchContact> scratch_contacts;
@@ -192,6 +210,7 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
     impl->reassemblers.emplace_back(options.reassembly);
   impl->pending.resize(bus_names.size() * 128);
   impl->bad_reported.assign(bus_names.size(), 0);
+  impl->no_estimate_run.assign(bus_names.size() * 128, 0);
   impl->current.resize(bus_names.size() * 128);
   impl->pending_list.reserve(impl->pending.size());
   impl->current_list.reserve(impl->current.size());
@@ -527,7 +546,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   for (std::size_t k : s.pending_list) {
     Impl::Pending& p = s.pending[k];
     const PatchEntry& e = *p.entry;
-    if (e.duplicate || e.placement == nullptr || e.model_index < 0 || e.placement != p.placement ||
+    if (!s.registry.attributable(e) || e.model_index < 0 || e.placement != p.placement ||
         e.model_index != p.model_index) {
       ++s.stats.unattributed;  // re-identified since it was queued
       continue;
@@ -587,6 +606,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       s.processed_rx.push_back(p.rx_us);
       if (!est.valid()) {
         ++s.stats.rejected;
+        s.estimate_outcome(p, reject_reason_name(est.reason), now_us);
         continue;
       }
       if ((est.flags & kEstimateNoContact) != 0) {
@@ -600,14 +620,23 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       PatchContact& placed = s.placed;  // placed aside: a bad estimate never erases a held one
       int link = -1;
       s.place(*p.entry, est, m, flags, &placed, &link);
+      // A place that is not finite, or farther than any robot reaches (an absurd estimate or
+      // placement), is no contact: counted, and the patch degraded with the reason if it lasts.
       bool finite = true;
       for (int i = 0; i < 3; ++i) {
-        finite = finite && std::isfinite(placed.position_mm[i]) && std::isfinite(placed.normal[i]);
+        finite = finite && std::isfinite(placed.normal[i]) &&
+                 std::fabs(placed.position_mm[i]) <= kMaxContactMagnitude;
+      }
+      for (double v : {est.u_mm, est.v_mm, est.depth_mm}) {
+        finite = finite && std::fabs(v) <= kMaxContactMagnitude;
       }
       if (!finite) {
         ++s.stats.rejected;
+        s.estimate_outcome(p, "estimates placed beyond any robot (non-finite or over 1 km)",
+                           now_us);
         continue;
       }
+      s.estimate_outcome(p, nullptr, now_us);
       Impl::Current& c = s.current[k];
       c.contact = placed;
       c.link = link;

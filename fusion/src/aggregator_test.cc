@@ -8,8 +8,12 @@
 #include <cmath>
 #include <cstdlib>
 #include <random>
+#include <string>
+
+#include <unistd.h>
 
 #include "skinbus/bus/codec.h"
+#include "skinbus/fusion/model_file.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::fusion {
@@ -638,6 +642,65 @@ TEST(Aggregator, MissingModelDegradesThePatch) {
   ContactArray out;
   EXPECT_FALSE(f.agg->process(t, &out));
   EXPECT_EQ(f.agg->registry().entry(0, 3).state, PatchLinkState::kDegraded);
+}
+
+// A board whose hardware UID is another patch's (node 3's) on node 4: pressed, its contacts
+// must not appear at node 3's place; both are reported as duplicates.
+TEST(Aggregator, AUidHeardOnTwoNodesIsNeverPlacedAtTheOtherPatch) {
+  Fixture f;
+  Node clone{4, kUid3};
+  uint64_t t = 1'000'000;
+  f.n3.heartbeat(*f.agg, t, 1);
+  clone.heartbeat(*f.agg, t + 1000, 1);
+  ContactArray out;
+  int from_clone = 0;
+  for (int i = 0; i < 20; ++i) {
+    clone.sample(*f.agg, t += kPeriodUs, press(20, 0, 2.5, 7), true);
+    if (f.agg->process(t, &out)) {
+      for (const BodyContact& c : out.contacts) from_clone += c.node == 4 || c.node == 3;
+    }
+  }
+  EXPECT_EQ(from_clone, 0);
+  PatchStatusArray st;
+  f.agg->status(t, &st);
+  ASSERT_EQ(st.patches.size(), 2u);
+  EXPECT_TRUE(st.patches[0].duplicate_id);
+  EXPECT_TRUE(st.patches[1].duplicate_id);
+  EXPECT_TRUE(has_event(st.events, PatchEventKind::kDuplicateId));
+  // Node 3 itself is still placed: it is the map's node for that UID.
+  f.n3.sample(*f.agg, t += kPeriodUs, press(0, 0, 2.5, 3), true);
+  ASSERT_TRUE(f.agg->process(t, &out));
+  ASSERT_EQ(out.contacts.size(), 1u);
+  EXPECT_EQ(out.contacts[0].node, 3);
+}
+
+// A model whose outputs overflow (finite weights, non-finite results): every estimate is a
+// rejection, and the patch says so (degraded, with the reason) instead of staying online.
+TEST(Aggregator, APatchWhoseModelGivesNoEstimatesIsDegradedWithTheReason) {
+  auto model = read_model(source_dir() + "/fusion/models/nominal_seed_cnn");
+  ASSERT_TRUE(model.ok()) << model.error().to_string();
+  for (Tensor& t : model->tensors) {
+    if (t.name == "head.weight") std::fill(t.data.begin(), t.data.end(), 3e38f);
+  }
+  char dir[] = "/tmp/skinbus_agg_XXXXXX";
+  ASSERT_NE(::mkdtemp(dir), nullptr);
+  const std::string stem = std::string(dir) + "/overflow";
+  ASSERT_TRUE(write_model(*model, stem).ok());
+  Fixture f({}, false, two_patch_map(stem));
+  uint64_t t = 1'000'000;
+  f.n3.heartbeat(*f.agg, t, 1);
+  (void)f.events(t);
+  ContactArray out;
+  for (int i = 0; i < 12; ++i) {
+    f.n3.sample(*f.agg, t += kPeriodUs, press(0, 0, 2.5, 3), true);
+    EXPECT_FALSE(f.agg->process(t, &out));
+  }
+  const PatchEntry& e = f.agg->registry().entry(0, 3);
+  EXPECT_EQ(e.state, PatchLinkState::kDegraded);
+  EXPECT_NE(e.detail.find("no estimate from its model"), std::string::npos) << e.detail;
+  EXPECT_NE(e.detail.find("non_finite"), std::string::npos) << e.detail;
+  EXPECT_TRUE(has_event(f.events(t), PatchEventKind::kDegraded));
+  std::system(("rm -rf " + std::string(dir)).c_str());
 }
 
 TEST(Aggregator, ASampleQueuedBeforeItsNodeIsReidentifiedIsDropped) {

@@ -10,7 +10,7 @@
 namespace skinbus::fusion {
 namespace {
 
-constexpr double kMaxMagnitude = 1e6;  // mm or N: beyond is not a contact on a robot
+constexpr double kMaxMagnitude = kMaxContactMagnitude;
 constexpr double kMaxUncertaintyMm = 1e6;
 constexpr std::size_t kNone = std::numeric_limits<std::size_t>::max();
 

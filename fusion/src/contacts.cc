@@ -60,6 +60,8 @@ std::string_view patch_event_name(PatchEventKind k) {
       return "host_lagging";
     case PatchEventKind::kHostCaughtUp:
       return "host_caught_up";
+    case PatchEventKind::kLogTime:
+      return "log_time";
   }
   return "unknown";
 }

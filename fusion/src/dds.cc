@@ -80,6 +80,8 @@ SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_HOST_LAGGING,
                       PatchEventKind::kHostLagging);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_HOST_CAUGHT_UP,
                       PatchEventKind::kHostCaughtUp);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchEvent_Constants_KIND_LOG_TIME,
+                      PatchEventKind::kLogTime);
 #undef SKINBUS_SAME_CONSTANT
 
 namespace {
@@ -93,7 +95,7 @@ using JointStateMsg = sensor_msgs_msg_dds__JointState_;
 using TimeMsg = builtin_interfaces_msg_dds__Time_;
 
 constexpr uint8_t kPatchLinkStateMax = static_cast<uint8_t>(PatchLinkState::kOffline);
-constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kHostCaughtUp);
+constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kLogTime);
 constexpr double kMmPerM = 1000.0;
 constexpr double kUsPerS = 1e6;
 

@@ -219,7 +219,8 @@ PatchStatusArray sample_status(uint64_t stamp_us) {
   s.events = {{stamp_us - 10, PatchEventKind::kRebooted, 3, a.hardware_uid, "uptime 5 s < 9 s"},
               {stamp_us - 5, PatchEventKind::kInterfaceDown, 0, 0, "can1: bus-off"},
               {stamp_us - 2, PatchEventKind::kKinematicsFresh, 0, 0, ""},
-              {stamp_us - 1, PatchEventKind::kHostCaughtUp, 0, 0, "3 superseded"}};
+              {stamp_us - 1, PatchEventKind::kHostCaughtUp, 0, 0, "3 superseded"},
+              {stamp_us, PatchEventKind::kLogTime, 0, 0, "bus.log:7: time went back 2.000 s"}};
   return s;
 }
 

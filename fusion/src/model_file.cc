@@ -1,5 +1,6 @@
 #include "skinbus/fusion/model_file.h"
 
+#include "skinbus/common/atomic_file.h"
 #include "skinbus/common/text_file.h"
 
 #include <algorithm>
@@ -36,6 +37,43 @@ const char* kind_name(ArchitectureKind k) {
 
 Error file_error(const std::string& file, const std::string& what) {
   return make_error(ErrorCode::kParse, file + ": " + what);
+}
+
+// The largest weight file read (bytes): the largest tensors validate_model allows, and more.
+constexpr uint64_t kMaxWeightBytes = 1ull << 30;
+
+// The metadata format this writer produces: 2 carries the weights' fingerprint.
+constexpr int kModelVersion = 2;
+
+// The weights' fingerprint as the metadata holds it.
+std::string weights_fingerprint(std::string_view weights) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "fnv1a64:%016llx",
+                static_cast<unsigned long long>(fnv1a64(weights)));
+  return buf;
+}
+
+// The header length a safetensors file states (0 when it is too short to state one).
+std::size_t header_bytes(std::string_view b) {
+  if (b.size() < 8) return 0;
+  uint64_t n = 0;
+  for (int i = 7; i >= 0; --i) n = (n << 8) | static_cast<uint8_t>(b[static_cast<std::size_t>(i)]);
+  return static_cast<std::size_t>(std::min<uint64_t>(n, b.size() - 8));
+}
+
+// Parses JSON text; a syntax error (or a number no double holds, 1e400) names the line and what
+// the parser found instead of a bare "not a JSON object".
+Result<json> parse_json(std::string_view text, const std::string& file) {
+  try {
+    return json::parse(text);
+  } catch (const json::exception& e) {
+    std::string what = e.what();
+    // "[json.exception.parse_error.101] parse error at line 1, column 9: ..." -> after the tag.
+    if (const std::size_t close = what.find("] "); close != std::string::npos) {
+      what = what.substr(close + 2);
+    }
+    return file_error(file, "not valid JSON: " + what);
+  }
 }
 
 }  // namespace
@@ -238,27 +276,24 @@ Status write_model(const ModelFile& model, const std::string& path) {
         {"dtype", "F32"}, {"shape", t.shape}, {"data_offsets", {offset, offset + bytes}}};
     offset += bytes;
   }
-  header["__metadata__"] = {{"format", "pt"}, {"skinbus_model", m.name}};
+  // The format version in the weights too: a reader then tells these weights from an older
+  // writer's, whose metadata carries no fingerprint.
+  header["__metadata__"] = {{"format", "pt"},
+                            {"skinbus_model", m.name},
+                            {"skinbus_model_version", std::to_string(kModelVersion)}};
   std::string text = header.dump();
   while (text.size() % 8 != 0) text.push_back(' ');
-  {
-    std::ofstream f(stem + ".safetensors", std::ios::binary | std::ios::trunc);
-    if (!f) return make_error(ErrorCode::kIo, "cannot write " + stem + ".safetensors");
-    uint8_t len[8];
-    uint64_t n = text.size();
-    for (int i = 0; i < 8; ++i) len[i] = static_cast<uint8_t>(n >> (8 * i));
-    f.write(reinterpret_cast<const char*>(len), 8);
-    f.write(text.data(), static_cast<std::streamsize>(text.size()));
-    for (const Tensor& t : model.tensors) {
-      for (float v : t.data) {  // little endian on every supported host; written byte by byte
-        uint32_t u;
-        std::memcpy(&u, &v, 4);
-        const uint8_t b[4] = {static_cast<uint8_t>(u), static_cast<uint8_t>(u >> 8),
-                              static_cast<uint8_t>(u >> 16), static_cast<uint8_t>(u >> 24)};
-        f.write(reinterpret_cast<const char*>(b), 4);
-      }
+  std::string weights;
+  weights.reserve(8 + text.size() + static_cast<std::size_t>(offset));
+  const uint64_t n = text.size();
+  for (int i = 0; i < 8; ++i) weights.push_back(static_cast<char>(n >> (8 * i)));
+  weights += text;
+  for (const Tensor& t : model.tensors) {
+    for (float v : t.data) {  // little endian on every supported host; written byte by byte
+      uint32_t u;
+      std::memcpy(&u, &v, 4);
+      for (int i = 0; i < 4; ++i) weights.push_back(static_cast<char>(u >> (8 * i)));
     }
-    if (!f) return make_error(ErrorCode::kIo, "cannot write " + stem + ".safetensors");
   }
   // Metadata: JSON.
   const Architecture& a = m.architecture;
@@ -273,7 +308,8 @@ Status write_model(const ModelFile& model, const std::string& path) {
   for (const SensorPosition& s : m.sensors) sensors.push_back({s.u_mm, s.v_mm, s.h_mm});
   json meta = {
       {"format", "skinbus-model"},
-      {"version", 1},
+      {"version", kModelVersion},
+      {"weights_fingerprint", weights_fingerprint(weights)},
       {"name", m.name},
       {"architecture", arch},
       {"weights", stem.substr(stem.find_last_of('/') + 1) + ".safetensors"},
@@ -298,10 +334,17 @@ Status write_model(const ModelFile& model, const std::string& path) {
       {"parameters", model.parameters()},
       {"macs", model.macs()},
   };
-  std::ofstream f(stem + ".json", std::ios::trunc);
-  if (!f) return make_error(ErrorCode::kIo, "cannot write " + stem + ".json");
-  f << meta.dump(2) << "\n";
-  if (!f) return make_error(ErrorCode::kIo, "cannot write " + stem + ".json");
+  // Both files to temporary names, each written, checked and synced; then renamed one after the
+  // other. Whenever it stops, a reader finds the old pair, the new pair, or a mixed pair that
+  // the fingerprint refuses: never new weights read with old metadata.
+  AtomicFile weights_file, meta_file;
+  for (Status s :
+       {weights_file.open(stem + ".safetensors", "model weights"), weights_file.write(weights),
+        weights_file.finish(), meta_file.open(stem + ".json", "model metadata"),
+        meta_file.write(meta.dump(2) + "\n"), meta_file.finish(), weights_file.rename_into_place(),
+        meta_file.rename_into_place()}) {
+    if (!s.ok()) return s;
+  }
   return Status::Ok();
 }
 
@@ -314,11 +357,10 @@ Status parse_weights(std::string_view b, const std::string& file, ModelFile& mod
   if (n > kMaxHeaderBytes || n > b.size() - 8) {
     return file_error(file, "header length " + std::to_string(n) + " exceeds the file");
   }
-  json header =
-      json::parse(b.begin() + 8, b.begin() + 8 + static_cast<std::ptrdiff_t>(n), nullptr, false);
-  if (header.is_discarded() || !header.is_object()) {
-    return file_error(file, "header is not a JSON object");
-  }
+  Result<json> parsed = parse_json(b.substr(8, static_cast<std::size_t>(n)), file + " header");
+  if (!parsed.ok()) return parsed.error();
+  json header = std::move(parsed).value();
+  if (!header.is_object()) return file_error(file, "header is not a JSON object");
   const uint64_t data_bytes = b.size() - 8 - n;
   const char* data = b.data() + 8 + n;
   std::vector<std::pair<uint64_t, uint64_t>> ranges;
@@ -389,7 +431,8 @@ Result<ModelFile> read_model(const std::string& path) {
   const std::string stem = model_stem(path);
   Result<std::string> text = read_text_file(stem + ".json", "model metadata");
   if (!text.ok()) return text.error();
-  Result<std::string> weights = read_text_file(stem + ".safetensors", "model weights");
+  Result<std::string> weights =
+      read_text_file(stem + ".safetensors", "model weights", kMaxWeightBytes);
   if (!weights.ok()) return weights.error();
   return parse_model(text.value(), weights.value(), stem);
 }
@@ -399,11 +442,24 @@ namespace {
 Result<ModelFile> parse_model_unguarded(std::string_view metadata_json, std::string_view weights,
                                         const std::string& stem) {
   const std::string meta_file = stem + ".json";
-  json j = json::parse(metadata_json, nullptr, false);
-  if (j.is_discarded() || !j.is_object()) return file_error(meta_file, "not a JSON object");
+  Result<json> parsed = parse_json(metadata_json, meta_file);
+  if (!parsed.ok()) return parsed.error();
+  json j = std::move(parsed).value();
+  if (!j.is_object()) return file_error(meta_file, "not a JSON object");
   std::string format;
   if (!get_to(j, "format", format) || format != "skinbus-model") {
     return file_error(meta_file, "\"format\" is not \"skinbus-model\"");
+  }
+  // The pair must be one write's: version 2 metadata names its weights' fingerprint; version 1
+  // metadata (an older writer's, without one) is read only with weights of that writer too.
+  int version = 1;
+  if (j.contains("version") && !get_to(j, "version", version)) {
+    return file_error(meta_file, "\"version\" is not a number");
+  }
+  if (version < 1 || version > kModelVersion) {
+    return file_error(meta_file, "version " + std::to_string(version) +
+                                     " (this reader knows 1 to " + std::to_string(kModelVersion) +
+                                     ")");
   }
   ModelFile model;
   ModelMeta& m = model.meta;
@@ -446,6 +502,28 @@ Result<ModelFile> parse_model_unguarded(std::string_view metadata_json, std::str
   get_to(j, "info", m.info);
   get_to(j, "metrics", m.metrics);
   if (Status s = parse_weights(weights, stem + ".safetensors", model); !s.ok()) return s.error();
+  const std::string weights_file = stem + ".safetensors";
+  if (version >= 2) {
+    std::string want;
+    if (!get_to(j, "weights_fingerprint", want)) {
+      return file_error(meta_file, "missing or malformed \"weights_fingerprint\"");
+    }
+    const std::string got = weights_fingerprint(weights);
+    if (got != want) {
+      return file_error(weights_file,
+                        "does not match its metadata (fingerprint " + got + ", " + meta_file +
+                            " names " + want +
+                            "): the two files come from different writes (a training run "
+                            "stopped between them, or one file copied alone); write both again");
+    }
+  } else if (weights.substr(0, 8 + header_bytes(weights)).find("\"skinbus_model_version\"") !=
+             std::string_view::npos) {
+    return file_error(weights_file,
+                      "was written with a fingerprint that " + meta_file +
+                          " (version 1) does not carry: the two files come from different "
+                          "writes; write both again");
+  }
+
   if (Status s = validate_model(model); !s.ok()) {
     return make_error(ErrorCode::kParse, stem + ": " + s.error().message);
   }

@@ -143,6 +143,83 @@ TEST(ModelFile, CorruptWeightFilesGiveClearErrors) {
   EXPECT_EQ(read_model(stem).error().code, ErrorCode::kNotFound);
 }
 
+std::string slurp(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(f), {});
+}
+void spit(const std::string& path, const std::string& bytes) {
+  std::ofstream f(path, std::ios::binary | std::ios::trunc);
+  f.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+// A model is two files. A writer stopped between them (or one file copied alone) must never give
+// new weights with old metadata: the metadata names its weights' fingerprint.
+TEST(ModelFile, WeightsAreNeverPairedWithAnotherWritesMetadata) {
+  const std::string stem = temp_stem("skinbus_model_pair");
+  ModelFile a = make_model(mlp({16}), 4);
+  ModelFile b = a;
+  b.tensors[0].data[0] += 1.0f;  // another training run: other weights, same shapes
+  ASSERT_TRUE(write_model(a, stem).ok());
+  const std::string json_a = slurp(stem + ".json"), weights_a = slurp(stem + ".safetensors");
+  EXPECT_NE(json_a.find("\"weights_fingerprint\": \"fnv1a64:"), std::string::npos);
+  ASSERT_TRUE(read_model(stem).ok());
+  ASSERT_TRUE(write_model(b, stem).ok());
+  // New weights, old metadata (stopped after the first rename).
+  spit(stem + ".json", json_a);
+  Result<ModelFile> r = read_model(stem);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find(".safetensors: does not match its metadata"), std::string::npos)
+      << r.error().message;
+  // Old weights, new metadata.
+  ASSERT_TRUE(write_model(b, stem).ok());
+  spit(stem + ".safetensors", weights_a);
+  EXPECT_NE(read_model(stem).error().message.find("does not match"), std::string::npos);
+  // Metadata of the older format (version 1, no fingerprint) with weights of this writer.
+  ASSERT_TRUE(write_model(b, stem).ok());
+  std::string v1 = slurp(stem + ".json");
+  v1.replace(v1.find("\"version\": 2"), 12, "\"version\": 1");
+  v1.replace(v1.find("\"weights_fingerprint\""), 21, "\"an_unknown_key\"");
+  spit(stem + ".json", v1);
+  EXPECT_NE(read_model(stem).error().message.find("was written with a fingerprint"),
+            std::string::npos)
+      << read_model(stem).error().message;
+  // A version this reader does not know.
+  std::string v9 = slurp(stem + ".json");
+  v9.replace(v9.find("\"version\": 1"), 12, "\"version\": 9");
+  spit(stem + ".json", v9);
+  EXPECT_NE(read_model(stem).error().message.find("version 9"), std::string::npos);
+  // No temporary file is left beside the model.
+  for (const char* ext : {".json", ".safetensors"}) {
+    EXPECT_EQ(std::system(("ls " + stem + ext + ".tmp.* >/dev/null 2>&1").c_str()) == 0, false);
+  }
+}
+
+// The older writer's pair (version 1 metadata, weights without the version) still reads: the
+// shipped model is one.
+TEST(ModelFile, VersionOnePairsStillRead) {
+  const char* d = std::getenv("SKINBUS_SOURCE_DIR");
+  Result<ModelFile> shipped =
+      read_model(std::string(d != nullptr ? d : ".") + "/fusion/models/nominal_seed_cnn");
+  ASSERT_TRUE(shipped.ok()) << shipped.error().to_string();
+}
+
+// A number no double holds is a JSON error with its place, not "not a JSON object".
+TEST(ModelFile, JsonErrorsSayWhatAndWhere) {
+  const std::string stem = temp_stem("skinbus_model_json");
+  ASSERT_TRUE(write_model(make_model(mlp({16}), 4), stem).ok());
+  std::string text = slurp(stem + ".json");
+  text.replace(text.find("\"half_u_mm\": ") + 13, 2, "1e400");
+  spit(stem + ".json", text);
+  Result<ModelFile> r = read_model(stem);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("not valid JSON"), std::string::npos) << r.error().message;
+  EXPECT_NE(r.error().message.find("1e400"), std::string::npos) << r.error().message;
+  spit(stem + ".json", "{\"format\": \"skinbus-model\",\n \"name\": }");
+  r = read_model(stem);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("line 2"), std::string::npos) << r.error().message;
+}
+
 TEST(ModelFile, StemOfAnyOfTheThreeSpellings) {
   EXPECT_EQ(model_stem("a/b.json"), "a/b");
   EXPECT_EQ(model_stem("a/b.safetensors"), "a/b");

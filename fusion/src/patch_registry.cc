@@ -131,6 +131,14 @@ void PatchRegistry::update_state(PatchEntry& e, uint64_t now_us) {
   if (e.duplicate) {
     why =
         "node ID claimed by UIDs " + format_uid(e.hardware_uid) + " and " + format_uid(e.other_uid);
+  } else if (e.uid_clash >= 0) {
+    const PatchEntry& o = table_[static_cast<std::size_t>(e.uid_clash)];
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "hardware UID %s also heard on %s node %u%s",
+                  format_uid(e.hardware_uid).c_str(),
+                  bus_names_[static_cast<std::size_t>(o.bus)].c_str(), o.node,
+                  attributable(e) ? "" : "; samples dropped");
+    why = buf;
   } else if (e.placement == nullptr) {
     why = "UID not in the skin map";
   } else if (e.model_index < 0) {
@@ -142,6 +150,8 @@ void PatchRegistry::update_state(PatchEntry& e, uint64_t now_us) {
   } else if (e.last_heartbeat.state == bus::PatchState::kDegraded ||
              e.last_heartbeat.state == bus::PatchState::kFault) {
     why = "node reports " + std::string(bus::patch_state_name(e.last_heartbeat.state));
+  } else if (!e.estimator_problem.empty()) {
+    why = e.estimator_problem;
   }
   const PatchLinkState next = why.empty() ? PatchLinkState::kOnline : PatchLinkState::kDegraded;
   if (next != e.state || (next == PatchLinkState::kDegraded && why != e.detail)) {
@@ -151,6 +161,67 @@ void PatchRegistry::update_state(PatchEntry& e, uint64_t now_us) {
     std::snprintf(buf, sizeof buf, "node %u ", e.node);
     emit(next == PatchLinkState::kOnline ? PatchEventKind::kOnline : PatchEventKind::kDegraded, e,
          now_us, std::string(buf) + (why.empty() ? "online" : why));
+  }
+}
+
+bool PatchRegistry::attributable(const PatchEntry& e) const {
+  if (e.duplicate || e.placement == nullptr) return false;
+  if (e.uid_clash < 0) return true;
+  const PatchEntry& o = table_[static_cast<std::size_t>(e.uid_clash)];
+  return e.placement->node_id == e.node && o.node != e.node;
+}
+
+void PatchRegistry::set_estimator_problem(PatchEntry& e, const std::string& problem,
+                                          uint64_t now_us) {
+  if (problem == e.estimator_problem) return;
+  e.estimator_problem = problem;
+  update_state(e, now_us);
+}
+
+void PatchRegistry::check_uid_clash(PatchEntry& e, uint64_t now_us) {
+  const std::size_t self = index_of(e);
+  if (e.uid_clash >= 0) {
+    PatchEntry& o = table_[static_cast<std::size_t>(e.uid_clash)];
+    const bool over = o.hardware_uid != e.hardware_uid ||
+                      elapsed_us(now_us, o.last_heartbeat_us) >= options_.duplicate_window_us;
+    if (!over) return;
+    char buf[160];
+    std::snprintf(buf, sizeof buf,
+                  "node %u: hardware UID %s no longer heard on %s node %u; the UID is unique again",
+                  e.node, format_uid(e.hardware_uid).c_str(),
+                  bus_names_[static_cast<std::size_t>(o.bus)].c_str(), o.node);
+    emit(PatchEventKind::kOnline, e, now_us, buf);
+    if (o.uid_clash == static_cast<int>(self)) {
+      o.uid_clash = -1;
+      update_state(o, now_us);
+    }
+    e.uid_clash = -1;
+    update_state(e, now_us);
+    return;
+  }
+  for (std::size_t i : heard_) {
+    if (i == self) continue;
+    PatchEntry& o = table_[i];
+    if (!o.have_heartbeat || o.hardware_uid != e.hardware_uid ||
+        elapsed_us(now_us, o.last_heartbeat_us) >= options_.duplicate_window_us) {
+      continue;
+    }
+    e.uid_clash = static_cast<int>(i);
+    o.uid_clash = static_cast<int>(self);
+    for (PatchEntry* p : {&o, &e}) {
+      const PatchEntry& other = p == &e ? o : e;
+      char buf[224];
+      std::snprintf(buf, sizeof buf,
+                    "DUPLICATE hardware UID %s: node %u and %s node %u both send it; node %u's "
+                    "samples are %s",
+                    format_uid(e.hardware_uid).c_str(), p->node,
+                    bus_names_[static_cast<std::size_t>(other.bus)].c_str(), other.node, p->node,
+                    attributable(*p) ? "placed (the skin map's node for this UID)"
+                                     : "dropped until one stops");
+      emit(PatchEventKind::kDuplicateId, *p, now_us, buf);
+      update_state(*p, now_us);
+    }
+    return;
   }
 }
 
@@ -208,6 +279,7 @@ void PatchRegistry::on_heartbeat(int bus, uint8_t node, const bus::Heartbeat& hb
   e.last_heartbeat_us = now_us;
   if (e.state == PatchLinkState::kDiscovering) e.state = PatchLinkState::kDegraded;  // forces
   update_state(e, now_us);                                                           // an event
+  check_uid_clash(e, now_us);
 }
 
 PatchEntry* PatchRegistry::on_sample(int bus, uint8_t node, const bus::Sample& s,
@@ -221,7 +293,7 @@ PatchEntry* PatchRegistry::on_sample(int bus, uint8_t node, const bus::Sample& s
     std::snprintf(buf, sizeof buf, "node %u: %" PRIu32 " sample(s) lost", node, missing_before);
     emit(PatchEventKind::kSequenceGap, e, now_us, buf);
   }
-  if (e.duplicate || e.placement == nullptr) {
+  if (!attributable(e)) {
     ++e.samples_dropped;
     return nullptr;
   }
@@ -278,7 +350,7 @@ void PatchRegistry::status(std::vector<PatchStatus>* out) const {
     s.clock_offset_us = e.clock.offset_us();
     s.clock_drift_ppm = e.clock.drift_ppm();
     s.last_heard_us = e.last_heard_us;
-    s.duplicate_id = e.duplicate;
+    s.duplicate_id = e.duplicate || e.uid_clash >= 0;
     s.detail = e.detail;
     out->push_back(std::move(s));
   }

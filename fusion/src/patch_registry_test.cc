@@ -138,6 +138,73 @@ TEST(PatchRegistry, DuplicateIdIsLoudAndDropsSamples) {
   EXPECT_NE(r.on_sample(0, 3, s, 0, 8 * kS + 1), nullptr);
 }
 
+// One hardware UID in the heartbeats of two nodes (a cloned board): both are duplicates, and the
+// one whose node ID is not the map's for that UID is never placed at the other's place.
+TEST(PatchRegistry, OneUidOnTwoNodesIsADuplicateAndTheOtherNodeIsNotPlaced) {
+  const auto map = one_patch_map();  // UID A is node 3
+  PatchRegistry r(&map, {"can0"});
+  r.set_models({0});
+  r.on_heartbeat(0, 3, heartbeat(kUidA, 10), kS);
+  r.on_heartbeat(0, 5, heartbeat(kUidA, 20), kS + 300'000);
+  std::vector<PatchEvent> ev;
+  r.take_events(&ev);
+  int duplicates = 0;
+  for (const PatchEvent& e : ev) duplicates += e.kind == PatchEventKind::kDuplicateId;
+  EXPECT_EQ(duplicates, 2);  // one for each node
+  std::vector<PatchStatus> st;
+  r.status(&st);
+  ASSERT_EQ(st.size(), 2u);
+  for (const PatchStatus& p : st) {
+    EXPECT_TRUE(p.duplicate_id) << int(p.node);
+    EXPECT_EQ(p.state, PatchLinkState::kDegraded) << int(p.node);
+    EXPECT_NE(p.detail.find("5eed000000000003 also heard on can0 node"), std::string::npos)
+        << p.detail;
+  }
+  bus::Sample s;
+  EXPECT_EQ(r.on_sample(0, 5, s, 0, kS + 400'000), nullptr);  // would be placed as node 3
+  EXPECT_NE(r.on_sample(0, 3, s, 0, kS + 400'000), nullptr);  // the map's node for UID A
+  EXPECT_FALSE(r.attributable(r.entry(0, 5)));
+  // Node 5 stops: after the window node 3 is unique again.
+  for (uint64_t t = 2; t <= 8; ++t)
+    r.on_heartbeat(0, 3, heartbeat(kUidA, 10 + static_cast<uint32_t>(t)), t * kS);
+  EXPECT_EQ(r.entry(0, 3).uid_clash, -1);
+  EXPECT_EQ(r.entry(0, 3).state, PatchLinkState::kOnline);
+  st.clear();
+  r.status(&st);
+  EXPECT_FALSE(st[0].duplicate_id);
+}
+
+TEST(PatchRegistry, OneUidOnTwoNodesNeitherTheMapsDropsBoth) {
+  const auto map = one_patch_map();  // UID A is node 3; heard on 5 and on 6 of another bus
+  PatchRegistry r(&map, {"can0", "can1"});
+  r.set_models({0});
+  r.on_heartbeat(0, 5, heartbeat(kUidA, 10), kS);
+  r.on_heartbeat(1, 6, heartbeat(kUidA, 20), kS + 1000);
+  bus::Sample s;
+  EXPECT_EQ(r.on_sample(0, 5, s, 0, kS + 2000), nullptr);
+  EXPECT_EQ(r.on_sample(1, 6, s, 0, kS + 2000), nullptr);
+  EXPECT_NE(r.entry(1, 6).detail.find("also heard on can0 node 5"), std::string::npos)
+      << r.entry(1, 6).detail;
+}
+
+TEST(PatchRegistry, AModelThatGivesNoEstimatesDegradesUntilOneSucceeds) {
+  const auto map = one_patch_map();
+  PatchRegistry r(&map, {"can0"});
+  r.set_models({0});
+  r.on_heartbeat(0, 3, heartbeat(kUidA, 10), kS);
+  (void)kinds(r);
+  PatchEntry& e = r.entry(0, 3);
+  r.set_estimator_problem(e, "no estimate for 10 samples (non_finite)", 2 * kS);
+  EXPECT_EQ(e.state, PatchLinkState::kDegraded);
+  EXPECT_EQ(e.detail, "no estimate for 10 samples (non_finite)");
+  EXPECT_TRUE(has(kinds(r), PatchEventKind::kDegraded));
+  r.set_estimator_problem(e, "no estimate for 10 samples (non_finite)", 3 * kS);
+  EXPECT_TRUE(kinds(r).empty());  // said once
+  r.set_estimator_problem(e, "", 4 * kS);
+  EXPECT_EQ(e.state, PatchLinkState::kOnline);
+  EXPECT_TRUE(has(kinds(r), PatchEventKind::kOnline));
+}
+
 TEST(PatchRegistry, BoardSwappedAfterSilenceTakesTheId) {
   const auto map = one_patch_map();
   PatchRegistry r(&map, {"can0"});

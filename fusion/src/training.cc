@@ -187,14 +187,21 @@ ModelMeta make_meta(const sim::Dataset& data, const Architecture& a, const std::
   } else {
     for (int64_t r : rows_used) idx.push_back(static_cast<std::size_t>(r));
   }
-  const double n = std::max<double>(static_cast<double>(idx.size()), 1.0);
-  // Mean and standard deviation (at least 1e-3) of value(r) over the rows used.
+  // Mean and standard deviation (at least 1e-3) of value(r) over the rows used, finite values
+  // only (a force not measured is NaN); none finite: mean 0, scale 1.
   auto moments = [&](auto value, double* mean_out, double* scale_out) {
-    double s = 0, s2 = 0;
+    double s = 0, s2 = 0, n = 0;
     for (std::size_t r : idx) {
       const double v = value(r);
+      if (!std::isfinite(v)) continue;
       s += v;
       s2 += v * v;
+      ++n;
+    }
+    if (n == 0) {
+      *mean_out = 0;
+      *scale_out = 1;
+      return;
     }
     const double mean = s / n;
     *mean_out = mean;
@@ -267,20 +274,43 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
     meta.architecture = a;  // the rest of the metadata once the training rows are known
   }
 
+  // A network cannot leave a channel out (the host's runtime rejects such a sample), so a row
+  // with a NaN field value (a dead channel in a recording, docs/dataset_format.md) is left out
+  // of training and validation: counted, and named when it leaves nothing.
+  std::vector<int> nan_rows_of_channel(static_cast<std::size_t>(channels), 0);
+  std::vector<bool> usable(data.rows(), true);
+  int masked_rows = 0;
+  for (std::size_t r = 0; r < data.rows(); ++r) {
+    const double* f = data.field(r);
+    for (int c = 0; c < channels; ++c) {
+      if (std::isfinite(f[c])) continue;
+      ++nan_rows_of_channel[static_cast<std::size_t>(c)];
+      usable[r] = false;
+    }
+    masked_rows += usable[r] ? 0 : 1;
+  }
+  if (masked_rows == static_cast<int>(data.rows())) {
+    const auto worst = std::max_element(nan_rows_of_channel.begin(), nan_rows_of_channel.end());
+    const int c = static_cast<int>(worst - nan_rows_of_channel.begin());
+    char name[32];
+    std::snprintf(name, sizeof name, "s%02d_b%c_ut", c / 3, "xyz"[c % 3]);
+    return make_error(ErrorCode::kInvalidArgument,
+                      "every row has a NaN field value (channel " + std::string(name) + " in " +
+                          std::to_string(*worst) +
+                          " rows): a network cannot be trained without that channel");
+  }
   // Split by press location: every row of a press takes its press's location (its first row's
   // (u, v), rounded to 0.01 mm), so presses repeated at one point stay together; a row that is
-  // not from a press (press < 0) is a location of its own.
+  // not from a press (press < 0, or no press column) takes its own (u, v), so the samples of one
+  // place still fall on one side.
   using LocationKey = std::pair<int64_t, int64_t>;
   std::map<LocationKey, std::vector<int64_t>> by_location;
   std::map<int64_t, LocationKey> press_location;
   for (std::size_t r = 0; r < data.rows(); ++r) {
+    if (!usable[r]) continue;
     const LocationKey here{std::llround(data.u_mm[r] * 100), std::llround(data.v_mm[r] * 100)};
     LocationKey key = here;
-    if (data.press[r] >= 0) {
-      key = press_location.emplace(data.press[r], here).first->second;
-    } else {
-      key = {std::numeric_limits<int64_t>::min(), static_cast<int64_t>(r)};
-    }
+    if (data.press[r] >= 0) key = press_location.emplace(data.press[r], here).first->second;
     by_location[key].push_back(static_cast<int64_t>(r));
   }
   if (by_location.size() < 2) {
@@ -318,7 +348,14 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
 
   // Inputs, normalised targets and, when the XY loss is depth-weighted, per-output loss weights
   // (left undefined otherwise: the plain MSE needs none).
-  const bool weighted = o.xy_full_weight_depth_mm > 0;
+  // Per-output loss weights: the depth weighting of the XY terms, and 0 for a target that is not
+  // known (a force not measured is NaN: it is left out of the loss, not learned as 0).
+  bool any_unknown_target = false;
+  for (std::size_t r = 0; r < data.rows() && !any_unknown_target; ++r) {
+    any_unknown_target = usable[r] && !std::isfinite(data.force_n[r]);
+  }
+  const bool weighted = o.xy_full_weight_depth_mm > 0 || any_unknown_target;
+  const bool depth_weighted = o.xy_full_weight_depth_mm > 0;
   const double weight_floor = std::clamp(o.xy_weight_floor, 0.0, 1.0);
   auto make_xy = [&](const std::vector<int64_t>& rows, torch::Tensor& x, torch::Tensor& y,
                      torch::Tensor& w) {
@@ -333,10 +370,12 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
                 field.begin() + static_cast<std::ptrdiff_t>(i * channels));
       const double t[4] = {data.u_mm[r], data.v_mm[r], data.depth_mm[r], data.force_n[r]};
       for (int j = 0; j < outputs; ++j) {
+        const bool known = std::isfinite(t[j]);
         py[i * outputs + j] =
-            static_cast<float>((t[j] - meta.output_mean[j]) / meta.output_scale[j]);
+            known ? static_cast<float>((t[j] - meta.output_mean[j]) / meta.output_scale[j]) : 0.f;
+        if (weighted && !known) pw[i * outputs + j] = 0.f;
       }
-      if (weighted) {
+      if (depth_weighted) {
         const double f =
             std::clamp(data.depth_mm[r] / o.xy_full_weight_depth_mm, weight_floor, 1.0);
         for (int j = 0; j < std::min(outputs, 2); ++j)
@@ -362,6 +401,7 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
   result.validation_samples = static_cast<int>(val_rows.size());
   result.validation_locations = static_cast<int>(n_val);
   result.train_locations = static_cast<int>(locations.size() - n_val);
+  result.masked_rows = masked_rows;
   std::vector<Tensor> best_weights = save_weights(net);
   double best_score = std::numeric_limits<double>::infinity();
   EpochReport best_report;
@@ -390,12 +430,14 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
       xy.push_back(std::hypot(d[0], d[1]));
       if (val_depth[i] >= o.select_min_depth_mm) xy_deep.push_back(xy.back());
       depth.push_back(std::fabs(d[2]));
-      force.push_back(std::fabs(d[3]));
+      if (std::isfinite(data.force_n[static_cast<std::size_t>(val_rows[i])])) {
+        force.push_back(std::fabs(d[3]));
+      }
     }
     rep.val_xy_mean_mm = mean(xy);
     rep.val_xy_deep_mm = xy_deep.empty() ? rep.val_xy_mean_mm : mean(xy_deep);
     rep.val_depth_mean_mm = mean(depth);
-    rep.val_force_mean_n = mean(force);
+    rep.val_force_mean_n = force.empty() ? 0.0 : mean(force);
     rep.score = rep.val_xy_deep_mm + rep.val_depth_mean_mm;
     rep.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return rep;
@@ -474,7 +516,10 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
   m.metrics["val_depth_mean_mm"] = best_report.val_depth_mean_mm;
   m.metrics["val_force_mean_n"] = best_report.val_force_mean_n;
   m.metrics["select_min_depth_mm"] = o.select_min_depth_mm;
-  if (weighted) {
+  if (masked_rows > 0) {
+    m.info["masked_rows"] = std::to_string(masked_rows) + " rows with a NaN field value left out";
+  }
+  if (depth_weighted) {
     std::ostringstream w;
     w << "XY terms weighted by clamp(depth / " << o.xy_full_weight_depth_mm << " mm, "
       << weight_floor << ", 1)^2";

@@ -203,6 +203,50 @@ TEST(Training, FineTuningNeverReturnsAWorseModelThanItsBase) {
   }
 }
 
+// Without press numbers (an optional column; or a byte-order mark that hid it) the rows of one
+// press must still fall on one side of the split, or validation sees the training presses.
+TEST(Training, WithoutPressNumbersTheSplitIsStillByLocation) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  sim::Dataset train = ramp_set(nominal, sim::plan_halton(30, 60), kSeed);
+  ASSERT_GT(train.rows(), 300u);
+  std::fill(train.press.begin(), train.press.end(), -1);
+  TrainOptions o = quick_options();
+  o.max_epochs = 1;
+  Result<TrainResult> r = train_model(train, o);
+  ASSERT_TRUE(r.ok()) << r.error().to_string();
+  EXPECT_EQ(r->train_locations + r->validation_locations, 30);
+  EXPECT_EQ(r->train_samples + r->validation_samples, static_cast<int>(train.rows()));
+}
+
+// NaN field values are allowed in a dataset (a dead channel in a recording): their rows are left
+// out, as the runtime rejects such a sample; a NaN force (not measured) is left out of the loss.
+TEST(Training, NanCellsAreMaskedNotFatal) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  sim::Dataset train = ramp_set(nominal, sim::plan_halton(30, 60), kSeed);
+  train.field_ut[5 * static_cast<std::size_t>(train.channels()) + 7] = std::nan("");
+  for (std::size_t r = 0; r < train.rows(); r += 3) train.force_n[r] = std::nan("");
+  TrainOptions o = quick_options();
+  o.max_epochs = 3;
+  Result<TrainResult> r = train_model(train, o);
+  ASSERT_TRUE(r.ok()) << r.error().to_string();
+  EXPECT_EQ(r->masked_rows, 1);
+  EXPECT_EQ(r->train_samples + r->validation_samples, static_cast<int>(train.rows()) - 1);
+  for (const EpochReport& rep : r->history) {
+    EXPECT_TRUE(std::isfinite(rep.train_loss));
+    EXPECT_TRUE(std::isfinite(rep.val_force_mean_n));
+  }
+  for (double x : r->model.meta.output_scale) EXPECT_TRUE(std::isfinite(x));
+  // A channel dead in every row leaves nothing: refused, naming it.
+  for (std::size_t row = 0; row < train.rows(); ++row) {
+    train.field_ut[row * static_cast<std::size_t>(train.channels()) + 11] = std::nan("");
+  }
+  Result<TrainResult> dead = train_model(train, o);
+  ASSERT_FALSE(dead.ok());
+  EXPECT_EQ(dead.error().code, ErrorCode::kInvalidArgument);
+  EXPECT_NE(dead.error().message.find("channel s03_bz_ut"), std::string::npos)
+      << dead.error().message;
+}
+
 TEST(Training, RefusesDataItCannotLearnFrom) {
   sim::Dataset empty;
   EXPECT_EQ(train_model(empty, quick_options()).error().code, ErrorCode::kInvalidArgument);

@@ -113,8 +113,15 @@ class SensorResidual final : public ceres::CostFunction {
     const double* s = p[1];
     const std::size_t nm = smp_.near.size();
     const Vec3<double>& far = smp_.far[static_cast<std::size_t>(k_)];
-    const double* y = smp_.field + 3 * k_;
-    const double* w = ctx_.inv_sigma.data() + 3 * k_;
+    // A channel without a finite value (a dead channel in a recording) is left out: weight 0.
+    const double* yraw = smp_.field + 3 * k_;
+    const double* sigma = ctx_.inv_sigma.data() + 3 * k_;
+    double y[3], w[3];
+    for (int i = 0; i < 3; ++i) {
+      const bool known = std::isfinite(yraw[i]);
+      y[i] = known ? yraw[i] : 0.0;
+      w[i] = known ? sigma[i] : 0.0;
+    }
     if (jacobians == nullptr) {
       const Vec3<double> pos3 =
           ctx_.shape->surface_point<double>(s[0], s[1], s[2], nullptr, nullptr, nullptr);
@@ -236,6 +243,8 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
   const std::size_t nb = edges.size() > 1 ? edges.size() - 1 : 0;
   std::vector<double> sum(nb, 0.0);
   std::vector<int> count(nb, 0);
+  std::vector<int64_t> bin_values(nb, 0);
+  int64_t values = 0;
   for (std::size_t b = 0; b < nb; ++b) q.bins.push_back({edges[b], edges[b + 1], 0, 0});
   std::vector<double> f(static_cast<std::size_t>(nc));
   double total = 0;
@@ -246,30 +255,34 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
         !std::isfinite(data.u_mm[r]) || !std::isfinite(data.v_mm[r])) {
       continue;
     }
+    // Channels without a finite value are left out (a dead channel in a recording).
     const double* y = data.field(r);
-    bool finite = true;
-    for (int c = 0; c < nc && finite; ++c) finite = std::isfinite(y[c]);
-    if (!finite) continue;
+    int known = 0;
+    for (int c = 0; c < nc; ++c) known += std::isfinite(y[c]) ? 1 : 0;
+    if (known == 0) continue;
     const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], tip_radius_mm};
     model.contact_field_ut(std::span<const sim::Contact>(&c, 1), f);
     double s = 0;
     for (int k = 0; k < nc; ++k) {
+      if (!std::isfinite(y[k])) continue;
       const double e = (y[k] - f[static_cast<std::size_t>(k)]) / noise.sigma(k);
       s += e * e;
     }
     total += s;
+    values += known;
     ++q.rows;
     for (std::size_t b = 0; b < nb; ++b) {
       if (c.depth_mm >= edges[b] && c.depth_mm < edges[b + 1]) {
         sum[b] += s;
+        bin_values[b] += known;
         ++count[b];
       }
     }
   }
-  q.rms = q.rows > 0 ? std::sqrt(total / (static_cast<double>(q.rows) * nc)) : 0.0;
+  q.rms = values > 0 ? std::sqrt(total / static_cast<double>(values)) : 0.0;
   for (std::size_t b = 0; b < nb; ++b) {
     q.bins[b].rows = count[b];
-    q.bins[b].rms = count[b] > 0 ? std::sqrt(sum[b] / (static_cast<double>(count[b]) * nc)) : 0;
+    q.bins[b].rms = bin_values[b] > 0 ? std::sqrt(sum[b] / static_cast<double>(bin_values[b])) : 0;
   }
   return q;
 }
@@ -302,15 +315,19 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   // Rows to fit: per press, the samples nearest to evenly spaced fractions of its deepest one.
   std::map<int64_t, std::vector<std::size_t>> by_press;
   int64_t lone = -1;
+  int64_t masked_values = 0;
   for (std::size_t r = 0; r < presses.rows(); ++r) {
     if (!(presses.depth_mm[r] >= opt.min_depth_mm) || !std::isfinite(presses.depth_mm[r]) ||
         !std::isfinite(presses.u_mm[r]) || !std::isfinite(presses.v_mm[r])) {
       continue;
     }
+    // Channels without a finite value are left out of the fit (their residuals weigh 0); a row
+    // needs most of its channels.
     const double* y = presses.field(r);
-    bool finite = true;
-    for (int c = 0; c < nc && finite; ++c) finite = std::isfinite(y[c]);
-    if (!finite) continue;
+    int known = 0;
+    for (int c = 0; c < nc; ++c) known += std::isfinite(y[c]) ? 1 : 0;
+    if (2 * known < nc) continue;
+    masked_values += nc - known;
     const int64_t id = presses.press.empty() || presses.press[r] < 0 ? lone-- : presses.press[r];
     by_press[id].push_back(r);
   }
@@ -415,6 +432,10 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   std::vector<double*> blocks;
   for (const Sample& s : samples) {
     for (std::size_t k = 0; k < ns; ++k) {
+      if (!std::isfinite(s.field[3 * k]) && !std::isfinite(s.field[3 * k + 1]) &&
+          !std::isfinite(s.field[3 * k + 2])) {
+        continue;  // nothing known of this sensor in this sample
+      }
       blocks.assign({global.data(), &sens[k * kSensorBlock]});
       for (int m : s.near) blocks.push_back(&mags[static_cast<std::size_t>(m) * kMagnetBlock]);
       problem.AddResidualBlock(new SensorResidual(ctx, s, static_cast<int>(k)), nullptr, blocks);
@@ -519,6 +540,7 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   IdentifiedUnit out{std::move(model).value(),      fitted,     {},     {}, {}, {}, n_presses,
                      static_cast<int>(rows.size()), iterations, seconds};
+  out.masked_values = static_cast<int>(masked_values);
   out.fit = fit_quality(out.model, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
   out.nominal_fit =
       fit_quality(nominal, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);

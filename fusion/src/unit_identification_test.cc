@@ -183,6 +183,29 @@ TEST(UnitIdentificationTest, AnisotropicUnitIsOutsideTheModelClass) {
   EXPECT_GT(id->held_out.bins[3].rms, 1.3);
 }
 
+// A dead channel in a recording (NaN in every row, which the dataset format allows) is left out
+// of the fit, not a reason to find "0 usable presses".
+TEST(UnitIdentificationTest, ADeadChannelIsLeftOutOfTheFit) {
+  const sim::PatchDesign design;
+  const uint64_t seed = 77;
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value();
+  UnitData data = press_unit(unit, 9, 15, seed);
+  const int nc = data.train.channels();
+  for (std::size_t r = 0; r < data.train.rows(); ++r) {
+    data.train.field_ut[r * static_cast<std::size_t>(nc) + 22] = std::nan("");
+  }
+  IdentificationOptions opt;
+  opt.depths_per_press = 2;
+  const Result<IdentifiedUnit> id = identify_unit(design, data.train, opt, &data.test);
+  ASSERT_TRUE(id.ok()) << id.error().to_string();
+  EXPECT_EQ(id->presses, 81);
+  EXPECT_GT(id->masked_values, 0);
+  print_quality("fit, channel 22 dead", id->fit);
+  EXPECT_LT(id->fit.rms, 1.15);
+  EXPECT_LT(id->held_out.rms, 1.25);  // the held-out set has the channel: it is still fitted
+}
+
 TEST(UnitIdentificationTest, DegenerateInputIsRefused) {
   const sim::PatchDesign design;
   const sim::PatchModel unit =

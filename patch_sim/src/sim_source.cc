@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "skinbus/common/csv.h"
+#include "skinbus/common/text_file.h"
 #include "skinbus/sim/rng.h"
 
 namespace skinbus::patch_sim {
@@ -59,11 +60,9 @@ Result<std::vector<sim::SceneContact>> parse_contact_script(const std::string& t
 }
 
 Result<std::vector<sim::SceneContact>> load_contact_script(const std::string& path, uint8_t node) {
-  std::ifstream in(path);
-  if (!in) return make_error(ErrorCode::kNotFound, "contact script " + path + ": cannot open");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  Result<std::vector<sim::SceneContact>> r = parse_contact_script(ss.str(), node);
+  Result<std::string> text = read_text_file(path, "contact script", 64u << 20);
+  if (!text.ok()) return text.error();
+  Result<std::vector<sim::SceneContact>> r = parse_contact_script(text.value(), node);
   if (!r.ok()) return make_error(r.error().code, path + ": " + r.error().message);
   return r;
 }

@@ -1,11 +1,16 @@
 #include "skinbus/sim/dataset.h"
 
+#include "skinbus/common/atomic_file.h"
+#include "skinbus/common/line_reader.h"
+#include "skinbus/common/text_file.h"
+
 #include <cerrno>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 namespace skinbus::sim {
@@ -71,13 +76,18 @@ std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t s
 }
 
 Result<std::vector<PressPoint>> plan_from_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return make_error(ErrorCode::kNotFound, "cannot open press list '" + path + "'");
+  Result<std::string> text = read_text_file(path, "press list");
+  if (!text.ok()) return text.error();
+  std::istringstream in(std::move(text).value());
   std::vector<PressPoint> points;
   std::string line;
   int lineno = 0;
-  while (std::getline(in, line)) {
+  for (BoundedLine got; (got = getline_bounded(in, line, 4096)) != BoundedLine::kEof;) {
     ++lineno;
+    if (got == BoundedLine::kTooLong) {
+      return make_error(ErrorCode::kParse,
+                        path + ":" + std::to_string(lineno) + ": longer than 4096 bytes");
+    }
     for (char& ch : line) {
       if (ch == ',' || ch == ';' || ch == '\t' || ch == '\r') ch = ' ';
     }
@@ -236,8 +246,8 @@ void put_number(std::string* s, double x) {
 }  // namespace
 
 Status write_dataset_csv(const Dataset& d, const std::string& path) {
-  std::FILE* f = std::fopen(path.c_str(), "w");
-  if (!f) return make_error(ErrorCode::kIo, "cannot write '" + path + "': " + std::strerror(errno));
+  AtomicFile f;
+  if (Status st = f.open(path, "dataset"); !st.ok()) return st;
   std::string s;
   for (const auto& [k, v] : d.meta) {
     if (k == "sensors" || k.rfind("sensor ", 0) == 0) continue;
@@ -282,14 +292,12 @@ Status write_dataset_csv(const Dataset& d, const std::string& path) {
     }
     s += '\n';
     if (s.size() > (1 << 20)) {
-      std::fwrite(s.data(), 1, s.size(), f);
+      if (Status st = f.write(s); !st.ok()) return st;
       s.clear();
     }
   }
-  std::fwrite(s.data(), 1, s.size(), f);
-  if (std::fclose(f) != 0)
-    return make_error(ErrorCode::kIo, "write to '" + path + "' failed: " + std::strerror(errno));
-  return Status::Ok();
+  if (Status st = f.write(s); !st.ok()) return st;
+  return f.commit();
 }
 
 namespace {
@@ -319,21 +327,49 @@ std::vector<std::string_view> split(std::string_view line, char sep) {
 }  // namespace
 
 Result<Dataset> read_dataset_csv(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return make_error(ErrorCode::kNotFound, "cannot open dataset '" + path + "'");
+  Result<UniqueFd> fd = open_input_file(path, "dataset");
+  if (!fd.ok()) return fd.error();
+  LineReader lines(fd->get(), kMaxDatasetLineBytes);
   Dataset d;
   std::string line;
   uint64_t lineno = 0;
   auto err = [&](const std::string& what) {
     return make_error(ErrorCode::kParse, path + ":" + std::to_string(lineno) + ": " + what);
   };
+  // The next line into `line`; false at the end. A line over the bound or a failed read is an
+  // error (kept in `read_error`).
+  std::optional<Error> read_error;
+  auto next_line = [&]() -> bool {
+    for (;;) {
+      std::string_view v;
+      switch (lines.next(&v)) {
+        case LineReader::Status::kLine:
+          lineno = lines.line_number();
+          line.assign(v);
+          if (lineno == 1 && line.rfind("\xEF\xBB\xBF", 0) == 0) line.erase(0, 3);  // UTF-8 BOM
+          return true;
+        case LineReader::Status::kTooLong:
+          lineno = lines.line_number();
+          read_error = err("longer than " + std::to_string(kMaxDatasetLineBytes) + " bytes");
+          return false;
+        case LineReader::Status::kError:
+          read_error = make_error(ErrorCode::kIo, path + ": read failed after line " +
+                                                      std::to_string(lineno) + ": " +
+                                                      std::strerror(lines.error_number()));
+          return false;
+        case LineReader::Status::kWait:  // a signal interrupted the read: go on
+          continue;
+        case LineReader::Status::kEof:
+          return false;
+      }
+    }
+  };
   int declared_sensors = -1;
   std::map<int, DatasetSensor> layout;
   // Header block.
   std::vector<std::string_view> cols;
   std::string header_line;
-  while (std::getline(in, line)) {
-    ++lineno;
+  while (next_line()) {
     if (line.empty() || line == "\r") continue;
     if (line[0] != '#') {
       header_line = line;
@@ -377,6 +413,7 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
       d.meta[key] = value;
     }
   }
+  if (read_error) return *read_error;
   if (header_line.empty()) return err("no column header line");
   if (d.meta.count("format") && d.meta["format"].rfind("skinbus-dataset 1", 0) != 0) {
     return err("unsupported format '" + d.meta["format"] +
@@ -387,10 +424,24 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
   int col_press = -1, col_t = -1, col_u = -1, col_v = -1, col_d = -1, col_f = -1;
   std::map<int, int> field_col;  // channel -> column
   std::vector<int> extra_cols;
+  if (cols.size() > kMaxDatasetColumns) {
+    return err(std::to_string(cols.size()) + " columns, more than the " +
+               std::to_string(kMaxDatasetColumns) + " accepted");
+  }
+  // Every column once: a name twice (or u_mm and its alias x_mm) would silently let one column
+  // replace the other.
+  std::map<std::string, int> seen;  // canonical name -> column
   for (int c = 0; c < static_cast<int>(cols.size()); ++c) {
     std::string name(cols[c]);
     while (!name.empty() && (name.back() == '\r' || name.back() == ' ')) name.pop_back();
     while (!name.empty() && name.front() == ' ') name.erase(0, 1);
+    const std::string canonical = name == "x_mm" ? "u_mm" : name == "y_mm" ? "v_mm" : name;
+    if (!name.empty()) {
+      if (auto [it, fresh] = seen.emplace(canonical, c); !fresh) {
+        return err("column '" + name + "' (column " + std::to_string(c + 1) + ") repeats column " +
+                   std::to_string(it->second + 1) + " ('" + std::string(cols[it->second]) + "')");
+      }
+    }
     unsigned sensor = 0;
     char axis = 0;
     int consumed = 0;
@@ -442,9 +493,14 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
 
   // Rows.
   std::vector<double> row_field(3 * nsens);
-  while (std::getline(in, line)) {
-    ++lineno;
+  const std::size_t max_rows = kMaxDatasetCells / cols.size();
+  while (next_line()) {
     if (line.empty() || line == "\r" || line[0] == '#') continue;
+    if (d.rows() >= max_rows) {
+      return err("more than " + std::to_string(max_rows) + " rows of " +
+                 std::to_string(cols.size()) + " columns (" + std::to_string(kMaxDatasetCells) +
+                 " values at most)");
+    }
     const auto cells = split(line, ',');
     if (cells.size() != cols.size()) {
       return err("row has " + std::to_string(cells.size()) + " fields, the header " +
@@ -474,6 +530,7 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
       d.extra.push_back(x);
     }
   }
+  if (read_error) return *read_error;
   if (d.rows() == 0) return err("no data rows");
   return d;
 }

@@ -149,7 +149,7 @@ TEST(DatasetTest, OtherSkinsAndLabColumns) {
 
 TEST(DatasetTest, CorruptFilesGetClearErrors) {
   struct Case {
-    const char* text;
+    std::string text;
     const char* expect;
   };
   const Case cases[] = {
@@ -166,7 +166,18 @@ TEST(DatasetTest, CorruptFilesGetClearErrors) {
       {"# format: skinbus-dataset 7\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n",
        "unsupported format"},
       {"u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n", "no data rows"},
-      {"u_mm,u_mm2,v_mm,depth_mm,s0_bx_ut,s0_bx_ut,s0_by_ut,s0_bz_ut\n", "appears twice"},
+      {"u_mm,u_mm2,v_mm,depth_mm,s0_bx_ut,s0_bx_ut,s0_by_ut,s0_bz_ut\n",
+       "column 's0_bx_ut' (column 6) repeats column 5"},
+      // A repeated label column would replace the first silently (the docs say: refused).
+      {"u_mm,v_mm,depth_mm,u_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6,7\n",
+       ":1: column 'u_mm' (column 4) repeats column 1"},
+      {"x_mm,v_mm,depth_mm,u_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6,7\n",
+       "column 'u_mm' (column 4) repeats column 1 ('x_mm')"},
+      {"u_mm,v_mm,depth_mm,lab,s0_bx_ut,s0_by_ut,s0_bz_ut,lab\n1,2,3,4,5,6,7,8\n",
+       "column 'lab' (column 8) repeats column 4"},
+      {"# a comment\nu_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5," +
+           std::string(2 << 20, '6') + "\n",
+       ":3: longer than 1048576 bytes"},
   };
   int i = 0;
   for (const Case& c : cases) {
@@ -179,6 +190,29 @@ TEST(DatasetTest, CorruptFilesGetClearErrors) {
   auto missing = read_dataset_csv("/nonexistent/skinbus.csv");
   ASSERT_FALSE(missing.ok());
   EXPECT_EQ(missing.error().code, ErrorCode::kNotFound);
+  auto dir = read_dataset_csv("/tmp");
+  ASSERT_FALSE(dir.ok());
+  EXPECT_NE(dir.error().message.find("is a directory"), std::string::npos);
+}
+
+// A byte-order mark (spreadsheets write one) is not part of the first column's name: with it,
+// `press` became an unknown column and every sample its own press.
+TEST(DatasetTest, AByteOrderMarkIsSkipped) {
+  const std::string path = temp_path("bom.csv");
+  write_file(path,
+             "\xEF\xBB\xBFpress,u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n"
+             "7,1,2,3,4,5,6\n7,1,2,3.5,4,5,6\n");
+  auto r = read_dataset_csv(path);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_TRUE(r->extra_columns.empty());
+  EXPECT_EQ(r->press, (std::vector<int64_t>{7, 7}));
+  // Also before a header block.
+  write_file(path,
+             "\xEF\xBB\xBF# format: skinbus-dataset 1\n"
+             "u_mm,v_mm,depth_mm,s0_bx_ut,s0_by_ut,s0_bz_ut\n1,2,3,4,5,6\n");
+  auto h = read_dataset_csv(path);
+  ASSERT_TRUE(h.ok()) << h.error().message;
+  EXPECT_EQ(h->meta.at("format"), "skinbus-dataset 1");
 }
 
 TEST(CrlbTest, SmallMatrixInverse) {

@@ -4,6 +4,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "skinbus/common/atomic_file.h"
 #include "skinbus/common/yaml_reader.h"
 #include "skinbus/sim/unit_parameters.h"
 
@@ -125,21 +126,23 @@ std::string unit_parameters_json(const UnitParameters& p, std::string_view sourc
 
 Status write_unit_parameters(const UnitParameters& params, const std::string& path,
                              std::string_view source) {
-  std::ofstream out(path, std::ios::trunc);
-  if (!out) {
-    return make_error(ErrorCode::kIo, "unit file " + path + ": " + std::strerror(errno));
-  }
-  out << unit_parameters_json(params, source);
-  out.close();
-  if (!out) return make_error(ErrorCode::kIo, "unit file " + path + ": write failed");
-  return Status::Ok();
+  // A temporary file, checked, synced and renamed: never a torn or empty unit file.
+  return write_file_atomic(path, unit_parameters_json(params, source), "unit file");
 }
 
 Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string* source) {
-  const json j = json::parse(text.begin(), text.end(), nullptr, /*allow_exceptions=*/false);
-  if (j.is_discarded() || !j.is_object()) {
-    return make_error(ErrorCode::kParse, "not a JSON object");
+  json j;
+  try {
+    j = json::parse(text.begin(), text.end());
+  } catch (const json::exception& e) {
+    // "[json.exception.parse_error.101] parse error at line 3, column 7: ..." -> after the tag.
+    std::string what = e.what();
+    if (const std::size_t close = what.find("] "); close != std::string::npos) {
+      what = what.substr(close + 2);
+    }
+    return make_error(ErrorCode::kParse, "not a JSON object: " + what);
   }
+  if (!j.is_object()) return make_error(ErrorCode::kParse, "not a JSON object");
   const auto format = j.find("format");
   const std::string want = std::string(kFormat) + " " + std::to_string(kMajorVersion);
   if (format == j.end() || !format->is_string() ||
@@ -184,7 +187,7 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string*
 }
 
 Result<UnitParameters> read_unit_parameters(const std::string& path, std::string* source) {
-  Result<std::string> text = read_text_file(path, "unit file");
+  Result<std::string> text = read_text_file(path, "unit file", 16u << 20);
   if (!text.ok()) return text.error();
   Result<UnitParameters> p = parse_unit_parameters(*text, source);
   if (!p.ok()) return make_error(p.error().code, "unit file " + path + ": " + p.error().message);

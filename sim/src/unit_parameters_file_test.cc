@@ -93,6 +93,9 @@ TEST(UnitParametersFileTest, CorruptFilesAreRefusedWithTheField) {
   refused(replaced("\"moment_am2\": [", "\"moment_am2\": [1, "), "magnets[0].moment_am2 must");
   refused(replaced("\"gain\": [", "\"gain\": [null, "), "sensors[0].gain");
   refused(replaced("\"mounting\": [", "\"mounting\": [[1, 2], "), "sensors[0].mounting");
+  // A number no double holds: said, with where, not only "not a JSON object".
+  refused(replaced("\"spread_mm\": ", "\"spread_mm\": 1e400, \"x\": "), "1e400");
+  refused(good.substr(0, good.size() / 2), "parse error at line");
 }
 
 TEST(UnitParametersFileTest, APlausibleFileWithTheWrongCountsIsRefusedByTheModel) {

@@ -5,8 +5,8 @@
 // - a skin map that loads holds only finite numbers, validates, and its YAML loads again to the
 //   same map (node IDs, UIDs, links, files, geometry; sizes and radius to 1e-9 relative, poses
 //   to 1e-9 mm and 1e-9 rad);
-// - a touch log that reads holds only finite numbers and its CSV reads back exactly (every
-//   number bit for bit, joint names, frames, node IDs);
+// - a touch log that reads holds only finite numbers, no touch twice, and its CSV reads back
+//   exactly (every number bit for bit, joint names, frames, node IDs);
 // - with both, every patch's link-frame touches (no robot model) map to patch coordinates
 //   without NaN.
 #include <algorithm>
@@ -123,6 +123,17 @@ bool same_record(const TouchRecord& a, const TouchRecord& b) {
 void check_touch_log(const TouchLog& log) {
   for (const TouchRecord& r : log.touches)
     if (!all_finite(r)) fail("a read touch log holds a non-finite number", touch_log_to_csv(log));
+  // No touch twice (a repeated row would shrink the calibration's uncertainty): a small log is
+  // compared pair by pair.
+  if (log.touches.size() <= 256) {
+    for (std::size_t i = 0; i < log.touches.size(); ++i) {
+      for (std::size_t j = i + 1; j < log.touches.size(); ++j) {
+        if (same_record(log.touches[i], log.touches[j])) {
+          fail("a read touch log holds one touch twice", touch_log_to_csv(log));
+        }
+      }
+    }
+  }
   const std::string printed = touch_log_to_csv(log);
   std::istringstream in(printed);
   Result<TouchLog> again = read_touch_log(in);

@@ -51,6 +51,11 @@ struct PoseUncertainty {
   double radius_sd_mm = 0;                                    // 0 when the radius was not fitted
 };
 
+// A patch sits at most this far from its link's origin (a skin map that places one farther is
+// refused: mm mistaken for something else, or a damaged file). Contacts placed beyond a
+// kilometre are not contacts on a robot.
+inline constexpr double kMaxPatchOffsetMm = 10'000;
+
 struct PatchPlacement {
   int node_id = 0;            // CAN node ID, 1..125
   uint64_t hardware_uid = 0;  // the node's 64-bit hardware UID

@@ -38,8 +38,15 @@ struct TouchLog {
   std::vector<TouchRecord> touches;
 };
 
+// Bounds of a touch log: a line, and the touches.
+inline constexpr std::size_t kMaxTouchLogLineBytes = 64 * 1024;
+inline constexpr std::size_t kMaxTouches = 1'000'000;
+
 // Reads a touch log. Errors (kParse) name the line and column; a row with a non-finite number,
-// a node outside 1..125 or an unknown frame is refused; `base` rows need every joint column.
+// a node outside 1..125 or an unknown frame is refused; `base` rows need every joint column. A
+// row that repeats an earlier one exactly (every value, bit for bit) is refused: counted twice,
+// it would shrink the calibration's reported uncertainty. A line or a log beyond the bounds
+// above, and a directory, are refused.
 Result<TouchLog> read_touch_log(std::istream& in);
 Result<TouchLog> load_touch_log_file(const std::string& path);
 

@@ -20,6 +20,7 @@
 #include <string_view>
 
 #include "skinbus/bus/can_frame.h"
+#include "skinbus/common/line_reader.h"
 
 namespace skinbus::bus {
 
@@ -42,6 +43,7 @@ enum class CandumpError : uint8_t {
   kBadData,       // odd number of hex digits, non-hex character, or too many bytes
   kBadFlags,      // CAN FD flags digit missing or not hex
   kUnsupported,   // valid can-utils syntax this protocol does not carry (CAN XL)
+  kLineTooLong,   // longer than kCandumpMaxLineBytes (skipped to its end, nothing kept)
 };
 std::string_view candump_error_name(CandumpError e);
 
@@ -62,35 +64,43 @@ std::string format_candump_line(const CanFrame& frame, uint64_t timestamp_us,
 // Writes the cansend syntax of `frame` ("183##1AABB..."); returns characters written.
 std::size_t format_frame_text(const CanFrame& frame, std::span<char> out);
 
-// Reads a candump log from a stream line by line, counting what it could not parse.
-// Owns one line buffer that grows to the longest line (a log has short lines); no other
-// allocation.
+// The longest line a log reader takes: a valid line is under 200 characters (a CAN FD frame's
+// 64 bytes are 128 hex digits). Longer lines are skipped, counted and reported, so no input can
+// make a reader hold more than this (plus a fixed 64 KiB buffer).
+inline constexpr std::size_t kCandumpMaxLineBytes = 1024;
+
+// Reads a candump log from a stream line by line, counting what it could not parse. Owns one
+// fixed buffer (kCandumpMaxLineBytes + 64 KiB); no other allocation.
 class CandumpReader {
  public:
-  explicit CandumpReader(std::FILE* stream) : stream_(stream) {}
-  ~CandumpReader();
+  // wait_ms < 0: next() blocks until a line or the end of the input. wait_ms >= 0: next() waits
+  // at most that long on a quiet pipe or terminal and answers kWait, as it does when a signal
+  // interrupts the read (so a caller can look at its stop flag); no data is lost.
+  explicit CandumpReader(std::FILE* stream, int wait_ms = -1)
+      : lines_(stream, kCandumpMaxLineBytes, wait_ms), wait_(wait_ms >= 0) {}
   CandumpReader(const CandumpReader&) = delete;
   CandumpReader& operator=(const CandumpReader&) = delete;
 
-  enum class Status { kRecord, kBadLine, kEof };
+  enum class Status { kRecord, kBadLine, kEof, kWait };
   // Reads the next line. kRecord: `record` is valid until the next call. kBadLine: error() and
-  // line_number() say what and where; keep calling. Blank and comment lines are skipped.
+  // line_number() say what and where; keep calling. Blank and comment lines are skipped. kEof
+  // also ends a read that failed: read_error() then holds its errno (EISDIR for a directory).
   Status next(CandumpRecord* record);
 
   CandumpError error() const { return error_; }
-  uint64_t line_number() const { return line_number_; }
+  uint64_t line_number() const { return lines_.line_number(); }
   uint64_t records() const { return records_; }
   uint64_t bad_lines() const { return bad_lines_; }
-  std::string_view line() const { return {buf_, static_cast<std::size_t>(len_ > 0 ? len_ : 0)}; }
+  int read_error() const { return read_error_; }
+  std::string_view line() const { return line_; }
 
  private:
-  std::FILE* stream_;
-  char* buf_ = nullptr;
-  std::size_t cap_ = 0;
-  long len_ = 0;
-  uint64_t line_number_ = 0;
+  LineReader lines_;
+  bool wait_;
+  std::string_view line_;
   uint64_t records_ = 0;
   uint64_t bad_lines_ = 0;
+  int read_error_ = 0;
   CandumpError error_ = CandumpError::kNone;
 };
 

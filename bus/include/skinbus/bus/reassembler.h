@@ -25,7 +25,9 @@ struct ReassemblyStats {
   uint64_t messages = 0;            // valid messages emitted, all classes
   uint64_t samples = 0;             // of which samples
   uint64_t integrity_failures = 0;  // complete payloads that failed the CRC or held bad values
-  uint64_t gaps = 0;                // messages missing between two emitted ones (per sender, class)
+  uint64_t gaps = 0;                // messages lost between two emitted ones (per sender, class):
+                                    // missing for longer than the timeout (a message that arrives
+                                    // late within it is a reorder, not a loss)
   uint64_t duplicates = 0;          // frames carrying a part already held or already emitted
   uint64_t reorders = 0;            // parts after a later part, or messages after a later message
   uint64_t resyncs = 0;             // a sender's sequence jumped back after a silence (restart,
@@ -72,7 +74,11 @@ struct FeedResult {
   FeedStatus status = FeedStatus::kPending;
   DecodeError error = DecodeError::kNone;
   const Message* message = nullptr;  // valid until the next call to feed()
-  uint32_t missing_before = 0;       // kMessage: messages of this sender+class lost just before it
+  // kMessage: messages of this sender+class found lost since its previous message. A gap of up to
+  // Reassembler::kPendingGaps messages is held for the timeout in case they arrive late
+  // (reordered frames), and reported with the first message of the sender after that; a larger
+  // gap (or a resynchronisation) at once.
+  uint32_t missing_before = 0;
 };
 
 class Reassembler {
@@ -95,6 +101,14 @@ class Reassembler {
 
   // Forgets every incomplete message and the per-sender sequence history (statistics stay).
   void reset();
+
+  // Gaps of at most this many messages wait for the timeout before they count as lost.
+  static constexpr std::size_t kPendingGaps = 8;
+
+  // Messages of (class, node) found lost and not yet reported in a FeedResult (a gap confirmed by
+  // expire() with no later message of that sender): returned and cleared, for a caller that
+  // counts losses per sender at the end of a stream.
+  uint32_t take_unreported_losses(MessageClass c, uint8_t node);
 
   const ReassemblyStats& stats() const { return stats_; }
   std::size_t slots_in_use() const { return in_use_; }
@@ -126,6 +140,11 @@ class Reassembler {
     std::array<uint8_t, kRecent> recent_seq{};
     std::array<uint16_t, kRecent> recent_crc{};
     std::array<bool, kRecent> recent_used{};
+    // Sequences missing in a small gap, each with the time after which it counts as lost.
+    std::array<uint8_t, kPendingGaps> pending_seq{};
+    std::array<uint64_t, kPendingGaps> pending_deadline_us{};
+    uint8_t pending = 0;
+    uint32_t lost_unreported = 0;  // confirmed lost, not yet in a FeedResult
     // The last multi-part message emitted, so a stray repeat of one of its parts is recognised
     // as a duplicate by its bytes (not by sequence alone).
     bool have_last = false;
@@ -143,8 +162,16 @@ class Reassembler {
                     static_cast<std::size_t>(c)];
   }
 
-  // Forgets the sequence history of every class of `node` (it restarted).
+  // Forgets the sequence history of every class of `node` (it restarted); what was pending as
+  // missing counts as lost.
   void forget_node(uint8_t node);
+  // Moves the pending gaps of `snd` whose deadline passed at `now_us` (all with force) to lost.
+  void confirm_gaps(Sender& snd, uint64_t now_us, bool force);
+  // True when `rx_us` is not later than `last_us` + the timeout (an earlier time counts as within:
+  // a log's lines may be out of order).
+  bool within_timeout(uint64_t rx_us, uint64_t last_us) const {
+    return rx_us <= last_us || rx_us - last_us <= config_.timeout_us;
+  }
 
   Config config_;
   std::vector<Slot> slots_;
@@ -152,6 +179,7 @@ class Reassembler {
   std::vector<uint32_t> last_uptime_s_;  // per node: uptime of its last heartbeat, or kNoUptime
   static constexpr uint32_t kNoUptime = UINT32_MAX;
   std::size_t in_use_ = 0;
+  std::size_t senders_pending_ = 0;  // senders with pending gaps
   uint64_t last_expire_us_ = 0;
   Message out_;
   ReassemblyStats stats_;

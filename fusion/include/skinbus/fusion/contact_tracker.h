@@ -73,6 +73,9 @@ struct TrackerOptions {
 };
 
 inline constexpr double kMinUncertaintyMm = 1e-2;
+// A contact value beyond this (mm or N) is not a contact on a robot: the tracker drops it
+// (counted); the aggregator never hands it one (its patch is degraded instead).
+inline constexpr double kMaxContactMagnitude = 1e6;
 
 // kInvalidArgument naming the field when merge_radius_mm or gate_mm is negative or not finite.
 // The constructor takes such a value as 0 instead (no merging / no association).

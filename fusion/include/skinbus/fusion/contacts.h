@@ -84,6 +84,7 @@ enum class PatchEventKind : uint8_t {
   kKinematicsFresh,  // joint states resumed
   kHostLagging,      // the host fell behind: late samples are superseded (detail: the bound)
   kHostCaughtUp,     // it caught up (detail: how many were superseded, the oldest)
+  kLogTime,          // a replayed log's time went backwards or jumped (detail: where, how far)
 };
 std::string_view patch_event_name(PatchEventKind k);
 

@@ -23,6 +23,17 @@
 // the ID's samples cannot be attributed and are dropped (counted), and the patch is degraded
 // with both UIDs named. When one UID stops for the window, the other keeps the ID.
 //
+// Duplicate UIDs: one hardware UID in the heartbeats of two (bus, node) pairs within the window
+// (a cloned or misprogrammed board) marks both duplicate_id and degraded, with a kDuplicateId
+// event each. A patch is placed by its UID, so the samples of the one whose node ID is not the
+// skin map's for that UID are dropped (counted), never placed at the other's place; when both
+// or neither have the map's node ID, both are dropped. When one stops for the window, the other
+// is unique again.
+//
+// Estimates: the aggregator reports a patch whose model gives no estimates (every one rejected,
+// e.g. non-finite outputs) with set_estimator_problem(); the patch is degraded with that reason
+// until an estimate succeeds.
+//
 // Costs: a fixed table of kMaxBuses x 128 entries allocated at construction; on_sample and
 // on_heartbeat are O(1) (the UID look-up is a hash map built once from the skin map); tick() is
 // O(patches heard), and cheap: it only compares times.
@@ -68,6 +79,10 @@ struct PatchEntry {
   uint64_t other_uid = 0;
   uint64_t other_uid_last_us = 0;
   bool duplicate = false;
+  // Another (bus, node) whose heartbeats carry this entry's UID (registry table index), -1: none.
+  int uid_clash = -1;
+  // Why the model gives this patch no estimates ("" while it does).
+  std::string estimator_problem;
   ClockAligner clock;
   std::string detail;  // why degraded
 };
@@ -91,6 +106,14 @@ class PatchRegistry {
   // attributed (duplicate ID, unknown node before its first heartbeat): counted, not used.
   PatchEntry* on_sample(int bus, uint8_t node, const bus::Sample& s, uint32_t missing_before,
                         uint64_t now_us);
+
+  // The model's verdict on this patch: `problem` non-empty when it gives no estimates (the patch
+  // is degraded with it, one event), empty when an estimate succeeded (back to online).
+  void set_estimator_problem(PatchEntry& e, const std::string& problem, uint64_t now_us);
+
+  // True when the samples of `e` can be placed: a UID with a skin-map entry, no duplicate ID,
+  // and in a duplicate UID the one with the map's node ID.
+  bool attributable(const PatchEntry& e) const;
 
   // Any other message from (bus, node) (acks, info): keeps it alive.
   void on_traffic(int bus, uint8_t node, uint64_t now_us);
@@ -123,6 +146,9 @@ class PatchRegistry {
   void emit(PatchEventKind kind, const PatchEntry& e, uint64_t now_us, std::string detail);
   void assign_uid(PatchEntry& e, uint64_t uid, uint64_t now_us);
   void update_state(PatchEntry& e, uint64_t now_us);
+  // Looks for another entry with the UID of `e` (a duplicate UID) and ends a clash that is over.
+  void check_uid_clash(PatchEntry& e, uint64_t now_us);
+  static std::size_t index_of(const PatchEntry& e) { return index(e.bus, e.node); }
 
   const body_map::SkinMap* map_;
   std::vector<std::string> bus_names_;

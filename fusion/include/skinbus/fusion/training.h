@@ -74,13 +74,18 @@ struct TrainResult {
   int best_epoch = 0;
   int train_samples = 0, validation_samples = 0;
   int train_locations = 0, validation_locations = 0;
+  int masked_rows = 0;  // rows left out for a NaN field value (a network cannot drop a channel)
 };
 
 // Trains a network on `data`. With `base` (fine-tuning), the base model's architecture and
 // normalisation are kept and its weights are the start (options.architecture is ignored); the
 // base itself is scored as epoch 0 and kept unless an epoch beats it, so fine-tuning on a few
 // presses never returns a model worse than its base on the new unit's validation presses.
-// Errors: kInvalidArgument for a dataset without rows or with fewer than 2 press locations, a
+// Rows with a NaN field value are left out (counted in masked_rows); a NaN force is left out of
+// the loss. The split is by press location: a press's rows, or without press numbers the rows at
+// one (u, v), stay on one side.
+// Errors: kInvalidArgument for a dataset without rows (or none without a NaN field value) or with
+// fewer than 2 press locations, a
 // CNN asked for sensors that do not form a grid (use an MLP), or a base model with another
 // sensor count; kNotConverged if the loss becomes non-finite.
 Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& options,

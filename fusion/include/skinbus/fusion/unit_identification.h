@@ -61,9 +61,9 @@ struct FitQuality {
   std::vector<DepthBinResidual> bins;
 };
 
-// Residual of `model` against every row of `data` with depth > 0 and finite values (or only the
-// rows listed in `rows`, when not empty): (data - model) / sigma per channel. Cost: one forward
-// evaluation per row.
+// Residual of `model` against every row of `data` with depth > 0 and finite positions (or only
+// the rows listed in `rows`, when not empty): (data - model) / sigma per channel, channels
+// without a finite value left out. Cost: one forward evaluation per row.
 FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, double tip_radius_mm,
                        const ChannelNoise& noise, std::span<const double> depth_bin_edges_mm,
                        std::span<const std::size_t> rows = {});
@@ -98,6 +98,9 @@ struct IdentifiedUnit {
   int rows_used = 0;               // samples fitted
   int iterations = 0;              // Levenberg-Marquardt iterations, all outer iterations
   double solve_seconds = 0;        // wall time of the fit (measured, for reports)
+  // Field values left out of the fit for not being finite (a dead channel in a recording; the
+  // dataset format allows NaN), counted over the rows considered. A row needs half its channels.
+  int masked_values = 0;
 };
 
 // Fits the unit that produced `presses`. Errors: kInvalidArgument (design invalid, channel

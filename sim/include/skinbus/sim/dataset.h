@@ -83,7 +83,17 @@ Dataset generate_static_test_set(SimulatedPatch& patch, const std::vector<PressP
                                  const Environment& env = {}, int tare_samples = 32,
                                  double tip_radius_mm = 5.0);
 
-// Writes / reads the CSV format. Errors name the file and line.
+// Bounds of what read_dataset_csv takes: a line (256 sensors of 3 numbers and a lab's extra
+// columns fit many times over), the columns, and the values of the whole file (rows x columns:
+// 2^27, 1 GiB of doubles).
+inline constexpr std::size_t kMaxDatasetLineBytes = 1 << 20;
+inline constexpr std::size_t kMaxDatasetColumns = 4096;
+inline constexpr std::size_t kMaxDatasetCells = std::size_t{1} << 27;
+
+// Writes / reads the CSV format. Errors name the file and line. The writer replaces `path` at
+// once (a temporary file, synced and renamed): a reader never sees half a dataset. The reader
+// refuses a directory, a line or a file beyond the bounds above, and a column named twice (also
+// u_mm with x_mm, v_mm with y_mm); a UTF-8 byte-order mark before the header is skipped.
 Status write_dataset_csv(const Dataset& d, const std::string& path);
 Result<Dataset> read_dataset_csv(const std::string& path);
 
