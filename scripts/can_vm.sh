@@ -22,6 +22,10 @@
 set -euo pipefail
 
 readonly PROG=${0##*/}
+# The guest's scripts and units (the initramfs /init, guest.sh, setup.sh, unit.sh, the systemd
+# units), files of their own; each run writes their settings into vars.sh beside them.
+GUEST_FILES=$(cd "$(dirname "${BASH_SOURCE[0]}")/can_vm" && pwd)
+readonly GUEST_FILES
 readonly META_PKG=linux-image-amd64
 
 # virtio and 9p modules the initramfs needs to mount the shares; each needs the
@@ -268,32 +272,11 @@ extract_vmlinux() {
     touch "$kdir/vmlinux.none"
 }
 
-# The initramfs /init: load virtio + 9p, mount the per-run share and run the
-# guest.sh the host wrote there. Kept generic so runs need no rebuild.
-init_script() {
-    cat <<EOF
-#!/bin/busybox sh
-/bin/busybox --install -s /bin
-export PATH=/bin
-mount -t devtmpfs devtmpfs /dev
-# The cpio has no /dev/console (creating one needs root), so attach it here.
-exec </dev/console >/dev/console 2>&1
-mount -t proc proc /proc
-mount -t sysfs sysfs /sys
-for m in ${BOOT_MODULES[*]}; do
-    insmod /lib/modules/\$m.ko || { echo "can_vm: insmod \$m failed"; poweroff -f; }
-done
-if mount -t 9p -o trans=virtio,version=9p2000.L,msize=$MSIZE share /share; then
-    sh /share/guest.sh || echo "can_vm: guest setup failed (\$?)"
-    # --systemd: guest.sh has built the new root and moved the share into it.
-    [ -e /switch-root ] && exec switch_root /newroot /lib/systemd/systemd
-    umount /share
-else
-    echo "can_vm: cannot mount the run share"
-fi
-sync
-poweroff -f
-EOF
+# What the initramfs /init (can_vm/init) reads: the modules to load, in order, and the 9p
+# message size.
+initramfs_env() {
+    echo "BOOT_MODULES=$(shquote "${BOOT_MODULES[*]}")"
+    echo "MSIZE=$MSIZE"
 }
 
 # Decompress a module if the distribution compressed it (busybox insmod only
@@ -318,8 +301,9 @@ build_initramfs() {
         [[ -n $src ]] || die "module $m not found in $KPKG"
         copy_module "$src" "$tmp/root/lib/modules/$m.ko"
     done
-    init_script >"$tmp/root/init"
+    cp "$GUEST_FILES/init" "$tmp/root/init"
     chmod 755 "$tmp/root/init"
+    initramfs_env >"$tmp/root/can_vm.env"
     # Uncompressed: it is small (~3 MB) and the kernel unpacks it faster.
     (cd "$tmp/root" && find . | busybox cpio -o -H newc -R 0:0 2>/dev/null) >"$tmp/initramfs.cpio"
     mv "$tmp/initramfs.cpio" "$CACHE/initramfs.cpio"
@@ -349,7 +333,7 @@ cached_kernel() {
 
 # Identifies the initramfs: kernel package plus the text of /init and the modules.
 initramfs_stamp() {
-    echo "$KPKG $KVER $({ init_script; echo "${BOOT_MODULES[*]} $OVERLAY_MODULE"; } | sha256sum | cut -c1-16)"
+    echo "$KPKG $KVER $({ cat "$GUEST_FILES/init"; initramfs_env; echo "$OVERLAY_MODULE"; } | sha256sum | cut -c1-16)"
 }
 
 # The --ctucanfd driver lives inside the kernel folder, so a new kernel drops it.
@@ -486,168 +470,31 @@ prepare() {
 # One run
 # ---------------------------------------------------------------------------
 
-# guest.sh, first part: mount the host root at $r. In the default mode it is the
-# chroot, read-only; with --systemd it is the lower layer of an overlay whose
-# upper layer is a tmpfs that takes every write, so systemd, udev and the command
-# can write anywhere.
-guest_root_lines() {
+# The run's share: the guest's scripts (can_vm/) and vars.sh, their settings for this run, each
+# value quoted for sh.
+write_guest_files() {
+    local kv name cwd_under_tmp=""
+    kv=$(ls "$CACHE/kernel/lib/modules")
+    [[ $PWD == /tmp/* ]] && cwd_under_tmp=$PWD
+    cp "$GUEST_FILES/guest.sh" "$GUEST_FILES/setup.sh" "$SHARE/"
     if (( SYSTEMD )); then
-        cat <<EOF
-r=/newroot
-insmod /lib/modules/$OVERLAY_MODULE.ko || exit 1
-mkdir -p /lower /rw \$r
-mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=$MSIZE host /lower || exit 1
-mount -t tmpfs -o mode=755 tmpfs /rw
-mkdir -p /rw/upper /rw/work
-mount -t overlay -o lowerdir=/lower,upperdir=/rw/upper,workdir=/rw/work overlay \$r || exit 1
-EOF
-    else
-        cat <<EOF
-r=/mnt
-mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=$MSIZE host \$r || exit 1
-EOF
+        cp "$GUEST_FILES/unit.sh" "$GUEST_FILES/skinbus-vm.target" "$SHARE/"
+        sed "s|@GUEST_DIR@|$GUEST_DIR|g" "$GUEST_FILES/skinbus-vm.service.in" \
+            >"$SHARE/skinbus-vm.service"
     fi
-}
-
-# guest.sh, last part: run setup.sh and run.sh in the chroot and record the
-# command's exit status; or, with --systemd, make systemd boot to the unit that
-# does so, and leave the switch to the new root to /init.
-guest_run_lines() {
-    if (( SYSTEMD )); then
-        local kv
-        kv=$(ls "$CACHE/kernel/lib/modules")
-        cat <<EOF
-# The guest kernel's modules where modprobe and udev look for them.
-mkdir -p \$r/lib/modules/$kv
-mount --bind \$r$GUEST_KROOT/lib/modules/$kv \$r/lib/modules/$kv || exit 1
-# The unit that runs the command, the target that boots to it, and the masks.
-cp /share/unit.sh \$r$GUEST_DIR/
-cp /share/skinbus-vm.service /share/skinbus-vm.target \$r/etc/systemd/system/
-ln -sf skinbus-vm.target \$r/etc/systemd/system/default.target
-for u in ${SYSTEMD_MASK[*]}; do ln -sf /dev/null \$r/etc/systemd/system/\$u; done
-# /tmp is a fresh tmpfs already: systemd-tmpfiles must not empty it at boot (its
-# tmp.conf says D), which would take $GUEST_DIR and the share's files with it.
-mkdir -p \$r/etc/tmpfiles.d
-echo 'd /tmp 1777 root root -' >\$r/etc/tmpfiles.d/tmp.conf
-# udev loads no drivers by itself (80-drivers.rules, emptied): under emulation the
-# machine's ATA, floppy, KVM and crypto modules cost seconds, and none is used.
-# setup.sh loads the CAN modules.
-mkdir -p \$r/etc/udev/rules.d
-: >\$r/etc/udev/rules.d/80-drivers.rules
-# The share goes along: unit.sh writes the command's output and status there.
-mkdir -p \$r$GUEST_DIR/share
-mount --move /share \$r$GUEST_DIR/share || exit 1
-touch /switch-root
-EOF
-    else
-        cat <<EOF
-# Through the host's sh: a bare "chroot \$r modprobe" would run busybox's own
-# modprobe applet, which lacks -d.
-chroot \$r /bin/sh -e $GUEST_DIR/setup.sh || exit 1
-chroot \$r /usr/bin/env -i /bin/sh $GUEST_DIR/run.sh </dev/null >/share/stdout 2>/share/stderr
-echo \$? >/share/status
-EOF
-    fi
-}
-
-# guest.sh: run by the initramfs busybox sh. Mounts the host root and builds the
-# file system around it (chroot, or the new root for systemd), then runs the
-# command (guest_run_lines).
-write_guest_script() {
-    cat >"$SHARE/guest.sh" <<EOF
-set -u
-export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
-# cache=loose: the guest keeps what it read in its page cache, which makes
-# loading binaries and libraries several times faster than uncached 9p. Fine for
-# a read-only view that lives for one run. The run share stays uncached, so
-# everything written there is on the host when the guest powers off.
-$(guest_root_lines)
-mount -t proc proc \$r/proc
-mount -t sysfs sysfs \$r/sys
-mount -t devtmpfs devtmpfs \$r/dev
-mkdir -p \$r/dev/pts \$r/dev/shm
-mount -t devpts devpts \$r/dev/pts
-mount -t tmpfs tmpfs \$r/dev/shm
-mount -t tmpfs -o mode=755 tmpfs \$r/run
-# Stage the kernel dir before the tmpfs on /tmp can hide it (the cache may
-# live under the host's /tmp).
-mount --bind \$r$(shquote "$CACHE/kernel") /kroot || exit 1
-# A caller working under the host's /tmp (a CI checkout, say) keeps its working
-# directory: stage it the same way and put it back at its own path, read-only.
-$(if [[ $PWD == /tmp/* ]]; then
-    echo "mkdir -p /cwd && mount --bind \$r$(shquote "$PWD") /cwd || exit 1"
-fi)
-mount -t tmpfs -o mode=1777 tmpfs \$r/tmp
-$(if [[ $PWD == /tmp/* ]]; then
-    echo "mkdir -p \$r$(shquote "$PWD") && mount --move /cwd \$r$(shquote "$PWD") || exit 1"
-fi)
-mkdir -p \$r$GUEST_OUT \$r$GUEST_KROOT
-mount --bind /share/out \$r$GUEST_OUT || exit 1
-mount --move /kroot \$r$GUEST_KROOT || exit 1
-cp /share/setup.sh /share/run.sh \$r$GUEST_DIR/
-$(guest_run_lines)
-EOF
-}
-
-# --systemd: the units that run the command once the guest has booted to
-# basic.target, and unit.sh, which runs setup.sh and run.sh there.
-write_systemd_units() {
-    cat >"$SHARE/skinbus-vm.target" <<EOF
-[Unit]
-Description=can_vm.sh: run the command
-Requires=basic.target
-After=basic.target
-Wants=skinbus-vm.service
-AllowIsolate=yes
-EOF
-    cat >"$SHARE/skinbus-vm.service" <<EOF
-[Unit]
-Description=can_vm.sh: the command
-# Power off when the command ends (its status is on the share by then).
-SuccessAction=poweroff-force
-FailureAction=poweroff-force
-[Service]
-Type=exec
-ExecStart=/bin/sh $GUEST_DIR/unit.sh
-StandardInput=null
-StandardOutput=journal+console
-StandardError=journal+console
-TimeoutStartSec=infinity
-EOF
-    cat >"$SHARE/unit.sh" <<EOF
-d=$GUEST_DIR
-cut -d' ' -f1 /proc/uptime >\$d/share/uptime
-# Devices found at boot (the CAN controller) processed, modules loaded.
-udevadm settle --timeout=60 || echo "can_vm: udevadm settle timed out"
-/bin/sh -e \$d/setup.sh || exit 1
-udevadm settle --timeout=60 || echo "can_vm: udevadm settle timed out"
-/usr/bin/env -i /bin/sh \$d/run.sh </dev/null >\$d/share/stdout 2>\$d/share/stderr
-echo \$? >\$d/share/status
-EOF
-}
-
-# setup.sh: run by the host's /bin/sh -e inside the chroot: CAN modules and
-# interfaces. A failure here is a setup failure (exit 125), not the command's.
-write_setup_script() {
-    local i
     {
-        echo "modprobe -a -d $GUEST_KROOT ${CAN_MODULES[*]} ${EXTRA_MODULES[*]}"
-        if (( CTUCANFD )); then
-            # Probing registers both channels before modprobe returns.
-            echo "modprobe -d $GUEST_KROOT ctucanfd_pci"
-            echo "test -e /sys/class/net/can0 && test -e /sys/class/net/can1 ||"
-            echo "  { echo 'can_vm: the CTU CAN FD driver found no can0 and can1' >&2; exit 1; }"
-        fi
-        echo "ip link set lo up"
-        for (( i = 0; i < FD_IFACES; i++ )); do
-            echo "ip link add dev vcan$i type vcan"
-            echo "ip link set vcan$i mtu 72 up"
+        echo "# Written by can_vm.sh for one run; read by guest.sh, setup.sh and unit.sh."
+        for name in SYSTEMD CTUCANFD FD_IFACES CLASSIC_IFACES MSIZE OVERLAY_MODULE GUEST_DIR \
+                    GUEST_OUT GUEST_KROOT; do
+            echo "$name=$(shquote "${!name}")"
         done
-        for (( i = 0; i < CLASSIC_IFACES; i++ )); do
-            echo "ip link add dev vcanc$i type vcan"
-            echo "ip link set vcanc$i mtu 16 up"
-        done
-    } >"$SHARE/setup.sh"
+        echo "KERNEL_VERSION=$(shquote "$kv")"
+        echo "KERNEL_CACHE=$(shquote "$CACHE/kernel")"
+        echo "CWD_UNDER_TMP=$(shquote "$cwd_under_tmp")"
+        echo "CAN_MODULES=$(shquote "${CAN_MODULES[*]}")"
+        echo "EXTRA_MODULES=$(shquote "${EXTRA_MODULES[*]}")"
+        echo "SYSTEMD_MASK=$(shquote "${SYSTEMD_MASK[*]}")"
+    } >"$SHARE/vars.sh"
 }
 
 # run.sh: run by the host's /bin/sh inside the chroot, with a clean environment.
@@ -692,13 +539,11 @@ run_vm() {
     SHARE=$work/share
     console=$work/console.log
     mkdir -p "$SHARE/out"
-    write_guest_script
-    write_setup_script
+    write_guest_files
     write_run_script
     (( VERBOSE )) || append+=" quiet"
     local devices=()
     if (( SYSTEMD )); then
-        write_systemd_units
         # The host's /etc/fstab describes the host, not this guest.
         append+=" fstab=no"
     fi

@@ -102,7 +102,10 @@ struct Row {
   double macs = 0, peak_gflops = 0;
   double batch1_us = 0, batch64_1t_us = 0, batch64_2t_us = 0;
   double xy_mean_mm = 0, xy_deep_mm = 0, depth_mean_mm = 0;
-  double floor_us() const { return peak_gflops > 0 ? 2.0 * macs / (peak_gflops * 1e3) : 0; }
+  // The float32 floor: 2 x the multiply-adds computed / the FMA peak (0 for other precisions).
+  double floor_us() const {
+    return peak_gflops > 0 && precision == "float32" ? 2.0 * macs / (peak_gflops * 1e3) : 0;
+  }
 };
 
 // printf into a std::string.
@@ -157,7 +160,8 @@ void add_cpu_options(CLI::App* sub, CpuBenchArgs& a) {
   sub->add_option("--reps", a.reps, "repetitions of each timing; the median is reported")
       ->check(CLI::Range(1, 50));
   sub->add_option("--csv", a.csv, "write the table as CSV");
-  sub->add_option("--plot", a.plot, "write a PNG (tools/plot_cpu.py, needs python3-matplotlib)");
+  sub->add_option("--plot", a.plot,
+                  "with --csv: also a PNG of the times (tools/plot_cpu.py, python3-matplotlib)");
 }
 
 int bench_cpu(const CpuBenchArgs& a) {
@@ -329,8 +333,8 @@ int bench_cpu(const CpuBenchArgs& a) {
     std::printf("| %s | %s | %s | %s | %.1f | %s | %.1f | %.1f | %.3f | %.3f | %.3f |\n",
                 r.kernels.c_str(), r.precision.c_str(),
                 r.peak_gflops > 0 ? std::to_string(static_cast<int>(r.peak_gflops)).c_str() : "",
-                r.peak_gflops > 0 ? format("%.1f", r.floor_us()).c_str() : "", r.batch1_us,
-                r.peak_gflops > 0 ? format("%.2f", r.batch1_us / r.floor_us()).c_str() : "",
+                r.floor_us() > 0 ? format("%.1f", r.floor_us()).c_str() : "", r.batch1_us,
+                r.floor_us() > 0 ? format("%.2f", r.batch1_us / r.floor_us()).c_str() : "",
                 r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
   }
   // Goals, per instruction set.
@@ -386,8 +390,9 @@ int bench_cpu(const CpuBenchArgs& a) {
       return 1;
     }
     if (!a.plot.empty()) {
-      const std::string cmd = "python3 " + std::string(SKINBUS_SOURCE_DIR) + "/tools/plot_cpu.py " +
-                              a.csv + " " + a.plot;
+      const char* d = std::getenv("SKINBUS_TOOLS_DIR");
+      const std::string cmd = std::string(d ? d : SKINBUS_SOURCE_DIR "/tools") + "/plot_cpu.py '" +
+                              a.csv + "' '" + a.plot + "'";
       if (std::system(cmd.c_str()) != 0) {
         std::fprintf(stderr, "skinbus-bench: plotting failed: %s\n", cmd.c_str());
         return 1;

@@ -1,4 +1,4 @@
-#!/usr/bin/env python3
+#!/usr/bin/python3
 """Plots `skinbus-bench cpu --csv` output: batch-1 and batched time per kernel set and precision,
 with each set's float32 floor and LibTorch at its best.
 

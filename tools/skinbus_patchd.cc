@@ -23,11 +23,12 @@
 #include "skinbus/bus/socketcan.h"
 #include "skinbus/patch_fw/config.h"
 #include "skinbus/patch_fw/node.h"
-#include "skinbus/patch_fw/sim_source.h"
+#include "skinbus/patch_sim/sim_source.h"
 #include "tool_util.h"
 
 using namespace skinbus;
 using namespace skinbus::patch_fw;
+using skinbus::patch_sim::SimulatedBoard;
 
 namespace {
 

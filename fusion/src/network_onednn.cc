@@ -228,36 +228,29 @@ Status OneDnnNetImpl::build(const ModelFile& model, int slots) {
                    arg(DNNL_ARG_SCRATCHPAD, scratch)};
         return st;
       };
+      // `src` in layout `want`: a reorder step into a new memory where the layouts differ.
+      auto reorder_to = [&](memory& src, const memory::desc& want) {
+        if (src.get_desc() == want) return;
+        memory m(want, eng_);
+        Step st;
+        st.prim = dnnl::reorder(src, m);
+        st.keep = {src, m};
+        st.args = {arg(DNNL_ARG_FROM, src), arg(DNNL_ARG_TO, m)};
+        ch.conv.push_back(std::move(st));
+        src = m;
+      };
       memory src;
       if (cnn_) {
-        // The input rows are channel-last (input_row()); reordered when the first convolution
-        // wants another layout.
-        const memory::desc user({n, 3, rows_, cols_}, Dt::f32, Tag::nhwc);
-        src = memory(user, eng_, s.input.data());
-        if (convs[0].src != user) {
-          memory m(convs[0].src, eng_);
-          Step st;
-          st.prim = dnnl::reorder(src, m);
-          st.keep = {src, m};
-          st.args = {arg(DNNL_ARG_FROM, src), arg(DNNL_ARG_TO, m)};
-          ch.conv.push_back(std::move(st));
-          src = m;
-        }
+        // The input rows are channel-last (input_row()), the pooling reads channel-last: the
+        // convolutions' own layouts in between.
+        src = memory({{n, 3, rows_, cols_}, Dt::f32, Tag::nhwc}, eng_, s.input.data());
+        reorder_to(src, convs[0].src);
         for (const Layer& l : convs) {
           memory dst(l.dst, eng_);
           ch.conv.push_back(step(l, src, dst));
           src = dst;
         }
-        const memory::desc last({n, c_in, rows_, cols_}, Dt::f32, Tag::nhwc);
-        if (src.get_desc() != last) {
-          memory m(last, eng_);
-          Step st;
-          st.prim = dnnl::reorder(src, m);
-          st.keep = {src, m};
-          st.args = {arg(DNNL_ARG_FROM, src), arg(DNNL_ARG_TO, m)};
-          ch.conv.push_back(std::move(st));
-          src = m;
-        }
+        reorder_to(src, {{n, c_in, rows_, cols_}, Dt::f32, Tag::nhwc});
         ch.pool_src = static_cast<float*>(src.get_data_handle());
         src = memory(fcs[0].src, eng_);
         ch.fc_in = static_cast<float*>(src.get_data_handle());

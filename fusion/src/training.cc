@@ -1,5 +1,6 @@
 #include "skinbus/fusion/training.h"
 
+#include <dlfcn.h>
 #include <torch/torch.h>
 
 #include <algorithm>
@@ -596,6 +597,13 @@ Status TorchRunner::prepare(std::span<const double> field_ut, int batch) {
   }
   Result<bool> done = guarded("LibTorch", [&]() -> Result<bool> {
     if (torch::get_num_threads() != impl_->threads) torch::set_num_threads(impl_->threads);
+    // LibTorch's linear layers run in OpenBLAS, whose own thread pool (one thread per core by
+    // default) set_num_threads does not reach: at batch 1 on a busy machine its hand-offs cost
+    // more than the layers.
+    using SetThreads = void (*)(int);
+    if (auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) {
+      set(impl_->threads);
+    }
     c10::InferenceMode inference;
     impl_->prepared = impl_->net->grid_input(normalised_inputs(m, field_ut, batch));
     return true;

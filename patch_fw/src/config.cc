@@ -10,7 +10,7 @@
 #include <sstream>
 
 #include "skinbus/common/yaml_reader.h"
-#include "skinbus/patch_fw/mlx90393_protocol.h"
+#include "skinbus/mlx90393/protocol.h"
 
 namespace skinbus::patch_fw {
 
@@ -118,7 +118,7 @@ Status parse(const YAML::Node& root, PatchNodeSettings* s) {
     r.only(c, "sensor",
            {"gain_sel", "resolution_xy", "resolution_z", "oversampling", "digital_filter",
             "temperature_compensation", "drdy_interrupt"});
-    sim::Mlx90393Config& chip = s->array.settings.chip;
+    mlx90393::Config& chip = s->array.settings.chip;
     r.get_int(c, "gain_sel", "sensor.", 0, 7, &chip.gain_sel);
     r.get_int(c, "resolution_xy", "sensor.", 0, 3, &chip.res_xy);
     r.get_int(c, "resolution_z", "sensor.", 0, 3, &chip.res_z);
@@ -285,14 +285,14 @@ Status validate_settings(PatchNodeSettings* s) {
   // Rate against the chip's conversion time and the bus.
   const double max_hz = SensorArray::max_rate_hz(s->array);
   if (!(s->rate_hz >= 1.0) || s->rate_hz > max_hz) {
-    sim::Mlx90393Config chip = s->array.settings.chip;
+    mlx90393::Config chip = s->array.settings.chip;
     char msg[320];
     std::snprintf(msg, sizeof msg,
                   "rate_hz %.2f: the sensors allow at most %.2f Hz (one sample takes %u us: "
                   "%.0f us conversion at oversampling %d, digital_filter %d, plus the I2C "
                   "transfers); lower rate_hz or sensor.oversampling / sensor.digital_filter",
                   s->rate_hz, max_hz, SensorArray::cycle_time_us(s->array),
-                  sim::mlx90393_conversion_time_us(chip), chip.osr, chip.dig_filt);
+                  mlx90393::conversion_time_us(chip), chip.osr, chip.dig_filt);
     return bad(ErrorCode::kOutOfRange, msg);
   }
   s->node.rate_chz = static_cast<uint16_t>(std::lround(s->rate_hz * 100));
@@ -331,7 +331,7 @@ std::string settings_to_yaml(const PatchNodeSettings& s) {
     }
     o << "]\n";
   }
-  const sim::Mlx90393Config& c = s.array.settings.chip;
+  const mlx90393::Config& c = s.array.settings.chip;
   o << "sensor:\n  gain_sel: " << int{c.gain_sel} << "\n  resolution_xy: " << int{c.res_xy}
     << "\n  resolution_z: " << int{c.res_z} << "\n  oversampling: " << int{c.osr}
     << "\n  digital_filter: " << int{c.dig_filt} << "\n  temperature_compensation: "

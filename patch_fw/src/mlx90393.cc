@@ -110,8 +110,8 @@ Status Mlx90393::write_register(uint8_t reg, uint16_t value) {
 
 Status Mlx90393::configure(const Mlx90393Settings& settings) {
   configured_ = false;
-  const sim::Mlx90393Config& c = settings.chip;
-  if (!sim::mlx90393_config_valid(c)) {
+  const m::Config& c = settings.chip;
+  if (!m::config_valid(c)) {
     return make_error(ErrorCode::kInvalidArgument,
                       "MLX90393 configuration out of range (gain_sel 0..7, resolution 0..3, "
                       "oversampling 0..3, digital_filter 0..7)");
@@ -173,16 +173,15 @@ Status Mlx90393::read_measurement(Mlx90393Reading* out) {
                       "MLX90393 at " + format_hex_byte(address_) + ": measurement announced " +
                           std::to_string(m::status_data_bytes(in[0])) + " data bytes, expected 6");
   }
-  const sim::Mlx90393Config& c = settings_.chip;
+  const m::Config& c = settings_.chip;
   for (int axis = 0; axis < 3; ++axis) {
     const uint16_t raw = static_cast<uint16_t>(in[1 + 2 * axis] << 8 | in[2 + 2 * axis]);
     const uint8_t res = axis == 2 ? c.res_z : c.res_xy;
     const int32_t code = res <= 1 ? static_cast<int16_t>(raw) : static_cast<int32_t>(raw);
-    const double sens =
-        axis == 2 ? sim::mlx90393_sensitivity_z_ut(c) : sim::mlx90393_sensitivity_xy_ut(c);
+    const double sens = axis == 2 ? m::sensitivity_z_ut(c) : m::sensitivity_xy_ut(c);
     out->code[axis] = code;
-    out->field_ut[axis] = sim::mlx90393_field_ut(code, sens, res);
-    out->saturated[axis] = sim::mlx90393_code_at_limit(code, res);
+    out->field_ut[axis] = m::field_ut(code, sens, res);
+    out->saturated[axis] = m::code_at_limit(code, res);
   }
   ++stats_.measurements;
   return Status::Ok();
@@ -204,14 +203,14 @@ Result<double> Mlx90393::measure_temperature_c() {
   return m::temperature_c_from_code(static_cast<uint16_t>(in[1] << 8 | in[2]));
 }
 
-uint32_t Mlx90393::temperature_conversion_time_us(const sim::Mlx90393Config& chip) {
-  sim::Mlx90393Config with_t = chip;
+uint32_t Mlx90393::temperature_conversion_time_us(const m::Config& chip) {
+  m::Config with_t = chip;
   with_t.temperature = true;
-  return static_cast<uint32_t>(std::ceil(sim::mlx90393_conversion_time_us(with_t)));
+  return static_cast<uint32_t>(std::ceil(m::conversion_time_us(with_t)));
 }
 
 uint32_t Mlx90393::conversion_time_us() const {
-  return static_cast<uint32_t>(std::ceil(sim::mlx90393_conversion_time_us(settings_.chip)));
+  return static_cast<uint32_t>(std::ceil(m::conversion_time_us(settings_.chip)));
 }
 
 }  // namespace skinbus::patch_fw

@@ -5,13 +5,15 @@
 
 #include <cmath>
 
-#include "skinbus/patch_fw/emulator.h"
 #include "skinbus/patch_fw/tca9546a.h"
+#include "skinbus/patch_sim/emulator.h"
 
 namespace skinbus::patch_fw {
 namespace {
 
 namespace m = mlx90393;
+using patch_sim::EmulatedI2cBus;
+using patch_sim::FieldSource;
 
 class FixedField final : public FieldSource {
  public:
@@ -54,12 +56,12 @@ TEST_F(DriverTest, ResetConfigureMeasure) {
             (2u << m::kOsrShift) | (3u << m::kDigFiltShift) | (1u << m::kResZShift));
   EXPECT_TRUE(bus.register_value(0, m::kRegConf2) & (1u << m::kTrigIntBit));
   EXPECT_EQ(chip.conversion_time_us(),
-            static_cast<uint32_t>(std::ceil(sim::mlx90393_conversion_time_us(s.chip))));
+            static_cast<uint32_t>(std::ceil(m::conversion_time_us(s.chip))));
   Mlx90393Reading r;
   ASSERT_TRUE(measure(chip, &r).ok());
   // The reading is the field quantised to the configured sensitivity.
-  const double sxy = sim::mlx90393_sensitivity_xy_ut(s.chip);
-  const double sz = sim::mlx90393_sensitivity_z_ut(s.chip);
+  const double sxy = m::sensitivity_xy_ut(s.chip);
+  const double sz = m::sensitivity_z_ut(s.chip);
   EXPECT_NEAR(r.field_ut[0], 12.3, sxy / 2 + 1e-9);
   EXPECT_NEAR(r.field_ut[1], -45.6, sxy / 2 + 1e-9);
   EXPECT_NEAR(r.field_ut[2], 78.9, sz / 2 + 1e-9);
@@ -77,7 +79,7 @@ TEST_F(DriverTest, UnsignedResolutionAndSaturation) {
   Mlx90393Reading r;
   ASSERT_TRUE(measure(chip, &r).ok());
   EXPECT_GT(r.code[0], 30000);  // unsigned, below the 32768 zero
-  EXPECT_NEAR(r.field_ut[0], -20.0, sim::mlx90393_sensitivity_xy_ut(s.chip));
+  EXPECT_NEAR(r.field_ut[0], -20.0, m::sensitivity_xy_ut(s.chip));
   EXPECT_TRUE(r.saturated[1]);
   EXPECT_FALSE(r.saturated[0]);
   EXPECT_FALSE(r.saturated[2]);
@@ -110,9 +112,9 @@ TEST_F(DriverTest, MeasuresTheDieTemperature) {
     Result<double> got = chip.measure_temperature_c();
     ASSERT_TRUE(got.ok()) << got.error().to_string();
     EXPECT_NEAR(*got, t, 0.5 / m::kTemperatureLsbPerC + 1e-9) << t;
-    sim::Mlx90393Config with_t = s.chip;
+    m::Config with_t = s.chip;
     with_t.temperature = true;
-    EXPECT_GE(clock.now_us() - before, sim::mlx90393_conversion_time_us(with_t));
+    EXPECT_GE(clock.now_us() - before, m::conversion_time_us(with_t));
   }
   // A field measurement still works after it.
   Mlx90393Reading r;

@@ -72,7 +72,7 @@ bus::Heartbeat PatchNode::heartbeat() const {
 
 bus::Info PatchNode::info() const {
   bus::Info in;
-  const sim::Mlx90393Config& c = array_->config().settings.chip;
+  const mlx90393::Config& c = array_->config().settings.chip;
   in.hardware_uid = config_.hardware_uid;
   in.fw_major = kFirmwareMajor;
   in.fw_minor = kFirmwareMinor;
@@ -84,10 +84,10 @@ bus::Info PatchNode::info() const {
   in.digital_filter = c.dig_filt;
   in.rate_chz = config_.rate_chz;
   in.max_rate_chz = config_.max_rate_chz;
-  sim::Mlx90393Config xyz = c;
+  mlx90393::Config xyz = c;
   xyz.temperature = false;
   in.conversion_time_us =
-      static_cast<uint16_t>(std::min(65535.0, std::ceil(sim::mlx90393_conversion_time_us(xyz))));
+      static_cast<uint16_t>(std::min(65535.0, std::ceil(mlx90393::conversion_time_us(xyz))));
   return in;
 }
 

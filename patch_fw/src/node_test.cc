@@ -8,10 +8,12 @@
 
 #include "skinbus/bus/reassembler.h"
 #include "skinbus/patch_fw/config.h"
-#include "skinbus/patch_fw/sim_source.h"
+#include "skinbus/patch_sim/sim_source.h"
 
 namespace skinbus::patch_fw {
 namespace {
+
+using patch_sim::SimulatedBoard;
 
 class VectorSink final : public FrameSink {
  public:

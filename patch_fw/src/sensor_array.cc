@@ -43,9 +43,9 @@ uint32_t SensorArray::cycle_time_us(const SensorArrayConfig& config) {
   const uint64_t transactions = 2u * n + 2u * channels;
   const double bus_us =
       1e6 * static_cast<double>(bits) / std::max<uint32_t>(config.i2c_clock_hz, 1);
-  sim::Mlx90393Config chip = config.settings.chip;
+  mlx90393::Config chip = config.settings.chip;
   chip.temperature = false;
-  return static_cast<uint32_t>(sim::mlx90393_conversion_time_us(chip) + bus_us +
+  return static_cast<uint32_t>(mlx90393::conversion_time_us(chip) + bus_us +
                                static_cast<double>(transactions * config.transaction_overhead_us));
 }
 

@@ -6,11 +6,16 @@
 #include <cmath>
 
 #include "skinbus/patch_fw/config.h"
-#include "skinbus/patch_fw/emulator.h"
+#include "skinbus/patch_sim/emulator.h"
+#include "skinbus/patch_sim/fake_gpio.h"
 #include "skinbus/sim/rng.h"
 
 namespace skinbus::patch_fw {
 namespace {
+
+using patch_sim::EmulatedI2cBus;
+using patch_sim::FakeGpioChip;
+using patch_sim::FieldSource;
 
 // Sensor i sees (10 i, -5 i, 100 + i) uT plus 1 uT of noise, like a real untouched patch.
 class NoisyField final : public FieldSource {

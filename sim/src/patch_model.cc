@@ -70,7 +70,7 @@ Status validate(const PatchDesign& d) {
     if (d.size_u_mm / d.radius_mm > 1.5 * M_PI)
       return bad("cylinder arc (size_u_mm / radius_mm) must be below 270 degrees");
   }
-  if (!mlx90393_config_valid(d.sensor_config))
+  if (!mlx90393::config_valid(d.sensor_config))
     return bad("sensor_config out of the MLX90393's ranges");
   return Status::Ok();
 }

@@ -86,38 +86,14 @@ TEST(PlateKernelTest, KelvinFunctionAndShape) {
   }
 }
 
-TEST(Mlx90393Test, SensitivityConversionTimeQuantisationSaturation) {
-  Mlx90393Config c;
-  c.gain_sel = 7;
-  c.res_xy = 0;
-  c.res_z = 0;
-  EXPECT_DOUBLE_EQ(mlx90393_sensitivity_xy_ut(c), 0.150);
-  EXPECT_DOUBLE_EQ(mlx90393_sensitivity_z_ut(c), 0.242);
-  c.gain_sel = 0;
-  c.res_xy = 1;
-  EXPECT_DOUBLE_EQ(mlx90393_sensitivity_xy_ut(c), 0.751 * 2);
-  c.osr = 0;
-  c.dig_filt = 0;
-  EXPECT_DOUBLE_EQ(mlx90393_conversion_time_us(c), 3 * (67 + 64 * 3));
-  c.osr = 1;
-  c.dig_filt = 2;
-  EXPECT_DOUBLE_EQ(mlx90393_conversion_time_us(c), 3 * (67 + 64 * 2 * 6));
-  EXPECT_LT(mlx90393_noise_xy_ut(c), mlx90393_noise_xy_ut(Mlx90393Config{7, 0, 0, 0, 0, false}));
-
-  bool sat = true;
-  EXPECT_EQ(mlx90393_code(15.0, 0.15, 0, &sat), 100);
-  EXPECT_FALSE(sat);
-  EXPECT_EQ(mlx90393_code(15.07, 0.15, 0, &sat), 100);  // quantised to the LSB
-  EXPECT_EQ(mlx90393_code(1e6, 0.15, 0, &sat), 32767);
-  EXPECT_TRUE(sat);
-  EXPECT_EQ(mlx90393_code(-1e6, 0.15, 0, &sat), -32767);
-  EXPECT_TRUE(sat);
-  EXPECT_EQ(mlx90393_code(std::nan(""), 0.15, 0, &sat), 0);
-  EXPECT_TRUE(sat);
-  EXPECT_EQ(mlx90393_code(0.0, 0.15, 2, &sat), 32768);  // RES 2: unsigned around 32768
-  EXPECT_NEAR(mlx90393_field_ut(mlx90393_code(-300.0, 0.3, 2, &sat), 0.3, 2), -300.0, 1e-9);
-  EXPECT_EQ(mlx90393_code(1e6, 0.15, 3, &sat), 16383 + 16384);
-  EXPECT_TRUE(sat);
+TEST(Mlx90393NoiseTest, FallsAsMoreSamplesAreAveraged) {
+  const mlx90393::Config fastest{7, 0, 0, 0, 0, false};  // 3 ADC samples per axis
+  const mlx90393::Config c{0, 1, 0, 1, 2, false};        // 12
+  EXPECT_LT(mlx90393_noise_xy_ut(c), mlx90393_noise_xy_ut(fastest));
+  // The anchors at the fastest settings, 1/sqrt(samples) from there.
+  EXPECT_DOUBLE_EQ(mlx90393_noise_xy_ut(fastest), 1.4);
+  EXPECT_DOUBLE_EQ(mlx90393_noise_z_ut(fastest), 2.3);
+  EXPECT_DOUBLE_EQ(mlx90393_noise_z_ut(c), 2.3 * std::sqrt(3.0 / 12.0));
 }
 
 class PatchModelTest : public ::testing::Test {

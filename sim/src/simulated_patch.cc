@@ -7,11 +7,11 @@ SimulatedPatch::SimulatedPatch(PatchModel model, uint64_t noise_seed)
       rng_(noise_seed),
       rest_(model_.channel_count()),
       scratch_(model_.channel_count()) {
-  const Mlx90393Config& c = model_.design().sensor_config;
+  const mlx90393::Config& c = model_.design().sensor_config;
   noise_xy_ut_ = mlx90393_noise_xy_ut(c);
   noise_z_ut_ = mlx90393_noise_z_ut(c);
-  sens_xy_ut_ = mlx90393_sensitivity_xy_ut(c);
-  sens_z_ut_ = mlx90393_sensitivity_z_ut(c);
+  sens_xy_ut_ = mlx90393::sensitivity_xy_ut(c);
+  sens_z_ut_ = mlx90393::sensitivity_z_ut(c);
   model_.rest_field_ut(rest_);
 }
 
@@ -25,7 +25,7 @@ uint64_t SimulatedPatch::measure(std::span<const Contact> contacts, const Enviro
   }
   const double temp_scale =
       1 + model_.design().remanence_tempco_per_c * (env.temperature_c - kReferenceTemperatureC);
-  const Mlx90393Config& cfg = model_.design().sensor_config;
+  const mlx90393::Config& cfg = model_.design().sensor_config;
   uint64_t mask = 0;
   const auto& sensors = model_.sensors();
   for (int s = 0; s < nc / 3; ++s) {
@@ -40,7 +40,7 @@ uint64_t SimulatedPatch::measure(std::span<const Contact> contacts, const Enviro
       const double sens = k < 2 ? sens_xy_ut_ : sens_z_ut_;
       const uint8_t res = k < 2 ? cfg.res_xy : cfg.res_z;
       bool sat = false;
-      field_ut[i] = mlx90393_field_ut(mlx90393_code(noisy, sens, res, &sat), sens, res);
+      field_ut[i] = mlx90393::field_ut(mlx90393::output_code(noisy, sens, res, &sat), sens, res);
       sat_any = sat_any || sat;
     }
     if (sat_any && s < 64) mask |= 1ull << s;

@@ -26,7 +26,9 @@ for guide in "${guides[@]}"; do
   for d in body_map fusion sim patch_fw tools; do ln -s "$src/$d" "$dir/$d"; done
   python3 - "$guide" >"$dir/guide.sh" <<'PY'
 import sys
-out, on, n = ["set -euo pipefail"], False, 0
+# As a user's shell runs them: a pipeline's status is its last command's (no pipefail), so a
+# tool that `head` or `grep -m1` stops early ends by SIGPIPE, as it should, without failing.
+out, on, n = ["set -eu"], False, 0
 for line in open(sys.argv[1]):
     s = line.rstrip("\n")
     if not on and s.strip() == "```sh":

@@ -9,7 +9,7 @@
 #include <string>
 
 #include "skinbus/patch_fw/config.h"
-#include "skinbus/patch_fw/sim_source.h"
+#include "skinbus/patch_sim/sim_source.h"
 
 using namespace skinbus::patch_fw;
 
@@ -17,7 +17,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size == 0) return 0;
   const std::string text(reinterpret_cast<const char*>(data + 1), size - 1);
   if (data[0] & 1) {
-    auto r = parse_contact_script(text, static_cast<uint8_t>(data[0] >> 1));
+    auto r = skinbus::patch_sim::parse_contact_script(text, static_cast<uint8_t>(data[0] >> 1));
     if (r.ok()) {
       for (const auto& c : *r) {
         if (!std::isfinite(c.t_start_s) || !std::isfinite(c.u_mm) || !(c.t_end_s > c.t_start_s) ||

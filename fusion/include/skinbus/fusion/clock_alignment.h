@@ -29,16 +29,8 @@
 // smallest delay seen in the window, i.e. the true send time plus the bus's minimum latency
 // (about 0.2 ms on a quiet CAN FD bus). Subtract a known fixed latency if it matters.
 //
-// Accuracy, on the simulated bus of clock_alignment_test.cc (41.7 Hz; delay 0.2 ms + exponential
-// of mean 0.5 ms, 3% outliers of 10-50 ms; drift up to +-200 ppm), against that minimum-delay
-// line, over 500 runs of 20 clocks each: after 10 s the newest sample's error is at most 32 us
-// and the drift error at most 6 ppm; from 10 s to 60 s, at every sample, the error has a median
-// of 2 us, a 95th percentile of 9 us and a maximum of 49 us, the drift error at most 7 ppm. With
-// a third of the samples late by 10-50 ms the error stays below 50 us. A plain window of the
-// last 128 samples (bucket_us = 0, 3 s) has a short baseline: drift errors around 50 ppm and
-// mapping errors around 100 us. Sparse data (bursts of 20 samples 50 min apart) maps within
-// 60 us typically and 350 us at worst: each burst's lowest delay is known from only 20 samples,
-// and the drift carries that error across the gap.
+// Accuracy: bounded by clock_alignment_test.cc on a simulated bus (tens of microseconds after
+// 10 s; figures and conditions in docs/aggregator.md, "Clock alignment").
 //
 // Unwrapping: a sample whose 32-bit stamp is behind the newest by at most `reorder_us` is
 // reordering (it is used for the fit and reported kReordered); one further behind means the

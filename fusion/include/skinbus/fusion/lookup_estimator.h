@@ -11,9 +11,8 @@
 // Search cost: exact nearest neighbours by partial distances with early exit. Channels are
 // visited in order of the sample's own whitened magnitude (the strongest first), so a row far
 // from the sample exceeds the best distance so far after a few channels; a first pass over
-// every 16th row sets a good bound. Measured (docs/physics_estimator.md): about 290 us for the
-// default 39k-row grid, 44 us for the physics inversion's 5k-row start table, i.e. ~7 ns per
-// row where a full 48-channel distance costs several times that. Memory: rows x channels floats
+// every 16th row sets a good bound, so most rows cost a few channels' distance instead of 48
+// (times per table size: docs/physics_estimator.md). Memory: rows x channels floats
 // (7.5 MB for the default grid).
 // Thread safety: a built table is immutable; estimate() and nearest() are const and safe to call
 // from several threads.

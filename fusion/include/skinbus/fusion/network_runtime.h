@@ -48,10 +48,8 @@
 //   kFloat32   matches LibTorch on the same weights to well below 1e-3 mm.
 //   kBfloat16  weights and activations rounded to bfloat16, products accumulated in float32
 //              (vdpbf16ps on AVX512_BF16; widened to float32 and FMA on AVX2 and NEON, which
-//              saves memory traffic, not arithmetic), convolutions direct; on the seed CNN with
-//              AVX512_BF16 about 1.9x the speed of direct float32, 1.4x Winograd float32. On random
-//              models the outputs differ from float32 by at most 0.01-0.5 % of each output's scale
-//              (0.005 mm on the seed CNN, 0.2 mm on an MLP at a 40 mm scale;
+//              saves memory traffic, not arithmetic), convolutions direct. Outputs differ from
+//              float32 by a fraction of a percent of each output's scale (speed and error:
 //              docs/benchmarks/runtime.md). create() returns kUnsupported when the backend is
 //              kOneDnn; kKernels serves it on every CPU (on one without AVX2, AVX-512 or NEON
 //              with the portable kernels, slowly); kPortable emulates it anywhere (for tests).
@@ -83,9 +81,9 @@
 //   kAuto      Winograd for the float32 convolutions with at least 32 input channels (narrower
 //              ones run faster direct) when the grid needs fewer products with it (16 per tile
 //              against the in-bounds taps: true on square grids from 4x4 up, false on 2x2 and
-//              3x3), else kDirect. On the seed CNN: conv1-conv3 Winograd, 1.4x the speed of
-//              kDirect at batch 1. kWinograd runs every convolution so. bfloat16 and int8 always
-//              run direct; create() returns kUnsupported for kWinograd with them or with the
+//              3x3), else kDirect. On the seed CNN: conv1-conv3 Winograd (the speed-up:
+//              docs/benchmarks/runtime.md). kWinograd runs every convolution so. bfloat16 and int8
+//              always run direct; create() returns kUnsupported for kWinograd with them or with the
 //              oneDNN backend.
 #pragma once
 

@@ -22,10 +22,9 @@
 // flag_range(); a non-finite result becomes a rejection. Force from PatchModel::force_n(depth).
 //
 // Cost: one forward Jacobian (~30 magnets x 16 sensors dipoles in jets) per iteration, about
-// 3 iterations on average; measured ~285 us per estimate from the lookup start (44 us of it the
-// lookup), ~240 us from a guess (docs/physics_estimator.md). A start ending in a poor fit is
-// retried from the next nearest rows (up to 3 starts). estimate() is const and thread-safe
-// (each call builds its own small Ceres problem; it allocates).
+// 3 iterations on average, plus the lookup for the start (times: docs/physics_estimator.md). A
+// start ending in a poor fit is retried from the next nearest rows (up to 3 starts). estimate() is
+// const and thread-safe (each call builds its own small Ceres problem; it allocates).
 #pragma once
 
 #include <cstdint>

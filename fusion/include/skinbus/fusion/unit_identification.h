@@ -27,9 +27,9 @@
 // noise; clearly above 1: the model class misses something), overall and per depth bin, on the
 // fitting rows and on held-out rows.
 //
-// Cost: measured in docs/physics_estimator.md: 3.9 s for 361 presses x 4 depths (1444 samples,
-// 3 iterations) on one core of the development machine, 150 MB peak. Single-threaded (Eigen's
-// sparse Cholesky; no BLAS threads).
+// Cost: a sparse Levenberg-Marquardt over every sample's residuals, a few iterations; seconds for
+// the seed's 361 presses on one core, memory growing with the samples (figures:
+// docs/physics_estimator.md). Single-threaded (Eigen's sparse Cholesky; no BLAS threads).
 #pragma once
 
 #include <span>

@@ -27,6 +27,8 @@ struct GpioSettings {
   std::optional<unsigned> sync_in;  // rising edge = sample now (in sync mode)
 };
 
+// The `sim` section: what patch_sim::SimulatedBoard (skinbus/patch_sim/sim_source.h) builds when
+// the daemon runs without hardware. Plain settings: this library does not link the simulator.
 struct SimSettings {
   bool enabled = false;               // --sim: emulated chips fed by sim/ physics
   std::string contacts_file;          // scripted presses (CSV, docs/patch_node.md)

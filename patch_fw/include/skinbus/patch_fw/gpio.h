@@ -4,16 +4,14 @@
 // conversion is done), the multiplexer's active-low reset output, the identify LED output and a
 // SYNC input (rising edge = take a sample now). The back end for boards is libgpiod 1.6 (the C++
 // bindings Debian bookworm ships, gpio_gpiod.cc); a v2 back end implements the same interface.
-// Tests and the simulated patch use FakeGpioChip, which records outputs and lets a test drive
-// inputs and inject edges.
+// Tests and the simulated patch use patch_sim::FakeGpioChip (skinbus/patch_sim/fake_gpio.h),
+// which records outputs and lets a test drive inputs and inject edges.
 //
 // Errors name the line as "line N of <chip>". No exception leaves these classes: the libgpiod
 // bindings' exceptions are caught and returned as kIo (kUnavailable for EBUSY).
 #pragma once
 
 #include <cstdint>
-#include <deque>
-#include <map>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -41,7 +39,6 @@ class GpioInput {
   virtual Result<bool> get() = 0;  // the logical value (after any active-low inversion)
   // Waits up to `timeout_us` for an edge; false when none came (0 polls). Reads (consumes) one
   // event into `*event` (may be null). kInvalidArgument if the request asked for no edges.
-  // FakeGpioChip's inputs never block: they return at once whatever `timeout_us` says.
   virtual Result<bool> wait_event(uint64_t timeout_us, GpioEvent* event) = 0;
   // A file descriptor that polls readable while an event is pending (-1 when the request asked
   // for no edges), so the daemon can wait on CAN and GPIO at once. Owned by the input: valid
@@ -82,45 +79,5 @@ class GpioChip {
 // kernel's name ("gpiochip0"). Lines keep the chip open, so they may outlive the GpioChip.
 // Event timestamps are CLOCK_MONOTONIC on kernels >= 5.7 (CLOCK_REALTIME before).
 Result<std::unique_ptr<GpioChip>> open_gpiod_chip(std::string_view name);
-
-// An in-memory chip for tests and the simulated patch. Lines requested from it share state
-// with the chip (a per-line mutex lets a simulator thread drive lines the daemon reads). Errors
-// mirror libgpiod's: kOutOfRange, kUnavailable naming the holder, kIo from fail_next. Lines
-// start low and free; a requested output takes its initial level at once. Lines hold the
-// shared state, so destroying the chip before them is safe (they just stop being observable).
-class FakeGpioChip final : public GpioChip {
- public:
-  explicit FakeGpioChip(std::string name = "fake-gpiochip", unsigned lines = 32);
-  ~FakeGpioChip() override;
-
-  Result<std::unique_ptr<GpioOutput>> request_output(const GpioOutputRequest& request,
-                                                     std::string_view consumer) override;
-  Result<std::unique_ptr<GpioInput>> request_input(const GpioInputRequest& request,
-                                                   std::string_view consumer) override;
-  std::string_view name() const override { return name_; }
-  unsigned line_count() const override { return lines_; }
-
-  // Test side. Offsets past the chip are ignored (read as low, 0 and "").
-  // Physical level of a line (before active-low inversion).
-  bool level(unsigned offset) const;
-  // Number of times set() changed an output line's physical level (the initial level applied
-  // at request does not count), summed over every request of the line.
-  int transitions(unsigned offset) const;
-  // Who holds the line ("" if free).
-  std::string consumer(unsigned offset) const;
-  // Sets a line's physical level. On an input that asked for the resulting logical edge, queues
-  // a GpioEvent stamped `timestamp_us` (no edge when the level does not change).
-  void drive(unsigned offset, bool level, uint64_t timestamp_us = 0);
-  // Makes the next set/get/wait_event on a line fail with kIo ("line N of <chip>: I/O error
-  // (injected)"), as a chip that went away would; a pending event stays queued.
-  void fail_next(unsigned offset);
-
-  struct LineState;  // internal
-
- private:
-  std::string name_;
-  unsigned lines_;
-  std::map<unsigned, std::shared_ptr<LineState>> state_;
-};
 
 }  // namespace skinbus::patch_fw

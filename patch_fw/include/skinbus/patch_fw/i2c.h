@@ -4,7 +4,7 @@
 // a read of a number of bytes at a 7-bit address, separated by repeated STARTs and ended by one
 // STOP. The MLX90393 driver and the TCA9546A driver speak only through this interface, so the
 // same driver code runs on a real bus (LinuxI2cBus) and on the chip emulators in tests and in
-// the simulated patch (skinbus/patch_fw/emulator.h).
+// the simulated patch (patch_sim::EmulatedI2cBus, skinbus/patch_sim/emulator.h).
 #pragma once
 
 #include <cstdint>

@@ -11,21 +11,21 @@
 //
 // Typical use (what SensorArray does for 16 chips, pipelined):
 //   reset(); configure(config);                      // once, and again after any error
-//   start_single(kAxesXyz); sleep conversion_time_us(); read_measurement(kAxesXyz, &reading);
+//   start_single(mlx90393::kAxesXyz); sleep conversion_time_us(); read_measurement(&reading);
 #pragma once
 
 #include <cstdint>
 
 #include "skinbus/common/result.h"
+#include "skinbus/mlx90393/measurement.h"
+#include "skinbus/mlx90393/protocol.h"
 #include "skinbus/patch_fw/clock.h"
 #include "skinbus/patch_fw/i2c.h"
-#include "skinbus/patch_fw/mlx90393_protocol.h"
-#include "skinbus/sim/mlx90393.h"
 
 namespace skinbus::patch_fw {
 
 struct Mlx90393Settings {
-  sim::Mlx90393Config chip;               // gain, resolution, oversampling, digital filter
+  mlx90393::Config chip;                  // gain, resolution, oversampling, digital filter
   bool temperature_compensation = false;  // TCMP_EN (register 0x01 bit 10)
   bool drdy_interrupt = true;             // TRIG_INT = 1: the INT pin signals data ready
 };
@@ -78,7 +78,7 @@ class Mlx90393 {
   // default settings); the chip must not be converting already.
   Result<double> measure_temperature_c();
   // One conversion with T (what measure_temperature_c() waits) for `chip`, microseconds.
-  static uint32_t temperature_conversion_time_us(const sim::Mlx90393Config& chip);
+  static uint32_t temperature_conversion_time_us(const mlx90393::Config& chip);
 
  private:
   // Sends `cmd` and reads the status and `data_len` data bytes into `in` (1 + data_len).

@@ -59,7 +59,7 @@ struct PatchDesign {
   int sensors_u = 4, sensors_v = 4;
   double sensor_pitch_mm = 30;
   double sensor_depth_mm = 17;  // below the surface: lattice 15 mm + base and package 2 mm
-  Mlx90393Config sensor_config;
+  mlx90393::Config sensor_config;
   // Lattice mechanics.
   double spread_mm = 10;    // plate-on-foundation length l
   double lateral_mm = 2.0;  // in-plane motion of a magnet = -lateral * surface slope

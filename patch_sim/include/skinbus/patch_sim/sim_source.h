@@ -1,10 +1,11 @@
-// skinbus/patch_fw/sim_source.h: the simulated patch board behind `skinbus-patchd --sim`.
+// skinbus/patch_sim/sim_source.h: the simulated patch board behind `skinbus-patchd --sim`.
 //
-// The daemon's driver code runs unchanged: the I2C bus is an EmulatedI2cBus carrying a
-// TCA9546A and 16 emulated MLX90393s on the configured channels and addresses, and the field
-// each chip converts comes from sim/ physics: a fabricated unit (its variation and noise seeded
-// by the hardware UID) pressed by scripted contacts and, optionally, random presses, on a limb
-// that may swing (turning the Earth's field). GPIO lines come from a FakeGpioChip.
+// The daemon's driver code (patch_fw/) runs unchanged on the board's interfaces: the I2C bus is
+// an EmulatedI2cBus carrying a TCA9546A and 16 emulated MLX90393s on the configured channels and
+// addresses, and the field each chip converts comes from sim/ physics: a fabricated unit (its
+// variation and noise seeded by the hardware UID) pressed by scripted contacts and, optionally,
+// random presses, on a limb that may swing (turning the Earth's field). GPIO lines come from a
+// FakeGpioChip. The settings are the daemon's own (patch_fw/config.h, its `sim` section).
 //
 // Contact script (CSV, one press a line, '#' comments, an optional header line):
 //   t_start_s,t_end_s,u_mm,v_mm,depth_mm[,tip_radius_mm[,node]]
@@ -20,11 +21,11 @@
 #include "skinbus/common/result.h"
 #include "skinbus/patch_fw/clock.h"
 #include "skinbus/patch_fw/config.h"
-#include "skinbus/patch_fw/emulator.h"
-#include "skinbus/patch_fw/gpio.h"
+#include "skinbus/patch_sim/emulator.h"
+#include "skinbus/patch_sim/fake_gpio.h"
 #include "skinbus/sim/scene.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 
 // Parses a contact script; keeps the presses for `node`. Errors name the line.
 Result<std::vector<sim::SceneContact>> parse_contact_script(const std::string& text, uint8_t node);
@@ -41,7 +42,7 @@ class PatchPhysicsSource final : public FieldSource {
  public:
   static Result<std::unique_ptr<PatchPhysicsSource>> create(
       uint64_t hardware_uid, const std::vector<sim::SceneContact>& contacts,
-      const SimSettings& settings, uint64_t start_us);
+      const patch_fw::SimSettings& settings, uint64_t start_us);
   sim::Vec3<double> field_ut(int sensor, uint64_t time_us) override;
   double temperature_c(int sensor, uint64_t time_us) override;
   uint64_t measurements() const { return measurements_; }
@@ -63,8 +64,8 @@ struct SimulatedBoard {
   std::unique_ptr<EmulatedI2cBus> bus;
   std::unique_ptr<FakeGpioChip> gpio;
   // Builds the board the settings describe (validated settings). `clock` must outlive it.
-  static Result<std::unique_ptr<SimulatedBoard>> create(const PatchNodeSettings& settings,
-                                                        Clock* clock);
+  static Result<std::unique_ptr<SimulatedBoard>> create(const patch_fw::PatchNodeSettings& settings,
+                                                        patch_fw::Clock* clock);
 };
 
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

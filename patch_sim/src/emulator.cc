@@ -1,5 +1,4 @@
-#include "skinbus/patch_fw/emulator.h"
-#include "skinbus/patch_fw/tca9546a.h"
+#include "skinbus/patch_sim/emulator.h"
 
 #include <algorithm>
 #include <cmath>
@@ -7,17 +6,19 @@
 #include <cstdlib>
 #include <string>
 
-#include "skinbus/patch_fw/mlx90393_protocol.h"
-#include "skinbus/sim/mlx90393.h"
+#include "skinbus/mlx90393/measurement.h"
+#include "skinbus/mlx90393/protocol.h"
+#include "skinbus/patch_fw/tca9546a.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 
 namespace mlx = mlx90393;
+using patch_fw::format_hex_byte;
+using patch_fw::I2cMessage;
 
 namespace {
 
 constexpr int kMuxChannels = 4;
-constexpr uint64_t kBurstRateStepUs = 20000;  // BURST_DATA_RATE unit: 20 ms
 
 unsigned field(uint16_t reg, int shift, unsigned bits) {
   return (static_cast<unsigned>(reg) >> shift) & ((1u << bits) - 1);
@@ -40,20 +41,20 @@ struct Setup {
 
 Setup setup_from(const std::array<uint16_t, mlx::kRegCount>& regs, uint8_t axes) {
   const uint16_t c1 = regs[mlx::kRegConf1], c3 = regs[mlx::kRegConf3];
-  sim::Mlx90393Config c;
+  mlx::Config c;
   c.gain_sel = static_cast<uint8_t>(field(c1, mlx::kGainSelShift, 3));
   c.res_xy = static_cast<uint8_t>(field(c3, mlx::kResXShift, 2));
   c.res_z = static_cast<uint8_t>(field(c3, mlx::kResZShift, 2));
   c.osr = static_cast<uint8_t>(field(c3, mlx::kOsrShift, 2));
   c.dig_filt = static_cast<uint8_t>(field(c3, mlx::kDigFiltShift, 3));
   c.temperature = (axes & mlx::kAxisT) != 0;
-  sim::Mlx90393Config cy = c;  // RES_Y kept apart from RES_X
+  mlx::Config cy = c;  // RES_Y kept apart from RES_X
   cy.res_xy = static_cast<uint8_t>(field(c3, mlx::kResYShift, 2));
   Setup s;
-  s.sensitivity_ut = {sim::mlx90393_sensitivity_xy_ut(c), sim::mlx90393_sensitivity_xy_ut(cy),
-                      sim::mlx90393_sensitivity_z_ut(c)};
+  s.sensitivity_ut = {mlx::sensitivity_xy_ut(c), mlx::sensitivity_xy_ut(cy),
+                      mlx::sensitivity_z_ut(c)};
   s.res = {c.res_xy, cy.res_xy, c.res_z};
-  s.conversion_us = static_cast<uint64_t>(std::ceil(sim::mlx90393_conversion_time_us(c)));
+  s.conversion_us = static_cast<uint64_t>(std::ceil(mlx::conversion_time_us(c)));
   return s;
 }
 
@@ -61,14 +62,12 @@ Setup setup_from(const std::array<uint16_t, mlx::kRegCount>& regs, uint8_t axes)
 std::array<uint16_t, 4> convert(const Setup& s, const sim::Vec3<double>& field_ut,
                                 double temperature_c) {
   std::array<uint16_t, 4> codes{};
-  const double t =
-      std::round(mlx::kTemperatureCode25C + (temperature_c - 25.0) * mlx::kTemperatureLsbPerC);
-  codes[0] = static_cast<uint16_t>(std::isfinite(t) ? std::clamp(t, 0.0, 65535.0) : 0.0);
+  codes[0] = mlx::temperature_code(temperature_c);
   const double f[3] = {field_ut.x, field_ut.y, field_ut.z};
   for (int i = 0; i < 3; ++i) {
     bool saturated = false;
-    const int32_t code = sim::mlx90393_code(f[i], s.sensitivity_ut[static_cast<size_t>(i)],
-                                            s.res[static_cast<size_t>(i)], &saturated);
+    const int32_t code = mlx::output_code(f[i], s.sensitivity_ut[static_cast<size_t>(i)],
+                                          s.res[static_cast<size_t>(i)], &saturated);
     codes[static_cast<size_t>(i) + 1] = static_cast<uint16_t>(code & 0xFFFF);  // two's complement
   }
   return codes;
@@ -161,7 +160,7 @@ struct EmulatedI2cBus::Chip {
           convert(setup, source->field_ut(sensor, now_us), source->temperature_c(sensor, now_us));
     } else {
       const uint64_t rate = field(regs[mlx::kRegConf2], mlx::kBurstDataRateShift, 6);
-      period_us = std::max<uint64_t>(setup.conversion_us, rate * kBurstRateStepUs);
+      period_us = std::max<uint64_t>(setup.conversion_us, rate * mlx::kBurstDataRateStepUs);
       if (period_us == 0) period_us = 1;
       started_counted = 0;
       sampled_index = -1;
@@ -283,13 +282,13 @@ struct EmulatedI2cBus::Chip {
   }
 };
 
-EmulatedI2cBus::EmulatedI2cBus(Clock* clock, FieldSource* source)
+EmulatedI2cBus::EmulatedI2cBus(patch_fw::Clock* clock, FieldSource* source)
     : clock_(clock), source_(source) {}
 EmulatedI2cBus::~EmulatedI2cBus() = default;
 
 Status EmulatedI2cBus::add_mux(uint8_t address) {
   if (mux_address_) return make_error(ErrorCode::kInvalidArgument, "emulator: mux already added");
-  if (address < kTca9546aAddressMin || address > kTca9546aAddressMax) {
+  if (address < patch_fw::kTca9546aAddressMin || address > patch_fw::kTca9546aAddressMax) {
     return make_error(ErrorCode::kInvalidArgument,
                       "emulator: mux address " + format_hex_byte(address) + " outside 0x70..0x77");
   }
@@ -411,4 +410,4 @@ void EmulatedI2cBus::mux_reset() {
   mux_active_ = 0;
 }
 
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

@@ -1,8 +1,9 @@
-// skinbus/patch_fw/mlx90393_protocol.h: the MLX90393's I2C command protocol, as data.
+// skinbus/mlx90393/protocol.h: the MLX90393's I2C command protocol, as data.
 //
-// Shared by the driver (mlx90393.h) and the chip emulator (emulator.h) so the two cannot
-// disagree on a bit. From the MLX90393 datasheet (command set, status byte, volatile register
-// map).
+// Shared by the driver (skinbus/patch_fw/mlx90393.h) and the chip emulator
+// (skinbus/patch_sim/emulator.h) so the two cannot disagree on a bit. From the MLX90393
+// datasheet (command set, status byte, volatile register map, timing). What the settings in
+// the registers do to a measurement is measurement.h.
 //
 // Every command is a write of 1..4 bytes followed (repeated START) by a read of the status byte
 // and, for RM and RR, the data:
@@ -16,7 +17,7 @@
 
 #include <cstdint>
 
-namespace skinbus::patch_fw::mlx90393 {
+namespace skinbus::mlx90393 {
 
 // 7-bit addresses: 0x0C + A1A0 strapping, and the other part codes' blocks up to 0x1B.
 inline constexpr uint8_t kAddressMin = 0x0C;
@@ -41,13 +42,6 @@ inline constexpr uint8_t kAxisX = 0x2;
 inline constexpr uint8_t kAxisY = 0x4;
 inline constexpr uint8_t kAxisZ = 0x8;
 inline constexpr uint8_t kAxesXyz = kAxisX | kAxisY | kAxisZ;
-
-// Temperature output (datasheet typical): code = 46244 at 25 degC, 45.2 LSB/degC.
-inline constexpr double kTemperatureCode25C = 46244.0;
-inline constexpr double kTemperatureLsbPerC = 45.2;
-constexpr double temperature_c_from_code(uint16_t code) {
-  return 25.0 + (static_cast<double>(code) - kTemperatureCode25C) / kTemperatureLsbPerC;
-}
 
 // Status byte.
 inline constexpr uint8_t kStatusBurstMode = 1u << 7;
@@ -89,7 +83,7 @@ inline constexpr int kZSeriesBit = 7;
 inline constexpr int kBistBit = 8;
 inline constexpr uint16_t kHallconfDefault = 0xC;
 // Register 0x01.
-inline constexpr int kBurstDataRateShift = 0;  // 6 bits
+inline constexpr int kBurstDataRateShift = 0;  // 6 bits, in steps of kBurstDataRateStepUs
 inline constexpr int kBurstSelShift = 6;       // 4 bits, zyxt
 inline constexpr int kTcmpEnBit = 10;
 inline constexpr int kExtTrgBit = 11;
@@ -110,7 +104,11 @@ inline constexpr uint16_t kDefaultConf1 = 0x007C;  // GAIN_SEL 7, HALLCONF 0xC
 inline constexpr uint16_t kDefaultConf2 = 0x0000;
 inline constexpr uint16_t kDefaultConf3 = 0x0000;  // OSR 0, DIG_FILT 0, RES 0
 
+// BURST_DATA_RATE unit: in burst mode a conversion starts every BURST_DATA_RATE * 20 ms, or
+// back to back when it takes longer.
+inline constexpr uint32_t kBurstDataRateStepUs = 20000;
+
 // Time the chip needs after RT before it answers again, microseconds (datasheet: tPOR-like).
 inline constexpr uint32_t kResetTimeUs = 1500;
 
-}  // namespace skinbus::patch_fw::mlx90393
+}  // namespace skinbus::mlx90393

@@ -1,4 +1,4 @@
-#include "skinbus/patch_fw/sim_source.h"
+#include "skinbus/patch_sim/sim_source.h"
 
 #include <cmath>
 #include <fstream>
@@ -8,7 +8,7 @@
 #include "skinbus/common/text_file.h"
 #include "skinbus/sim/rng.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 
 Result<std::vector<sim::SceneContact>> parse_contact_script(const std::string& text, uint8_t node) {
   std::vector<sim::SceneContact> out;
@@ -90,7 +90,7 @@ std::vector<sim::SceneContact> random_presses(uint64_t seed, double per_min, dou
 
 Result<std::unique_ptr<PatchPhysicsSource>> PatchPhysicsSource::create(
     uint64_t hardware_uid, const std::vector<sim::SceneContact>& contacts,
-    const SimSettings& settings, uint64_t start_us) {
+    const patch_fw::SimSettings& settings, uint64_t start_us) {
   std::unique_ptr<PatchPhysicsSource> p(new PatchPhysicsSource());
   p->start_us_ = start_us;
   sim::LimbMotion limb;
@@ -124,8 +124,8 @@ double PatchPhysicsSource::temperature_c(int, uint64_t time_us) {
   return scene_.environment(0, t_s).temperature_c;
 }
 
-Result<std::unique_ptr<SimulatedBoard>> SimulatedBoard::create(const PatchNodeSettings& s,
-                                                               Clock* clock) {
+Result<std::unique_ptr<SimulatedBoard>> SimulatedBoard::create(const patch_fw::PatchNodeSettings& s,
+                                                               patch_fw::Clock* clock) {
   std::vector<sim::SceneContact> contacts;
   if (!s.sim.contacts_file.empty()) {
     auto script = load_contact_script(s.sim.contacts_file, s.node.node_id);
@@ -147,7 +147,7 @@ Result<std::unique_ptr<SimulatedBoard>> SimulatedBoard::create(const PatchNodeSe
     if (Status st = board->bus->add_mux(*s.mux_address); !st.ok()) return st.error();
   }
   for (std::size_t i = 0; i < s.array.slots.size(); ++i) {
-    const SensorSlot& slot = s.array.slots[i];
+    const patch_fw::SensorSlot& slot = s.array.slots[i];
     if (Status st = board->bus->add_mlx90393(slot.channel, slot.address, static_cast<int>(i));
         !st.ok())
       return st.error();
@@ -155,4 +155,4 @@ Result<std::unique_ptr<SimulatedBoard>> SimulatedBoard::create(const PatchNodeSe
   return board;
 }
 
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

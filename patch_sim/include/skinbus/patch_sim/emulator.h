@@ -1,13 +1,14 @@
-// skinbus/patch_fw/emulator.h: MLX90393 and TCA9546A emulators behind the I2cBus interface.
+// skinbus/patch_sim/emulator.h: MLX90393 and TCA9546A emulators behind the I2cBus interface.
 //
-// EmulatedI2cBus is an I2C bus with chips on it, spoken to exactly as LinuxI2cBus is: one
-// combined transaction of write/read messages. It carries an optional TCA9546A multiplexer
+// EmulatedI2cBus is an I2C bus with chips on it, spoken to exactly as patch_fw's LinuxI2cBus is:
+// one combined transaction of write/read messages. It carries an optional TCA9546A multiplexer
 // whose four downstream channels hold MLX90393s, and MLX90393s on the trunk itself. Each
-// MLX90393 emulates the command protocol of mlx90393_protocol.h at the transaction level:
-// status byte (mode, error, reset and data-count bits), volatile registers, single and burst
-// measurements that take the conversion time of their configuration (skinbus/sim/mlx90393.h),
-// output codes in the configured gain and resolution (saturating), RT and EX. The field each
-// chip measures comes from a FieldSource (the simulated patch's physics, or a test's values).
+// MLX90393 emulates the command protocol (skinbus/mlx90393/protocol.h) at the transaction
+// level: status byte (mode, error, reset and data-count bits), volatile registers, single and
+// burst measurements that take the conversion time of their configuration, output codes in the
+// configured gain and resolution (saturating; skinbus/mlx90393/measurement.h), RT and EX. The
+// field each chip measures comes from a FieldSource (the simulated patch's physics, or a test's
+// values).
 //
 // Faults can be injected per chip, so drivers are tested against what real buses do: a chip
 // that NAKs (vanished, or loose cable), the error bit on the next commands, values stuck at
@@ -17,7 +18,7 @@
 // Time comes from a Clock (skinbus/patch_fw/clock.h), so a conversion is ready only when the
 // clock has passed its end. Not thread-safe: one bus, one thread, as on the board.
 //
-// What a driver sees (the contract the emulator keeps; mlx90393_protocol.h names the bits):
+// What a driver sees (the contract the emulator keeps; mlx90393/protocol.h names the bits):
 // - Bus: every message's address must acknowledge, else transfer() stops there and returns
 //   kUnavailable "... NAK at 0x0C ..." (messages before it have had their effect, as on real
 //   hardware). Two chips acknowledging the same address (enabled mux channels, or the trunk
@@ -39,8 +40,8 @@
 //   >= kRegCount (the low two bits of the register byte are ignored), SW (wake-on-change) and HS
 //   (memory store), which are not emulated. HR reloads the power-on defaults. WR is allowed in any
 //   mode; a measurement uses the registers at its start (a burst: at SB).
-// - SM: the conversion (all of X, Y, Z, plus T when selected, per sim::Mlx90393Config) ends
-//   at now + ceil(sim::mlx90393_conversion_time_us) of GAIN_SEL, RES_X/Y/Z, OSR, DIG_FILT.
+// - SM: the conversion (all of X, Y, Z, plus T when selected, per mlx90393::Config) ends
+//   at now + ceil(mlx90393::conversion_time_us) of GAIN_SEL, RES_X/Y/Z, OSR, DIG_FILT.
 //   The field and temperature are sampled from the FieldSource at the start.
 // - SB: conversion k starts at t_SB + k * P and completes at t_SB + (k + 1) * P, with
 //   P = max(ceil(conversion time), BURST_DATA_RATE * 20 ms); RM returns the latest complete
@@ -51,10 +52,10 @@
 //   high byte first. In single mode a successful RM consumes the measurement and returns the
 //   chip to idle (SM bit clear in that answer); a second RM answers ERROR. EX, RT and
 //   power_cycle() discard any measurement.
-// - Codes: X/Y/Z = sim::mlx90393_code(field, sensitivity of the axis, RES of the axis): RES 0/1
-//   signed (two's complement on the wire), RES 2/3 unsigned around 32768 / 16384. TCMP_EN,
-//   offsets, OSR2, BIST and Z_SERIES are ignored. T = round(mlx90393::kTemperatureCode25C +
-//   (t_c - 25) * mlx90393::kTemperatureLsbPerC), clamped to 0..65535, in every RES.
+// - Codes: X/Y/Z = mlx90393::output_code(field, sensitivity of the axis, RES of the axis):
+//   RES 0/1 signed (two's complement on the wire), RES 2/3 unsigned around 32768 / 16384. TCMP_EN,
+//   offsets, OSR2, BIST and Z_SERIES are ignored. T = mlx90393::temperature_code(t_c)
+//   (46244 at 25 degC, 45.2 LSB/degC, clamped to 0..65535), in every RES.
 // - RT: answers a status, resets the registers to the power-on defaults (kDefaultConf1/2/3,
 //   others 0), discards measurements, then NAKs every message for kResetTimeUs (only the read
 //   of RT's own answer in the same transaction is still acknowledged).
@@ -72,7 +73,7 @@
 #include "skinbus/patch_fw/i2c.h"
 #include "skinbus/sim/vec3.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 
 // The field a chip sees: `sensor` is the index given when the chip was added.
 class FieldSource {
@@ -105,10 +106,10 @@ struct Mlx90393Counters {
   uint64_t early_reads = 0;   // RM while the conversion was still running
 };
 
-class EmulatedI2cBus final : public I2cBus {
+class EmulatedI2cBus final : public patch_fw::I2cBus {
  public:
   // `clock` and `source` are not owned and must outlive the bus.
-  EmulatedI2cBus(Clock* clock, FieldSource* source);
+  EmulatedI2cBus(patch_fw::Clock* clock, FieldSource* source);
   ~EmulatedI2cBus() override;
 
   // Puts a TCA9546A at `address` (0x70..0x77) on the trunk. Call at most once.
@@ -120,7 +121,7 @@ class EmulatedI2cBus final : public I2cBus {
   // powers up idle with the default registers, RS pending.
   Status add_mlx90393(int channel, uint8_t address, int sensor);
 
-  Status transfer(std::span<I2cMessage> messages) override;
+  Status transfer(std::span<patch_fw::I2cMessage> messages) override;
   std::string_view name() const override { return "emulator"; }
 
   // Test and simulation side; `sensor` is the FieldSource index of a chip. An unknown index is
@@ -142,7 +143,7 @@ class EmulatedI2cBus final : public I2cBus {
   struct Chip;  // internal
 
  private:
-  Clock* clock_;
+  patch_fw::Clock* clock_;
   FieldSource* source_;
   std::optional<uint8_t> mux_address_;
   uint8_t mux_control_ = 0;  // the register
@@ -152,4 +153,4 @@ class EmulatedI2cBus final : public I2cBus {
   uint64_t transactions_ = 0;
 };
 
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

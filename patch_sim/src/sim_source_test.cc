@@ -1,8 +1,8 @@
-#include "skinbus/patch_fw/sim_source.h"
+#include "skinbus/patch_sim/sim_source.h"
 
 #include <gtest/gtest.h>
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 namespace {
 
 TEST(ContactScript, ReadsRowsForThisNode) {
@@ -36,4 +36,4 @@ TEST(ContactScript, ErrorsNameLineAndField) {
 }
 
 }  // namespace
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

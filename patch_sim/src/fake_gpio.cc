@@ -11,9 +11,16 @@
 #include <mutex>
 #include <utility>
 
-#include "skinbus/patch_fw/gpio.h"
+#include "skinbus/patch_sim/fake_gpio.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
+
+using patch_fw::GpioEdge;
+using patch_fw::GpioEvent;
+using patch_fw::GpioInput;
+using patch_fw::GpioInputRequest;
+using patch_fw::GpioOutput;
+using patch_fw::GpioOutputRequest;
 
 struct FakeGpioChip::LineState {
   std::mutex mutex;
@@ -236,4 +243,4 @@ void FakeGpioChip::fail_next(unsigned offset) {
   s->fail_next = true;
 }
 
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim

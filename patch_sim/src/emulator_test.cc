@@ -1,5 +1,5 @@
 // The chip emulators, driven only through transfer() with raw bytes, as a driver would.
-#include "skinbus/patch_fw/emulator.h"
+#include "skinbus/patch_sim/emulator.h"
 
 #include <gtest/gtest.h>
 
@@ -9,13 +9,15 @@
 #include <utility>
 #include <vector>
 
-#include "skinbus/patch_fw/mlx90393_protocol.h"
-#include "skinbus/sim/mlx90393.h"
+#include "skinbus/mlx90393/measurement.h"
+#include "skinbus/mlx90393/protocol.h"
 
-namespace skinbus::patch_fw {
+namespace skinbus::patch_sim {
 namespace {
 
 namespace mlx = mlx90393;
+using patch_fw::I2cMessage;
+using patch_fw::ManualClock;
 using Bytes = std::vector<uint8_t>;
 
 constexpr uint8_t kMux = 0x70;
@@ -37,7 +39,7 @@ class TestField final : public FieldSource {
   std::vector<std::pair<int, uint64_t>> calls;
 };
 
-// Register-field values of a configuration, and what the sim model makes of it.
+// Register-field values of a configuration, and what the chip makes of it.
 struct Cfg {
   uint8_t gain = 7, res_x = 0, res_y = 0, res_z = 0, osr = 0, filt = 0;
 
@@ -45,21 +47,18 @@ struct Cfg {
   uint16_t conf3() const {
     return static_cast<uint16_t>(osr | filt << 2 | res_x << 5 | res_y << 7 | res_z << 9);
   }
-  sim::Mlx90393Config sim(bool temperature, uint8_t res_xy) const {
+  mlx::Config chip(bool temperature, uint8_t res_xy) const {
     return {gain, res_xy, res_z, osr, filt, temperature};
   }
   uint64_t conversion_us(bool temperature) const {
-    return static_cast<uint64_t>(std::ceil(sim::mlx90393_conversion_time_us(sim(temperature, 0))));
+    return static_cast<uint64_t>(std::ceil(mlx::conversion_time_us(chip(temperature, 0))));
   }
   // Wire words X, Y, Z for a field.
   std::array<uint16_t, 3> codes(const sim::Vec3<double>& f, bool* any_saturated = nullptr) const {
     bool sx = false, sy = false, sz = false;
-    const auto x =
-        sim::mlx90393_code(f.x, sim::mlx90393_sensitivity_xy_ut(sim(false, res_x)), res_x, &sx);
-    const auto y =
-        sim::mlx90393_code(f.y, sim::mlx90393_sensitivity_xy_ut(sim(false, res_y)), res_y, &sy);
-    const auto z =
-        sim::mlx90393_code(f.z, sim::mlx90393_sensitivity_z_ut(sim(false, res_x)), res_z, &sz);
+    const auto x = mlx::output_code(f.x, mlx::sensitivity_xy_ut(chip(false, res_x)), res_x, &sx);
+    const auto y = mlx::output_code(f.y, mlx::sensitivity_xy_ut(chip(false, res_y)), res_y, &sy);
+    const auto z = mlx::output_code(f.z, mlx::sensitivity_z_ut(chip(false, res_x)), res_z, &sz);
     if (any_saturated) *any_saturated = sx || sy || sz;
     return {static_cast<uint16_t>(x & 0xFFFF), static_cast<uint16_t>(y & 0xFFFF),
             static_cast<uint16_t>(z & 0xFFFF)};
@@ -613,4 +612,4 @@ TEST(EmulatorDeathTest, UnknownSensorAborts) {
 }
 
 }  // namespace
-}  // namespace skinbus::patch_fw
+}  // namespace skinbus::patch_sim
