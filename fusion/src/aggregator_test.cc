@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <functional>
 #include <random>
 #include <string>
 
@@ -492,18 +493,22 @@ TEST(Aggregator, SamplesOlderThanTheLagBoundAreSupersededAndReportedOnce) {
   }
 }
 
+// A host clock for the lag-bound tests: `base_us` now, then advancing with the steady clock.
+std::function<uint64_t()> host_clock_from(uint64_t base_us) {
+  const auto start = std::chrono::steady_clock::now();
+  return [start, base_us]() {
+    return base_us + static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
+                                               std::chrono::steady_clock::now() - start)
+                                               .count());
+  };
+}
+
 TEST(Aggregator, ASlowModelIsKeptWithinTheLagBoundAndServesEveryPatch) {
   // Every estimate costs 40 ms (a slow CPU); two patches are pressed each period but only one
   // estimate fits in the 60 ms bound (both would take 80 ms). The host supersedes what it cannot
   // publish in time, alternates between the patches, and every publication stays within the
   // bound.
-  const auto start = std::chrono::steady_clock::now();
-  const uint64_t base_us = 1'000'000;
-  auto clock = [start, base_us]() {
-    return base_us + static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
-                                               std::chrono::steady_clock::now() - start)
-                                               .count());
-  };
+  const auto clock = host_clock_from(1'000'000);
   AggregatorOptions o;
   o.max_lag_us = 60'000;
   o.model_delay_us = 40'000;
@@ -546,13 +551,7 @@ TEST(Aggregator, AModelSlowerThanTheBoundStillPublishesInTurn) {
   // Every estimate takes 60 ms, the bound is 40 ms: no run can meet it. The host still estimates
   // one sample a run (the first in time, the patches in turn) rather than none, late by about
   // one estimate, and reports the episode.
-  const auto start = std::chrono::steady_clock::now();
-  const uint64_t base_us = 1'000'000;
-  auto clock = [start, base_us]() {
-    return base_us + static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
-                                               std::chrono::steady_clock::now() - start)
-                                               .count());
-  };
+  const auto clock = host_clock_from(1'000'000);
   AggregatorOptions o;
   o.max_lag_us = 40'000;
   o.model_delay_us = 60'000;
