@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The Arm path of the network runtime, checked without Arm hardware: builds the runtime library
-# (common and fusion's models library; no oneDNN, no LibTorch) and its LibTorch-free tests with
+# (common and the estimators library; no oneDNN, no LibTorch) and its LibTorch-free tests with
 # Debian's aarch64 cross compiler into build-aarch64/ and runs them under qemu-aarch64 twice: on a
 # CPU with the dot-product instructions (-cpu max: NEON float32 and bfloat16, SDOT int8) and on
 # one without (-cpu cortex-a53: the widening int8 path). Then the x86 kernel and runtime tests of
@@ -46,7 +46,7 @@ cmake -S . -B "$build" -G Ninja -DCMAKE_TOOLCHAIN_FILE="$toolchain" -DSKINBUS_RU
 cmake --build "$build" -j2
 
 export SKINBUS_SOURCE_DIR=$root
-kernels_test=$build/fusion/fusion_network_kernels_test
+kernels_test=$build/estimators/estimators_network_kernels_test
 for cpu in max cortex-a53; do
   want=$([[ $cpu == max ]] && echo "neon (int8 neon-dotprod)" || echo "neon (int8 neon)")
   echo "arm_test: qemu-aarch64 -cpu $cpu: expecting kernels $want"
@@ -60,11 +60,11 @@ if [[ ${SKINBUS_SKIP_X86_QEMU:-0} != 1 ]]; then
   # Haswell without the features QEMU's TCG lacks (they only add warnings); AVX2 and FMA it has.
   haswell=Haswell-noTSX,-pcid,-x2apic,-tsc-deadline,-invpcid
   [[ -f build/build.ninja ]] || cmake -S . -B build -G Ninja -DSKINBUS_WERROR=ON >/dev/null
-  cmake --build build -j2 --target fusion_network_kernels_test fusion_network_runtime_isa_test
+  cmake --build build -j2 --target estimators_network_kernels_test estimators_network_runtime_isa_test
   echo "arm_test: qemu-x86_64 -cpu Haswell: expecting kernels avx2 (int8 avx2)"
   expect_line "kernels here|int8 kernels checked|PASSED|FAILED" "kernels here: avx2 (int8 avx2)" \
-    qemu-x86_64 -cpu "$haswell" build/fusion/fusion_network_kernels_test
+    qemu-x86_64 -cpu "$haswell" build/estimators/estimators_network_kernels_test
   expect_line "kernels in use|PASSED|FAILED" "kernels in use: kernels avx2 int8" \
-    qemu-x86_64 -cpu "$haswell" build/fusion/fusion_network_runtime_isa_test
+    qemu-x86_64 -cpu "$haswell" build/estimators/estimators_network_runtime_isa_test
 fi
 echo "arm_test.sh: passed (aarch64 under qemu-aarch64 max and cortex-a53$([[ ${SKINBUS_SKIP_X86_QEMU:-0} == 1 ]] || echo "; x86 AVX2 under qemu-x86_64 Haswell"))"

@@ -52,7 +52,7 @@ trap cleanup EXIT
 # ---- The body and its skin ---------------------------------------------------------------------
 "$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir "$out/session" \
   --upper-arm-links left_upper_arm_link,right_upper_arm_link \
-  --model "$src/fusion/models/nominal_seed_cnn" >/dev/null
+  --model "$src/estimators/models/nominal_seed_cnn" >/dev/null
 cp "$out/session/truth.yaml" "$out/skin.yaml"
 sed -i "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" "$out/skin.yaml"
 patches=$(grep -c '^  - node:' "$out/skin.yaml")

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Trains the per-patch networks on simulated data and measures every estimator: the source of
-# docs/benchmarks/models.md and of the shipped default model (fusion/models/).
+# docs/benchmarks/models.md and of the shipped default model (estimators/models/).
 #
 #   scripts/model_report.sh [work-dir]       (default build/models; trained models are cached there)
-#   scripts/model_report.sh --ship           also copies the default model into fusion/models/
+#   scripts/model_report.sh --ship           also copies the default model into estimators/models/
 #
 # Steps: datasets (skinbus-dataset), networks (skinbus-train; a model already in work-dir is not
 # retrained), then skinbus-bench models, budget and finetune, writing tables, CSV and plots into
@@ -106,7 +106,7 @@ done
   --epochs 15 --csv docs/benchmarks/finetune_grid.csv | tee "$work/finetune_grid_table.md"
 
 if ((ship)); then
-  mkdir -p fusion/models
-  cp "$work/nominal_seed_cnn.json" "$work/nominal_seed_cnn.safetensors" fusion/models/
-  echo "model_report: shipped fusion/models/nominal_seed_cnn"
+  mkdir -p estimators/models
+  cp "$work/nominal_seed_cnn.json" "$work/nominal_seed_cnn.safetensors" estimators/models/
+  echo "model_report: shipped estimators/models/nominal_seed_cnn"
 fi

@@ -1,6 +1,6 @@
 // `skinbus-bench ambient`: accuracy of a per-patch model when the ambient field turns between the
 // patch's tare and the press (a limb moving in the Earth's field), with and without common-mode
-// rejection (fusion/ambient.h). Run time and error on the same presses.
+// rejection (host/ambient.h). Run time and error on the same presses.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -9,9 +9,9 @@
 #include <vector>
 
 #include "bench_ambient.h"
-#include "skinbus/fusion/ambient.h"
-#include "skinbus/fusion/evaluation.h"
-#include "skinbus/fusion/network_runtime.h"
+#include "skinbus/estimators/evaluation.h"
+#include "skinbus/estimators/network_runtime.h"
+#include "skinbus/host/ambient.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 
@@ -100,12 +100,12 @@ void add_ambient_options(CLI::App* sub, AmbientBenchArgs& a) {
 }
 
 int bench_ambient(const AmbientBenchArgs& a) {
-  auto model = fusion::read_model(a.model_path);
+  auto model = estimators::read_model(a.model_path);
   if (!model) {
     std::fprintf(stderr, "skinbus-bench ambient: %s\n", model.error().to_string().c_str());
     return 1;
   }
-  auto rt = fusion::NetworkRuntime::create(*model, {});
+  auto rt = estimators::NetworkRuntime::create(*model, {});
   if (!rt) {
     std::fprintf(stderr, "skinbus-bench ambient: %s\n", rt.error().to_string().c_str());
     return 1;
@@ -118,10 +118,10 @@ int bench_ambient(const AmbientBenchArgs& a) {
   std::vector<Row> rows;
   const struct {
     const char* name;
-    fusion::CommonModeMethod m;
-  } methods[] = {{"none", fusion::CommonModeMethod::kNone},
-                 {"median", fusion::CommonModeMethod::kMedian},
-                 {"quiet-mean", fusion::CommonModeMethod::kQuietMean}};
+    host::CommonModeMethod m;
+  } methods[] = {{"none", host::CommonModeMethod::kNone},
+                 {"median", host::CommonModeMethod::kMedian},
+                 {"quiet-mean", host::CommonModeMethod::kQuietMean}};
   for (const std::string& unit : a.units) {
     sim::PatchDesign design;
     auto pm = unit == "nominal"
@@ -134,34 +134,34 @@ int bench_ambient(const AmbientBenchArgs& a) {
     sim::SimulatedPatch patch(*pm, sim::unit_noise_seed(a.uid, 2));
     const Presses p = make_presses(patch, a, a.uid ^ 0xA3B1);
     const int ch = patch.channel_count();
-    const fusion::Truth truth{p.u, p.v, p.depth, p.force};
+    const estimators::Truth truth{p.u, p.v, p.depth, p.force};
     for (const auto& m : methods) {
       for (int turned = 0; turned < 2; ++turned) {
         std::vector<double> x = turned ? p.turned : p.clean;
         const std::vector<double>& ref = p.clean;
         const auto t0 = BenchClock::now();
-        fusion::CommonModeOptions o;
+        host::CommonModeOptions o;
         o.method = m.m;
         double resid2 = 0;
         for (int k = 0; k < a.count; ++k) {
           std::span<double> s(x.data() + static_cast<std::size_t>(k) * ch,
                               static_cast<std::size_t>(ch));
-          const auto e = fusion::estimate_common_mode(s, {}, o);
-          fusion::remove_common_mode(s, e);
+          const auto e = host::estimate_common_mode(s, {}, o);
+          host::remove_common_mode(s, e);
         }
         const double us =
             std::chrono::duration<double, std::micro>(BenchClock::now() - t0).count() / a.count;
         // What is left of the ambient change (or what the rejection took from a clean press),
         // RMS over the channels: the input error the network sees.
         for (std::size_t i = 0; i < x.size(); ++i) resid2 += (x[i] - ref[i]) * (x[i] - ref[i]);
-        std::vector<fusion::ContactEstimate> est(static_cast<std::size_t>(a.count));
+        std::vector<estimators::ContactEstimate> est(static_cast<std::size_t>(a.count));
         if (!rt->run(x, a.count, est).ok()) return 1;
-        const fusion::ErrorSummary s = fusion::summarize_errors(est, truth);
+        const estimators::ErrorSummary s = estimators::summarize_errors(est, truth);
         Row r;
         r.unit = unit;
         r.method = m.name;
         r.field = turned ? "turned" : "still";
-        r.xy_mm = fusion::xy_mean_from_bin(s);
+        r.xy_mm = estimators::xy_mean_from_bin(s);
         r.p95_mm = s.all.xy_p95_mm;
         r.depth_mm = s.all.depth_mean_mm;
         r.rejected = s.all.rejected;

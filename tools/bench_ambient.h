@@ -11,7 +11,7 @@
 namespace skinbus::tools {
 
 struct AmbientBenchArgs {
-  std::string model_path = "fusion/models/nominal_seed_cnn";
+  std::string model_path = "estimators/models/nominal_seed_cnn";
   std::vector<std::string> units = {"nominal", "fabricated"};
   uint64_t uid = 0x5B00000000000001ull;
   int count = 1000;

@@ -8,16 +8,16 @@
 #include <optional>
 
 #include "bench_models.h"
-#include "skinbus/fusion/bias_correction.h"
-#include "skinbus/fusion/network_runtime.h"
-#include "skinbus/fusion/physics_estimator.h"
-#include "skinbus/fusion/unit_identification.h"
+#include "skinbus/estimators/bias_correction.h"
+#include "skinbus/estimators/network_runtime.h"
+#include "skinbus/estimators/physics_estimator.h"
+#include "skinbus/estimators/unit_identification.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::tools {
 namespace {
 
-using namespace skinbus::fusion;
+using namespace skinbus::estimators;
 using Clock = std::chrono::steady_clock;
 
 // The seed's protocol: 19 x 19 presses at 7.5 mm, ramps to 4 mm (as skinbus-dataset --plan grid).

@@ -14,15 +14,15 @@
 #endif
 
 #include "bench_models.h"
-#include "skinbus/fusion/evaluation.h"
-#include "skinbus/fusion/model_file.h"
-#include "skinbus/fusion/network_runtime.h"
+#include "skinbus/estimators/evaluation.h"
+#include "skinbus/estimators/model_file.h"
+#include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/patch_model.h"
 #include "skinbus/sim/simulated_patch.h"
 #include "tool_util.h"
 #ifdef SKINBUS_HAVE_TORCH
-#include "skinbus/fusion/training.h"
+#include "skinbus/estimators/training.h"
 #endif
 
 #ifndef SKINBUS_SOURCE_DIR
@@ -32,7 +32,7 @@
 namespace skinbus::tools {
 namespace {
 
-using namespace skinbus::fusion;
+using namespace skinbus::estimators;
 using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) {
@@ -148,7 +148,7 @@ double fma_peak_gflops(RuntimeIsa isa) {
 void add_cpu_options(CLI::App* sub, CpuBenchArgs& a) {
   sub->add_option("--model", a.model_path,
                   "the network timed (model file stem; default: the shipped seed CNN, "
-                  "fusion/models/nominal_seed_cnn)");
+                  "estimators/models/nominal_seed_cnn)");
   sub->add_option("--test", a.test_path,
                   "off-grid test presses for the error columns (default: 2000 simulated on the "
                   "nominal patch, as skinbus-dataset --plan random-test)")
@@ -166,7 +166,7 @@ void add_cpu_options(CLI::App* sub, CpuBenchArgs& a) {
 
 int bench_cpu(const CpuBenchArgs& a) {
   const std::string model_path =
-      a.model_path.empty() ? std::string(SKINBUS_SOURCE_DIR) + "/fusion/models/nominal_seed_cnn"
+      a.model_path.empty() ? std::string(SKINBUS_SOURCE_DIR) + "/estimators/models/nominal_seed_cnn"
                            : a.model_path;
   Result<ModelFile> model = read_model(model_path);
   if (!model.ok()) {

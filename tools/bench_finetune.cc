@@ -8,16 +8,16 @@
 
 #include "bench_models.h"
 #include "skinbus/common/stats.h"
-#include "skinbus/fusion/network_runtime.h"
-#include "skinbus/fusion/physics_estimator.h"
-#include "skinbus/fusion/training.h"
-#include "skinbus/fusion/unit_identification.h"
+#include "skinbus/estimators/network_runtime.h"
+#include "skinbus/estimators/physics_estimator.h"
+#include "skinbus/estimators/training.h"
+#include "skinbus/estimators/unit_identification.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::tools {
 namespace {
 
-using namespace skinbus::fusion;
+using namespace skinbus::estimators;
 using Clock = std::chrono::steady_clock;
 constexpr double kHalfExtentMm = 67.5;    // the seed grid's extent
 constexpr double kSecondsPerPress = 6.0;  // a 4 s ramp plus ~2 s to move to the next point

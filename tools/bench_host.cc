@@ -35,7 +35,7 @@
 #include "skinbus/bus/budget.h"
 #include "skinbus/bus/codec.h"
 #include "skinbus/bus/socketcan.h"
-#include "skinbus/fusion/aggregator.h"
+#include "skinbus/host/aggregator.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 #include "tool_util.h"
@@ -119,7 +119,7 @@ Setup make_setup(const Pool& pool, int patches, double touched_fraction, double 
     p.link = "base";
     // Spread the patches on a plane so no two presses merge.
     p.pose_on_link.translation_mm = {200.0 * (i % 20), 200.0 * (i / 20), 0};
-    p.model = "fusion/models/nominal_seed_cnn";
+    p.model = "estimators/models/nominal_seed_cnn";
     s.map.patches.push_back(p);
   }
   // Touched patches: every (patches / touched)-th, so they spread over the buses.
@@ -196,19 +196,19 @@ struct Result {
 };
 
 // `paced`: on the monotonic clock (the frames' times), with the lag bound measuring the runs.
-std::unique_ptr<fusion::Aggregator> make_aggregator(const Setup& s, const HostBenchArgs& a,
-                                                    bool paced) {
-  fusion::AggregatorOptions o;
+std::unique_ptr<host::Aggregator> make_aggregator(const Setup& s, const HostBenchArgs& a,
+                                                  bool paced) {
+  host::AggregatorOptions o;
   o.runtime.threads = a.threads;
-  o.runtime.precision = a.precision == "int8"       ? fusion::RuntimePrecision::kInt8
-                        : a.precision == "bfloat16" ? fusion::RuntimePrecision::kBfloat16
-                                                    : fusion::RuntimePrecision::kFloat32;
-  fusion::parse_runtime_isa(a.isa, &o.runtime.max_isa);
+  o.runtime.precision = a.precision == "int8"       ? estimators::RuntimePrecision::kInt8
+                        : a.precision == "bfloat16" ? estimators::RuntimePrecision::kBfloat16
+                                                    : estimators::RuntimePrecision::kFloat32;
+  estimators::parse_runtime_isa(a.isa, &o.runtime.max_isa);
   o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
   o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
   if (paced) o.clock_us = bus::monotonic_now_us;
   const char* src = SKINBUS_SOURCE_DIR;
-  auto agg = fusion::Aggregator::create(&s.map, src, nullptr, s.buses, o);
+  auto agg = host::Aggregator::create(&s.map, src, nullptr, s.buses, o);
   if (!agg) {
     std::fprintf(stderr, "skinbus-bench host: %s\n", agg.error().to_string().c_str());
     return nullptr;
@@ -224,7 +224,7 @@ std::unique_ptr<fusion::Aggregator> make_aggregator(const Setup& s, const HostBe
 bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
   auto agg = make_aggregator(s, a, true);
   if (!agg) return false;
-  fusion::ContactArray out;
+  host::ContactArray out;
   std::vector<double> lat;
   lat.reserve(s.frames.size());
   const uint64_t t_start = bus::monotonic_now_us() + 1000;
@@ -291,7 +291,7 @@ bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
 bool run_unpaced(const Setup& s, const HostBenchArgs& a, Result* r) {
   auto agg = make_aggregator(s, a, false);
   if (!agg) return false;
-  fusion::ContactArray out;
+  host::ContactArray out;
   // Warm-up: the heartbeats (identification), outside the timing.
   std::size_t i = 0;
   for (; i < s.frames.size() && s.frames[i].at_us < 50'000; ++i) {

@@ -10,15 +10,15 @@
 #include <memory>
 #include <thread>
 
-#include "skinbus/fusion/evaluation.h"
-#include "skinbus/fusion/lookup_estimator.h"
-#include "skinbus/fusion/network_runtime.h"
-#include "skinbus/fusion/physics_estimator.h"
+#include "skinbus/estimators/evaluation.h"
+#include "skinbus/estimators/lookup_estimator.h"
+#include "skinbus/estimators/network_runtime.h"
+#include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/dataset.h"
 #include "tool_util.h"
 #ifdef SKINBUS_HAVE_TORCH
-#include "skinbus/fusion/training.h"
+#include "skinbus/estimators/training.h"
 #endif
 
 #ifndef SKINBUS_SOURCE_DIR
@@ -28,7 +28,7 @@
 namespace skinbus::tools {
 namespace {
 
-using namespace skinbus::fusion;
+using namespace skinbus::estimators;
 using Clock = std::chrono::steady_clock;
 
 // One estimator as the benchmark drives it: `run` estimates rows [begin, end) of the test set

@@ -10,8 +10,8 @@
 #include <string>
 #include <vector>
 
-#include "skinbus/fusion/evaluation.h"
-#include "skinbus/fusion/network_runtime.h"
+#include "skinbus/estimators/evaluation.h"
+#include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/dataset.h"
 
 namespace skinbus::tools {
@@ -31,8 +31,8 @@ struct ModelsBenchArgs {
 // The CRLB RMS XY bound (mm) of each of the first `n` rows of `data` for `model` (its design's
 // sensor noise, a 5 mm tip), and its mean per depth bin.
 std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n);
-std::array<double, fusion::kDepthBins> mean_per_bin(std::span<const double> values,
-                                                    std::span<const double> depth_mm);
+std::array<double, estimators::kDepthBins> mean_per_bin(std::span<const double> values,
+                                                        std::span<const double> depth_mm);
 
 void add_models_options(CLI::App* sub, ModelsBenchArgs& a);
 int bench_models(const ModelsBenchArgs& a);
@@ -52,7 +52,7 @@ void add_cpu_options(CLI::App* sub, CpuBenchArgs& a);
 int bench_cpu(const CpuBenchArgs& a);
 // The float32 multiply-add peak of one core with `isa`'s vector width (GFLOP/s; 0 where this CPU
 // or build has no such vectors, and for the portable kernels).
-double fma_peak_gflops(fusion::RuntimeIsa isa);
+double fma_peak_gflops(estimators::RuntimeIsa isa);
 
 // `skinbus-bench budget`: accuracy at a fixed robot-time budget (361 presses per unit).
 struct BudgetBenchArgs {

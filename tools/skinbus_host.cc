@@ -31,10 +31,10 @@
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/bus/candump.h"
 #include "skinbus/bus/socketcan.h"
-#include "skinbus/fusion/aggregator.h"
-#include "skinbus/fusion/contacts_json.h"
+#include "skinbus/host/aggregator.h"
+#include "skinbus/host/contacts_json.h"
 #ifdef SKINBUS_HAVE_DDS
-#include "skinbus/fusion/dds.h"
+#include "skinbus/dds/dds.h"
 #endif
 #include "tool_util.h"
 
@@ -58,7 +58,7 @@ struct HostArgs {
   std::string backend = "auto", precision = "float32", convolution = "auto", isa = "avx512";
   std::string ambient = "quiet-mean";
   int threads = 1;
-  int spin_us = fusion::RuntimeOptions{}.spin_us;
+  int spin_us = estimators::RuntimeOptions{}.spin_us;
   bool stats = false, quiet = false;
   std::string base_frame = "base_link";
   double max_lag_ms = 100;
@@ -73,12 +73,12 @@ class Outputs {
   explicit Outputs(const HostArgs& a) : json_(a.json), json_status_(a.json_status) {
 #ifdef SKINBUS_HAVE_DDS
     if (a.dds) {
-      fusion::DdsOptions o;
+      dds::DdsOptions o;
       if (a.domain >= 0) o.domain_id = static_cast<uint32_t>(a.domain);
-      if (Status st = fusion::apply_namespace(&o, a.ns); !st.ok()) {
+      if (Status st = dds::apply_namespace(&o, a.ns); !st.ok()) {
         throw std::invalid_argument(st.error().message);
       }
-      auto p = fusion::SkinPublisher::create(o);
+      auto p = dds::SkinPublisher::create(o);
       if (!p) throw std::runtime_error(p.error().to_string());
       pub_ = std::move(*p);
     }
@@ -89,9 +89,9 @@ class Outputs {
   }
   // JSON lines are flushed one by one and checked: a reader gone (`| head`) ends the host at
   // once and quietly, a failed write (a full disk) with a message and status 1.
-  void contacts(const fusion::ContactArray& c) {
+  void contacts(const host::ContactArray& c) {
     if (json_) {
-      std::fputs(fusion::contacts_to_json(c).c_str(), stdout);
+      std::fputs(host::contacts_to_json(c).c_str(), stdout);
       std::fputc('\n', stdout);
       tools::check_stdout("skinbus-host", /*flush=*/true);
     }
@@ -103,9 +103,9 @@ class Outputs {
     }
 #endif
   }
-  void status(const fusion::PatchStatusArray& s) {
+  void status(const host::PatchStatusArray& s) {
     if (json_status_) {
-      std::fputs(fusion::patch_status_to_json(s).c_str(), stdout);
+      std::fputs(host::patch_status_to_json(s).c_str(), stdout);
       std::fputc('\n', stdout);
       tools::check_stdout("skinbus-host", /*flush=*/true);
     }
@@ -121,7 +121,7 @@ class Outputs {
  private:
   bool json_, json_status_;
 #ifdef SKINBUS_HAVE_DDS
-  std::unique_ptr<fusion::SkinPublisher> pub_;
+  std::unique_ptr<dds::SkinPublisher> pub_;
 #endif
 };
 
@@ -135,9 +135,9 @@ class Joints {
     if (robot == nullptr) throw std::runtime_error("--joints needs a robot (the map's or --robot)");
     if (mode == "dds") {
 #ifdef SKINBUS_HAVE_DDS
-      fusion::DdsOptions o;
+      dds::DdsOptions o;
       if (a.domain >= 0) o.domain_id = static_cast<uint32_t>(a.domain);
-      auto s = fusion::JointStateSubscriber::create(o);
+      auto s = dds::JointStateSubscriber::create(o);
       if (!s) throw std::runtime_error(s.error().to_string());
       sub_ = std::move(*s);
       return;
@@ -157,7 +157,7 @@ class Joints {
   // Feeds the aggregator the joint states up to host time `now_us`; `run_start_us` is time zero
   // of a trajectory file. The aggregator keeps them as a history and places each sample at the
   // pose of its own time, so every state counts, stamped with when it was measured.
-  void update(fusion::Aggregator& agg, uint64_t now_us, uint64_t run_start_us) {
+  void update(host::Aggregator& agg, uint64_t now_us, uint64_t run_start_us) {
     if (have_traj_) {
       // The file's rows since the last call, at their own times (the history then interpolates
       // exactly as the file does), then the pose now, at most every 10 ms (between rows the file
@@ -179,7 +179,7 @@ class Joints {
     }
 #ifdef SKINBUS_HAVE_DDS
     if (sub_ && sub_->take_all(&states_) > 0) {
-      for (const fusion::JointStateSample& js : states_) {
+      for (const dds::JointStateSample& js : states_) {
         agg.set_joint_state(js.names, js.positions, stamp_of(js), /*prismatic_in_metres=*/true);
       }
     }
@@ -192,7 +192,7 @@ class Joints {
   // is implausible for this host's clock (more than kAheadUs after its arrival or kBehindUs
   // before it: clocks not synchronised), then its arrival time, said once on stderr.
   static constexpr uint64_t kAheadUs = 200'000, kBehindUs = 2'000'000;
-  uint64_t stamp_of(const fusion::JointStateSample& js) {
+  uint64_t stamp_of(const dds::JointStateSample& js) {
     const bool plausible = js.stamp_us != 0 && js.stamp_us <= js.received_us + kAheadUs &&
                            js.received_us <= js.stamp_us + kBehindUs;
     if (plausible) return js.stamp_us;
@@ -213,8 +213,8 @@ class Joints {
   uint64_t last_now_us_ = 0;  // when the pose "now" was last fed
   std::vector<double> q_;
 #ifdef SKINBUS_HAVE_DDS
-  std::unique_ptr<fusion::JointStateSubscriber> sub_;
-  std::vector<fusion::JointStateSample> states_;
+  std::unique_ptr<dds::JointStateSubscriber> sub_;
+  std::vector<dds::JointStateSample> states_;
   bool warned_ = false;
 #endif
 };
@@ -222,16 +222,16 @@ class Joints {
 constexpr uint64_t kFlushUs = 500'000;  // past every hold time: all contacts end
 
 struct Runner {
-  Runner(const HostArgs& a, fusion::Aggregator& g, Outputs& o, Joints& j)
+  Runner(const HostArgs& a, host::Aggregator& g, Outputs& o, Joints& j)
       : args(a), agg(g), out(o), joints(j) {}
   const HostArgs& args;
-  fusion::Aggregator& agg;
+  host::Aggregator& agg;
   Outputs& out;
   Joints& joints;
   uint64_t run_start_us = 0;
   uint64_t next_status_us = 0, next_tick_us = 0;
-  fusion::ContactArray contacts;
-  fusion::PatchStatusArray status;
+  host::ContactArray contacts;
+  host::PatchStatusArray status;
   tools::LatencyHistogram latency_us;  // fixed memory, however long the run
 
   void after_frames(uint64_t now_us, bool measure_latency) {
@@ -268,10 +268,10 @@ struct Runner {
   }
   void print_events() {
     if (args.quiet) return;
-    for (const fusion::PatchEvent& e : status.events) {
-      const bool loud = e.kind == fusion::PatchEventKind::kDuplicateId;
+    for (const host::PatchEvent& e : status.events) {
+      const bool loud = e.kind == host::PatchEventKind::kDuplicateId;
       std::fprintf(stderr, "skinbus-host: %s%s: %s\n", loud ? "WARNING " : "",
-                   std::string(fusion::patch_event_name(e.kind)).c_str(), e.detail.c_str());
+                   std::string(host::patch_event_name(e.kind)).c_str(), e.detail.c_str());
     }
   }
 };
@@ -295,7 +295,7 @@ class LogClock {
 
   // The adjusted time of a line stamped `ts_us` (line number `line`); events go to `agg` at
   // host time `event_us`.
-  uint64_t adjust(uint64_t ts_us, uint64_t line, fusion::Aggregator& agg, uint64_t event_us) {
+  uint64_t adjust(uint64_t ts_us, uint64_t line, host::Aggregator& agg, uint64_t event_us) {
     ++lines_;
     if (!started_) {
       started_ = true;
@@ -346,7 +346,7 @@ class LogClock {
     return last_;
   }
   // The end of the replay: a summary of what was adjusted (stderr and an event), if anything.
-  void summarise(fusion::Aggregator& agg, uint64_t event_us) {
+  void summarise(host::Aggregator& agg, uint64_t event_us) {
     char buf[256];
     if (back_lines_ > 0) {
       std::snprintf(buf, sizeof buf,
@@ -379,8 +379,8 @@ class LogClock {
   }
 
  private:
-  void report(fusion::Aggregator& agg, uint64_t event_us, const std::string& text) {
-    agg.add_event(fusion::PatchEventKind::kLogTime, event_us, text);
+  void report(host::Aggregator& agg, uint64_t event_us, const std::string& text) {
+    agg.add_event(host::PatchEventKind::kLogTime, event_us, text);
   }
   std::string source_;
   uint64_t max_gap_us_;
@@ -402,7 +402,7 @@ class LogInterfaces {
     for (std::size_t i = 0; i < names.size(); ++i) bus_of_[names[i]] = static_cast<int>(i);
   }
   // The bus of a frame on `iface`, or -1 (skipped, counted).
-  int bus(std::string_view iface, fusion::Aggregator& agg, uint64_t event_us) {
+  int bus(std::string_view iface, host::Aggregator& agg, uint64_t event_us) {
     ++frames_;
     if (names_.empty()) {
       ++used_;
@@ -416,7 +416,7 @@ class LogInterfaces {
     if (skipped_names_.size() < kMaxNamesReported &&
         std::find(skipped_names_.begin(), skipped_names_.end(), iface) == skipped_names_.end()) {
       skipped_names_.emplace_back(iface);
-      agg.add_event(fusion::PatchEventKind::kBadFrames, event_us,
+      agg.add_event(host::PatchEventKind::kBadFrames, event_us,
                     "frames on interface '" + skipped_names_.back() +
                         "' are skipped: it is not one of the -i names (" + joined() + ")");
     }
@@ -561,7 +561,7 @@ bool interface_up(const std::string& name) {
 // bus (after the live ones), whatever interface names the log holds.
 class PacedLog {
  public:
-  PacedLog(std::FILE* f, std::string source, int bus, uint64_t gap_us, fusion::Aggregator& agg)
+  PacedLog(std::FILE* f, std::string source, int bus, uint64_t gap_us, host::Aggregator& agg)
       : f_(f),
         source_(std::move(source)),
         reader_(f),
@@ -581,7 +581,7 @@ class PacedLog {
   }
   // Feeds every record due by `now_us`, stamped with when it was due (its arrival on the
   // replayed bus, as the kernel stamps a live frame), not with when this loop got to it.
-  void feed_due(fusion::Aggregator& agg, uint64_t now_us) {
+  void feed_due(host::Aggregator& agg, uint64_t now_us) {
     while (have_ && due_us() <= now_us) {
       agg.on_frame(bus_, rec_.frame, due_us());
       advance();
@@ -620,7 +620,7 @@ class PacedLog {
   bus::CandumpReader reader_;
   bus::CandumpRecord rec_;
   int bus_;
-  fusion::Aggregator& agg_;
+  host::Aggregator& agg_;
   LogClock clock_;
   bool have_ = false, started_ = false;
   uint64_t log_start_us_ = 0, wall_start_us_ = 0;
@@ -686,7 +686,7 @@ int run_live(const HostArgs& a, Runner& r) {
           const std::size_t bi = static_cast<std::size_t>(b);
           if (!down[bi]) {
             down[bi] = true;
-            r.agg.add_event(fusion::PatchEventKind::kInterfaceDown, bus::realtime_now_us(),
+            r.agg.add_event(host::PatchEventKind::kInterfaceDown, bus::realtime_now_us(),
                             port.name() + ": " + e.to_string() + " (reopening every second)", -1);
           }
           retry_us[bi] = bus::realtime_now_us() + 1'000'000;
@@ -716,8 +716,7 @@ int run_live(const HostArgs& a, Runner& r) {
       if (p) {
         ports[i] = std::move(*p);
         down[i] = false;
-        r.agg.add_event(fusion::PatchEventKind::kInterfaceUp, t, a.interfaces[i] + ": reopened",
-                        -1);
+        r.agg.add_event(host::PatchEventKind::kInterfaceUp, t, a.interfaces[i] + ": reopened", -1);
         rebuild_poller();
         index_fds();
       } else {
@@ -834,38 +833,38 @@ int run_live_pipe(const HostArgs& a, Runner& r) {
   return rc;
 }
 
-fusion::RuntimeBackend parse_backend(const std::string& s) {
-  if (s == "auto") return fusion::RuntimeBackend::kAuto;
-  if (s == "kernels") return fusion::RuntimeBackend::kKernels;
-  if (s == "portable") return fusion::RuntimeBackend::kPortable;
-  if (s == "onednn") return fusion::RuntimeBackend::kOneDnn;
+estimators::RuntimeBackend parse_backend(const std::string& s) {
+  if (s == "auto") return estimators::RuntimeBackend::kAuto;
+  if (s == "kernels") return estimators::RuntimeBackend::kKernels;
+  if (s == "portable") return estimators::RuntimeBackend::kPortable;
+  if (s == "onednn") return estimators::RuntimeBackend::kOneDnn;
   throw std::invalid_argument("--backend: auto, kernels, portable or onednn");
 }
 
-fusion::RuntimeIsa parse_isa(const std::string& s) {
-  fusion::RuntimeIsa isa = fusion::RuntimeIsa::kAvx512;
-  if (fusion::parse_runtime_isa(s, &isa)) return isa;
+estimators::RuntimeIsa parse_isa(const std::string& s) {
+  estimators::RuntimeIsa isa = estimators::RuntimeIsa::kAvx512;
+  if (estimators::parse_runtime_isa(s, &isa)) return isa;
   throw std::invalid_argument("--isa: avx512, avx2, neon or portable");
 }
 
-fusion::RuntimePrecision parse_precision(const std::string& s) {
-  if (s == "float32") return fusion::RuntimePrecision::kFloat32;
-  if (s == "bfloat16") return fusion::RuntimePrecision::kBfloat16;
-  if (s == "int8") return fusion::RuntimePrecision::kInt8;
+estimators::RuntimePrecision parse_precision(const std::string& s) {
+  if (s == "float32") return estimators::RuntimePrecision::kFloat32;
+  if (s == "bfloat16") return estimators::RuntimePrecision::kBfloat16;
+  if (s == "int8") return estimators::RuntimePrecision::kInt8;
   throw std::invalid_argument("--precision: float32, bfloat16 or int8");
 }
 
-fusion::RuntimeConvolution parse_convolution(const std::string& s) {
-  if (s == "auto") return fusion::RuntimeConvolution::kAuto;
-  if (s == "direct") return fusion::RuntimeConvolution::kDirect;
-  if (s == "winograd") return fusion::RuntimeConvolution::kWinograd;
+estimators::RuntimeConvolution parse_convolution(const std::string& s) {
+  if (s == "auto") return estimators::RuntimeConvolution::kAuto;
+  if (s == "direct") return estimators::RuntimeConvolution::kDirect;
+  if (s == "winograd") return estimators::RuntimeConvolution::kWinograd;
   throw std::invalid_argument("--convolution: auto, direct or winograd");
 }
 
-fusion::CommonModeMethod parse_ambient(const std::string& s) {
-  if (s == "none") return fusion::CommonModeMethod::kNone;
-  if (s == "median") return fusion::CommonModeMethod::kMedian;
-  if (s == "quiet-mean") return fusion::CommonModeMethod::kQuietMean;
+host::CommonModeMethod parse_ambient(const std::string& s) {
+  if (s == "none") return host::CommonModeMethod::kNone;
+  if (s == "median") return host::CommonModeMethod::kMedian;
+  if (s == "quiet-mean") return host::CommonModeMethod::kQuietMean;
   throw std::invalid_argument("--ambient: none, median or quiet-mean");
 }
 
@@ -985,7 +984,7 @@ int main(int argc, char** argv) {
     if (a.live && (a.replay.empty() || a.fast || a.live_and_replay)) {
       throw std::invalid_argument("--live: with --replay, without --fast or --live-and-replay");
     }
-    fusion::AggregatorOptions o;
+    host::AggregatorOptions o;
     o.runtime.backend = parse_backend(a.backend);
     o.runtime.precision = parse_precision(a.precision);
     o.runtime.max_isa = parse_isa(a.isa);
@@ -1024,7 +1023,7 @@ int main(int argc, char** argv) {
     const bool both = !a.replay.empty() && !a.interfaces.empty() && a.live_and_replay;
     if (both) buses.push_back("replay");
     if (buses.empty()) buses.push_back("can0");
-    auto agg = fusion::Aggregator::create(&*map, map_dir, robot.get(), buses, o);
+    auto agg = host::Aggregator::create(&*map, map_dir, robot.get(), buses, o);
     if (!agg) {
       std::fprintf(stderr, "skinbus-host: %s\n", agg.error().to_string().c_str());
       return 2;
@@ -1039,11 +1038,11 @@ int main(int argc, char** argv) {
     Outputs out(a);
     Joints joints(a, robot.get());
     if ((*agg)->model_descriptions().empty() && !a.allow_no_models) {
-      fusion::PatchStatusArray why;
+      host::PatchStatusArray why;
       (*agg)->status(0, &why);
-      for (const fusion::PatchEvent& e : why.events) {
+      for (const host::PatchEvent& e : why.events) {
         std::fprintf(stderr, "skinbus-host: %s: %s\n",
-                     std::string(fusion::patch_event_name(e.kind)).c_str(), e.detail.c_str());
+                     std::string(host::patch_event_name(e.kind)).c_str(), e.detail.c_str());
       }
       std::fprintf(stderr,
                    "skinbus-host: no patch of %s has a usable model: nothing to estimate "
@@ -1057,7 +1056,7 @@ int main(int argc, char** argv) {
                    : a.replay.empty() || both ? run_live(a, r)
                                               : run_replay(a, r);
     if (a.stats) {
-      const fusion::AggregatorStats& s = (*agg)->stats();
+      const host::AggregatorStats& s = (*agg)->stats();
       const bus::ReassemblyStats rs = (*agg)->reassembly_stats();
       std::fprintf(stderr,
                    "skinbus-host: frames %" PRIu64 " (rejected %" PRIu64 ", integrity %" PRIu64

@@ -10,7 +10,7 @@
 #include <optional>
 #include <string>
 
-#include "skinbus/fusion/unit_identification.h"
+#include "skinbus/estimators/unit_identification.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/unit_parameters.h"
 #include "tool_util.h"
@@ -21,12 +21,12 @@ using namespace skinbus;
 
 constexpr int kExitOk = 0, kExitFailed = 1, kExitUsage = 2;
 
-void print_quality(const char* what, const fusion::FitQuality& nominal,
-                   const fusion::FitQuality& fitted) {
+void print_quality(const char* what, const estimators::FitQuality& nominal,
+                   const estimators::FitQuality& fitted) {
   std::printf("%s (%d samples): residual RMS %.3f noise units identified, %.3f nominal\n", what,
               fitted.rows, fitted.rms, nominal.rms);
   for (std::size_t b = 0; b < fitted.bins.size(); ++b) {
-    const fusion::DepthBinResidual& f = fitted.bins[b];
+    const estimators::DepthBinResidual& f = fitted.bins[b];
     if (f.rows == 0) continue;
     const double nom = b < nominal.bins.size() ? nominal.bins[b].rms : 0.0;
     std::printf("  depth %.0f-%.0f mm  n=%-5d identified %.3f  nominal %.3f\n", f.depth_lo_mm,
@@ -56,7 +56,7 @@ int main(int argc, char** argv) {
   std::string presses_path, out_path, held_out_path;
   bool cylinder = false;
   double radius = 45;
-  fusion::IdentificationOptions opt;
+  estimators::IdentificationOptions opt;
   app.add_option("presses", presses_path, "the unit's presses (dataset CSV)")
       ->required()
       ->check(CLI::ExistingFile);
@@ -97,8 +97,8 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (a few seconds) ...\n",
                presses->rows(), presses_path.c_str());
   const auto t0 = std::chrono::steady_clock::now();
-  Result<fusion::IdentifiedUnit> id =
-      fusion::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr);
+  Result<estimators::IdentifiedUnit> id =
+      estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr);
   if (!id.ok()) {
     std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
     return id.error().code == ErrorCode::kInvalidArgument ? kExitUsage : kExitFailed;
@@ -114,11 +114,11 @@ int main(int argc, char** argv) {
   print_quality("fit", id->nominal_fit, id->fit);
   if (held_out) print_quality("held out", id->nominal_held_out, id->held_out);
   const double judged = held_out ? id->held_out.rms : id->fit.rms;
-  if (judged > fusion::kModelMissesResidual) {
+  if (judged > estimators::kModelMissesResidual) {
     std::printf(
         "warning: residual %.2f > %.1f noise units: this unit has physics the model does not "
         "contain; add the learned correction (docs/models.md)\n",
-        judged, fusion::kModelMissesResidual);
+        judged, estimators::kModelMissesResidual);
   }
   char residuals[96];
   std::snprintf(residuals, sizeof residuals, "residual %.3f noise units (fit)", id->fit.rms);

@@ -20,7 +20,7 @@
 #include "skinbus/body_map/joint_trajectory.h"
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/bus/socketcan.h"
-#include "skinbus/fusion/dds.h"
+#include "skinbus/dds/dds.h"
 #include "tool_util.h"
 
 using namespace skinbus;
@@ -77,7 +77,7 @@ int main(int argc, char** argv) {
   double rate_hz = 100, duration_s = 0, wait_match_s = -1;
   int domain = -1;
   bool quiet = false;
-  fusion::DdsOptions options;
+  dds::DdsOptions options;
   app.add_option("--trajectory", trajectory_path, "joint trajectory (CSV: time_s,<joint>,...)")
       ->required();
   app.add_option("--robot", robot_path,
@@ -130,7 +130,7 @@ int main(int argc, char** argv) {
   }
 
   tools::install_stop_handler();
-  auto pub = fusion::JointStatePublisher::create(options);
+  auto pub = dds::JointStatePublisher::create(options);
   if (!pub.ok()) {
     std::fprintf(stderr, "skinbus-joints: %s\n", pub.error().to_string().c_str());
     return kExitFailed;

@@ -12,13 +12,14 @@
 #include <memory>
 #include <string>
 
-#include "skinbus/fusion/contacts.h"
-#include "skinbus/fusion/contacts_json.h"
-#include "skinbus/fusion/dds.h"
+#include "skinbus/dds/dds.h"
+#include "skinbus/host/contacts.h"
+#include "skinbus/host/contacts_json.h"
 #include "tool_util.h"
 
 using namespace skinbus;
-using namespace skinbus::fusion;
+using namespace skinbus::dds;
+using namespace skinbus::host;
 
 namespace {
 

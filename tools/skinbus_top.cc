@@ -18,9 +18,9 @@
 
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
-#include "skinbus/fusion/contacts.h"
-#include "skinbus/fusion/contacts_json.h"
-#include "skinbus/fusion/dds.h"
+#include "skinbus/dds/dds.h"
+#include "skinbus/host/contacts.h"
+#include "skinbus/host/contacts_json.h"
 #include "tool_util.h"
 
 using namespace skinbus;
@@ -55,9 +55,9 @@ struct View {
   const body_map::SkinMap& map;
   const body_map::RobotModel* robot;
   std::vector<double> q;
-  fusion::ContactArray contacts;
-  fusion::PatchStatusArray status;
-  std::vector<fusion::PatchEvent> events;  // newest last
+  host::ContactArray contacts;
+  host::PatchStatusArray status;
+  std::vector<host::PatchEvent> events;  // newest last
   uint64_t contact_arrays = 0, status_arrays = 0;
 };
 
@@ -112,7 +112,7 @@ void draw_body(const View& v, Canvas& c) {
   }
   // Patches: their node ID at their centre; a touched patch in brackets.
   std::map<int, bool> touched;
-  for (const fusion::BodyContact& ct : v.contacts.contacts) touched[ct.node] = true;
+  for (const host::BodyContact& ct : v.contacts.contacts) touched[ct.node] = true;
   for (std::size_t i = 0; i < v.map.patches.size(); ++i) {
     int x, y;
     to_screen(centres[i], &x, &y);
@@ -122,7 +122,7 @@ void draw_body(const View& v, Canvas& c) {
     c.text(x - static_cast<int>(label.size()) / 2, y, label);
   }
   // Contacts: '@' where they are.
-  for (const fusion::BodyContact& ct : v.contacts.contacts) {
+  for (const host::BodyContact& ct : v.contacts.contacts) {
     int x, y;
     to_screen(Eigen::Vector3d(ct.position_mm[0], ct.position_mm[1], ct.position_mm[2]), &x, &y);
     c.put(x, y, '@');
@@ -143,18 +143,17 @@ std::string render(const View& v, int width, int height) {
   for (int y = 0; y < c.height(); ++y) out += "  " + c.row(y) + "\n";
   out += "  front view: patches by node ID, [n] touched, @ contact, . links\n\n";
   out += " node  link                   state        samples   contacts  lost  reboots  detail\n";
-  for (const fusion::PatchStatus& p : v.status.patches) {
+  for (const host::PatchStatus& p : v.status.patches) {
     std::snprintf(buf, sizeof buf,
                   " %4u  %-22.22s %-11s %8" PRIu64 " %10" PRIu64 " %5" PRIu64 " %8u  %.40s\n",
-                  p.node, p.link.c_str(),
-                  std::string(fusion::patch_link_state_name(p.state)).c_str(), p.samples,
-                  p.contacts, p.samples_lost, p.reboots, p.detail.c_str());
+                  p.node, p.link.c_str(), std::string(host::patch_link_state_name(p.state)).c_str(),
+                  p.samples, p.contacts, p.samples_lost, p.reboots, p.detail.c_str());
     out += buf;
   }
   out += "\n track  node  link                   x_mm     y_mm     z_mm   depth  force  flags\n";
-  for (const fusion::BodyContact& ct : v.contacts.contacts) {
+  for (const host::BodyContact& ct : v.contacts.contacts) {
     std::string flags;
-    for (const std::string& f : fusion::contact_flag_names(ct.flags)) flags += f + " ";
+    for (const std::string& f : host::contact_flag_names(ct.flags)) flags += f + " ";
     std::snprintf(buf, sizeof buf, " %5u  %4u  %-22.22s %7.1f  %7.1f  %7.1f  %5.2f  %5.2f  %s\n",
                   ct.track_id, ct.node, ct.link.c_str(), ct.position_mm[0], ct.position_mm[1],
                   ct.position_mm[2], ct.depth_mm, ct.force_n, flags.c_str());
@@ -163,7 +162,7 @@ std::string render(const View& v, int width, int height) {
   out += "\n recent events\n";
   const std::size_t first = v.events.size() > 6 ? v.events.size() - 6 : 0;
   for (std::size_t i = first; i < v.events.size(); ++i) {
-    out += "  " + std::string(fusion::patch_event_name(v.events[i].kind)) + ": " +
+    out += "  " + std::string(host::patch_event_name(v.events[i].kind)) + ": " +
            v.events[i].detail.substr(0, 100) + "\n";
   }
   return out;
@@ -223,14 +222,14 @@ int main(int argc, char** argv) {
     }
     robot = std::make_unique<body_map::RobotModel>(std::move(*r));
   }
-  fusion::DdsOptions o;
+  dds::DdsOptions o;
   if (domain >= 0) o.domain_id = static_cast<uint32_t>(domain);
-  if (Status st = fusion::apply_namespace(&o, ns); !st.ok()) {
+  if (Status st = dds::apply_namespace(&o, ns); !st.ok()) {
     std::fprintf(stderr, "skinbus-top: %s\n", st.error().to_string().c_str());
     return 2;
   }
-  auto sub = fusion::SkinSubscriber::create(o);
-  auto joints = fusion::JointStateSubscriber::create(o);
+  auto sub = dds::SkinSubscriber::create(o);
+  auto joints = dds::JointStateSubscriber::create(o);
   if (!sub || !joints) {
     std::fprintf(stderr, "skinbus-top: %s\n",
                  (!sub ? sub.error() : joints.error()).to_string().c_str());
@@ -251,14 +250,14 @@ int main(int argc, char** argv) {
   int drawn = 0;
   while (!tools::stop_requested()) {
     // Take everything that arrived; keep the newest contacts and status, all events.
-    fusion::ContactArray ca;
+    host::ContactArray ca;
     for (;;) {
       auto got = (*sub)->wait_contacts(&ca, 0);
       if (!got.ok() || !*got) break;
       v.contacts = std::move(ca);
       ++v.contact_arrays;
     }
-    fusion::PatchStatusArray sa;
+    host::PatchStatusArray sa;
     for (;;) {
       auto got = (*sub)->wait_patch_status(&sa, 0);
       if (!got.ok() || !*got) break;
@@ -267,7 +266,7 @@ int main(int argc, char** argv) {
       v.status = std::move(sa);
       ++v.status_arrays;
     }
-    fusion::JointStateSample js;
+    dds::JointStateSample js;
     if (robot && (*joints)->take_latest(&js)) {
       for (std::size_t i = 0; i < js.names.size() && i < js.positions.size(); ++i) {
         const int j = robot->find_joint(js.names[i]);

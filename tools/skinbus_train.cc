@@ -9,15 +9,15 @@
 #include <string>
 #include <vector>
 
-#include "skinbus/fusion/evaluation.h"
-#include "skinbus/fusion/training.h"
+#include "skinbus/estimators/evaluation.h"
+#include "skinbus/estimators/training.h"
 #include "skinbus/sim/dataset.h"
 #include "tool_util.h"
 
 namespace {
 
 using namespace skinbus;
-using namespace skinbus::fusion;
+using namespace skinbus::estimators;
 
 std::vector<int> parse_widths(const std::string& text) {
   std::vector<int> out;

@@ -11,7 +11,7 @@ make_skin_map() {
   shift
   dir=$(mktemp -d)
   "$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir "$dir" \
-    --model "$src/fusion/models/nominal_seed_cnn" "$@" >/dev/null
+    --model "$src/estimators/models/nominal_seed_cnn" "$@" >/dev/null
   sed -e "s|^robot: .*|robot: \"$src/body_map/robots/skinbot.urdf\"|" "$dir/truth.yaml" >"$out"
   rm -rf "$dir"
 }

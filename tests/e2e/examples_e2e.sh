@@ -25,7 +25,7 @@ printf '# t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node\n0.4,1.6,10,-2
 "$bin/skinbus-patchd" --sim -i none --candump-out bus.log --node 1 --uid "$uid" \
   --contacts presses.csv --duration 2 -q
 
-"$build/examples/estimate_recording" "$src/fusion/models/nominal_seed_cnn" <bus.log >est.txt
+"$build/examples/estimate_recording" "$src/estimators/models/nominal_seed_cnn" <bus.log >est.txt
 head -3 est.txt
 python3 - est.txt <<'PY'
 import re, statistics, sys

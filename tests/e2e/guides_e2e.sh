@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs every `sh` block of the guides (docs/guides/*.md), guide by guide, in a scratch folder that
-# has the repository's body_map/, fusion/, sim/, patch_fw/ and tools/ at hand and build/tools on
+# has the repository's body_map/, estimators/, sim/, patch_fw/ and tools/ at hand and build/tools on
 # the PATH: a guide whose commands stop working fails here. `console` blocks need a robot; of
 # those, the systemd units are checked with systemd-analyze verify.
 #   tests/e2e/guides_e2e.sh BUILD_DIR [GUIDE.md ...]
@@ -23,7 +23,7 @@ for guide in "${guides[@]}"; do
   name=$(basename "$guide" .md)
   dir=$work/$name
   mkdir -p "$dir"
-  for d in body_map fusion sim patch_fw tools; do ln -s "$src/$d" "$dir/$d"; done
+  for d in body_map estimators dds sim patch_fw tools; do ln -s "$src/$d" "$dir/$d"; done
   python3 - "$guide" >"$dir/guide.sh" <<'PY'
 import sys
 # As a user's shell runs them: a pipeline's status is its last command's (no pipefail), so a

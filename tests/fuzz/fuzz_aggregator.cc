@@ -1,7 +1,7 @@
-// Fuzzes the host aggregator (fusion/aggregator.h) through its inputs: CAN frames on two buses,
+// Fuzzes the host aggregator (host/aggregator.h) through its inputs: CAN frames on two buses,
 // joint states, and the process() / tick() / status() calls of the host loop, over a skin map
 // built here (three patches on a small robot, nodes 1..3, the shipped model
-// fusion/models/nominal_seed_cnn).
+// estimators/models/nominal_seed_cnn).
 //
 // The input is a list of steps; each starts with an op byte whose low 3 bits choose the step:
 //   0..2  a raw frame (fuzz_input.h: identifier and flags, length, data), then a time byte
@@ -55,14 +55,14 @@
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/bus/codec.h"
-#include "skinbus/fusion/aggregator.h"
+#include "skinbus/host/aggregator.h"
 
 #ifndef SKINBUS_SOURCE_DIR
 #define SKINBUS_SOURCE_DIR "."
 #endif
 
 using namespace skinbus;
-using namespace skinbus::fusion;
+using namespace skinbus::host;
 
 namespace {
 
@@ -130,7 +130,7 @@ body_map::SkinMap make_map() {
       p.geometry.size_u_mm = 140;
       p.pose_on_link.rotation = body_map::rotation_from_rpy(0, 0, 1.2);
     }
-    p.model = "fusion/models/nominal_seed_cnn";
+    p.model = "estimators/models/nominal_seed_cnn";
     map.patches.push_back(p);
   }
   return map;

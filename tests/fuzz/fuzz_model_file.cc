@@ -11,10 +11,10 @@
 #include <string>
 #include <string_view>
 
-#include "skinbus/fusion/model_file.h"
+#include "skinbus/estimators/model_file.h"
 
 using namespace skinbus;
-using namespace skinbus::fusion;
+using namespace skinbus::estimators;
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string_view all(reinterpret_cast<const char*>(data), size);

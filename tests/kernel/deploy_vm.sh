@@ -72,7 +72,7 @@ check_timing() {
 # simulated patch, pressed from 3 s on), the skin map with a model, all under /etc/skinbus (the
 # host's unit hides /home and /root, where a checkout may live).
 mkdir -p /etc/skinbus/models
-cp "$src"/fusion/models/nominal_seed_cnn.* /etc/skinbus/models/
+cp "$src"/estimators/models/nominal_seed_cnn.* /etc/skinbus/models/
 cp "$src/body_map/robots/skinbot.urdf" /etc/skinbus/
 "$bin/skinbus-touchsim" --robot /etc/skinbus/skinbot.urdf --out-dir skin \
   --model /etc/skinbus/models/nominal_seed_cnn >/dev/null

@@ -272,7 +272,7 @@ case_fast_time_backwards() {
     "$work/back.txt"
 }
 case_model_non_finite() {
-  python3 "$modeltool" overflow "$src/fusion/models/nominal_seed_cnn" "$work/overflow"
+  python3 "$modeltool" overflow "$src/estimators/models/nominal_seed_cnn" "$work/overflow"
   sed -e "s|model: .*|model: $work/overflow|" "$fixture/skin.yaml" >"$work/map.yaml"
   host --map "$work/map.yaml" --replay "$fixture/bus.log" --fast --json-status \
     >"$work/out.jsonl" 2>"$work/err.txt"
@@ -410,7 +410,7 @@ case_no_usable_model() {
   check "  --allow-no-models runs anyway (rc $rc)" test "$rc" = 0
 }
 case_json_number_message() {
-  python3 "$modeltool" number "$src/fusion/models/nominal_seed_cnn" "$work/big_number"
+  python3 "$modeltool" number "$src/estimators/models/nominal_seed_cnn" "$work/big_number"
   sed -e "s|model: .*|model: $work/big_number|" "$fixture/skin.yaml" >"$work/map.yaml"
   host --map "$work/map.yaml" --replay "$fixture/bus.log" --fast >/dev/null 2>"$work/err.txt"
   check "a JSON number 1e400 is named as such" grep -q "not valid JSON: .*number overflow.*1e400" \

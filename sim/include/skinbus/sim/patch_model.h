@@ -186,7 +186,7 @@ class PatchModel {
   // local surface frame) and the lattice's spread lengths and lateral coupling. Returns false,
   // with the rest pose, when no contact reaches it. The one formula of the deformation for every
   // scalar type: contact_field_ut() calls it with the model's own parameters, per-unit
-  // identification with jets over the parameters (fusion/unit_identification.h). Only the
+  // identification with jets over the parameters (estimators/unit_identification.h). Only the
   // design's surface and max_depth_mm() are read from the model.
   template <typename T>
   bool magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& m_loc, const T& spread_u,

@@ -4,7 +4,7 @@
 // every magnet sits and how it is magnetised, where every sensor sits, how it is turned and how
 // sensitive each of its axes is, and how the lattice spreads a press. PatchModel::parameters()
 // reads them from a model; PatchModel::from_parameters() builds a model from them (the round
-// trip is exact). Per-unit identification (fusion/unit_identification.h) fits them from a
+// trip is exact). Per-unit identification (estimators/unit_identification.h) fits them from a
 // unit's own presses.
 //
 // The model class: one isotropic spread length. A design's `anisotropy` (different spread along

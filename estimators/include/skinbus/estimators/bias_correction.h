@@ -1,0 +1,61 @@
+// skinbus/estimators/bias_correction.h: a learned correction on top of an estimator: the systematic
+// error an estimator leaves on one unit (physics its model does not contain, e.g. an anisotropic
+// lattice), learned from that unit's own presses where the truth is known.
+//
+// The correction is a smooth function of the estimate: for each of u, v and depth, a tensor
+// product of Legendre polynomials in u/half_u, v/half_v (degree `degree_uv`) and depth/max_depth
+// (degree `degree_depth`), fitted by ridge-regularised least squares to (truth - estimate) over
+// the presses. Applying it costs one basis evaluation ((degree_uv+1)^2 (degree_depth+1) terms) per
+// estimate and allocates nothing. Only estimates at least `min_depth_mm` deep are corrected; the
+// fit uses samples whose estimate and truth are both that deep and whose error is below
+// `outlier_mm` (shallow presses carry no position information to learn from, and a few gross
+// misses would otherwise dominate a least-squares fit). The force is not corrected.
+#pragma once
+
+#include <span>
+#include <vector>
+
+#include "skinbus/common/result.h"
+#include "skinbus/estimators/estimate.h"
+
+namespace skinbus::estimators {
+
+struct BiasCorrectionOptions {
+  int degree_uv = 12;         // up to 16
+  int degree_depth = 3;       // up to 6
+  double ridge = 1e-3;        // relative to the mean diagonal of the normal equations
+  double min_depth_mm = 1.0;  // estimates shallower are neither corrected nor used (nor truths)
+  double outlier_mm = 3.0;    // fitting samples whose estimate is further off are left out
+  double half_u_mm = 70, half_v_mm = 70, max_depth_mm = 4.5;  // basis scaling
+};
+
+class BiasCorrection {
+ public:
+  // Fits the correction from `estimates` and the true (u, v, depth) of the same samples.
+  // kDegenerate when fewer usable samples than 4x the basis size remain.
+  static Result<BiasCorrection> fit(std::span<const ContactEstimate> estimates,
+                                    std::span<const double> true_u_mm,
+                                    std::span<const double> true_v_mm,
+                                    std::span<const double> true_depth_mm,
+                                    const BiasCorrectionOptions& options = {});
+
+  // The corrected estimate (unchanged when rejected or shallower than min_depth_mm). Flags are
+  // kept as they were: run flag_range() with the patch's extent again if the range matters.
+  ContactEstimate apply(const ContactEstimate& e) const;
+
+  int terms() const { return terms_; }
+  int samples_used() const { return samples_; }
+  // RMS of the correction over the fitting samples (mm): how large the learned bias is.
+  double rms_correction_mm() const { return rms_correction_mm_; }
+
+ private:
+  BiasCorrection() = default;
+  void basis(double u, double v, double d, double* out) const;
+
+  BiasCorrectionOptions options_;
+  int terms_ = 0, samples_ = 0;
+  double rms_correction_mm_ = 0;
+  std::vector<double> coef_;  // 3 x terms: u, v, depth
+};
+
+}  // namespace skinbus::estimators

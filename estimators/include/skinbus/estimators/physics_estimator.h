@@ -1,0 +1,101 @@
+// skinbus/estimators/physics_estimator.h: the physics inversion: least-squares fit of one contact
+// to a tared sample through the simulator's forward model.
+//
+// Unknowns: the contact (u, v, depth; mm, patch frame) and a uniform ambient field offset
+// (3 values, uT, patch frame: what the Earth's field adds as the limb turns after the tare),
+// which reaches each channel through the sensor's rotation and gain. Residual of channel c:
+//   (contact_field_ut(u, v, depth)[c] + ambient projected on c - sample[c]) / sigma_c,
+// sigma the sensor noise of the design's configuration (sim/mlx90393.h), so the final cost is
+// in noise units: a correct model leaves a reduced chi-square near 1. Masked channels
+// (channel_ok == 0 from the caller, NaN/Inf, saturated) are left out. Solved by Ceres'
+// Levenberg-Marquardt with the exact Jacobian (sim::PatchModel::contact_jacobian, forward-mode
+// dual numbers), depth bounded to [1e-3, max_depth_mm()], (u, v) to the patch extent plus a
+// margin.
+//
+// Start: the nearest row of a lookup table (skinbus/estimators/lookup_estimator.h; a coarse grid of
+// the same model by default), or a given guess (refine(): e.g. "refine the network's answer").
+//
+// Flags (skinbus/estimators/estimate.h): kEstimateMasked, kEstimateRejected with kTooFewChannels,
+// kEstimateNotConverged (iteration limit or solver failure), kEstimatePoorFit (reduced
+// chi-square above options.poor_fit_ratio: the model or the sample is off), kEstimateNoContact
+// (the fitted contact's whitened signal energy is below options.no_contact_snr^2), range flags by
+// flag_range(); a non-finite result becomes a rejection. Force from PatchModel::force_n(depth).
+//
+// Cost: one forward Jacobian (~30 magnets x 16 sensors dipoles in jets) per iteration, about
+// 3 iterations on average, plus the lookup for the start (times: docs/physics_estimator.md). A
+// start ending in a poor fit is retried from the next nearest rows (up to 3 starts). estimate() is
+// const and thread-safe (each call builds its own small Ceres problem; it allocates).
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "skinbus/common/result.h"
+#include "skinbus/estimators/estimate.h"
+#include "skinbus/estimators/lookup_estimator.h"
+#include "skinbus/sim/patch_model.h"
+
+namespace skinbus::estimators {
+
+struct PhysicsOptions {
+  double tip_radius_mm = 5.0;  // the indenter's round tip (sim::RampProtocol's default)
+  bool fit_ambient = true;     // fit the uniform ambient offset (else held at 0)
+  int max_iterations = 30;
+  double function_tolerance = 1e-7;   // Ceres' relative cost change for convergence
+  double parameter_tolerance = 1e-8;  // Ceres' relative step size for convergence
+  int min_channels = 12;              // fewer usable channels: rejected (kTooFewChannels)
+  double poor_fit_ratio = 4.0;        // reduced chi-square above this: kEstimatePoorFit
+  double no_contact_snr = 5.0;        // fitted contact signal (whitened norm) below: kNoContact
+  double uv_margin_mm = 15.0;         // (u, v) bounds: the patch extent plus this
+  ChannelNoise noise{0, 0};           // 0: the design's sensor noise
+  InputLimits limits;                 // saturation threshold for check_sample()
+  // The start table built by create() when none is given: a coarse grid of the model.
+  LookupGrid start_grid{5.0, {0.5, 1.0, 2.0, 3.0, 4.0, 5.5}, 5.0};
+};
+
+struct PhysicsEstimate {
+  ContactEstimate contact;
+  double ambient_ut[3] = {0, 0, 0};  // fitted uniform ambient offset, patch frame, uT
+  int iterations = 0;                // Levenberg-Marquardt iterations
+  double chi2 = 0;                   // final sum of squared whitened residuals (noise units)
+  double reduced_chi2 = 0;           // chi2 / (channels used - unknowns); ~1 for a good fit
+  int channels_used = 0;
+};
+
+class PhysicsEstimator {
+ public:
+  // An estimator over `model` (copied), with its own start table from options.start_grid
+  // (~5k rows, ~0.1 s to build). Errors: invalid options.
+  static Result<PhysicsEstimator> create(const sim::PatchModel& model,
+                                         const PhysicsOptions& options = {});
+  // The same with a given start table (e.g. one built from the unit's training presses); its
+  // channel count must match the model's.
+  static Result<PhysicsEstimator> create(const sim::PatchModel& model,
+                                         const PhysicsOptions& options, LookupEstimator start);
+
+  const sim::PatchModel& model() const { return model_; }
+  const PhysicsOptions& options() const { return options_; }
+  const LookupEstimator& start_table() const { return start_; }
+
+  // One tared sample (model().channel_count() values, uT; `channel_ok` as in
+  // LookupEstimator::estimate()) to a contact, started from the lookup's nearest row.
+  PhysicsEstimate estimate(std::span<const double> field_ut,
+                           std::span<const uint8_t> channel_ok = {}) const;
+  // The same started from `guess` (its u, v, depth; another estimator's answer).
+  PhysicsEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
+                         const ContactEstimate& guess) const;
+
+ private:
+  PhysicsEstimator(const sim::PatchModel& model, const PhysicsOptions& options,
+                   LookupEstimator start);
+  PhysicsEstimate solve(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
+                        const ContactEstimate* guess) const;
+
+  sim::PatchModel model_;
+  PhysicsOptions options_;
+  LookupEstimator start_;
+  std::vector<double> ambient_jac_;  // channels x 3: d channel / d ambient (patch frame)
+};
+
+}  // namespace skinbus::estimators

@@ -1,0 +1,124 @@
+#include "skinbus/estimators/bias_correction.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <random>
+
+namespace skinbus::estimators {
+namespace {
+
+constexpr uint64_t kSeed = 424242;
+
+// A smooth bias of the kind a model mismatch leaves: position- and depth-dependent.
+void bias_at(double u, double v, double d, double* out) {
+  out[0] = 0.6 * std::sin(u / 25.0) * (0.5 + 0.2 * d);
+  out[1] = -0.4 * std::cos(v / 30.0 + u / 60.0);
+  out[2] = 0.05 * d * std::sin(v / 40.0);
+}
+
+struct Samples {
+  std::vector<ContactEstimate> est;
+  std::vector<double> u, v, d;
+};
+
+Samples make(int n, uint64_t seed, double noise_mm) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> pos(-65, 65), depth(0.2, 4.0);
+  std::normal_distribution<double> noise(0, noise_mm);
+  Samples s;
+  for (int i = 0; i < n; ++i) {
+    const double u = pos(rng), v = pos(rng), d = depth(rng);
+    double b[3];
+    bias_at(u, v, d, b);
+    ContactEstimate e;
+    e.u_mm = u - b[0] + noise(rng);
+    e.v_mm = v - b[1] + noise(rng);
+    e.depth_mm = d - b[2];
+    s.est.push_back(e);
+    s.u.push_back(u);
+    s.v.push_back(v);
+    s.d.push_back(d);
+  }
+  return s;
+}
+
+double mean_xy(const Samples& s, const BiasCorrection* c, double min_depth) {
+  double sum = 0;
+  int n = 0;
+  for (std::size_t i = 0; i < s.est.size(); ++i) {
+    if (s.d[i] < min_depth) continue;
+    const ContactEstimate e = c ? c->apply(s.est[i]) : s.est[i];
+    sum += std::hypot(e.u_mm - s.u[i], e.v_mm - s.v[i]);
+    ++n;
+  }
+  return sum / n;
+}
+
+TEST(BiasCorrection, LearnsASmoothBiasAndRemovesItOnNewSamples) {
+  std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
+  const Samples train = make(8000, kSeed, 0.2), test = make(2000, kSeed + 1, 0.2);
+  BiasCorrectionOptions o;
+  o.degree_uv = 8;
+  o.half_u_mm = o.half_v_mm = 65;
+  Result<BiasCorrection> c = BiasCorrection::fit(train.est, train.u, train.v, train.d, o);
+  ASSERT_TRUE(c.ok()) << c.error().to_string();
+  const double before = mean_xy(test, nullptr, 1.0), after = mean_xy(test, &*c, 1.0);
+  std::printf("mean XY error on new samples >= 1 mm deep: %.3f -> %.3f mm\n", before, after);
+  EXPECT_LT(after, 0.5 * before);
+  EXPECT_GT(c->rms_correction_mm(), 0.2);
+}
+
+TEST(BiasCorrection, LeavesShallowAndRejectedEstimatesAlone) {
+  const Samples train = make(4000, kSeed, 0.1);
+  BiasCorrectionOptions o;
+  o.degree_uv = 4;
+  Result<BiasCorrection> c = BiasCorrection::fit(train.est, train.u, train.v, train.d, o);
+  ASSERT_TRUE(c.ok());
+  ContactEstimate shallow{10, 10, 0.5, 1, kEstimateOk, RejectReason::kNone};
+  EXPECT_EQ(c->apply(shallow).u_mm, 10);
+  ContactEstimate rejected;
+  rejected.flags = kEstimateRejected;
+  rejected.u_mm = std::nan("");
+  EXPECT_TRUE(std::isnan(c->apply(rejected).u_mm));  // untouched, still marked rejected
+  EXPECT_FALSE(c->apply(rejected).valid());
+  // Far outside the fitted range the basis is clamped: finite output.
+  ContactEstimate far{1e6, -1e6, 3, 1, kEstimateOk, RejectReason::kNone};
+  const ContactEstimate f = c->apply(far);
+  EXPECT_TRUE(std::isfinite(f.u_mm) && std::isfinite(f.v_mm) && std::isfinite(f.depth_mm));
+}
+
+TEST(BiasCorrection, TooFewSamplesAreDegenerateAndBadInputIsRefused) {
+  const Samples few = make(100, kSeed, 0.1);
+  Result<BiasCorrection> c = BiasCorrection::fit(few.est, few.u, few.v, few.d);
+  ASSERT_FALSE(c.ok());
+  EXPECT_EQ(c.error().code, ErrorCode::kDegenerate);
+  EXPECT_NE(c.error().message.find("usable samples"), std::string::npos);
+  std::vector<double> shorter(few.u.begin(), few.u.end() - 1);
+  EXPECT_EQ(BiasCorrection::fit(few.est, shorter, few.v, few.d).error().code,
+            ErrorCode::kInvalidArgument);
+  BiasCorrectionOptions bad;
+  bad.degree_uv = 40;
+  EXPECT_EQ(BiasCorrection::fit(few.est, few.u, few.v, few.d, bad).error().code,
+            ErrorCode::kInvalidArgument);
+  // Gross misses (beyond outlier_mm) are left out of the fit instead of bending it.
+  Samples noisy = make(8000, kSeed + 2, 0.1);
+  for (std::size_t i = 0; i < noisy.est.size(); i += 10) noisy.est[i].u_mm += 40;
+  BiasCorrectionOptions o;
+  o.degree_uv = 6;
+  Result<BiasCorrection> robust = BiasCorrection::fit(noisy.est, noisy.u, noisy.v, noisy.d, o);
+  ASSERT_TRUE(robust.ok());
+  int deep = 0, deep_missed = 0;
+  for (std::size_t i = 0; i < noisy.est.size(); ++i) {
+    if (noisy.d[i] < 1.0 || noisy.est[i].depth_mm < 1.0) continue;
+    ++deep;
+    deep_missed += i % 10 == 0;
+  }
+  EXPECT_EQ(robust->samples_used(), deep - deep_missed);
+  const Samples test = make(2000, kSeed + 3, 0.1);
+  EXPECT_LT(mean_xy(test, &*robust, 1.0), 0.6 * mean_xy(test, nullptr, 1.0));
+}
+
+}  // namespace
+}  // namespace skinbus::estimators

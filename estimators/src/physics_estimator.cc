@@ -1,0 +1,293 @@
+#include "skinbus/estimators/physics_estimator.h"
+
+#include <ceres/ceres.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "jet_traits.h"
+
+namespace skinbus::estimators {
+
+namespace {
+
+constexpr double kMinDepthMm = 1e-3;  // the fit's lower depth bound: no press moves nothing
+
+// Whitened residuals of one sample against (contact, ambient). Masked channels give 0 with a zero
+// Jacobian row, so the problem keeps one shape whatever is masked.
+class FieldResidual final : public ceres::CostFunction {
+ public:
+  FieldResidual(const sim::PatchModel& model, const double* field, const uint8_t* ok,
+                const double* inv_sigma, const double* ambient_jac, double tip_radius_mm)
+      : model_(model),
+        field_(field),
+        ok_(ok),
+        inv_sigma_(inv_sigma),
+        ambient_jac_(ambient_jac),
+        tip_(tip_radius_mm),
+        nc_(model.channel_count()) {
+    set_num_residuals(nc_);
+    mutable_parameter_block_sizes()->push_back(3);
+    mutable_parameter_block_sizes()->push_back(3);
+  }
+
+  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
+    const sim::Contact c{params[0][0], params[0][1], params[0][2], tip_};
+    const double* b = params[1];
+    double f[kMaxChannels];
+    double j[3 * kMaxChannels];
+    const std::size_t n = static_cast<std::size_t>(nc_);
+    if (jacobians != nullptr && jacobians[0] != nullptr) {
+      // Forward-mode jets through the simulator's template (as PatchModel::contact_jacobian,
+      // with Ceres' jets, which compile to tighter code than sim's own dual numbers).
+      using J = ceres::Jet<double, 3>;
+      const sim::ContactT<J> cj{J(c.u_mm, 0), J(c.v_mm, 1), J(c.depth_mm, 2), tip_};
+      J out[kMaxChannels];
+      model_.contact_field_ut<J>(std::span<const sim::ContactT<J>>(&cj, 1), out);
+      for (std::size_t i = 0; i < n; ++i) {
+        f[i] = out[i].a;
+        for (std::size_t k = 0; k < 3; ++k) j[3 * i + k] = out[i].v[static_cast<Eigen::Index>(k)];
+      }
+    } else {
+      model_.contact_field_ut(std::span<const sim::Contact>(&c, 1), std::span<double>(f, n));
+    }
+    for (int i = 0; i < nc_; ++i) {
+      const double* a = ambient_jac_ + 3 * i;
+      const double w = ok_[i] ? inv_sigma_[i] : 0.0;
+      const double pred = f[i] + a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+      residuals[i] = ok_[i] ? (pred - field_[i]) * w : 0.0;
+      if (jacobians != nullptr) {
+        if (jacobians[0] != nullptr) {
+          for (int k = 0; k < 3; ++k) jacobians[0][3 * i + k] = j[3 * i + k] * w;
+        }
+        if (jacobians[1] != nullptr) {
+          for (int k = 0; k < 3; ++k) jacobians[1][3 * i + k] = a[k] * w;
+        }
+      }
+    }
+    for (int i = 0; i < nc_; ++i) {
+      if (!std::isfinite(residuals[i])) return false;
+    }
+    return true;
+  }
+
+ private:
+  const sim::PatchModel& model_;
+  const double* field_;
+  const uint8_t* ok_;
+  const double* inv_sigma_;
+  const double* ambient_jac_;
+  double tip_;
+  int nc_;
+};
+
+Status check_options(const PhysicsOptions& o) {
+  if (!(o.tip_radius_mm >= 0) || o.max_iterations < 1 || o.min_channels < 4 ||
+      !(o.poor_fit_ratio > 0) || !(o.no_contact_snr >= 0) || !(o.uv_margin_mm >= 0) ||
+      !(o.noise.xy_ut >= 0) || !(o.noise.z_ut >= 0)) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "physics options: tip_radius_mm >= 0, max_iterations >= 1, min_channels "
+                      ">= 4, poor_fit_ratio > 0, no_contact_snr >= 0, uv_margin_mm >= 0, noise "
+                      ">= 0 required");
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
+PhysicsEstimator::PhysicsEstimator(const sim::PatchModel& model, const PhysicsOptions& options,
+                                   LookupEstimator start)
+    : model_(model), options_(options), start_(std::move(start)) {
+  if (!(options_.noise.xy_ut > 0) || !(options_.noise.z_ut > 0))
+    options_.noise = ChannelNoise::of(model_.design());
+  const auto& sensors = model_.sensors();
+  ambient_jac_.resize(3 * static_cast<std::size_t>(model_.channel_count()));
+  for (std::size_t s = 0; s < sensors.size(); ++s) {
+    const double g[3] = {sensors[s].gain.x, sensors[s].gain.y, sensors[s].gain.z};
+    for (int axis = 0; axis < 3; ++axis) {
+      double* row = &ambient_jac_[3 * (3 * s + static_cast<std::size_t>(axis))];
+      row[0] = sensors[s].frame.r[axis].x * g[axis];
+      row[1] = sensors[s].frame.r[axis].y * g[axis];
+      row[2] = sensors[s].frame.r[axis].z * g[axis];
+    }
+  }
+}
+
+Result<PhysicsEstimator> PhysicsEstimator::create(const sim::PatchModel& model,
+                                                  const PhysicsOptions& options) {
+  if (Status s = check_options(options); !s.ok()) return s.error();
+  LookupOptions lo;
+  lo.ambient_invariant = options.fit_ambient;
+  Result<LookupEstimator> start = LookupEstimator::from_model(model, options.start_grid, lo);
+  if (!start.ok()) return start.error();
+  return PhysicsEstimator(model, options, std::move(start).value());
+}
+
+Result<PhysicsEstimator> PhysicsEstimator::create(const sim::PatchModel& model,
+                                                  const PhysicsOptions& options,
+                                                  LookupEstimator start) {
+  if (Status s = check_options(options); !s.ok()) return s.error();
+  if (start.channels() != model.channel_count()) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "physics estimator: the start table's channel count differs from the "
+                      "model's");
+  }
+  return PhysicsEstimator(model, options, std::move(start));
+}
+
+PhysicsEstimate PhysicsEstimator::estimate(std::span<const double> field_ut,
+                                           std::span<const uint8_t> channel_ok) const {
+  return solve(field_ut, channel_ok, nullptr);
+}
+
+PhysicsEstimate PhysicsEstimator::refine(std::span<const double> field_ut,
+                                         std::span<const uint8_t> channel_ok,
+                                         const ContactEstimate& guess) const {
+  return solve(field_ut, channel_ok, &guess);
+}
+
+PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
+                                        std::span<const uint8_t> channel_ok,
+                                        const ContactEstimate* guess) const {
+  PhysicsEstimate out;
+  ContactEstimate& e = out.contact;
+  const int nc = model_.channel_count();
+  if (static_cast<int>(field_ut.size()) != nc ||
+      (!channel_ok.empty() && static_cast<int>(channel_ok.size()) != nc)) {
+    e.flags = kEstimateRejected;
+    e.reason = RejectReason::kWrongShape;
+    return out;
+  }
+  uint8_t ok[kMaxChannels];
+  for (int c = 0; c < nc; ++c) ok[c] = channel_ok.empty() ? 1 : channel_ok[c];
+  const SampleCheck check =
+      check_sample(field_ut, std::span<uint8_t>(ok, static_cast<std::size_t>(nc)), options_.limits);
+  const int usable = nc - check.masked;
+  const int unknowns = options_.fit_ambient ? 6 : 3;
+  if (usable < std::max(options_.min_channels, unknowns + 1)) {
+    e.flags = kEstimateRejected;
+    e.reason = RejectReason::kTooFewChannels;
+    return out;
+  }
+  double inv_sigma[kMaxChannels], y[kMaxChannels], whitened[kMaxChannels];
+  for (int c = 0; c < nc; ++c) {
+    inv_sigma[c] = 1 / options_.noise.sigma(c);
+    y[c] = ok[c] ? field_ut[c] : 0.0;
+    whitened[c] = y[c] * inv_sigma[c];
+  }
+
+  // Starts: the guess, or the nearest rows of the start table. The first is tried; the others
+  // only when it ends in a poor fit (a local minimum), and the best fit is kept.
+  const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
+  const double max_depth = model_.max_depth_mm();
+  const double lo[3] = {-half_u - options_.uv_margin_mm, -half_v - options_.uv_margin_mm,
+                        kMinDepthMm};
+  const double hi[3] = {half_u + options_.uv_margin_mm, half_v + options_.uv_margin_mm, max_depth};
+  constexpr int kStarts = 3;
+  double starts[kStarts][3];
+  int n_starts = 0;
+  if (guess != nullptr && std::isfinite(guess->u_mm) && std::isfinite(guess->v_mm) &&
+      std::isfinite(guess->depth_mm)) {
+    starts[n_starts][0] = guess->u_mm;
+    starts[n_starts][1] = guess->v_mm;
+    starts[n_starts][2] = guess->depth_mm;
+    ++n_starts;
+  }
+  LookupNeighbour nb[kStarts];
+  bool looked_up = false;
+  // Nearest rows of the start table, fetched when first needed (a good guess may not need them).
+  auto add_table_starts = [&]() {
+    looked_up = true;
+    const int found = start_.nearest(
+        std::span<const double>(whitened, static_cast<std::size_t>(nc)),
+        std::span<const uint8_t>(ok, static_cast<std::size_t>(nc)),
+        std::span<LookupNeighbour>(nb, static_cast<std::size_t>(kStarts - n_starts)));
+    for (int i = 0; i < found; ++i, ++n_starts) {
+      starts[n_starts][0] = start_.row_u_mm(nb[i].row);
+      starts[n_starts][1] = start_.row_v_mm(nb[i].row);
+      starts[n_starts][2] = start_.row_depth_mm(nb[i].row);
+    }
+  };
+  if (n_starts == 0) add_table_starts();
+  if (n_starts == 0) {
+    starts[0][0] = starts[0][1] = 0;
+    starts[0][2] = 1;
+    n_starts = 1;
+  }
+
+  FieldResidual residual(model_, y, ok, inv_sigma, ambient_jac_.data(), options_.tip_radius_mm);
+  ceres::Solver::Options so;
+  so.minimizer_type = ceres::TRUST_REGION;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = options_.max_iterations;
+  so.function_tolerance = options_.function_tolerance;
+  so.parameter_tolerance = options_.parameter_tolerance;
+  so.gradient_tolerance = 1e-14;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  so.minimizer_progress_to_stdout = false;
+  double best_x[3] = {0, 0, 0}, best_b[3] = {0, 0, 0};
+  double best_cost = std::numeric_limits<double>::infinity();
+  bool best_converged = false;
+  int iterations = 0;
+  for (int s = 0; s < n_starts; ++s) {
+    double x[3], b[3] = {0, 0, 0};
+    for (int k = 0; k < 3; ++k) x[k] = std::clamp(starts[s][k], lo[k], hi[k]);
+    ceres::Problem::Options po;
+    po.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    ceres::Problem problem(po);
+    problem.AddResidualBlock(&residual, nullptr, x, b);
+    for (int k = 0; k < 3; ++k) {
+      problem.SetParameterLowerBound(x, k, lo[k]);
+      problem.SetParameterUpperBound(x, k, hi[k]);
+    }
+    if (!options_.fit_ambient) problem.SetParameterBlockConstant(b);
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    iterations += static_cast<int>(summary.iterations.size()) - 1;
+    if (summary.final_cost < best_cost) {
+      best_cost = summary.final_cost;
+      std::copy(x, x + 3, best_x);
+      std::copy(b, b + 3, best_b);
+      best_converged = summary.termination_type == ceres::CONVERGENCE;
+    }
+    if (2 * best_cost / (usable - unknowns) <= options_.poor_fit_ratio) break;
+    if (s + 1 == n_starts && !looked_up) add_table_starts();
+  }
+
+  const double* x = best_x;
+  e.u_mm = x[0];
+  e.v_mm = x[1];
+  e.depth_mm = x[2];
+  e.force_n = model_.force_n(x[2]);
+  for (int k = 0; k < 3; ++k) out.ambient_ut[k] = best_b[k];
+  out.iterations = iterations;
+  out.chi2 = 2 * best_cost;
+  out.channels_used = usable;
+  out.reduced_chi2 = out.chi2 / (usable - unknowns);
+  if (check.masked > 0) e.flags |= kEstimateMasked;
+  if (!best_converged) e.flags |= kEstimateNotConverged;
+  if (!(out.reduced_chi2 <= options_.poor_fit_ratio)) e.flags |= kEstimatePoorFit;
+  // Signal of the fitted contact in noise units: at noise level, nothing was pressed.
+  double f[kMaxChannels];
+  const sim::Contact c{x[0], x[1], x[2], options_.tip_radius_mm};
+  model_.contact_field_ut(std::span<const sim::Contact>(&c, 1),
+                          std::span<double>(f, static_cast<std::size_t>(nc)));
+  double energy = 0;
+  for (int i = 0; i < nc; ++i) {
+    if (ok[i]) energy += f[i] * f[i] * inv_sigma[i] * inv_sigma[i];
+  }
+  if (!(energy >= options_.no_contact_snr * options_.no_contact_snr)) e.flags |= kEstimateNoContact;
+  flag_range(e, half_u, half_v, max_depth);
+  if (!std::isfinite(out.chi2) || !std::isfinite(best_b[0]) || !std::isfinite(best_b[1]) ||
+      !std::isfinite(best_b[2])) {
+    out = PhysicsEstimate{};
+    out.contact.flags = kEstimateRejected;
+    out.contact.reason = RejectReason::kNonFinite;
+  }
+  return out;
+}
+
+}  // namespace skinbus::estimators

@@ -1,0 +1,271 @@
+// The physics inversion and the nearest-neighbour lookup: exactness on noise-free model data,
+// error against the Cramer-Rao bound with noise, masked and garbage input, refinement from a
+// guess, and the lookup's exact search.
+#include "skinbus/estimators/physics_estimator.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "skinbus/estimators/lookup_estimator.h"
+#include "skinbus/sim/crlb.h"
+#include "skinbus/sim/rng.h"
+
+namespace skinbus::estimators {
+namespace {
+
+using sim::Contact;
+
+class PhysicsEstimatorTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    model_ = new sim::PatchModel(sim::PatchModel::nominal(sim::PatchDesign{}).value());
+    estimator_ = new PhysicsEstimator(PhysicsEstimator::create(*model_).value());
+  }
+  static void TearDownTestSuite() {
+    delete estimator_;
+    delete model_;
+  }
+
+  // Noise-free tared field of a press plus a uniform ambient offset (patch frame).
+  static std::vector<double> field_of(const Contact& c, const double ambient[3] = nullptr) {
+    std::vector<double> f(static_cast<std::size_t>(model_->channel_count()));
+    model_->contact_field_ut(std::span<const Contact>(&c, 1), f);
+    if (ambient != nullptr) {
+      const auto& sensors = model_->sensors();
+      for (std::size_t s = 0; s < sensors.size(); ++s) {
+        const sim::Vec3<double> a =
+            sensors[s].frame.apply(sim::Vec3<double>{ambient[0], ambient[1], ambient[2]});
+        f[3 * s + 0] += a.x * sensors[s].gain.x;
+        f[3 * s + 1] += a.y * sensors[s].gain.y;
+        f[3 * s + 2] += a.z * sensors[s].gain.z;
+      }
+    }
+    return f;
+  }
+
+  static sim::PatchModel* model_;
+  static PhysicsEstimator* estimator_;
+};
+sim::PatchModel* PhysicsEstimatorTest::model_ = nullptr;
+PhysicsEstimator* PhysicsEstimatorTest::estimator_ = nullptr;
+
+TEST_F(PhysicsEstimatorTest, RecoversNoiseFreePressesWithAnAmbientOffset) {
+  const double ambient[3] = {6.0, -9.0, 12.0};
+  const Contact presses[] = {{0, 0, 2.0, 5},        {13.3, -7.1, 1.2, 5}, {-41.0, 33.5, 3.6, 5},
+                             {58.0, -60.0, 2.5, 5}, {-22.2, 4.4, 0.8, 5}, {7.5, 52.5, 4.0, 5}};
+  for (const Contact& c : presses) {
+    const std::vector<double> f = field_of(c, ambient);
+    const PhysicsEstimate e = estimator_->estimate(f);
+    SCOPED_TRACE(testing::Message() << "press " << c.u_mm << ", " << c.v_mm << ", " << c.depth_mm);
+    ASSERT_TRUE(e.contact.valid());
+    EXPECT_EQ(e.contact.flags & (kEstimateNotConverged | kEstimatePoorFit | kEstimateNoContact),
+              0u);
+    EXPECT_NEAR(e.contact.u_mm, c.u_mm, 1e-3);
+    EXPECT_NEAR(e.contact.v_mm, c.v_mm, 1e-3);
+    EXPECT_NEAR(e.contact.depth_mm, c.depth_mm, 1e-3);
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(e.ambient_ut[k], ambient[k], 1e-3);
+    EXPECT_NEAR(e.contact.force_n, model_->force_n(c.depth_mm), 1e-2);
+    EXPECT_LT(e.chi2, 1e-6);
+    EXPECT_GT(e.iterations, 0);
+  }
+}
+
+TEST_F(PhysicsEstimatorTest, NoisyErrorIsCloseToTheCramerRaoBound) {
+  const uint64_t seed = 20240611;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  sim::Rng rng(seed);
+  const ChannelNoise noise = ChannelNoise::of(model_->design());
+  double err2_xy = 0, bound2_xy = 0, err2_d = 0, bound2_d = 0, chi2 = 0;
+  const int n = 60;
+  for (int i = 0; i < n; ++i) {
+    const Contact c{rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(1.0, 4.0), 5};
+    const double ambient[3] = {rng.uniform(-20, 20), rng.uniform(-20, 20), rng.uniform(-20, 20)};
+    std::vector<double> f = field_of(c, ambient);
+    for (std::size_t k = 0; k < f.size(); ++k)
+      f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+    const PhysicsEstimate e = estimator_->estimate(f);
+    ASSERT_TRUE(e.contact.valid());
+    EXPECT_EQ(e.contact.flags & kEstimateNotConverged, 0u);
+    const sim::CrlbPoint b = sim::crlb_at(*model_, c, noise.xy_ut, noise.z_ut, true);
+    err2_xy += std::pow(e.contact.u_mm - c.u_mm, 2) + std::pow(e.contact.v_mm - c.v_mm, 2);
+    err2_d += std::pow(e.contact.depth_mm - c.depth_mm, 2);
+    bound2_xy += b.sd_xy_mm * b.sd_xy_mm;
+    bound2_d += b.sd_depth_mm * b.sd_depth_mm;
+    chi2 += e.reduced_chi2;
+  }
+  const double ratio_xy = std::sqrt(err2_xy / bound2_xy), ratio_d = std::sqrt(err2_d / bound2_d);
+  std::printf(
+      "RMS error / CRLB: xy %.3f (RMS %.4f mm), depth %.3f (RMS %.4f mm); mean reduced "
+      "chi2 %.3f\n",
+      ratio_xy, std::sqrt(err2_xy / n), ratio_d, std::sqrt(err2_d / n), chi2 / n);
+  // An efficient estimator reaches the bound; 60 presses estimate the ratio to ~10 %.
+  EXPECT_GT(ratio_xy, 0.7);
+  EXPECT_LT(ratio_xy, 1.3);
+  EXPECT_GT(ratio_d, 0.7);
+  EXPECT_LT(ratio_d, 1.3);
+  EXPECT_NEAR(chi2 / n, 1.0, 0.15);
+}
+
+TEST_F(PhysicsEstimatorTest, MaskedChannelsAreLeftOut) {
+  const Contact c{-12.0, 21.0, 2.5, 5};
+  std::vector<double> f = field_of(c);
+  std::vector<uint8_t> ok(f.size(), 1);
+  f[4] = std::numeric_limits<double>::quiet_NaN();  // NaN
+  f[17] = 1e6;                                      // saturated
+  f[30] = std::numeric_limits<double>::infinity();  // Inf
+  ok[22] = 0;                                       // dead
+  f[22] = 12345;                                    // whatever a dead channel says
+  ok[23] = 0;
+  const PhysicsEstimate e = estimator_->estimate(f, ok);
+  ASSERT_TRUE(e.contact.valid());
+  EXPECT_NE(e.contact.flags & kEstimateMasked, 0u);
+  EXPECT_EQ(e.channels_used, 43);
+  EXPECT_NEAR(e.contact.u_mm, c.u_mm, 1e-3);
+  EXPECT_NEAR(e.contact.v_mm, c.v_mm, 1e-3);
+  EXPECT_NEAR(e.contact.depth_mm, c.depth_mm, 1e-3);
+
+  // Only 9 channels left: rejected with the reason.
+  std::vector<uint8_t> few(f.size(), 0);
+  for (int k = 0; k < 9; ++k) few[static_cast<std::size_t>(k)] = 1;
+  const PhysicsEstimate r = estimator_->estimate(field_of(c), few);
+  EXPECT_FALSE(r.contact.valid());
+  EXPECT_EQ(r.contact.reason, RejectReason::kTooFewChannels);
+  // Wrong shape.
+  const std::vector<double> shorter(10, 0.0);
+  EXPECT_EQ(estimator_->estimate(shorter).contact.reason, RejectReason::kWrongShape);
+}
+
+TEST_F(PhysicsEstimatorTest, GarbageNeverGivesNanOrInf) {
+  const std::size_t nc = static_cast<std::size_t>(model_->channel_count());
+  auto finite = [](const PhysicsEstimate& e) {
+    return std::isfinite(e.contact.u_mm) && std::isfinite(e.contact.v_mm) &&
+           std::isfinite(e.contact.depth_mm) && std::isfinite(e.contact.force_n) &&
+           std::isfinite(e.chi2) && std::isfinite(e.reduced_chi2) &&
+           std::isfinite(e.ambient_ut[0]) && std::isfinite(e.ambient_ut[1]) &&
+           std::isfinite(e.ambient_ut[2]);
+  };
+  // Nothing pressed: a valid, finite estimate that says so.
+  const PhysicsEstimate zero = estimator_->estimate(std::vector<double>(nc, 0.0));
+  EXPECT_TRUE(finite(zero));
+  EXPECT_NE(zero.contact.flags & kEstimateNoContact, 0u);
+  // Huge values: saturated, all masked, rejected.
+  const PhysicsEstimate huge = estimator_->estimate(std::vector<double>(nc, 1e300));
+  EXPECT_FALSE(huge.contact.valid());
+  EXPECT_TRUE(finite(huge));
+  const PhysicsEstimate inf =
+      estimator_->estimate(std::vector<double>(nc, std::numeric_limits<double>::infinity()));
+  EXPECT_FALSE(inf.contact.valid());
+  EXPECT_TRUE(finite(inf));
+  // Large values below saturation and random nonsense: finite, flagged as a poor fit.
+  sim::Rng rng(7);
+  for (int t = 0; t < 5; ++t) {
+    std::vector<double> f(nc);
+    for (double& x : f) x = rng.uniform(-5000, 5000);
+    const PhysicsEstimate e = estimator_->estimate(f);
+    EXPECT_TRUE(finite(e));
+    if (e.contact.valid()) {
+      EXPECT_NE(e.contact.flags & kEstimatePoorFit, 0u);
+    }
+  }
+}
+
+TEST_F(PhysicsEstimatorTest, RefinesAGuessAFewMillimetresOff) {
+  const double ambient[3] = {-4.0, 3.0, 8.0};
+  const Contact c{31.0, -17.5, 3.0, 5};
+  const std::vector<double> f = field_of(c, ambient);
+  ContactEstimate guess;
+  guess.u_mm = c.u_mm + 3.5;
+  guess.v_mm = c.v_mm - 2.5;
+  guess.depth_mm = c.depth_mm - 1.0;
+  const PhysicsEstimate e = estimator_->refine(f, {}, guess);
+  ASSERT_TRUE(e.contact.valid());
+  EXPECT_EQ(e.contact.flags & kEstimateNotConverged, 0u);
+  EXPECT_NEAR(e.contact.u_mm, c.u_mm, 1e-3);
+  EXPECT_NEAR(e.contact.v_mm, c.v_mm, 1e-3);
+  EXPECT_NEAR(e.contact.depth_mm, c.depth_mm, 1e-3);
+}
+
+TEST_F(PhysicsEstimatorTest, LookupSearchIsExactAndFindsGridPresses) {
+  LookupGrid grid;
+  grid.pitch_mm = 5;
+  grid.depths_mm = {1, 2, 3};
+  const LookupEstimator lookup = LookupEstimator::from_model(*model_, grid).value();
+  EXPECT_EQ(lookup.rows(), 29 * 29 * 3);
+  // A press on the grid is found exactly.
+  const Contact on{15, -35, 2, 5};
+  const ContactEstimate e = lookup.estimate(field_of(on));
+  ASSERT_TRUE(e.valid());
+  EXPECT_EQ(e.u_mm, 15);
+  EXPECT_EQ(e.v_mm, -35);
+  EXPECT_EQ(e.depth_mm, 2);
+  // Early exit returns the same neighbours as a full scan, also with masked channels.
+  sim::Rng rng(11);
+  const ChannelNoise noise = lookup.noise();
+  for (int t = 0; t < 20; ++t) {
+    const Contact c{rng.uniform(-60, 60), rng.uniform(-60, 60), rng.uniform(0.5, 3.5), 5};
+    std::vector<double> f = field_of(c);
+    std::vector<uint8_t> ok(f.size(), 1);
+    if (t % 2) ok[static_cast<std::size_t>(t)] = 0;
+    std::vector<double> w(f.size());
+    for (std::size_t k = 0; k < f.size(); ++k)
+      w[k] = (f[k] + noise.sigma(static_cast<int>(k)) * rng.normal()) /
+             noise.sigma(static_cast<int>(k));
+    LookupNeighbour nb[3];
+    ASSERT_EQ(lookup.nearest(w, ok, nb), 3);
+    // Brute force.
+    double best = std::numeric_limits<double>::infinity();
+    int best_row = -1;
+    for (int r = 0; r < lookup.rows(); ++r) {
+      const Contact rc{lookup.row_u_mm(r), lookup.row_v_mm(r), lookup.row_depth_mm(r), 5};
+      const std::vector<double> rf = field_of(rc);
+      double d2 = 0;
+      for (std::size_t k = 0; k < f.size(); ++k) {
+        if (ok[k]) d2 += std::pow(w[k] - rf[k] / noise.sigma(static_cast<int>(k)), 2);
+      }
+      if (d2 < best) best = d2, best_row = r;
+    }
+    EXPECT_EQ(nb[0].row, best_row);
+    EXPECT_NEAR(nb[0].distance2, best, 1e-3 * (1 + best));
+    EXPECT_LE(nb[0].distance2, nb[1].distance2);
+    EXPECT_LE(nb[1].distance2, nb[2].distance2);
+  }
+  // Nothing pressed: flagged; too few channels: rejected.
+  const std::vector<double> zero(static_cast<std::size_t>(model_->channel_count()), 0.0);
+  EXPECT_NE(lookup.estimate(zero).flags & kEstimateNoContact, 0u);
+  std::vector<uint8_t> few(zero.size(), 0);
+  few[0] = 1;
+  EXPECT_EQ(lookup.estimate(zero, few).reason, RejectReason::kTooFewChannels);
+}
+
+TEST_F(PhysicsEstimatorTest, LookupFromADatasetInterpolatesWithNeighbours) {
+  sim::Dataset data;
+  data.sensors.resize(16);
+  for (double u = -60; u <= 60; u += 7.5) {
+    for (double v = -60; v <= 60; v += 7.5) {
+      for (double d : {1.0, 2.0, 3.0}) {
+        const std::vector<double> f = field_of(Contact{u, v, d, 5});
+        data.append(0, 0, u, v, d, model_->force_n(d), f.data());
+      }
+    }
+  }
+  LookupOptions opt;
+  opt.neighbours = 4;
+  const LookupEstimator lookup =
+      LookupEstimator::from_dataset(model_->design(), data, 1, opt).value();
+  EXPECT_EQ(static_cast<std::size_t>(lookup.rows()), data.rows());
+  const Contact c{3.0, -4.0, 2.0, 5};
+  const ContactEstimate e = lookup.estimate(field_of(c));
+  ASSERT_TRUE(e.valid());
+  EXPECT_LT(std::hypot(e.u_mm - c.u_mm, e.v_mm - c.v_mm), 7.5);
+  EXPECT_NEAR(e.depth_mm, c.depth_mm, 1.0);
+  // A dataset for another sensor count is refused.
+  sim::Dataset other;
+  other.sensors.resize(4);
+  EXPECT_FALSE(LookupEstimator::from_dataset(model_->design(), other).ok());
+}
+
+}  // namespace
+}  // namespace skinbus::estimators

@@ -1,0 +1,556 @@
+#include "skinbus/estimators/unit_identification.h"
+
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <memory>
+#include <string>
+
+#include "jet_traits.h"
+#include "skinbus/sim/dipole.h"
+
+namespace skinbus::estimators {
+
+namespace {
+
+using sim::Vec3;
+
+constexpr int kMagnetBlock = 6;  // u, v, h, moment x, y, z (in units of the nominal moment)
+constexpr int kSensorBlock = 9;  // u, v, h, rotation vector (3), gain (3)
+constexpr int kGlobalBlock = 2;  // spread, lateral
+constexpr int kMagnetVars = kMagnetBlock + kGlobalBlock + 3;  // + sensor position
+using JetM = ceres::Jet<double, kMagnetVars>;
+constexpr int kOutVars = 12;  // rotation (3), gain (3), field in 3D (3), sensor position (3)
+using JetO = ceres::Jet<double, kOutVars>;
+constexpr std::size_t kMaxNear = 64;  // magnets with derivatives per sample
+
+// One fitting sample.
+struct Sample {
+  double u, v, depth;
+  const double* field;            // channels, tared uT
+  std::vector<int> near;          // magnets with derivatives
+  std::vector<Vec3<double>> far;  // per sensor: frozen field of the other magnets (3D, uT)
+};
+
+struct Context {
+  const sim::PatchModel* shape;  // nominal model of the design: surface and depth limit only
+  double moment_scale;           // nominal moment, A m^2
+  double tip_mm;
+  std::vector<sim::Mat3> mounting0;  // per sensor: mounting at the start of the fit
+  std::vector<double> inv_sigma;     // per channel
+};
+
+// Field change (3D, patch frame, uT) at a sensor from one magnet, for a press. T is double or a
+// jet whose variables are set by the caller.
+template <typename T>
+Vec3<T> magnet_term(const Context& ctx, const Sample& smp, const T* mag, const T& spread,
+                    const T& lateral, const Vec3<T>& sensor_pos) {
+  const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
+  const Vec3<T> m_loc{mag[3] * ctx.moment_scale, mag[4] * ctx.moment_scale,
+                      mag[5] * ctx.moment_scale};
+  Vec3<T> pos, moment, rest_pos, rest_moment;
+  if (!ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
+                              std::span<const sim::ContactT<T>>(&c, 1), &pos, &moment)) {
+    return Vec3<T>{T(0.0), T(0.0), T(0.0)};
+  }
+  ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
+                         std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
+  return sim::dipole_field_ut(moment, sensor_pos - pos) -
+         sim::dipole_field_ut(rest_moment, sensor_pos - rest_pos);
+}
+
+// The sensor's reading of a 3D field: gain * (R(rotation) mounting0 surface-frame) field.
+template <typename T>
+Vec3<T> sensor_reading(const Context& ctx, int k, const T* rot, const T* gain, const Vec3<T>& b,
+                       const T* pos) {
+  T r[9];
+  ceres::AngleAxisToRotationMatrix(rot, ceres::RowMajorAdapter3x3(r));
+  Vec3<T> tu, tv, n;
+  ctx.shape->surface_point(pos[0], pos[1], pos[2], &tu, &tv, &n);
+  const Vec3<T> ax[3] = {tu, tv, n};
+  const sim::Mat3& e0 = ctx.mounting0[static_cast<std::size_t>(k)];
+  T out[3];
+  for (int row = 0; row < 3; ++row) {
+    // Row `row` of R(rot) * mounting0, then of the frame.
+    T e[3];
+    for (int c = 0; c < 3; ++c) {
+      const double m0[3] = {c == 0   ? e0.r[0].x
+                            : c == 1 ? e0.r[0].y
+                                     : e0.r[0].z,
+                            c == 0   ? e0.r[1].x
+                            : c == 1 ? e0.r[1].y
+                                     : e0.r[1].z,
+                            c == 0   ? e0.r[2].x
+                            : c == 1 ? e0.r[2].y
+                                     : e0.r[2].z};
+      e[c] = r[3 * row + 0] * m0[0] + r[3 * row + 1] * m0[1] + r[3 * row + 2] * m0[2];
+    }
+    const Vec3<T> axis = ax[0] * e[0] + ax[1] * e[1] + ax[2] * e[2];
+    out[row] = gain[row] * sim::dot(axis, b);
+  }
+  return {out[0], out[1], out[2]};
+}
+
+// Whitened residuals of one sensor's 3 channels for one sample. Parameter blocks: lattice (2),
+// the sensor (9), the sample's near magnets (6 each).
+class SensorResidual final : public ceres::CostFunction {
+ public:
+  SensorResidual(const Context& ctx, const Sample& smp, int sensor)
+      : ctx_(ctx), smp_(smp), k_(sensor) {
+    set_num_residuals(3);
+    mutable_parameter_block_sizes()->push_back(kGlobalBlock);
+    mutable_parameter_block_sizes()->push_back(kSensorBlock);
+    for (std::size_t i = 0; i < smp.near.size(); ++i)
+      mutable_parameter_block_sizes()->push_back(kMagnetBlock);
+  }
+
+  bool Evaluate(double const* const* p, double* residuals, double** jacobians) const override {
+    const double* g = p[0];
+    const double* s = p[1];
+    const std::size_t nm = smp_.near.size();
+    const Vec3<double>& far = smp_.far[static_cast<std::size_t>(k_)];
+    // A channel without a finite value (a dead channel in a recording) is left out: weight 0.
+    const double* yraw = smp_.field + 3 * k_;
+    const double* sigma = ctx_.inv_sigma.data() + 3 * k_;
+    double y[3], w[3];
+    for (int i = 0; i < 3; ++i) {
+      const bool known = std::isfinite(yraw[i]);
+      y[i] = known ? yraw[i] : 0.0;
+      w[i] = known ? sigma[i] : 0.0;
+    }
+    if (jacobians == nullptr) {
+      const Vec3<double> pos3 =
+          ctx_.shape->surface_point<double>(s[0], s[1], s[2], nullptr, nullptr, nullptr);
+      Vec3<double> b = far;
+      for (std::size_t i = 0; i < nm; ++i)
+        b = b + magnet_term<double>(ctx_, smp_, p[2 + i], g[0], g[1], pos3);
+      const Vec3<double> out = sensor_reading<double>(ctx_, k_, s + 3, s + 6, b, s);
+      residuals[0] = (out.x - y[0]) * w[0];
+      residuals[1] = (out.y - y[1]) * w[1];
+      residuals[2] = (out.z - y[2]) * w[2];
+      return std::isfinite(residuals[0]) && std::isfinite(residuals[1]) &&
+             std::isfinite(residuals[2]);
+    }
+    // Field in 3D with its derivatives: lattice (2), sensor position (3), magnets (6 each).
+    if (nm > kMaxNear) return false;
+    double dacc[3][kGlobalBlock + 3 + kMagnetBlock * kMaxNear] = {};
+    Vec3<double> acc = far;
+    JetM spos_in[3];
+    for (int j = 0; j < 3; ++j) spos_in[j] = JetM(s[j], kMagnetBlock + kGlobalBlock + j);
+    const Vec3<JetM> spos = ctx_.shape->surface_point<JetM>(spos_in[0], spos_in[1], spos_in[2],
+                                                            nullptr, nullptr, nullptr);
+    const JetM spread(g[0], kMagnetBlock), lateral(g[1], kMagnetBlock + 1);
+    for (std::size_t i = 0; i < nm; ++i) {
+      JetM mag[kMagnetBlock];
+      for (int j = 0; j < kMagnetBlock; ++j) mag[j] = JetM(p[2 + i][j], j);
+      const Vec3<JetM> b = magnet_term<JetM>(ctx_, smp_, mag, spread, lateral, spos);
+      const JetM* comp[3] = {&b.x, &b.y, &b.z};
+      for (int a = 0; a < 3; ++a) {
+        const JetM& c = *comp[a];
+        (a == 0 ? acc.x : a == 1 ? acc.y : acc.z) += c.a;
+        for (int j = 0; j < kGlobalBlock; ++j) dacc[a][j] += c.v[kMagnetBlock + j];
+        for (int j = 0; j < 3; ++j)
+          dacc[a][kGlobalBlock + j] += c.v[kMagnetBlock + kGlobalBlock + j];
+        for (int j = 0; j < kMagnetBlock; ++j)
+          dacc[a][kGlobalBlock + 3 + kMagnetBlock * i + static_cast<std::size_t>(j)] = c.v[j];
+      }
+    }
+    // The reading and its derivatives with respect to rotation, gain, field and position.
+    JetO rot[3], gain[3], pos[3];
+    for (int j = 0; j < 3; ++j) {
+      rot[j] = JetO(s[3 + j], j);
+      gain[j] = JetO(s[6 + j], 3 + j);
+      pos[j] = JetO(s[j], 9 + j);
+    }
+    const Vec3<JetO> bj{JetO(acc.x, 6), JetO(acc.y, 7), JetO(acc.z, 8)};
+    const Vec3<JetO> out = sensor_reading<JetO>(ctx_, k_, rot, gain, bj, pos);
+    const JetO* o[3] = {&out.x, &out.y, &out.z};
+    for (int r = 0; r < 3; ++r) {
+      residuals[r] = (o[r]->a - y[r]) * w[r];
+      const Eigen::Matrix<double, kOutVars, 1>& d = o[r]->v;
+      // d reading / d x = sum_a d reading / d field_a * d field_a / d x (+ direct terms).
+      auto chain = [&](std::size_t var) {
+        return d[6] * dacc[0][var] + d[7] * dacc[1][var] + d[8] * dacc[2][var];
+      };
+      if (jacobians[0] != nullptr) {
+        for (int j = 0; j < kGlobalBlock; ++j)
+          jacobians[0][r * kGlobalBlock + j] = chain(static_cast<std::size_t>(j)) * w[r];
+      }
+      if (jacobians[1] != nullptr) {
+        double* js = jacobians[1] + r * kSensorBlock;
+        for (int j = 0; j < 3; ++j)
+          js[j] = (d[9 + j] + chain(kGlobalBlock + static_cast<std::size_t>(j))) * w[r];
+        for (int j = 0; j < 3; ++j) js[3 + j] = d[j] * w[r];
+        for (int j = 0; j < 3; ++j) js[6 + j] = d[3 + j] * w[r];
+      }
+      for (std::size_t i = 0; i < nm; ++i) {
+        if (jacobians[2 + i] == nullptr) continue;
+        for (int j = 0; j < kMagnetBlock; ++j) {
+          jacobians[2 + i][r * kMagnetBlock + j] =
+              chain(kGlobalBlock + 3 + kMagnetBlock * i + static_cast<std::size_t>(j)) * w[r];
+        }
+      }
+    }
+    return std::isfinite(residuals[0]) && std::isfinite(residuals[1]) &&
+           std::isfinite(residuals[2]);
+  }
+
+ private:
+  const Context& ctx_;
+  const Sample& smp_;
+  int k_;
+};
+
+// A Gaussian prior on one parameter block: (x - centre) / sd per entry.
+class PriorResidual final : public ceres::CostFunction {
+ public:
+  PriorResidual(std::vector<double> centre, std::vector<double> inv_sd)
+      : centre_(std::move(centre)), inv_sd_(std::move(inv_sd)) {
+    set_num_residuals(static_cast<int>(centre_.size()));
+    mutable_parameter_block_sizes()->push_back(static_cast<int>(centre_.size()));
+  }
+  bool Evaluate(double const* const* p, double* residuals, double** jacobians) const override {
+    const std::size_t n = centre_.size();
+    for (std::size_t i = 0; i < n; ++i) residuals[i] = (p[0][i] - centre_[i]) * inv_sd_[i];
+    if (jacobians != nullptr && jacobians[0] != nullptr) {
+      for (std::size_t i = 0; i < n * n; ++i) jacobians[0][i] = 0;
+      for (std::size_t i = 0; i < n; ++i) jacobians[0][i * n + i] = inv_sd_[i];
+    }
+    return true;
+  }
+
+ private:
+  std::vector<double> centre_, inv_sd_;
+};
+
+double inv(double sd, double scale) {
+  // A zero spread holds the parameter (a very stiff prior) rather than dividing by zero.
+  return 1 / std::fmax(sd * scale, 1e-9 * std::fmax(scale, 1e-3));
+}
+
+}  // namespace
+
+FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, double tip_radius_mm,
+                       const ChannelNoise& noise, std::span<const double> edges,
+                       std::span<const std::size_t> rows) {
+  FitQuality q;
+  const int nc = model.channel_count();
+  if (data.channels() != nc) return q;
+  const std::size_t nb = edges.size() > 1 ? edges.size() - 1 : 0;
+  std::vector<double> sum(nb, 0.0);
+  std::vector<int> count(nb, 0);
+  std::vector<int64_t> bin_values(nb, 0);
+  int64_t values = 0;
+  for (std::size_t b = 0; b < nb; ++b) q.bins.push_back({edges[b], edges[b + 1], 0, 0});
+  std::vector<double> f(static_cast<std::size_t>(nc));
+  double total = 0;
+  const std::size_t n = rows.empty() ? data.rows() : rows.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t r = rows.empty() ? i : rows[i];
+    if (r >= data.rows() || !(data.depth_mm[r] > 0) || !std::isfinite(data.depth_mm[r]) ||
+        !std::isfinite(data.u_mm[r]) || !std::isfinite(data.v_mm[r])) {
+      continue;
+    }
+    // Channels without a finite value are left out (a dead channel in a recording).
+    const double* y = data.field(r);
+    int known = 0;
+    for (int c = 0; c < nc; ++c) known += std::isfinite(y[c]) ? 1 : 0;
+    if (known == 0) continue;
+    const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], tip_radius_mm};
+    model.contact_field_ut(std::span<const sim::Contact>(&c, 1), f);
+    double s = 0;
+    for (int k = 0; k < nc; ++k) {
+      if (!std::isfinite(y[k])) continue;
+      const double e = (y[k] - f[static_cast<std::size_t>(k)]) / noise.sigma(k);
+      s += e * e;
+    }
+    total += s;
+    values += known;
+    ++q.rows;
+    for (std::size_t b = 0; b < nb; ++b) {
+      if (c.depth_mm >= edges[b] && c.depth_mm < edges[b + 1]) {
+        sum[b] += s;
+        bin_values[b] += known;
+        ++count[b];
+      }
+    }
+  }
+  q.rms = values > 0 ? std::sqrt(total / static_cast<double>(values)) : 0.0;
+  for (std::size_t b = 0; b < nb; ++b) {
+    q.bins[b].rows = count[b];
+    q.bins[b].rms = bin_values[b] > 0 ? std::sqrt(sum[b] / static_cast<double>(bin_values[b])) : 0;
+  }
+  return q;
+}
+
+Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const sim::Dataset& presses,
+                                     const IdentificationOptions& opt,
+                                     const sim::Dataset* held_out) {
+  const auto t0 = std::chrono::steady_clock::now();
+  sim::PatchDesign design = design_in;
+  design.anisotropy = 0;  // the identified model class: one isotropic spread
+  if (Status s = sim::validate(design); !s.ok()) return s.error();
+  const int nc = design.channel_count();
+  if (presses.channels() != nc || (held_out != nullptr && held_out->channels() != nc)) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "identification: the dataset's channel count differs from the design's (" +
+                          std::to_string(nc) + ")");
+  }
+  if (opt.depths_per_press < 1 || opt.max_iterations < 1 || opt.outer_iterations < 1 ||
+      !(opt.derivative_reach > 0) || !(opt.tip_radius_mm >= 0)) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "identification: depths_per_press, max_iterations, outer_iterations >= 1 "
+                      "and derivative_reach > 0 required");
+  }
+  const ChannelNoise noise =
+      opt.noise.xy_ut > 0 && opt.noise.z_ut > 0 ? opt.noise : ChannelNoise::of(design);
+  Result<sim::PatchModel> nominal_r = sim::PatchModel::nominal(design);
+  if (!nominal_r.ok()) return nominal_r.error();
+  const sim::PatchModel& nominal = nominal_r.value();
+
+  // Rows to fit: per press, the samples nearest to evenly spaced fractions of its deepest one.
+  std::map<int64_t, std::vector<std::size_t>> by_press;
+  int64_t lone = -1;
+  int64_t masked_values = 0;
+  for (std::size_t r = 0; r < presses.rows(); ++r) {
+    if (!(presses.depth_mm[r] >= opt.min_depth_mm) || !std::isfinite(presses.depth_mm[r]) ||
+        !std::isfinite(presses.u_mm[r]) || !std::isfinite(presses.v_mm[r])) {
+      continue;
+    }
+    // Channels without a finite value are left out of the fit (their residuals weigh 0); a row
+    // needs most of its channels.
+    const double* y = presses.field(r);
+    int known = 0;
+    for (int c = 0; c < nc; ++c) known += std::isfinite(y[c]) ? 1 : 0;
+    if (2 * known < nc) continue;
+    masked_values += nc - known;
+    const int64_t id = presses.press.empty() || presses.press[r] < 0 ? lone-- : presses.press[r];
+    by_press[id].push_back(r);
+  }
+  std::vector<std::size_t> rows;
+  std::vector<std::pair<double, double>> press_uv;
+  for (const auto& [id, rs] : by_press) {
+    double deepest = 0;
+    for (std::size_t r : rs) deepest = std::fmax(deepest, presses.depth_mm[r]);
+    std::vector<std::size_t> picked;
+    for (int k = 1; k <= opt.depths_per_press; ++k) {
+      const double target = deepest * k / opt.depths_per_press;
+      std::size_t best = rs.front();
+      for (std::size_t r : rs) {
+        if (std::fabs(presses.depth_mm[r] - target) < std::fabs(presses.depth_mm[best] - target))
+          best = r;
+      }
+      if (std::find(picked.begin(), picked.end(), best) == picked.end()) picked.push_back(best);
+    }
+    rows.insert(rows.end(), picked.begin(), picked.end());
+    press_uv.emplace_back(presses.u_mm[rs.front()], presses.v_mm[rs.front()]);
+  }
+  const int n_presses = static_cast<int>(press_uv.size());
+  if (n_presses < opt.min_presses) {
+    return make_error(ErrorCode::kDegenerate, "identification: " + std::to_string(n_presses) +
+                                                  " usable presses (deeper "
+                                                  "than " +
+                                                  std::to_string(opt.min_depth_mm) +
+                                                  " mm), need at least " +
+                                                  std::to_string(opt.min_presses));
+  }
+  for (std::size_t m = 0; m < nominal.magnets().size(); ++m) {
+    const auto& mg = nominal.magnets()[m];
+    int near = 0;
+    for (const auto& [u, v] : press_uv) {
+      if (std::hypot(u - mg.u, v - mg.v) <= opt.coverage_radius_mm) ++near;
+    }
+    if (near < opt.min_presses_per_magnet) {
+      return make_error(ErrorCode::kDegenerate,
+                        "identification: the presses do not cover the patch: magnet " +
+                            std::to_string(m) + " at (" + std::to_string(mg.u) + ", " +
+                            std::to_string(mg.v) + ") mm has " + std::to_string(near) +
+                            " presses within " + std::to_string(opt.coverage_radius_mm) +
+                            " mm, need " + std::to_string(opt.min_presses_per_magnet));
+    }
+  }
+
+  // Parameters, starting at the nominal unit.
+  const sim::UnitParameters start = nominal.parameters();
+  const double moment_scale = sim::cylinder_moment_am2(
+      design.remanence_t, design.magnet_diameter_mm, design.magnet_height_mm);
+  const std::size_t nm = start.magnets.size(), ns = start.sensors.size();
+  std::vector<double> global = {start.spread_mm, start.lateral_mm};
+  std::vector<double> mags(nm * kMagnetBlock), sens(ns * kSensorBlock);
+  for (std::size_t m = 0; m < nm; ++m) {
+    const sim::MagnetParameters& mp = start.magnets[m];
+    double* x = &mags[m * kMagnetBlock];
+    x[0] = mp.u_mm;
+    x[1] = mp.v_mm;
+    x[2] = mp.h_mm;
+    x[3] = mp.moment_am2.x / moment_scale;
+    x[4] = mp.moment_am2.y / moment_scale;
+    x[5] = mp.moment_am2.z / moment_scale;
+  }
+  Context ctx{&nominal, moment_scale, opt.tip_radius_mm, {}, {}};
+  for (std::size_t k = 0; k < ns; ++k) {
+    const sim::SensorParameters& sp = start.sensors[k];
+    double* x = &sens[k * kSensorBlock];
+    x[0] = sp.u_mm;
+    x[1] = sp.v_mm;
+    x[2] = sp.h_mm;
+    x[3] = x[4] = x[5] = 0;
+    x[6] = sp.gain.x;
+    x[7] = sp.gain.y;
+    x[8] = sp.gain.z;
+    ctx.mounting0.push_back(sp.mounting);
+  }
+  for (int c = 0; c < nc; ++c) ctx.inv_sigma.push_back(1 / noise.sigma(c));
+
+  // Samples and their near magnets.
+  std::vector<Sample> samples;
+  samples.reserve(rows.size());
+  const double reach = opt.derivative_reach * start.spread_mm;
+  for (std::size_t r : rows) {
+    Sample s{presses.u_mm[r], presses.v_mm[r], presses.depth_mm[r], presses.field(r), {}, {}};
+    for (std::size_t m = 0; m < nm; ++m) {
+      if (std::hypot(mags[m * kMagnetBlock] - s.u, mags[m * kMagnetBlock + 1] - s.v) < reach)
+        s.near.push_back(static_cast<int>(m));
+    }
+    if (s.near.size() > kMaxNear) {
+      return make_error(ErrorCode::kInvalidArgument,
+                        "identification: derivative_reach takes " + std::to_string(s.near.size()) +
+                            " magnets into one sample, at most " + std::to_string(kMaxNear) +
+                            " are supported");
+    }
+    s.far.assign(ns, Vec3<double>{});
+    samples.push_back(std::move(s));
+  }
+
+  ceres::Problem::Options po;
+  po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+  ceres::Problem problem(po);
+  std::vector<double*> blocks;
+  for (const Sample& s : samples) {
+    for (std::size_t k = 0; k < ns; ++k) {
+      if (!std::isfinite(s.field[3 * k]) && !std::isfinite(s.field[3 * k + 1]) &&
+          !std::isfinite(s.field[3 * k + 2])) {
+        continue;  // nothing known of this sensor in this sample
+      }
+      blocks.assign({global.data(), &sens[k * kSensorBlock]});
+      for (int m : s.near) blocks.push_back(&mags[static_cast<std::size_t>(m) * kMagnetBlock]);
+      problem.AddResidualBlock(new SensorResidual(ctx, s, static_cast<int>(k)), nullptr, blocks);
+    }
+  }
+  // Priors: the fabrication spread about nominal.
+  const sim::FabricationVariation& pv = opt.prior;
+  problem.AddResidualBlock(
+      new PriorResidual(global, {inv(pv.spread_rel_sd, start.spread_mm),
+                                 inv(pv.lateral_rel_sd, std::fmax(start.lateral_mm, 1e-3))}),
+      nullptr, global.data());
+  for (std::size_t m = 0; m < nm; ++m) {
+    double* x = &mags[m * kMagnetBlock];
+    problem.AddResidualBlock(
+        new PriorResidual(std::vector<double>(x, x + kMagnetBlock),
+                          {inv(pv.magnet_position_sd_mm, 1), inv(pv.magnet_position_sd_mm, 1),
+                           inv(pv.magnet_height_sd_mm, 1), inv(pv.magnet_tilt_sd_rad, 1),
+                           inv(pv.magnet_tilt_sd_rad, 1), inv(pv.magnet_moment_rel_sd, 1)}),
+        nullptr, x);
+  }
+  for (std::size_t k = 0; k < ns; ++k) {
+    double* x = &sens[k * kSensorBlock];
+    const double sp = inv(pv.sensor_position_sd_mm, 1), sr = inv(pv.sensor_rotation_sd_rad, 1),
+                 sg = inv(pv.sensor_gain_rel_sd, 1);
+    problem.AddResidualBlock(new PriorResidual(std::vector<double>(x, x + kSensorBlock),
+                                               {sp, sp, sp, sr, sr, sr, sg, sg, sg}),
+                             nullptr, x);
+  }
+  problem.SetParameterLowerBound(global.data(), 0, 0.2 * start.spread_mm);
+  problem.SetParameterLowerBound(global.data(), 1, 0.0);
+
+  ceres::Solver::Options so;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  // Eigen's sparse Cholesky: the normal matrix is small (parameters^2), and the alternative's
+  // multithreaded BLAS would spin on the cores it does not need.
+  so.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
+  so.max_num_iterations = opt.max_iterations;
+  so.function_tolerance = opt.function_tolerance;
+  so.parameter_tolerance = 1e-9;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  so.minimizer_progress_to_stdout = false;
+
+  int iterations = 0;
+  for (int outer = 0; outer < opt.outer_iterations; ++outer) {
+    // Frozen field of the magnets beyond derivative reach, at the current parameters.
+    for (Sample& s : samples) {
+      for (std::size_t k = 0; k < ns; ++k) {
+        const double* sp = &sens[k * kSensorBlock];
+        const Vec3<double> pos =
+            nominal.surface_point<double>(sp[0], sp[1], sp[2], nullptr, nullptr, nullptr);
+        Vec3<double> b{};
+        std::size_t ni = 0;
+        for (std::size_t m = 0; m < nm; ++m) {
+          if (ni < s.near.size() && static_cast<std::size_t>(s.near[ni]) == m) {
+            ++ni;
+            continue;
+          }
+          b = b + magnet_term<double>(ctx, s, &mags[m * kMagnetBlock], global[0], global[1], pos);
+        }
+        s.far[k] = b;
+      }
+    }
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    iterations += static_cast<int>(summary.iterations.size()) - 1;
+    if (summary.termination_type == ceres::FAILURE ||
+        summary.termination_type == ceres::USER_FAILURE ||
+        (summary.termination_type == ceres::NO_CONVERGENCE && outer + 1 == opt.outer_iterations)) {
+      return make_error(ErrorCode::kNotConverged,
+                        "identification: the solver stopped without converging after " +
+                            std::to_string(iterations) + " iterations: " + summary.message);
+    }
+  }
+
+  // The fitted unit.
+  sim::UnitParameters fitted = start;
+  fitted.spread_mm = global[0];
+  fitted.lateral_mm = global[1];
+  for (std::size_t m = 0; m < nm; ++m) {
+    const double* x = &mags[m * kMagnetBlock];
+    fitted.magnets[m] = {x[0], x[1], x[2], Vec3<double>{x[3], x[4], x[5]} * moment_scale};
+  }
+  for (std::size_t k = 0; k < ns; ++k) {
+    const double* x = &sens[k * kSensorBlock];
+    double r[9];
+    ceres::AngleAxisToRotationMatrix(x + 3, ceres::RowMajorAdapter3x3(r));
+    const sim::Mat3& e0 = ctx.mounting0[k];
+    sim::Mat3 mount;
+    for (int row = 0; row < 3; ++row) {
+      mount.r[row] = e0.r[0] * r[3 * row + 0] + e0.r[1] * r[3 * row + 1] + e0.r[2] * r[3 * row + 2];
+    }
+    fitted.sensors[k] = {x[0], x[1], x[2], mount, Vec3<double>{x[6], x[7], x[8]}};
+  }
+  Result<sim::PatchModel> model = sim::PatchModel::from_parameters(design, fitted);
+  if (!model.ok()) {
+    return make_error(ErrorCode::kNotConverged,
+                      "identification: the fit left invalid parameters: " + model.error().message);
+  }
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  IdentifiedUnit out{std::move(model).value(),      fitted,     {},     {}, {}, {}, n_presses,
+                     static_cast<int>(rows.size()), iterations, seconds};
+  out.masked_values = static_cast<int>(masked_values);
+  out.fit = fit_quality(out.model, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
+  out.nominal_fit =
+      fit_quality(nominal, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
+  if (held_out != nullptr) {
+    out.held_out =
+        fit_quality(out.model, *held_out, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm);
+    out.nominal_held_out =
+        fit_quality(nominal, *held_out, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm);
+  }
+  return out;
+}
+
+}  // namespace skinbus::estimators

@@ -1,0 +1,780 @@
+// The host aggregator's pipeline (aggregator.h).
+#include "skinbus/host/aggregator.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <optional>
+
+#include "skinbus/bus/protocol.h"
+#include "skinbus/estimators/evaluation.h"
+#include "skinbus/estimators/model_file.h"
+
+namespace skinbus::host {
+
+// Estimator names used here.
+using estimators::ContactEstimate;
+using estimators::depth_bin;
+using estimators::depth_bin_name;
+using estimators::kDepthBins;
+using estimators::kEstimateDepthRange;
+using estimators::kEstimateMasked;
+using estimators::kEstimateNoContact;
+using estimators::kEstimateOutsidePatch;
+using estimators::model_stem;
+using estimators::ModelMeta;
+using estimators::NetworkRuntime;
+using estimators::read_model;
+using estimators::reject_reason_name;
+
+namespace {
+
+constexpr int kChannels = bus::kChannelCount;
+
+// The model's mean XY error at a depth, from its metadata (measured at training time), used as
+// the contact's uncertainty. Falls back to the deep-press validation error, then to 1 mm.
+struct ErrorTable {
+  std::array<double, kDepthBins> xy_mm{};
+  double fallback_mm = 1.0;
+  double at(double depth_mm) const {
+    const int b = depth_bin(depth_mm);
+    const double v = b >= 0 ? xy_mm[static_cast<std::size_t>(std::min(b, kDepthBins - 1))] : 0;
+    return v > 0 && std::isfinite(v) ? v : fallback_mm;
+  }
+};
+
+ErrorTable error_table(const ModelMeta& m) {
+  ErrorTable t;
+  auto it = m.metrics.find("val_xy_deep_mean_mm");
+  if (it != m.metrics.end() && std::isfinite(it->second) && it->second > 0) {
+    t.fallback_mm = it->second;
+  }
+  for (int b = 0; b < kDepthBins; ++b) {
+    auto jt = m.metrics.find("test_xy_mean_mm_depth_" + depth_bin_name(b));
+    if (jt != m.metrics.end()) t.xy_mm[static_cast<std::size_t>(b)] = jt->second;
+  }
+  return t;
+}
+
+}  // namespace
+
+struct Aggregator::Impl {
+  const body_map::SkinMap* map = nullptr;
+  const body_map::RobotModel* robot = nullptr;
+  AggregatorOptions options;
+  std::vector<bus::Reassembler> reassemblers;
+  PatchRegistry registry;
+  ContactTracker tracker;
+  AggregatorStats stats;
+
+  struct Model {
+    std::string path;
+    std::unique_ptr<NetworkRuntime> runtime;
+    ErrorTable errors;
+    // The batch being built for a process() call.
+    std::vector<double> fields;
+    std::vector<uint8_t> ok;
+    std::vector<std::size_t> slots;  // pending_ index of each row
+    std::vector<ContactEstimate> out;
+    std::vector<uint32_t> ambient_flags;
+    double us_per_sample = 0;          // measured cost of a run per sample (0: not yet measured)
+    std::vector<std::size_t> refused;  // admit(): the samples a run cannot take in time
+  };
+  std::vector<Model> models;
+
+  // Queued samples, newest per patch: slot per registry index, and the list of used slots.
+  struct Pending {
+    bool used = false;
+    PatchEntry* entry = nullptr;
+    uint64_t time_us = 0;  // aligned sample time
+    uint64_t rx_us = 0;    // host time its last frame arrived
+    // The patch's placement and model when the sample was queued: a heartbeat that arrives
+    // before process() may re-identify the node (another UID, a clash); the sample is then
+    // dropped rather than placed on a patch it did not come from.
+    const body_map::PatchPlacement* placement = nullptr;
+    int model_index = -1;
+    std::array<double, kChannels> field{};
+    std::array<uint8_t, kChannels> ok{};
+  };
+  std::vector<Pending> pending;           // kMaxBuses * 128
+  std::vector<std::size_t> pending_list;  // indices into pending
+
+  // The current contact of each patch that has one, in its link's frame (position and normal;
+  // flags without the kinematics ones): every publication places all of them with the pose at
+  // its own stamp, so one array is one instant of the robot.
+  struct Current {
+    bool used = false;
+    PatchContact contact;
+    int link = -1;         // robot link index; -1: the base frame (no robot, or unmapped)
+    uint64_t time_us = 0;  // aligned sample time
+    uint64_t last_us = 0;  // host time of its last contact sample
+  };
+  std::vector<Current> current;
+  std::vector<std::size_t> current_list;
+  bool released = false;  // a contact ended since the last publication
+
+  // Kinematics: the joint-state history (null without a robot) and the pose of the last
+  // placement (reused while the sample time is the same).
+  std::optional<JointHistory> history;
+  std::vector<double> q_new;   // the state set_joint_state() builds
+  std::vector<double> q_at;    // the positions at q_at_us
+  std::vector<double> q_zero;  // the zero pose (before the first joint state)
+  uint64_t q_at_us = 0;
+  bool q_at_valid = false;  // q_at holds the pose at q_at_us for the current history
+  JointHistory::Coverage q_at_coverage = JointHistory::Coverage::kEmpty;
+  std::vector<bool> prismatic;  // per joint
+  bool joints_stale_reported = false;
+  std::vector<std::string> last_names;  // name -> index cache
+  std::vector<int> name_index;
+
+  // The lag bound: the current episode of late samples.
+  bool lag_episode = false;
+  uint64_t lag_episode_start_us = 0, lag_last_late_us = 0, lag_count = 0, lag_worst_us = 0;
+  std::size_t next_first_slot = 0;  // where the next cost-limited admission starts (fairness)
+
+  std::vector<uint64_t> bad_reported;  // per bus: bad frames already reported
+  std::vector<uint64_t> processed_rx;  // rx times of the samples of the last process()
+  // Per patch slot: contact samples in a row the model gave no estimate for. From
+  // kNoEstimateRun on, the patch is degraded with the reason until an estimate succeeds.
+  static constexpr uint32_t kNoEstimateRun = 10;
+  std::vector<uint32_t> no_estimate_run;
+  // Counts a sample of `p` the model gave no usable estimate for (`why`), or (empty) one it did.
+  void estimate_outcome(Pending& p, const char* why, uint64_t now_us) {
+    uint32_t& run = no_estimate_run[slot(p.entry->bus, p.entry->node)];
+    if (why == nullptr) {
+      run = 0;
+      if (!p.entry->estimator_problem.empty()) registry.set_estimator_problem(*p.entry, "", now_us);
+      return;
+    }
+    if (++run < kNoEstimateRun || !p.entry->estimator_problem.empty()) return;
+    registry.set_estimator_problem(*p.entry,
+                                   "no estimate from its model for " + std::to_string(run) +
+                                       " contact samples in a row (" + why + ")",
+                                   now_us);
+  }
+  std::vector<int> link_of_placement;  // robot link index of each skin-map entry, -1: none
+  PatchContact placed;                 // the contact being placed
+  std::vector<PatchContact> scratch_contacts;
+  std::vector<BodyContact> scratch_out;
+
+  Impl(const body_map::SkinMap* m, std::vector<std::string> names, const AggregatorOptions& o)
+      : map(m), options(o), registry(m, std::move(names), o.registry), tracker(o.tracker) {}
+
+  static std::size_t slot(int bus, uint8_t node) {
+    return static_cast<std::size_t>(bus) * 128 + (node & 0x7F);
+  }
+
+  void on_sample(int bus, uint8_t node, const bus::Sample& s, uint32_t missing, uint64_t rx_us);
+  // Places `est` on its patch's link: the contact in the link's frame; *link the robot link
+  // (-1: the link frame is the base frame).
+  void place(const PatchEntry& e, const ContactEstimate& est, const Model& m, uint32_t flags,
+             PatchContact* out, int* link);
+  // `c` (in the frame of `link`) into the base frame with the pose at `time_us`; false when no
+  // pose can be had.
+  bool to_base(int link, uint64_t time_us, PatchContact* c);
+  // The positions at `time_us` (cached per time) into q_at; ORs the kinematics flags into
+  // *flags.
+  const std::vector<double>& pose_at(uint64_t time_us, uint32_t* flags);
+  // A queued sample superseded by the lag bound at host time `now_us`.
+  void late(const Pending& p, uint64_t now_us, double us_per_sample);
+  // Keeps the samples of m.slots that one run can publish within max_lag_us of their time, when
+  // the host clock is known; the others are superseded as late.
+  void admit(Model& m, uint64_t now_us);
+};
+
+Aggregator::Aggregator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Aggregator::~Aggregator() = default;
+
+Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* map,
+                                                       const std::string& map_dir,
+                                                       const body_map::RobotModel* robot,
+                                                       std::vector<std::string> bus_names,
+                                                       const AggregatorOptions& options) {
+  if (map == nullptr) return make_error(ErrorCode::kInvalidArgument, "aggregator: no skin map");
+  if (bus_names.empty() || bus_names.size() > static_cast<std::size_t>(kMaxBuses)) {
+    return make_error(ErrorCode::kInvalidArgument, "aggregator: 1 to " + std::to_string(kMaxBuses) +
+                                                       " buses, not " +
+                                                       std::to_string(bus_names.size()));
+  }
+  if (Status st = check_options(options.tracker); !st.ok()) return st.error();
+  if (Status st = check_runtime_options(options.runtime); !st.ok()) {
+    return make_error(st.error().code, "aggregator options: runtime: " + st.error().message);
+  }
+  const CommonModeOptions& cm = options.common_mode;
+  if (!(cm.quiet_fraction > 0 && cm.quiet_fraction <= 1) || cm.min_sensors < 1 ||
+      options.registry.stale_us == 0 || options.registry.offline_us < options.registry.stale_us ||
+      options.contact_hold_us == 0 || !(options.ambient_flag_ut > 0)) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "aggregator options: common-mode quiet fraction in (0, 1] and min sensors "
+                      ">= 1, 0 < stale <= offline time, a contact hold > 0, an ambient flag level "
+                      "> 0");
+  }
+  if (options.joint_history.capacity < 2 || options.joint_history.capacity > (1u << 20) ||
+      options.model_delay_us > 1'000'000 || options.lag_quiet_us == 0) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "aggregator options: a joint history of 2 to 2^20 entries, a model delay "
+                      "of at most 1 s, a lag quiet time > 0");
+  }
+  auto impl = std::make_unique<Impl>(map, bus_names, options);
+  impl->robot = robot;
+  impl->reassemblers.reserve(bus_names.size());
+  for (std::size_t b = 0; b < bus_names.size(); ++b)
+    impl->reassemblers.emplace_back(options.reassembly);
+  impl->pending.resize(bus_names.size() * 128);
+  impl->bad_reported.assign(bus_names.size(), 0);
+  impl->no_estimate_run.assign(bus_names.size() * 128, 0);
+  impl->current.resize(bus_names.size() * 128);
+  impl->pending_list.reserve(impl->pending.size());
+  impl->current_list.reserve(impl->current.size());
+  if (robot != nullptr) {
+    const std::size_t joints = static_cast<std::size_t>(robot->joint_count());
+    impl->prismatic.assign(joints, false);
+    std::vector<bool> wrapping(joints, false);  // continuous joints
+    for (const body_map::PatchPlacement& p : map->patches) {
+      impl->link_of_placement.push_back(robot->find_link(p.link));
+    }
+    for (int j = 0; j < robot->joint_count(); ++j) {
+      impl->prismatic[static_cast<std::size_t>(j)] = robot->joint_is_prismatic(j);
+    }
+    for (int l = 0; l < robot->link_count(); ++l) {
+      const body_map::LinkJoint& lj = robot->link(l).joint;
+      const int j =
+          lj.type == body_map::JointType::kContinuous ? robot->find_joint(lj.joint_name) : -1;
+      if (j >= 0) wrapping[static_cast<std::size_t>(j)] = true;
+    }
+    impl->history.emplace(joints, std::move(wrapping), options.joint_history);
+    impl->q_new.assign(joints, 0.0);
+    impl->q_at.assign(joints, 0.0);
+    impl->q_zero.assign(joints, 0.0);
+  }
+
+  // One runtime per distinct model file; the patches that share a file share its batch.
+  std::map<std::string, int> by_path;
+  std::vector<int> model_of(map->patches.size(), -1);
+  std::vector<std::pair<std::string, std::string>> failures;
+  for (std::size_t i = 0; i < map->patches.size(); ++i) {
+    const std::string& name = map->patches[i].model;
+    if (name.empty()) continue;
+    std::filesystem::path p(name);
+    if (p.is_relative() && !map_dir.empty()) p = std::filesystem::path(map_dir) / p;
+    const std::string key = model_stem(p.lexically_normal().string());
+    auto it = by_path.find(key);
+    if (it != by_path.end()) {
+      model_of[i] = it->second;
+      continue;
+    }
+    int index = -1;
+    auto mf = read_model(key);
+    if (mf) {
+      auto rt = NetworkRuntime::create(*mf, options.runtime);
+      if (rt && rt->channels() == kChannels) {
+        Impl::Model m;
+        m.path = key;
+        m.runtime = std::make_unique<NetworkRuntime>(std::move(*rt));
+        m.errors = error_table(mf->meta);
+        index = static_cast<int>(impl->models.size());
+        impl->models.push_back(std::move(m));
+      } else {
+        failures.emplace_back(key, rt ? "the model takes " + std::to_string(rt->channels()) +
+                                            " channels, a patch sends " + std::to_string(kChannels)
+                                      : rt.error().to_string());
+      }
+    } else {
+      failures.emplace_back(key, mf.error().to_string());
+    }
+    by_path[key] = index;
+    model_of[i] = index;
+  }
+  impl->registry.set_models(model_of);
+  for (const auto& [path, why] : failures) {
+    impl->registry.add_event(PatchEventKind::kNoModel, 0, "model " + path + ": " + why);
+  }
+  return std::unique_ptr<Aggregator>(new Aggregator(std::move(impl)));
+}
+
+void Aggregator::on_frame(int bus, const bus::CanFrame& frame, uint64_t rx_us) {
+  Impl& s = *impl_;
+  if (bus < 0 || bus >= static_cast<int>(s.reassemblers.size())) return;
+  ++s.stats.frames;
+  const bus::FeedResult r = s.reassemblers[static_cast<std::size_t>(bus)].feed(frame, rx_us);
+  if (r.status != bus::FeedStatus::kMessage) return;
+  const bus::Message& m = *r.message;
+  switch (m.message_class()) {
+    case bus::MessageClass::kHeartbeat:
+      s.registry.on_heartbeat(bus, m.node, std::get<bus::Heartbeat>(m.body), rx_us);
+      break;
+    case bus::MessageClass::kSample:
+      s.on_sample(bus, m.node, std::get<bus::Sample>(m.body), r.missing_before, rx_us);
+      break;
+    case bus::MessageClass::kAck:
+    case bus::MessageClass::kInfo:
+      s.registry.on_traffic(bus, m.node, rx_us);
+      break;
+    case bus::MessageClass::kSync:
+    case bus::MessageClass::kCommand:
+      break;  // the host's own (or another host's) frames
+  }
+}
+
+void Aggregator::Impl::on_sample(int bus, uint8_t node, const bus::Sample& smp, uint32_t missing,
+                                 uint64_t rx_us) {
+  ++stats.samples;
+  PatchEntry* e = registry.on_sample(bus, node, smp, missing, rx_us);
+  if (e == nullptr) {
+    ++stats.unattributed;
+    return;
+  }
+  const std::size_t k = slot(bus, node);
+  if ((smp.flags & bus::sample_flags::kContact) == 0) {
+    ++stats.idle_samples;
+    // The press is over (event-mode tail, or a stream-mode idle sample).
+    if (current[k].used) {
+      current[k].used = false;
+      current_list.erase(std::find(current_list.begin(), current_list.end(), k));
+      released = true;
+    }
+    if (pending[k].used) {  // a contact sample queued before this release: drop it
+      pending[k].used = false;
+      pending_list.erase(std::find(pending_list.begin(), pending_list.end(), k));
+    }
+    return;
+  }
+  if ((smp.flags & bus::sample_flags::kTared) == 0 ||
+      (smp.flags & bus::sample_flags::kTareActive) != 0) {
+    ++stats.untared_samples;
+    return;
+  }
+  if (e->model_index < 0) {
+    ++stats.unattributed;
+    return;
+  }
+  Pending& p = pending[k];
+  if (p.used) {
+    ++stats.superseded;
+  } else {
+    p.used = true;
+    pending_list.push_back(k);
+  }
+  p.entry = e;
+  p.rx_us = rx_us;
+  p.placement = e->placement;
+  p.model_index = e->model_index;
+  auto host = e->clock.to_host_us(smp.timestamp_us);
+  p.time_us = host ? *host : rx_us;
+  for (int c = 0; c < kChannels; ++c) {
+    const int sensor = c / 3;
+    const bool bad =
+        ((smp.fault_mask >> sensor) & 1u) != 0 || ((smp.saturation_mask >> sensor) & 1u) != 0;
+    p.field[static_cast<std::size_t>(c)] =
+        smp.field_lsb[static_cast<std::size_t>(c)] * bus::kFieldUtPerLsb;
+    p.ok[static_cast<std::size_t>(c)] = bad ? 0 : 1;
+  }
+}
+
+const std::vector<double>& Aggregator::Impl::pose_at(uint64_t time_us, uint32_t* flags) {
+  if (history->empty()) {
+    *flags |= kContactNoKinematics;
+    return q_zero;
+  }
+  if (!q_at_valid || q_at_us != time_us) {
+    q_at_coverage = history->pose_at(time_us, q_at);
+    q_at_us = time_us;
+    q_at_valid = true;
+  }
+  if (q_at_coverage == JointHistory::Coverage::kOutside) {
+    *flags |= kContactStaleKinematics;  // the nearest state: not the pose at the sample's time
+    ++stats.kinematics_uncovered;
+  }
+  return q_at;
+}
+
+void Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, const Model& m,
+                             uint32_t flags, PatchContact* out, int* link) {
+  const body_map::PatchPlacement& pl = *e.placement;
+  // The contact point on the undeformed skin surface; depth is reported alongside.
+  const body_map::SurfacePoint sp = body_map::link_surface_point(pl, est.u_mm, est.v_mm, 0.0);
+  *link = -1;
+  if (robot != nullptr) {
+    *link = link_of_placement[static_cast<std::size_t>(&pl - map->patches.data())];
+    // The link is not in the robot: its frame taken as the base.
+    if (*link < 0) flags |= kContactUnmapped;
+  }
+  for (int i = 0; i < 3; ++i) {
+    out->position_mm[i] = sp.point_mm[i];
+    out->normal[i] = sp.normal[i];
+  }
+  out->depth_mm = est.depth_mm;
+  out->force_n = est.force_n;
+  out->u_mm = est.u_mm;
+  out->v_mm = est.v_mm;
+  out->uncertainty_mm = m.errors.at(est.depth_mm);
+  out->node = e.node;
+  out->hardware_uid = e.hardware_uid != 0 ? e.hardware_uid : pl.hardware_uid;
+  out->link = pl.link;
+  out->flags = flags;
+}
+
+bool Aggregator::Impl::to_base(int link, uint64_t time_us, PatchContact* c) {
+  if (link < 0) return true;
+  // The link's pose at that time.
+  auto pose = robot->link_pose(pose_at(time_us, &c->flags), link);
+  if (!pose) return false;  // cannot happen with finite positions: never a guessed place
+  const Eigen::Vector3d p =
+      pose->apply(Eigen::Vector3d(c->position_mm[0], c->position_mm[1], c->position_mm[2]));
+  const Eigen::Vector3d n =
+      pose->rotation * Eigen::Vector3d(c->normal[0], c->normal[1], c->normal[2]);
+  for (int i = 0; i < 3; ++i) {
+    c->position_mm[i] = p[i];
+    c->normal[i] = n[i];
+  }
+  return true;
+}
+
+void Aggregator::Impl::late(const Pending& p, uint64_t now_us, double us_per_sample) {
+  ++stats.late_superseded;
+  const uint64_t age_us = now_us > p.time_us ? now_us - p.time_us : 0;
+  lag_last_late_us = now_us;
+  lag_worst_us = std::max(lag_worst_us, age_us);
+  ++lag_count;
+  if (lag_episode) return;
+  lag_episode = true;
+  lag_episode_start_us = now_us;
+  char buf[320];
+  const bool never = us_per_sample > static_cast<double>(options.max_lag_us);
+  std::snprintf(buf, sizeof buf,
+                "the host fell behind: samples that cannot be published within %.0f ms of their "
+                "time are superseded, not estimated (this one %.1f ms old; model runs take %.2f ms "
+                "a sample%s)",
+                static_cast<double>(options.max_lag_us) * 1e-3, static_cast<double>(age_us) * 1e-3,
+                us_per_sample * 1e-3,
+                never ? ", more than the bound: one sample a run, published late" : "");
+  registry.add_event(PatchEventKind::kHostLagging, now_us, buf);
+}
+
+void Aggregator::Impl::admit(Model& m, uint64_t now_us) {
+  if (options.max_lag_us == 0 || !options.clock_us || m.slots.empty()) return;
+  const uint64_t t = std::max(now_us, options.clock_us());
+  // Served in turn: slot order, starting where the last cost-limited admission stopped.
+  std::sort(m.slots.begin(), m.slots.end());
+  const auto first = std::lower_bound(m.slots.begin(), m.slots.end(), next_first_slot);
+  std::rotate(m.slots.begin(), first, m.slots.end());
+  std::size_t admitted = 0;
+  uint64_t deadline = UINT64_MAX;  // the earliest deadline of the admitted samples
+  m.refused.clear();
+  for (std::size_t i = 0; i < m.slots.size(); ++i) {
+    const std::size_t k = m.slots[i];
+    const uint64_t own = pending[k].time_us + options.max_lag_us;
+    const double end = static_cast<double>(t) + m.us_per_sample * static_cast<double>(admitted + 1);
+    if (end > static_cast<double>(std::min(deadline, own))) {
+      m.refused.push_back(k);
+      continue;
+    }
+    deadline = std::min(deadline, own);
+    m.slots[admitted++] = k;
+  }
+  if (admitted == 0) {
+    // Not even one estimate fits (the model takes longer than the bound): the first sample
+    // still in time, in turn, is estimated anyway. Contacts keep coming, late by about one
+    // estimate; the bound cannot be met on this CPU, and the places are still right.
+    for (std::size_t i = 0; i < m.refused.size(); ++i) {
+      if (t <= pending[m.refused[i]].time_us + options.max_lag_us) {
+        m.slots[admitted++] = m.refused[i];
+        m.refused.erase(m.refused.begin() + static_cast<std::ptrdiff_t>(i));
+        break;
+      }
+    }
+  }
+  for (std::size_t k : m.refused) late(pending[k], t, m.us_per_sample);
+  if (!m.refused.empty() && admitted > 0) next_first_slot = m.slots[admitted - 1] + 1;
+  m.slots.resize(admitted);
+}
+
+void Aggregator::set_joint_state(std::span<const std::string> names,
+                                 std::span<const double> positions, uint64_t stamp_us,
+                                 bool prismatic_in_metres) {
+  Impl& s = *impl_;
+  if (!s.history) return;  // no robot
+  const bool same = names.size() == s.last_names.size() &&
+                    std::equal(names.begin(), names.end(), s.last_names.begin());
+  if (!same) {
+    s.last_names.assign(names.begin(), names.end());
+    s.name_index.resize(names.size());
+    for (std::size_t i = 0; i < names.size(); ++i) {
+      s.name_index[i] = s.robot->find_joint(names[i]);
+      if (s.name_index[i] < 0) ++s.stats.unknown_joints;
+    }
+  }
+  // The newest state (the zero pose before the first) with this state's joints set.
+  const std::span<const double> newest = s.history->newest();
+  if (newest.empty()) {
+    std::fill(s.q_new.begin(), s.q_new.end(), 0.0);
+  } else {
+    std::copy(newest.begin(), newest.end(), s.q_new.begin());
+  }
+  const std::size_t n = std::min(names.size(), positions.size());
+  bool mapped = false;
+  for (std::size_t i = 0; i < n; ++i) {
+    const int j = s.name_index[i];
+    if (j < 0) continue;
+    const double scale =
+        prismatic_in_metres && s.prismatic[static_cast<std::size_t>(j)] ? 1000.0 : 1.0;
+    const double v = positions[i] * scale;
+    if (!std::isfinite(v)) continue;  // NaN, Inf, or a huge value that overflowed the scaling
+    s.q_new[static_cast<std::size_t>(j)] = v;
+    mapped = true;
+  }
+  if (!mapped) return;  // nothing this robot knows: still no kinematics (or the last known)
+  if (s.history->add(stamp_us, s.q_new) == JointHistory::AddResult::kOutOfOrder) {
+    ++s.stats.joint_states_out_of_order;
+    return;
+  }
+  s.q_at_valid = false;
+  if (s.joints_stale_reported) {
+    s.joints_stale_reported = false;
+    s.registry.add_event(PatchEventKind::kKinematicsFresh, stamp_us, "joint states resumed");
+  }
+}
+
+bool Aggregator::process(uint64_t now_us, ContactArray* out) {
+  Impl& s = *impl_;
+  // Contacts whose patch went quiet without a release sample (lost frames, a vanished patch).
+  for (std::size_t i = 0; i < s.current_list.size();) {
+    const std::size_t k = s.current_list[i];
+    if (now_us > s.current[k].last_us + s.options.contact_hold_us) {
+      s.current[k].used = false;
+      s.current_list[i] = s.current_list.back();
+      s.current_list.pop_back();
+      s.released = true;
+    } else {
+      ++i;
+    }
+  }
+  s.processed_rx.clear();
+  if (s.pending_list.empty() && !s.released) return false;
+  bool changed = s.released;  // a contact ended, or (below) one was placed
+
+  // Sort the queued samples per model; those already older than the lag bound go.
+  for (Impl::Model& m : s.models) m.slots.clear();
+  for (std::size_t k : s.pending_list) {
+    Impl::Pending& p = s.pending[k];
+    const PatchEntry& e = *p.entry;
+    if (!s.registry.attributable(e) || e.model_index < 0 || e.placement != p.placement ||
+        e.model_index != p.model_index) {
+      ++s.stats.unattributed;  // re-identified since it was queued
+      continue;
+    }
+    Impl::Model& m = s.models[static_cast<std::size_t>(e.model_index)];
+    if (s.options.max_lag_us > 0 && now_us > p.time_us + s.options.max_lag_us) {
+      s.late(p, now_us, m.us_per_sample);
+      continue;
+    }
+    m.slots.push_back(k);
+  }
+  for (Impl::Model& m : s.models) {
+    s.admit(m, now_us);  // with the host clock: what this run can still publish in time
+    const int batch = static_cast<int>(m.slots.size());
+    if (batch == 0) continue;
+    m.fields.clear();
+    m.ok.clear();
+    for (std::size_t k : m.slots) {
+      const Impl::Pending& p = s.pending[k];
+      m.fields.insert(m.fields.end(), p.field.begin(), p.field.end());
+      m.ok.insert(m.ok.end(), p.ok.begin(), p.ok.end());
+    }
+    // Common-mode rejection, per sample, before the network.
+    std::vector<uint32_t>& amb_flags = m.ambient_flags;
+    amb_flags.assign(m.slots.size(), 0);
+    for (int b = 0; b < batch; ++b) {
+      std::span<double> f(m.fields.data() + static_cast<std::size_t>(b) * kChannels, kChannels);
+      std::span<const uint8_t> ok(m.ok.data() + static_cast<std::size_t>(b) * kChannels, kChannels);
+      const CommonModeEstimate cm = estimate_common_mode(f, ok, s.options.common_mode);
+      remove_common_mode(f, cm);
+      if (cm.valid && cm.magnitude_ut() > s.options.ambient_flag_ut) {
+        amb_flags[static_cast<std::size_t>(b)] = kContactAmbientLarge;
+      }
+    }
+    m.out.resize(m.slots.size());
+    const auto run_start = std::chrono::steady_clock::now();
+    const bool ran = m.runtime->run(m.fields, batch, m.out, m.ok).ok();
+    if (s.options.model_delay_us > 0) {  // test aid: a slower CPU
+      const auto until = std::chrono::steady_clock::now() +
+                         std::chrono::microseconds(s.options.model_delay_us * batch);
+      while (std::chrono::steady_clock::now() < until) {
+      }
+    }
+    // The cost per sample: up at once, down slowly (a cost under-estimated breaks the bound).
+    const double cost =
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - run_start)
+            .count() /
+        batch;
+    m.us_per_sample = cost > m.us_per_sample ? cost : 0.8 * m.us_per_sample + 0.2 * cost;
+    if (!ran) continue;
+    ++s.stats.model_runs;
+    s.stats.estimated += static_cast<uint64_t>(batch);
+    for (int b = 0; b < batch; ++b) {
+      const std::size_t k = m.slots[static_cast<std::size_t>(b)];
+      const ContactEstimate& est = m.out[static_cast<std::size_t>(b)];
+      Impl::Pending& p = s.pending[k];
+      s.processed_rx.push_back(p.rx_us);
+      if (!est.valid()) {
+        ++s.stats.rejected;
+        s.estimate_outcome(p, reject_reason_name(est.reason), now_us);
+        continue;
+      }
+      if ((est.flags & kEstimateNoContact) != 0) {
+        ++s.stats.no_contact;
+        continue;
+      }
+      uint32_t flags = amb_flags[static_cast<std::size_t>(b)];
+      if (est.flags & kEstimateOutsidePatch) flags |= kContactOutsidePatch;
+      if (est.flags & kEstimateDepthRange) flags |= kContactDepthRange;
+      if (est.flags & kEstimateMasked) flags |= kContactMaskedChannels;
+      PatchContact& placed = s.placed;  // placed aside: a bad estimate never erases a held one
+      int link = -1;
+      s.place(*p.entry, est, m, flags, &placed, &link);
+      // A place that is not finite, or farther than any robot reaches (an absurd estimate or
+      // placement), is no contact: counted, and the patch degraded with the reason if it lasts.
+      bool finite = true;
+      for (int i = 0; i < 3; ++i) {
+        finite = finite && std::isfinite(placed.normal[i]) &&
+                 std::fabs(placed.position_mm[i]) <= kMaxContactMagnitude;
+      }
+      for (double v : {est.u_mm, est.v_mm, est.depth_mm}) {
+        finite = finite && std::fabs(v) <= kMaxContactMagnitude;
+      }
+      if (!finite) {
+        ++s.stats.rejected;
+        s.estimate_outcome(p, "estimates placed beyond any robot (non-finite or over 1 km)",
+                           now_us);
+        continue;
+      }
+      s.estimate_outcome(p, nullptr, now_us);
+      Impl::Current& c = s.current[k];
+      c.contact = placed;
+      c.link = link;
+      ++p.entry->contacts;
+      changed = true;
+      c.time_us = p.time_us;
+      c.last_us = now_us;
+      if (!c.used) {
+        c.used = true;
+        s.current_list.push_back(k);
+      }
+    }
+  }
+  for (std::size_t k : s.pending_list) s.pending[k].used = false;
+  s.pending_list.clear();
+  s.released = false;
+  if (!changed) return false;  // only rejected, late or dropped samples: nothing to publish
+
+  // Every patch's current contact in the base frame at one instant, the newest sample time (a
+  // held contact, the press still on its patch, goes with its limb to where it is then); then
+  // merge and track.
+  s.scratch_contacts.clear();
+  uint64_t stamp = 0;
+  std::sort(s.current_list.begin(), s.current_list.end());
+  for (std::size_t k : s.current_list) stamp = std::max(stamp, s.current[k].time_us);
+  if (stamp == 0) stamp = now_us;
+  for (std::size_t k : s.current_list) {
+    PatchContact& c = s.scratch_contacts.emplace_back(s.current[k].contact);
+    if (!s.to_base(s.current[k].link, stamp, &c)) s.scratch_contacts.pop_back();
+  }
+  out->stamp_us = stamp;
+  out->base_frame = s.options.base_frame;
+  out->contacts.clear();
+  s.tracker.update(stamp, s.scratch_contacts, &out->contacts);
+  ++s.stats.publications;
+  return true;
+}
+
+void Aggregator::tick(uint64_t now_us) {
+  Impl& s = *impl_;
+  s.registry.tick(now_us);
+  for (std::size_t b = 0; b < s.reassemblers.size(); ++b) {
+    bus::Reassembler& r = s.reassemblers[b];
+    r.expire(now_us);
+    // Frames the bus layer refused since the last tick, as one event per bus.
+    const bus::ReassemblyStats& st = r.stats();
+    const uint64_t bad = st.rejected + st.integrity_failures + st.conflicts + st.stale_parts;
+    if (bad > s.bad_reported[b]) {
+      char buf[200];
+      std::snprintf(buf, sizeof buf,
+                    "%llu bad frame(s) since the last report (totals: rejected %llu, failed CRC "
+                    "or values %llu, conflicting parts %llu, stale parts %llu)",
+                    static_cast<unsigned long long>(bad - s.bad_reported[b]),
+                    static_cast<unsigned long long>(st.rejected),
+                    static_cast<unsigned long long>(st.integrity_failures),
+                    static_cast<unsigned long long>(st.conflicts),
+                    static_cast<unsigned long long>(st.stale_parts));
+      s.registry.add_event(PatchEventKind::kBadFrames, now_us, buf, static_cast<int>(b));
+      s.bad_reported[b] = bad;
+    }
+  }
+  if (s.history && !s.history->empty() && !s.joints_stale_reported &&
+      now_us > s.history->newest_us() + s.options.kinematics_stale_us) {
+    s.joints_stale_reported = true;
+    char buf[160];
+    std::snprintf(buf, sizeof buf,
+                  "joint states stopped %.2f s ago: contacts after them use the last known pose "
+                  "(flagged)",
+                  static_cast<double>(now_us - s.history->newest_us()) * 1e-6);
+    s.registry.add_event(PatchEventKind::kKinematicsStale, now_us, buf);
+  }
+  if (s.lag_episode && now_us > s.lag_last_late_us + s.options.lag_quiet_us) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "the host caught up: %llu sample(s) superseded over %.2f s, the oldest %.1f ms "
+                  "old",
+                  static_cast<unsigned long long>(s.lag_count),
+                  static_cast<double>(s.lag_last_late_us - s.lag_episode_start_us) * 1e-6,
+                  static_cast<double>(s.lag_worst_us) * 1e-3);
+    s.registry.add_event(PatchEventKind::kHostCaughtUp, now_us, buf);
+    s.lag_episode = false;
+    s.lag_count = 0;
+    s.lag_worst_us = 0;
+  }
+}
+
+void Aggregator::status(uint64_t now_us, PatchStatusArray* out) {
+  Impl& s = *impl_;
+  out->stamp_us = now_us;
+  out->patches.clear();
+  out->events.clear();
+  s.registry.status(&out->patches);
+  s.registry.take_events(&out->events);
+}
+
+void Aggregator::add_event(PatchEventKind kind, uint64_t now_us, std::string detail, int bus) {
+  impl_->registry.add_event(kind, now_us, std::move(detail), bus);
+}
+
+const AggregatorStats& Aggregator::stats() const {
+  return impl_->stats;
+}
+
+bus::ReassemblyStats Aggregator::reassembly_stats() const {
+  bus::ReassemblyStats sum;
+  for (const bus::Reassembler& r : impl_->reassemblers) sum += r.stats();
+  return sum;
+}
+
+const PatchRegistry& Aggregator::registry() const {
+  return impl_->registry;
+}
+
+std::span<const uint64_t> Aggregator::processed_rx_us() const {
+  return impl_->processed_rx;
+}
+
+std::vector<std::string> Aggregator::model_descriptions() const {
+  std::vector<std::string> out;
+  for (const Impl::Model& m : impl_->models) {
+    out.push_back(m.path + " (" + m.runtime->kernel_name() + ")");
+  }
+  return out;
+}
+
+}  // namespace skinbus::host

@@ -1,0 +1,75 @@
+// Names of the aggregator's states and events (contacts.h).
+#include "skinbus/host/contacts.h"
+
+#include <cinttypes>
+#include <cstdio>
+
+namespace skinbus::host {
+
+std::string_view patch_link_state_name(PatchLinkState s) {
+  switch (s) {
+    case PatchLinkState::kDiscovering:
+      return "discovering";
+    case PatchLinkState::kOnline:
+      return "online";
+    case PatchLinkState::kDegraded:
+      return "degraded";
+    case PatchLinkState::kStale:
+      return "stale";
+    case PatchLinkState::kOffline:
+      return "offline";
+  }
+  return "unknown";
+}
+
+std::string_view patch_event_name(PatchEventKind k) {
+  switch (k) {
+    case PatchEventKind::kDiscovered:
+      return "discovered";
+    case PatchEventKind::kOnline:
+      return "online";
+    case PatchEventKind::kDegraded:
+      return "degraded";
+    case PatchEventKind::kStale:
+      return "stale";
+    case PatchEventKind::kOffline:
+      return "offline";
+    case PatchEventKind::kReturned:
+      return "returned";
+    case PatchEventKind::kRebooted:
+      return "rebooted";
+    case PatchEventKind::kDuplicateId:
+      return "duplicate_id";
+    case PatchEventKind::kUnknownPatch:
+      return "unknown_patch";
+    case PatchEventKind::kNoModel:
+      return "no_model";
+    case PatchEventKind::kSequenceGap:
+      return "sequence_gap";
+    case PatchEventKind::kBadFrames:
+      return "bad_frames";
+    case PatchEventKind::kInterfaceDown:
+      return "interface_down";
+    case PatchEventKind::kInterfaceUp:
+      return "interface_up";
+    case PatchEventKind::kKinematicsStale:
+      return "kinematics_stale";
+    case PatchEventKind::kKinematicsFresh:
+      return "kinematics_fresh";
+    case PatchEventKind::kHostLagging:
+      return "host_lagging";
+    case PatchEventKind::kHostCaughtUp:
+      return "host_caught_up";
+    case PatchEventKind::kLogTime:
+      return "log_time";
+  }
+  return "unknown";
+}
+
+std::string format_uid(uint64_t uid) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "%016" PRIx64, uid);
+  return buf;
+}
+
+}  // namespace skinbus::host
