@@ -18,10 +18,32 @@
 #include <vector>
 
 #include "skinbus/common/atomic_file.h"
+#include "skinbus/common/result.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/common/text_file.h"
 
 namespace skinbus::tools {
+
+// The exit status for a failure described by `e`: 2 when the input is at fault (arguments or
+// files: invalid_argument, parse, not_found, out_of_range), 1 otherwise.
+inline int exit_status(const Error& e) {
+  switch (e.code) {
+    case ErrorCode::kInvalidArgument:
+    case ErrorCode::kParse:
+    case ErrorCode::kNotFound:
+    case ErrorCode::kOutOfRange:
+      return 2;
+    default:
+      return 1;
+  }
+}
+
+// The one way a tool reports an error it ends on: "tool: code: message" on standard error;
+// returns exit_status(e) for main to return.
+inline int report_error(const char* tool, const Error& e) {
+  std::fprintf(stderr, "%s: %s\n", tool, e.to_string().c_str());
+  return exit_status(e);
+}
 
 // Parses "1-4,7,9-10" into node IDs, each within [lo, hi]. Throws std::invalid_argument with
 // a message naming the bad part (tools report it and exit non-zero).

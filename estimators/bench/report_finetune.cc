@@ -6,15 +6,16 @@
 #include <cstdio>
 #include <fstream>
 
-#include "bench_models.h"
+#include "skinbus/common/error_format.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/estimators/training.h"
 #include "skinbus/estimators/unit_identification.h"
+#include "skinbus/estimators_bench/reports.h"
 #include "skinbus/sim/simulated_patch.h"
 
-namespace skinbus::tools {
+namespace skinbus::estimators_bench {
 namespace {
 
 using namespace skinbus::estimators;
@@ -24,41 +25,17 @@ constexpr double kSecondsPerPress = 6.0;  // a 4 s ramp plus ~2 s to move to the
 
 }  // namespace
 
-void add_finetune_options(CLI::App* sub, FinetuneBenchArgs& a) {
-  sub->add_option("--base", a.base_path, "the base network (trained on the nominal patch)")
-      ->required();
-  sub->add_option("--points", a.points, "presses spent on the new unit (Halton positions)")
-      ->delimiter(',')
-      ->capture_default_str();
-  sub->add_option("--uid", a.uid, "hardware UID of the new (fabricated) unit")
-      ->capture_default_str();
-  sub->add_option("--anisotropy", a.anisotropy,
-                  "lattice anisotropy of the new unit (physics the nominal model does not have)")
-      ->capture_default_str();
-  sub->add_option("--plan", a.plan,
-                  "press positions: halton (n points) | grid (the nearest square grid over the "
-                  "patch, round(sqrt(n))^2 points)")
-      ->capture_default_str()
-      ->check(CLI::IsMember({"halton", "grid"}));
-  sub->add_option("--epochs", a.epochs, "fine-tuning epochs")->capture_default_str();
-  sub->add_option("--lr", a.learning_rate, "fine-tuning learning rate")->capture_default_str();
-  sub->add_option("--test-count", a.test_count, "off-grid test presses")->capture_default_str();
-  sub->add_option("--threads", a.threads, "LibTorch threads")->capture_default_str();
-  sub->add_option("--csv", a.csv, "write the table as CSV");
-}
-
-int bench_finetune(const FinetuneBenchArgs& a) {
+Status bench_finetune(const FinetuneBenchArgs& a) {
   Result<ModelFile> base = read_model(a.base_path);
   if (!base.ok()) {
-    std::fprintf(stderr, "skinbus-bench: %s\n", base.error().to_string().c_str());
-    return 2;
+    return base.error();
   }
   const sim::PatchDesign design;
   sim::PatchDesign unit_design = design;
   unit_design.anisotropy = a.anisotropy;
   Result<sim::PatchModel> unit =
       sim::PatchModel::fabricated(unit_design, a.uid, sim::FabricationVariation{});
-  if (!unit.ok()) return 2;
+  if (!unit.ok()) return unit.error();
   sim::SimulatedPatch test_patch(*unit, sim::unit_noise_seed(a.uid, 2));
   const sim::Dataset test =
       sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
@@ -85,7 +62,7 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   {
     Result<PhysicsEstimator> lm =
         PhysicsEstimator::create(sim::PatchModel::nominal(design).value());
-    if (!lm.ok()) return 2;
+    if (!lm.ok()) return lm.error();
     std::vector<ContactEstimate> out(test.rows());
     for (std::size_t r = 0; r < test.rows(); ++r)
       out[r] = lm->estimate({test.field(r), nc}).contact;
@@ -173,8 +150,7 @@ int bench_finetune(const FinetuneBenchArgs& a) {
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
     if (!f) {
-      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
-      return 1;
+      return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     f << "presses,robot_minutes,finetuned_xy_deep_mm,finetuned_depth_mm,finetune_s,physics_xy_deep_"
          "mm,physics_depth_mm,identify_s\n";
@@ -191,8 +167,8 @@ int bench_finetune(const FinetuneBenchArgs& a) {
       f << "\n";
     }
   }
-  return 0;
+  return Status::Ok();
 }
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::estimators_bench
 #endif

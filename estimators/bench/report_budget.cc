@@ -4,17 +4,20 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <optional>
 
-#include "bench_models.h"
+#include "skinbus/common/error_format.h"
+#include "skinbus/common/stats.h"
 #include "skinbus/estimators/bias_correction.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/estimators/unit_identification.h"
+#include "skinbus/estimators_bench/reports.h"
 #include "skinbus/sim/simulated_patch.h"
 
-namespace skinbus::tools {
+namespace skinbus::estimators_bench {
 namespace {
 
 using namespace skinbus::estimators;
@@ -96,54 +99,32 @@ std::string residual_text(double residual) {
 
 }  // namespace
 
-void add_budget_options(CLI::App* sub, BudgetBenchArgs& a) {
-  sub->add_option("--units", a.units, "simulated units: nominal, fabricated, anisotropic")
-      ->delimiter(',')
-      ->capture_default_str();
-  sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")
-      ->capture_default_str();
-  sub->add_option("--anisotropy", a.anisotropy, "lattice anisotropy of the 'anisotropic' unit")
-      ->capture_default_str();
-  sub->add_option("--seed-model", a.seed_models,
-                  "unit=MODEL: the seed CNN trained on that unit's 19 x 19 grid (skinbus-train on "
-                  "skinbus-dataset --plan grid); repeat per unit");
-  sub->add_option("--test-count", a.test_count, "off-grid test presses per unit")
-      ->capture_default_str()
-      ->check(CLI::Range(10, 1000000));
-  sub->add_option("--grid-test-per-point", a.grid_test_per_point, "test presses at each grid point")
-      ->capture_default_str()
-      ->check(CLI::Range(1, 1000));
-  sub->add_option("--csv", a.csv, "write the table as CSV");
-}
-
-int bench_budget(const BudgetBenchArgs& a) {
+Status bench_budget(const BudgetBenchArgs& a) {
   std::map<std::string, std::string> seed_paths;
   for (const std::string& s : a.seed_models) {
     const std::size_t eq = s.find('=');
     if (eq == std::string::npos) {
-      std::fprintf(stderr, "skinbus-bench: --seed-model wants unit=MODEL, got '%s'\n", s.c_str());
-      return 2;
+      return errorf(ErrorCode::kInvalidArgument, "--seed-model wants unit=MODEL, got '%s'",
+                    s.c_str());
     }
     seed_paths[s.substr(0, eq)] = s.substr(eq + 1);
   }
   for (const std::string& name : a.units) {
     if (name != "nominal" && name != "fabricated" && name != "anisotropic") {
-      std::fprintf(stderr, "skinbus-bench: unknown unit '%s' (nominal, fabricated, anisotropic)\n",
-                   name.c_str());
-      return 2;
+      return errorf(ErrorCode::kInvalidArgument,
+                    "unknown unit '%s' (nominal, fabricated, anisotropic)", name.c_str());
     }
   }
   Result<PhysicsEstimator> nominal_lm =
       PhysicsEstimator::create(sim::PatchModel::nominal(sim::PatchDesign{}).value());
-  if (!nominal_lm.ok()) return 2;
+  if (!nominal_lm.ok()) return nominal_lm.error();
   std::vector<Row> rows;
   for (const std::string& name : a.units) {
-    std::fprintf(stderr, "skinbus-bench: unit %s: simulating 361 presses and the test splits\n",
-                 name.c_str());
+    return errorf(ErrorCode::kInvalidArgument,
+                  "unit %s: simulating 361 presses and the test splits", name.c_str());
     Result<Unit> unit = make_unit(name, a);
     if (!unit.ok()) {
-      std::fprintf(stderr, "skinbus-bench: %s\n", unit.error().to_string().c_str());
-      return 2;
+      return unit.error();
     }
     const std::array<double, kDepthBins> crlb = mean_per_bin(
         crlb_per_row(unit->truth, unit->off_grid, static_cast<int>(unit->off_grid.rows())),
@@ -167,13 +148,11 @@ int bench_budget(const BudgetBenchArgs& a) {
     if (auto it = seed_paths.find(name); it != seed_paths.end()) {
       Result<ModelFile> m = read_model(it->second);
       if (!m.ok()) {
-        std::fprintf(stderr, "skinbus-bench: %s\n", m.error().to_string().c_str());
-        return 2;
+        return m.error();
       }
       Result<NetworkRuntime> rt = NetworkRuntime::create(*m);
       if (!rt.ok()) {
-        std::fprintf(stderr, "skinbus-bench: %s\n", rt.error().to_string().c_str());
-        return 2;
+        return rt.error();
       }
       cnn.emplace(std::move(rt.value()));
       const int channels = cnn->channels();
@@ -200,21 +179,20 @@ int bench_budget(const BudgetBenchArgs& a) {
     // the truth is known). From the grid presses and from 361 presses at Halton positions.
     std::optional<PhysicsEstimator> grid_lm;
     double grid_id_s = 0, grid_residual = -1;
-    auto physics_pipeline = [&](const std::string& plan, const sim::Dataset& presses) -> int {
+    auto physics_pipeline = [&](const std::string& plan, const sim::Dataset& presses) -> Status {
       const auto t0 = Clock::now();
       Result<IdentifiedUnit> id = identify_unit(sim::PatchDesign{}, presses, {}, &unit->off_grid);
       const double id_s = std::chrono::duration<double>(Clock::now() - t0).count();
       if (!id.ok()) {
         std::fprintf(stderr, "skinbus-bench: identification of %s: %s\n", name.c_str(),
                      id.error().to_string().c_str());
-        return 3;
       }
       std::fprintf(stderr,
                    "skinbus-bench:   identified from %s in %.1f s: residual %.3f (fit) / %.3f "
                    "(held out) noise units; nominal model %.3f\n",
                    plan.c_str(), id_s, id->fit.rms, id->held_out.rms, id->nominal_held_out.rms);
       Result<PhysicsEstimator> lm = PhysicsEstimator::create(id->model);
-      if (!lm.ok()) return 2;
+      if (!lm.ok()) return lm.error();
       add_row(
           "identified unit (" + plan + ") + physics LM",
           [&](const double* f) {
@@ -234,9 +212,7 @@ int bench_budget(const BudgetBenchArgs& a) {
       bo.half_u_mm = bo.half_v_mm = kHalfExtentMm;
       Result<BiasCorrection> bias = BiasCorrection::fit(est, tu, tv, td, bo);
       if (!bias.ok()) {
-        std::fprintf(stderr, "skinbus-bench: bias correction: %s\n",
-                     bias.error().to_string().c_str());
-        return 3;
+        return with_context(bias.error(), "bias correction");
       }
       const double fit_s = std::chrono::duration<double>(Clock::now() - t1).count();
       std::fprintf(stderr, "skinbus-bench:   bias correction: %d samples, RMS %.3f mm, %.1f s\n",
@@ -263,14 +239,14 @@ int bench_budget(const BudgetBenchArgs& a) {
         grid_id_s = id_s;
         grid_residual = id->held_out.rms;
       }
-      return 0;
+      return Status::Ok();
     };
-    if (int rc = physics_pipeline("grid", unit->presses); rc != 0) return rc;
+    if (Status s = physics_pipeline("grid", unit->presses); !s.ok()) return s;
     {
       sim::SimulatedPatch patch(unit->truth, sim::unit_noise_seed(a.uid, 1));
       const sim::Dataset halton = sim::generate_ramp_dataset(
           patch, sim::plan_halton(kGrid * kGrid, kHalfExtentMm, 1), sim::RampProtocol{});
-      if (int rc = physics_pipeline("Halton", halton); rc != 0) return rc;
+      if (Status s = physics_pipeline("Halton", halton); !s.ok()) return s;
     }
     // 5. The seed CNN's answer refined by least squares on the identified model.
     if (cnn && grid_lm) {
@@ -314,8 +290,7 @@ int bench_budget(const BudgetBenchArgs& a) {
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
     if (!f) {
-      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
-      return 1;
+      return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     f << "unit,pipeline,setup_s,residual_noise_units,off_grid_xy_deep_mm,off_grid_depth_mm,grid_xy_"
          "deep_mm,grid_depth_mm,goal";
@@ -333,7 +308,7 @@ int bench_budget(const BudgetBenchArgs& a) {
       f << "\n";
     }
   }
-  return 0;
+  return Status::Ok();
 }
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::estimators_bench

@@ -8,14 +8,16 @@
 #include <string>
 #include <vector>
 
-#include "bench_ambient.h"
+#include "skinbus/common/error_format.h"
+#include "skinbus/common/stats.h"
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/host/ambient.h"
+#include "skinbus/host_bench/reports.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 
-namespace skinbus::tools {
+namespace skinbus::host_bench {
 
 namespace {
 
@@ -84,31 +86,14 @@ struct Row {
 
 }  // namespace
 
-void add_ambient_options(CLI::App* sub, AmbientBenchArgs& a) {
-  sub->add_option("--model", a.model_path, "per-patch model (stem, .json or .safetensors)")
-      ->capture_default_str();
-  sub->add_option("--units", a.units, "units: nominal, fabricated (UID-seeded variation)")
-      ->delimiter(',')
-      ->capture_default_str();
-  sub->add_option("--count", a.count, "presses per unit")->capture_default_str();
-  sub->add_option("--field", a.field_ut, "magnitude of the turning ambient field, uT")
-      ->capture_default_str();
-  sub->add_option("--max-turn", a.max_turn_deg,
-                  "largest turn of the field between tare and press, degrees (180: any)")
-      ->capture_default_str();
-  sub->add_option("--csv", a.csv, "write the table as CSV here");
-}
-
-int bench_ambient(const AmbientBenchArgs& a) {
+Status bench_ambient(const AmbientBenchArgs& a) {
   auto model = estimators::read_model(a.model_path);
   if (!model) {
-    std::fprintf(stderr, "skinbus-bench ambient: %s\n", model.error().to_string().c_str());
-    return 1;
+    return model.error();
   }
   auto rt = estimators::NetworkRuntime::create(*model, {});
   if (!rt) {
-    std::fprintf(stderr, "skinbus-bench ambient: %s\n", rt.error().to_string().c_str());
-    return 1;
+    return rt.error();
   }
   std::printf(
       "ambient rejection: %d presses per unit, depth %.1f..%.1f mm, a %.0f uT field "
@@ -128,8 +113,7 @@ int bench_ambient(const AmbientBenchArgs& a) {
                   ? sim::PatchModel::nominal(design)
                   : sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
     if (!pm || (unit != "nominal" && unit != "fabricated")) {
-      std::fprintf(stderr, "skinbus-bench ambient: unknown unit '%s'\n", unit.c_str());
-      return 2;
+      return errorf(ErrorCode::kInvalidArgument, "unknown unit '%s'", unit.c_str());
     }
     sim::SimulatedPatch patch(*pm, sim::unit_noise_seed(a.uid, 2));
     const Presses p = make_presses(patch, a, a.uid ^ 0xA3B1);
@@ -155,7 +139,7 @@ int bench_ambient(const AmbientBenchArgs& a) {
         // RMS over the channels: the input error the network sees.
         for (std::size_t i = 0; i < x.size(); ++i) resid2 += (x[i] - ref[i]) * (x[i] - ref[i]);
         std::vector<estimators::ContactEstimate> est(static_cast<std::size_t>(a.count));
-        if (!rt->run(x, a.count, est).ok()) return 1;
+        if (Status s = rt->run(x, a.count, est); !s.ok()) return s;
         const estimators::ErrorSummary s = estimators::summarize_errors(est, truth);
         Row r;
         r.unit = unit;
@@ -193,7 +177,7 @@ int bench_ambient(const AmbientBenchArgs& a) {
       f << r.unit << ',' << r.method << ',' << r.field << ',' << r.xy_mm << ',' << r.p95_mm << ','
         << r.depth_mm << ',' << r.residual_ut << ',' << r.us_per_sample << '\n';
   }
-  return 0;
+  return Status::Ok();
 }
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::host_bench

@@ -13,14 +13,15 @@
 #include <immintrin.h>
 #endif
 
-#include "bench_models.h"
+#include "skinbus/common/error_format.h"
+#include "skinbus/common/stats.h"
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/model_file.h"
 #include "skinbus/estimators/network_runtime.h"
+#include "skinbus/estimators_bench/reports.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/patch_model.h"
 #include "skinbus/sim/simulated_patch.h"
-#include "tool_util.h"
 #ifdef SKINBUS_HAVE_TORCH
 #include "skinbus/estimators/training.h"
 #endif
@@ -29,7 +30,7 @@
 #define SKINBUS_SOURCE_DIR "."
 #endif
 
-namespace skinbus::tools {
+namespace skinbus::estimators_bench {
 namespace {
 
 using namespace skinbus::estimators;
@@ -145,49 +146,27 @@ double fma_peak_gflops(RuntimeIsa isa) {
   return 0.0;
 }
 
-void add_cpu_options(CLI::App* sub, CpuBenchArgs& a) {
-  sub->add_option("--model", a.model_path,
-                  "the network timed (model file stem; default: the shipped seed CNN, "
-                  "estimators/models/nominal_seed_cnn)");
-  sub->add_option("--test", a.test_path,
-                  "off-grid test presses for the error columns (default: 2000 simulated on the "
-                  "nominal patch, as skinbus-dataset --plan random-test)")
-      ->check(CLI::ExistingFile);
-  sub->add_option("--samples", a.samples, "test presses used (errors, batched timing)")
-      ->check(CLI::Range(64, 100000));
-  sub->add_option("--latency-samples", a.latency_samples, "samples timed one at a time")
-      ->check(CLI::Range(10, 100000));
-  sub->add_option("--reps", a.reps, "repetitions of each timing; the median is reported")
-      ->check(CLI::Range(1, 50));
-  sub->add_option("--csv", a.csv, "write the table as CSV");
-  sub->add_option("--plot", a.plot,
-                  "with --csv: also a PNG of the times (tools/plot_cpu.py, python3-matplotlib)");
-}
-
-int bench_cpu(const CpuBenchArgs& a) {
+Status bench_cpu(const CpuBenchArgs& a) {
   const std::string model_path =
       a.model_path.empty() ? std::string(SKINBUS_SOURCE_DIR) + "/estimators/models/nominal_seed_cnn"
                            : a.model_path;
   Result<ModelFile> model = read_model(model_path);
   if (!model.ok()) {
-    std::fprintf(stderr, "skinbus-bench: %s\n", model.error().to_string().c_str());
-    return 2;
+    return model.error();
   }
   sim::Dataset test;
   if (!a.test_path.empty()) {
     Result<sim::Dataset> d = sim::read_dataset_csv(a.test_path);
     if (!d.ok()) {
-      std::fprintf(stderr, "skinbus-bench: %s\n", d.error().to_string().c_str());
-      return 2;
+      return d.error();
     }
     test = std::move(d.value());
   } else {
-    std::fprintf(stderr, "skinbus-bench: simulating %d test presses on the nominal patch ...\n",
-                 a.samples);
+    return errorf(ErrorCode::kInvalidArgument,
+                  "simulating %d test presses on the nominal patch ...", a.samples);
     Result<sim::PatchModel> pm = sim::PatchModel::nominal(sim::PatchDesign{});
     if (!pm.ok()) {
-      std::fprintf(stderr, "skinbus-bench: %s\n", pm.error().to_string().c_str());
-      return 2;
+      return pm.error();
     }
     sim::SimulatedPatch patch(*pm, 7);
     test = sim::generate_random_test_set(patch, a.samples, 67.5, 4.0, 7);
@@ -199,7 +178,6 @@ int bench_cpu(const CpuBenchArgs& a) {
                  "skinbus-bench: the test set has %d channels and %d rows; the model takes "
                  "%d channels and the benchmark needs 64 rows\n",
                  channels, n, model->meta.channels());
-    return 2;
   }
   const std::span<const double> field(test.field_ut.data(), static_cast<std::size_t>(n) * channels);
   const Truth truth{{test.u_mm.data(), static_cast<std::size_t>(n)},
@@ -273,9 +251,7 @@ int bench_cpu(const CpuBenchArgs& a) {
     r.macs = static_cast<double>(model->macs());
     Result<TorchRunner> t1 = TorchRunner::create(*model, 1), t2 = TorchRunner::create(*model, 2);
     if (!t1.ok() || !t2.ok()) {
-      std::fprintf(stderr, "skinbus-bench: LibTorch: %s\n",
-                   (t1.ok() ? t2.error() : t1.error()).to_string().c_str());
-      return 2;
+      return with_context((t1.ok() ? t2.error() : t1.error()), "LibTorch");
     }
     double sink = 0;
     // Batch 1: one prepared sample, run lat_n times (LibTorch at its best: no conversion).
@@ -373,8 +349,7 @@ int bench_cpu(const CpuBenchArgs& a) {
   if (!a.csv.empty()) {
     std::FILE* f = std::fopen(a.csv.c_str(), "w");
     if (f == nullptr) {
-      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
-      return 1;
+      return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     std::fprintf(f,
                  "kernels,precision,isa,fma_peak_gflops,floor_us,batch1_us,batch64_1t_us,"
@@ -386,20 +361,18 @@ int bench_cpu(const CpuBenchArgs& a) {
                    r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
     }
     if (std::fclose(f) != 0) {
-      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
-      return 1;
+      return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     if (!a.plot.empty()) {
       const char* d = std::getenv("SKINBUS_TOOLS_DIR");
       const std::string cmd = std::string(d ? d : SKINBUS_SOURCE_DIR "/tools") + "/plot_cpu.py '" +
                               a.csv + "' '" + a.plot + "'";
       if (std::system(cmd.c_str()) != 0) {
-        std::fprintf(stderr, "skinbus-bench: plotting failed: %s\n", cmd.c_str());
-        return 1;
+        return errorf(ErrorCode::kIo, "plotting failed: %s", cmd.c_str());
       }
     }
   }
-  return 0;
+  return Status::Ok();
 }
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::estimators_bench

@@ -1,4 +1,6 @@
-#include "bench_models.h"
+#include "skinbus/common/error_format.h"
+#include "skinbus/common/stats.h"
+#include "skinbus/estimators_bench/reports.h"
 
 #include <algorithm>
 #include <chrono>
@@ -16,7 +18,6 @@
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/dataset.h"
-#include "tool_util.h"
 #ifdef SKINBUS_HAVE_TORCH
 #include "skinbus/estimators/training.h"
 #endif
@@ -25,7 +26,7 @@
 #define SKINBUS_SOURCE_DIR "."
 #endif
 
-namespace skinbus::tools {
+namespace skinbus::estimators_bench {
 namespace {
 
 using namespace skinbus::estimators;
@@ -176,41 +177,13 @@ std::array<double, kDepthBins> mean_per_bin(std::span<const double> values,
   return sum;
 }
 
-void add_models_options(CLI::App* sub, ModelsBenchArgs& a) {
-  sub->add_option("--test", a.test_path, "off-grid test split (skinbus-dataset --plan random-test)")
-      ->required()
-      ->check(CLI::ExistingFile);
-  sub->add_option("--train", a.train_path,
-                  "training presses: the nearest-neighbour lookup's table (optional)")
-      ->check(CLI::ExistingFile);
-  sub->add_option("--model", a.model_paths, "trained network (repeat); a stem or .json path");
-  sub->add_option("--reference", a.reference_path,
-                  "model run through LibTorch as the reference runtime (default: the first "
-                  "width-1 CNN)");
-  sub->add_flag("!--no-reduced", a.reduced, "leave out the bfloat16 and int8 rows");
-  sub->add_flag("!--no-physics", a.physics, "leave out the physics LM row");
-  sub->add_option("--latency-samples", a.latency_samples, "samples timed at batch 1")
-      ->capture_default_str()
-      ->check(CLI::Range(1, 100000));
-  sub->add_option("--max-test", a.max_test, "test rows used")
-      ->capture_default_str()
-      ->check(CLI::Range(1, 10000000));
-  sub->add_option("--csv", a.csv, "write the table as CSV");
-  sub->add_option("--errors-csv", a.errors_csv, "write every estimate's error (for the error map)");
-  sub->add_option("--plot", a.plot,
-                  "PNG stem: writes <stem>_pareto.png and <stem>_error_map.png (needs --errors-csv "
-                  "and --csv)");
-}
-
-int bench_models(const ModelsBenchArgs& a) {
+Status bench_models(const ModelsBenchArgs& a) {
   if (!a.plot.empty() && (a.csv.empty() || a.errors_csv.empty())) {
-    std::fprintf(stderr, "skinbus-bench: --plot needs --csv and --errors-csv\n");
-    return 2;
+    return make_error(ErrorCode::kInvalidArgument, "--plot needs --csv and --errors-csv");
   }
   Result<sim::Dataset> test_r = sim::read_dataset_csv(a.test_path);
   if (!test_r.ok()) {
-    std::fprintf(stderr, "skinbus-bench: %s\n", test_r.error().to_string().c_str());
-    return 2;
+    return test_r.error();
   }
   sim::Dataset& test = test_r.value();
   const int n =
@@ -219,10 +192,9 @@ int bench_models(const ModelsBenchArgs& a) {
   const sim::PatchDesign design;
   Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design);
   if (!nominal.ok() || nominal->channel_count() != channels) {
-    std::fprintf(stderr,
-                 "skinbus-bench: the test split does not have the nominal patch's %d channels\n",
-                 nominal.ok() ? nominal->channel_count() : 0);
-    return 2;
+    return errorf(ErrorCode::kInvalidArgument,
+                  "the test split does not have the nominal patch's %d channels",
+                  nominal.ok() ? nominal->channel_count() : 0);
   }
   const double nxy = sim::mlx90393_noise_xy_ut(design.sensor_config);
   const double nz = sim::mlx90393_noise_z_ut(design.sensor_config);
@@ -240,16 +212,14 @@ int bench_models(const ModelsBenchArgs& a) {
   for (const std::string& path : a.model_paths) {
     Result<ModelFile> m = read_model(path);
     if (!m.ok()) {
-      std::fprintf(stderr, "skinbus-bench: %s\n", m.error().to_string().c_str());
-      return 2;
+      return m.error();
     }
     models.push_back(std::move(m.value()));
   }
   for (const ModelFile& m : models) {
     if (m.meta.channels() != channels) {
-      std::fprintf(stderr, "skinbus-bench: model %s has %d channels, the test split %d\n",
-                   m.meta.name.c_str(), m.meta.channels(), channels);
-      return 2;
+      return errorf(ErrorCode::kInvalidArgument, "model %s has %d channels, the test split %d",
+                    m.meta.name.c_str(), m.meta.channels(), channels);
     }
     const bool cnn = m.meta.architecture.kind == ArchitectureKind::kCnn;
     if (a.reference_path.empty() && cnn && m.meta.architecture.width == 1.0 &&
@@ -321,8 +291,7 @@ int bench_models(const ModelsBenchArgs& a) {
   if (!a.reference_path.empty()) {
     Result<ModelFile> m = read_model(a.reference_path);
     if (!m.ok()) {
-      std::fprintf(stderr, "skinbus-bench: %s\n", m.error().to_string().c_str());
-      return 2;
+      return m.error();
     }
     models.push_back(std::move(m.value()));
     reference = &models.back();
@@ -332,8 +301,7 @@ int bench_models(const ModelsBenchArgs& a) {
     for (int t = 1; t <= 2; ++t) {
       Result<TorchRunner> r = TorchRunner::create(*reference, t);
       if (!r.ok()) {
-        std::fprintf(stderr, "skinbus-bench: LibTorch: %s\n", r.error().to_string().c_str());
-        return 2;
+        return with_context(r.error(), "LibTorch");
       }
       (*runners)[static_cast<std::size_t>(t - 1)] =
           std::make_unique<TorchRunner>(std::move(r.value()));
@@ -348,8 +316,8 @@ int bench_models(const ModelsBenchArgs& a) {
     const std::array<int, 4> at = {index_of("u_mm"), index_of("v_mm"), index_of("depth_mm"),
                                    index_of("force_n")};
     if (at[0] < 0 || at[1] < 0 || at[2] < 0) {
-      std::fprintf(stderr, "skinbus-bench: the reference model lacks u_mm, v_mm or depth_mm\n");
-      return 2;
+      return make_error(ErrorCode::kInvalidArgument,
+                        "the reference model lacks u_mm, v_mm or depth_mm");
     }
     const int n_out = static_cast<int>(meta.outputs.size());
     Candidate c;
@@ -400,13 +368,11 @@ int bench_models(const ModelsBenchArgs& a) {
   if (!a.train_path.empty()) {
     Result<sim::Dataset> train = sim::read_dataset_csv(a.train_path);
     if (!train.ok()) {
-      std::fprintf(stderr, "skinbus-bench: %s\n", train.error().to_string().c_str());
-      return 2;
+      return train.error();
     }
     Result<LookupEstimator> lk = LookupEstimator::from_dataset(design, *train);
     if (!lk.ok()) {
-      std::fprintf(stderr, "skinbus-bench: lookup: %s\n", lk.error().to_string().c_str());
-      return 2;
+      return with_context(lk.error(), "lookup");
     }
     auto table = std::make_shared<LookupEstimator>(std::move(lk.value()));
     keep.push_back(table);
@@ -426,8 +392,7 @@ int bench_models(const ModelsBenchArgs& a) {
   if (a.physics) {
     Result<PhysicsEstimator> pe = PhysicsEstimator::create(*nominal);
     if (!pe.ok()) {
-      std::fprintf(stderr, "skinbus-bench: physics: %s\n", pe.error().to_string().c_str());
-      return 2;
+      return with_context(pe.error(), "physics");
     }
     auto est = std::make_shared<PhysicsEstimator>(std::move(pe.value()));
     keep.push_back(est);
@@ -503,8 +468,7 @@ int bench_models(const ModelsBenchArgs& a) {
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
     if (!f) {
-      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.csv.c_str());
-      return 1;
+      return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     f << "estimator,kind,macs,batch1_us,batch64_1t_us,batch64_2t_us,xy_mean_mm,xy_p95_mm,depth_"
          "mean_mm,"
@@ -531,8 +495,7 @@ int bench_models(const ModelsBenchArgs& a) {
   if (!a.errors_csv.empty()) {
     std::ofstream f(a.errors_csv);
     if (!f) {
-      std::fprintf(stderr, "skinbus-bench: cannot write %s\n", a.errors_csv.c_str());
-      return 1;
+      return errorf(ErrorCode::kIo, "cannot write %s", a.errors_csv.c_str());
     }
     f << "estimator,u_mm,v_mm,depth_mm,xy_error_mm,depth_error_mm,valid,crlb_xy_mm\n";
     for (const Measured& m : rows) {
@@ -551,11 +514,10 @@ int bench_models(const ModelsBenchArgs& a) {
     const std::string cmd = std::string(d ? d : SKINBUS_SOURCE_DIR "/tools") + "/plot_models.py '" +
                             a.csv + "' '" + a.errors_csv + "' '" + a.plot + "'";
     if (std::system(cmd.c_str()) != 0) {
-      std::fprintf(stderr, "skinbus-bench: plotting failed (%s)\n", cmd.c_str());
-      return 1;
+      return errorf(ErrorCode::kIo, "plotting failed: %s", cmd.c_str());
     }
   }
-  return 0;
+  return Status::Ok();
 }
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::estimators_bench

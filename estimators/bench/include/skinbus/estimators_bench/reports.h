@@ -1,8 +1,8 @@
-// tools/bench_models.h: the `skinbus-bench models` subcommand (estimators: run time and error on
-// one test split, against the CRLB).
+// The per-patch estimators' reports (`skinbus-bench models | cpu | budget | finetune`): run time
+// and error of every estimator on the same presses, against the Cramér-Rao bound and the CPU's FMA
+// peak. Each prints Markdown tables on standard output and progress on standard error, writes the
+// CSV and plot files its arguments name, and returns what went wrong as a Status.
 #pragma once
-
-#include <CLI/CLI.hpp>
 
 #include <array>
 #include <cstdint>
@@ -10,11 +10,13 @@
 #include <string>
 #include <vector>
 
+#include "skinbus/common/result.h"
+
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/dataset.h"
 
-namespace skinbus::tools {
+namespace skinbus::estimators_bench {
 
 struct ModelsBenchArgs {
   std::string test_path;                 // off-grid test split (skinbus-dataset --plan random-test)
@@ -34,8 +36,7 @@ std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Datase
 std::array<double, estimators::kDepthBins> mean_per_bin(std::span<const double> values,
                                                         std::span<const double> depth_mm);
 
-void add_models_options(CLI::App* sub, ModelsBenchArgs& a);
-int bench_models(const ModelsBenchArgs& a);
+Status bench_models(const ModelsBenchArgs& a);
 
 // `skinbus-bench cpu` (bench_cpu.cc): one network on every kernel set this CPU has, float32 and
 // int8, batch 1 and batched on 1 and 2 threads, against the FMA peak measured here, LibTorch at
@@ -48,8 +49,7 @@ struct CpuBenchArgs {
   int reps = 5;
   std::string csv, plot;
 };
-void add_cpu_options(CLI::App* sub, CpuBenchArgs& a);
-int bench_cpu(const CpuBenchArgs& a);
+Status bench_cpu(const CpuBenchArgs& a);
 // The float32 multiply-add peak of one core with `isa`'s vector width (GFLOP/s; 0 where this CPU
 // or build has no such vectors, and for the portable kernels).
 double fma_peak_gflops(estimators::RuntimeIsa isa);
@@ -65,8 +65,7 @@ struct BudgetBenchArgs {
   std::string csv;
 };
 
-void add_budget_options(CLI::App* sub, BudgetBenchArgs& a);
-int bench_budget(const BudgetBenchArgs& a);
+Status bench_budget(const BudgetBenchArgs& a);
 
 // `skinbus-bench finetune` (built with LibTorch only): error of a new unit against the presses
 // spent on it, fine-tuning a base network vs identifying the unit's physics.
@@ -83,7 +82,6 @@ struct FinetuneBenchArgs {
   std::string csv;
 };
 
-void add_finetune_options(CLI::App* sub, FinetuneBenchArgs& a);
-int bench_finetune(const FinetuneBenchArgs& a);
+Status bench_finetune(const FinetuneBenchArgs& a);
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::estimators_bench

@@ -1,14 +1,15 @@
-// tools/bench_ambient.h: the `skinbus-bench ambient` subcommand (a per-patch model's error when
-// the ambient field turns between tare and press, with and without common-mode rejection).
+// The host's reports (`skinbus-bench ambient`): a per-patch model's error when the ambient field
+// turns between tare and press, with and without common-mode rejection. Prints Markdown tables on
+// standard output and returns what went wrong as a Status.
 #pragma once
-
-#include <CLI/CLI.hpp>
 
 #include <cstdint>
 #include <string>
 #include <vector>
 
-namespace skinbus::tools {
+#include "skinbus/common/result.h"
+
+namespace skinbus::host_bench {
 
 struct AmbientBenchArgs {
   std::string model_path = "estimators/models/nominal_seed_cnn";
@@ -22,7 +23,6 @@ struct AmbientBenchArgs {
   std::string csv;
 };
 
-void add_ambient_options(CLI::App* sub, AmbientBenchArgs& a);
-int bench_ambient(const AmbientBenchArgs& a);
+Status bench_ambient(const AmbientBenchArgs& a);
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::host_bench

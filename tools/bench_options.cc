@@ -1,0 +1,115 @@
+// The command-line options of skinbus-bench's report subcommands (bench_options.h).
+#include "bench_options.h"
+
+#include <string>
+
+#ifndef SKINBUS_SOURCE_DIR
+#define SKINBUS_SOURCE_DIR "."
+#endif
+
+namespace skinbus::tools {
+
+void add_models_options(CLI::App* sub, estimators_bench::ModelsBenchArgs& a) {
+  sub->add_option("--test", a.test_path, "off-grid test split (skinbus-dataset --plan random-test)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  sub->add_option("--train", a.train_path,
+                  "training presses: the nearest-neighbour lookup's table (optional)")
+      ->check(CLI::ExistingFile);
+  sub->add_option("--model", a.model_paths, "trained network (repeat); a stem or .json path");
+  sub->add_option("--reference", a.reference_path,
+                  "model run through LibTorch as the reference runtime (default: the first "
+                  "width-1 CNN)");
+  sub->add_flag("!--no-reduced", a.reduced, "leave out the bfloat16 and int8 rows");
+  sub->add_flag("!--no-physics", a.physics, "leave out the physics LM row");
+  sub->add_option("--latency-samples", a.latency_samples, "samples timed at batch 1")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--max-test", a.max_test, "test rows used")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 10000000));
+  sub->add_option("--csv", a.csv, "write the table as CSV");
+  sub->add_option("--errors-csv", a.errors_csv, "write every estimate's error (for the error map)");
+  sub->add_option("--plot", a.plot,
+                  "PNG stem: writes <stem>_pareto.png and <stem>_error_map.png (needs --errors-csv "
+                  "and --csv)");
+}
+
+void add_cpu_options(CLI::App* sub, estimators_bench::CpuBenchArgs& a) {
+  sub->add_option("--model", a.model_path,
+                  "the network timed (model file stem; default: the shipped seed CNN, "
+                  "estimators/models/nominal_seed_cnn)");
+  sub->add_option("--test", a.test_path,
+                  "off-grid test presses for the error columns (default: 2000 simulated on the "
+                  "nominal patch, as skinbus-dataset --plan random-test)")
+      ->check(CLI::ExistingFile);
+  sub->add_option("--samples", a.samples, "test presses used (errors, batched timing)")
+      ->check(CLI::Range(64, 100000));
+  sub->add_option("--latency-samples", a.latency_samples, "samples timed one at a time")
+      ->check(CLI::Range(10, 100000));
+  sub->add_option("--reps", a.reps, "repetitions of each timing; the median is reported")
+      ->check(CLI::Range(1, 50));
+  sub->add_option("--csv", a.csv, "write the table as CSV");
+  sub->add_option("--plot", a.plot,
+                  "with --csv: also a PNG of the times (tools/plot_cpu.py, python3-matplotlib)");
+}
+
+void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
+  sub->add_option("--units", a.units, "simulated units: nominal, fabricated, anisotropic")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")
+      ->capture_default_str();
+  sub->add_option("--anisotropy", a.anisotropy, "lattice anisotropy of the 'anisotropic' unit")
+      ->capture_default_str();
+  sub->add_option("--seed-model", a.seed_models,
+                  "unit=MODEL: the seed CNN trained on that unit's 19 x 19 grid (skinbus-train on "
+                  "skinbus-dataset --plan grid); repeat per unit");
+  sub->add_option("--test-count", a.test_count, "off-grid test presses per unit")
+      ->capture_default_str()
+      ->check(CLI::Range(10, 1000000));
+  sub->add_option("--grid-test-per-point", a.grid_test_per_point, "test presses at each grid point")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
+  sub->add_option("--csv", a.csv, "write the table as CSV");
+}
+
+void add_finetune_options(CLI::App* sub, estimators_bench::FinetuneBenchArgs& a) {
+  sub->add_option("--base", a.base_path, "the base network (trained on the nominal patch)")
+      ->required();
+  sub->add_option("--points", a.points, "presses spent on the new unit (Halton positions)")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--uid", a.uid, "hardware UID of the new (fabricated) unit")
+      ->capture_default_str();
+  sub->add_option("--anisotropy", a.anisotropy,
+                  "lattice anisotropy of the new unit (physics the nominal model does not have)")
+      ->capture_default_str();
+  sub->add_option("--plan", a.plan,
+                  "press positions: halton (n points) | grid (the nearest square grid over the "
+                  "patch, round(sqrt(n))^2 points)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"halton", "grid"}));
+  sub->add_option("--epochs", a.epochs, "fine-tuning epochs")->capture_default_str();
+  sub->add_option("--lr", a.learning_rate, "fine-tuning learning rate")->capture_default_str();
+  sub->add_option("--test-count", a.test_count, "off-grid test presses")->capture_default_str();
+  sub->add_option("--threads", a.threads, "LibTorch threads")->capture_default_str();
+  sub->add_option("--csv", a.csv, "write the table as CSV");
+}
+
+void add_ambient_options(CLI::App* sub, host_bench::AmbientBenchArgs& a) {
+  sub->add_option("--model", a.model_path, "per-patch model (stem, .json or .safetensors)")
+      ->capture_default_str();
+  sub->add_option("--units", a.units, "units: nominal, fabricated (UID-seeded variation)")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--count", a.count, "presses per unit")->capture_default_str();
+  sub->add_option("--field", a.field_ut, "magnitude of the turning ambient field, uT")
+      ->capture_default_str();
+  sub->add_option("--max-turn", a.max_turn_deg,
+                  "largest turn of the field between tare and press, degrees (180: any)")
+      ->capture_default_str();
+  sub->add_option("--csv", a.csv, "write the table as CSV here");
+}
+
+}  // namespace skinbus::tools
