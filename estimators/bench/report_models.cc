@@ -53,7 +53,7 @@ struct Measured {
 };
 
 // The machine's float32 multiply-add peak on one core, GFLOP/s, with the widest vectors it has
-// (bench_cpu.cc). Printed before and after the estimators, so a table from a loaded or slower
+// (report_cpu.cc). Printed before and after the estimators, so a table from a loaded or slower
 // machine says so: a network's float32 floor is 2 x MACs / this peak.
 double best_fma_peak_gflops() {
   const double avx512 = fma_peak_gflops(RuntimeIsa::kAvx512);
