@@ -120,8 +120,8 @@ Status bench_budget(const BudgetBenchArgs& a) {
   if (!nominal_lm.ok()) return nominal_lm.error();
   std::vector<Row> rows;
   for (const std::string& name : a.units) {
-    return errorf(ErrorCode::kInvalidArgument,
-                  "unit %s: simulating 361 presses and the test splits", name.c_str());
+    std::fprintf(stderr, "skinbus-bench: unit %s: simulating 361 presses and the test splits\n",
+                 name.c_str());
     Result<Unit> unit = make_unit(name, a);
     if (!unit.ok()) {
       return unit.error();
@@ -184,8 +184,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
       Result<IdentifiedUnit> id = identify_unit(sim::PatchDesign{}, presses, {}, &unit->off_grid);
       const double id_s = std::chrono::duration<double>(Clock::now() - t0).count();
       if (!id.ok()) {
-        std::fprintf(stderr, "skinbus-bench: identification of %s: %s\n", name.c_str(),
-                     id.error().to_string().c_str());
+        return with_context(id.error(), "identification of " + name);
       }
       std::fprintf(stderr,
                    "skinbus-bench:   identified from %s in %.1f s: residual %.3f (fit) / %.3f "

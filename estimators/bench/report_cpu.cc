@@ -162,8 +162,8 @@ Status bench_cpu(const CpuBenchArgs& a) {
     }
     test = std::move(d.value());
   } else {
-    return errorf(ErrorCode::kInvalidArgument,
-                  "simulating %d test presses on the nominal patch ...", a.samples);
+    std::fprintf(stderr, "skinbus-bench: simulating %d test presses on the nominal patch ...\n",
+                 a.samples);
     Result<sim::PatchModel> pm = sim::PatchModel::nominal(sim::PatchDesign{});
     if (!pm.ok()) {
       return pm.error();
@@ -174,10 +174,10 @@ Status bench_cpu(const CpuBenchArgs& a) {
   const int channels = test.channels();
   const int n = std::min(a.samples, static_cast<int>(test.rows()));
   if (channels != model->meta.channels() || n < 64) {
-    std::fprintf(stderr,
-                 "skinbus-bench: the test set has %d channels and %d rows; the model takes "
-                 "%d channels and the benchmark needs 64 rows\n",
-                 channels, n, model->meta.channels());
+    return errorf(ErrorCode::kInvalidArgument,
+                  "the test set has %d channels and %d rows; the model takes %d channels and the "
+                  "benchmark needs 64 rows",
+                  channels, n, model->meta.channels());
   }
   const std::span<const double> field(test.field_ut.data(), static_cast<std::size_t>(n) * channels);
   const Truth truth{{test.u_mm.data(), static_cast<std::size_t>(n)},
