@@ -60,6 +60,32 @@ printf '0,0\n1,x\n' >"$work/badpoints.csv"
 [[ $rc != 0 ]] && grep -q "badpoints.csv:2:" "$work/e8.txt" && ok "bad press list line named" || bad "bad press list"
 "$bin/skinbus-dataset" --plan spiral -o "$work/x.csv" 2>"$work/e6.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "unknown --plan 'spiral'" "$work/e6.txt" && ok "unknown plan named" || bad "unknown plan"
+# Patch design files (docs/design_file.md): a patch other than the built-in one, and a bad file
+# named with its line.
+cat >"$work/design9.yaml" <<'YAML'
+format: skinbus-patch-design
+magnets:
+  grid: {u: 9, v: 9, pitch_mm: 15}
+  polarity: uniform
+  centre_height_mm: -1
+sensors:
+  depth_mm: 18
+YAML
+"$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 -o "$work/d_default.csv" 2>/dev/null
+"$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 --design "$work/design9.yaml" -o "$work/d_9x9.csv" 2>/dev/null; rc=$?
+[[ $rc == 0 && -s $work/d_9x9.csv ]] && ! cmp -s <(grep -v '^#' "$work/d_default.csv") <(grep -v '^#' "$work/d_9x9.csv") &&
+  ok "skinbus-dataset --design simulates that design" || bad "skinbus-dataset --design (rc $rc)"
+"$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 --design "$here/../sim/designs/nominal.yaml" -o "$work/d_nominal.csv" 2>/dev/null
+cmp -s <(grep -v '^#' "$work/d_default.csv") <(grep -v '^#' "$work/d_nominal.csv") &&
+  ok "skinbus-dataset --design sim/designs/nominal.yaml is the built-in design" || bad "shipped nominal design differs"
+printf 'format: skinbus-patch-design\nmagnets:\n  polarity: striped\n' >"$work/bad_design.yaml"
+"$bin/skinbus-dataset" --plan grid --design "$work/bad_design.yaml" -o "$work/x.csv" 2>"$work/e9.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "bad_design.yaml: magnets.polarity (line 3)" "$work/e9.txt" &&
+  ok "skinbus-dataset: a bad design file named with its line" || { bad "bad design (rc $rc)"; cat "$work/e9.txt"; }
+"$bin/skinbus-crlb" --depths 2 --step 20 >"$work/crlb_default.md" 2>/dev/null
+"$bin/skinbus-crlb" --depths 2 --step 20 --design "$work/design9.yaml" >"$work/crlb_9x9.md" 2>/dev/null; rc=$?
+[[ $rc == 0 ]] && grep -q "^|" "$work/crlb_9x9.md" && ! cmp -s "$work/crlb_default.md" "$work/crlb_9x9.md" &&
+  ok "skinbus-crlb --design bounds that design" || bad "skinbus-crlb --design (rc $rc)"
 "$bin/skinbus-dataset" --plan grid -o /nonexistent/dir/x.csv 2>"$work/e7.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "/nonexistent/dir/x.csv" "$work/e7.txt" && ok "unwritable dataset path named" || bad "unwritable dataset path"
 # Per-unit identification: a fabricated unit's presses -> a unit file -> data from that file

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "skinbus/sim/crlb.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/mlx90393.h"
 #include "tool_util.h"
 
@@ -63,9 +64,23 @@ int main(int argc, char** argv) {
   app.add_flag("--ambient", ambient,
                "also estimate a uniform ambient field (3 nuisance parameters)");
   app.add_option("--csv", csv, "write every map point to this CSV file");
+  std::string design_path;
+  app.add_option("--design", design_path,
+                 "patch design file (docs/design_file.md; default: the built-in design, "
+                 "sim/designs/nominal.yaml)")
+      ->check(CLI::ExistingFile);
   CLI11_PARSE(app, argc, argv);
 
-  auto model = PatchModel::nominal(PatchDesign{});
+  PatchDesign design;
+  if (!design_path.empty()) {
+    skinbus::Result<PatchDesign> d = read_design_file(design_path);
+    if (!d.ok()) {
+      std::fprintf(stderr, "skinbus-crlb: %s\n", d.error().to_string().c_str());
+      return 2;
+    }
+    design = d.value();
+  }
+  auto model = PatchModel::nominal(design);
   if (!model.ok()) {
     std::fprintf(stderr, "skinbus-crlb: %s\n", model.error().message.c_str());
     return 1;

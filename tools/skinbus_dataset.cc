@@ -10,6 +10,7 @@
 #include <string>
 
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/unit_parameters.h"
 #include "tool_util.h"
 
@@ -72,6 +73,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--fabricated", fabricated,
                "a fabricated unit (per-UID variation) instead of the nominal design");
+  std::string design_path;
+  app.add_option("--design", design_path,
+                 "patch design file (docs/design_file.md; default: the built-in design, "
+                 "sim/designs/nominal.yaml); --cylinder, --radius, --anisotropy change it")
+      ->check(CLI::ExistingFile);
   app.add_flag("--cylinder", cylinder, "a cylinder-section patch (forearm) instead of a flat one");
   app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
   app.add_option("--anisotropy", anisotropy,
@@ -87,14 +93,20 @@ int main(int argc, char** argv) {
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
 
+  PatchDesign base_design;
+  if (!design_path.empty()) {
+    Result<PatchDesign> d = read_design_file(design_path);
+    if (!d.ok()) return skinbus::tools::report_error("skinbus-dataset", d.error());
+    base_design = d.value();
+  }
   try {
     const auto t0 = std::chrono::steady_clock::now();
-    PatchDesign design;
+    PatchDesign design = base_design;
     if (cylinder) {
       design.surface = SurfaceKind::kCylinder;
       design.radius_mm = radius;
     }
-    design.anisotropy = anisotropy;
+    if (anisotropy != 0) design.anisotropy = anisotropy;
     if (fabricated && !unit_path.empty()) {
       throw std::invalid_argument("--fabricated and --unit are exclusive: one unit at a time");
     }

@@ -12,6 +12,7 @@
 
 #include "skinbus/estimators/unit_identification.h"
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/unit_parameters.h"
 #include "tool_util.h"
 
@@ -64,6 +65,11 @@ int main(int argc, char** argv) {
   app.add_option("--held-out", held_out_path,
                  "other presses of the same unit (dataset CSV): residual on data not fitted")
       ->check(CLI::ExistingFile);
+  std::string design_path;
+  app.add_option("--design", design_path,
+                 "the unit's patch design file (docs/design_file.md; default: the built-in "
+                 "design, sim/designs/nominal.yaml): the model class the fit starts from")
+      ->check(CLI::ExistingFile);
   app.add_flag("--cylinder", cylinder, "the patch is wrapped on a cylinder (skin on a limb)");
   app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
   app.add_option("--tip-radius", opt.tip_radius_mm, "the indenter's round tip radius, mm")
@@ -76,6 +82,14 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
 
   sim::PatchDesign design;
+  if (!design_path.empty()) {
+    Result<sim::PatchDesign> d = sim::read_design_file(design_path);
+    if (!d.ok()) {
+      std::fprintf(stderr, "skinbus-identify: %s\n", d.error().to_string().c_str());
+      return kExitUsage;
+    }
+    design = d.value();
+  }
   if (cylinder) {
     design.surface = sim::SurfaceKind::kCylinder;
     design.radius_mm = radius;

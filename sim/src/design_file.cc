@@ -1,0 +1,184 @@
+// Patch design files (design_file.h): YAML in, PatchDesign out, and back.
+#include "skinbus/sim/design_file.h"
+
+#include <cstdio>
+#include <sstream>
+#include <string>
+
+#include "skinbus/common/atomic_file.h"
+#include "skinbus/common/yaml_reader.h"
+
+namespace skinbus::sim {
+namespace {
+
+constexpr const char* kFormat = "skinbus-patch-design";
+constexpr long long kVersion = 1;
+
+// Wide bounds: the file reader refuses what is not a patch at all; validate() checks the
+// design's consistency (sensors inside the patch, a cylinder larger than the sensor depth).
+constexpr double kMaxLengthMm = 10'000;
+
+void read_grid(YamlReader& r, const YAML::Node& grid, const std::string& path, int* u, int* v,
+               double* pitch_mm) {
+  if (!grid) return;
+  r.only(grid, path, {"u", "v", "pitch_mm"});
+  r.get_int(grid, "u", path + ".", 1, 64, u);
+  r.get_int(grid, "v", path + ".", 1, 64, v);
+  r.get_double(grid, "pitch_mm", path + ".", 1e-3, kMaxLengthMm, pitch_mm);
+}
+
+Result<PatchDesign> parse_root(const YAML::Node& root) {
+  YamlReader r;
+  PatchDesign d;
+  r.only(root, "", {"format", "version", "surface", "magnets", "sensors", "lattice", "force_law"});
+  std::string format;
+  r.get_string(root, "format", "", &format);
+  if (!r.error && format != kFormat) {
+    r.fail("format", root["format"] ? root["format"] : root,
+           format.empty()
+               ? std::string("missing: a design file starts with 'format: ") + kFormat + "'"
+               : "'" + format + "' is not " + kFormat);
+  }
+  long long version = kVersion;
+  r.get_int(root, "version", "", 1, kVersion, &version);
+
+  if (const YAML::Node s = root["surface"]; s && !r.error) {
+    r.only(s, "surface", {"kind", "size_u_mm", "size_v_mm", "radius_mm", "thickness_mm"});
+    std::string kind = d.surface == SurfaceKind::kFlat ? "flat" : "cylinder";
+    r.get_string(s, "kind", "surface.", &kind);
+    if (!r.error && kind != "flat" && kind != "cylinder") {
+      r.fail("surface.kind", s["kind"], "'" + kind + "' is not flat or cylinder");
+    }
+    d.surface = kind == "cylinder" ? SurfaceKind::kCylinder : SurfaceKind::kFlat;
+    r.get_double(s, "size_u_mm", "surface.", 1e-3, kMaxLengthMm, &d.size_u_mm);
+    r.get_double(s, "size_v_mm", "surface.", 1e-3, kMaxLengthMm, &d.size_v_mm);
+    r.get_double(s, "radius_mm", "surface.", 0, kMaxLengthMm, &d.radius_mm);
+    r.get_double(s, "thickness_mm", "surface.", 1e-3, kMaxLengthMm, &d.thickness_mm);
+  }
+  if (const YAML::Node m = root["magnets"]; m && !r.error) {
+    r.only(m, "magnets",
+           {"grid", "polarity", "diameter_mm", "height_mm", "remanence_t", "centre_height_mm",
+            "remanence_tempco_per_c"});
+    read_grid(r, m["grid"], "magnets.grid", &d.magnets_u, &d.magnets_v, &d.magnet_pitch_mm);
+    std::string polarity = d.polarity == Polarity::kUniform ? "uniform" : "checkerboard";
+    r.get_string(m, "polarity", "magnets.", &polarity);
+    if (!r.error && polarity != "uniform" && polarity != "checkerboard") {
+      r.fail("magnets.polarity", m["polarity"],
+             "'" + polarity + "' is not uniform or checkerboard");
+    }
+    d.polarity = polarity == "uniform" ? Polarity::kUniform : Polarity::kCheckerboard;
+    r.get_double(m, "diameter_mm", "magnets.", 1e-3, 1000, &d.magnet_diameter_mm);
+    r.get_double(m, "height_mm", "magnets.", 1e-3, 1000, &d.magnet_height_mm);
+    r.get_double(m, "remanence_t", "magnets.", 1e-3, 2.0, &d.remanence_t);
+    r.get_double(m, "centre_height_mm", "magnets.", -kMaxLengthMm, kMaxLengthMm,
+                 &d.magnet_centre_height_mm);
+    r.get_double(m, "remanence_tempco_per_c", "magnets.", -0.1, 0.1, &d.remanence_tempco_per_c);
+  }
+  if (const YAML::Node s = root["sensors"]; s && !r.error) {
+    r.only(s, "sensors", {"grid", "depth_mm", "chip"});
+    read_grid(r, s["grid"], "sensors.grid", &d.sensors_u, &d.sensors_v, &d.sensor_pitch_mm);
+    r.get_double(s, "depth_mm", "sensors.", 1e-3, kMaxLengthMm, &d.sensor_depth_mm);
+    if (const YAML::Node c = s["chip"]; c && !r.error) {
+      r.only(c, "sensors.chip", {"gain_sel", "res_xy", "res_z", "osr", "dig_filt", "temperature"});
+      mlx90393::Config& cfg = d.sensor_config;
+      r.get_int(c, "gain_sel", "sensors.chip.", 0, 7, &cfg.gain_sel);
+      r.get_int(c, "res_xy", "sensors.chip.", 0, 3, &cfg.res_xy);
+      r.get_int(c, "res_z", "sensors.chip.", 0, 3, &cfg.res_z);
+      r.get_int(c, "osr", "sensors.chip.", 0, 3, &cfg.osr);
+      r.get_int(c, "dig_filt", "sensors.chip.", 0, 7, &cfg.dig_filt);
+      r.get_bool(c, "temperature", "sensors.chip.", &cfg.temperature);
+    }
+  }
+  if (const YAML::Node l = root["lattice"]; l && !r.error) {
+    r.only(l, "lattice", {"spread_mm", "lateral_mm", "anisotropy"});
+    r.get_double(l, "spread_mm", "lattice.", 1e-3, kMaxLengthMm, &d.spread_mm);
+    r.get_double(l, "lateral_mm", "lattice.", 0, kMaxLengthMm, &d.lateral_mm);
+    r.get_double(l, "anisotropy", "lattice.", -0.499, 0.499, &d.anisotropy);
+  }
+  if (const YAML::Node f = root["force_law"]; f && !r.error) {
+    r.only(f, "force_law", {"stiffness_n_per_mm", "stiffening_n_per_mm3"});
+    r.get_double(f, "stiffness_n_per_mm", "force_law.", 1e-6, 1e6, &d.stiffness_n_per_mm);
+    r.get_double(f, "stiffening_n_per_mm3", "force_law.", 0, 1e6, &d.stiffening_n_per_mm3);
+  }
+  if (r.error) return *r.error;
+  // Consistency across settings (no one line to name): validate()'s message names them.
+  if (Status s = validate(d); !s.ok()) return s.error();
+  return d;
+}
+
+// A double that reads back to the same bits: the shortest of %.15g..%.17g that does.
+std::string exact(double x) {
+  char buf[40];
+  for (int digits = 15; digits <= 17; ++digits) {
+    std::snprintf(buf, sizeof buf, "%.*g", digits, x);
+    if (std::strtod(buf, nullptr) == x) break;
+  }
+  return buf;
+}
+
+}  // namespace
+
+Result<PatchDesign> parse_design(const std::string& text, const std::string& source) {
+  Result<YAML::Node> root = parse_yaml_text(text);
+  if (!root.ok()) return make_error(root.error().code, source + ": " + root.error().message);
+  try {
+    Result<PatchDesign> d = parse_root(root.value());
+    if (!d.ok()) return make_error(d.error().code, source + ": " + d.error().message);
+    return d;
+  } catch (const YAML::Exception& e) {
+    return make_error(ErrorCode::kParse,
+                      source + ": line " + std::to_string(e.mark.line + 1) + ": " + e.msg);
+  }
+}
+
+Result<PatchDesign> read_design_file(const std::string& path) {
+  Result<std::string> text = read_text_file(path, "patch design");
+  if (!text.ok()) return text.error();
+  return parse_design(text.value(), path);
+}
+
+std::string design_to_yaml(const PatchDesign& d) {
+  const mlx90393::Config& c = d.sensor_config;
+  std::ostringstream o;
+  o << "# skinbus patch design (docs/design_file.md). Lengths in mm, the surface frame's u and v\n"
+       "# along the sensor grid, heights out of the skin.\n"
+    << "format: " << kFormat << "\n"
+    << "version: " << kVersion << "\n"
+    << "surface:\n"
+    << "  kind: " << (d.surface == SurfaceKind::kCylinder ? "cylinder" : "flat") << "\n"
+    << "  size_u_mm: " << exact(d.size_u_mm) << "   # arc length along u on a cylinder\n"
+    << "  size_v_mm: " << exact(d.size_v_mm) << "\n"
+    << "  radius_mm: " << exact(d.radius_mm) << "   # cylinder: the skin surface's radius\n"
+    << "  thickness_mm: " << exact(d.thickness_mm) << "   # the lattice\n"
+    << "magnets:\n"
+    << "  grid: {u: " << d.magnets_u << ", v: " << d.magnets_v
+    << ", pitch_mm: " << exact(d.magnet_pitch_mm) << "}   # centred on the patch\n"
+    << "  polarity: " << (d.polarity == Polarity::kUniform ? "uniform" : "checkerboard") << "\n"
+    << "  diameter_mm: " << exact(d.magnet_diameter_mm) << "\n"
+    << "  height_mm: " << exact(d.magnet_height_mm) << "\n"
+    << "  remanence_t: " << exact(d.remanence_t) << "\n"
+    << "  centre_height_mm: " << exact(d.magnet_centre_height_mm)
+    << "   # magnet centre above the surface (negative: below)\n"
+    << "  remanence_tempco_per_c: " << exact(d.remanence_tempco_per_c) << "\n"
+    << "sensors:\n"
+    << "  grid: {u: " << d.sensors_u << ", v: " << d.sensors_v
+    << ", pitch_mm: " << exact(d.sensor_pitch_mm) << "}   # centred on the patch\n"
+    << "  depth_mm: " << exact(d.sensor_depth_mm) << "   # below the surface\n"
+    << "  chip: {gain_sel: " << int{c.gain_sel} << ", res_xy: " << int{c.res_xy}
+    << ", res_z: " << int{c.res_z} << ", osr: " << int{c.osr} << ", dig_filt: " << int{c.dig_filt}
+    << ", temperature: " << (c.temperature ? "true" : "false") << "}   # MLX90393 settings\n"
+    << "lattice:\n"
+    << "  spread_mm: " << exact(d.spread_mm) << "   # plate-on-foundation length\n"
+    << "  lateral_mm: " << exact(d.lateral_mm) << "   # in-plane motion = -lateral x slope\n"
+    << "  anisotropy: " << exact(d.anisotropy) << "   # spread l(1+a) along u, l(1-a) along v\n"
+    << "force_law:   # F = k d + k3 d^3\n"
+    << "  stiffness_n_per_mm: " << exact(d.stiffness_n_per_mm) << "\n"
+    << "  stiffening_n_per_mm3: " << exact(d.stiffening_n_per_mm3) << "\n";
+  return o.str();
+}
+
+Status write_design_file(const PatchDesign& design, const std::string& path) {
+  return write_file_atomic(path, design_to_yaml(design), "patch design");
+}
+
+}  // namespace skinbus::sim
