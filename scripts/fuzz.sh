@@ -15,7 +15,7 @@ build=${SKINBUS_FUZZ_BUILD_DIR:-build-fuzz}
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ missing: run scripts/setup.sh" >&2; exit 1; }
 cmake -S . -B "$build" -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DSKINBUS_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
 targets=(frame_decoder reassembler candump line_reader dataset settings body_map model_file aggregator
-  joint_trajectory unit_file)
+  joint_trajectory unit_file design_file)
 cmake --build "$build" -j2 --target "${targets[@]/#/fuzz_}"
 # The longest input per target: past the readers' own bounds where a target has one (a candump
 # line: 1024 bytes; the line reader's bound is at most 256), so that the fuzzer reaches them.

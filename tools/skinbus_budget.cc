@@ -63,8 +63,7 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
   try {
     f = log_path == "-" ? stdin : skinbus::tools::open_input_stream(log_path, "candump log");
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-budget: %s\n", e.what());
-    return 1;
+    return skinbus::tools::fail("skinbus-budget", e.what(), 1);
   }
   CandumpReader reader(f);
   CandumpRecord rec;
@@ -155,8 +154,7 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
     try {
       skinbus::tools::write_output(csv_path, csv_text, "bus load CSV");
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "skinbus-budget: %s\n", e.what());
-      return 1;
+      return skinbus::tools::fail("skinbus-budget", e.what(), 1);
     }
   }
   if (reader.bad_lines() > 0) {

@@ -99,10 +99,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(3, 100000));
   CLI11_PARSE(app, argc, argv);
 
-  auto bad = [](const std::string& m) {
-    std::fprintf(stderr, "skinbus-calibrate: %s\n", m.c_str());
-    return 2;
-  };
+  auto bad = [](const std::string& m) { return skinbus::tools::fail("skinbus-calibrate", m, 2); };
   skinbus::Result<SkinMap> map = load_skin_map_file(map_path);
   if (!map.ok()) return bad(map.error().to_string());
   if (robot_path.empty()) robot_path = path_beside(map_path, map.value().robot);
@@ -274,8 +271,7 @@ int main(int argc, char** argv) {
       out.robot = std::filesystem::relative(std::filesystem::absolute(robot_path), dir).string();
     }
     if (skinbus::Status st = save_skin_map_file(out, out_path); !st.ok()) {
-      std::fprintf(stderr, "skinbus-calibrate: %s\n", st.error().to_string().c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-calibrate", st.error().to_string(), 1);
     }
   }
   if (!plot_path.empty()) {

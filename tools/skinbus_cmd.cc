@@ -196,10 +196,8 @@ int main(int argc, char** argv) {
     }
     return nacks == 0 ? 0 : 1;
   } catch (const std::invalid_argument& e) {
-    std::fprintf(stderr, "skinbus-cmd: %s\n", e.what());
-    return 2;
+    return skinbus::tools::fail("skinbus-cmd", e.what(), 2);
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-cmd: %s\n", e.what());
-    return 1;
+    return skinbus::tools::fail("skinbus-cmd", e.what(), 1);
   }
 }

@@ -166,8 +166,7 @@ int main(int argc, char** argv) {
         d.rows(), d.channels(), out_path.c_str(), std::chrono::duration<double>(t1 - t0).count(),
         std::chrono::duration<double>(t2 - t1).count());
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-dataset: %s\n", e.what());
-    return 1;
+    return skinbus::tools::fail("skinbus-dataset", e.what(), 1);
   }
   return 0;
 }

@@ -33,8 +33,7 @@ int main(int argc, char** argv) {
                           static_cast<uint8_t>(ids.front()), static_cast<uint8_t>(ids.back()));
     tools::write_output(out_path.empty() ? "-" : out_path, dbc, "DBC file");
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-dbc: %s\n", e.what());
-    return 1;
+    return skinbus::tools::fail("skinbus-dbc", e.what(), 1);
   }
   return 0;
 }

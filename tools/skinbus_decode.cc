@@ -408,8 +408,7 @@ int main(int argc, char** argv) {
     tools::check_stdout("skinbus-decode", /*flush=*/true);
     if (stats) dec.print_stats(stderr);
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-decode: %s\n", e.what());
-    return 1;
+    return skinbus::tools::fail("skinbus-decode", e.what(), 1);
   }
   return 0;
 }

@@ -227,8 +227,7 @@ int main(int argc, char** argv) {
                    .c_str()
              : "");
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-gen: %s\n", e.what());
-    return 1;
+    return skinbus::tools::fail("skinbus-gen", e.what(), 1);
   }
   return 0;
 }

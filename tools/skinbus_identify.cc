@@ -85,8 +85,7 @@ int main(int argc, char** argv) {
   if (!design_path.empty()) {
     Result<sim::PatchDesign> d = sim::read_design_file(design_path);
     if (!d.ok()) {
-      std::fprintf(stderr, "skinbus-identify: %s\n", d.error().to_string().c_str());
-      return kExitUsage;
+      return skinbus::tools::fail("skinbus-identify", d.error().to_string(), kExitUsage);
     }
     design = d.value();
   }
@@ -96,15 +95,13 @@ int main(int argc, char** argv) {
   }
   Result<sim::Dataset> presses = sim::read_dataset_csv(presses_path);
   if (!presses.ok()) {
-    std::fprintf(stderr, "skinbus-identify: %s\n", presses.error().to_string().c_str());
-    return kExitFailed;
+    return skinbus::tools::fail("skinbus-identify", presses.error().to_string(), kExitFailed);
   }
   std::optional<sim::Dataset> held_out;
   if (!held_out_path.empty()) {
     Result<sim::Dataset> h = sim::read_dataset_csv(held_out_path);
     if (!h.ok()) {
-      std::fprintf(stderr, "skinbus-identify: %s\n", h.error().to_string().c_str());
-      return kExitFailed;
+      return skinbus::tools::fail("skinbus-identify", h.error().to_string(), kExitFailed);
     }
     held_out = std::move(h).value();
   }
@@ -143,8 +140,7 @@ int main(int argc, char** argv) {
     source += residuals;
   }
   if (Status st = sim::write_unit_parameters(id->parameters, out_path, source); !st.ok()) {
-    std::fprintf(stderr, "skinbus-identify: %s\n", st.error().to_string().c_str());
-    return kExitFailed;
+    return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);
   }
   std::fprintf(stderr, "skinbus-identify: wrote %s\n", out_path.c_str());
   return kExitOk;

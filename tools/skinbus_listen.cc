@@ -139,15 +139,13 @@ int main(int argc, char** argv) {
   }
   if (domain >= 0) options.domain_id = static_cast<uint32_t>(domain);
   if (Status st = apply_namespace(&options, ns); !st.ok()) {
-    std::fprintf(stderr, "skinbus-listen: %s\n", st.error().to_string().c_str());
-    return 2;
+    return skinbus::tools::fail("skinbus-listen", st.error().to_string(), 2);
   }
 
   tools::install_stop_handler();
   auto sub = SkinSubscriber::create(options);
   if (!sub.ok()) {
-    std::fprintf(stderr, "skinbus-listen: %s\n", sub.error().to_string().c_str());
-    return 1;
+    return skinbus::tools::fail("skinbus-listen", sub.error().to_string(), 1);
   }
   using Clock = std::chrono::steady_clock;
   const auto timeout =
@@ -159,8 +157,7 @@ int main(int argc, char** argv) {
     while (true) {
       auto r = (*sub)->wait_for_publisher(SkinTopic::kContacts, kSliceMs);
       if (!r.ok()) {
-        std::fprintf(stderr, "skinbus-listen: %s\n", r.error().to_string().c_str());
-        return 1;
+        return skinbus::tools::fail("skinbus-listen", r.error().to_string(), 1);
       }
       if (*r) break;
       if (tools::stop_requested()) return 1;
@@ -184,8 +181,7 @@ int main(int argc, char** argv) {
     if (status) {
       auto w = (*sub)->wait_any(kSliceMs);
       if (!w.ok()) {
-        std::fprintf(stderr, "skinbus-listen: %s\n", w.error().to_string().c_str());
-        return 1;
+        return skinbus::tools::fail("skinbus-listen", w.error().to_string(), 1);
       }
     }
     for (int wait_ms = status ? 0 : kSliceMs;; wait_ms = 0) {

@@ -410,7 +410,6 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "skinbus-patchd: bad settings: %s\n", e.what());
     return kExitConfig;
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-patchd: %s\n", e.what());
-    return kExitDevice;
+    return skinbus::tools::fail("skinbus-patchd", e.what(), kExitDevice);
   }
 }

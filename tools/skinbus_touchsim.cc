@@ -88,10 +88,7 @@ int main(int argc, char** argv) {
   app.add_option("--seed", o.seed, "random seed")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
-  auto fail = [](const std::string& m) {
-    std::fprintf(stderr, "skinbus-touchsim: %s\n", m.c_str());
-    return 1;
-  };
+  auto fail = [](const std::string& m) { return skinbus::tools::fail("skinbus-touchsim", m, 1); };
   skinbus::Result<RobotModel> robot = RobotModel::from_urdf_file(robot_path);
   if (!robot.ok()) return fail(robot.error().to_string());
   skinbus::Result<SkinMap> truth = tile_humanoid(robot.value(), layout);

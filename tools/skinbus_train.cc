@@ -150,15 +150,13 @@ int main(int argc, char** argv) {
   try {
     Result<sim::Dataset> data = sim::read_dataset_csv(data_path);
     if (!data.ok()) {
-      std::fprintf(stderr, "skinbus-train: %s\n", data.error().to_string().c_str());
-      return 2;
+      return skinbus::tools::fail("skinbus-train", data.error().to_string(), 2);
     }
     std::optional<sim::Dataset> test;
     if (!test_path.empty()) {
       Result<sim::Dataset> t = sim::read_dataset_csv(test_path);
       if (!t.ok()) {
-        std::fprintf(stderr, "skinbus-train: %s\n", t.error().to_string().c_str());
-        return 2;
+        return skinbus::tools::fail("skinbus-train", t.error().to_string(), 2);
       }
       test = std::move(t.value());
     }
@@ -166,8 +164,7 @@ int main(int argc, char** argv) {
     if (!base_path.empty()) {
       Result<ModelFile> b = read_model(base_path);
       if (!b.ok()) {
-        std::fprintf(stderr, "skinbus-train: %s\n", b.error().to_string().c_str());
-        return 2;
+        return skinbus::tools::fail("skinbus-train", b.error().to_string(), 2);
       }
       base = std::move(b.value());
     }
@@ -208,14 +205,12 @@ int main(int argc, char** argv) {
     if (test) evaluate_into(r->model, *test, o.threads);
     r->model.meta.info["data"] = data_path;
     if (Status s = write_model(r->model, out_path); !s.ok()) {
-      std::fprintf(stderr, "skinbus-train: %s\n", s.error().to_string().c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-train", s.error().to_string(), 1);
     }
     std::fprintf(stderr, "wrote %s.safetensors and %s.json\n", model_stem(out_path).c_str(),
                  model_stem(out_path).c_str());
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-train: %s\n", e.what());
-    return 2;
+    return skinbus::tools::fail("skinbus-train", e.what(), 2);
   }
   return 0;
 }

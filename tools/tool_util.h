@@ -38,11 +38,16 @@ inline int exit_status(const Error& e) {
   }
 }
 
-// The one way a tool reports an error it ends on: "tool: code: message" on standard error;
-// returns exit_status(e) for main to return.
-inline int report_error(const char* tool, const Error& e) {
-  std::fprintf(stderr, "%s: %s\n", tool, e.to_string().c_str());
-  return exit_status(e);
+// The one way a tool reports the failure it ends on: "tool: message" on standard error; returns
+// `status` for main to return (each tool documents its exit statuses in its --help).
+[[nodiscard]] inline int fail(const char* tool, const std::string& message, int status) {
+  std::fprintf(stderr, "%s: %s\n", tool, message.c_str());
+  return status;
+}
+
+// fail() for an Error value: "tool: code: message", and exit_status(e).
+[[nodiscard]] inline int report_error(const char* tool, const Error& e) {
+  return fail(tool, e.to_string(), exit_status(e));
 }
 
 // Parses "1-4,7,9-10" into node IDs, each within [lo, hi]. Throws std::invalid_argument with
