@@ -129,10 +129,10 @@ class LogClock {
   Status check_end() const {
     if (lines_ >= 10 && 2 * back_lines_ > lines_) {
       return make_error(ErrorCode::kInvalidArgument,
-                      source_ + ": " + std::to_string(back_lines_) + " of its " +
-                          std::to_string(lines_) +
-                          " lines are stamped before an earlier line: the log is not in time "
-                          "order (sort it first: sort -s -k1,1 LOG)");
+                        source_ + ": " + std::to_string(back_lines_) + " of its " +
+                            std::to_string(lines_) +
+                            " lines are stamped before an earlier line: the log is not in time "
+                            "order (sort it first: sort -s -k1,1 LOG)");
     }
     return Status();
   }
@@ -187,9 +187,9 @@ class LogInterfaces {
       std::string seen;
       for (const std::string& n : skipped_names_) seen += (seen.empty() ? "" : ", ") + n;
       return make_error(ErrorCode::kInvalidArgument,
-                      source + ": none of its " + std::to_string(frames_) +
-                          " frames is on an interface named with -i (" + joined() +
-                          "); the log has " + seen);
+                        source + ": none of its " + std::to_string(frames_) +
+                            " frames is on an interface named with -i (" + joined() +
+                            "); the log has " + seen);
     }
     return Status();
   }
@@ -207,7 +207,9 @@ class LogInterfaces {
   uint64_t frames_ = 0, used_ = 0, skipped_ = 0;
 };
 
-std::string source_name(const std::string& replay) { return replay == "-" ? "stdin" : replay; }
+std::string source_name(const std::string& replay) {
+  return replay == "-" ? "stdin" : replay;
+}
 
 // Opens a log ('-': stdin) as a stream; the error names the file (a directory, a missing file).
 Result<std::FILE*> open_log(const std::string& path) {
@@ -234,8 +236,8 @@ struct LogFile {
 Status check_read(const bus::CandumpReader& reader, const std::string& source) {
   if (reader.read_error() != 0) {
     return make_error(ErrorCode::kIo, source + ": read failed after line " +
-                                         std::to_string(reader.line_number()) + ": " +
-                                         std::strerror(reader.read_error()));
+                                          std::to_string(reader.line_number()) + ": " +
+                                          std::strerror(reader.read_error()));
   }
   return Status();
 }
@@ -344,8 +346,7 @@ void TrajectoryJointInput::update(Aggregator& agg, uint64_t now_us, uint64_t run
   for (; next_row_ < traj_.rows() && traj_.t_s[next_row_] < t_s; ++next_row_) {
     const double row_s = traj_.t_s[next_row_];
     if (row_s <= 0) continue;  // before time zero: the first state (below) holds it
-    const std::span<const double> row(&traj_.q[next_row_ * traj_.names.size()],
-                                      traj_.names.size());
+    const std::span<const double> row(&traj_.q[next_row_ * traj_.names.size()], traj_.names.size());
     agg.set_joint_state(traj_.names, row,
                         run_start_us + static_cast<uint64_t>(std::llround(row_s * 1e6)));
   }
@@ -387,7 +388,8 @@ bool HostLoop::sleep_unless_stopped(uint64_t us) const {
     if (options_.clock.sleep_us) {
       options_.clock.sleep_us(slice);
     } else {
-      timespec ts{static_cast<time_t>(slice / 1'000'000), static_cast<long>(slice % 1'000'000) * 1000};
+      timespec ts{static_cast<time_t>(slice / 1'000'000),
+                  static_cast<long>(slice % 1'000'000) * 1000};
       nanosleep(&ts, nullptr);  // a signal cuts it short; the loop looks at the stop request
     }
     us -= slice;
@@ -440,7 +442,7 @@ Status HostLoop::run() {
   if (o.pace == ReplayPace::kLive) {
     if (o.replay.empty() || both) {
       return make_error(ErrorCode::kInvalidArgument,
-                      "a live pipe needs a log (--replay) and no interfaces beside it");
+                        "a live pipe needs a log (--replay) and no interfaces beside it");
     }
     return run_live_pipe();
   }
@@ -513,7 +515,8 @@ Status HostLoop::run_replay() {
   finish(end_us);
   if (reader.bad_lines() > 0) sink_.log(bad_lines_line(reader.bad_lines()));
   if (ifaces.skipped() > 0) {
-    sink_.log(std::to_string(ifaces.skipped()) + " frame(s) on interfaces not named with -i skipped");
+    sink_.log(std::to_string(ifaces.skipped()) +
+              " frame(s) on interfaces not named with -i skipped");
   }
   return first_error({check_read(reader, source), ifaces.check_end(source), clock.check_end()});
 }

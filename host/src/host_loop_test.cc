@@ -20,8 +20,8 @@ namespace skinbus::host {
 namespace {
 
 constexpr uint64_t kUid = 0x5EED000000000003ull;
-constexpr uint64_t kPeriodUs = 23'981;             // 41.7 Hz
-constexpr uint64_t kLogT0 = 1'700'000'000'000'000;  // the log's first stamp
+constexpr uint64_t kPeriodUs = 23'981;               // 41.7 Hz
+constexpr uint64_t kLogT0 = 1'700'000'000'000'000;   // the log's first stamp
 constexpr uint64_t kWallT0 = 1'800'000'000'000'000;  // the injected clock's start
 
 std::string source_dir() {

@@ -60,7 +60,8 @@ class HostSink {
   // A publication (the contact set changed; the empty array when the last contact ended).
   // `estimated_rx_us`: the receive times (host clock) of the samples it estimated, for latency
   // figures; empty when the loop runs on a log's time (a fast replay) or flushes at the end.
-  virtual void contacts(const ContactArray& contacts, std::span<const uint64_t> estimated_rx_us) = 0;
+  virtual void contacts(const ContactArray& contacts,
+                        std::span<const uint64_t> estimated_rx_us) = 0;
   // Every patch's status, every status_period_us and at the end, with the events since the
   // previous one in `status.events` (patches, interfaces, log time, lag).
   virtual void status(const PatchStatusArray& status) = 0;
@@ -98,9 +99,9 @@ class TrajectoryJointInput : public JointInput {
 // The loop's clock and stop request. Defaults: CLOCK_REALTIME, sleeps in slices of at most
 // 50 ms, never stopped. Tests inject a clock whose sleep moves its time on.
 struct HostClock {
-  std::function<uint64_t()> now_us;             // empty: bus::realtime_now_us
-  std::function<void(uint64_t us)> sleep_us;    // empty: nanosleep
-  std::function<bool()> stop_requested;         // empty: never
+  std::function<uint64_t()> now_us;           // empty: bus::realtime_now_us
+  std::function<void(uint64_t us)> sleep_us;  // empty: nanosleep
+  std::function<bool()> stop_requested;       // empty: never
 };
 
 // How a log (HostLoopOptions::replay) is read.
