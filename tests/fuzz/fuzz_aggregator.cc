@@ -490,9 +490,9 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
   // benchmarks). Without oneDNN, the default backend.
   const auto t0 = std::chrono::steady_clock::now();
   AggregatorOptions options;
-  options.runtime.backend = RuntimeBackend::kOneDnn;
+  options.runtime.backend = estimators::RuntimeBackend::kOneDnn;
   for (int attempt = 0; attempt < 2 && world->agg == nullptr; ++attempt) {
-    if (attempt == 1) options.runtime.backend = RuntimeBackend::kAuto;
+    if (attempt == 1) options.runtime.backend = estimators::RuntimeBackend::kAuto;
     auto agg = Aggregator::create(&world->map, dir, world->robot.get(), {"can0", "can1"}, options);
     if (!agg.ok()) fail(("create() failed: " + agg.error().to_string()).c_str());
     if ((*agg)->model_descriptions().size() == 1) world->agg = std::move(*agg);
