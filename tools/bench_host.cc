@@ -9,7 +9,8 @@
 //
 // Two passes per configuration:
 //  - paced: frames are fed at their arrival times (sleeping in between); whenever the next frame
-//    is not due yet, the pipeline processes what arrived (as the daemon's poll loop does). The
+//    is not due yet, the host loop (host_loop.h, the daemon's cadence: process, tick every 100
+//    ms, status every second) steps over what arrived. The
 //    latency of a sample runs from its last frame's arrival to the end of process() that
 //    published its contact (the ContactArray ready for the outputs; the DDS write is not
 //    included), over the samples after a 0.5 s warm-up. CPU use: the process's CPU time over the
@@ -18,8 +19,9 @@
 //    reads the clock and supersedes the samples it cannot publish in time ("late"); the latency
 //    is then over the samples it published. --model-delay-us makes every estimate slower, as a
 //    slower CPU would.
-//  - unpaced: the same frames fed as fast as possible: host time per period, and per idle patch
-//    per period (the 0 % touched rows).
+//  - unpaced: the same frames fed as fast as possible, the loop stepping at every pause of more
+//    than 1 ms on the bus: host time per period, and per idle patch per period (the 0 % touched
+//    rows).
 #include <time.h>
 
 #include <algorithm>
@@ -27,6 +29,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -36,6 +39,7 @@
 #include "skinbus/bus/codec.h"
 #include "skinbus/bus/socketcan.h"
 #include "skinbus/host/aggregator.h"
+#include "skinbus/host/host_loop.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 #include "tool_util.h"
@@ -221,32 +225,44 @@ std::unique_ptr<host::Aggregator> make_aggregator(const Setup& s, const HostBenc
   return std::move(*agg);
 }
 
+// The latencies of the loop's publications: from each estimated sample's receive time to the
+// end of the process() that published it, over the samples received from `from_us` on.
+class LatencySink : public host::HostSink {
+ public:
+  LatencySink(uint64_t from_us, std::vector<double>* latencies_us)
+      : from_us_(from_us), lat_(latencies_us) {}
+  void contacts(const host::ContactArray&, std::span<const uint64_t> rx_us) override {
+    if (lat_ == nullptr) return;
+    const uint64_t done = bus::monotonic_now_us();
+    for (uint64_t rx : rx_us) {
+      if (rx >= from_us_) lat_->push_back(static_cast<double>(done - rx));
+    }
+  }
+  void status(const host::PatchStatusArray&) override {}
+
+ private:
+  uint64_t from_us_;
+  std::vector<double>* lat_;
+};
+
 bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
   auto agg = make_aggregator(s, a, true);
   if (!agg) return false;
-  host::ContactArray out;
   std::vector<double> lat;
   lat.reserve(s.frames.size());
   const uint64_t t_start = bus::monotonic_now_us() + 1000;
+  LatencySink sink(t_start + kWarmUpUs, &lat);
+  host::HostLoop loop(*agg, sink);
+  loop.start(t_start);
   const double cpu0 = cpu_s();
   bool fed = false;
-  uint64_t next_tick = 0;
   for (std::size_t i = 0; i < s.frames.size(); ++i) {
     const TimedFrame& f = s.frames[i];
     const uint64_t due = t_start + f.at_us;
     uint64_t t = bus::monotonic_now_us();
     if (t < due) {
       if (fed) {
-        if (agg->process(t, &out)) {
-          const uint64_t done = bus::monotonic_now_us();
-          for (uint64_t rx : agg->processed_rx_us()) {
-            if (rx >= t_start + kWarmUpUs) lat.push_back(static_cast<double>(done - rx));
-          }
-        }
-        if (t >= next_tick) {
-          agg->tick(t);
-          next_tick = t + 100'000;
-        }
+        loop.step(t);  // the bus is quiet until the next frame: the pipeline runs
         fed = false;
       }
       t = bus::monotonic_now_us();
@@ -257,21 +273,12 @@ bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
     agg->on_frame(f.bus, f.frame, due);
     fed = true;
   }
+  // Idle to the end of the last period, as the daemon's poll loop (20 ms timeouts): an
+  // event-mode bus with nothing touched still costs its timers.
   uint64_t t = bus::monotonic_now_us();
-  if (agg->process(t, &out)) {
-    const uint64_t done = bus::monotonic_now_us();
-    for (uint64_t rx : agg->processed_rx_us()) {
-      if (rx >= t_start + kWarmUpUs) lat.push_back(static_cast<double>(done - rx));
-    }
-  }
-  // Idle to the end of the last period, as the daemon's poll loop (20 ms timeouts, a tick every
-  // 100 ms): an event-mode bus with nothing touched still costs its timers.
+  loop.step(t);
   while ((t = bus::monotonic_now_us()) < t_start + s.end_us) {
-    (void)agg->process(t, &out);
-    if (t >= next_tick) {
-      agg->tick(t);
-      next_tick = t + 100'000;
-    }
+    loop.step(t);
     std::this_thread::sleep_for(
         std::chrono::microseconds(std::min<uint64_t>(20'000, t_start + s.end_us - t)));
   }
@@ -291,24 +298,23 @@ bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
 bool run_unpaced(const Setup& s, const HostBenchArgs& a, Result* r) {
   auto agg = make_aggregator(s, a, false);
   if (!agg) return false;
-  host::ContactArray out;
+  LatencySink sink(0, nullptr);
+  host::HostLoop loop(*agg, sink);
   // Warm-up: the heartbeats (identification), outside the timing.
   std::size_t i = 0;
   for (; i < s.frames.size() && s.frames[i].at_us < 50'000; ++i) {
     agg->on_frame(s.frames[i].bus, s.frames[i].frame, s.frames[i].at_us);
   }
+  loop.start(i < s.frames.size() ? s.frames[i].at_us : 0);
   const auto t0 = std::chrono::steady_clock::now();
   uint64_t last = 0;
   for (; i < s.frames.size(); ++i) {
     const TimedFrame& f = s.frames[i];
-    if (f.at_us > last + 1000) {  // a pause on the bus: the poll loop would process here
-      (void)agg->process(f.at_us, &out);
-      agg->tick(f.at_us);
-    }
+    if (f.at_us > last + 1000) loop.step(f.at_us);  // a pause on the bus: the loop runs here
     last = f.at_us;
     agg->on_frame(f.bus, f.frame, f.at_us);
   }
-  (void)agg->process(last + 1, &out);
+  loop.step(last + 1);
   const double us =
       std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
   r->period_us = us / s.periods;

@@ -1,6 +1,7 @@
 // Costs of the host aggregator's stages on one core: an idle stream-mode sample (reassembly and
 // the flag test), one period of P patches with none touched, a touched period (T patches
-// estimated in one batched run, placed, merged and tracked), and the common-mode estimate.
+// estimated in one batched run, placed, merged and tracked), and the common-mode estimate. The
+// idle periods are stepped by the host loop (host_loop.h), as the daemon steps them.
 //   cmake --build <build> --target host_aggregator_benchmark &&
 //   <build>/host/host_aggregator_benchmark
 // skinbus-bench host measures the same pipeline end to end with bus timing (latency, CPU use);
@@ -9,10 +10,12 @@
 
 #include <array>
 #include <cmath>
+#include <span>
 #include <vector>
 
 #include "skinbus/bus/codec.h"
 #include "skinbus/host/aggregator.h"
+#include "skinbus/host/host_loop.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 
@@ -80,6 +83,11 @@ const Frames& frames() {
   return f;
 }
 
+struct NullSink : host::HostSink {
+  void contacts(const host::ContactArray&, std::span<const uint64_t>) override {}
+  void status(const host::PatchStatusArray&) override {}
+};
+
 std::unique_ptr<host::Aggregator> make() {
   auto a = host::Aggregator::create(&frames().map, SKINBUS_SOURCE_DIR, nullptr, {"can0"});
   if (!a) std::abort();
@@ -112,19 +120,23 @@ void BM_IdleSample(benchmark::State& state) {
 }
 BENCHMARK(BM_IdleSample);
 
-// One period of P streaming patches, none touched (per-patch cost = time / P).
+// One period of P streaming patches, none touched, then a step of the host loop (per-patch cost
+// = time / P).
 void BM_IdlePeriod(benchmark::State& state) {
   const int p = static_cast<int>(state.range(0));
   auto a = make();
-  host::ContactArray out;
+  NullSink sink;
+  host::HostLoopOptions o;
+  o.status_period_us = 0;  // the stages' costs: no status messages
+  host::HostLoop loop(*a, sink, o);
   uint64_t t = 1'000'000;
+  loop.start(t);
   uint8_t seq = 0;
   for (auto _ : state) {
     t += 24'000;
     ++seq;
     for (int i = 0; i < p; ++i) feed(*a, frames().idle[static_cast<std::size_t>(i)], seq, t);
-    benchmark::DoNotOptimize(a->process(t, &out));
-    a->tick(t);
+    loop.step(t);  // process(), tick() every 100 ms: the daemon's cadence
   }
   // Seconds per idle patch per period (printed with an SI prefix: 400n = 0.4 us).
   state.counters["per_idle_patch"] =

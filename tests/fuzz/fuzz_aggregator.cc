@@ -8,8 +8,9 @@
 //   3     a heartbeat, encoded by bus::encode from the fields that follow, then a time byte
 //   4     a sample, encoded likewise (its 48 field values raw, zero, or the node's previous
 //         ones scaled), then a time byte
-//   5     process()
-//   6     tick() and status()
+//   5     a step of the host loop (host_loop.h): process(), and tick() / status() when the
+//         loop's cadence (100 ms, 1 s of host time) says they are due
+//   6     tick() and status() at once
 //   7     by the next byte: a joint state (names from the robot's, unknown or empty, positions
 //         small, or any double: NaN, Inf, huge), an info or ack message, or a host frame
 // Bit 3 of the op byte picks the bus (0 or 1); op bytes 0xF8..0xFA feed a raw frame to bus 2,
@@ -19,14 +20,15 @@
 // unless a sample gives its timestamp raw. Missing bytes read as zero.
 //
 // Invariants beyond "does not crash" (ASan, UBSan):
-// - after each process() that returns true: every contact's numbers are finite, its normal is a
-//   unit vector, its uncertainty positive, its track ID not 0 and unique in the array, its
-//   hardware UID one of the skin map's, its link that UID's link, its node a patch node heard
-//   on some bus. (A patch is placed by the UID its heartbeats name, so a mapped UID heard on
-//   another node ID gives contacts with that node: the node is checked against the nodes heard,
-//   the placement against the UID.)
-// - after each status(): no more patches than (bus, node) pairs that were sent frames, each of
-//   them one of those, in (bus, node) order, with finite clock estimates.
+// - after each publication (the loop's sink checks it): every contact's numbers are finite, its
+//   normal is a unit vector, its uncertainty positive, its track ID not 0 and unique in the
+//   array, its hardware UID one of the skin map's, its link that UID's link, its node a patch
+//   node heard on some bus. (A patch is placed by the UID its heartbeats name, so a mapped UID
+//   heard on another node ID gives contacts with that node: the node is checked against the nodes
+//   heard, the placement against the UID.)
+// - after each status() (the loop's, or op 6's): no more patches than (bus, node) pairs that
+//   were sent frames, each of them one of those, in (bus, node) order, with finite clock
+//   estimates.
 //
 // One aggregator serves every run: create() reads and compiles the model in about 100 ms under
 // the sanitizers (printed at start-up), against 1 to 10 ms for a run, so it is built once. Each run
@@ -48,6 +50,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -56,6 +59,7 @@
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/bus/codec.h"
 #include "skinbus/host/aggregator.h"
+#include "skinbus/host/host_loop.h"
 
 #ifndef SKINBUS_SOURCE_DIR
 #define SKINBUS_SOURCE_DIR "."
@@ -98,10 +102,14 @@ const char* kUrdf = R"(<?xml version="1.0"?>
 
 const std::array<std::string, 6> kJointNames = {"shoulder", "slide", "wrist", "elbow", "", "hand"};
 
+class CheckingSink;
+
 struct World {
   body_map::SkinMap map;
   std::unique_ptr<body_map::RobotModel> robot;
   std::unique_ptr<Aggregator> agg;
+  std::unique_ptr<CheckingSink> sink;
+  std::unique_ptr<HostLoop> loop;  // the host loop's cadence over agg, publishing to sink
   uint64_t now_us = 1'700'000'000'000'000ull;  // CLOCK_REALTIME-like
   std::bitset<kBuses * 128> sent;              // (bus, node) pairs sent a frame, ever
   bool verbose = false;                        // SKINBUS_FUZZ_VERBOSE set: print what happens
@@ -156,6 +164,81 @@ struct Input {
     const uint32_t lo = u32();
     return lo | static_cast<uint64_t>(u32()) << 32;
   }
+};
+
+// The invariants of a publication (above).
+void check_contacts(const World& w, const ContactArray& a) {
+  std::vector<uint32_t> ids;
+  for (const BodyContact& c : a.contacts) {
+    bool finite = std::isfinite(c.depth_mm) && std::isfinite(c.force_n) && std::isfinite(c.u_mm) &&
+                  std::isfinite(c.v_mm) && std::isfinite(c.uncertainty_mm);
+    for (int k = 0; k < 3; ++k)
+      finite = finite && std::isfinite(c.position_mm[k]) && std::isfinite(c.normal[k]);
+    if (!finite) fail("a contact holds a non-finite number");
+    const double len = std::hypot(c.normal[0], c.normal[1], c.normal[2]);
+    if (std::abs(len - 1) > 1e-9) fail("a contact's normal is not a unit vector");
+    if (!(c.uncertainty_mm > 0)) fail("a contact's uncertainty is not positive");
+    if (c.track_id == 0) fail("a contact has track ID 0");
+    if (std::find(ids.begin(), ids.end(), c.track_id) != ids.end()) {
+      fail("two contacts of one publication share a track ID");
+    }
+    ids.push_back(c.track_id);
+    if (c.patch_count == 0) fail("a contact seen by no patch");
+    const auto uid = std::find(kUids.begin(), kUids.end(), c.hardware_uid);
+    if (uid == kUids.end()) fail("a contact's hardware UID is not in the skin map");
+    if (c.link != kLinks[static_cast<std::size_t>(uid - kUids.begin())]) {
+      fail("a contact's link is not the link of its patch");
+    }
+    if (!bus::is_patch_node(c.node) || !(w.sent.test(c.node) || w.sent.test(128 + c.node))) {
+      fail("a contact from a node that was never heard");
+    }
+  }
+}
+
+// The invariants of a status (above).
+void check_status(const World& w, const PatchStatusArray& st) {
+  if (st.patches.size() > w.sent.count()) fail("status lists more patches than were heard");
+  std::size_t last = 0;
+  for (std::size_t i = 0; i < st.patches.size(); ++i) {
+    const PatchStatus& p = st.patches[i];
+    const int bus = p.interface == "can0" ? 0 : p.interface == "can1" ? 1 : -1;
+    if (bus < 0) fail("a patch status names an unknown interface");
+    const std::size_t key = static_cast<std::size_t>(bus) * 128 + p.node;
+    if (!w.sent.test(key)) fail("a patch status for a (bus, node) that was never sent a frame");
+    if (i > 0 && key <= last) fail("patch statuses out of (bus, node) order or repeated");
+    last = key;
+    if (!std::isfinite(p.clock_offset_us) || !std::isfinite(p.clock_drift_ppm)) {
+      fail("a patch status holds a non-finite clock estimate");
+    }
+  }
+}
+
+// The host loop's sink: checks every publication and status; prints them with
+// SKINBUS_FUZZ_VERBOSE.
+class CheckingSink : public HostSink {
+ public:
+  explicit CheckingSink(const World& w) : w_(w) {}
+  void contacts(const ContactArray& out, std::span<const uint64_t>) override {
+    check_contacts(w_, out);
+    if (w_.verbose) {
+      std::fprintf(stderr, "process(): %zu contact(s)", out.contacts.size());
+      for (const BodyContact& c : out.contacts) {
+        std::fprintf(stderr, " [track %u node %u %s (%.1f %.1f %.1f) depth %.2f flags 0x%x]",
+                     c.track_id, c.node, c.link.c_str(), c.position_mm[0], c.position_mm[1],
+                     c.position_mm[2], c.depth_mm, c.flags);
+      }
+      std::fprintf(stderr, "\n");
+    }
+  }
+  void status(const PatchStatusArray& st) override {
+    check_status(w_, st);
+    if (w_.verbose) {
+      for (const PatchEvent& e : st.events) std::fprintf(stderr, "event: %s\n", e.detail.c_str());
+    }
+  }
+
+ private:
+  const World& w_;
 };
 
 // Per run: what the simulated nodes remember (sequence numbers, last fields).
@@ -345,75 +428,14 @@ struct Run {
     }
   }
 
-  void check_contacts(const ContactArray& a) {
-    std::vector<uint32_t> ids;
-    for (const BodyContact& c : a.contacts) {
-      bool finite = std::isfinite(c.depth_mm) && std::isfinite(c.force_n) &&
-                    std::isfinite(c.u_mm) && std::isfinite(c.v_mm) &&
-                    std::isfinite(c.uncertainty_mm);
-      for (int k = 0; k < 3; ++k)
-        finite = finite && std::isfinite(c.position_mm[k]) && std::isfinite(c.normal[k]);
-      if (!finite) fail("a contact holds a non-finite number");
-      const double len = std::hypot(c.normal[0], c.normal[1], c.normal[2]);
-      if (std::abs(len - 1) > 1e-9) fail("a contact's normal is not a unit vector");
-      if (!(c.uncertainty_mm > 0)) fail("a contact's uncertainty is not positive");
-      if (c.track_id == 0) fail("a contact has track ID 0");
-      if (std::find(ids.begin(), ids.end(), c.track_id) != ids.end()) {
-        fail("two contacts of one publication share a track ID");
-      }
-      ids.push_back(c.track_id);
-      if (c.patch_count == 0) fail("a contact seen by no patch");
-      const auto uid = std::find(kUids.begin(), kUids.end(), c.hardware_uid);
-      if (uid == kUids.end()) fail("a contact's hardware UID is not in the skin map");
-      if (c.link != kLinks[static_cast<std::size_t>(uid - kUids.begin())]) {
-        fail("a contact's link is not the link of its patch");
-      }
-      if (!bus::is_patch_node(c.node) || !(w.sent.test(c.node) || w.sent.test(128 + c.node))) {
-        fail("a contact from a node that was never heard");
-      }
-    }
-  }
+  void process() { w.loop->step(w.now_us); }
 
-  void check_status(const PatchStatusArray& st) {
-    if (st.patches.size() > w.sent.count()) fail("status lists more patches than were heard");
-    std::size_t last = 0;
-    for (std::size_t i = 0; i < st.patches.size(); ++i) {
-      const PatchStatus& p = st.patches[i];
-      const int bus = p.interface == "can0" ? 0 : p.interface == "can1" ? 1 : -1;
-      if (bus < 0) fail("a patch status names an unknown interface");
-      const std::size_t key = static_cast<std::size_t>(bus) * 128 + p.node;
-      if (!w.sent.test(key)) fail("a patch status for a (bus, node) that was never sent a frame");
-      if (i > 0 && key <= last) fail("patch statuses out of (bus, node) order or repeated");
-      last = key;
-      if (!std::isfinite(p.clock_offset_us) || !std::isfinite(p.clock_drift_ppm)) {
-        fail("a patch status holds a non-finite clock estimate");
-      }
-    }
-  }
-
-  void process() {
-    ContactArray out;
-    if (!w.agg->process(w.now_us, &out)) return;
-    check_contacts(out);
-    if (w.verbose) {
-      std::fprintf(stderr, "process(): %zu contact(s)", out.contacts.size());
-      for (const BodyContact& c : out.contacts) {
-        std::fprintf(stderr, " [track %u node %u %s (%.1f %.1f %.1f) depth %.2f flags 0x%x]",
-                     c.track_id, c.node, c.link.c_str(), c.position_mm[0], c.position_mm[1],
-                     c.position_mm[2], c.depth_mm, c.flags);
-      }
-      std::fprintf(stderr, "\n");
-    }
-  }
-
+  // Out of the loop's cadence: tick() and status() now.
   void tick_and_status() {
     w.agg->tick(w.now_us);
     PatchStatusArray st;
     w.agg->status(w.now_us, &st);
-    check_status(st);
-    if (w.verbose) {
-      for (const PatchEvent& e : st.events) std::fprintf(stderr, "event: %s\n", e.detail.c_str());
-    }
+    w.sink->status(st);
   }
 
   void step() {
@@ -468,9 +490,9 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
   // benchmarks). Without oneDNN, the default backend.
   const auto t0 = std::chrono::steady_clock::now();
   AggregatorOptions options;
-  options.runtime.backend = RuntimeBackend::kOneDnn;
+  options.runtime.backend = estimators::RuntimeBackend::kOneDnn;
   for (int attempt = 0; attempt < 2 && world->agg == nullptr; ++attempt) {
-    if (attempt == 1) options.runtime.backend = RuntimeBackend::kAuto;
+    if (attempt == 1) options.runtime.backend = estimators::RuntimeBackend::kAuto;
     auto agg = Aggregator::create(&world->map, dir, world->robot.get(), {"can0", "can1"}, options);
     if (!agg.ok()) fail(("create() failed: " + agg.error().to_string()).c_str());
     if ((*agg)->model_descriptions().size() == 1) world->agg = std::move(*agg);
@@ -479,6 +501,9 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
   if (world->agg == nullptr) {
     fail("the shipped model did not load (set SKINBUS_SOURCE_DIR to the repository)");
   }
+  world->sink = std::make_unique<CheckingSink>(*world);
+  world->loop = std::make_unique<HostLoop>(*world->agg, *world->sink);
+  world->loop->start(world->now_us);
   std::fprintf(stderr, "fuzz_aggregator: create() took %.1f ms; model %s\n",
                std::chrono::duration<double, std::milli>(t1 - t0).count(),
                world->agg->model_descriptions()[0].c_str());

@@ -1,7 +1,8 @@
 // skinbus/host/aggregator.h: many patches in, body-frame contacts out.
 //
-// The host aggregator's pipeline, without its inputs and outputs (tools/skinbus_host.cc reads
-// SocketCAN or candump logs and publishes on DDS and as JSON lines):
+// The host aggregator's pipeline, without its inputs and outputs (host_loop.h drives it from
+// SocketCAN, candump logs or a live pipe at the host's cadence; skinbus-host's sinks publish on
+// DDS and as JSON lines):
 //
 //   frames --on_frame()--> reassembly (one bus::Reassembler per bus)
 //          --> registry (patch_registry.h: discovery, states, reboots, duplicate IDs, clocks)
