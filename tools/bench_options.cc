@@ -112,4 +112,35 @@ void add_ambient_options(CLI::App* sub, host_bench::AmbientBenchArgs& a) {
   sub->add_option("--csv", a.csv, "write the table as CSV here");
 }
 
+void add_host_options(CLI::App* sub, host_bench::HostBenchArgs& a) {
+  sub->add_option("--patches", a.patches, "patch counts")->delimiter(',')->capture_default_str();
+  sub->add_option("--touched", a.touched_percent, "touched shares, percent")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--seconds", a.seconds, "simulated seconds per configuration")
+      ->capture_default_str();
+  sub->add_option("--mode", a.mode, "stream (idle patches send samples) or event")
+      ->capture_default_str();
+  sub->add_option("--threads", a.threads, "threads of each model runtime")->capture_default_str();
+  sub->add_option("--precision", a.precision, "network precision")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"float32", "bfloat16", "int8"}));
+  sub->add_option("--isa", a.isa,
+                  "the widest instruction set the kernels may use (avx2: what an AVX2-only CPU "
+                  "runs)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"avx512", "avx2", "neon", "portable"}));
+  sub->add_option("--max-lag-ms", a.max_lag_ms,
+                  "the aggregator's lag bound (0: none): samples it cannot publish within this "
+                  "of their time are superseded (counted as late)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 60'000.0));
+  sub->add_option("--model-delay-us", a.model_delay_us,
+                  "every estimate busy-waits this many us more, as on a slower CPU (paced runs "
+                  "only)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1'000'000));
+  sub->add_option("--csv", a.csv, "write the table as CSV here");
+}
+
 }  // namespace skinbus::tools

@@ -9,7 +9,6 @@
 #include <cstdio>
 #include <string>
 
-#include "bench_host.h"
 #include "bench_options.h"
 #include "skinbus/body_map_bench/reports.h"
 #include "skinbus/estimators_bench/reports.h"
@@ -97,7 +96,7 @@ int main(int argc, char** argv) {
       "a per-patch model's error when the ambient field turns between tare and press (a limb "
       "moving in the Earth's field), with and without common-mode rejection");
   skinbus::tools::add_ambient_options(ambient, aa);
-  skinbus::tools::HostBenchArgs ha;
+  skinbus::host_bench::HostBenchArgs ha;
   CLI::App* host = app.add_subcommand(
       "host",
       "the host aggregator: latency from frame arrival to publication and CPU use for 16, 64 "
@@ -118,7 +117,7 @@ int main(int argc, char** argv) {
 #endif
   if (budget->parsed()) return report(skinbus::estimators_bench::bench_budget(ba));
   if (ambient->parsed()) return report(skinbus::host_bench::bench_ambient(aa));
-  if (host->parsed()) return skinbus::tools::bench_host(ha);
+  if (host->parsed()) return report(skinbus::host_bench::bench_host(ha));
   if (models->parsed()) return report(skinbus::estimators_bench::bench_models(ma));
   if (cpu->parsed()) return report(skinbus::estimators_bench::bench_cpu(cpua));
   return report(skinbus::body_map_bench::bench_fk(fk_robot, fk_calls));

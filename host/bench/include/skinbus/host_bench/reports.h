@@ -1,6 +1,8 @@
-// The host's reports (`skinbus-bench ambient`): a per-patch model's error when the ambient field
-// turns between tare and press, with and without common-mode rejection. Prints Markdown tables on
-// standard output and returns what went wrong as a Status.
+// The host's reports: `skinbus-bench host` (the aggregator's latency from frame arrival to
+// publication and its CPU use for many patches, some touched, driven through host::HostLoop) and
+// `skinbus-bench ambient` (a per-patch model's error when the ambient field turns between tare and
+// press, with and without common-mode rejection). Each prints Markdown tables on standard output
+// and returns what went wrong as a Status.
 #pragma once
 
 #include <cstdint>
@@ -24,5 +26,20 @@ struct AmbientBenchArgs {
 };
 
 Status bench_ambient(const AmbientBenchArgs& a);
+
+struct HostBenchArgs {
+  std::vector<int> patches = {16, 64, 200};
+  std::vector<double> touched_percent = {100, 10, 0};
+  double seconds = 5;
+  std::string mode = "stream";
+  int threads = 1;
+  std::string precision = "float32";  // the network runtime's precision
+  std::string isa = "avx512";         // the widest instruction set of its kernels
+  double max_lag_ms = 100;            // the aggregator's lag bound (0: none)
+  int model_delay_us = 0;             // test aid: every estimate this much slower
+  std::string csv;
+};
+
+Status bench_host(const HostBenchArgs& a);
 
 }  // namespace skinbus::host_bench

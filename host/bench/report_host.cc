@@ -34,17 +34,18 @@
 #include <thread>
 #include <vector>
 
-#include "bench_host.h"
 #include "skinbus/bus/budget.h"
 #include "skinbus/bus/codec.h"
 #include "skinbus/bus/socketcan.h"
+#include "skinbus/common/error_format.h"
+#include "skinbus/common/stats.h"
 #include "skinbus/host/aggregator.h"
 #include "skinbus/host/host_loop.h"
+#include "skinbus/host_bench/reports.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
-#include "tool_util.h"
 
-namespace skinbus::tools {
+namespace skinbus::host_bench {
 
 namespace {
 
@@ -192,7 +193,7 @@ Setup make_setup(const Pool& pool, int patches, double touched_fraction, double 
   return s;
 }
 
-struct Result {
+struct Row {
   int patches = 0, buses = 0, touched = 0;
   double p50_us = NAN, p99_us = NAN, max_us = NAN, cpu_percent = NAN;
   double period_us = NAN, idle_patch_us = NAN;
@@ -200,8 +201,9 @@ struct Result {
 };
 
 // `paced`: on the monotonic clock (the frames' times), with the lag bound measuring the runs.
-std::unique_ptr<host::Aggregator> make_aggregator(const Setup& s, const HostBenchArgs& a,
-                                                  bool paced) {
+skinbus::Result<std::unique_ptr<host::Aggregator>> make_aggregator(const Setup& s,
+                                                                   const HostBenchArgs& a,
+                                                                   bool paced) {
   host::AggregatorOptions o;
   o.runtime.threads = a.threads;
   o.runtime.precision = a.precision == "int8"       ? estimators::RuntimePrecision::kInt8
@@ -213,10 +215,7 @@ std::unique_ptr<host::Aggregator> make_aggregator(const Setup& s, const HostBenc
   if (paced) o.clock_us = bus::monotonic_now_us;
   const char* src = SKINBUS_SOURCE_DIR;
   auto agg = host::Aggregator::create(&s.map, src, nullptr, s.buses, o);
-  if (!agg) {
-    std::fprintf(stderr, "skinbus-bench host: %s\n", agg.error().to_string().c_str());
-    return nullptr;
-  }
+  if (!agg) return agg.error();
   static bool said = false;  // the kernels in use, once
   if (!said) {
     said = true;
@@ -245,9 +244,10 @@ class LatencySink : public host::HostSink {
   std::vector<double>* lat_;
 };
 
-bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
-  auto agg = make_aggregator(s, a, true);
-  if (!agg) return false;
+Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r) {
+  auto made = make_aggregator(s, a, true);
+  if (!made.ok()) return made.error();
+  std::unique_ptr<host::Aggregator> agg = std::move(made.value());
   std::vector<double> lat;
   lat.reserve(s.frames.size());
   const uint64_t t_start = bus::monotonic_now_us() + 1000;
@@ -292,12 +292,13 @@ bool run_paced(const Setup& s, const HostBenchArgs& a, Result* r) {
   r->estimated = agg->stats().estimated;
   r->publications = agg->stats().publications;
   r->late = agg->stats().late_superseded;
-  return true;
+  return Status::Ok();
 }
 
-bool run_unpaced(const Setup& s, const HostBenchArgs& a, Result* r) {
-  auto agg = make_aggregator(s, a, false);
-  if (!agg) return false;
+Status run_unpaced(const Setup& s, const HostBenchArgs& a, Row* r) {
+  auto made = make_aggregator(s, a, false);
+  if (!made.ok()) return made.error();
+  std::unique_ptr<host::Aggregator> agg = std::move(made.value());
   LatencySink sink(0, nullptr);
   host::HostLoop loop(*agg, sink);
   // Warm-up: the heartbeats (identification), outside the timing.
@@ -319,46 +320,14 @@ bool run_unpaced(const Setup& s, const HostBenchArgs& a, Result* r) {
       std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
   r->period_us = us / s.periods;
   if (r->touched == 0) r->idle_patch_us = r->period_us / r->patches;
-  return true;
+  return Status::Ok();
 }
 
 }  // namespace
 
-void add_host_options(CLI::App* sub, HostBenchArgs& a) {
-  sub->add_option("--patches", a.patches, "patch counts")->delimiter(',')->capture_default_str();
-  sub->add_option("--touched", a.touched_percent, "touched shares, percent")
-      ->delimiter(',')
-      ->capture_default_str();
-  sub->add_option("--seconds", a.seconds, "simulated seconds per configuration")
-      ->capture_default_str();
-  sub->add_option("--mode", a.mode, "stream (idle patches send samples) or event")
-      ->capture_default_str();
-  sub->add_option("--threads", a.threads, "threads of each model runtime")->capture_default_str();
-  sub->add_option("--precision", a.precision, "network precision")
-      ->capture_default_str()
-      ->check(CLI::IsMember({"float32", "bfloat16", "int8"}));
-  sub->add_option("--isa", a.isa,
-                  "the widest instruction set the kernels may use (avx2: what an AVX2-only CPU "
-                  "runs)")
-      ->capture_default_str()
-      ->check(CLI::IsMember({"avx512", "avx2", "neon", "portable"}));
-  sub->add_option("--max-lag-ms", a.max_lag_ms,
-                  "the aggregator's lag bound (0: none): samples it cannot publish within this "
-                  "of their time are superseded (counted as late)")
-      ->capture_default_str()
-      ->check(CLI::Range(0.0, 60'000.0));
-  sub->add_option("--model-delay-us", a.model_delay_us,
-                  "every estimate busy-waits this many us more, as on a slower CPU (paced runs "
-                  "only)")
-      ->capture_default_str()
-      ->check(CLI::Range(0, 1'000'000));
-  sub->add_option("--csv", a.csv, "write the table as CSV here");
-}
-
-int bench_host(const HostBenchArgs& a) {
+Status bench_host(const HostBenchArgs& a) {
   if (a.mode != "stream" && a.mode != "event") {
-    std::fprintf(stderr, "skinbus-bench host: --mode stream or event\n");
-    return 2;
+    return make_error(ErrorCode::kInvalidArgument, "--mode stream or event");
   }
   const bool stream = a.mode == "stream";
   const Pool pool = make_pool(0xB0B0);
@@ -371,16 +340,19 @@ int bench_host(const HostBenchArgs& a) {
   std::printf("\n%8s %6s %8s %10s %10s %10s %8s %12s %14s %10s %8s\n", "patches", "buses",
               "touched", "p50 us", "p99 us", "max us", "CPU %", "us/period", "us/idle patch",
               "estimated", "late");
-  std::vector<Result> rows;
+  std::vector<Row> rows;
   for (int n : a.patches) {
     for (double pct : a.touched_percent) {
       const Setup s = make_setup(pool, n, pct / 100, a.seconds, stream);
-      Result r;
+      Row r;
       r.patches = n;
       r.buses = static_cast<int>(s.buses.size());
       r.touched = s.touched;
       // Unpaced runs time the host's own work: not with an artificial delay.
-      if (!run_paced(s, a, &r) || (a.model_delay_us == 0 && !run_unpaced(s, a, &r))) return 1;
+      if (Status st = run_paced(s, a, &r); !st.ok()) return st;
+      if (a.model_delay_us == 0) {
+        if (Status st = run_unpaced(s, a, &r); !st.ok()) return st;
+      }
       std::printf(
           "%8d %6d %7.0f%% %10.0f %10.0f %10.0f %8.1f %12.1f %14s %10llu %8llu\n", n, r.buses, pct,
           r.p50_us, r.p99_us, r.max_us, r.cpu_percent, r.period_us,
@@ -401,13 +373,13 @@ int bench_host(const HostBenchArgs& a) {
     std::ofstream f(a.csv);
     f << "mode,patches,buses,touched,p50_us,p99_us,max_us,cpu_percent,us_per_period,us_per_idle_"
          "patch,late\n";
-    for (const Result& r : rows) {
+    for (const Row& r : rows) {
       f << a.mode << ',' << r.patches << ',' << r.buses << ',' << r.touched << ',' << r.p50_us
         << ',' << r.p99_us << ',' << r.max_us << ',' << r.cpu_percent << ',' << r.period_us << ','
         << r.idle_patch_us << ',' << r.late << '\n';
     }
   }
-  return 0;
+  return Status::Ok();
 }
 
-}  // namespace skinbus::tools
+}  // namespace skinbus::host_bench
