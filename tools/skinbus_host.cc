@@ -380,8 +380,7 @@ int main(int argc, char** argv) {
     if (host::HostLoop::on_host_clock(lo)) o.clock_us = bus::realtime_now_us;
     auto map = body_map::load_skin_map_file(a.map_path);
     if (!map) {
-      std::fprintf(stderr, "skinbus-host: %s\n", map.error().to_string().c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-host", map.error().to_string(), 1);
     }
     const std::string map_dir = std::filesystem::path(a.map_path).parent_path().string();
     const std::string robot_path =
@@ -390,20 +389,17 @@ int main(int argc, char** argv) {
     if (!robot_path.empty()) {
       auto rm = body_map::RobotModel::from_urdf_file(robot_path);
       if (!rm) {
-        std::fprintf(stderr, "skinbus-host: %s\n", rm.error().to_string().c_str());
-        return 1;
+        return skinbus::tools::fail("skinbus-host", rm.error().to_string(), 1);
       }
       robot = std::make_unique<body_map::RobotModel>(std::move(*rm));
       if (Status st = body_map::validate_skin_map(*map, robot.get()); !st.ok()) {
-        std::fprintf(stderr, "skinbus-host: %s\n", st.error().to_string().c_str());
-        return 1;
+        return skinbus::tools::fail("skinbus-host", st.error().to_string(), 1);
       }
     }
     auto agg =
         host::Aggregator::create(&*map, map_dir, robot.get(), host::HostLoop::bus_names(lo), o);
     if (!agg) {
-      std::fprintf(stderr, "skinbus-host: %s\n", agg.error().to_string().c_str());
-      return 2;
+      return skinbus::tools::fail("skinbus-host", agg.error().to_string(), 2);
     }
     if (!a.quiet) {
       std::fprintf(stderr, "skinbus-host: %zu patches in the map, robot %s, models:\n",
@@ -430,8 +426,7 @@ int main(int argc, char** argv) {
     tools::install_stop_handler();
     host::HostLoop loop(**agg, out, lo, joints.get());
     if (Status st = loop.run(); !st.ok()) {
-      std::fprintf(stderr, "skinbus-host: %s\n", st.error().message.c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-host", st.error().message, 1);
     }
     if (a.stats) {
       const host::AggregatorStats& s = (*agg)->stats();
@@ -458,10 +453,8 @@ int main(int argc, char** argv) {
     }
     return 0;
   } catch (const std::invalid_argument& e) {
-    std::fprintf(stderr, "skinbus-host: %s\n", e.what());
-    return 2;
+    return skinbus::tools::fail("skinbus-host", e.what(), 2);
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "skinbus-host: %s\n", e.what());
-    return 1;
+    return skinbus::tools::fail("skinbus-host", e.what(), 1);
   }
 }
