@@ -9,8 +9,13 @@
 #       forearms, flat ones on the chest), every patch with the shipped model; $bin/skinbus-touchsim
 #   patch_uid N
 #       prints the hardware UID the skin maps give node N (0x5b followed by N in 14 hex digits)
+#   record_bus OUT.log DURATION_S "NODE..." [skinbus-patchd options...]
+#       one simulated patch daemon per node (its patch_uid, DURATION_S, the options), all at
+#       once, their candump logs (patch_NODE.log) merged by time into OUT.log
 #   use_loopback_dds
 #       Cyclone DDS on loopback only (tools/dds/loopback.xml), unless CYCLONEDDS_URI is set
+#   use_loopback_domain
+#       use_loopback_dds, and $domain set to a random DDS domain 20..219 of the test's own
 #   fail_with_logs MESSAGE...
 #       prints FAIL MESSAGE and every *.err file of the current folder, and exits 1
 #   wait_for PATTERN SECONDS FILE PID
@@ -58,4 +63,18 @@ make_skin_map() {
 }
 use_loopback_dds() {
   export CYCLONEDDS_URI=${CYCLONEDDS_URI:-file://$src/tools/dds/loopback.xml}
+}
+use_loopback_domain() {
+  domain=$((RANDOM % 200 + 20))
+  use_loopback_dds
+}
+record_bus() {
+  local out=$1 duration_s=$2 nodes=$3 n
+  shift 3
+  for n in $nodes; do
+    "$bin/skinbus-patchd" --sim -i none --candump-out "patch_$n.log" --node "$n" \
+      --uid "$(patch_uid "$n")" --duration "$duration_s" -q "$@" &
+  done
+  wait
+  sort -s -k1,1 patch_*.log >"$out"
 }

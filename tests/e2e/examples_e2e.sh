@@ -33,8 +33,7 @@ print(f"PASS estimate_recording: {len(deep)} deep samples, median ({u:.1f}, {v:.
 PY
 
 if [[ -x $build/examples/subscribe_contacts ]]; then
-  domain=$((RANDOM % 200 + 20))
-  use_loopback_dds
+  use_loopback_domain
   "$build/examples/subscribe_contacts" 8 "$domain" >sub.txt 2>sub.err &
   sub=$!
   sleep 1.5

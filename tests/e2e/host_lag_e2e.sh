@@ -36,8 +36,7 @@ CSV
   done
 } >arms.csv
 
-domain=$((RANDOM % 200 + 20))
-use_loopback_dds
+use_loopback_domain
 echo "DDS domain $domain (loopback only); every estimate delayed by $delay_us us"
 
 "$bin/skinbus-listen" --domain "$domain" --timeout 60 --status >listen.jsonl 2>listen.err &

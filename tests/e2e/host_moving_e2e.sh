@@ -21,12 +21,7 @@ cat >presses.csv <<'CSV'
 0.5,7.5,10,-20,2.0,5,1
 0.5,7.5,-30,35,2.5,5,2
 CSV
-for n in 1 2; do
-  "$bin/skinbus-patchd" --sim --config swing.yaml -i none --candump-out "patch_$n.log" --node "$n" \
-    --uid "$(patch_uid "$n")" --contacts presses.csv --duration 8 -q &
-done
-wait
-sort -s -k1,1 patch_*.log >bus.log
+record_bus bus.log 8 "1 2" --config swing.yaml --contacts presses.csv
 awk -F, '!/^#/ {print $7, $3, $4}' presses.csv | "$bin/skinbus-locate" --map map.yaml - >truth.txt
 
 status=0

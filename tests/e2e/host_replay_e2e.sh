@@ -26,17 +26,10 @@ time_s,left_shoulder_pitch_joint,left_elbow_joint,right_elbow_joint
 CSV
 
 # Five simulated patch daemons (event mode), each with the hardware UID the map gives it.
-for n in 1 2 3 4 5; do
-  uid=$(patch_uid "$n")
-  "$bin/skinbus-patchd" --sim -i none --candump-out "patch_$n.log" --node "$n" --uid "$uid" \
-    --contacts presses.csv --duration 3 -q &
-done
-wait
-sort -s -k1,1 patch_*.log >bus.log
+record_bus bus.log 3 "1 2 3 4 5" --contacts presses.csv
 
 # DDS on loopback only, in a domain of its own.
-domain=$((RANDOM % 200 + 20))
-use_loopback_dds
+use_loopback_domain
 echo "DDS domain $domain (loopback only)"
 
 "$bin/skinbus-listen" --domain "$domain" --timeout 30 --status >listen.jsonl 2>listen.err &
