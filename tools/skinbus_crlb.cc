@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "skinbus/mlx90393/measurement.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/mlx90393.h"
@@ -85,7 +86,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "skinbus-crlb: %s\n", model.error().message.c_str());
     return 1;
   }
-  const Mlx90393Config& cfg = model->design().sensor_config;
+  const skinbus::mlx90393::Config& cfg = model->design().sensor_config;
   if (noise_xy <= 0) noise_xy = mlx90393_noise_xy_ut(cfg);
   if (noise_z <= 0) noise_z = mlx90393_noise_z_ut(cfg);
   // The CSV is built in memory and written whole at the end (a temporary file, renamed).

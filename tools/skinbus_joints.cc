@@ -17,6 +17,7 @@
 #include <thread>
 #include <vector>
 
+#include "skinbus/body_map/joint_map.h"
 #include "skinbus/body_map/joint_trajectory.h"
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/bus/socketcan.h"
@@ -119,14 +120,13 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "skinbus-joints: %s\n", robot.error().to_string().c_str());
       return kExitFailed;
     }
-    if (Status st = robot->check_joint_names(traj->names); !st.ok()) {
+    const body_map::JointMap wire(*robot, traj->names, body_map::PrismaticUnit::kMetres);
+    if (Status st = wire.check_all_joints(); !st.ok()) {
       std::fprintf(stderr, "skinbus-joints: %s: %s\n", trajectory_path.c_str(),
                    st.error().message.c_str());
       return kExitUsage;
     }
-    for (std::size_t i = 0; i < traj->names.size(); ++i) {
-      if (robot->joint_is_prismatic(robot->find_joint(traj->names[i]))) scale[i] = 1e-3;
-    }
+    for (std::size_t i = 0; i < traj->names.size(); ++i) scale[i] = 1.0 / wire.to_model(i);
   }
 
   tools::install_stop_handler();

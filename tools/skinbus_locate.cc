@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "skinbus/body_map/joint_map.h"
 #include "skinbus/body_map/joint_trajectory.h"
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
@@ -57,6 +58,7 @@ int main(int argc, char** argv) {
     robot = std::make_unique<body_map::RobotModel>(std::move(*r));
   }
   std::optional<body_map::JointTrajectory> traj;
+  body_map::JointMap columns;  // the trajectory's columns onto the robot's q
   if (!joints_path.empty()) {
     if (!robot) {
       std::fprintf(stderr, "skinbus-locate: --joints needs a robot (the map's or --robot)\n");
@@ -67,7 +69,8 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "skinbus-locate: %s\n", t.error().to_string().c_str());
       return 1;
     }
-    if (Status st = robot->check_joint_names(t->names); !st.ok()) {
+    columns = body_map::JointMap(*robot, t->names, body_map::PrismaticUnit::kMillimetres);
+    if (Status st = columns.check_all_joints(); !st.ok()) {
       std::fprintf(stderr, "skinbus-locate: %s\n", st.error().message.c_str());
       return 2;
     }
@@ -80,9 +83,7 @@ int main(int argc, char** argv) {
     if (traj) {
       std::vector<double> v(traj->names.size());
       traj->sample(t_s, v);
-      for (std::size_t i = 0; i < v.size(); ++i) {
-        q[static_cast<std::size_t>(robot->find_joint(traj->names[i]))] = v[i];
-      }
+      columns.apply(v, q);
     }
     poses.resize(static_cast<std::size_t>(robot->link_count()));
     if (Status st = robot->forward_kinematics(q, poses); !st.ok()) {

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "skinbus/body_map/joint_map.h"
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/dds/dds.h"
@@ -236,14 +237,8 @@ int main(int argc, char** argv) {
     return 1;
   }
   View v{*map, robot.get(), {}, {}, {}, {}, 0, 0};
-  std::vector<double> joint_scale;  // ROS 2 joint states: prismatic joints in metres
-  if (robot) {
-    v.q.assign(static_cast<std::size_t>(robot->joint_count()), 0.0);
-    joint_scale.assign(v.q.size(), 1.0);
-    for (int j = 0; j < robot->joint_count(); ++j) {
-      if (robot->joint_is_prismatic(j)) joint_scale[static_cast<std::size_t>(j)] = 1000.0;
-    }
-  }
+  body_map::JointMap joint_map;  // the joint states' names onto q
+  if (robot) v.q.assign(static_cast<std::size_t>(robot->joint_count()), 0.0);
   tools::install_stop_handler();
   const auto start = std::chrono::steady_clock::now();
   auto next = start + std::chrono::duration<double>(after_s);
@@ -268,13 +263,11 @@ int main(int argc, char** argv) {
     }
     dds::JointStateSample js;
     if (robot && (*joints)->take_latest(&js)) {
-      for (std::size_t i = 0; i < js.names.size() && i < js.positions.size(); ++i) {
-        const int j = robot->find_joint(js.names[i]);
-        if (j >= 0 && std::isfinite(js.positions[i])) {
-          v.q[static_cast<std::size_t>(j)] =
-              js.positions[i] * joint_scale[static_cast<std::size_t>(j)];
-        }
+      // ROS 2 joint states: prismatic joints in metres.
+      if (!joint_map.same_source(js.names, body_map::PrismaticUnit::kMetres)) {
+        joint_map = body_map::JointMap(*robot, js.names, body_map::PrismaticUnit::kMetres);
       }
+      joint_map.apply(js.positions, v.q);
     }
     if (std::chrono::steady_clock::now() >= next) {
       const std::string frame = render(v, width, height);

@@ -1,5 +1,6 @@
 #include "skinbus/body_map/touch_log.h"
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -8,6 +9,7 @@
 #include <sstream>
 #include <unordered_map>
 
+#include "skinbus/body_map/joint_map.h"
 #include "skinbus/common/csv.h"
 #include "skinbus/common/line_reader.h"
 #include "skinbus/common/text_file.h"
@@ -185,7 +187,7 @@ Result<std::vector<CalibrationTouch>> link_frame_touches(const TouchLog& log,
                                                          const RobotModel* robot) {
   std::vector<CalibrationTouch> out;
   int link = -1;
-  std::vector<int> column_of_joint;  // model joint -> log column, -1 if absent
+  JointMap columns;  // the log's q:<joint> columns onto the robot's q (mm and rad)
   std::vector<double> q;
   for (const TouchRecord& r : log.touches) {
     if (r.node_id != patch.node_id) continue;
@@ -203,16 +205,11 @@ Result<std::vector<CalibrationTouch>> link_frame_touches(const TouchLog& log,
                                                       ": link '" + patch.link +
                                                       "' is not in robot '" + robot->name() + "'");
         }
-        column_of_joint.assign(robot->joint_count(), -1);
-        for (int j = 0; j < robot->joint_count(); ++j) {
-          for (std::size_t c = 0; c < log.joint_names.size(); ++c)
-            if (log.joint_names[c] == robot->joint_name(j))
-              column_of_joint[j] = static_cast<int>(c);
-        }
+        columns = JointMap(*robot, log.joint_names, PrismaticUnit::kMillimetres);
         // Joints that move the link must be in the log.
         for (int l = link; l > 0; l = robot->link(l).parent) {
           const int j = robot->link(l).joint.q_index;
-          if (j >= 0 && column_of_joint[j] < 0) {
+          if (j >= 0 && !columns.covers(j)) {
             return make_error(ErrorCode::kInvalidArgument,
                               "touch log: base-frame touches of node " +
                                   std::to_string(patch.node_id) +
@@ -222,8 +219,8 @@ Result<std::vector<CalibrationTouch>> link_frame_touches(const TouchLog& log,
         }
         q.assign(robot->joint_count(), 0.0);
       }
-      for (int j = 0; j < robot->joint_count(); ++j)
-        q[j] = column_of_joint[j] >= 0 ? r.joint_positions[column_of_joint[j]] : 0.0;
+      std::fill(q.begin(), q.end(), 0.0);
+      columns.apply(r.joint_positions, q);
       Result<Pose> pose = robot->link_pose(q, link);
       if (!pose.ok()) {
         return make_error(pose.error().code,

@@ -83,6 +83,14 @@ TEST(CodecTest, FieldToWireUnitsRoundsClampsAndFlagsClipping) {
     EXPECT_TRUE(clipped);
   }
   EXPECT_EQ(field_ut_to_lsb(0.04), 0);  // the flag is optional
+  // Halfway between two LSBs rounds away from zero; the last half LSB below the limit clips.
+  EXPECT_EQ(field_ut_to_lsb(0.25), 3);
+  EXPECT_EQ(field_ut_to_lsb(-0.25), -3);
+  EXPECT_EQ(field_ut_to_lsb(1.25), 13);
+  EXPECT_EQ(field_ut_to_lsb(3276.65, &clipped), kFieldMaxLsb);
+  EXPECT_TRUE(clipped);
+  EXPECT_EQ(field_ut_to_lsb(-3276.64, &clipped), -32766);
+  EXPECT_FALSE(clipped);
 }
 
 TEST(CodecTest, CrcCheckValue) {

@@ -233,28 +233,45 @@ Result<dds_entity_t> create_participant(const DdsOptions& o, const char* entity_
   return p;
 }
 
-Result<dds_entity_t> create_topic(dds_entity_t participant, const dds_topic_descriptor_t* desc,
-                                  const std::string& name) {
-  const dds_entity_t t = dds_create_topic(participant, desc, name.c_str(), nullptr, nullptr);
+// ---- topics ---------------------------------------------------------------------------------
+
+enum class TopicId { kContacts, kPatchStatus, kJointStates };
+
+// What a topic is: its type, where DdsOptions names it, the durability of its endpoints.
+struct TopicSpec {
+  const dds_topic_descriptor_t* type;
+  std::string DdsOptions::*name;
+  Durability durability;
+};
+
+// Indexed by TopicId. The patch status is transient-local: a late subscriber gets the last one.
+constexpr TopicSpec kTopics[] = {
+    {&skin_msgs_msg_dds__ContactArray__desc, &DdsOptions::contacts_topic, Durability::kVolatile},
+    {&skin_msgs_msg_dds__PatchStatusArray__desc, &DdsOptions::patch_status_topic,
+     Durability::kTransientLocal},
+    {&sensor_msgs_msg_dds__JointState__desc, &DdsOptions::joint_states_topic,
+     Durability::kVolatile},
+};
+
+// Creates topic `id` (named as `o` says) on `participant` and one reader or writer of it with the
+// topic's QoS (endpoint_qos); `listener` only for a reader.
+Result<dds_entity_t> create_endpoint(dds_entity_t participant, const DdsOptions& o, TopicId id,
+                                     Side side, const dds_listener_t* listener = nullptr) {
+  const TopicSpec& spec = kTopics[static_cast<int>(id)];
+  const std::string& name = o.*spec.name;
+  const dds_entity_t t = dds_create_topic(participant, spec.type, name.c_str(), nullptr, nullptr);
   if (t < 0) {
     return dds_error(topic_what("dds_create_topic", name), t,
-                     std::string("type ") + desc->m_typename +
+                     std::string("type ") + spec.type->m_typename +
                          "; is the name used with another type in this process?");
   }
-  return t;
-}
-
-Result<dds_entity_t> create_writer(dds_entity_t participant, dds_entity_t topic,
-                                   const std::string& name, const Qos& qos) {
-  const dds_entity_t w = dds_create_writer(participant, topic, qos.get(), nullptr);
-  if (w < 0) return dds_error(topic_what("dds_create_writer", name), w);
-  return w;
-}
-
-Result<dds_entity_t> create_reader(dds_entity_t participant, dds_entity_t topic,
-                                   const std::string& name, const Qos& qos,
-                                   const dds_listener_t* listener = nullptr) {
-  const dds_entity_t r = dds_create_reader(participant, topic, qos.get(), listener);
+  const std::unique_ptr<Qos> qos = endpoint_qos(o, spec.durability, side);
+  if (side == Side::kWriter) {
+    const dds_entity_t w = dds_create_writer(participant, t, qos->get(), nullptr);
+    if (w < 0) return dds_error(topic_what("dds_create_writer", name), w);
+    return w;
+  }
+  const dds_entity_t r = dds_create_reader(participant, t, qos->get(), listener);
   if (r < 0) return dds_error(topic_what("dds_create_reader", name), r);
   return r;
 }
@@ -612,21 +629,12 @@ Result<std::unique_ptr<SkinPublisher>> SkinPublisher::create(const DdsOptions& o
   if (!participant.ok()) return participant.error();
   p->participant_ = *participant;
 
-  auto contacts_topic =
-      create_topic(p->participant_, &skin_msgs_msg_dds__ContactArray__desc, options.contacts_topic);
-  if (!contacts_topic.ok()) return contacts_topic.error();
   auto contacts_writer =
-      create_writer(p->participant_, *contacts_topic, options.contacts_topic,
-                    *endpoint_qos(options, Durability::kVolatile, Side::kWriter));
+      create_endpoint(p->participant_, options, TopicId::kContacts, Side::kWriter);
   if (!contacts_writer.ok()) return contacts_writer.error();
   p->contacts_writer_ = *contacts_writer;
-
-  auto status_topic = create_topic(p->participant_, &skin_msgs_msg_dds__PatchStatusArray__desc,
-                                   options.patch_status_topic);
-  if (!status_topic.ok()) return status_topic.error();
   auto status_writer =
-      create_writer(p->participant_, *status_topic, options.patch_status_topic,
-                    *endpoint_qos(options, Durability::kTransientLocal, Side::kWriter));
+      create_endpoint(p->participant_, options, TopicId::kPatchStatus, Side::kWriter);
   if (!status_writer.ok()) return status_writer.error();
   p->status_writer_ = *status_writer;
   return p;
@@ -777,21 +785,12 @@ Result<std::unique_ptr<SkinSubscriber>> SkinSubscriber::create(const DdsOptions&
   if (!participant.ok()) return participant.error();
   p->participant_ = *participant;
 
-  auto contacts_topic =
-      create_topic(p->participant_, &skin_msgs_msg_dds__ContactArray__desc, options.contacts_topic);
-  if (!contacts_topic.ok()) return contacts_topic.error();
   auto contacts_reader =
-      create_reader(p->participant_, *contacts_topic, options.contacts_topic,
-                    *endpoint_qos(options, Durability::kVolatile, Side::kReader));
+      create_endpoint(p->participant_, options, TopicId::kContacts, Side::kReader);
   if (!contacts_reader.ok()) return contacts_reader.error();
   p->contacts_reader_ = *contacts_reader;
-
-  auto status_topic = create_topic(p->participant_, &skin_msgs_msg_dds__PatchStatusArray__desc,
-                                   options.patch_status_topic);
-  if (!status_topic.ok()) return status_topic.error();
   auto status_reader =
-      create_reader(p->participant_, *status_topic, options.patch_status_topic,
-                    *endpoint_qos(options, Durability::kTransientLocal, Side::kReader));
+      create_endpoint(p->participant_, options, TopicId::kPatchStatus, Side::kReader);
   if (!status_reader.ok()) return status_reader.error();
   p->status_reader_ = *status_reader;
 
@@ -871,14 +870,10 @@ Result<std::unique_ptr<JointStateSubscriber>> JointStateSubscriber::create(
   if (!participant.ok()) return participant.error();
   p->participant_ = *participant;
 
-  auto topic = create_topic(p->participant_, &sensor_msgs_msg_dds__JointState__desc,
-                            options.joint_states_topic);
-  if (!topic.ok()) return topic.error();
   Listener listener(p.get());  // the object outlives the reader (the destructor deletes it)
   dds_lset_data_available(listener.get(), &JointStateSubscriber::on_data_available);
-  auto reader =
-      create_reader(p->participant_, *topic, options.joint_states_topic,
-                    *endpoint_qos(options, Durability::kVolatile, Side::kReader), listener.get());
+  auto reader = create_endpoint(p->participant_, options, TopicId::kJointStates, Side::kReader,
+                                listener.get());
   if (!reader.ok()) return reader.error();
   p->reader_ = *reader;
   auto ws = create_waitset(p->participant_);
@@ -977,11 +972,7 @@ Result<std::unique_ptr<JointStatePublisher>> JointStatePublisher::create(
   auto participant = create_participant(options, "skinbus joint state publisher");
   if (!participant.ok()) return participant.error();
   p->participant_ = *participant;
-  auto topic = create_topic(p->participant_, &sensor_msgs_msg_dds__JointState__desc,
-                            options.joint_states_topic);
-  if (!topic.ok()) return topic.error();
-  auto writer = create_writer(p->participant_, *topic, options.joint_states_topic,
-                              *endpoint_qos(options, Durability::kVolatile, Side::kWriter));
+  auto writer = create_endpoint(p->participant_, options, TopicId::kJointStates, Side::kWriter);
   if (!writer.ok()) return writer.error();
   p->writer_ = *writer;
   return p;

@@ -16,6 +16,7 @@
 #include "skinbus/estimators/lookup_estimator.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/estimators/physics_estimator.h"
+#include "skinbus/mlx90393/measurement.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/dataset.h"
 #ifdef SKINBUS_HAVE_TORCH
@@ -151,7 +152,7 @@ void write_bin_table(const std::vector<Measured>& rows, FILE* f) {
 }  // namespace
 
 std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n) {
-  const sim::Mlx90393Config& cfg = model.design().sensor_config;
+  const mlx90393::Config& cfg = model.design().sensor_config;
   const double nxy = sim::mlx90393_noise_xy_ut(cfg), nz = sim::mlx90393_noise_z_ut(cfg);
   std::vector<double> out(static_cast<std::size_t>(n));
   for (int r = 0; r < n; ++r) {

@@ -9,6 +9,7 @@
 #include <map>
 #include <optional>
 
+#include "skinbus/body_map/joint_map.h"
 #include "skinbus/bus/protocol.h"
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/model_file.h"
@@ -125,10 +126,8 @@ struct Aggregator::Impl {
   uint64_t q_at_us = 0;
   bool q_at_valid = false;  // q_at holds the pose at q_at_us for the current history
   JointHistory::Coverage q_at_coverage = JointHistory::Coverage::kEmpty;
-  std::vector<bool> prismatic;  // per joint
   bool joints_stale_reported = false;
-  std::vector<std::string> last_names;  // name -> index cache
-  std::vector<int> name_index;
+  body_map::JointMap joint_map;  // the last joint state's names onto q
 
   // The lag bound: the current episode of late samples.
   bool lag_episode = false;
@@ -231,13 +230,9 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
   impl->current_list.reserve(impl->current.size());
   if (robot != nullptr) {
     const std::size_t joints = static_cast<std::size_t>(robot->joint_count());
-    impl->prismatic.assign(joints, false);
     std::vector<bool> wrapping(joints, false);  // continuous joints
     for (const body_map::PatchPlacement& p : map->patches) {
       impl->link_of_placement.push_back(robot->find_link(p.link));
-    }
-    for (int j = 0; j < robot->joint_count(); ++j) {
-      impl->prismatic[static_cast<std::size_t>(j)] = robot->joint_is_prismatic(j);
     }
     for (int l = 0; l < robot->link_count(); ++l) {
       const body_map::LinkJoint& lj = robot->link(l).joint;
@@ -497,15 +492,11 @@ void Aggregator::set_joint_state(std::span<const std::string> names,
                                  bool prismatic_in_metres) {
   Impl& s = *impl_;
   if (!s.history) return;  // no robot
-  const bool same = names.size() == s.last_names.size() &&
-                    std::equal(names.begin(), names.end(), s.last_names.begin());
-  if (!same) {
-    s.last_names.assign(names.begin(), names.end());
-    s.name_index.resize(names.size());
-    for (std::size_t i = 0; i < names.size(); ++i) {
-      s.name_index[i] = s.robot->find_joint(names[i]);
-      if (s.name_index[i] < 0) ++s.stats.unknown_joints;
-    }
+  const body_map::PrismaticUnit unit = prismatic_in_metres ? body_map::PrismaticUnit::kMetres
+                                                           : body_map::PrismaticUnit::kMillimetres;
+  if (!s.joint_map.same_source(names, unit)) {
+    s.joint_map = body_map::JointMap(*s.robot, names, unit);
+    s.stats.unknown_joints += static_cast<uint64_t>(s.joint_map.unknown_count());
   }
   // The newest state (the zero pose before the first) with this state's joints set.
   const std::span<const double> newest = s.history->newest();
@@ -514,18 +505,7 @@ void Aggregator::set_joint_state(std::span<const std::string> names,
   } else {
     std::copy(newest.begin(), newest.end(), s.q_new.begin());
   }
-  const std::size_t n = std::min(names.size(), positions.size());
-  bool mapped = false;
-  for (std::size_t i = 0; i < n; ++i) {
-    const int j = s.name_index[i];
-    if (j < 0) continue;
-    const double scale =
-        prismatic_in_metres && s.prismatic[static_cast<std::size_t>(j)] ? 1000.0 : 1.0;
-    const double v = positions[i] * scale;
-    if (!std::isfinite(v)) continue;  // NaN, Inf, or a huge value that overflowed the scaling
-    s.q_new[static_cast<std::size_t>(j)] = v;
-    mapped = true;
-  }
+  const bool mapped = s.joint_map.apply(positions, s.q_new) > 0;
   if (!mapped) return;  // nothing this robot knows: still no kinematics (or the last known)
   if (s.history->add(stamp_us, s.q_new) == JointHistory::AddResult::kOutOfOrder) {
     ++s.stats.joint_states_out_of_order;

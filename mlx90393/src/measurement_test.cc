@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 
 namespace skinbus::mlx90393 {
 namespace {
@@ -42,6 +43,45 @@ TEST(Mlx90393Test, SensitivityConversionTimeQuantisationSaturation) {
   EXPECT_NEAR(field_ut(output_code(-300.0, 0.3, 2, &sat), 0.3, 2), -300.0, 1e-9);
   EXPECT_EQ(output_code(1e6, 0.15, 3, &sat), 16383 + 16384);
   EXPECT_TRUE(sat);
+}
+
+TEST(Mlx90393Test, OutputCodesRoundHalfAwayFromZeroAndSaturate) {
+  bool sat = true;
+  // Sensitivity 0.5 uT/LSB: fields that fall exactly between two codes.
+  EXPECT_EQ(output_code(0.25, 0.5, 0, &sat), 1);
+  EXPECT_FALSE(sat);
+  EXPECT_EQ(output_code(-0.25, 0.5, 0, &sat), -1);
+  EXPECT_EQ(output_code(0.75, 0.5, 0, &sat), 2);
+  EXPECT_EQ(output_code(0.2, 0.5, 0, &sat), 0);
+  // The last code inside the range is not saturated; one LSB more is.
+  EXPECT_EQ(output_code(32767 * 0.5, 0.5, 1, &sat), 32767);
+  EXPECT_FALSE(sat);
+  EXPECT_EQ(output_code(32768 * 0.5, 0.5, 1, &sat), 32767);
+  EXPECT_TRUE(sat);
+  EXPECT_EQ(output_code(-32768 * 0.5, 0.5, 2, &sat), 0);  // RES 2 reaches -32768
+  EXPECT_FALSE(sat);
+  EXPECT_EQ(output_code(-32769 * 0.5, 0.5, 2, &sat), 0);
+  EXPECT_TRUE(sat);
+  EXPECT_EQ(output_code(-16385 * 0.5, 0.5, 3, &sat), 0);  // RES 3: 15 bits
+  EXPECT_TRUE(sat);
+  EXPECT_EQ(output_code(std::numeric_limits<double>::infinity(), 0.5, 2, &sat), 32768);
+  EXPECT_TRUE(sat);
+}
+
+TEST(Mlx90393Test, CodeWordsRoundTrip) {
+  EXPECT_EQ(code_word(-1), 0xFFFF);
+  EXPECT_EQ(code_word(-32767), 0x8001);
+  EXPECT_EQ(code_from_word(0xFFFF, 0), -1);
+  EXPECT_EQ(code_from_word(0x8001, 1), -32767);
+  EXPECT_EQ(code_from_word(0xFFFF, 2), 65535);
+  EXPECT_EQ(code_from_word(0x8000, 3), 32768);
+  for (uint8_t res = 0; res <= 3; ++res) {
+    for (double f : {-1e9, -1234.5, -0.3, 0.0, 0.3, 1234.5, 1e9}) {
+      bool sat = false;
+      const int32_t code = output_code(f, 0.15, res, &sat);
+      EXPECT_EQ(code_from_word(code_word(code), res), code) << int{res} << " " << f;
+    }
+  }
 }
 
 TEST(Mlx90393Test, ConfigRangesAndClipLimits) {

@@ -177,7 +177,7 @@ Status Mlx90393::read_measurement(Mlx90393Reading* out) {
   for (int axis = 0; axis < 3; ++axis) {
     const uint16_t raw = static_cast<uint16_t>(in[1 + 2 * axis] << 8 | in[2 + 2 * axis]);
     const uint8_t res = axis == 2 ? c.res_z : c.res_xy;
-    const int32_t code = res <= 1 ? static_cast<int16_t>(raw) : static_cast<int32_t>(raw);
+    const int32_t code = m::code_from_word(raw, res);
     const double sens = axis == 2 ? m::sensitivity_z_ut(c) : m::sensitivity_xy_ut(c);
     out->code[axis] = code;
     out->field_ut[axis] = m::field_ut(code, sens, res);

@@ -68,7 +68,7 @@ std::array<uint16_t, 4> convert(const Setup& s, const sim::Vec3<double>& field_u
     bool saturated = false;
     const int32_t code = mlx::output_code(f[i], s.sensitivity_ut[static_cast<size_t>(i)],
                                           s.res[static_cast<size_t>(i)], &saturated);
-    codes[static_cast<size_t>(i) + 1] = static_cast<uint16_t>(code & 0xFFFF);  // two's complement
+    codes[static_cast<size_t>(i) + 1] = mlx::code_word(code);
   }
   return codes;
 }

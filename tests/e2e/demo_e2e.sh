@@ -4,11 +4,10 @@
 # sit at the right places on the moving body (tests/e2e/check_demo.py).
 #   tests/e2e/demo_e2e.sh BUILD_DIR
 set -euo pipefail
-build=$(cd "${1:?usage: demo_e2e.sh BUILD_DIR}" && pwd)
-src=$(cd "$(dirname "$0")/../.." && pwd)
-work=$(mktemp -d)
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 out=$work/demo
-trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
 "$src/scripts/demo.sh" --headless --no-setup --duration 15 --out "$out" >"$work/demo.txt" 2>&1 || {
   tail -30 "$work/demo.txt"
   exit 1

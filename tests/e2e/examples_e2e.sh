@@ -4,22 +4,13 @@
 # publishes from the same recording.
 #   tests/e2e/examples_e2e.sh BUILD_DIR
 set -euo pipefail
-build=$(cd "${1:?usage: examples_e2e.sh BUILD_DIR}" && pwd)
-src=$(cd "$(dirname "$0")/../.." && pwd)
-bin=$build/tools
-work=$(mktemp -d)
-cleanup() {
-  kill $(jobs -p) 2>/dev/null || true
-  if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi
-}
-trap cleanup EXIT
-cd "$work"
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
-source "$src/tests/e2e/e2e_lib.sh"
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 
 # One simulated patch (node 1 of the project's skin map), pressed 2 mm deep at (10, -20) mm.
 make_skin_map map.yaml
-uid=$(printf '0x5b%014x' 1)
+uid=$(patch_uid 1)
 printf '# t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node\n0.4,1.6,10,-20,2.0,5,1\n' \
   >presses.csv
 "$bin/skinbus-patchd" --sim -i none --candump-out bus.log --node 1 --uid "$uid" \
@@ -42,8 +33,7 @@ print(f"PASS estimate_recording: {len(deep)} deep samples, median ({u:.1f}, {v:.
 PY
 
 if [[ -x $build/examples/subscribe_contacts ]]; then
-  domain=$((RANDOM % 200 + 20))
-  use_loopback_dds
+  use_loopback_domain
   "$build/examples/subscribe_contacts" 8 "$domain" >sub.txt 2>sub.err &
   sub=$!
   sleep 1.5

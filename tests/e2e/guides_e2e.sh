@@ -5,16 +5,13 @@
 # those, the systemd units are checked with systemd-analyze verify.
 #   tests/e2e/guides_e2e.sh BUILD_DIR [GUIDE.md ...]
 set -euo pipefail
-build=$(cd "${1:?usage: guides_e2e.sh BUILD_DIR [GUIDE.md ...]}" && pwd)
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 shift
-src=$(cd "$(dirname "$0")/../.." && pwd)
 guides=("$@")
 ((${#guides[@]})) || guides=("$src"/docs/guides/*.md)
-work=$(mktemp -d)
-trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
 # Loopback-only DDS for the guides that publish.
-# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
-source "$src/tests/e2e/e2e_lib.sh"
 use_loopback_dds
 export PATH=$build/tools:$PATH
 fail=0

@@ -5,14 +5,9 @@
 # a real press, and every event visible in the patch status.
 #   tests/e2e/host_faults_e2e.sh BUILD_DIR
 set -euo pipefail
-build=$(cd "${1:?usage: host_faults_e2e.sh BUILD_DIR}" && pwd)
-src=$(cd "$(dirname "$0")/../.." && pwd)
-bin=$build/tools
-work=$(mktemp -d)
-trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
-cd "$work"
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
-source "$src/tests/e2e/e2e_lib.sh"
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 
 make_skin_map map.yaml
 cat >presses.csv <<'CSV'
@@ -20,15 +15,14 @@ cat >presses.csv <<'CSV'
 0.5,1.5,10,-20,2.0,5,1
 0.5,1.5,-30,35,2.5,5,2
 CSV
-uid() { printf '0x5b%014x' "$1"; }
 # Node 1 runs 2 s, falls silent for 5 s (stale), and comes back rebooted for 3 s.
 # Node 2 runs 8 s; from 3 s on, a second board (another UID) also uses node ID 2 for 3 s.
 # Node 3 runs 8 s untouched.
-"$bin/skinbus-patchd" --sim -i none --candump-out a1.log --node 1 --uid "$(uid 1)" --contacts presses.csv --duration 2 -q &
-"$bin/skinbus-patchd" --sim -i none --candump-out b1.log --node 1 --uid "$(uid 1)" --contacts presses.csv --duration 3 -q &
-"$bin/skinbus-patchd" --sim -i none --candump-out a2.log --node 2 --uid "$(uid 2)" --contacts presses.csv --duration 8 -q &
+"$bin/skinbus-patchd" --sim -i none --candump-out a1.log --node 1 --uid "$(patch_uid 1)" --contacts presses.csv --duration 2 -q &
+"$bin/skinbus-patchd" --sim -i none --candump-out b1.log --node 1 --uid "$(patch_uid 1)" --contacts presses.csv --duration 3 -q &
+"$bin/skinbus-patchd" --sim -i none --candump-out a2.log --node 2 --uid "$(patch_uid 2)" --contacts presses.csv --duration 8 -q &
 "$bin/skinbus-patchd" --sim -i none --candump-out x2.log --node 2 --uid 0x00000000deadbeef --presses-per-min 60 --duration 3 -q &
-"$bin/skinbus-patchd" --sim -i none --candump-out a3.log --node 3 --uid "$(uid 3)" --duration 8 -q &
+"$bin/skinbus-patchd" --sim -i none --candump-out a3.log --node 3 --uid "$(patch_uid 3)" --duration 8 -q &
 wait
 
 python3 - <<'PY'

@@ -11,25 +11,9 @@
 # events; every process exits with status 0.
 #   tests/e2e/host_joints_e2e.sh BUILD_DIR
 set -euo pipefail
-build=$(cd "${1:?usage: host_joints_e2e.sh BUILD_DIR}" && pwd)
-src=$(cd "$(dirname "$0")/../.." && pwd)
-bin=$build/tools
-urdf=$src/body_map/robots/skinbot.urdf
-work=$(mktemp -d)
-cleanup() {
-  # shellcheck disable=SC2046  # one PID per word
-  kill $(jobs -p) 2>/dev/null || true
-  if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi
-}
-trap cleanup EXIT
-cd "$work"
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
-source "$src/tests/e2e/e2e_lib.sh"
-fail() {
-  echo "FAIL $*"
-  for f in *.err; do echo "--- $f"; cat "$f"; done
-  exit 1
-}
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 
 # The skin map: the true layout skinbus-touchsim puts on the project's robot, every patch with
 # the shipped model (as host_replay_e2e.sh).
@@ -53,28 +37,11 @@ time_s,left_shoulder_pitch_joint,left_elbow_joint
 0,-0.6,0.6
 CSV
 
-for n in 1 2 3 4 5; do
-  uid=$(printf '0x5b%014x' "$n")
-  "$bin/skinbus-patchd" --sim -i none --candump-out "patch_$n.log" --node "$n" --uid "$uid" \
-    --contacts presses.csv --duration 8.5 -q &
-done
-wait
-sort -s -k1,1 patch_*.log >bus.log
+record_bus bus.log 8.5 "1 2 3 4 5" --contacts presses.csv
 
 # DDS on loopback only, in a domain of its own.
-domain=$((RANDOM % 200 + 20))
-use_loopback_dds
+use_loopback_domain
 echo "DDS domain $domain (loopback only)"
-
-# Waits up to $2 seconds for the pattern $1 in file $3, written by process $4.
-wait_for() {
-  local deadline=$((SECONDS + $2))
-  until grep -q "$1" "$3" 2>/dev/null; do
-    kill -0 "$4" 2>/dev/null || fail "the process writing $3 ended before '$1'"
-    ((SECONDS < deadline)) || fail "no '$1' in $3 within $2 s"
-    sleep 0.05
-  done
-}
 
 "$bin/skinbus-listen" --domain "$domain" --timeout 60 --status >listen.jsonl 2>listen.err &
 listener=$!
@@ -96,14 +63,14 @@ joints2=$!
 
 rc=0
 wait "$host" || rc=$?
-((rc == 0)) || fail "skinbus-host exited with status $rc"
+((rc == 0)) || fail_with_logs "skinbus-host exited with status $rc"
 rc=0
 wait "$joints1" || rc=$?
-((rc == 0)) || fail "the first skinbus-joints exited with status $rc"
+((rc == 0)) || fail_with_logs "the first skinbus-joints exited with status $rc"
 kill -TERM "$joints2" 2>/dev/null || true
 rc=0
 wait "$joints2" || rc=$?
-((rc == 0)) || fail "the second skinbus-joints exited with status $rc (SIGTERM: 0 expected)"
+((rc == 0)) || fail_with_logs "the second skinbus-joints exited with status $rc (SIGTERM: 0 expected)"
 sleep 1
 kill "$listener" 2>/dev/null || true
 wait "$listener" 2>/dev/null || true
@@ -112,7 +79,7 @@ cat host.err joints1.err joints2.err
 t0=$(sed -n 's/.*time zero \([0-9]*\) us.*/\1/p' joints1.err)
 stop=$(sed -n 's/.*the last stamped \([0-9]*\) us.*/\1/p' joints1.err)
 t1=$(sed -n 's/.*time zero \([0-9]*\) us.*/\1/p' joints2.err)
-[[ -n $t0 && -n $stop && -n $t1 ]] || fail "the publishers did not print their times"
+[[ -n $t0 && -n $stop && -n $t1 ]] || fail_with_logs "the publishers did not print their times"
 press=$(awk -F, '!/^#/ {print $7, $3, $4}' presses.csv)
 
 "$src/tests/e2e/check_joint_stream.py" listen.jsonl --reference host.jsonl \

@@ -11,25 +11,9 @@
 # the status topic; its latency stayed within the bound.
 #   tests/e2e/host_lag_e2e.sh BUILD_DIR
 set -euo pipefail
-build=$(cd "${1:?usage: host_lag_e2e.sh BUILD_DIR}" && pwd)
-src=$(cd "$(dirname "$0")/../.." && pwd)
-bin=$build/tools
-urdf=$src/body_map/robots/skinbot.urdf
-work=$(mktemp -d)
-cleanup() {
-  # shellcheck disable=SC2046  # one PID per word
-  kill $(jobs -p) 2>/dev/null || true
-  if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi
-}
-trap cleanup EXIT
-cd "$work"
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
-source "$src/tests/e2e/e2e_lib.sh"
-fail() {
-  echo "FAIL $*"
-  for f in *.err; do echo "--- $f"; cat "$f"; done
-  exit 1
-}
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 max_lag_ms=100
 delay_us=${LAG_MODEL_DELAY_US:-40000}
 
@@ -52,19 +36,8 @@ CSV
   done
 } >arms.csv
 
-domain=$((RANDOM % 200 + 20))
-use_loopback_dds
+use_loopback_domain
 echo "DDS domain $domain (loopback only); every estimate delayed by $delay_us us"
-
-# Waits up to $2 seconds for the pattern $1 in file $3, written by process $4.
-wait_for() {
-  local deadline=$((SECONDS + $2))
-  until grep -q "$1" "$3" 2>/dev/null; do
-    kill -0 "$4" 2>/dev/null || fail "the process writing $3 ended before '$1'"
-    ((SECONDS < deadline)) || fail "no '$1' in $3 within $2 s"
-    sleep 0.05
-  done
-}
 
 "$bin/skinbus-listen" --domain "$domain" --timeout 60 --status >listen.jsonl 2>listen.err &
 listener=$!
@@ -85,7 +58,7 @@ sleep 0.5  # the listener matched, the arms are moving
 (  # a subshell: its `wait` is for the daemons alone
   for n in 1 2 3 4 5 6; do
     "$bin/skinbus-patchd" --sim -i none --candump-out - --node "$n" \
-      --uid "$(printf '0x5b%014x' "$n")" --contacts presses.csv --duration 6 -q &
+      --uid "$(patch_uid "$n")" --contacts presses.csv --duration 6 -q &
   done
   wait
 ) >bus.fifo 3>&-
@@ -93,7 +66,7 @@ exec 3>&-  # the last write end: the host reads to the end and exits
 
 rc=0
 wait "$host" || rc=$?
-((rc == 0)) || fail "skinbus-host exited with status $rc"
+((rc == 0)) || fail_with_logs "skinbus-host exited with status $rc"
 kill -TERM "$joints" 2>/dev/null || true
 wait "$joints" || true
 sleep 1
@@ -102,7 +75,7 @@ wait "$listener" 2>/dev/null || true
 cat host.err
 
 t0=$(sed -n 's/.*time zero \([0-9]*\) us.*/\1/p' joints.err)
-[[ -n $t0 ]] || fail "skinbus-joints did not print its time zero"
+[[ -n $t0 ]] || fail_with_logs "skinbus-joints did not print its time zero"
 "$src/tests/e2e/check_lag.py" listen.jsonl --host-log host.err --locate "$bin/skinbus-locate" \
   --map map.yaml --presses presses.csv --trajectory arms.csv --start "$t0" \
   --max-lag-ms "$max_lag_ms"

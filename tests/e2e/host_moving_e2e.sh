@@ -6,14 +6,9 @@
 # the rejection is what holds the accuracy.
 #   tests/e2e/host_moving_e2e.sh BUILD_DIR
 set -euo pipefail
-build=$(cd "${1:?usage: host_moving_e2e.sh BUILD_DIR}" && pwd)
-src=$(cd "$(dirname "$0")/../.." && pwd)
-bin=$build/tools
-work=$(mktemp -d)
-trap 'if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi' EXIT
-cd "$work"
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
-source "$src/tests/e2e/e2e_lib.sh"
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 
 make_skin_map map.yaml
 cat >swing.yaml <<'YAML'
@@ -26,12 +21,7 @@ cat >presses.csv <<'CSV'
 0.5,7.5,10,-20,2.0,5,1
 0.5,7.5,-30,35,2.5,5,2
 CSV
-for n in 1 2; do
-  "$bin/skinbus-patchd" --sim --config swing.yaml -i none --candump-out "patch_$n.log" --node "$n" \
-    --uid "$(printf '0x5b%014x' "$n")" --contacts presses.csv --duration 8 -q &
-done
-wait
-sort -s -k1,1 patch_*.log >bus.log
+record_bus bus.log 8 "1 2" --config swing.yaml --contacts presses.csv
 awk -F, '!/^#/ {print $7, $3, $4}' presses.csv | "$bin/skinbus-locate" --map map.yaml - >truth.txt
 
 status=0

@@ -5,18 +5,9 @@
 # where the scene pressed, in the robot's base frame, within the model's error.
 #   tests/e2e/host_replay_e2e.sh BUILD_DIR
 set -euo pipefail
-build=$(cd "${1:?usage: host_replay_e2e.sh BUILD_DIR}" && pwd)
-src=$(cd "$(dirname "$0")/../.." && pwd)
-bin=$build/tools
-work=$(mktemp -d)
-cleanup() {
-  kill $(jobs -p) 2>/dev/null || true
-  if [[ ${KEEP:-0} == 1 ]]; then echo "kept $work"; else rm -rf "$work"; fi
-}
-trap cleanup EXIT
-cd "$work"
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
-source "$src/tests/e2e/e2e_lib.sh"
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
 
 # The skin map: the true layout skinbus-touchsim puts on the project's robot (cylinder patches
 # on the forearms, flat ones on the chest), every patch with the shipped model.
@@ -35,17 +26,10 @@ time_s,left_shoulder_pitch_joint,left_elbow_joint,right_elbow_joint
 CSV
 
 # Five simulated patch daemons (event mode), each with the hardware UID the map gives it.
-for n in 1 2 3 4 5; do
-  uid=$(printf '0x5b%014x' "$n")
-  "$bin/skinbus-patchd" --sim -i none --candump-out "patch_$n.log" --node "$n" --uid "$uid" \
-    --contacts presses.csv --duration 3 -q &
-done
-wait
-sort -s -k1,1 patch_*.log >bus.log
+record_bus bus.log 3 "1 2 3 4 5" --contacts presses.csv
 
 # DDS on loopback only, in a domain of its own.
-domain=$((RANDOM % 200 + 20))
-use_loopback_dds
+use_loopback_domain
 echo "DDS domain $domain (loopback only)"
 
 "$bin/skinbus-listen" --domain "$domain" --timeout 30 --status >listen.jsonl 2>listen.err &

@@ -121,7 +121,7 @@ struct AggregatorStats {
   uint64_t rejected = 0;         // estimates the model rejected (dead, saturated, ...)
   uint64_t no_contact = 0;       // estimates placed outside the patch or without depth
   uint64_t model_runs = 0;       // batched runs
-  uint64_t unknown_joints = 0;   // joint names not in the robot model
+  uint64_t unknown_joints = 0;   // joint names neither a joint nor a mimic joint of the robot
   uint64_t joint_states_out_of_order = 0;  // stamped before the newest joint state: ignored
   // Contacts published with a pose the joint-state history did not cover (flagged), counted per
   // publication.
@@ -148,8 +148,9 @@ class Aggregator {
 
   // Joint positions by name, measured at host time `stamp_us` (the state's own stamp, not when it
   // arrived): radians for revolute joints; prismatic joints in millimetres (as RobotModel) or,
-  // with `prismatic_in_metres` (ROS 2 JointState), metres. Feed states in stamp order; one older
-  // than the newest is ignored (counted), one with the same stamp merges into it. O(names +
+  // with `prismatic_in_metres` (ROS 2 JointState), metres; names as body_map::JointMap maps them
+  // (mimic joints follow their leader, unknown names are counted). Feed states in stamp order; one
+  // older than the newest is ignored (counted), one with the same stamp merges into it. O(names +
   // joints); allocates only when the list of names changes.
   void set_joint_state(std::span<const std::string> names, std::span<const double> positions,
                        uint64_t stamp_us, bool prismatic_in_metres = false);

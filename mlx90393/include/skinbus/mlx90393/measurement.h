@@ -47,6 +47,14 @@ double conversion_time_us(const Config& c);
 // field gives the zero-field code, saturated).
 int32_t output_code(double field_ut, double sensitivity_ut, uint8_t res, bool* saturated);
 double field_ut(int32_t code, double sensitivity_ut, uint8_t res);
+// The 16-bit word the chip sends for an output code and back: RES 0/1 codes are two's
+// complement (the word 0xFFFF is code -1), RES 2/3 codes are the word itself.
+constexpr uint16_t code_word(int32_t code) {
+  return static_cast<uint16_t>(code & 0xFFFF);
+}
+constexpr int32_t code_from_word(uint16_t word, uint8_t res) {
+  return res <= 1 ? static_cast<int32_t>(static_cast<int16_t>(word)) : static_cast<int32_t>(word);
+}
 // True if `code` sits at a clip limit of resolution `res` (what output_code returns for a
 // saturated field): a reading there only bounds the field.
 bool code_at_limit(int32_t code, uint8_t res);

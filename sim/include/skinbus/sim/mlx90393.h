@@ -14,10 +14,6 @@
 
 namespace skinbus::sim {
 
-// The chip's settings under the name the simulator's callers have used for
-// PatchDesign::sensor_config (tools/); new code names mlx90393::Config.
-using Mlx90393Config = mlx90393::Config;
-
 // Noise anchor (assumption): RMS at OSR = 0, DIG_FILT = 0 (3 ADC samples per axis).
 inline constexpr double kMlx90393NoiseXyAnchorUt = 1.4;
 inline constexpr double kMlx90393NoiseZAnchorUt = 2.3;
