@@ -121,9 +121,11 @@ int log_load(const std::string& log_path, const BusTiming& t, double interval_ms
   }
   if (f != stdin) std::fclose(f);
   if (reader.read_error() != 0) {
-    std::fprintf(stderr, "skinbus-budget: %s: read failed after line %" PRIu64 ": %s\n",
-                 log_path.c_str(), reader.line_number(), std::strerror(reader.read_error()));
-    return 1;
+    return skinbus::tools::fail("skinbus-budget",
+                                log_path + ": read failed after line " +
+                                    std::to_string(reader.line_number()) + ": " +
+                                    std::strerror(reader.read_error()),
+                                1);
   }
   const bool csv = !csv_path.empty();
   std::string csv_text;  // written whole at the end (a temporary file, renamed)

@@ -256,13 +256,11 @@ int main(int argc, char** argv) {
       }
     }
     if (!write(residuals_path, csv)) {
-      std::fprintf(stderr, "skinbus-calibrate: cannot write %s\n", residuals_path.c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-calibrate", "cannot write " + residuals_path, 1);
     }
   }
   if (!report_path.empty() && !write(report_path, report)) {
-    std::fprintf(stderr, "skinbus-calibrate: cannot write %s\n", report_path.c_str());
-    return 1;
+    return skinbus::tools::fail("skinbus-calibrate", "cannot write " + report_path, 1);
   }
   if (report_path.empty()) std::fputs(report.c_str(), stdout);
   if (!out_path.empty()) {
@@ -281,9 +279,8 @@ int main(int argc, char** argv) {
     const std::string cmd = "'" + script + "' '" + residuals_path + "' '" + plot_path + "' " +
                             fmt("%.6g", o.outlier_sigma);
     if (std::system(cmd.c_str()) != 0) {
-      std::fprintf(stderr, "skinbus-calibrate: the plot failed (%s); map and report are written\n",
-                   cmd.c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-calibrate",
+                                  "the plot failed (" + cmd + "); map and report are written", 1);
     }
   }
   return refused ? 3 : 0;

@@ -191,8 +191,8 @@ int main(int argc, char** argv) {
     }
     std::fflush(stdout);
     if (acks == 0) {
-      std::fprintf(stderr, "skinbus-cmd: no acknowledgement within %d ms\n", timeout_ms);
-      return 1;
+      return skinbus::tools::fail(
+          "skinbus-cmd", "no acknowledgement within " + std::to_string(timeout_ms) + " ms", 1);
     }
     return nacks == 0 ? 0 : 1;
   } catch (const std::invalid_argument& e) {

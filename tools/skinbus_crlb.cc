@@ -76,15 +76,13 @@ int main(int argc, char** argv) {
   if (!design_path.empty()) {
     skinbus::Result<PatchDesign> d = read_design_file(design_path);
     if (!d.ok()) {
-      std::fprintf(stderr, "skinbus-crlb: %s\n", d.error().to_string().c_str());
-      return 2;
+      return skinbus::tools::fail("skinbus-crlb", d.error().to_string(), 2);
     }
     design = d.value();
   }
   auto model = PatchModel::nominal(design);
   if (!model.ok()) {
-    std::fprintf(stderr, "skinbus-crlb: %s\n", model.error().message.c_str());
-    return 1;
+    return skinbus::tools::fail("skinbus-crlb", model.error().message, 1);
   }
   const skinbus::mlx90393::Config& cfg = model->design().sensor_config;
   if (noise_xy <= 0) noise_xy = mlx90393_noise_xy_ut(cfg);
@@ -137,8 +135,7 @@ int main(int argc, char** argv) {
     try {
       skinbus::tools::write_output(csv, out, "CRLB table");
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "skinbus-crlb: %s\n", e.what());
-      return 1;
+      return skinbus::tools::fail("skinbus-crlb", e.what(), 1);
     }
   }
   return 0;

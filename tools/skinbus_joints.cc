@@ -109,22 +109,19 @@ int main(int argc, char** argv) {
 
   auto traj = body_map::load_joint_trajectory(trajectory_path);
   if (!traj.ok()) {
-    std::fprintf(stderr, "skinbus-joints: %s\n", traj.error().to_string().c_str());
-    return kExitFailed;
+    return skinbus::tools::fail("skinbus-joints", traj.error().to_string(), kExitFailed);
   }
   // Per column: the factor from the file's unit to the wire's (1e-3 for prismatic joints).
   std::vector<double> scale(traj->names.size(), 1.0);
   if (!robot_path.empty()) {
     auto robot = body_map::RobotModel::from_urdf_file(robot_path);
     if (!robot.ok()) {
-      std::fprintf(stderr, "skinbus-joints: %s\n", robot.error().to_string().c_str());
-      return kExitFailed;
+      return skinbus::tools::fail("skinbus-joints", robot.error().to_string(), kExitFailed);
     }
     const body_map::JointMap wire(*robot, traj->names, body_map::PrismaticUnit::kMetres);
     if (Status st = wire.check_all_joints(); !st.ok()) {
-      std::fprintf(stderr, "skinbus-joints: %s: %s\n", trajectory_path.c_str(),
-                   st.error().message.c_str());
-      return kExitUsage;
+      return skinbus::tools::fail("skinbus-joints", trajectory_path + ": " + st.error().message,
+                                  kExitUsage);
     }
     for (std::size_t i = 0; i < traj->names.size(); ++i) scale[i] = 1.0 / wire.to_model(i);
   }
@@ -132,8 +129,7 @@ int main(int argc, char** argv) {
   tools::install_stop_handler();
   auto pub = dds::JointStatePublisher::create(options);
   if (!pub.ok()) {
-    std::fprintf(stderr, "skinbus-joints: %s\n", pub.error().to_string().c_str());
-    return kExitFailed;
+    return skinbus::tools::fail("skinbus-joints", pub.error().to_string(), kExitFailed);
   }
   using Clock = std::chrono::steady_clock;
   if (wait_match_s >= 0) {
@@ -142,14 +138,15 @@ int main(int argc, char** argv) {
     for (;;) {
       auto n = (*pub)->matched_subscribers();
       if (!n.ok()) {
-        std::fprintf(stderr, "skinbus-joints: %s\n", n.error().to_string().c_str());
-        return kExitFailed;
+        return skinbus::tools::fail("skinbus-joints", n.error().to_string(), kExitFailed);
       }
       if (*n > 0) break;
       if (Clock::now() >= deadline) {
-        std::fprintf(stderr, "skinbus-joints: no subscriber of %s matched within %g s\n",
-                     options.joint_states_topic.c_str(), wait_match_s);
-        return kExitFailed;
+        return skinbus::tools::fail("skinbus-joints",
+                                    "no subscriber of " + options.joint_states_topic +
+                                        " matched within " +
+                                        skinbus::tools::format_g(wait_match_s) + " s",
+                                    kExitFailed);
       }
       if (!sleep_until(std::min(deadline, Clock::now() + std::chrono::milliseconds(20)))) {
         return 0;  // Ctrl-C before anything was published
@@ -206,8 +203,7 @@ int main(int argc, char** argv) {
                      st.error().to_string().c_str(), dropped);
       }
     } else {
-      std::fprintf(stderr, "skinbus-joints: %s\n", st.error().to_string().c_str());
-      return kExitFailed;
+      return skinbus::tools::fail("skinbus-joints", st.error().to_string(), kExitFailed);
     }
   }
   if (!quiet) {

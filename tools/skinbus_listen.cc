@@ -162,9 +162,11 @@ int main(int argc, char** argv) {
       if (*r) break;
       if (tools::stop_requested()) return 1;
       if (timed_out()) {
-        std::fprintf(stderr, "skinbus-listen: no publisher of %s matched within %g s\n",
-                     options.contacts_topic.c_str(), timeout_s);
-        return 1;
+        return skinbus::tools::fail("skinbus-listen",
+                                    "no publisher of " + options.contacts_topic +
+                                        " matched within " + skinbus::tools::format_g(timeout_s) +
+                                        " s",
+                                    1);
       }
     }
     std::fprintf(stderr, "skinbus-listen: matched a publisher of %s\n",

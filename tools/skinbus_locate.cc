@@ -43,8 +43,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   auto map = body_map::load_skin_map_file(map_path);
   if (!map) {
-    std::fprintf(stderr, "skinbus-locate: %s\n", map.error().to_string().c_str());
-    return 1;
+    return skinbus::tools::fail("skinbus-locate", map.error().to_string(), 1);
   }
   if (robot_path.empty()) robot_path = body_map::path_beside(map_path, map->robot);
   std::unique_ptr<body_map::RobotModel> robot;
@@ -52,8 +51,7 @@ int main(int argc, char** argv) {
   if (!robot_path.empty()) {
     auto r = body_map::RobotModel::from_urdf_file(robot_path);
     if (!r) {
-      std::fprintf(stderr, "skinbus-locate: %s\n", r.error().to_string().c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-locate", r.error().to_string(), 1);
     }
     robot = std::make_unique<body_map::RobotModel>(std::move(*r));
   }
@@ -61,18 +59,16 @@ int main(int argc, char** argv) {
   body_map::JointMap columns;  // the trajectory's columns onto the robot's q
   if (!joints_path.empty()) {
     if (!robot) {
-      std::fprintf(stderr, "skinbus-locate: --joints needs a robot (the map's or --robot)\n");
-      return 2;
+      return skinbus::tools::fail("skinbus-locate", "--joints needs a robot (the map's or --robot)",
+                                  2);
     }
     auto t = body_map::load_joint_trajectory(joints_path);
     if (!t) {
-      std::fprintf(stderr, "skinbus-locate: %s\n", t.error().to_string().c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-locate", t.error().to_string(), 1);
     }
     columns = body_map::JointMap(*robot, t->names, body_map::PrismaticUnit::kMillimetres);
     if (Status st = columns.check_all_joints(); !st.ok()) {
-      std::fprintf(stderr, "skinbus-locate: %s\n", st.error().message.c_str());
-      return 2;
+      return skinbus::tools::fail("skinbus-locate", st.error().message, 2);
     }
     traj = std::move(*t);
   }
@@ -87,8 +83,7 @@ int main(int argc, char** argv) {
     }
     poses.resize(static_cast<std::size_t>(robot->link_count()));
     if (Status st = robot->forward_kinematics(q, poses); !st.ok()) {
-      std::fprintf(stderr, "skinbus-locate: %s\n", st.error().to_string().c_str());
-      return false;
+      return skinbus::tools::fail("skinbus-locate", st.error().to_string(), false);
     }
     return true;
   };
@@ -142,12 +137,10 @@ int main(int argc, char** argv) {
     try {
       ok = locate(std::stoi(point[0]), std::stod(point[1]), std::stod(point[2]));
     } catch (const std::exception&) {
-      std::fprintf(stderr, "skinbus-locate: NODE U_MM V_MM must be numbers\n");
-      return 2;
+      return skinbus::tools::fail("skinbus-locate", "NODE U_MM V_MM must be numbers", 2);
     }
   } else {
-    std::fprintf(stderr, "skinbus-locate: give NODE U_MM V_MM or '-' (see --help)\n");
-    return 2;
+    return skinbus::tools::fail("skinbus-locate", "give NODE U_MM V_MM or '-' (see --help)", 2);
   }
   return ok ? 0 : 1;
 }

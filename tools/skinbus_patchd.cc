@@ -407,8 +407,8 @@ int main(int argc, char** argv) {
     if (expect && expect != stdout) std::fclose(expect);
     return 0;
   } catch (const ConfigError& e) {
-    std::fprintf(stderr, "skinbus-patchd: bad settings: %s\n", e.what());
-    return kExitConfig;
+    return skinbus::tools::fail("skinbus-patchd", std::string("bad settings: ") + e.what(),
+                                kExitConfig);
   } catch (const std::exception& e) {
     return skinbus::tools::fail("skinbus-patchd", e.what(), kExitDevice);
   }

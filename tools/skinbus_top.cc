@@ -211,30 +211,26 @@ int main(int argc, char** argv) {
 
   auto map = body_map::load_skin_map_file(map_path);
   if (!map) {
-    std::fprintf(stderr, "skinbus-top: %s\n", map.error().to_string().c_str());
-    return 1;
+    return skinbus::tools::fail("skinbus-top", map.error().to_string(), 1);
   }
   std::unique_ptr<body_map::RobotModel> robot;
   if (!map->robot.empty()) {
     auto r = body_map::RobotModel::from_urdf_file(body_map::path_beside(map_path, map->robot));
     if (!r) {
-      std::fprintf(stderr, "skinbus-top: %s\n", r.error().to_string().c_str());
-      return 1;
+      return skinbus::tools::fail("skinbus-top", r.error().to_string(), 1);
     }
     robot = std::make_unique<body_map::RobotModel>(std::move(*r));
   }
   dds::DdsOptions o;
   if (domain >= 0) o.domain_id = static_cast<uint32_t>(domain);
   if (Status st = dds::apply_namespace(&o, ns); !st.ok()) {
-    std::fprintf(stderr, "skinbus-top: %s\n", st.error().to_string().c_str());
-    return 2;
+    return skinbus::tools::fail("skinbus-top", st.error().to_string(), 2);
   }
   auto sub = dds::SkinSubscriber::create(o);
   auto joints = dds::JointStateSubscriber::create(o);
   if (!sub || !joints) {
-    std::fprintf(stderr, "skinbus-top: %s\n",
-                 (!sub ? sub.error() : joints.error()).to_string().c_str());
-    return 1;
+    return skinbus::tools::fail("skinbus-top", (!sub ? sub.error() : joints.error()).to_string(),
+                                1);
   }
   View v{*map, robot.get(), {}, {}, {}, {}, 0, 0};
   body_map::JointMap joint_map;  // the joint states' names onto q

@@ -45,6 +45,13 @@ inline int exit_status(const Error& e) {
   return status;
 }
 
+// `x` as printf's %g writes it (for messages).
+inline std::string format_g(double x) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", x);
+  return buf;
+}
+
 // fail() for an Error value: "tool: code: message", and exit_status(e).
 [[nodiscard]] inline int report_error(const char* tool, const Error& e) {
   return fail(tool, e.to_string(), exit_status(e));
