@@ -62,6 +62,15 @@ void print_table(const ContactArray& a, bool* header_done) {
   tools::check_stdout("skinbus-listen", /*flush=*/true);
 }
 
+void print_table(const DiagnosticArray& d) {
+  std::printf("%-12s diagnostics: %zu patches\n", clock_text(d.stamp_us).c_str(), d.status.size());
+  for (const PatchDiagnostic& p : d.status) {
+    std::printf("  %-5s %-32s %s\n", std::string(diagnostic_level_name(p.level)).c_str(),
+                p.name.c_str(), p.message.c_str());
+  }
+  tools::check_stdout("skinbus-listen", /*flush=*/true);
+}
+
 void print_table(const PatchStatusArray& s) {
   const std::string t = clock_text(s.stamp_us);
   std::printf("%-12s status: %zu patches, %zu events\n", t.c_str(), s.patches.size(),
@@ -107,11 +116,14 @@ int main(int argc, char** argv) {
       "  skinbus-listen | jq -c '.contacts[] | {track_id, force_n}'"};
   int domain = -1, count = 0;
   double timeout_s = 0;
-  bool status = false, table = false, wait_match = false;
+  bool status = false, diagnostics = false, table = false, wait_match = false;
   DdsOptions options;
   app.add_option("--domain", domain, "DDS domain id 0..232 (default: CYCLONEDDS_URI's, else 0)")
       ->check(CLI::Range(0, 232));
   app.add_flag("--status", status, "also print rt/skin/patch_status (patches and events)");
+  app.add_flag("--diagnostics", diagnostics,
+               "also print rt/diagnostics (each patch's health as diagnostic_msgs/DiagnosticArray: "
+               "OK, WARN, ERROR or STALE with the reasons)");
   app.add_flag("--table", table, "print a compact table instead of JSON lines");
   app.add_option("--count", count, "exit after N contact arrays (0: run until Ctrl-C)")
       ->check(CLI::NonNegativeNumber)
@@ -129,6 +141,8 @@ int main(int argc, char** argv) {
       "--namespace", ns,
       "the publishing host's --namespace: topics rt/NS/skin/... (docs/guides/scaling.md)");
   app.add_option("--contacts-topic", options.contacts_topic, "DDS topic of the contacts")
+      ->capture_default_str();
+  app.add_option("--diagnostics-topic", options.diagnostics_topic, "DDS topic of the diagnostics")
       ->capture_default_str();
   app.add_option("--status-topic", options.patch_status_topic, "DDS topic of the patch status")
       ->capture_default_str();
@@ -177,16 +191,19 @@ int main(int argc, char** argv) {
   bool anything = false, header_done = false;
   ContactArray contacts;
   PatchStatusArray patch_status;
+  DiagnosticArray health;
+  // Diagnostics are written with every patch status: waiting for either wakes for both.
+  const bool more = status || diagnostics;
   while (!tools::stop_requested()) {
     // Without --status only the contacts are waited for (status samples stay unread in the
     // reader's bounded history); with it, whichever comes first.
-    if (status) {
+    if (more) {
       auto w = (*sub)->wait_any(kSliceMs);
       if (!w.ok()) {
         return skinbus::tools::fail("skinbus-listen", w.error().to_string(), 1);
       }
     }
-    for (int wait_ms = status ? 0 : kSliceMs;; wait_ms = 0) {
+    for (int wait_ms = more ? 0 : kSliceMs;; wait_ms = 0) {
       auto r = (*sub)->wait_contacts(&contacts, wait_ms);
       if (!r.ok()) {
         std::fprintf(stderr, "skinbus-listen: %s\n", r.error().to_string().c_str());
@@ -217,6 +234,22 @@ int main(int argc, char** argv) {
         print_table(patch_status);
       } else {
         print_line(patch_status_to_json(patch_status));
+      }
+    }
+    while (diagnostics) {
+      auto r = (*sub)->wait_diagnostics(&health, 0);
+      if (!r.ok()) {
+        std::fprintf(stderr, "skinbus-listen: %s\n", r.error().to_string().c_str());
+        if (sample_error(r.error())) continue;
+        return 1;
+      }
+      if (!*r) break;
+      anything = true;
+      last_activity = Clock::now();
+      if (table) {
+        print_table(health);
+      } else {
+        print_line(diagnostics_to_json(health));
       }
     }
     if (timed_out()) {

@@ -19,6 +19,9 @@ namespace skinbus::dds {
 
 using host::BodyContact;
 using host::ContactArray;
+using host::DiagnosticArray;
+using host::DiagnosticLevel;
+using host::DiagnosticValue;
 using host::kContactAmbientLarge;
 using host::kContactDepthRange;
 using host::kContactMaskedChannels;
@@ -27,6 +30,7 @@ using host::kContactNoKinematics;
 using host::kContactOutsidePatch;
 using host::kContactStaleKinematics;
 using host::kContactUnmapped;
+using host::PatchDiagnostic;
 using host::PatchEvent;
 using host::PatchEventKind;
 using host::PatchLinkState;
@@ -40,6 +44,13 @@ static_assert(std::is_same_v<dds_entity_t, int32_t>);
 // IDL) are those of contacts.h.
 #define SKINBUS_SAME_CONSTANT(idl_name, value) \
   static_assert((idl_name) == static_cast<uint32_t>(value), #idl_name)
+SKINBUS_SAME_CONSTANT(diagnostic_msgs_msg_dds__DiagnosticStatus_Constants_OK, DiagnosticLevel::kOk);
+SKINBUS_SAME_CONSTANT(diagnostic_msgs_msg_dds__DiagnosticStatus_Constants_WARN,
+                      DiagnosticLevel::kWarn);
+SKINBUS_SAME_CONSTANT(diagnostic_msgs_msg_dds__DiagnosticStatus_Constants_ERROR,
+                      DiagnosticLevel::kError);
+SKINBUS_SAME_CONSTANT(diagnostic_msgs_msg_dds__DiagnosticStatus_Constants_STALE,
+                      DiagnosticLevel::kStale);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_STALE_KINEMATICS,
                       kContactStaleKinematics);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_NO_KINEMATICS,
@@ -109,6 +120,9 @@ using PatchEventMsg = skin_msgs_msg_dds__PatchEvent_;
 using PatchStatusArrayMsg = skin_msgs_msg_dds__PatchStatusArray_;
 using JointStateMsg = sensor_msgs_msg_dds__JointState_;
 using TimeMsg = builtin_interfaces_msg_dds__Time_;
+using KeyValueMsg = diagnostic_msgs_msg_dds__KeyValue_;
+using DiagnosticStatusMsg = diagnostic_msgs_msg_dds__DiagnosticStatus_;
+using DiagnosticArrayMsg = diagnostic_msgs_msg_dds__DiagnosticArray_;
 
 constexpr uint8_t kPatchLinkStateMax = static_cast<uint8_t>(PatchLinkState::kOffline);
 constexpr uint8_t kPatchEventKindMax = static_cast<uint8_t>(PatchEventKind::kLogTime);
@@ -210,6 +224,7 @@ Status check_options(const DdsOptions& o) {
                       "DdsOptions::domain_id " + std::to_string(o.domain_id) +
                           ": must be 0..232 (Cyclone DDS's port mapping)");
   }
+  // diagnostics_topic may be empty: no diagnostics.
   for (const std::string* t : {&o.contacts_topic, &o.patch_status_topic, &o.joint_states_topic}) {
     if (t->empty()) return make_error(ErrorCode::kInvalidArgument, "DdsOptions: empty topic name");
   }
@@ -235,7 +250,7 @@ Result<dds_entity_t> create_participant(const DdsOptions& o, const char* entity_
 
 // ---- topics ---------------------------------------------------------------------------------
 
-enum class TopicId { kContacts, kPatchStatus, kJointStates };
+enum class TopicId { kContacts, kPatchStatus, kJointStates, kDiagnostics };
 
 // What a topic is: its type, where DdsOptions names it, the durability of its endpoints.
 struct TopicSpec {
@@ -250,6 +265,8 @@ constexpr TopicSpec kTopics[] = {
     {&skin_msgs_msg_dds__PatchStatusArray__desc, &DdsOptions::patch_status_topic,
      Durability::kTransientLocal},
     {&sensor_msgs_msg_dds__JointState__desc, &DdsOptions::joint_states_topic,
+     Durability::kVolatile},
+    {&diagnostic_msgs_msg_dds__DiagnosticArray__desc, &DdsOptions::diagnostics_topic,
      Durability::kVolatile},
 };
 
@@ -566,6 +583,32 @@ Result<PatchStatusArray> from_msg(const PatchStatusArrayMsg& m, const std::strin
   return out;
 }
 
+Result<DiagnosticArray> from_msg(const DiagnosticArrayMsg& m, const std::string& topic) {
+  const std::string what = "received " + topic;
+  DiagnosticArray out;
+  auto stamp = from_time(m.header.stamp, what + ": header.stamp");
+  if (!stamp.ok()) return stamp.error();
+  out.stamp_us = *stamp;
+  out.status.resize(m.status._length);
+  for (uint32_t i = 0; i < m.status._length; ++i) {
+    const DiagnosticStatusMsg& d = m.status._buffer[i];
+    PatchDiagnostic& o = out.status[i];
+    if (d.level > static_cast<uint8_t>(DiagnosticLevel::kStale)) {
+      return make_error(ErrorCode::kParse, what + ": status[" + std::to_string(i) + "].level " +
+                                               std::to_string(d.level) + " is unknown");
+    }
+    o.level = static_cast<DiagnosticLevel>(d.level);
+    o.name = from_c_str(d.name);
+    o.message = from_c_str(d.message);
+    o.hardware_id = from_c_str(d.hardware_id);
+    o.values.resize(d.values._length);
+    for (uint32_t k = 0; k < d.values._length; ++k) {
+      o.values[k] = {from_c_str(d.values._buffer[k].key), from_c_str(d.values._buffer[k].value)};
+    }
+  }
+  return out;
+}
+
 // Takes the oldest valid sample of `reader` and converts it with from_msg: true if one was
 // taken, false if the reader holds none (samples without data, e.g. "no writers", are skipped).
 template <typename Msg, typename Out>
@@ -637,6 +680,11 @@ Result<std::unique_ptr<SkinPublisher>> SkinPublisher::create(const DdsOptions& o
       create_endpoint(p->participant_, options, TopicId::kPatchStatus, Side::kWriter);
   if (!status_writer.ok()) return status_writer.error();
   p->status_writer_ = *status_writer;
+  if (!options.diagnostics_topic.empty()) {
+    auto w = create_endpoint(p->participant_, options, TopicId::kDiagnostics, Side::kWriter);
+    if (!w.ok()) return w.error();
+    p->diagnostics_writer_ = *w;
+  }
   return p;
 }
 
@@ -766,13 +814,42 @@ Status SkinPublisher::publish(const PatchStatusArray& status) {
   msg.header.frame_id = c_str(kEmpty);
   set_sequence(&msg.patches, patches);
   set_sequence(&msg.events, events);
-  return write(status_writer_, &msg, options_.patch_status_topic);
+  if (Status st = write(status_writer_, &msg, options_.patch_status_topic); !st.ok()) return st;
+  if (diagnostics_writer_ == 0) return Status::Ok();
+
+  // The patches' health: the strings live in `health` until the write returns.
+  const DiagnosticArray health = diagnose(status);
+  std::vector<std::vector<KeyValueMsg>> values(health.status.size());
+  std::vector<DiagnosticStatusMsg> items(health.status.size());
+  for (std::size_t i = 0; i < items.size(); ++i) {
+    const PatchDiagnostic& d = health.status[i];
+    for (const DiagnosticValue& v : d.values) values[i].push_back({c_str(v.key), c_str(v.value)});
+    items[i].level = static_cast<uint8_t>(d.level);
+    items[i].name = c_str(d.name);
+    items[i].message = c_str(d.message);
+    items[i].hardware_id = c_str(d.hardware_id);
+    set_sequence(&items[i].values, values[i]);
+  }
+  DiagnosticArrayMsg diag{};
+  diag.header.stamp = *stamp;
+  diag.header.frame_id = c_str(kEmpty);
+  set_sequence(&diag.status, items);
+  return write(diagnostics_writer_, &diag, options_.diagnostics_topic);
 }
 
 Result<uint32_t> SkinPublisher::matched_subscribers(SkinTopic topic) const {
-  return topic == SkinTopic::kContacts
-             ? matched_readers(contacts_writer_, options_.contacts_topic)
-             : matched_readers(status_writer_, options_.patch_status_topic);
+  switch (topic) {
+    case SkinTopic::kContacts:
+      return matched_readers(contacts_writer_, options_.contacts_topic);
+    case SkinTopic::kPatchStatus:
+      return matched_readers(status_writer_, options_.patch_status_topic);
+    case SkinTopic::kDiagnostics:
+      break;
+  }
+  if (diagnostics_writer_ == 0) {
+    return make_error(ErrorCode::kUnsupported, "diagnostics are off (empty diagnostics_topic)");
+  }
+  return matched_readers(diagnostics_writer_, options_.diagnostics_topic);
 }
 
 // ---- SkinSubscriber --------------------------------------------------------------------------
@@ -811,6 +888,22 @@ Result<std::unique_ptr<SkinSubscriber>> SkinSubscriber::create(const DdsOptions&
                             options.patch_status_topic)}) {
     if (!s.ok()) return s.error();
   }
+  if (!options.diagnostics_topic.empty()) {
+    auto r = create_endpoint(p->participant_, options, TopicId::kDiagnostics, Side::kReader);
+    if (!r.ok()) return r.error();
+    p->diagnostics_reader_ = *r;
+    for (int32_t* ws : {&p->diagnostics_waitset_, &p->diagnostics_match_waitset_}) {
+      auto w = create_waitset(p->participant_);
+      if (!w.ok()) return w.error();
+      *ws = *w;
+    }
+    for (Status s : {attach_read_condition(p->diagnostics_waitset_, p->diagnostics_reader_,
+                                           options.diagnostics_topic),
+                     attach_match_status(p->diagnostics_match_waitset_, p->diagnostics_reader_,
+                                         options.diagnostics_topic)}) {
+      if (!s.ok()) return s.error();
+    }
+  }
   return p;
 }
 
@@ -829,6 +922,14 @@ Result<bool> SkinSubscriber::wait_patch_status(PatchStatusArray* out, int timeou
                                         options_.patch_status_topic, out, timeout_ms);
 }
 
+Result<bool> SkinSubscriber::wait_diagnostics(DiagnosticArray* out, int timeout_ms) {
+  if (diagnostics_reader_ == 0) {
+    return make_error(ErrorCode::kUnsupported, "diagnostics are off (empty diagnostics_topic)");
+  }
+  return wait_take<DiagnosticArrayMsg>(diagnostics_reader_, diagnostics_waitset_,
+                                       options_.diagnostics_topic, out, timeout_ms);
+}
+
 Result<bool> SkinSubscriber::wait_any(int timeout_ms) {
   const dds_return_t rc = dds_waitset_wait(any_waitset_, nullptr, 0, to_duration(timeout_ms));
   if (rc < 0) return dds_error("dds_waitset_wait", rc);
@@ -836,10 +937,21 @@ Result<bool> SkinSubscriber::wait_any(int timeout_ms) {
 }
 
 Result<bool> SkinSubscriber::wait_for_publisher(SkinTopic topic, int timeout_ms) {
-  return topic == SkinTopic::kContacts ? wait_matched(contacts_match_waitset_, contacts_reader_,
-                                                      timeout_ms, options_.contacts_topic)
-                                       : wait_matched(status_match_waitset_, status_reader_,
-                                                      timeout_ms, options_.patch_status_topic);
+  switch (topic) {
+    case SkinTopic::kContacts:
+      return wait_matched(contacts_match_waitset_, contacts_reader_, timeout_ms,
+                          options_.contacts_topic);
+    case SkinTopic::kPatchStatus:
+      return wait_matched(status_match_waitset_, status_reader_, timeout_ms,
+                          options_.patch_status_topic);
+    case SkinTopic::kDiagnostics:
+      break;
+  }
+  if (diagnostics_reader_ == 0) {
+    return make_error(ErrorCode::kUnsupported, "diagnostics are off (empty diagnostics_topic)");
+  }
+  return wait_matched(diagnostics_match_waitset_, diagnostics_reader_, timeout_ms,
+                      options_.diagnostics_topic);
 }
 
 // ---- JointStateSubscriber --------------------------------------------------------------------

@@ -42,6 +42,7 @@ namespace skinbus::dds {
 using host::BodyContact;
 using host::contact_flag_names;
 using host::ContactArray;
+using host::DiagnosticArray;
 using host::PatchEvent;
 using host::PatchEventKind;
 using host::PatchLinkState;
@@ -121,6 +122,7 @@ DdsOptions test_options(const std::string& tag) {
     o.contacts_topic += suffix;
     o.patch_status_topic += suffix;
     o.joint_states_topic += suffix;
+    o.diagnostics_topic += suffix;
   }
   return o;
 }
@@ -322,6 +324,58 @@ TEST(DdsTest, PatchStatusReachesALateJoiner) {
   // And the contacts topic (volatile) has nothing for it.
   ContactArray none;
   EXPECT_FALSE(must(sub->wait_contacts(&none, 0)));
+}
+
+TEST(DdsTest, DiagnosticsFollowEveryPatchStatus) {
+  const DdsOptions o = test_options("diagnostics");
+  auto pub = must(SkinPublisher::create(o));
+  auto sub = must(SkinSubscriber::create(o));
+  ASSERT_TRUE(must(sub->wait_for_publisher(SkinTopic::kDiagnostics, kMatchTimeoutMs)));
+  wait_publisher_matched(*pub, SkinTopic::kDiagnostics);
+
+  PatchStatusArray sent = sample_status(now_us());
+  ASSERT_GE(sent.patches.size(), 2u);
+  sent.patches[0].state = host::PatchLinkState::kDegraded;
+  sent.patches[0].fault_mask = 0x0009;  // sensors 0 and 3
+  sent.patches[0].duplicate_id = false;
+  sent.patches[0].clock_drift_ppm = 3;
+  sent.patches[1].state = host::PatchLinkState::kStale;
+  Status s = pub->publish(sent);
+  ASSERT_TRUE(s.ok()) << s.error().to_string();
+
+  const DiagnosticArray want = host::diagnose(sent);
+  DiagnosticArray got;
+  ASSERT_TRUE(must(sub->wait_diagnostics(&got, kMatchTimeoutMs)));
+  EXPECT_EQ(got.stamp_us, want.stamp_us);
+  ASSERT_EQ(got.status.size(), want.status.size());
+  for (std::size_t i = 0; i < want.status.size(); ++i) {
+    SCOPED_TRACE("status " + std::to_string(i));
+    EXPECT_EQ(got.status[i].level, want.status[i].level);
+    EXPECT_EQ(got.status[i].name, want.status[i].name);
+    EXPECT_EQ(got.status[i].message, want.status[i].message);
+    EXPECT_EQ(got.status[i].hardware_id, want.status[i].hardware_id);
+    ASSERT_EQ(got.status[i].values.size(), want.status[i].values.size());
+    for (std::size_t k = 0; k < want.status[i].values.size(); ++k) {
+      EXPECT_EQ(got.status[i].values[k].key, want.status[i].values[k].key);
+      EXPECT_EQ(got.status[i].values[k].value, want.status[i].values[k].value);
+    }
+  }
+  EXPECT_EQ(got.status[0].level, host::DiagnosticLevel::kWarn);
+  EXPECT_EQ(got.status[1].level, host::DiagnosticLevel::kStale);
+}
+
+TEST(DdsTest, DiagnosticsCanBeTurnedOff) {
+  DdsOptions o = test_options("nodiagnostics");
+  o.diagnostics_topic.clear();
+  auto pub = must(SkinPublisher::create(o));
+  auto sub = must(SkinSubscriber::create(o));
+  Status s = pub->publish(sample_status(now_us()));
+  ASSERT_TRUE(s.ok()) << s.error().to_string();
+  DiagnosticArray got;
+  Result<bool> r = sub->wait_diagnostics(&got, 0);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kUnsupported);
+  EXPECT_FALSE(pub->matched_subscribers(SkinTopic::kDiagnostics).ok());
 }
 
 TEST(DdsTest, NonFiniteValuesAreRefused) {
@@ -787,7 +841,17 @@ TEST(DdsMessagesTest, StandardTypesHaveTheRos2Layouts) {
         {"sequence<string>", "name", ""},
         {"sequence<double>", "position", ""},
         {"sequence<double>", "velocity", ""},
-        {"sequence<double>", "effort", ""}}}};
+        {"sequence<double>", "effort", ""}}},
+      {"diagnostic_msgs::msg::dds_::KeyValue_", {{"string", "key", ""}, {"string", "value", ""}}},
+      {"diagnostic_msgs::msg::dds_::DiagnosticStatus_",
+       {{"octet", "level", ""},
+        {"string", "name", ""},
+        {"string", "message", ""},
+        {"string", "hardware_id", ""},
+        {"sequence<diagnostic_msgs::msg::dds_::KeyValue_>", "values", ""}}},
+      {"diagnostic_msgs::msg::dds_::DiagnosticArray_",
+       {{"std_msgs::msg::dds_::Header_", "header", ""},
+        {"sequence<diagnostic_msgs::msg::dds_::DiagnosticStatus_>", "status", ""}}}};
   for (const auto& [name, fields] : want) {
     auto it = idl.structs.find(name);
     ASSERT_NE(it, idl.structs.end()) << name;

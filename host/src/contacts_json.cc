@@ -102,4 +102,22 @@ std::string patch_status_to_json(const PatchStatusArray& s) {
   return j.dump(-1, ' ', false, Json::error_handler_t::replace);
 }
 
+std::string diagnostics_to_json(const DiagnosticArray& d) {
+  Json j;
+  j["type"] = "diagnostics";
+  j["stamp_us"] = d.stamp_us;
+  Json status = Json::array();
+  for (const PatchDiagnostic& p : d.status) {
+    Json values = Json::object();
+    for (const DiagnosticValue& v : p.values) values[v.key] = v.value;
+    status.push_back({{"level", std::string(diagnostic_level_name(p.level))},
+                      {"name", p.name},
+                      {"message", p.message},
+                      {"hardware_id", p.hardware_id},
+                      {"values", std::move(values)}});
+  }
+  j["status"] = std::move(status);
+  return j.dump();
+}
+
 }  // namespace skinbus::host

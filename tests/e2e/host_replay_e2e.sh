@@ -32,7 +32,7 @@ record_bus bus.log 3 "1 2 3 4 5" --contacts presses.csv
 use_loopback_domain
 echo "DDS domain $domain (loopback only)"
 
-"$bin/skinbus-listen" --domain "$domain" --timeout 30 --status >listen.jsonl 2>listen.err &
+"$bin/skinbus-listen" --domain "$domain" --timeout 30 --status --diagnostics >listen.jsonl 2>listen.err &
 listener=$!
 sleep 1.5
 "$bin/skinbus-host" --map map.yaml --replay bus.log --joints joints.csv --domain "$domain" \
@@ -47,3 +47,26 @@ awk -F, '!/^#/ {print $7, $3, $4}' presses.csv | "$bin/skinbus-locate" --map map
   --joints joints.csv - >truth.txt
 
 "$src/tests/e2e/check_contacts.py" truth.txt listen.jsonl --reference host.jsonl
+
+# The patches' health on rt/diagnostics, as another process received it: all five patches, OK
+# once they are online (the replay has no faults), named by node and link.
+python3 - listen.jsonl <<'PY'
+import json, sys
+last = None
+for line in open(sys.argv[1]):
+    j = json.loads(line)
+    if j.get("type") == "diagnostics":
+        last = j
+if last is None:
+    sys.exit("no diagnostics line received")
+names = sorted(s["name"] for s in last["status"])
+levels = {s["name"]: s["level"] for s in last["status"]}
+print("diagnostics:", levels)
+if len(names) != 5 or not all(n.startswith("skinbus patch ") for n in names):
+    sys.exit("expected the five patches, got %s" % names)
+bad = {n: l for n, l in levels.items() if l != "OK"}
+if bad:
+    sys.exit("patches not OK: %s" % bad)
+if any(s["values"].get("dead_sensors") != "none" for s in last["status"]):
+    sys.exit("dead sensors reported on healthy patches")
+PY

@@ -54,6 +54,7 @@
 
 #include "skinbus/common/result.h"
 #include "skinbus/host/contacts.h"
+#include "skinbus/host/diagnostics.h"
 
 namespace skinbus::dds {
 
@@ -69,6 +70,9 @@ struct DdsOptions {
   std::string contacts_topic = "rt/skin/contacts";
   std::string patch_status_topic = "rt/skin/patch_status";
   std::string joint_states_topic = "rt/joint_states";
+  // Each patch's health as diagnostic_msgs/DiagnosticArray (host/diagnostics.h), written with
+  // every patch status; ROS 2 tools read /diagnostics. Empty: not published.
+  std::string diagnostics_topic = "rt/diagnostics";
   // Keep-last depth of every reader and writer (ROS 2's default is 10). >= 1.
   int history_depth = 10;
   // How long publish() may block on a reliable subscriber that lags, ms (>= 0).
@@ -77,15 +81,16 @@ struct DdsOptions {
 
 // Puts the skin topics under a ROS 2 namespace: "arm_left" gives rt/arm_left/skin/contacts and
 // rt/arm_left/skin/patch_status (ROS 2: /arm_left/skin/...), so several hosts share a domain
-// (docs/guides/scaling.md). rt/joint_states is left alone: every host reads the robot's. The
-// namespace is one or more names of [A-Za-z][A-Za-z0-9_]* separated by '/'; a leading or
+// (docs/guides/scaling.md). rt/joint_states and rt/diagnostics are left alone: every host reads
+// the robot's joint states, and ROS 2 gathers diagnostics on one topic (names tell the patches).
+// The namespace is one or more names of [A-Za-z][A-Za-z0-9_]* separated by '/'; a leading or
 // trailing '/' is ignored; empty leaves the options unchanged. kInvalidArgument otherwise.
 Status apply_namespace(DdsOptions* options, std::string_view ns);
 
-// The two topics SkinPublisher writes and SkinSubscriber reads.
-enum class SkinTopic { kContacts, kPatchStatus };
+// The topics SkinPublisher writes and SkinSubscriber reads.
+enum class SkinTopic { kContacts, kPatchStatus, kDiagnostics };
 
-// Writes rt/skin/contacts and rt/skin/patch_status.
+// Writes rt/skin/contacts, rt/skin/patch_status and rt/diagnostics.
 class SkinPublisher {
  public:
   // Creates the participant, topics and writers. Errors name the DDS call that failed.
@@ -102,6 +107,8 @@ class SkinPublisher {
   Status publish(const host::ContactArray& contacts);
   // Publishes on rt/skin/patch_status (transient-local: late joiners get it too): us -> s for
   // clock_offset_us, times -> Time, state and event kind as number and name. Errors as above.
+  // Then, unless diagnostics_topic is empty, the same patches' health (host::diagnose) on
+  // rt/diagnostics as diagnostic_msgs/DiagnosticArray (volatile, as ROS 2's diagnostics).
   Status publish(const host::PatchStatusArray& status);
 
   // Readers currently matched on `topic` (local and remote).
@@ -113,6 +120,7 @@ class SkinPublisher {
   int32_t participant_ = 0;  // dds_entity_t; owns everything below
   int32_t contacts_writer_ = 0;
   int32_t status_writer_ = 0;
+  int32_t diagnostics_writer_ = 0;  // 0 when diagnostics_topic is empty
 };
 
 // Reads rt/skin/contacts and rt/skin/patch_status and converts back to contacts.h units
@@ -134,6 +142,9 @@ class SkinSubscriber {
   // The same for rt/skin/patch_status (transient-local: right after create() this may return
   // publications made before this subscriber existed).
   Result<bool> wait_patch_status(host::PatchStatusArray* out, int timeout_ms);
+  // The same for rt/diagnostics (kUnsupported when diagnostics_topic is empty). A level outside
+  // OK..STALE from a foreign publisher is kParse.
+  Result<bool> wait_diagnostics(host::DiagnosticArray* out, int timeout_ms);
   // Waits up to `timeout_ms` until either topic has a sample to take: true if one has.
   Result<bool> wait_any(int timeout_ms);
 
@@ -147,6 +158,9 @@ class SkinSubscriber {
   int32_t participant_ = 0;
   int32_t contacts_reader_ = 0;
   int32_t status_reader_ = 0;
+  int32_t diagnostics_reader_ = 0;   // 0 when diagnostics_topic is empty
+  int32_t diagnostics_waitset_ = 0;  // diagnostics_reader_'s read condition
+  int32_t diagnostics_match_waitset_ = 0;
   int32_t contacts_waitset_ = 0;        // contacts_reader_'s read condition
   int32_t status_waitset_ = 0;          // status_reader_'s read condition
   int32_t any_waitset_ = 0;             // both

@@ -6,6 +6,8 @@
 //    "hardware_uid":"5eed000000000003","link":"r_forearm","u_mm":..,"v_mm":..,
 //    "uncertainty_mm":..,"patch_count":1,"flags":["stale_kinematics",...]}]}
 //   {"type":"patch_status","stamp_us":...,"patches":[...],"events":[...]}
+//   {"type":"diagnostics","stamp_us":...,"status":[{"level":"WARN","name":"skinbus patch 3",
+//    "message":"...","hardware_id":"5eed000000000003","values":{"state":"degraded",...}}]}
 //
 // Units as in contacts.h (millimetres, microseconds); UIDs as 16 hex digits. docs/aggregator.md
 // lists every key.
@@ -16,6 +18,7 @@
 #include <vector>
 
 #include "skinbus/host/contacts.h"
+#include "skinbus/host/diagnostics.h"
 
 namespace skinbus::host {
 
@@ -24,5 +27,6 @@ std::vector<std::string> contact_flag_names(uint32_t flags);
 
 std::string contacts_to_json(const ContactArray& a);          // one line, no newline
 std::string patch_status_to_json(const PatchStatusArray& s);  // one line, no newline
+std::string diagnostics_to_json(const DiagnosticArray& d);    // one line, no newline
 
 }  // namespace skinbus::host
