@@ -16,6 +16,8 @@ packages=(
   libtorch-dev libopenblas0-openmp libdnnl-dev
   # host aggregator: Eclipse Cyclone DDS (C API and idlc)
   cyclonedds-dev cyclonedds-tools
+  # the DDS interoperability test's peer: eProsima Fast DDS, ROS 2's default middleware
+  libfastrtps-dev libfastcdr-dev
   # fuzzing (libFuzzer ships with clang's runtime)
   clang libclang-rt-14-dev
   # CAN: can-utils are the real peer in tests; the kernel tests boot Debian's kernel in QEMU
