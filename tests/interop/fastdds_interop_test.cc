@@ -129,7 +129,7 @@ uint64_t time_us(const json& t) {
          t.at("nanosec").get<uint64_t>() / 1000u;
 }
 
-TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsAndStatus) {
+TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsStatusAndDiagnostics) {
   const uint64_t seed = test_seed("FastDdsInterop.Contacts");
   const uint32_t domain = setup_loopback(seed);
   DdsOptions o;
@@ -172,6 +172,10 @@ TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsAndStatus) {
     ContactArray a = random_contacts(rng, t0 + k * 1000, 1 + static_cast<int>(k % 3));
     ASSERT_TRUE((*pub)->publish(a).ok());
     sent.emplace(a.stamp_us, std::move(a));
+    // The status again now and then: the diagnostics written with it are volatile.
+    if (k % 4 == 0) {
+      ASSERT_TRUE((*pub)->publish(status).ok());
+    }
     peer.drain();
     exited = waitpid(peer.pid, &wstatus, WNOHANG) == peer.pid;
     if (!exited) std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -189,10 +193,26 @@ TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsAndStatus) {
 
   std::istringstream lines(peer.printed);
   std::string line;
-  int arrays = 0, statuses = 0;
+  int arrays = 0, statuses = 0, diagnostics = 0;
+  const host::DiagnosticArray health = host::diagnose(status);
   while (std::getline(lines, line)) {
     SCOPED_TRACE(line);
     const json j = json::parse(line);
+    if (j.at("type") == "diagnostics") {
+      ++diagnostics;
+      EXPECT_EQ(time_us(j.at("stamp")), status.stamp_us);
+      ASSERT_EQ(j.at("status").size(), 1u);
+      const json& d = j.at("status")[0];
+      const host::PatchDiagnostic& w = health.status[0];
+      EXPECT_EQ(d.at("level"), static_cast<int>(w.level));
+      EXPECT_EQ(d.at("level"), 1) << "WARN: degraded with dead sensors";
+      EXPECT_EQ(d.at("name"), w.name);
+      EXPECT_EQ(d.at("message"), w.message);
+      EXPECT_EQ(d.at("hardware_id"), w.hardware_id);
+      ASSERT_EQ(d.at("values").size(), w.values.size());
+      for (const host::DiagnosticValue& v : w.values) EXPECT_EQ(d.at("values").at(v.key), v.value);
+      continue;
+    }
     if (j.at("type") == "patch_status") {
       ++statuses;
       EXPECT_EQ(time_us(j.at("stamp")), status.stamp_us);
@@ -256,6 +276,7 @@ TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsAndStatus) {
   }
   EXPECT_GE(arrays, 3);
   EXPECT_GE(statuses, 1);
+  EXPECT_GE(diagnostics, 1);
 }
 
 TEST(FastDdsInterop, JointStatesFromAFastDdsPublisherReachTheHostsSubscriber) {

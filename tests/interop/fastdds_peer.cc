@@ -4,9 +4,10 @@
 // sensor_msgs definitions), serialized with Fast CDR: nothing of the project's IDL or code.
 //
 //   fastdds_peer listen DOMAIN COUNT TIMEOUT_S
-//       subscribes to rt/skin/contacts and rt/skin/patch_status (reliable; the status transient
-//       local) and prints each sample as one JSON line (SI units as on the wire); exits 0 after
-//       COUNT contact arrays and one patch status, 1 on timeout.
+//       subscribes to rt/skin/contacts, rt/skin/patch_status (reliable; the status transient
+//       local) and rt/diagnostics, and prints each sample as one JSON line (SI units as on the
+//       wire); exits 0 after COUNT contact arrays, one patch status and one diagnostic array, 1
+//       on timeout.
 //   fastdds_peer joints DOMAIN SECONDS NAME=POSITION...
 //       publishes sensor_msgs/JointState on rt/joint_states at 50 Hz for SECONDS, stamped with
 //       CLOCK_REALTIME.
@@ -95,6 +96,18 @@ struct PatchStatusArray {  // skin_msgs/PatchStatusArray
   std::vector<PatchStatus> patches;
   std::vector<PatchEvent> events;
 };
+struct KeyValue {  // diagnostic_msgs/KeyValue
+  std::string key, value;
+};
+struct DiagnosticStatus {  // diagnostic_msgs/DiagnosticStatus
+  uint8_t level = 0;       // byte
+  std::string name, message, hardware_id;
+  std::vector<KeyValue> values;
+};
+struct DiagnosticArray {  // diagnostic_msgs/DiagnosticArray
+  Header header;
+  std::vector<DiagnosticStatus> status;
+};
 struct JointState {  // sensor_msgs/JointState
   Header header;
   std::vector<std::string> name;
@@ -132,6 +145,17 @@ void read_sequence(Cdr& c, std::vector<T>& v) {
   c >> n;
   v.resize(n);
   for (T& x : v) read(c, x);
+}
+void read(Cdr& c, KeyValue& m) {
+  c >> m.key >> m.value;
+}
+void read(Cdr& c, DiagnosticStatus& m) {
+  c >> m.level >> m.name >> m.message >> m.hardware_id;
+  read_sequence(c, m.values);
+}
+void read(Cdr& c, DiagnosticArray& m) {
+  read(c, m.header);
+  read_sequence(c, m.status);
 }
 void read(Cdr& c, ContactArray& m) {
   read(c, m.header);
@@ -269,6 +293,22 @@ std::string to_json(const PatchStatusArray& a) {
   return o + "]}";
 }
 
+std::string to_json(const DiagnosticArray& a) {
+  std::string o =
+      "{\"type\":\"diagnostics\",\"stamp\":" + time_json(a.header.stamp) + ",\"status\":[";
+  for (std::size_t i = 0; i < a.status.size(); ++i) {
+    const DiagnosticStatus& d = a.status[i];
+    o += std::string(i ? "," : "") + "{\"level\":" + std::to_string(d.level) +
+         ",\"name\":" + quoted(d.name) + ",\"message\":" + quoted(d.message) +
+         ",\"hardware_id\":" + quoted(d.hardware_id) + ",\"values\":{";
+    for (std::size_t k = 0; k < d.values.size(); ++k) {
+      o += std::string(k ? "," : "") + quoted(d.values[k].key) + ":" + quoted(d.values[k].value);
+    }
+    o += "}}";
+  }
+  return o + "]}";
+}
+
 // ---- the participant ------------------------------------------------------------------------
 
 fdds::DomainParticipant* make_participant(uint32_t domain) {
@@ -300,8 +340,13 @@ int listen(uint32_t domain, int count, double timeout_s) {
   fdds::TypeSupport contacts_type(new Type<ContactArray>("skin_msgs::msg::dds_::ContactArray_"));
   fdds::TypeSupport status_type(
       new Type<PatchStatusArray>("skin_msgs::msg::dds_::PatchStatusArray_"));
+  fdds::TypeSupport diagnostics_type(
+      new Type<DiagnosticArray>("diagnostic_msgs::msg::dds_::DiagnosticArray_"));
   contacts_type.register_type(p);
   status_type.register_type(p);
+  diagnostics_type.register_type(p);
+  fdds::Topic* dt =
+      p->create_topic("rt/diagnostics", diagnostics_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
   fdds::Topic* ct =
       p->create_topic("rt/skin/contacts", contacts_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
   fdds::Topic* st =
@@ -316,10 +361,11 @@ int listen(uint32_t domain, int count, double timeout_s) {
   sq.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
   fdds::DataReader* cr = sub->create_datareader(ct, cq);
   fdds::DataReader* sr = sub->create_datareader(st, sq);
-  if (ct == nullptr || st == nullptr || cr == nullptr || sr == nullptr) return 3;
+  fdds::DataReader* dr = dt != nullptr ? sub->create_datareader(dt, cq) : nullptr;
+  if (ct == nullptr || st == nullptr || cr == nullptr || sr == nullptr || dr == nullptr) return 3;
   std::fprintf(stderr, "fastdds_peer: listening on domain %u\n", domain);
 
-  int contacts_seen = 0, status_seen = 0;
+  int contacts_seen = 0, status_seen = 0, diagnostics_seen = 0;
   const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
   while (std::chrono::steady_clock::now() < end) {
     ContactArray a;
@@ -335,13 +381,19 @@ int listen(uint32_t domain, int count, double timeout_s) {
       std::printf("%s\n", to_json(s).c_str());
       ++status_seen;
     }
+    DiagnosticArray d;
+    while (dr->take_next_sample(&d, &info) == ReturnCode_t::RETCODE_OK) {
+      if (!info.valid_data) continue;
+      std::printf("%s\n", to_json(d).c_str());
+      ++diagnostics_seen;
+    }
     std::fflush(stdout);
-    if (contacts_seen >= count && status_seen > 0) break;
+    if (contacts_seen >= count && status_seen > 0 && diagnostics_seen > 0) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
   p->delete_contained_entities();
   fdds::DomainParticipantFactory::get_instance()->delete_participant(p);
-  return contacts_seen >= count && status_seen > 0 ? 0 : 1;
+  return contacts_seen >= count && status_seen > 0 && diagnostics_seen > 0 ? 0 : 1;
 }
 
 int joints(uint32_t domain, double seconds, const std::vector<std::string>& pairs) {
