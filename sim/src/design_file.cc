@@ -27,6 +27,24 @@ void read_grid(YamlReader& r, const YAML::Node& grid, const std::string& path, i
   r.get_double(grid, "pitch_mm", path + ".", 1e-3, kMaxLengthMm, pitch_mm);
 }
 
+// A YAML sequence of mappings at `path`: calls `entry(node, "path[k].")` for each.
+template <typename F>
+void read_list(YamlReader& r, const YAML::Node& list, const std::string& path, std::size_t max,
+               F entry) {
+  if (!list || r.error) return;
+  if (!list.IsSequence() || list.size() == 0) {
+    r.fail(path, list, "expected a non-empty list");
+    return;
+  }
+  if (list.size() > max) {
+    r.fail(path, list, "more than " + std::to_string(max) + " entries");
+    return;
+  }
+  for (std::size_t k = 0; k < list.size() && !r.error; ++k) {
+    entry(list[k], path + "[" + std::to_string(k) + "]");
+  }
+}
+
 Result<PatchDesign> parse_root(const YAML::Node& root) {
   YamlReader r;
   PatchDesign d;
@@ -57,8 +75,11 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
   }
   if (const YAML::Node m = root["magnets"]; m && !r.error) {
     r.only(m, "magnets",
-           {"grid", "polarity", "diameter_mm", "height_mm", "remanence_t", "centre_height_mm",
-            "remanence_tempco_per_c"});
+           {"grid", "list", "polarity", "diameter_mm", "height_mm", "remanence_t",
+            "centre_height_mm", "remanence_tempco_per_c"});
+    if (!r.error && m["grid"] && m["list"]) {
+      r.fail("magnets.list", m["list"], "give the magnets as a grid or as a list, not both");
+    }
     read_grid(r, m["grid"], "magnets.grid", &d.magnets_u, &d.magnets_v, &d.magnet_pitch_mm);
     std::string polarity = d.polarity == Polarity::kUniform ? "uniform" : "checkerboard";
     r.get_string(m, "polarity", "magnets.", &polarity);
@@ -73,11 +94,42 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
     r.get_double(m, "centre_height_mm", "magnets.", -kMaxLengthMm, kMaxLengthMm,
                  &d.magnet_centre_height_mm);
     r.get_double(m, "remanence_tempco_per_c", "magnets.", -0.1, 0.1, &d.remanence_tempco_per_c);
+    // After centre_height_mm: an entry without its own height takes it.
+    read_list(r, m["list"], "magnets.list", 4096, [&](const YAML::Node& e, const std::string& at) {
+      r.only(e, at, {"u_mm", "v_mm", "centre_height_mm", "polarity"});
+      MagnetPlacement mp;
+      mp.centre_height_mm = d.magnet_centre_height_mm;
+      r.get_double(e, "u_mm", at + ".", -kMaxLengthMm, kMaxLengthMm, &mp.u_mm);
+      r.get_double(e, "v_mm", at + ".", -kMaxLengthMm, kMaxLengthMm, &mp.v_mm);
+      r.get_double(e, "centre_height_mm", at + ".", -kMaxLengthMm, kMaxLengthMm,
+                   &mp.centre_height_mm);
+      r.get_int(e, "polarity", at + ".", -1, 1, &mp.polarity);
+      if (!r.error && mp.polarity == 0) r.fail(at + ".polarity", e["polarity"], "must be 1 or -1");
+      if (!r.error && (!e["u_mm"] || !e["v_mm"])) r.fail(at, e, "u_mm and v_mm are required");
+      d.magnet_list.push_back(mp);
+    });
   }
   if (const YAML::Node s = root["sensors"]; s && !r.error) {
-    r.only(s, "sensors", {"grid", "depth_mm", "chip"});
+    r.only(s, "sensors", {"grid", "list", "depth_mm", "chip"});
+    if (!r.error && s["grid"] && s["list"]) {
+      r.fail("sensors.list", s["list"], "give the sensors as a grid or as a list, not both");
+    }
     read_grid(r, s["grid"], "sensors.grid", &d.sensors_u, &d.sensors_v, &d.sensor_pitch_mm);
     r.get_double(s, "depth_mm", "sensors.", 1e-3, kMaxLengthMm, &d.sensor_depth_mm);
+    // After depth_mm: an entry without its own depth takes it.
+    read_list(r, s["list"], "sensors.list", kMaxSensors,
+              [&](const YAML::Node& e, const std::string& at) {
+                r.only(e, at, {"u_mm", "v_mm", "depth_mm", "yaw_deg"});
+                SensorPlacement sp;
+                sp.depth_mm = d.sensor_depth_mm;
+                r.get_double(e, "u_mm", at + ".", -kMaxLengthMm, kMaxLengthMm, &sp.u_mm);
+                r.get_double(e, "v_mm", at + ".", -kMaxLengthMm, kMaxLengthMm, &sp.v_mm);
+                r.get_double(e, "depth_mm", at + ".", 1e-3, kMaxLengthMm, &sp.depth_mm);
+                r.get_double(e, "yaw_deg", at + ".", -360, 360, &sp.yaw_deg);
+                if (!r.error && (!e["u_mm"] || !e["v_mm"]))
+                  r.fail(at, e, "u_mm and v_mm are required");
+                d.sensor_list.push_back(sp);
+              });
     if (const YAML::Node c = s["chip"]; c && !r.error) {
       r.only(c, "sensors.chip", {"gain_sel", "res_xy", "res_z", "osr", "dig_filt", "temperature"});
       mlx90393::Config& cfg = d.sensor_config;
@@ -150,20 +202,37 @@ std::string design_to_yaml(const PatchDesign& d) {
     << "  size_v_mm: " << exact(d.size_v_mm) << "\n"
     << "  radius_mm: " << exact(d.radius_mm) << "   # cylinder: the skin surface's radius\n"
     << "  thickness_mm: " << exact(d.thickness_mm) << "   # the lattice\n"
-    << "magnets:\n"
-    << "  grid: {u: " << d.magnets_u << ", v: " << d.magnets_v
-    << ", pitch_mm: " << exact(d.magnet_pitch_mm) << "}   # centred on the patch\n"
-    << "  polarity: " << (d.polarity == Polarity::kUniform ? "uniform" : "checkerboard") << "\n"
+    << "magnets:\n";
+  if (d.magnet_list.empty()) {
+    o << "  grid: {u: " << d.magnets_u << ", v: " << d.magnets_v
+      << ", pitch_mm: " << exact(d.magnet_pitch_mm) << "}   # centred on the patch\n";
+  } else {
+    o << "  list:   # rest positions; polarity 1: north pole out of the skin\n";
+    for (const MagnetPlacement& m : d.magnet_list) {
+      o << "    - {u_mm: " << exact(m.u_mm) << ", v_mm: " << exact(m.v_mm)
+        << ", centre_height_mm: " << exact(m.centre_height_mm) << ", polarity: " << m.polarity
+        << "}\n";
+    }
+  }
+  o << "  polarity: " << (d.polarity == Polarity::kUniform ? "uniform" : "checkerboard") << "\n"
     << "  diameter_mm: " << exact(d.magnet_diameter_mm) << "\n"
     << "  height_mm: " << exact(d.magnet_height_mm) << "\n"
     << "  remanence_t: " << exact(d.remanence_t) << "\n"
     << "  centre_height_mm: " << exact(d.magnet_centre_height_mm)
     << "   # magnet centre above the surface (negative: below)\n"
     << "  remanence_tempco_per_c: " << exact(d.remanence_tempco_per_c) << "\n"
-    << "sensors:\n"
-    << "  grid: {u: " << d.sensors_u << ", v: " << d.sensors_v
-    << ", pitch_mm: " << exact(d.sensor_pitch_mm) << "}   # centred on the patch\n"
-    << "  depth_mm: " << exact(d.sensor_depth_mm) << "   # below the surface\n"
+    << "sensors:\n";
+  if (d.sensor_list.empty()) {
+    o << "  grid: {u: " << d.sensors_u << ", v: " << d.sensors_v
+      << ", pitch_mm: " << exact(d.sensor_pitch_mm) << "}   # centred on the patch\n";
+  } else {
+    o << "  list:   # channels 3k..3k+2 are the k-th sensor's x, y, z\n";
+    for (const SensorPlacement& sp : d.sensor_list) {
+      o << "    - {u_mm: " << exact(sp.u_mm) << ", v_mm: " << exact(sp.v_mm)
+        << ", depth_mm: " << exact(sp.depth_mm) << ", yaw_deg: " << exact(sp.yaw_deg) << "}\n";
+    }
+  }
+  o << "  depth_mm: " << exact(d.sensor_depth_mm) << "   # below the surface\n"
     << "  chip: {gain_sel: " << int{c.gain_sel} << ", res_xy: " << int{c.res_xy}
     << ", res_z: " << int{c.res_z} << ", osr: " << int{c.osr} << ", dig_filt: " << int{c.dig_filt}
     << ", temperature: " << (c.temperature ? "true" : "false") << "}   # MLX90393 settings\n"

@@ -2,10 +2,12 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
 #include <string>
+#include <vector>
 
 #include "skinbus/common/test_seed.h"
 
@@ -94,6 +96,72 @@ TEST(DesignFile, WriteThenReadGivesTheSameDesign) {
   std::remove(path.c_str());
 }
 
+// The built-in grid written out as lists.
+PatchDesign as_lists(const PatchDesign& grid) {
+  PatchDesign d = grid;
+  for (int j = 0; j < grid.magnets_v; ++j) {
+    for (int i = 0; i < grid.magnets_u; ++i) {
+      d.magnet_list.push_back({(i - (grid.magnets_u - 1) / 2.0) * grid.magnet_pitch_mm,
+                               (j - (grid.magnets_v - 1) / 2.0) * grid.magnet_pitch_mm,
+                               grid.magnet_centre_height_mm, (i + j) % 2 ? -1 : 1});
+    }
+  }
+  for (int j = 0; j < grid.sensors_v; ++j) {
+    for (int i = 0; i < grid.sensors_u; ++i) {
+      d.sensor_list.push_back({(i - (grid.sensors_u - 1) / 2.0) * grid.sensor_pitch_mm,
+                               (j - (grid.sensors_v - 1) / 2.0) * grid.sensor_pitch_mm,
+                               grid.sensor_depth_mm, 0});
+    }
+  }
+  return d;
+}
+
+std::vector<double> field_of(const PatchModel& m, const Contact& c) {
+  std::vector<double> f(static_cast<std::size_t>(m.channel_count()));
+  m.contact_field_ut(std::span<const Contact>(&c, 1), f);
+  return f;
+}
+
+TEST(DesignFile, MagnetsAndSensorsAsListsRoundTripAndModelTheSamePatchAsTheGrid) {
+  const PatchDesign grid;  // checkerboard
+  const PatchDesign lists = as_lists(grid);
+  ASSERT_EQ(lists.magnet_count(), grid.magnet_count());
+  ASSERT_EQ(lists.sensor_count(), grid.sensor_count());
+  Result<PatchDesign> back = parse_design(design_to_yaml(lists), "lists.yaml");
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_EQ(design_to_yaml(back.value()), design_to_yaml(lists));
+  ASSERT_EQ(back->magnet_list.size(), lists.magnet_list.size());
+  EXPECT_EQ(back->magnet_list[1].polarity, -1);
+  // The same physics, bit for bit: nominal and a fabricated unit (the same draws in the same
+  // order), at rest and pressed.
+  for (bool fabricated : {false, true}) {
+    Result<PatchModel> a =
+        fabricated ? PatchModel::fabricated(grid, 0x5B07, {}) : PatchModel::nominal(grid);
+    Result<PatchModel> b = fabricated ? PatchModel::fabricated(back.value(), 0x5B07, {})
+                                      : PatchModel::nominal(back.value());
+    ASSERT_TRUE(a.ok() && b.ok());
+    const Contact press{12.5, -7.25, 2.0, 5};
+    EXPECT_EQ(field_of(a.value(), press), field_of(b.value(), press)) << fabricated;
+  }
+}
+
+TEST(DesignFile, ASensorTurnedAQuarterAboutTheNormalSwapsItsXAndY) {
+  PatchDesign one;
+  one.sensor_list = {{10, 5, 17, 0}};
+  PatchDesign turned = one;
+  turned.sensor_list[0].yaw_deg = 90;
+  Result<PatchModel> a = PatchModel::nominal(one), b = PatchModel::nominal(turned);
+  ASSERT_TRUE(a.ok() && b.ok());
+  const Contact press{22, 3, 2.5, 5};
+  const std::vector<double> fa = field_of(a.value(), press), fb = field_of(b.value(), press);
+  ASSERT_EQ(fa.size(), 3u);
+  // The press gives x and y fields of clearly different size, so a turn that did nothing fails.
+  EXPECT_GT(std::fabs(std::fabs(fa[0]) - std::fabs(fa[1])), 1.0) << fa[0] << " " << fa[1];
+  EXPECT_NEAR(std::fabs(fb[0]), std::fabs(fa[1]), 1e-9);
+  EXPECT_NEAR(std::fabs(fb[1]), std::fabs(fa[0]), 1e-9);
+  EXPECT_NEAR(fb[2], fa[2], 1e-9);
+}
+
 // Each bad file and what its error must say (the file, the setting, its line).
 TEST(DesignFile, EveryBadSettingIsNamedWithItsLine) {
   const std::string head = "format: skinbus-patch-design\nversion: 1\n";
@@ -122,6 +190,16 @@ TEST(DesignFile, EveryBadSettingIsNamedWithItsLine) {
       {head + "sensors:\n  depth_mm: 10\n", "patch design: sensor_depth_mm must be >= thickness"},
       {head + "surface: {kind: cylinder, radius_mm: 10}\n", "patch design: cylinder radius_mm"},
       {head + "lattice: [1, 2\n", "line "},
+      {head + "magnets:\n  list:\n    - {u_mm: 0, v_mm: 0, polarity: 0}\n",
+       "magnets.list[0].polarity (line 5): must be 1 or -1"},
+      {head + "magnets:\n  list:\n    - {u_mm: 0}\n", "magnets.list[0] (line 5): u_mm and v_mm"},
+      {head + "magnets:\n  list: []\n", "magnets.list (line 4): expected a non-empty list"},
+      {head + "magnets:\n  grid: {u: 3, v: 3, pitch_mm: 9}\n  list:\n    - {u_mm: 0, v_mm: 0}\n",
+       "magnets.list (line 6): give the magnets as a grid or as a list"},
+      {head + "sensors:\n  list:\n    - {u_mm: 0, v_mm: 0, tilt: 3}\n",
+       "sensors.list[0].tilt (line 5): unknown setting"},
+      {head + "sensors:\n  list:\n    - {u_mm: 90, v_mm: 0}\n",
+       "patch design: sensor_list[0]: outside the patch"},
       {"- a\n- b\n", "(top level)"},
   };
   for (const auto& c : cases) {

@@ -60,9 +60,31 @@ Status validate(const PatchDesign& d) {
     return bad("anisotropy must be in (-0.5, 0.5)");
   if (!std::isfinite(d.stiffness_n_per_mm) || d.stiffness_n_per_mm <= 0)
     return bad("stiffness_n_per_mm must be > 0");
-  if ((d.sensors_u - 1) * d.sensor_pitch_mm > d.size_u_mm ||
-      (d.sensors_v - 1) * d.sensor_pitch_mm > d.size_v_mm) {
+  if (d.sensor_list.empty() && ((d.sensors_u - 1) * d.sensor_pitch_mm > d.size_u_mm ||
+                                (d.sensors_v - 1) * d.sensor_pitch_mm > d.size_v_mm)) {
     return bad("the sensor grid does not fit inside the patch");
+  }
+  if (d.magnet_list.size() > 4096) return bad("at most 4096 magnets in magnet_list");
+  if (d.sensor_list.size() > static_cast<std::size_t>(kMaxSensors))
+    return bad("at most 256 sensors in sensor_list");
+  for (std::size_t k = 0; k < d.magnet_list.size(); ++k) {
+    const MagnetPlacement& m = d.magnet_list[k];
+    const std::string at = "magnet_list[" + std::to_string(k) + "]";
+    if (!std::isfinite(m.u_mm) || !std::isfinite(m.v_mm) || !std::isfinite(m.centre_height_mm))
+      return bad(at + ": position must be finite");
+    if (m.polarity != 1 && m.polarity != -1) return bad(at + ": polarity must be +1 or -1");
+  }
+  for (std::size_t k = 0; k < d.sensor_list.size(); ++k) {
+    const SensorPlacement& c = d.sensor_list[k];
+    const std::string at = "sensor_list[" + std::to_string(k) + "]";
+    if (!std::isfinite(c.u_mm) || !std::isfinite(c.v_mm) || !std::isfinite(c.yaw_deg))
+      return bad(at + ": position and yaw must be finite");
+    if (std::fabs(c.u_mm) > d.size_u_mm / 2 || std::fabs(c.v_mm) > d.size_v_mm / 2)
+      return bad(at + ": outside the patch");
+    if (!positive(c.depth_mm) || c.depth_mm < d.thickness_mm)
+      return bad(at + ": depth_mm must be >= thickness_mm");
+    if (d.surface == SurfaceKind::kCylinder && d.radius_mm <= c.depth_mm + 1)
+      return bad(at + ": cylinder radius_mm must exceed its depth_mm + 1");
   }
   if (d.surface == SurfaceKind::kCylinder) {
     if (!positive(d.radius_mm) || d.radius_mm <= d.sensor_depth_mm + 1)
@@ -96,39 +118,62 @@ Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed,
 
   const double moment =
       cylinder_moment_am2(d.remanence_t, d.magnet_diameter_mm, d.magnet_height_mm);
-  for (int j = 0; j < d.magnets_v; ++j) {
-    for (int i = 0; i < d.magnets_u; ++i) {
-      MagnetParameters m;
-      m.u_mm = (i - (d.magnets_u - 1) / 2.0) * d.magnet_pitch_mm +
-               var.magnet_position_sd_mm * rng.normal();
-      m.v_mm = (j - (d.magnets_v - 1) / 2.0) * d.magnet_pitch_mm +
-               var.magnet_position_sd_mm * rng.normal();
-      m.h_mm = d.magnet_centre_height_mm + var.magnet_height_sd_mm * rng.normal();
-      const double sign = d.polarity == Polarity::kCheckerboard && (i + j) % 2 ? -1.0 : 1.0;
-      const double mag = moment * (1 + var.magnet_moment_rel_sd * rng.normal());
-      const double tu = var.magnet_tilt_sd_rad * rng.normal(),
-                   tv = var.magnet_tilt_sd_rad * rng.normal();
-      const double n = std::sqrt(1 + tu * tu + tv * tv);
-      m.moment_am2 = Vec3<double>{tu / n, tv / n, 1 / n} * (sign * mag);
-      p.magnets.push_back(m);
+  // The magnets at rest as designed (grid or list), then each one's fabrication variation.
+  std::vector<MagnetPlacement> magnets = d.magnet_list;
+  if (magnets.empty()) {
+    for (int j = 0; j < d.magnets_v; ++j) {
+      for (int i = 0; i < d.magnets_u; ++i) {
+        magnets.push_back({(i - (d.magnets_u - 1) / 2.0) * d.magnet_pitch_mm,
+                           (j - (d.magnets_v - 1) / 2.0) * d.magnet_pitch_mm,
+                           d.magnet_centre_height_mm,
+                           d.polarity == Polarity::kCheckerboard && (i + j) % 2 ? -1 : 1});
+      }
     }
   }
-  for (int j = 0; j < d.sensors_v; ++j) {
-    for (int i = 0; i < d.sensors_u; ++i) {
-      SensorParameters s;
-      s.u_mm = (i - (d.sensors_u - 1) / 2.0) * d.sensor_pitch_mm +
-               var.sensor_position_sd_mm * rng.normal();
-      s.v_mm = (j - (d.sensors_v - 1) / 2.0) * d.sensor_pitch_mm +
-               var.sensor_position_sd_mm * rng.normal();
-      s.h_mm = -d.sensor_depth_mm + var.sensor_position_sd_mm * rng.normal();
-      // A small mounting error turns the chip against the local surface frame.
-      s.mounting = rotation_from_vector(Vec3<double>{rng.normal(), rng.normal(), rng.normal()} *
-                                        var.sensor_rotation_sd_rad);
-      s.gain = {1 + var.sensor_gain_rel_sd * rng.normal(),
-                1 + var.sensor_gain_rel_sd * rng.normal(),
-                1 + var.sensor_gain_rel_sd * rng.normal()};
-      p.sensors.push_back(s);
+  for (const MagnetPlacement& at : magnets) {
+    MagnetParameters m;
+    m.u_mm = at.u_mm + var.magnet_position_sd_mm * rng.normal();
+    m.v_mm = at.v_mm + var.magnet_position_sd_mm * rng.normal();
+    m.h_mm = at.centre_height_mm + var.magnet_height_sd_mm * rng.normal();
+    const double sign = at.polarity < 0 ? -1.0 : 1.0;
+    const double mag = moment * (1 + var.magnet_moment_rel_sd * rng.normal());
+    const double tu = var.magnet_tilt_sd_rad * rng.normal(),
+                 tv = var.magnet_tilt_sd_rad * rng.normal();
+    const double n = std::sqrt(1 + tu * tu + tv * tv);
+    m.moment_am2 = Vec3<double>{tu / n, tv / n, 1 / n} * (sign * mag);
+    p.magnets.push_back(m);
+  }
+  std::vector<SensorPlacement> sensors = d.sensor_list;
+  if (sensors.empty()) {
+    for (int j = 0; j < d.sensors_v; ++j) {
+      for (int i = 0; i < d.sensors_u; ++i) {
+        sensors.push_back({(i - (d.sensors_u - 1) / 2.0) * d.sensor_pitch_mm,
+                           (j - (d.sensors_v - 1) / 2.0) * d.sensor_pitch_mm, d.sensor_depth_mm,
+                           0});
+      }
     }
+  }
+  for (const SensorPlacement& at : sensors) {
+    SensorParameters s;
+    s.u_mm = at.u_mm + var.sensor_position_sd_mm * rng.normal();
+    s.v_mm = at.v_mm + var.sensor_position_sd_mm * rng.normal();
+    s.h_mm = -at.depth_mm + var.sensor_position_sd_mm * rng.normal();
+    // A small mounting error turns the chip against the local surface frame, after the turn
+    // about the normal it was mounted with.
+    s.mounting = rotation_from_vector(Vec3<double>{rng.normal(), rng.normal(), rng.normal()} *
+                                      var.sensor_rotation_sd_rad);
+    if (at.yaw_deg != 0) {
+      const Mat3 yaw = rotation_from_vector({0, 0, at.yaw_deg * M_PI / 180});
+      Mat3 both;
+      for (int r = 0; r < 3; ++r) {
+        const Vec3<double>& row = s.mounting.r[r];
+        both.r[r] = yaw.r[0] * row.x + yaw.r[1] * row.y + yaw.r[2] * row.z;
+      }
+      s.mounting = both;
+    }
+    s.gain = {1 + var.sensor_gain_rel_sd * rng.normal(), 1 + var.sensor_gain_rel_sd * rng.normal(),
+              1 + var.sensor_gain_rel_sd * rng.normal()};
+    p.sensors.push_back(s);
   }
   return assemble(d, p);
 }

@@ -42,24 +42,41 @@ inline constexpr int kMaxSensors = 256;
 inline constexpr double kMaxTipContact2 = 4.0;
 enum class Polarity : uint8_t { kUniform, kCheckerboard };
 
+// One magnet placed by hand (a design whose magnets are not a grid): its rest position and the
+// sign of its moment along the surface normal (+1: north pole out of the skin).
+struct MagnetPlacement {
+  double u_mm = 0, v_mm = 0;
+  double centre_height_mm = 0.75;  // above the surface (negative: below it)
+  int polarity = +1;               // +1 or -1
+};
+// One sensor placed by hand: its position and its mounting turn about the surface normal.
+struct SensorPlacement {
+  double u_mm = 0, v_mm = 0;
+  double depth_mm = 17;  // below the surface (>= the lattice's thickness)
+  double yaw_deg = 0;    // the chip's x axis turned this far from u, about the normal
+};
+
 struct PatchDesign {
   // Geometry of the skin surface.
   SurfaceKind surface = SurfaceKind::kFlat;
   double size_u_mm = 140, size_v_mm = 140;  // extent (arc length along u for a cylinder)
   double radius_mm = 0;                     // cylinder: skin-surface radius (> sensor depth)
   double thickness_mm = 15;                 // lattice: surface, infill and base layers
-  // Magnets: a grid on the surface.
+  // Magnets: a grid on the surface, or (magnet_list non-empty) the listed magnets in that order.
   int magnets_u = 7, magnets_v = 7;
   double magnet_pitch_mm = 20;
   Polarity polarity = Polarity::kCheckerboard;
   double magnet_diameter_mm = 3, magnet_height_mm = 1.5;
-  double remanence_t = 1.32;              // NdFeB N42
-  double magnet_centre_height_mm = 0.75;  // magnet centre above the surface
-  // Sensors: a grid below the base.
+  double remanence_t = 1.32;                 // NdFeB N42
+  double magnet_centre_height_mm = 0.75;     // magnet centre above the surface
+  std::vector<MagnetPlacement> magnet_list;  // non-empty: replaces the grid (up to 4096)
+  // Sensors: a grid below the base, or (sensor_list non-empty) the listed sensors: channel
+  // 3k..3k+2 is the k-th sensor's x, y, z.
   int sensors_u = 4, sensors_v = 4;
   double sensor_pitch_mm = 30;
   double sensor_depth_mm = 17;  // below the surface: lattice 15 mm + base and package 2 mm
   mlx90393::Config sensor_config;
+  std::vector<SensorPlacement> sensor_list;  // non-empty: replaces the grid (up to 256)
   // Lattice mechanics.
   double spread_mm = 10;    // plate-on-foundation length l
   double lateral_mm = 2.0;  // in-plane motion of a magnet = -lateral * surface slope
@@ -70,8 +87,12 @@ struct PatchDesign {
   // Temperature: magnet remanence coefficient (NdFeB), per degC.
   double remanence_tempco_per_c = -0.0012;
 
-  int magnet_count() const { return magnets_u * magnets_v; }
-  int sensor_count() const { return sensors_u * sensors_v; }
+  int magnet_count() const {
+    return magnet_list.empty() ? magnets_u * magnets_v : static_cast<int>(magnet_list.size());
+  }
+  int sensor_count() const {
+    return sensor_list.empty() ? sensors_u * sensors_v : static_cast<int>(sensor_list.size());
+  }
   int channel_count() const { return 3 * sensor_count(); }
 };
 
