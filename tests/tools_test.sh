@@ -82,6 +82,14 @@ printf 'format: skinbus-patch-design\nmagnets:\n  polarity: striped\n' >"$work/b
 "$bin/skinbus-dataset" --plan grid --design "$work/bad_design.yaml" -o "$work/x.csv" 2>"$work/e9.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "bad_design.yaml: magnets.polarity (line 3)" "$work/e9.txt" &&
   ok "skinbus-dataset: a bad design file named with its line" || { bad "bad design (rc $rc)"; cat "$work/e9.txt"; }
+"$bin/skinbus-bench" models --test "$work/d_9x9.csv" --design "$work/design9.yaml" --no-physics \
+  --no-reduced --latency-samples 5 --model "$here/../estimators/models/nominal_seed_cnn" \
+  >"$work/bench9.md" 2>/dev/null; rc=$?
+"$bin/skinbus-bench" models --test "$work/d_9x9.csv" --no-physics --no-reduced --latency-samples 5 \
+  --model "$here/../estimators/models/nominal_seed_cnn" >"$work/bench_default.md" 2>/dev/null
+[[ $rc == 0 ]] && grep -q "^| CRLB" "$work/bench9.md" &&
+  ! cmp -s <(grep "^| CRLB" "$work/bench9.md") <(grep "^| CRLB" "$work/bench_default.md") &&
+  ok "skinbus-bench models --design bounds that design" || bad "skinbus-bench models --design (rc $rc)"
 "$bin/skinbus-crlb" --depths 2 --step 20 >"$work/crlb_default.md" 2>/dev/null
 "$bin/skinbus-crlb" --depths 2 --step 20 --design "$work/design9.yaml" >"$work/crlb_9x9.md" 2>/dev/null; rc=$?
 [[ $rc == 0 ]] && grep -q "^|" "$work/crlb_9x9.md" && ! cmp -s "$work/crlb_default.md" "$work/crlb_9x9.md" &&

@@ -10,6 +10,9 @@
 namespace skinbus::tools {
 
 void add_models_options(CLI::App* sub, estimators_bench::ModelsBenchArgs& a) {
+  sub->add_option("--design", a.design_path,
+                  "patch design file (docs/design_file.md; default: the built-in design)")
+      ->check(CLI::ExistingFile);
   sub->add_option("--test", a.test_path, "off-grid test split (skinbus-dataset --plan random-test)")
       ->required()
       ->check(CLI::ExistingFile);
@@ -55,6 +58,9 @@ void add_cpu_options(CLI::App* sub, estimators_bench::CpuBenchArgs& a) {
 }
 
 void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
+  sub->add_option("--design", a.design_path,
+                  "patch design file (docs/design_file.md; default: the built-in design)")
+      ->check(CLI::ExistingFile);
   sub->add_option("--units", a.units, "simulated units: nominal, fabricated, anisotropic")
       ->delimiter(',')
       ->capture_default_str();

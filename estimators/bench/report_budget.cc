@@ -36,8 +36,9 @@ struct Unit {
   sim::Dataset grid_test;  // test: random depths at the grid points
 };
 
-Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a) {
-  sim::PatchDesign design;
+Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
+                       const sim::PatchDesign& base) {
+  sim::PatchDesign design = base;
   Result<sim::PatchModel> model = make_error(ErrorCode::kInvalidArgument, "unknown unit '" + name +
                                                                               "' (nominal, "
                                                                               "fabricated, "
@@ -115,14 +116,17 @@ Status bench_budget(const BudgetBenchArgs& a) {
                     "unknown unit '%s' (nominal, fabricated, anisotropic)", name.c_str());
     }
   }
-  Result<PhysicsEstimator> nominal_lm =
-      PhysicsEstimator::create(sim::PatchModel::nominal(sim::PatchDesign{}).value());
+  Result<sim::PatchDesign> base = design_or_builtin(a.design_path);
+  if (!base.ok()) return base.error();
+  Result<sim::PatchModel> nominal_model = sim::PatchModel::nominal(base.value());
+  if (!nominal_model.ok()) return nominal_model.error();
+  Result<PhysicsEstimator> nominal_lm = PhysicsEstimator::create(nominal_model.value());
   if (!nominal_lm.ok()) return nominal_lm.error();
   std::vector<Row> rows;
   for (const std::string& name : a.units) {
     std::fprintf(stderr, "skinbus-bench: unit %s: simulating 361 presses and the test splits\n",
                  name.c_str());
-    Result<Unit> unit = make_unit(name, a);
+    Result<Unit> unit = make_unit(name, a, base.value());
     if (!unit.ok()) {
       return unit.error();
     }
@@ -181,7 +185,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
     double grid_id_s = 0, grid_residual = -1;
     auto physics_pipeline = [&](const std::string& plan, const sim::Dataset& presses) -> Status {
       const auto t0 = Clock::now();
-      Result<IdentifiedUnit> id = identify_unit(sim::PatchDesign{}, presses, {}, &unit->off_grid);
+      Result<IdentifiedUnit> id = identify_unit(base.value(), presses, {}, &unit->off_grid);
       const double id_s = std::chrono::duration<double>(Clock::now() - t0).count();
       if (!id.ok()) {
         return with_context(id.error(), "identification of " + name);

@@ -19,6 +19,7 @@
 #include "skinbus/mlx90393/measurement.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/design_file.h"
 #ifdef SKINBUS_HAVE_TORCH
 #include "skinbus/estimators/training.h"
 #endif
@@ -178,6 +179,11 @@ std::array<double, kDepthBins> mean_per_bin(std::span<const double> values,
   return sum;
 }
 
+Result<sim::PatchDesign> design_or_builtin(const std::string& path) {
+  if (path.empty()) return sim::PatchDesign{};
+  return sim::read_design_file(path);
+}
+
 Status bench_models(const ModelsBenchArgs& a) {
   if (!a.plot.empty() && (a.csv.empty() || a.errors_csv.empty())) {
     return make_error(ErrorCode::kInvalidArgument, "--plot needs --csv and --errors-csv");
@@ -190,11 +196,14 @@ Status bench_models(const ModelsBenchArgs& a) {
   const int n =
       static_cast<int>(std::min<std::size_t>(test.rows(), static_cast<std::size_t>(a.max_test)));
   const int channels = test.channels();
-  const sim::PatchDesign design;
+  Result<sim::PatchDesign> design_r = design_or_builtin(a.design_path);
+  if (!design_r.ok()) return design_r.error();
+  const sim::PatchDesign& design = design_r.value();
   Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design);
   if (!nominal.ok() || nominal->channel_count() != channels) {
     return errorf(ErrorCode::kInvalidArgument,
-                  "the test split does not have the nominal patch's %d channels",
+                  "the test split does not have the nominal patch's %d channels (its design: "
+                  "--design)",
                   nominal.ok() ? nominal->channel_count() : 0);
   }
   const double nxy = sim::mlx90393_noise_xy_ut(design.sensor_config);

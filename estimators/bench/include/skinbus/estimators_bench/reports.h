@@ -15,6 +15,7 @@
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/patch_model.h"
 
 namespace skinbus::estimators_bench {
 
@@ -28,6 +29,7 @@ struct ModelsBenchArgs {
   int latency_samples = 300;             // samples timed at batch 1
   int max_test = 2000;                   // test rows used
   std::string csv, errors_csv, plot;     // outputs
+  std::string design_path;               // the test split's patch design file; empty: built-in
 };
 
 // The CRLB RMS XY bound (mm) of each of the first `n` rows of `data` for `model` (its design's
@@ -37,6 +39,9 @@ std::array<double, estimators::kDepthBins> mean_per_bin(std::span<const double> 
                                                         std::span<const double> depth_mm);
 
 Status bench_models(const ModelsBenchArgs& a);
+
+// The design in `path` (sim/design_file.h), or the built-in one when `path` is empty.
+Result<sim::PatchDesign> design_or_builtin(const std::string& path);
 
 // `skinbus-bench cpu` (report_cpu.cc): one network on every kernel set this CPU has, float32 and
 // int8, batch 1 and batched on 1 and 2 threads, against the FMA peak measured here, LibTorch at
@@ -62,6 +67,7 @@ struct BudgetBenchArgs {
   std::vector<std::string> seed_models;  // "unit=path": seed CNN trained on that unit's grid
   int test_count = 2000;                 // off-grid test presses
   int grid_test_per_point = 3;           // test presses at every grid point
+  std::string design_path;               // the units' patch design file; empty: built-in
   std::string csv;
 };
 
