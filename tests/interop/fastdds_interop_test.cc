@@ -2,7 +2,8 @@
 // ROS 2's default middleware, types written from the ROS 2 .msg files) in another process
 // receives rt/skin/contacts and rt/skin/patch_status as skinbus::dds::SkinPublisher (Cyclone DDS)
 // writes them, field for field, and publishes rt/joint_states that skinbus's
-// JointStateSubscriber reads. Both on loopback only, in a domain of the test's own.
+// JointStateSubscriber reads. Both on loopback only, in a domain of the test's own
+// (dds_test_support.h; the peer is told the same: 127.0.0.1, unicast discovery).
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -14,8 +15,6 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
-#include <fstream>
 #include <map>
 #include <random>
 #include <sstream>
@@ -23,7 +22,7 @@
 #include <thread>
 #include <vector>
 
-#include "skinbus/common/test_seed.h"
+#include "dds_test_support.h"
 #include "skinbus/dds/dds.h"
 
 extern char** environ;
@@ -31,6 +30,7 @@ extern char** environ;
 namespace skinbus::dds {
 namespace {
 
+using namespace test_support;
 using host::BodyContact;
 using host::ContactArray;
 using host::PatchStatus;
@@ -38,32 +38,6 @@ using host::PatchStatusArray;
 using nlohmann::json;
 
 constexpr double kTol = 1e-12;
-
-uint64_t now_us() {
-  timespec ts{};
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return static_cast<uint64_t>(ts.tv_sec) * 1000000u + static_cast<uint64_t>(ts.tv_nsec) / 1000u;
-}
-
-// Cyclone on loopback with unicast discovery (the peer is told the same), and a domain of this
-// run's own.
-uint32_t setup_loopback(uint64_t seed) {
-  const std::string path =
-      ::testing::TempDir() + "/skinbus_interop_" + std::to_string(getpid()) + ".xml";
-  std::ofstream f(path);
-  f << R"(<?xml version="1.0" encoding="UTF-8"?>
-<CycloneDDS xmlns="https://cdds.io/config"><Domain Id="any">
-  <General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>
-    <AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex>
-    <MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>
-    <Peers><Peer Address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>
-)";
-  f.close();
-  setenv("CYCLONEDDS_URI", ("file://" + path).c_str(), 1);
-  return static_cast<uint32_t>(1 + seed % 200);
-}
 
 struct Child {
   pid_t pid = 0;
@@ -95,43 +69,14 @@ Child spawn(std::vector<std::string> args) {
   return c;
 }
 
-ContactArray random_contacts(std::mt19937_64& rng, uint64_t stamp_us, int n) {
-  std::uniform_real_distribution<double> mm(-900.0, 900.0), unit(-1.0, 1.0), pos(0.0, 30.0);
-  std::uniform_int_distribution<uint64_t> u64;
-  ContactArray a;
-  a.stamp_us = stamp_us;
-  a.base_frame = "base_link";
-  for (int i = 0; i < n; ++i) {
-    BodyContact c;
-    for (int k = 0; k < 3; ++k) {
-      c.position_mm[k] = mm(rng);
-      c.normal[k] = unit(rng);
-    }
-    c.depth_mm = pos(rng) / 10;
-    c.force_n = pos(rng);
-    c.u_mm = mm(rng) / 20;
-    c.v_mm = mm(rng) / 20;
-    c.uncertainty_mm = pos(rng) / 30;
-    c.node = static_cast<uint8_t>(1 + u64(rng) % 125);
-    c.hardware_uid = u64(rng);
-    c.link = "link_" + std::to_string(u64(rng) % 7);
-    c.track_id = static_cast<uint32_t>(1 + u64(rng) % 100000);
-    c.patch_count = static_cast<uint32_t>(1 + u64(rng) % 3);
-    c.flags = static_cast<uint32_t>(u64(rng) & 0xFF);
-    c.first_seen_us = a.stamp_us - u64(rng) % 5'000'000u;
-    a.contacts.push_back(c);
-  }
-  return a;
-}
-
 uint64_t time_us(const json& t) {
   return static_cast<uint64_t>(t.at("sec").get<int64_t>()) * 1000000u +
          t.at("nanosec").get<uint64_t>() / 1000u;
 }
 
 TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsStatusAndDiagnostics) {
-  const uint64_t seed = test_seed("FastDdsInterop.Contacts");
-  const uint32_t domain = setup_loopback(seed);
+  const uint64_t seed = dds_env().seed;
+  const uint32_t domain = dds_env().domain_id;
   DdsOptions o;
   o.domain_id = domain;
   auto pub = SkinPublisher::create(o);
@@ -280,9 +225,8 @@ TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsStatusAndDiagn
 }
 
 TEST(FastDdsInterop, JointStatesFromAFastDdsPublisherReachTheHostsSubscriber) {
-  const uint64_t seed = test_seed("FastDdsInterop.Joints");
   DdsOptions o;
-  o.domain_id = setup_loopback(seed + 1);
+  o.domain_id = dds_env().domain_id;
   auto sub = JointStateSubscriber::create(o);
   ASSERT_TRUE(sub.ok()) << sub.error().to_string();
   const uint64_t before = now_us();
