@@ -206,14 +206,7 @@ Result<SkinMap> parse(const YAML::Node& root, const RobotModel* robot) {
 
 void print_vector(std::ostream& o, const double* v, int n) {
   o << "[";
-  char buf[40];
-  for (int i = 0; i < n; ++i) {
-    // 15 digits keep the file readable; a number they do not read back exactly (e.g. a position
-    // beyond 1e5 mm, where they would be off by more than 1e-9 mm) gets the 17 of an exact copy.
-    std::snprintf(buf, sizeof buf, "%.15g", v[i]);
-    if (std::strtod(buf, nullptr) != v[i]) std::snprintf(buf, sizeof buf, "%.17g", v[i]);
-    o << (i ? ", " : "") << buf;
-  }
+  for (int i = 0; i < n; ++i) o << (i ? ", " : "") << yaml_number(v[i]);
   o << "]";
 }
 

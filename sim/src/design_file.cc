@@ -158,16 +158,6 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
   return d;
 }
 
-// A double that reads back to the same bits: the shortest of %.15g..%.17g that does.
-std::string exact(double x) {
-  char buf[40];
-  for (int digits = 15; digits <= 17; ++digits) {
-    std::snprintf(buf, sizeof buf, "%.*g", digits, x);
-    if (std::strtod(buf, nullptr) == x) break;
-  }
-  return buf;
-}
-
 }  // namespace
 
 Result<PatchDesign> parse_design(const std::string& text, const std::string& source) {
@@ -198,51 +188,53 @@ std::string design_to_yaml(const PatchDesign& d) {
     << "version: " << kVersion << "\n"
     << "surface:\n"
     << "  kind: " << (d.surface == SurfaceKind::kCylinder ? "cylinder" : "flat") << "\n"
-    << "  size_u_mm: " << exact(d.size_u_mm) << "   # arc length along u on a cylinder\n"
-    << "  size_v_mm: " << exact(d.size_v_mm) << "\n"
-    << "  radius_mm: " << exact(d.radius_mm) << "   # cylinder: the skin surface's radius\n"
-    << "  thickness_mm: " << exact(d.thickness_mm) << "   # the lattice\n"
+    << "  size_u_mm: " << yaml_number(d.size_u_mm) << "   # arc length along u on a cylinder\n"
+    << "  size_v_mm: " << yaml_number(d.size_v_mm) << "\n"
+    << "  radius_mm: " << yaml_number(d.radius_mm) << "   # cylinder: the skin surface's radius\n"
+    << "  thickness_mm: " << yaml_number(d.thickness_mm) << "   # the lattice\n"
     << "magnets:\n";
   if (d.magnet_list.empty()) {
     o << "  grid: {u: " << d.magnets_u << ", v: " << d.magnets_v
-      << ", pitch_mm: " << exact(d.magnet_pitch_mm) << "}   # centred on the patch\n";
+      << ", pitch_mm: " << yaml_number(d.magnet_pitch_mm) << "}   # centred on the patch\n";
   } else {
     o << "  list:   # rest positions; polarity 1: north pole out of the skin\n";
     for (const MagnetPlacement& m : d.magnet_list) {
-      o << "    - {u_mm: " << exact(m.u_mm) << ", v_mm: " << exact(m.v_mm)
-        << ", centre_height_mm: " << exact(m.centre_height_mm) << ", polarity: " << m.polarity
+      o << "    - {u_mm: " << yaml_number(m.u_mm) << ", v_mm: " << yaml_number(m.v_mm)
+        << ", centre_height_mm: " << yaml_number(m.centre_height_mm) << ", polarity: " << m.polarity
         << "}\n";
     }
   }
   o << "  polarity: " << (d.polarity == Polarity::kUniform ? "uniform" : "checkerboard") << "\n"
-    << "  diameter_mm: " << exact(d.magnet_diameter_mm) << "\n"
-    << "  height_mm: " << exact(d.magnet_height_mm) << "\n"
-    << "  remanence_t: " << exact(d.remanence_t) << "\n"
-    << "  centre_height_mm: " << exact(d.magnet_centre_height_mm)
+    << "  diameter_mm: " << yaml_number(d.magnet_diameter_mm) << "\n"
+    << "  height_mm: " << yaml_number(d.magnet_height_mm) << "\n"
+    << "  remanence_t: " << yaml_number(d.remanence_t) << "\n"
+    << "  centre_height_mm: " << yaml_number(d.magnet_centre_height_mm)
     << "   # magnet centre above the surface (negative: below)\n"
-    << "  remanence_tempco_per_c: " << exact(d.remanence_tempco_per_c) << "\n"
+    << "  remanence_tempco_per_c: " << yaml_number(d.remanence_tempco_per_c) << "\n"
     << "sensors:\n";
   if (d.sensor_list.empty()) {
     o << "  grid: {u: " << d.sensors_u << ", v: " << d.sensors_v
-      << ", pitch_mm: " << exact(d.sensor_pitch_mm) << "}   # centred on the patch\n";
+      << ", pitch_mm: " << yaml_number(d.sensor_pitch_mm) << "}   # centred on the patch\n";
   } else {
     o << "  list:   # channels 3k..3k+2 are the k-th sensor's x, y, z\n";
     for (const SensorPlacement& sp : d.sensor_list) {
-      o << "    - {u_mm: " << exact(sp.u_mm) << ", v_mm: " << exact(sp.v_mm)
-        << ", depth_mm: " << exact(sp.depth_mm) << ", yaw_deg: " << exact(sp.yaw_deg) << "}\n";
+      o << "    - {u_mm: " << yaml_number(sp.u_mm) << ", v_mm: " << yaml_number(sp.v_mm)
+        << ", depth_mm: " << yaml_number(sp.depth_mm) << ", yaw_deg: " << yaml_number(sp.yaw_deg)
+        << "}\n";
     }
   }
-  o << "  depth_mm: " << exact(d.sensor_depth_mm) << "   # below the surface\n"
+  o << "  depth_mm: " << yaml_number(d.sensor_depth_mm) << "   # below the surface\n"
     << "  chip: {gain_sel: " << int{c.gain_sel} << ", res_xy: " << int{c.res_xy}
     << ", res_z: " << int{c.res_z} << ", osr: " << int{c.osr} << ", dig_filt: " << int{c.dig_filt}
     << ", temperature: " << (c.temperature ? "true" : "false") << "}   # MLX90393 settings\n"
     << "lattice:\n"
-    << "  spread_mm: " << exact(d.spread_mm) << "   # plate-on-foundation length\n"
-    << "  lateral_mm: " << exact(d.lateral_mm) << "   # in-plane motion = -lateral x slope\n"
-    << "  anisotropy: " << exact(d.anisotropy) << "   # spread l(1+a) along u, l(1-a) along v\n"
+    << "  spread_mm: " << yaml_number(d.spread_mm) << "   # plate-on-foundation length\n"
+    << "  lateral_mm: " << yaml_number(d.lateral_mm) << "   # in-plane motion = -lateral x slope\n"
+    << "  anisotropy: " << yaml_number(d.anisotropy)
+    << "   # spread l(1+a) along u, l(1-a) along v\n"
     << "force_law:   # F = k d + k3 d^3\n"
-    << "  stiffness_n_per_mm: " << exact(d.stiffness_n_per_mm) << "\n"
-    << "  stiffening_n_per_mm3: " << exact(d.stiffening_n_per_mm3) << "\n";
+    << "  stiffness_n_per_mm: " << yaml_number(d.stiffness_n_per_mm) << "\n"
+    << "  stiffening_n_per_mm3: " << yaml_number(d.stiffening_n_per_mm3) << "\n";
   return o.str();
 }
 

@@ -167,6 +167,15 @@ class YamlReader {
   }
 };
 
+// A finite double as a YAML scalar that reads back to the same bits: 15 significant digits,
+// which keep a file readable, or 17 when 15 do not read back exactly.
+inline std::string yaml_number(double x) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.15g", x);
+  if (std::strtod(buf, nullptr) != x) std::snprintf(buf, sizeof buf, "%.17g", x);
+  return buf;
+}
+
 // A string as a YAML scalar that reads back the same: plain when that is safe, else
 // double-quoted with escapes.
 inline std::string yaml_string(const std::string& v) {
