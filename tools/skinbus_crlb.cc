@@ -72,15 +72,9 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   CLI11_PARSE(app, argc, argv);
 
-  PatchDesign design;
-  if (!design_path.empty()) {
-    skinbus::Result<PatchDesign> d = read_design_file(design_path);
-    if (!d.ok()) {
-      return skinbus::tools::fail("skinbus-crlb", d.error().to_string(), 2);
-    }
-    design = d.value();
-  }
-  auto model = PatchModel::nominal(design);
+  const skinbus::Result<PatchDesign> design = read_design_or_builtin(design_path);
+  if (!design.ok()) return skinbus::tools::fail("skinbus-crlb", design.error().to_string(), 2);
+  auto model = PatchModel::nominal(design.value());
   if (!model.ok()) {
     return skinbus::tools::fail("skinbus-crlb", model.error().message, 1);
   }

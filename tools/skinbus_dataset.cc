@@ -93,15 +93,12 @@ int main(int argc, char** argv) {
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
 
-  PatchDesign base_design;
-  if (!design_path.empty()) {
-    Result<PatchDesign> d = read_design_file(design_path);
-    if (!d.ok()) return skinbus::tools::report_error("skinbus-dataset", d.error());
-    base_design = d.value();
-  }
+  const Result<PatchDesign> base_design = read_design_or_builtin(design_path);
+  if (!base_design.ok())
+    return skinbus::tools::report_error("skinbus-dataset", base_design.error());
   try {
     const auto t0 = std::chrono::steady_clock::now();
-    PatchDesign design = base_design;
+    PatchDesign design = base_design.value();
     if (cylinder) {
       design.surface = SurfaceKind::kCylinder;
       design.radius_mm = radius;

@@ -81,14 +81,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
-  sim::PatchDesign design;
-  if (!design_path.empty()) {
-    Result<sim::PatchDesign> d = sim::read_design_file(design_path);
-    if (!d.ok()) {
-      return skinbus::tools::fail("skinbus-identify", d.error().to_string(), kExitUsage);
-    }
-    design = d.value();
-  }
+  Result<sim::PatchDesign> read = sim::read_design_or_builtin(design_path);
+  if (!read.ok())
+    return skinbus::tools::fail("skinbus-identify", read.error().to_string(), kExitUsage);
+  sim::PatchDesign design = read.value();
   if (cylinder) {
     design.surface = sim::SurfaceKind::kCylinder;
     design.radius_mm = radius;

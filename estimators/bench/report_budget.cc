@@ -15,6 +15,7 @@
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/estimators/unit_identification.h"
 #include "skinbus/estimators_bench/reports.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::estimators_bench {
@@ -116,7 +117,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
                     "unknown unit '%s' (nominal, fabricated, anisotropic)", name.c_str());
     }
   }
-  Result<sim::PatchDesign> base = design_or_builtin(a.design_path);
+  Result<sim::PatchDesign> base = sim::read_design_or_builtin(a.design_path);
   if (!base.ok()) return base.error();
   Result<sim::PatchModel> nominal_model = sim::PatchModel::nominal(base.value());
   if (!nominal_model.ok()) return nominal_model.error();

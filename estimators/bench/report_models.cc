@@ -179,11 +179,6 @@ std::array<double, kDepthBins> mean_per_bin(std::span<const double> values,
   return sum;
 }
 
-Result<sim::PatchDesign> design_or_builtin(const std::string& path) {
-  if (path.empty()) return sim::PatchDesign{};
-  return sim::read_design_file(path);
-}
-
 Status bench_models(const ModelsBenchArgs& a) {
   if (!a.plot.empty() && (a.csv.empty() || a.errors_csv.empty())) {
     return make_error(ErrorCode::kInvalidArgument, "--plot needs --csv and --errors-csv");
@@ -196,7 +191,7 @@ Status bench_models(const ModelsBenchArgs& a) {
   const int n =
       static_cast<int>(std::min<std::size_t>(test.rows(), static_cast<std::size_t>(a.max_test)));
   const int channels = test.channels();
-  Result<sim::PatchDesign> design_r = design_or_builtin(a.design_path);
+  Result<sim::PatchDesign> design_r = sim::read_design_or_builtin(a.design_path);
   if (!design_r.ok()) return design_r.error();
   const sim::PatchDesign& design = design_r.value();
   Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design);

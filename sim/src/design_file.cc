@@ -179,6 +179,11 @@ Result<PatchDesign> read_design_file(const std::string& path) {
   return parse_design(text.value(), path);
 }
 
+Result<PatchDesign> read_design_or_builtin(const std::string& path) {
+  if (path.empty()) return PatchDesign{};
+  return read_design_file(path);
+}
+
 std::string design_to_yaml(const PatchDesign& d) {
   const mlx90393::Config& c = d.sensor_config;
   std::ostringstream o;

@@ -28,6 +28,10 @@ Result<PatchDesign> parse_design(const std::string& text, const std::string& sou
 // The design in the file at `path` (kNotFound / kIo when it cannot be read).
 Result<PatchDesign> read_design_file(const std::string& path);
 
+// read_design_file(path), or the built-in design (PatchDesign{}) when `path` is empty: what a
+// tool's optional --design gives.
+Result<PatchDesign> read_design_or_builtin(const std::string& path);
+
 // The design as a complete design file (every setting written); parse_design() of it gives back
 // `design` exactly (doubles written with 17 significant digits where needed).
 std::string design_to_yaml(const PatchDesign& design);

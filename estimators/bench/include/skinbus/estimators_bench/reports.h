@@ -40,9 +40,6 @@ std::array<double, estimators::kDepthBins> mean_per_bin(std::span<const double> 
 
 Status bench_models(const ModelsBenchArgs& a);
 
-// The design in `path` (sim/design_file.h), or the built-in one when `path` is empty.
-Result<sim::PatchDesign> design_or_builtin(const std::string& path);
-
 // `skinbus-bench cpu` (report_cpu.cc): one network on every kernel set this CPU has, float32 and
 // int8, batch 1 and batched on 1 and 2 threads, against the FMA peak measured here, LibTorch at
 // its best and the portable kernels, with the errors on the same presses.
