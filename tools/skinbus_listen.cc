@@ -220,37 +220,33 @@ int main(int argc, char** argv) {
       }
       if (count > 0 && ++contact_arrays >= count) return 0;
     }
-    while (status) {
-      auto r = (*sub)->wait_patch_status(&patch_status, 0);
-      if (!r.ok()) {
-        std::fprintf(stderr, "skinbus-listen: %s\n", r.error().to_string().c_str());
-        if (sample_error(r.error())) continue;
-        return 1;
+    // Every patch status, then every diagnostic array the readers hold now.
+    auto drain = [&](auto take, auto& sample, auto to_json) {
+      for (;;) {
+        auto r = take(&sample);
+        if (!r.ok()) {
+          std::fprintf(stderr, "skinbus-listen: %s\n", r.error().to_string().c_str());
+          if (sample_error(r.error())) continue;
+          return false;  // the subscriber failed, not one sample
+        }
+        if (!*r) return true;
+        anything = true;
+        last_activity = Clock::now();
+        if (table) {
+          print_table(sample);
+        } else {
+          print_line(to_json(sample));
+        }
       }
-      if (!*r) break;
-      anything = true;
-      last_activity = Clock::now();
-      if (table) {
-        print_table(patch_status);
-      } else {
-        print_line(patch_status_to_json(patch_status));
-      }
+    };
+    if (status && !drain([&](PatchStatusArray* out) { return (*sub)->wait_patch_status(out, 0); },
+                         patch_status, patch_status_to_json)) {
+      return 1;
     }
-    while (diagnostics) {
-      auto r = (*sub)->wait_diagnostics(&health, 0);
-      if (!r.ok()) {
-        std::fprintf(stderr, "skinbus-listen: %s\n", r.error().to_string().c_str());
-        if (sample_error(r.error())) continue;
-        return 1;
-      }
-      if (!*r) break;
-      anything = true;
-      last_activity = Clock::now();
-      if (table) {
-        print_table(health);
-      } else {
-        print_line(diagnostics_to_json(health));
-      }
+    if (diagnostics &&
+        !drain([&](DiagnosticArray* out) { return (*sub)->wait_diagnostics(out, 0); }, health,
+               diagnostics_to_json)) {
+      return 1;
     }
     if (timed_out()) {
       if (!anything) {
