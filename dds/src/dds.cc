@@ -293,6 +293,11 @@ Result<dds_entity_t> create_endpoint(dds_entity_t participant, const DdsOptions&
   return r;
 }
 
+// What asking for rt/diagnostics gives when DdsOptions::diagnostics_topic is empty.
+Error diagnostics_off() {
+  return make_error(ErrorCode::kUnsupported, "diagnostics are off (empty diagnostics_topic)");
+}
+
 Result<dds_entity_t> create_waitset(dds_entity_t participant) {
   const dds_entity_t ws = dds_create_waitset(participant);
   if (ws < 0) return dds_error("dds_create_waitset", ws);
@@ -847,7 +852,7 @@ Result<uint32_t> SkinPublisher::matched_subscribers(SkinTopic topic) const {
       break;
   }
   if (diagnostics_writer_ == 0) {
-    return make_error(ErrorCode::kUnsupported, "diagnostics are off (empty diagnostics_topic)");
+    return diagnostics_off();
   }
   return matched_readers(diagnostics_writer_, options_.diagnostics_topic);
 }
@@ -924,7 +929,7 @@ Result<bool> SkinSubscriber::wait_patch_status(PatchStatusArray* out, int timeou
 
 Result<bool> SkinSubscriber::wait_diagnostics(DiagnosticArray* out, int timeout_ms) {
   if (diagnostics_reader_ == 0) {
-    return make_error(ErrorCode::kUnsupported, "diagnostics are off (empty diagnostics_topic)");
+    return diagnostics_off();
   }
   return wait_take<DiagnosticArrayMsg>(diagnostics_reader_, diagnostics_waitset_,
                                        options_.diagnostics_topic, out, timeout_ms);
@@ -948,7 +953,7 @@ Result<bool> SkinSubscriber::wait_for_publisher(SkinTopic topic, int timeout_ms)
       break;
   }
   if (diagnostics_reader_ == 0) {
-    return make_error(ErrorCode::kUnsupported, "diagnostics are off (empty diagnostics_topic)");
+    return diagnostics_off();
   }
   return wait_matched(diagnostics_match_waitset_, diagnostics_reader_, timeout_ms,
                       options_.diagnostics_topic);
