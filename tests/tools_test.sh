@@ -78,6 +78,10 @@ YAML
 "$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 --design "$here/../sim/designs/nominal.yaml" -o "$work/d_nominal.csv" 2>/dev/null
 cmp -s <(grep -v '^#' "$work/d_default.csv") <(grep -v '^#' "$work/d_nominal.csv") &&
   ok "skinbus-dataset --design sim/designs/nominal.yaml is the built-in design" || bad "shipped nominal design differs"
+printf 'format: skinbus-patch-design\nlattice: {anisotropy: 0.1}\n' >"$work/aniso_design.yaml"
+"$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 --design "$work/aniso_design.yaml" --anisotropy 0 -o "$work/d_aniso0.csv" 2>/dev/null
+cmp -s <(grep -v '^#' "$work/d_default.csv") <(grep -v '^#' "$work/d_aniso0.csv") &&
+  ok "skinbus-dataset --anisotropy 0 overrides the design's anisotropy" || bad "--anisotropy 0 over a design file"
 printf 'format: skinbus-patch-design\nmagnets:\n  polarity: striped\n' >"$work/bad_design.yaml"
 "$bin/skinbus-dataset" --plan grid --design "$work/bad_design.yaml" -o "$work/x.csv" 2>"$work/e9.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "bad_design.yaml: magnets.polarity (line 3)" "$work/e9.txt" &&

@@ -80,9 +80,10 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_flag("--cylinder", cylinder, "a cylinder-section patch (forearm) instead of a flat one");
   app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
-  app.add_option("--anisotropy", anisotropy,
-                 "lattice anisotropy (physics outside the nominal model class)")
-      ->capture_default_str();
+  CLI::Option* anisotropy_given =
+      app.add_option("--anisotropy", anisotropy,
+                     "lattice anisotropy (physics outside the nominal model class)")
+          ->capture_default_str();
   app.add_option("--seed", seed, "seed of random plans")->capture_default_str();
   app.add_option("--points", points_path, "list plan: file of press points");
   std::string unit_path;
@@ -103,7 +104,7 @@ int main(int argc, char** argv) {
       design.surface = SurfaceKind::kCylinder;
       design.radius_mm = radius;
     }
-    if (anisotropy != 0) design.anisotropy = anisotropy;
+    if (anisotropy_given->count() > 0) design.anisotropy = anisotropy;  // else the design's
     if (fabricated && !unit_path.empty()) {
       throw std::invalid_argument("--fabricated and --unit are exclusive: one unit at a time");
     }
