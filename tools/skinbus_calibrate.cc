@@ -17,6 +17,7 @@
 #include "skinbus/body_map/calibration.h"
 #include "skinbus/body_map/touch_log.h"
 #include "skinbus/common/atomic_file.h"
+#include "skinbus/common/plot_script.h"
 #include "tool_util.h"
 
 #ifndef SKINBUS_SOURCE_DIR
@@ -273,14 +274,12 @@ int main(int argc, char** argv) {
     }
   }
   if (!plot_path.empty()) {
-    const char* dir = std::getenv("SKINBUS_TOOLS_DIR");
-    const std::string script =
-        std::string(dir ? dir : SKINBUS_SOURCE_DIR "/tools") + "/plot_calibration.py";
-    const std::string cmd = "'" + script + "' '" + residuals_path + "' '" + plot_path + "' " +
-                            fmt("%.6g", o.outlier_sigma);
-    if (std::system(cmd.c_str()) != 0) {
+    if (skinbus::Status s =
+            skinbus::run_plot_script(SKINBUS_SOURCE_DIR "/tools", "plot_calibration.py",
+                                     {residuals_path, plot_path, fmt("%.6g", o.outlier_sigma)});
+        !s.ok()) {
       return skinbus::tools::fail("skinbus-calibrate",
-                                  "the plot failed (" + cmd + "); map and report are written", 1);
+                                  s.error().message + "; map and report are written", 1);
     }
   }
   return refused ? 3 : 0;

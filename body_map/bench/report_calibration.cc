@@ -15,6 +15,7 @@
 #include "skinbus/body_map/calibration_sim.h"
 #include "skinbus/body_map_bench/reports.h"
 #include "skinbus/common/error_format.h"
+#include "skinbus/common/plot_script.h"
 #include "skinbus/common/stats.h"
 
 #ifndef SKINBUS_SOURCE_DIR
@@ -27,11 +28,6 @@ namespace {
 using namespace skinbus::body_map;
 using Clock = std::chrono::steady_clock;
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
-
-std::string tools_dir() {
-  const char* d = std::getenv("SKINBUS_TOOLS_DIR");
-  return d ? d : SKINBUS_SOURCE_DIR "/tools";
-}
 
 }  // namespace
 
@@ -143,10 +139,8 @@ Status bench_calibration(const CalibrationArgs& a) {
   if (csv) std::fclose(csv);
   if (!a.plot.empty()) {
     if (a.csv.empty()) return make_error(ErrorCode::kInvalidArgument, "--plot needs --csv");
-    const std::string cmd =
-        "'" + tools_dir() + "/plot_calibration_bench.py' '" + a.csv + "' '" + a.plot + "'";
-    if (std::system(cmd.c_str()) != 0)
-      return errorf(ErrorCode::kIo, "the plot failed: %s", cmd.c_str());
+    return run_plot_script(SKINBUS_SOURCE_DIR "/tools", "plot_calibration_bench.py",
+                           {a.csv, a.plot});
   }
   return Status::Ok();
 }

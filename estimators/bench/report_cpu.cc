@@ -14,6 +14,7 @@
 #endif
 
 #include "skinbus/common/error_format.h"
+#include "skinbus/common/plot_script.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/model_file.h"
@@ -364,11 +365,9 @@ Status bench_cpu(const CpuBenchArgs& a) {
       return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     if (!a.plot.empty()) {
-      const char* d = std::getenv("SKINBUS_TOOLS_DIR");
-      const std::string cmd = std::string(d ? d : SKINBUS_SOURCE_DIR "/tools") + "/plot_cpu.py '" +
-                              a.csv + "' '" + a.plot + "'";
-      if (std::system(cmd.c_str()) != 0) {
-        return errorf(ErrorCode::kIo, "plotting failed: %s", cmd.c_str());
+      if (Status s = run_plot_script(SKINBUS_SOURCE_DIR "/tools", "plot_cpu.py", {a.csv, a.plot});
+          !s.ok()) {
+        return s;
       }
     }
   }

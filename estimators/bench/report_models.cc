@@ -1,4 +1,5 @@
 #include "skinbus/common/error_format.h"
+#include "skinbus/common/plot_script.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/estimators_bench/reports.h"
 
@@ -515,11 +516,10 @@ Status bench_models(const ModelsBenchArgs& a) {
     }
   }
   if (!a.plot.empty() && !a.csv.empty() && !a.errors_csv.empty()) {
-    const char* d = std::getenv("SKINBUS_TOOLS_DIR");
-    const std::string cmd = std::string(d ? d : SKINBUS_SOURCE_DIR "/tools") + "/plot_models.py '" +
-                            a.csv + "' '" + a.errors_csv + "' '" + a.plot + "'";
-    if (std::system(cmd.c_str()) != 0) {
-      return errorf(ErrorCode::kIo, "plotting failed: %s", cmd.c_str());
+    if (Status s = run_plot_script(SKINBUS_SOURCE_DIR "/tools", "plot_models.py",
+                                   {a.csv, a.errors_csv, a.plot});
+        !s.ok()) {
+      return s;
     }
   }
   return Status::Ok();
