@@ -17,9 +17,11 @@ namespace skinbus {
 inline Status run_plot_script(const std::string& default_tools_dir, const std::string& script,
                               const std::vector<std::string>& args) {
   const char* dir = std::getenv("SKINBUS_TOOLS_DIR");
-  std::string cmd = "'" + (dir != nullptr ? std::string(dir) : default_tools_dir) + "/" + script + "'";
+  std::string cmd =
+      "'" + (dir != nullptr ? std::string(dir) : default_tools_dir) + "/" + script + "'";
   for (const std::string& a : args) cmd += " '" + a + "'";
-  if (std::system(cmd.c_str()) != 0) return errorf(ErrorCode::kIo, "the plot failed: %s", cmd.c_str());
+  if (std::system(cmd.c_str()) != 0)
+    return errorf(ErrorCode::kIo, "the plot failed: %s", cmd.c_str());
   return Status::Ok();
 }
 
