@@ -166,6 +166,10 @@ for path in glob.glob("expect_*.txt"):
     else:
         sent += n
 identifiable_contact = samples - unattributed - idle - untared
+# Superseded: a newer sample of the same patch was queued before the host ran (latest wins,
+# counted). A host the scheduler stalls for one sample period (a shared CI machine running a VM
+# beside it) does that now and then; more than 0.5 % means it fell behind.
+superseded_bound = max(2, identifiable_contact // 200)
 rss = [(float(r["t_s"]), int(r["rss_kb"])) for r in csv.DictReader(open(out + "/rss.csv")) if r["rss_kb"]]
 third = max(1, len(rss) // 3)
 early, late_rss = max(k for _, k in rss[:third]), max(k for _, k in rss[-third:])
@@ -190,7 +194,7 @@ resident memory: first third max {early} kB, last third max {late_rss} kB, overa
 samples sent: {sent} by the patches, {clone_sent} by the duplicate-UID board; received {samples} in {frames} frames
 lost between the daemons and the host: {lost_transport}; garbage lines counted and skipped: {bad_lines}
 dropped by design (the duplicate-UID board's node, unattributed): {unattributed}
-identifiable contact samples {identifiable_contact}: estimated {estimated}, superseded {superseded}, late {late}
+identifiable contact samples {identifiable_contact}: estimated {estimated}, superseded {superseded} (bound {superseded_bound}), late {late}
   (late: samples a silence fault froze in flight, delivered seconds old; the lag bound supersedes them)
 events: {", ".join(f"{k} {v}" for k, v in sorted(events.items()))}
 """
@@ -211,7 +215,7 @@ try:
     fig.savefig(out + "/rss.png", dpi=100)
 except Exception as e:  # the figures stand without the plot
     print("soak: no plot (%s)" % e)
-ok = host_rc == 0 and lost_transport == 0 and superseded == 0 and late <= cycles \
+ok = host_rc == 0 and lost_transport == 0 and superseded <= superseded_bound and late <= cycles \
     and estimated == identifiable_contact - superseded - late and late_rss <= early + 2048 \
     and (duration < 600 or slope <= 10) \
     and unattributed <= clone_sent
