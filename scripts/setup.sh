@@ -32,6 +32,8 @@ packages=(
   python3 python3-matplotlib
   # the red-team suite and the soak measure peak memory (GNU time)
   time
+  # the web view's test drives the page in headless Chromium
+  chromium
 )
 
 missing=()
@@ -40,6 +42,8 @@ for p in "${packages[@]}"; do
     missing+=("$p")
   fi
 done
+# The web view's libraries come from the npm registry (Debian's npm when no npm is installed).
+command -v npm >/dev/null || missing+=(npm)
 if ((${#missing[@]})); then
   echo "setup: installing ${missing[*]}"
   sudo_cmd=()
@@ -48,4 +52,13 @@ if ((${#missing[@]})); then
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -q --no-install-recommends "${missing[@]}"
 else
   echo "setup: all ${#packages[@]} packages present"
+fi
+
+# The web view's libraries (three.js, urdf-loader), pinned in view/web/package-lock.json, into
+# view/web/node_modules; again only when the lock file changed.
+web=$(cd "$(dirname "$0")/../view/web" && pwd)
+if ! cmp -s "$web/package-lock.json" "$web/node_modules/.skinbus-installed-lock" 2>/dev/null; then
+  echo "setup: installing the web view's libraries (npm ci in $web)"
+  (cd "$web" && npm ci --no-audit --no-fund --loglevel=error)
+  cp "$web/package-lock.json" "$web/node_modules/.skinbus-installed-lock"
 fi

@@ -1,0 +1,198 @@
+// skinbus-view: the skin in 3D in a browser. Serves the web view (view/web: the robot from its
+// URDF posed by the joint states, the patches on their links, the contacts) on localhost, fed
+// from the DDS topics skinbus-host publishes; docs/view.md.
+//
+//   skinbus-view --map skin.yaml                  # then open http://localhost:8080/
+//   skinbus-view --map skin.yaml --port 0 --duration 30
+#include <CLI/CLI.hpp>
+
+#include <sys/stat.h>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+
+#include "skinbus/body_map/skin_map.h"
+#include "skinbus/dds/dds.h"
+#include "skinbus/host/contacts_json.h"
+#include "skinbus/view/scene_json.h"
+#include "skinbus/view/server.h"
+#include "tool_util.h"
+
+using namespace skinbus;
+
+namespace {
+
+uint64_t now_us() {
+  return static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
+                                   std::chrono::system_clock::now().time_since_epoch())
+                                   .count());
+}
+
+bool is_dir(const std::string& p) {
+  struct stat st {};
+  return ::stat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "skinbus-view: the robot skin in 3D, in a web browser. Subscribes to the topics "
+      "skinbus-host\n"
+      "publishes (rt/skin/contacts, rt/skin/patch_status) and to rt/joint_states, and serves a\n"
+      "page over HTTP and WebSocket that draws:\n"
+      "  - the robot from the skin map's URDF, posed live by the joint states;\n"
+      "  - every patch on its link as the surface it is, coloured by its state;\n"
+      "  - every contact at its body-frame position, sized by depth and coloured by force, with\n"
+      "    its track ID and a trail; the patches' counters, the events, a stalled-stream banner.\n"
+      "The page and its libraries are served from this machine (nothing from the internet);\n"
+      "read-only: nothing a page sends reaches the patches. Binds to 127.0.0.1: on a robot, open\n"
+      "it through an SSH tunnel (docs/guides/web_view.md).\n\n"
+      "Examples:\n"
+      "  skinbus-view --map skin.yaml                 # http://localhost:8080/\n"
+      "  ssh -L 8080:localhost:8080 robot            # then open http://localhost:8080/ here\n\n"
+      "Exit status: 0; 1 when DDS, the map or the port failed; 2 on bad arguments."};
+  std::string map_path, ns, bind = "127.0.0.1";
+  std::string web_root = SKINBUS_VIEW_WEB_DIR;
+  int domain = -1, port = 8080, max_pages = 16;
+  double duration_s = 0, joint_rate_hz = 30;
+  bool quiet = false;
+  app.add_option("--map", map_path, "skin map (YAML): the patches and the robot")->required();
+  app.add_option("--namespace", ns, "the host's --namespace (topics rt/NS/skin/...)");
+  app.add_option("--domain", domain, "DDS domain ID (default: Cyclone DDS's)");
+  app.add_option("--port", port, "TCP port (0: any free one, printed)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 65535));
+  app.add_option("--bind", bind, "IPv4 address to serve on (0.0.0.0: every interface)")
+      ->capture_default_str();
+  app.add_option("--max-pages", max_pages, "pages connected at once (more get HTTP 503)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 256));
+  app.add_option("--joint-rate", joint_rate_hz, "joint states sent to pages at most, Hz")
+      ->capture_default_str()
+      ->check(CLI::Range(1.0, 1000.0));
+  app.add_option("--web-root", web_root, "the page's folder (with node_modules/)")
+      ->capture_default_str();
+  app.add_option("--duration", duration_s, "exit after this many seconds (0: until Ctrl-C)")
+      ->capture_default_str();
+  app.add_flag("-q,--quiet", quiet, "no address line, no counters at exit");
+  CLI11_PARSE(app, argc, argv);
+  constexpr const char* kTool = "skinbus-view";
+
+  auto map = body_map::load_skin_map_file(map_path);
+  if (!map) return tools::report_error(kTool, map.error());
+  if (!is_dir(web_root + "/node_modules/three") ||
+      !is_dir(web_root + "/node_modules/urdf-loader")) {
+    return tools::fail(kTool,
+                       "the page's libraries are not installed in " + web_root +
+                           "/node_modules (scripts/setup.sh installs them: npm ci in view/web)",
+                       1);
+  }
+  view::ServerOptions options;
+  options.bind_address = bind;
+  options.port = static_cast<uint16_t>(port);
+  options.max_clients = max_pages;
+  auto server = view::Server::create(options);
+  if (!server) return tools::report_error(kTool, server.error());
+  std::string robot_url;
+  if (!map->robot.empty()) {
+    const std::filesystem::path urdf = body_map::path_beside(map_path, map->robot);
+    (*server)->add_folder("/robot/", urdf.parent_path().string());
+    robot_url = "/robot/" + urdf.filename().string();
+  }
+  (*server)->add_folder("/", web_root);
+  (*server)->add_folder("/node_modules/", web_root + "/node_modules");
+  (*server)->add_document("/api/scene", "application/json",
+                          view::scene_to_json(*map, robot_url, "base_link", true));
+
+  dds::DdsOptions o;
+  if (domain >= 0) o.domain_id = static_cast<uint32_t>(domain);
+  if (Status st = dds::apply_namespace(&o, ns); !st.ok()) {
+    return tools::fail(kTool, st.error().to_string(), 2);
+  }
+  auto sub = dds::SkinSubscriber::create(o);
+  if (!sub) return tools::report_error(kTool, sub.error());
+  auto joints = dds::JointStateSubscriber::create(o);
+  if (!joints) return tools::report_error(kTool, joints.error());
+
+  // The latest state a page opened now must see at once.
+  std::string last_joint_state, last_status;
+  (*server)->set_greeting([&] {
+    std::vector<std::string> m{view::hello_to_json(true)};
+    if (!last_joint_state.empty()) m.push_back(last_joint_state);
+    if (!last_status.empty()) m.push_back(last_status);
+    return m;
+  });
+  if (!quiet) {
+    std::printf("skinbus-view: serving http://%s:%u/ (%zu patches%s)\n",
+                bind == "0.0.0.0" ? "localhost" : bind.c_str(), (*server)->port(),
+                map->patches.size(), robot_url.empty() ? ", no robot" : "");
+    std::fflush(stdout);
+  }
+
+  tools::install_stop_handler();
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  const auto joint_period = std::chrono::duration<double>(1.0 / joint_rate_hz);
+  auto next_joint = start, next_heartbeat = start;
+  std::optional<Clock::time_point> last_host;
+  uint64_t contact_arrays = 0, status_arrays = 0;
+  dds::JointStateSample js;
+  bool joint_pending = false;
+  while (!tools::stop_requested()) {
+    if (duration_s > 0 && Clock::now() - start > std::chrono::duration<double>(duration_s)) break;
+    if (Status st = (*server)->poll(10); !st.ok()) return tools::report_error(kTool, st.error());
+    host::ContactArray ca;
+    for (;;) {
+      auto got = (*sub)->wait_contacts(&ca, 0);
+      if (!got.ok() || !*got) break;
+      (*server)->broadcast(host::contacts_to_json(ca));
+      last_host = Clock::now();
+      ++contact_arrays;
+    }
+    host::PatchStatusArray sa;
+    for (;;) {
+      auto got = (*sub)->wait_patch_status(&sa, 0);
+      if (!got.ok() || !*got) break;
+      last_status = host::patch_status_to_json(sa);
+      (*server)->broadcast(last_status);
+      last_host = Clock::now();
+      ++status_arrays;
+    }
+    // Joint states: the latest, at most joint_rate_hz.
+    if ((*joints)->take_latest(&js)) joint_pending = true;
+    const auto now = Clock::now();
+    if (joint_pending && now >= next_joint) {
+      last_joint_state = view::joint_state_to_json(js.stamp_us, js.names, js.positions);
+      (*server)->broadcast(last_joint_state);
+      joint_pending = false;
+      next_joint = now + std::chrono::duration_cast<Clock::duration>(joint_period);
+    }
+    if (now >= next_heartbeat) {
+      const int64_t age_ms =
+          last_host
+              ? std::chrono::duration_cast<std::chrono::milliseconds>(now - *last_host).count()
+              : -1;
+      (*server)->broadcast(view::heartbeat_to_json(now_us(), age_ms));
+      next_heartbeat = now + std::chrono::seconds(1);
+    }
+  }
+  if (!quiet) {
+    const auto s = (*server)->stats();
+    std::fprintf(stderr,
+                 "skinbus-view: contact arrays %llu, status arrays %llu; pages connected %llu "
+                 "(refused %llu, dropped for not reading %llu, closed for bad frames %llu), page "
+                 "messages ignored %llu, files %llu, bad requests %llu\n",
+                 static_cast<unsigned long long>(contact_arrays),
+                 static_cast<unsigned long long>(status_arrays),
+                 static_cast<unsigned long long>(s.clients_connected),
+                 static_cast<unsigned long long>(s.clients_refused),
+                 static_cast<unsigned long long>(s.clients_dropped_slow),
+                 static_cast<unsigned long long>(s.protocol_errors),
+                 static_cast<unsigned long long>(s.client_messages),
+                 static_cast<unsigned long long>(s.http_requests),
+                 static_cast<unsigned long long>(s.http_errors));
+  }
+  return 0;
+}
