@@ -5,15 +5,17 @@
 # simulator). Scripted touches land on them while the arms move (joint states on DDS from
 # skinbus-joints). The host aggregator (skinbus-host) reads the bus, estimates every touched
 # patch with the shipped model, places the contacts on the moving body and publishes them on the
-# DDS topic rt/skin/contacts; skinbus-top draws them in the terminal.
+# DDS topic rt/skin/contacts; skinbus-top draws them in the terminal and skinbus-view serves them
+# in 3D to a web browser (http://localhost:8080/ while the demo runs; docs/view.md).
 #
-#   scripts/demo.sh [--duration SECONDS] [--headless] [--out DIR] [--no-setup]
+#   scripts/demo.sh [--duration SECONDS] [--headless] [--out DIR] [--no-setup] [--view-port P]
 #
 # On a kernel with vcan (and the right to create it) the patches send on real SocketCAN; elsewhere
 # they send the same frames, in candump -L form, through a pipe to the host, and the demo says so.
 # Either way the bus traffic is in OUT/bus.log (watch it: tail -f out/demo/bus.log).
 #   --headless   no live view: a plain frame every 4 s (logs, tests)
 #   --no-setup   skip scripts/setup.sh and the build (they are quick when done, not instant)
+#   --view-port  the web view's port (default 8080; 0: any free port; off: no web view)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 src=$PWD
@@ -21,13 +23,15 @@ duration=16
 headless=0
 setup=1
 out=out/demo
+view_port=${SKINBUS_VIEW_PORT:-8080}
 while (($#)); do
   case $1 in
     --duration) duration=$2; shift 2 ;;
     --headless) headless=1; shift ;;
     --out) out=$2; shift 2 ;;
-    --no-setup) setup=0; shift ;;
-    -h|--help) sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+)    --no-setup) setup=0; shift ;;
+    --view-port) view_port=$2; shift 2 ;;
+    -h|--help) sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -78,6 +82,27 @@ fi
 "$bin/skinbus-listen" --domain "$domain" --status --timeout $((duration + 30)) \
   >"$out/contacts.jsonl" 2>"$out/listen.log" &
 pids+=($!)
+
+# The web view: the robot in 3D in a browser, served while the demo runs.
+view_url=
+if [[ $view_port != off ]]; then
+  "$bin/skinbus-view" --map "$out/skin.yaml" --domain "$domain" --port "$view_port" \
+    --duration $((duration + 4)) >"$out/view.log" 2>&1 &
+  pids+=($!)
+  for _ in $(seq 50); do
+    view_url=$(grep -o 'http://[^ ]*' "$out/view.log" 2>/dev/null | head -1) && [[ -n $view_url ]] && break
+    kill -0 "${pids[-1]}" 2>/dev/null || break
+    sleep 0.1
+  done
+  if [[ -n $view_url ]]; then
+    port=${view_url##*:}
+    port=${port%/}
+    echo "== the web view: $view_url (open it in a browser while the demo runs; from another"
+    echo "   machine: ssh -L $port:localhost:$port THIS_HOST, then http://localhost:$port/)"
+  else
+    echo "== no web view: $(tail -1 "$out/view.log" 2>/dev/null) (see $out/view.log)"
+  fi
+fi
 
 host_args=(--map "$out/skin.yaml" --joints dds --domain "$domain" --json-status
            --status-period 1 --stats)

@@ -271,7 +271,25 @@ host --map "$work/h/truth.yaml" --no-dds --replay /dev/null --max-lag-ms -5 2>"$
 host --map "$work/h/truth.yaml" --no-dds --replay /dev/null --isa sse 2>"$work/h/e7.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q -- "--isa: avx512, avx2, neon or portable" "$work/h/e7.txt" && ok "skinbus-host: bad --isa" || { bad "host --isa sse (rc $rc)"; cat "$work/h/e7.txt"; }
 
-for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate; do
+# skinbus-view: the page's libraries missing, a bad address, a taken port, a missing recording.
+if [[ -x $bin/skinbus-view ]]; then
+  view() { timeout 20 "$bin/skinbus-view" "$@"; }
+  mkdir -p "$work/web/node_modules/three" "$work/web/node_modules/urdf-loader" "$work/bare"
+  view --map "$work/h/truth.yaml" --web-root "$work/bare" --duration 1 2>"$work/h/v1.txt"; rc=$?
+  [[ $rc == 1 ]] && grep -q "scripts/setup.sh installs them" "$work/h/v1.txt" && ok "skinbus-view: libraries missing" || { bad "view no node_modules (rc $rc)"; cat "$work/h/v1.txt"; }
+  view --map "$work/h/truth.yaml" --web-root "$work/web" --bind localhost --duration 1 2>"$work/h/v2.txt"; rc=$?
+  [[ $rc == 2 ]] && grep -q "'localhost' is not an IPv4 address" "$work/h/v2.txt" && ok "skinbus-view: bad --bind" || { bad "view --bind localhost (rc $rc)"; cat "$work/h/v2.txt"; }
+  view --map "$work/h/truth.yaml" --web-root "$work/web" --port 0 --duration 4 >"$work/h/v3.txt" 2>&1 &
+  sleep 1.5
+  port=$(grep -o '127.0.0.1:[0-9]*' "$work/h/v3.txt" | cut -d: -f2)
+  view --map "$work/h/truth.yaml" --web-root "$work/web" --port "${port:-1}" --duration 1 2>"$work/h/v4.txt"; rc=$?
+  [[ $rc == 1 ]] && grep -q "bind 127.0.0.1:$port: Address already in use" "$work/h/v4.txt" && ok "skinbus-view: port in use" || { bad "view port in use (rc $rc)"; cat "$work/h/v4.txt"; }
+  view --map "$work/h/truth.yaml" --web-root "$work/web" --port 0 --recording "$work/none.jsonl" --duration 1 2>"$work/h/v5.txt"; rc=$?
+  [[ $rc == 2 ]] && grep -q "cannot read .*none.jsonl" "$work/h/v5.txt" && ok "skinbus-view: missing recording" || { bad "view missing recording (rc $rc)"; cat "$work/h/v5.txt"; }
+  wait
+fi
+
+for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate skinbus-view; do
   grep -q "Examples:\|Example:\|skinbus-dbc:" <<<"$("$bin/$t" --help)" && ok "$t --help" || bad "$t --help"
 done
 grep -q "calibration" <<<"$("$bin/skinbus-bench" --help)" && ok "skinbus-bench --help" || bad "skinbus-bench --help"

@@ -10,6 +10,8 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
 #include <string>
 
 #include "skinbus/body_map/skin_map.h"
@@ -51,9 +53,11 @@ int main(int argc, char** argv) {
       "it through an SSH tunnel (docs/guides/web_view.md).\n\n"
       "Examples:\n"
       "  skinbus-view --map skin.yaml                 # http://localhost:8080/\n"
-      "  ssh -L 8080:localhost:8080 robot            # then open http://localhost:8080/ here\n\n"
+      "  ssh -L 8080:localhost:8080 robot            # then open http://localhost:8080/ here\n"
+      "  skinbus-view --map skin.yaml --recording out/demo/host.jsonl\n"
+      "      # then http://localhost:8080/?replay=/recording.jsonl\n\n"
       "Exit status: 0; 1 when DDS, the map or the port failed; 2 on bad arguments."};
-  std::string map_path, ns, bind = "127.0.0.1";
+  std::string map_path, ns, bind = "127.0.0.1", recording;
   std::string web_root = SKINBUS_VIEW_WEB_DIR;
   int domain = -1, port = 8080, max_pages = 16;
   double duration_s = 0, joint_rate_hz = 30;
@@ -74,6 +78,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1.0, 1000.0));
   app.add_option("--web-root", web_root, "the page's folder (with node_modules/)")
       ->capture_default_str();
+  app.add_option("--recording", recording,
+                 "a JSON-lines recording (skinbus-host --json-status, skinbus-listen --status) to "
+                 "serve at /recording.jsonl: open /?replay=/recording.jsonl to play it");
   app.add_option("--duration", duration_s, "exit after this many seconds (0: until Ctrl-C)")
       ->capture_default_str();
   app.add_flag("-q,--quiet", quiet, "no address line, no counters at exit");
@@ -105,6 +112,13 @@ int main(int argc, char** argv) {
   (*server)->add_folder("/node_modules/", web_root + "/node_modules");
   (*server)->add_document("/api/scene", "application/json",
                           view::scene_to_json(*map, robot_url, "base_link", true));
+  if (!recording.empty()) {
+    std::ifstream in(recording, std::ios::binary);
+    std::ostringstream text;
+    text << in.rdbuf();
+    if (!in.good() && !in.eof()) return tools::fail(kTool, "cannot read " + recording, 2);
+    (*server)->add_document("/recording.jsonl", "application/x-ndjson", text.str());
+  }
 
   dds::DdsOptions o;
   if (domain >= 0) o.domain_id = static_cast<uint32_t>(domain);

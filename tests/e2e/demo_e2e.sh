@@ -8,7 +8,7 @@ set -euo pipefail
 source "$(dirname "$0")/e2e_lib.sh"
 e2e_init "$@"
 out=$work/demo
-"$src/scripts/demo.sh" --headless --no-setup --duration 15 --out "$out" >"$work/demo.txt" 2>&1 || {
+"$src/scripts/demo.sh" --headless --no-setup --duration 15 --out "$out" --view-port 0 >"$work/demo.txt" 2>&1 || {
   tail -30 "$work/demo.txt"
   exit 1
 }

@@ -1,0 +1,167 @@
+#!/usr/bin/python3
+"""Drives the web view of a running demo in headless Chromium and checks what the page shows.
+
+  check_view.py URL DEMO_OUT SCENE_DIR BUILD_DIR ARTEFACT_DIR SECONDS
+
+For SECONDS the page is read back (window.skinbusView.summary(), its own scene objects, not the
+server's JSON) every 0.2 s. It must: load the robot from its URDF and draw the skin map's 12
+patches on their links, where the project's forward kinematics puts them at the joint values the
+page applied (urdf-loader's kinematics against skinbus-locate, within 1 mm); show contacts, which
+must sit where the scripted presses are on the moving body (skinbus-locate at the contact's time,
+as check_demo.py: median < 5 mm, p90 < 12 mm per patch); show node 11 stale or offline once its
+daemon is stopped; raise its stalled banner once the host is gone; log no page errors. Meanwhile
+hostile clients (malformed requests, oversized and binary frames, 40 connections at once) must not
+disturb it. Writes ARTEFACT_DIR/view.png (a moment with contacts). PASS/FAIL lines; exit 1 on any
+FAIL.
+"""
+import json
+import math
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import cdp  # noqa: E402
+
+
+def hostile_clients(port):
+    """Bounded abuse of the server on the loopback: every socket closed, a few seconds at most."""
+    key = "dGhlIHNhbXBsZSBub25jZQ=="
+    upgrade = (f"GET /ws HTTP/1.1\r\nHost: localhost\r\nUpgrade: websocket\r\n"
+               f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n\r\n").encode()
+    payloads = [
+        b"\x00\x01garbage\r\n\r\n",
+        b"GET /../../etc/passwd HTTP/1.1\r\n\r\n",
+        b"GET / HTTP/1.1\r\n" + b"X: " + b"a" * 20000 + b"\r\n\r\n",
+        upgrade + b"\x81\x7f\x7f\xff\xff\xff\xff\xff\xff\xff",   # a 2^63-byte frame
+        upgrade + b"\x82\x82abcd\x00\x00",                      # a binary frame
+        upgrade + b"\x81\x02hi",                                # unmasked
+        upgrade + b"\x81\xfe\x20\x00abcd" + b"x" * 8192,        # 8 KiB text frame
+    ]
+    socks = []
+    for i in range(40):
+        s = socket.create_connection(("127.0.0.1", port), timeout=2)
+        try:
+            s.sendall(payloads[i % len(payloads)])
+        except OSError:
+            pass
+        socks.append(s)
+    time.sleep(0.5)
+    for s in socks:
+        s.close()
+
+
+def locate(build, skin, joints_csv, lines):
+    out = subprocess.run([f"{build}/tools/skinbus-locate", "--map", skin, "--joints", joints_csv, "-"],
+                         input="".join(lines), text=True, capture_output=True, check=True).stdout
+    return [l.split() for l in out.splitlines()]
+
+
+def main():
+    if len(sys.argv) != 7:
+        sys.exit(__doc__)
+    url, demo, scene, build, artefacts, seconds = sys.argv[1:]
+    seconds = float(seconds)
+    port = int(re.search(r":(\d+)", url).group(1))
+    fails = 0
+
+    def check(name, cond, detail=""):
+        nonlocal fails
+        print(("PASS " if cond else "FAIL ") + name + (f": {detail}" if detail else ""))
+        fails += 0 if cond else 1
+
+    presses = {}
+    for line in open(f"{scene}/presses.csv"):
+        if line.startswith("#") or not line.strip():
+            continue
+        t0, t1, u, v, depth, tip, node = line.strip().split(",")
+        presses[int(node)] = (float(u), float(v))
+
+    contacts = {}  # (track, stamp) -> page contact
+    states = {}    # node -> states seen
+    stalled_seen = False
+    centre_checks = []
+    shot = False
+    with cdp.Browser() as browser:
+        browser.open(url)
+        try:
+            browser.wait_for("window.skinbusView && window.skinbusView.summary().robot_loaded", 30)
+        except Exception as e:  # noqa: BLE001
+            check("the page loads the robot", False, str(e))
+            return 1
+        s = browser.evaluate("window.skinbusView.summary()")
+        check("the page loads the robot from its URDF", s["robot_loaded"] and s["links"] > 10,
+              f"{s['links']} links")
+        drawn = sorted(p["node"] for p in s["patches"] if p["drawn"])
+        check("the skin map's 12 patches are drawn", drawn == list(range(1, 13)), f"drawn {drawn}")
+        start = time.monotonic()
+        hostile_done = False
+        while time.monotonic() - start < seconds:
+            s = browser.evaluate("window.skinbusView.summary()")
+            for c in s["contacts"]:
+                contacts[(c["track_id"], c["stamp_us"])] = c
+            for p in s["patches"]:
+                states.setdefault(p["node"], set()).add(p["state"])
+            stalled_seen |= bool(s["stalled"]) and time.monotonic() - start > seconds - 6
+            if s["joints"] and len(centre_checks) < 5 and time.monotonic() - start > 3:
+                centre_checks.append(s)
+            if len(s["contacts"]) >= 1 and not shot and time.monotonic() - start > 6:
+                browser.screenshot(f"{artefacts}/view.png")
+                shot = True
+            if not hostile_done and time.monotonic() - start > 4:
+                hostile_clients(port)
+                hostile_done = True
+            time.sleep(0.2)
+        if not shot:
+            browser.screenshot(f"{artefacts}/view.png")
+        final = browser.evaluate("window.skinbusView.summary()")
+        check("no page errors", not final["errors"] and not browser.console_errors(),
+              "; ".join(final["errors"] + browser.console_errors())[:500])
+        print(f"  page messages: {final['messages']}, {final['fps']:.0f} frames/s at the end")
+
+    # urdf-loader's forward kinematics against the project's, at the joint values the page applied.
+    worst = 0.0
+    for s in centre_checks:
+        names = sorted(s["joints"])
+        with open("joints_now.csv", "w") as f:
+            f.write("time_s," + ",".join(names) + "\n0," + ",".join(str(s["joints"][n]) for n in names) + "\n")
+        truth = locate(build, f"{demo}/skin.yaml", "joints_now.csv",
+                       [f"0 {p['node']} 0 0\n" for p in s["patches"]])
+        for p, t in zip(s["patches"], truth):
+            worst = max(worst, math.dist(p["centre_base_mm"], [float(x) for x in t[2:5]]))
+    check("patches where the project's kinematics puts them (urdf-loader in the page)",
+          centre_checks and worst < 1.0, f"{len(centre_checks)} poses, worst {worst:.3f} mm")
+
+    # Contacts read back from the page against the presses on the moving body.
+    m = re.search(r"time zero (\d+) us", open(f"{demo}/joints.log").read())
+    t_zero_us = int(m.group(1))
+    deep = [c for c in contacts.values() if c["node"] in presses]
+    check("contacts shown by the page", len(deep) > 50, f"{len(deep)} distinct contacts read back")
+    truth = locate(build, f"{demo}/skin.yaml", f"{scene}/arms.csv",
+                   [f"{(c['stamp_us'] - t_zero_us) / 1e6:.4f} {c['node']} "
+                    f"{presses[c['node']][0]} {presses[c['node']][1]}\n" for c in deep])
+    errs = {}
+    for c, t in zip(deep, truth):
+        errs.setdefault(c["node"], []).append(
+            math.dist(c["position_base_mm"], [float(x) for x in t[2:5]]))
+    bad = []
+    for node, e in sorted(errs.items()):
+        e.sort()
+        med, p90 = e[len(e) // 2], e[int(0.9 * len(e))]
+        if not (med < 5 and p90 < 12):
+            bad.append(f"node {node}: median {med:.1f}, p90 {p90:.1f} mm")
+    check("contacts in the page where the presses are, within the model's error", not bad and len(errs) >= 8,
+          f"{len(errs)} patches" + (f"; {bad}" if bad else ""))
+    check("node 11 shown stale or offline after its daemon stopped",
+          bool(states.get(11, set()) & {"stale", "offline"}), f"states seen {sorted(states.get(11, []))}")
+    check("the other patches never shown offline",
+          all("offline" not in v for n, v in states.items() if n != 11))
+    check("the stalled banner once the host is gone", stalled_seen)
+    return 1 if fails else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
