@@ -49,7 +49,7 @@ class Browser:
         self._lock = threading.Condition()
         self._answers = {}          # command id -> answer message
         self._errors = []           # console errors and page exceptions, as strings
-        self._events = []           # (method, params) of the page session's events
+        self._loads = 0             # Page.loadEventFired events seen
         self._next_id = 0
         self._closed = False
         self._session = None
@@ -142,8 +142,8 @@ class Browser:
                 self._answers[msg["id"]] = msg
             elif msg.get("sessionId") == self._session and self._session is not None:
                 method, params = msg.get("method", ""), msg.get("params", {})
-                self._events.append((method, params))
-                del self._events[:-1000]
+                if method == "Page.loadEventFired":
+                    self._loads += 1
                 error = _error_text(method, params)
                 if error is not None:
                     self._errors.append(error)
@@ -202,11 +202,21 @@ class Browser:
     # -- page ----------------------------------------------------------------------------------
 
     def open(self, url, timeout_s=30.0):
-        """Navigate to url and wait until the document has loaded."""
+        """Navigate to url and wait for its load event."""
+        with self._lock:
+            loads = self._loads
         result = self.send("Page.navigate", {"url": url}, timeout_s=timeout_s)
         if result.get("errorText"):
             raise CdpError("cannot open %s: %s" % (url, result["errorText"]))
-        self.wait_for("document.readyState === 'complete'", timeout_s)
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            while self._loads == loads:
+                left = deadline - time.monotonic()
+                if self._closed:
+                    raise CdpError("the browser went away opening %s" % url)
+                if left <= 0:
+                    raise CdpError("%s: no load event in %.0f s" % (url, timeout_s))
+                self._lock.wait(left)
 
     def evaluate(self, expression, timeout_s=None):
         """The value of a JavaScript expression (promises awaited), as JSON-able Python.
