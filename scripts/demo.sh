@@ -29,7 +29,7 @@ while (($#)); do
     --duration) duration=$2; shift 2 ;;
     --headless) headless=1; shift ;;
     --out) out=$2; shift 2 ;;
-)    --no-setup) setup=0; shift ;;
+    --no-setup) setup=0; shift ;;
     --view-port) view_port=$2; shift 2 ;;
     -h|--help) sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;

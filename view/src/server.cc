@@ -171,7 +171,6 @@ struct Server::Impl {
         "Sec-WebSocket-Accept: " +
         websocket_accept_key(request.header("sec-websocket-key")) + "\r\n\r\n";
     c.websocket = true;
-    c.in.clear();
     ++stats.clients;
     ++stats.clients_connected;
     if (greeting) {
@@ -207,39 +206,46 @@ struct Server::Impl {
     if (n == 0) return false;
     if (n < 0) return errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR;
     if (c.closing) return true;  // an answer is on its way; what follows is not read
+    std::string_view bytes(buf, static_cast<std::size_t>(n));
+    std::string after_head;
     if (!c.websocket) {
-      c.in.append(buf, static_cast<std::size_t>(n));
+      c.in.append(bytes);
       const auto length = request_head_length(c.in);
       if (!length.ok()) {
         answer(c, 400, "text/plain", length.error().message + "\n");
-      } else if (*length > 0) {
-        handle_request(c, std::string_view(c.in).substr(0, *length));
+        return true;
       }
-      return true;
+      if (*length == 0) return true;
+      handle_request(c, std::string_view(c.in).substr(0, *length));
+      if (!c.websocket) return true;
+      // A client may send its first frames in the same packet as its upgrade.
+      after_head = c.in.substr(*length);
+      c.in.clear();
+      bytes = after_head;
     }
-    c.frames.feed({reinterpret_cast<const uint8_t*>(buf), static_cast<std::size_t>(n)});
+    read_frames(c, bytes);
+    return true;
+  }
+
+  void read_frames(Connection& c, std::string_view bytes) {
+    c.frames.feed({reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size()});
     ClientFrame frame;
     for (;;) {
       const auto step = c.frames.next(&frame);
-      if (step == FrameReader::Step::kNeedMore) break;
-      if (step == FrameReader::Step::kError) {
-        protocol_error(c, c.frames.close_code());
-        break;
-      }
+      if (step == FrameReader::Step::kNeedMore) return;
+      if (step == FrameReader::Step::kError) return protocol_error(c, c.frames.close_code());
       if (frame.kind == ClientFrame::Kind::kText) {
         ++stats.client_messages;  // read-only: counted, ignored
       } else if (frame.kind == ClientFrame::Kind::kBinary) {
-        protocol_error(c, kCloseUnsupportedData);
-        break;
+        return protocol_error(c, kCloseUnsupportedData);
       } else if (frame.kind == ClientFrame::Kind::kPing) {
         append_pong_frame(frame.payload, &c.out);
       } else if (frame.kind == ClientFrame::Kind::kClose) {
         append_close_frame(kCloseNormal, &c.out);
         c.closing = true;
-        break;
+        return;
       }
     }
-    return true;
   }
 
   // Sends what the socket takes. False when the connection failed.

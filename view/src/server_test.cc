@@ -160,6 +160,18 @@ TEST(ViewServer, APageGetsTheGreetingThenEveryBroadcast) {
   EXPECT_EQ(server->stats().clients, 0);
 }
 
+TEST(ViewServer, FramesSentWithTheUpgradeAreRead) {
+  auto server = make_server();
+  TestClient page(server->port());
+  page.send(kUpgrade + masked(0x89, "p1") + masked(0x81, "{}"));
+  ASSERT_TRUE(pump(*server, {&page}, [&] { return contains(page.received, "\x8a\x02p1"); }));
+  EXPECT_EQ(server->stats().client_messages, 1u);
+  TestClient bad(server->port());
+  bad.send(kUpgrade + "\x81\x02hi");  // unmasked, in the upgrade's packet
+  ASSERT_TRUE(pump(*server, {&bad}, [&] { return !bad.open(); }));
+  EXPECT_EQ(server->stats().protocol_errors, 1u);
+}
+
 TEST(ViewServer, BadFramesCloseThatPageOnlyAndPagesAreBounded) {
   ServerOptions options;
   options.max_clients = 2;

@@ -799,6 +799,7 @@ window.skinbusView = {
         track_id: v.data.track_id,
         node: v.data.node,
         stamp_us: v.stampUs,
+        depth_mm: v.data.depth_mm,
         position_base_mm: round(v.positionBaseMm()),
       })),
       messages: { ...messageCounts },
