@@ -80,7 +80,10 @@ BENCHMARK(BM_PhysicsRefineFromGuess)->Unit(benchmark::kMicrosecond);
 void BM_LookupEstimate(benchmark::State& state) {
   const Samples& s = samples();
   estimators::LookupGrid grid;
-  if (state.range(0) == 1) grid = estimators::PhysicsOptions{}.start_grid;
+  if (state.range(0) == 1) {
+    grid = estimators::PhysicsOptions{}.start_grid;
+    grid.pitch_mm = estimators::start_pitch_mm(s.model.design());
+  }
   const estimators::LookupEstimator lookup =
       estimators::LookupEstimator::from_model(s.model, grid).value();
   std::size_t i = 0;

@@ -96,6 +96,27 @@ Status check_options(const PhysicsOptions& o) {
 
 }  // namespace
 
+double start_pitch_mm(const sim::PatchDesign& design) {
+  constexpr double kMaxPitchMm = 5.0;
+  double spacing_mm = design.magnet_pitch_mm;
+  if (!design.magnet_list.empty()) {
+    std::vector<double> nearest;
+    for (const auto& a : design.magnet_list) {
+      double best = std::numeric_limits<double>::infinity();
+      for (const auto& b : design.magnet_list) {
+        const double d = std::hypot(a.u_mm - b.u_mm, a.v_mm - b.v_mm);
+        if (&a != &b && d > 0) best = std::min(best, d);
+      }
+      if (std::isfinite(best)) nearest.push_back(best);
+    }
+    if (nearest.empty()) return kMaxPitchMm;
+    std::nth_element(nearest.begin(), nearest.begin() + nearest.size() / 2, nearest.end());
+    spacing_mm = nearest[nearest.size() / 2];
+  }
+  if (!(spacing_mm > 0)) return kMaxPitchMm;
+  return std::min(kMaxPitchMm, spacing_mm / kStartPitchPerMagnetSpacing);
+}
+
 PhysicsEstimator::PhysicsEstimator(const sim::PatchModel& model, const PhysicsOptions& options,
                                    LookupEstimator start)
     : model_(model), options_(options), start_(std::move(start)) {
@@ -119,7 +140,9 @@ Result<PhysicsEstimator> PhysicsEstimator::create(const sim::PatchModel& model,
   if (Status s = check_options(options); !s.ok()) return s.error();
   LookupOptions lo;
   lo.ambient_invariant = options.fit_ambient;
-  Result<LookupEstimator> start = LookupEstimator::from_model(model, options.start_grid, lo);
+  LookupGrid grid = options.start_grid;
+  if (grid.pitch_mm == 0) grid.pitch_mm = start_pitch_mm(model.design());
+  Result<LookupEstimator> start = LookupEstimator::from_model(model, grid, lo);
   if (!start.ok()) return start.error();
   return PhysicsEstimator(model, options, std::move(start).value());
 }

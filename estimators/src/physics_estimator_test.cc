@@ -269,3 +269,24 @@ TEST_F(PhysicsEstimatorTest, LookupFromADatasetInterpolatesWithNeighbours) {
 
 }  // namespace
 }  // namespace skinbus::estimators
+
+namespace skinbus::estimators {
+namespace {
+
+TEST(PhysicsStartPitch, FollowsTheMagnetSpacingAtMostFiveMillimetres) {
+  sim::PatchDesign d;  // the built-in 7 x 7 at 20 mm
+  EXPECT_DOUBLE_EQ(start_pitch_mm(d), 5.0);
+  d.magnet_pitch_mm = 15;
+  EXPECT_DOUBLE_EQ(start_pitch_mm(d), 15.0 / kStartPitchPerMagnetSpacing);
+  d.magnet_pitch_mm = 40;
+  EXPECT_DOUBLE_EQ(start_pitch_mm(d), 5.0);
+  // A listed layout: a row at 12 mm with one magnet 30 mm away; the median spacing is 12 mm.
+  for (double u : {-24.0, -12.0, 0.0, 12.0, 24.0}) d.magnet_list.push_back({u, 0, 0.75, +1});
+  d.magnet_list.push_back({0, 30, 0.75, -1});
+  EXPECT_DOUBLE_EQ(start_pitch_mm(d), 12.0 / kStartPitchPerMagnetSpacing);
+  d.magnet_list = {{0, 0, 0.75, +1}};  // one magnet: no spacing
+  EXPECT_DOUBLE_EQ(start_pitch_mm(d), 5.0);
+}
+
+}  // namespace
+}  // namespace skinbus::estimators

@@ -50,9 +50,17 @@ struct PhysicsOptions {
   double uv_margin_mm = 15.0;         // (u, v) bounds: the patch extent plus this
   ChannelNoise noise{0, 0};           // 0: the design's sensor noise
   InputLimits limits;                 // saturation threshold for check_sample()
-  // The start table built by create() when none is given: a coarse grid of the model.
-  LookupGrid start_grid{5.0, {0.5, 1.0, 2.0, 3.0, 4.0, 5.5}, 5.0};
+  // The start table built by create() when none is given: a coarse grid of the model. Pitch 0:
+  // start_pitch_mm(design), which follows the magnets (a start must fall within the basin of
+  // the field pattern, which repeats at the magnet spacing).
+  LookupGrid start_grid{0.0, {0.5, 1.0, 2.0, 3.0, 4.0, 5.5}, 5.0};
 };
+
+// The start table's pitch for a design: the magnets' spacing (their grid pitch, or the median
+// nearest-neighbour distance of a listed layout) / kStartPitchPerMagnetSpacing, at most 5 mm
+// (the built-in design's 20 mm pitch gives 5 mm).
+inline constexpr double kStartPitchPerMagnetSpacing = 4.0;
+double start_pitch_mm(const sim::PatchDesign& design);
 
 struct PhysicsEstimate {
   ContactEstimate contact;
