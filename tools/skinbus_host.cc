@@ -54,7 +54,7 @@ struct HostArgs {
   int threads = 1;
   int spin_us = estimators::RuntimeOptions{}.spin_us;
   bool stats = false, quiet = false;
-  std::string base_frame = "base_link";
+  std::string base_frame;  // empty: the robot's root link (base_link without a robot)
   double max_lag_ms = 100;
   int model_delay_us = 0;
   bool allow_no_models = false;
@@ -315,8 +315,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--ambient", a.ambient, "common-mode rejection: quiet-mean, median, none")
       ->capture_default_str();
-  app.add_option("--base-frame", a.base_frame, "frame_id of the published contacts")
-      ->capture_default_str();
+  app.add_option("--base-frame", a.base_frame,
+                 "frame_id of the published contacts (default: the robot's root link, as in its "
+                 "URDF and so in ROS 2's TF tree; base_link when the map names no robot)");
   app.add_option("--max-lag-ms", a.max_lag_ms,
                  "the lag bound: a sample that cannot be published within this many ms of its "
                  "time is superseded, not estimated (0: no bound; --fast replays bound by log time "
@@ -396,6 +397,7 @@ int main(int argc, char** argv) {
         return skinbus::tools::fail("skinbus-host", st.error().to_string(), 1);
       }
     }
+    if (a.base_frame.empty()) o.base_frame = robot ? robot->link(0).name : "base_link";
     auto agg =
         host::Aggregator::create(&*map, map_dir, robot.get(), host::HostLoop::bus_names(lo), o);
     if (!agg) {

@@ -14,6 +14,7 @@
 #include <sstream>
 #include <string>
 
+#include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/dds/dds.h"
 #include "skinbus/host/contacts_json.h"
@@ -102,16 +103,19 @@ int main(int argc, char** argv) {
   options.max_clients = max_pages;
   auto server = view::Server::create(options);
   if (!server) return tools::report_error(kTool, server.error());
-  std::string robot_url;
+  std::string robot_url, base_frame = "base_link";
   if (!map->robot.empty()) {
     const std::filesystem::path urdf = body_map::path_beside(map_path, map->robot);
+    auto robot = body_map::RobotModel::from_urdf_file(urdf.string());
+    if (!robot) return tools::report_error(kTool, robot.error());
+    base_frame = robot->link(0).name;  // the frame skinbus-host publishes contacts in
     (*server)->add_folder("/robot/", urdf.parent_path().string());
     robot_url = "/robot/" + urdf.filename().string();
   }
   (*server)->add_folder("/", web_root);
   (*server)->add_folder("/node_modules/", web_root + "/node_modules");
   (*server)->add_document("/api/scene", "application/json",
-                          view::scene_to_json(*map, robot_url, "base_link", true));
+                          view::scene_to_json(*map, robot_url, base_frame, true));
   if (!recording.empty()) {
     std::ifstream in(recording, std::ios::binary);
     std::ostringstream text;

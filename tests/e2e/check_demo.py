@@ -14,6 +14,7 @@ import math
 import re
 import subprocess
 import sys
+from xml.etree import ElementTree
 
 
 def main():
@@ -30,10 +31,11 @@ def main():
     if not m:
         sys.exit("check_demo.py: no time zero in joints.log")
     t_zero_us = int(m.group(1))
-    contacts = []
+    contacts, frames = [], set()
     for line in open(f"{out}/contacts.jsonl"):
         j = json.loads(line)
         if j["type"] == "contacts":
+            frames.add(j["base_frame"])
             contacts += j["contacts"]
             for c in j["contacts"]:
                 c["stamp_us"] = j["stamp_us"]
@@ -45,6 +47,13 @@ def main():
         fails += 0 if cond else 1
 
     check("contacts received over DDS", len(contacts) > 100, f"{len(contacts)} contacts")
+    # frame_id: the robot's root link (the link no joint has as its child), a frame of its TF tree.
+    robot = re.search(r'^robot: "?([^"\n]+)"?', open(f"{out}/skin.yaml").read(), re.M).group(1)
+    urdf = ElementTree.parse(robot).getroot()
+    children = {j.find("child").get("link") for j in urdf.iter("joint")}
+    roots = [l.get("name") for l in urdf.iter("link") if l.get("name") not in children]
+    check("contacts in the robot's root link frame", frames == set(roots),
+          f"frame_id {sorted(frames)}, URDF root {roots}")
     stray = sorted({c["node"] for c in contacts if c["node"] not in presses})
     check("contacts only on pressed patches", not stray, f"stray nodes {stray}" if stray else "")
     deep = [c for c in contacts if c["node"] in presses and c["depth_mm"] >= 1.0]
