@@ -43,7 +43,7 @@ bin=$src/build/tools
 scene=$src/sim/scenes/whole_body
 mkdir -p "$out"
 out=$(cd "$out" && pwd)
-rm -f "$out"/{bus,host,listen,joints}.log "$out"/{contacts,host}.jsonl "$out"/bus_load.png
+rm -f "$out"/{bus,host,listen,joints,view}.log "$out"/{contacts,host}.jsonl "$out"/bus_load.png
 
 pids=()
 cleanup() {
@@ -78,16 +78,20 @@ elif ip link add dev skinbus0 type vcan 2>/dev/null && ip link set skinbus0 mtu 
   made_vcan=skinbus0
 fi
 
-# Subscribers first: a separate process records every contact array (JSON lines) for the record.
-"$bin/skinbus-listen" --domain "$domain" --status --timeout $((duration + 30)) \
-  >"$out/contacts.jsonl" 2>"$out/listen.log" &
-pids+=($!)
-
 # The web view: the robot in 3D in a browser, served while the demo runs.
 view_url=
 if [[ $view_port != off ]]; then
+  # It reads the bus too, for the sensor panel: vcan, or a copy of the pipe's frames.
+  if [[ -n $vcan ]]; then
+    view_bus=(-i "$vcan")
+  else
+    view_fifo=$out/view_bus.fifo
+    rm -f "$view_fifo"
+    mkfifo "$view_fifo"
+    view_bus=(--candump "$view_fifo")
+  fi
   "$bin/skinbus-view" --map "$out/skin.yaml" --domain "$domain" --port "$view_port" \
-    --duration $((duration + 4)) >"$out/view.log" 2>&1 &
+    "${view_bus[@]}" --duration $((duration + 4)) >"$out/view.log" 2>&1 &
   pids+=($!)
   for _ in $(seq 50); do
     view_url=$(grep -o 'http://[^ ]*' "$out/view.log" 2>/dev/null | head -1) && [[ -n $view_url ]] && break
@@ -103,6 +107,11 @@ if [[ $view_port != off ]]; then
     echo "== no web view: $(tail -1 "$out/view.log" 2>/dev/null) (see $out/view.log)"
   fi
 fi
+
+# Subscribers first: a separate process records every contact array (JSON lines) for the record.
+"$bin/skinbus-listen" --domain "$domain" --status --timeout $((duration + 30)) \
+  >"$out/contacts.jsonl" 2>"$out/listen.log" &
+pids+=($!)
 
 host_args=(--map "$out/skin.yaml" --joints dds --domain "$domain" --json-status
            --status-period 1 --stats)
@@ -140,7 +149,10 @@ else
   pids+=($host)
   sleep 1
   # Every daemon writes whole lines into one pipe; tee keeps the bus log.
-  { start_patches -i none --candump-out -; wait; } | tee "$out/bus.log" >"$fifo" &
+  # (-p: the host's pipe goes on if the web view goes away.)
+  tee_to=("$out/bus.log")
+  [[ -n $view_url && -n ${view_fifo:-} ]] && tee_to+=("$view_fifo")
+  { start_patches -i none --candump-out -; wait; } | tee -p "${tee_to[@]}" >"$fifo" &
   pids+=($!)
 fi
 "$bin/skinbus-joints" --trajectory "$scene/arms.csv" --domain "$domain" --duration "$duration" \

@@ -13,11 +13,16 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
+#include <vector>
 
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
+#include "skinbus/bus/candump.h"
+#include "skinbus/bus/socketcan.h"
 #include "skinbus/dds/dds.h"
 #include "skinbus/host/contacts_json.h"
+#include "skinbus/view/field_tap.h"
 #include "skinbus/view/scene_json.h"
 #include "skinbus/view/server.h"
 #include "tool_util.h"
@@ -30,6 +35,53 @@ uint64_t now_us() {
   return static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
                                    std::chrono::system_clock::now().time_since_epoch())
                                    .count());
+}
+
+// Reads the bus into `tap` until stopped: candump -L lines from `candump_path` ("-": standard
+// input), or SocketCAN `interfaces`. Ends quietly at the end of a log; a read error is printed.
+void read_bus(const std::string& candump_path, const std::vector<std::string>& interfaces,
+              view::FieldTap* tap) {
+  try {
+    if (!candump_path.empty()) {
+      std::FILE* in =
+          candump_path == "-" ? stdin : tools::open_input_stream(candump_path, "candump log");
+      bus::CandumpReader reader(in, /*wait_ms=*/100);
+      bus::CandumpRecord rec;
+      while (!tools::stop_requested()) {
+        const auto st = reader.next(&rec);
+        if (st == bus::CandumpReader::Status::kEof) break;
+        if (st == bus::CandumpReader::Status::kRecord) {
+          tap->feed(rec.frame, rec.has_timestamp ? rec.timestamp_us : bus::realtime_now_us(),
+                    rec.iface);
+        }
+      }
+      return;
+    }
+    bus::SocketCanOptions opts;
+    opts.fd = true;
+    std::vector<std::unique_ptr<bus::SocketCanPort>> ports;
+    bus::CanPoller poller;
+    for (const std::string& name : interfaces) {
+      auto port = bus::SocketCanPort::open(name, opts);
+      if (!port.ok()) throw std::runtime_error(port.error().message);
+      if (Status st = poller.add(port->get()); !st.ok())
+        throw std::runtime_error(st.error().message);
+      ports.push_back(std::move(port).value());
+    }
+    while (!tools::stop_requested()) {
+      auto r = poller.poll(
+          50,
+          [&](bus::SocketCanPort& port, const bus::CanFrame& f, const bus::RxMeta& meta) {
+            tap->feed(f, meta.timestamp_us, port.name());
+          },
+          [&](bus::SocketCanPort& port, const Error& e) {
+            std::fprintf(stderr, "skinbus-view: %s: %s\n", port.name().c_str(), e.message.c_str());
+          });
+      if (!r.ok()) throw std::runtime_error(r.error().message);
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "skinbus-view: the bus: %s (the sensor panel stays empty)\n", e.what());
+  }
 }
 
 bool is_dir(const std::string& p) {
@@ -52,8 +104,11 @@ int main(int argc, char** argv) {
       "The page and its libraries are served from this machine (nothing from the internet);\n"
       "read-only: nothing a page sends reaches the patches. Binds to 127.0.0.1: on a robot, open\n"
       "it through an SSH tunnel (docs/guides/web_view.md).\n\n"
+      "With -i (or --candump) it also reads the bus: a selected patch's panel shows its 16\n"
+      "sensors' field change (tared on the patch) as a heat map with in-plane arrows.\n\n"
       "Examples:\n"
       "  skinbus-view --map skin.yaml                 # http://localhost:8080/\n"
+      "  skinbus-view --map skin.yaml -i can0         # and the sensors' fields from can0\n"
       "  ssh -L 8080:localhost:8080 robot            # then open http://localhost:8080/ here\n"
       "  skinbus-view --map skin.yaml --recording out/demo/host.jsonl\n"
       "      # then http://localhost:8080/?replay=/recording.jsonl\n\n"
@@ -63,6 +118,8 @@ int main(int argc, char** argv) {
   int domain = -1, port = 8080, max_pages = 16;
   double duration_s = 0, joint_rate_hz = 30;
   bool quiet = false;
+  std::vector<std::string> interfaces;
+  std::string candump_path;
   app.add_option("--map", map_path, "skin map (YAML): the patches and the robot")->required();
   app.add_option("--namespace", ns, "the host's --namespace (topics rt/NS/skin/...)");
   app.add_option("--domain", domain, "DDS domain ID (default: Cyclone DDS's)");
@@ -84,6 +141,12 @@ int main(int argc, char** argv) {
                  "serve at /recording.jsonl: open /?replay=/recording.jsonl to play it");
   app.add_option("--duration", duration_s, "exit after this many seconds (0: until Ctrl-C)")
       ->capture_default_str();
+  app.add_option("-i,--interface", interfaces,
+                 "also read this CAN bus (SocketCAN, repeatable) for the sensor panel: each "
+                 "patch's 16 sensors' field change while it is pressed");
+  app.add_option("--candump", candump_path,
+                 "the same from candump -L lines in a file or '-' (standard input)")
+      ->excludes("--interface");
   app.add_flag("-q,--quiet", quiet, "no address line, no counters at exit");
   CLI11_PARSE(app, argc, argv);
   constexpr const char* kTool = "skinbus-view";
@@ -150,6 +213,12 @@ int main(int argc, char** argv) {
   }
 
   tools::install_stop_handler();
+  view::FieldTap tap;
+  std::thread bus_reader;
+  if (!candump_path.empty() || !interfaces.empty()) {
+    bus_reader = std::thread(read_bus, candump_path, interfaces, &tap);
+  }
+  std::vector<std::string> field_updates;
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   const auto joint_period = std::chrono::duration<double>(1.0 / joint_rate_hz);
@@ -187,6 +256,9 @@ int main(int argc, char** argv) {
       joint_pending = false;
       next_joint = now + std::chrono::duration_cast<Clock::duration>(joint_period);
     }
+    field_updates.clear();
+    tap.take_updates(now_us(), &field_updates);
+    for (const auto& m : field_updates) (*server)->broadcast(m);
     if (now >= next_heartbeat) {
       const int64_t age_ms =
           last_host
@@ -196,12 +268,15 @@ int main(int argc, char** argv) {
       next_heartbeat = now + std::chrono::seconds(1);
     }
   }
+  tools::stop_requested() = true;  // ends the bus reader
+  if (bus_reader.joinable()) bus_reader.join();
   if (!quiet) {
     const auto s = (*server)->stats();
     std::fprintf(stderr,
                  "skinbus-view: contact arrays %llu, status arrays %llu; pages connected %llu "
                  "(refused %llu, dropped for not reading %llu, closed for bad frames %llu), page "
-                 "messages ignored %llu, files %llu, bad requests %llu\n",
+                 "messages ignored %llu, files %llu, bad requests %llu; bus samples %llu, "
+                 "field updates %llu\n",
                  static_cast<unsigned long long>(contact_arrays),
                  static_cast<unsigned long long>(status_arrays),
                  static_cast<unsigned long long>(s.clients_connected),
@@ -210,7 +285,9 @@ int main(int argc, char** argv) {
                  static_cast<unsigned long long>(s.protocol_errors),
                  static_cast<unsigned long long>(s.client_messages),
                  static_cast<unsigned long long>(s.http_requests),
-                 static_cast<unsigned long long>(s.http_errors));
+                 static_cast<unsigned long long>(s.http_errors),
+                 static_cast<unsigned long long>(tap.stats().samples),
+                 static_cast<unsigned long long>(tap.stats().updates));
   }
   return 0;
 }

@@ -8,10 +8,12 @@ server's JSON) every 0.2 s. It must: load the robot from its URDF and draw the s
 patches on their links, where the project's forward kinematics puts them at the joint values the
 page applied (urdf-loader's kinematics against skinbus-locate, within 1 mm); show contacts, which
 must sit where the scripted presses are on the moving body (skinbus-locate at the contact's time,
-as check_demo.py: at least 1 mm deep, median < 5 mm, p90 < 12 mm per patch); show node 11 stale or offline once its
+as check_demo.py: at least 1 mm deep, median < 5 mm, p90 < 12 mm per patch); show the sensors' field change of the pressed patches (read from the bus) and draw a selected
+pressed patch's heat map; show node 11 stale or offline once its
 daemon is stopped; raise its stalled banner once the host is gone; log no page errors. Meanwhile
 hostile clients (malformed requests, oversized and binary frames, 40 connections at once) must not
-disturb it. Writes ARTEFACT_DIR/view.png (a moment with contacts). PASS/FAIL lines; exit 1 on any
+disturb it. Writes ARTEFACT_DIR/view.png (a press, its patch selected with its sensor panel) and
+ARTEFACT_DIR/contacts.json (the contacts read back, with their truth and error). PASS/FAIL lines; exit 1 on any
 FAIL.
 """
 import json
@@ -81,6 +83,8 @@ def main():
         presses[int(node)] = (float(u), float(v))
 
     contacts = {}  # (track, stamp) -> page contact
+    fields_max = {}  # node -> the largest field change the page got (uT)
+    panel = None     # (node, the selected patch's heat map maximum)
     states = {}    # node -> states seen
     stalled_seen = False
     centre_checks = []
@@ -106,12 +110,18 @@ def main():
                 contacts[(c["track_id"], c["stamp_us"])] = c
             for p in s["patches"]:
                 states.setdefault(p["node"], set()).add(p["state"])
+            for node, m in s["fields"].items():
+                fields_max[int(node)] = max(fields_max.get(int(node), 0), m)
+            if panel is None and s["contacts"] and time.monotonic() - start > 5:
+                node = s["contacts"][0]["node"]
+                panel = (node, browser.evaluate(f"window.skinbusView.selectPatch({node})"))
+                if panel[1] is not None and panel[1] >= 5:  # the picture: a press and its sensors
+                    time.sleep(0.3)
+                    browser.screenshot(f"{artefacts}/view.png")
+                    shot = True
             stalled_seen |= bool(s["stalled"]) and time.monotonic() - start > seconds - 6
             if s["joints"] and len(centre_checks) < 5 and time.monotonic() - start > 3:
                 centre_checks.append(s)
-            if len(s["contacts"]) >= 1 and not shot and time.monotonic() - start > 6:
-                browser.screenshot(f"{artefacts}/view.png")
-                shot = True
             if errors is None and time.monotonic() - start > seconds - 8:
                 errors = s["errors"] + browser.console_errors()
             if not hostile_done and time.monotonic() - start > 4:
@@ -169,6 +179,11 @@ def main():
     check("the other patches never shown offline",
           all("offline" not in v for n, v in states.items() if n != 11))
     check("the stalled banner once the host is gone", stalled_seen)
+    shown = sorted(n for n, m in fields_max.items() if m >= 5)
+    check("the sensors' field change of pressed patches reaches the page (from the bus)",
+          len(shown) >= 8 and set(shown) <= set(presses), f"nodes {shown}")
+    check("a pressed patch's sensor panel draws its heat map", panel is not None and panel[1] is not None
+          and panel[1] >= 5, f"node {panel[0]}: max {panel[1]} uT" if panel else "never selected")
     return 1 if fails else 0
 
 

@@ -424,6 +424,79 @@ function fadeTrails(now) {
   }
 }
 
+// -- the sensors' fields (skinbus-view -i / --candump) ---------------------------------------------
+
+// The latest `fields` message per node: the 16 sensors' field change, tared on the patch, uT,
+// sensor-major x,y,z in each chip's axes; sent while a patch is pressed (docs/view.md).
+const fieldsByNode = new Map();
+const SENSOR_GRID = 4;            // sensors per row (index = row * 4 + column, from -u,-v)
+const FIELD_SCALE_UT = 50;        // the heat map's full scale
+const SENSOR_CELL_PX = 44;
+
+function updateFields(msg) {
+  if (!Number.isInteger(msg.node) || !Array.isArray(msg.field_ut)) return;
+  let maxUt = 0;
+  for (const x of msg.field_ut) if (Number.isFinite(x)) maxUt = Math.max(maxUt, Math.abs(x));
+  fieldsByNode.set(msg.node, { ...msg, max_ut: maxUt });
+  if (selection?.patch?.spec.node === msg.node) markDetailsDirty();
+}
+
+// A 4 x 4 heat map of |dB| with the in-plane (x, y) change as arrows, for the details panel.
+function sensorPanel(node) {
+  const fields = fieldsByNode.get(node);
+  const wrap = document.createElement('div');
+  wrap.id = 'sensors';
+  const title = document.createElement('h3');
+  title.textContent = 'sensors: field change (uT)';
+  wrap.append(title);
+  if (!fields) {
+    const hint = document.createElement('p');
+    hint.className = 'hint';
+    hint.textContent = messageCounts.fields ? 'not pressed since the page opened'
+      : 'no bus data (skinbus-view -i IFACE or --candump shows them)';
+    wrap.append(hint);
+    return wrap;
+  }
+  const sensors = fields.field_ut.length / 3;
+  const rows = Math.ceil(sensors / SENSOR_GRID);
+  const canvas = document.createElement('canvas');
+  canvas.id = 'sensor-grid';
+  canvas.width = SENSOR_GRID * SENSOR_CELL_PX;
+  canvas.height = rows * SENSOR_CELL_PX;
+  canvas.dataset.maxUt = fields.max_ut.toFixed(1);
+  const g = canvas.getContext('2d');
+  const colour = new THREE.Color();
+  for (let s = 0; s < sensors; ++s) {
+    const [bx, by, bz] = fields.field_ut.slice(3 * s, 3 * s + 3);
+    const x0 = (s % SENSOR_GRID) * SENSOR_CELL_PX;
+    const y0 = (rows - 1 - Math.floor(s / SENSOR_GRID)) * SENSOR_CELL_PX;   // +v up
+    if (![bx, by, bz].every(Number.isFinite)) {
+      g.fillStyle = '#444a50';   // faulty sensor
+      g.fillRect(x0 + 1, y0 + 1, SENSOR_CELL_PX - 2, SENSOR_CELL_PX - 2);
+      continue;
+    }
+    forceColour(Math.hypot(bx, by, bz) / FIELD_SCALE_UT * FORCE_MAX_N, colour);
+    g.fillStyle = `#${colour.getHexString()}`;
+    g.fillRect(x0 + 1, y0 + 1, SENSOR_CELL_PX - 2, SENSOR_CELL_PX - 2);
+    const len = Math.min(1, Math.hypot(bx, by) / FIELD_SCALE_UT) * SENSOR_CELL_PX * 0.45;
+    const angle = Math.atan2(-by, bx);   // canvas y points down
+    const cx = x0 + SENSOR_CELL_PX / 2, cy = y0 + SENSOR_CELL_PX / 2;
+    g.strokeStyle = '#101418';
+    g.lineWidth = 2;
+    g.beginPath();
+    g.moveTo(cx, cy);
+    g.lineTo(cx + len * Math.cos(angle), cy + len * Math.sin(angle));
+    g.stroke();
+  }
+  wrap.append(canvas);
+  const note = document.createElement('p');
+  note.className = 'hint';
+  note.textContent = `max ${fields.max_ut.toFixed(1)} uT; colour |dB| (0-${FIELD_SCALE_UT} uT), ` +
+    'arrow the in-plane change (chip axes)' + (fields.saturated?.length ? `; saturated: ${fields.saturated.join(', ')}` : '');
+  wrap.append(note);
+  return wrap;
+}
+
 // -- selection (click a patch or a contact) ------------------------------------------------------
 
 // {patch: PatchView} or {contact: ContactView, trackId, stampUs, data}: a contact's latest data
@@ -500,6 +573,7 @@ function refreshDetails(now, force = false) {
   if (selection?.patch) {
     const { spec, status } = selection.patch;
     const geometry = Object.entries(spec).filter(([key]) => key !== 'grid' && key !== 'node');
+    detailsEl.append(sensorPanel(spec.node));
     detailsEl.append(detailsTable(`patch ${spec.node} (${selection.patch.state})`, [
       ...geometry,
       ['grid', spec.grid ? `${spec.grid.nu} x ${spec.grid.nv}` : '-'],
@@ -628,6 +702,9 @@ function handleMessage(msg) {
     case 'patch_status':
       updatePatchStatus(msg);
       markFresh();
+      break;
+    case 'fields':
+      updateFields(msg);
       break;
     case 'heartbeat':
       // host_age_ms: how long ago the server last heard the host (-1: never).
@@ -778,6 +855,17 @@ function frame(now) {
 // -- for tests -----------------------------------------------------------------------------------
 
 window.skinbusView = {
+  // Selects patch `node` as a click would and returns what its sensor panel shows: the heat
+  // map's largest field change (uT), or null when the panel has no grid.
+  selectPatch(node) {
+    const view = patchViews.find((v) => v.spec.node === node);
+    if (!view) return null;
+    select({ patch: view });
+    markDetailsDirty();
+    refreshDetails(performance.now(), true);
+    const grid = document.getElementById('sensor-grid');
+    return grid ? Number(grid.dataset.maxUt) : null;
+  },
   // What the page shows, read back from its scene graph: patch centres through the page's own
   // link transforms and contact positions from the spheres' world positions, both in the base
   // frame in mm.
@@ -802,6 +890,8 @@ window.skinbusView = {
         depth_mm: v.data.depth_mm,
         position_base_mm: round(v.positionBaseMm()),
       })),
+      // node -> the largest field change (uT) of its latest `fields` message
+      fields: Object.fromEntries([...fieldsByNode].map(([node, f]) => [node, f.max_ut])),
       messages: { ...messageCounts },
       stalled: stallReason(performance.now()) !== null,
       fps: Math.round(fpsMeter.fps * 10) / 10,
