@@ -17,16 +17,22 @@ import sys
 from xml.etree import ElementTree
 
 
-def main():
-    if len(sys.argv) != 4:
-        sys.exit(__doc__)
-    out, scene, build = sys.argv[1:]
+def read_presses(scene):
+    """The scene's scripted presses: node -> (u_mm, v_mm) (one press a patch)."""
     presses = {}
     for line in open(f"{scene}/presses.csv"):
         if line.startswith("#") or not line.strip():
             continue
         t0, t1, u, v, depth, tip, node = line.strip().split(",")
         presses[int(node)] = (float(u), float(v))
+    return presses
+
+
+def main():
+    if len(sys.argv) != 4:
+        sys.exit(__doc__)
+    out, scene, build = sys.argv[1:]
+    presses = read_presses(scene)
     m = re.search(r"time zero (\d+) us", open(f"{out}/joints.log").read())
     if not m:
         sys.exit("check_demo.py: no time zero in joints.log")

@@ -27,6 +27,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import cdp  # noqa: E402
+from check_demo import read_presses  # noqa: E402
 
 
 def hostile_clients(port):
@@ -75,12 +76,7 @@ def main():
         print(("PASS " if cond else "FAIL ") + name + (f": {detail}" if detail else ""))
         fails += 0 if cond else 1
 
-    presses = {}
-    for line in open(f"{scene}/presses.csv"):
-        if line.startswith("#") or not line.strip():
-            continue
-        t0, t1, u, v, depth, tip, node = line.strip().split(",")
-        presses[int(node)] = (float(u), float(v))
+    presses = read_presses(scene)
 
     contacts = {}  # (track, stamp) -> page contact
     fields_max = {}  # node -> the largest field change the page got (uT)
