@@ -289,6 +289,13 @@ if [[ -x $bin/skinbus-view ]]; then
   wait
 fi
 
+# skinbus-crlb --pair: a second press close by costs the first; far away it costs nearly nothing.
+pair=$("$bin/skinbus-crlb" --pair --separations 10,60 --depths 2)
+r10=$(awk -F'|' '$2+0 == 10 {print $6+0}' <<<"$pair")
+r60=$(awk -F'|' '$2+0 == 60 {print $6+0}' <<<"$pair")
+awk -v a="$r10" -v b="$r60" 'BEGIN {exit !(a > 3 && b < 1.2 && b >= 1)}' &&
+  ok "skinbus-crlb --pair: x alone $r10 at 10 mm, $r60 at 60 mm" || { bad "crlb --pair ($r10, $r60)"; echo "$pair"; }
+
 for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate skinbus-view; do
   grep -q "Examples:\|Example:\|skinbus-dbc:" <<<"$("$bin/$t" --help)" && ok "$t --help" || bad "$t --help"
 done

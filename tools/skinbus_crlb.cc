@@ -2,6 +2,7 @@
 //
 //   skinbus-crlb                         # table for 1, 2 and 4 mm at the sensor's noise
 //   skinbus-crlb --csv crlb.csv --step 2.5
+//   skinbus-crlb --pair --csv pair.csv     # two contacts: the bound against their separation
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -33,6 +34,63 @@ Stats stats_of(std::vector<double> v, int unident) {
   return s;
 }
 
+// --pair: prints the table, returns the CSV.
+std::string pair_report(const skinbus::sim::PatchModel& model, const std::vector<double>& depths,
+                        const std::vector<double>& separations, double tip_radius, double noise_xy,
+                        double noise_z, bool ambient) {
+  using namespace skinbus::sim;
+  std::string out;
+  skinbus::tools::appendf(out, "# noise_xy_ut: %.4f\n# noise_z_ut: %.4f\n# ambient_nuisance: %d\n",
+                          noise_xy, noise_z, ambient);
+  out +=
+      "separation_mm,depth_mm,mid_u_mm,mid_v_mm,along,sd_xy_first_mm,sd_xy_second_mm,"
+      "sd_depth_first_mm,sd_depth_second_mm,alone_xy_first_mm,alone_xy_second_mm,identifiable\n";
+  std::printf(
+      "Cramer-Rao bound of two simultaneous contacts, nominal patch, noise %.2f / %.2f uT%s, "
+      "tip %.1f mm: mean per contact over midpoints within +-30 mm, pairs along u and v\n\n",
+      noise_xy, noise_z, ambient ? ", ambient estimated" : "", tip_radius);
+  std::printf(
+      "| separation (mm) | depth (mm) | XY bound (mm) | alone (mm) | x alone | depth bound (mm) | "
+      "pairs not told apart |\n|---:|---:|---:|---:|---:|---:|---:|\n");
+  for (double sep : separations) {
+    for (double depth : depths) {
+      std::vector<double> xy, alone, dd;
+      int total = 0, lost = 0;
+      for (double mu = -30; mu <= 30; mu += 10) {
+        for (double mv = -30; mv <= 30; mv += 10) {
+          for (int along = 0; along < 2; ++along) {
+            const double du = along == 0 ? sep / 2 : 0, dv = along == 0 ? 0 : sep / 2;
+            const Contact a{mu - du, mv - dv, depth, tip_radius};
+            const Contact b{mu + du, mv + dv, depth, tip_radius};
+            const CrlbPair p = crlb_pair_at(model, a, b, noise_xy, noise_z, ambient);
+            const CrlbPoint one = crlb_at(model, a, noise_xy, noise_z, ambient);
+            const CrlbPoint two = crlb_at(model, b, noise_xy, noise_z, ambient);
+            ++total;
+            const bool ok = p.first.identifiable && one.identifiable && two.identifiable;
+            if (ok) {
+              xy.insert(xy.end(), {p.first.sd_xy_mm, p.second.sd_xy_mm});
+              alone.insert(alone.end(), {one.sd_xy_mm, two.sd_xy_mm});
+              dd.insert(dd.end(), {p.first.sd_depth_mm, p.second.sd_depth_mm});
+            } else {
+              ++lost;
+            }
+            skinbus::tools::appendf(out, "%g,%g,%g,%g,%c,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%d\n", sep,
+                                    depth, mu, mv, along == 0 ? 'u' : 'v', p.first.sd_xy_mm,
+                                    p.second.sd_xy_mm, p.first.sd_depth_mm, p.second.sd_depth_mm,
+                                    one.sd_xy_mm, two.sd_xy_mm, ok);
+          }
+        }
+      }
+      const double m_xy = xy.empty() ? 0 : skinbus::tools::mean(xy);
+      const double m_alone = alone.empty() ? 0 : skinbus::tools::mean(alone);
+      std::printf("| %.0f | %.1f | %.3f | %.3f | %.2f | %.4f | %d of %d |\n", sep, depth, m_xy,
+                  m_alone, m_alone > 0 ? m_xy / m_alone : 0.0,
+                  dd.empty() ? 0 : skinbus::tools::mean(dd), lost, total);
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -42,12 +100,19 @@ int main(int argc, char** argv) {
       "point of a patch (Cramer-Rao lower bound from the forward model's Jacobian), for a noise\n"
       "level and press depth. Prints a Markdown table; --csv writes the map for plotting\n"
       "(tools/plot_crlb.py).\n\n"
+      "--pair: the bound for two simultaneous contacts of the same depth, against their\n"
+      "separation: each pair's midpoint on a grid within +-30 mm of the centre (10 mm step), the\n"
+      "pair along u and along v; the table gives the mean bound per contact, its ratio to the\n"
+      "bound of the same contact pressed alone, and the pairs the field cannot tell apart\n"
+      "(tools/plot_crlb_pair.py plots the CSV).\n\n"
       "Examples:\n"
       "  skinbus-crlb\n"
-      "  skinbus-crlb --depths 1,2,4 --csv crlb.csv && tools/plot_crlb.py crlb.csv crlb.png\n"};
+      "  skinbus-crlb --depths 1,2,4 --csv crlb.csv && tools/plot_crlb.py crlb.csv crlb.png\n"
+      "  skinbus-crlb --pair --csv pair.csv && tools/plot_crlb_pair.py pair.csv pair.png\n"};
   std::vector<double> depths = {1, 2, 4};
   double step = 2.5, extent = 67.5, noise_xy = -1, noise_z = -1;
-  bool ambient = false;
+  bool ambient = false, pair = false;
+  std::vector<double> separations = {10, 15, 20, 30, 40, 50, 60, 80};
   double tip_radius = 5.0;
   std::string csv;
   app.add_option("--depths", depths, "press depths, mm")->delimiter(',')->capture_default_str();
@@ -64,7 +129,11 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 50.0));
   app.add_flag("--ambient", ambient,
                "also estimate a uniform ambient field (3 nuisance parameters)");
-  app.add_option("--csv", csv, "write every map point to this CSV file");
+  app.add_option("--csv", csv, "write every map point (every pair with --pair) to this CSV file");
+  app.add_flag("--pair", pair, "two contacts: the bound against their separation (see above)");
+  app.add_option("--separations", separations, "--pair: separations, mm")
+      ->delimiter(',')
+      ->capture_default_str();
   std::string design_path;
   app.add_option("--design", design_path,
                  "patch design file (docs/design_file.md; default: the built-in design, "
@@ -81,6 +150,18 @@ int main(int argc, char** argv) {
   const skinbus::mlx90393::Config& cfg = model->design().sensor_config;
   if (noise_xy <= 0) noise_xy = mlx90393_noise_xy_ut(cfg);
   if (noise_z <= 0) noise_z = mlx90393_noise_z_ut(cfg);
+  if (pair) {
+    const std::string out =
+        pair_report(*model, depths, separations, tip_radius, noise_xy, noise_z, ambient);
+    if (!csv.empty()) {
+      try {
+        skinbus::tools::write_output(csv, out, "CRLB pair table");
+      } catch (const std::exception& e) {
+        return skinbus::tools::fail("skinbus-crlb", e.what(), 1);
+      }
+    }
+    return 0;
+  }
   // The CSV is built in memory and written whole at the end (a temporary file, renamed).
   std::string out;
   const bool want_csv = !csv.empty();

@@ -6,7 +6,8 @@
 namespace skinbus::sim {
 
 bool invert_small(double* a, int n) {
-  double inv[64] = {};
+  if (n < 1 || n > kInvertSmallMax) return false;
+  double inv[kInvertSmallMax * kInvertSmallMax] = {};
   for (int i = 0; i < n; ++i) inv[i * n + i] = 1;
   double scale = 0;
   for (int i = 0; i < n * n; ++i) scale = std::fmax(scale, std::fabs(a[i]));
@@ -42,6 +43,29 @@ bool invert_small(double* a, int n) {
   return true;
 }
 
+namespace {
+
+// The bound of the contact whose (u, v, depth) start at parameter `first` of the inverted
+// np x np Fisher matrix `inv` (ok: the inversion succeeded).
+CrlbPoint point_from_inverse(const double* inv, int np, int first, bool ok) {
+  CrlbPoint p;
+  const int u = first * np + first, v = (first + 1) * np + first + 1,
+            d = (first + 2) * np + first + 2;
+  if (!ok || !(inv[u] >= 0) || !(inv[v] >= 0) || !(inv[d] >= 0)) {
+    p.identifiable = false;
+    p.sd_u_mm = p.sd_v_mm = p.sd_xy_mm = p.sd_depth_mm = kUnidentifiableMm;
+    return p;
+  }
+  p.sd_u_mm = std::fmin(std::sqrt(inv[u]), kUnidentifiableMm);
+  p.sd_v_mm = std::fmin(std::sqrt(inv[v]), kUnidentifiableMm);
+  p.sd_xy_mm = std::fmin(std::sqrt(inv[u] + inv[v]), kUnidentifiableMm);
+  p.sd_depth_mm = std::fmin(std::sqrt(inv[d]), kUnidentifiableMm);
+  p.identifiable = p.sd_xy_mm < kUnidentifiableMm && p.sd_depth_mm < kUnidentifiableMm;
+  return p;
+}
+
+}  // namespace
+
 CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut, double noise_z_ut,
                   bool ambient) {
   const int nc = model.channel_count();
@@ -67,19 +91,64 @@ CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
       for (int b = 0; b < np; ++b) fisher[a * np + b] += w * row[a] * row[b];
     }
   }
-  CrlbPoint p;
-  if (!invert_small(fisher, np) || !(fisher[0] >= 0) || !(fisher[np + 1] >= 0) ||
-      !(fisher[2 * np + 2] >= 0)) {
-    p.identifiable = false;
-    p.sd_u_mm = p.sd_v_mm = p.sd_xy_mm = p.sd_depth_mm = kUnidentifiableMm;
-    return p;
+  return point_from_inverse(fisher, np, 0, invert_small(fisher, np));
+}
+
+CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
+                      double noise_xy_ut, double noise_z_ut, bool ambient) {
+  const int nc = model.channel_count();
+  const int np = ambient ? 9 : 6;
+  CrlbPair pair;
+  const double inputs[] = {first.u_mm,  first.v_mm,      first.depth_mm, second.u_mm,
+                           second.v_mm, second.depth_mm, noise_xy_ut,    noise_z_ut};
+  for (double x : inputs) {
+    if (!std::isfinite(x)) {
+      pair.first = point_from_inverse(nullptr, np, 0, false);
+      pair.second = pair.first;
+      return pair;
+    }
   }
-  p.sd_u_mm = std::fmin(std::sqrt(fisher[0]), kUnidentifiableMm);
-  p.sd_v_mm = std::fmin(std::sqrt(fisher[np + 1]), kUnidentifiableMm);
-  p.sd_xy_mm = std::fmin(std::sqrt(fisher[0] + fisher[np + 1]), kUnidentifiableMm);
-  p.sd_depth_mm = std::fmin(std::sqrt(fisher[2 * np + 2]), kUnidentifiableMm);
-  p.identifiable = p.sd_xy_mm < kUnidentifiableMm && p.sd_depth_mm < kUnidentifiableMm;
-  return p;
+  // d field / d (u1, v1, d1, u2, v2, d2) by central differences on the superposed field.
+  constexpr double kStepMm = 1e-4;
+  std::vector<double> jac(static_cast<std::size_t>(nc) * 6), plus(nc), minus(nc);
+  for (int k = 0; k < 6; ++k) {
+    Contact c[2][2] = {{first, second}, {first, second}};
+    for (int side = 0; side < 2; ++side) {
+      Contact& moved = c[side][k / 3];
+      double* x = k % 3 == 0 ? &moved.u_mm : k % 3 == 1 ? &moved.v_mm : &moved.depth_mm;
+      *x += side == 0 ? kStepMm : -kStepMm;
+    }
+    model.contact_field_ut(std::span<const Contact>(c[0], 2), plus);
+    model.contact_field_ut(std::span<const Contact>(c[1], 2), minus);
+    for (int i = 0; i < nc; ++i) jac[6 * i + k] = (plus[i] - minus[i]) / (2 * kStepMm);
+  }
+  double fisher[kInvertSmallMax * kInvertSmallMax] = {};
+  const auto& sensors = model.sensors();
+  for (int i = 0; i < nc; ++i) {
+    const double sigma = (i % 3 == 2) ? noise_z_ut : noise_xy_ut;
+    const double w = 1 / (sigma * sigma);
+    double row[9] = {};
+    for (int k = 0; k < 6; ++k) row[k] = jac[6 * i + k];
+    if (ambient) {
+      const auto& s = sensors[i / 3];
+      const int axis = i % 3;
+      const double g = axis == 0 ? s.gain.x : axis == 1 ? s.gain.y : s.gain.z;
+      row[6] = s.frame.r[axis].x * g;
+      row[7] = s.frame.r[axis].y * g;
+      row[8] = s.frame.r[axis].z * g;
+    }
+    for (int a = 0; a < np; ++a) {
+      for (int b = 0; b < np; ++b) fisher[a * np + b] += w * row[a] * row[b];
+    }
+  }
+  const bool ok = invert_small(fisher, np);
+  pair.first = point_from_inverse(fisher, np, 0, ok);
+  pair.second = point_from_inverse(fisher, np, 3, ok);
+  if (!pair.first.identifiable || !pair.second.identifiable) {
+    pair.first = point_from_inverse(nullptr, np, 0, false);  // one is not there: neither is told
+    pair.second = pair.first;
+  }
+  return pair;
 }
 
 }  // namespace skinbus::sim

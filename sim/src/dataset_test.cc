@@ -250,5 +250,42 @@ TEST(CrlbTest, BoundScalesWithNoiseAndFlagsNoInformation) {
             crlb_at(m, Contact{7, -3, 1}, 0.8, 1.3).sd_xy_mm);
 }
 
+TEST(CrlbTest, TwoContactsFarApartAreBoundAsEachAlone) {
+  const PatchModel m = *PatchModel::nominal(PatchDesign{});
+  // 100 mm apart: each contact's field is its own; the pair's bound is each single bound (to the
+  // finite differences' precision).
+  const Contact a{-50, 10, 2, 5}, b{50, -10, 3, 5};
+  for (bool ambient : {false, true}) {
+    const CrlbPair pair = crlb_pair_at(m, a, b, 0.8, 1.3, ambient);
+    const CrlbPoint one = crlb_at(m, a, 0.8, 1.3, ambient), two = crlb_at(m, b, 0.8, 1.3, ambient);
+    ASSERT_TRUE(pair.first.identifiable && pair.second.identifiable);
+    EXPECT_NEAR(pair.first.sd_xy_mm / one.sd_xy_mm, 1, 0.02) << ambient;
+    EXPECT_NEAR(pair.second.sd_xy_mm / two.sd_xy_mm, 1, 0.02) << ambient;
+    EXPECT_NEAR(pair.first.sd_depth_mm / one.sd_depth_mm, 1, 0.02) << ambient;
+  }
+}
+
+TEST(CrlbTest, TwoContactsCostMoreTheCloserTheyAreAndCoincidentOnesHaveNoBound) {
+  const PatchModel m = *PatchModel::nominal(PatchDesign{});
+  double previous = 0;
+  for (double separation : {60.0, 30.0, 15.0}) {
+    const CrlbPair pair = crlb_pair_at(m, Contact{-separation / 2, 5, 2, 5},
+                                       Contact{separation / 2, 5, 2, 5}, 0.8, 1.3);
+    ASSERT_TRUE(pair.first.identifiable) << separation;
+    EXPECT_GT(pair.first.sd_xy_mm, previous) << separation;
+    previous = pair.first.sd_xy_mm;
+  }
+  const Contact c{7, -3, 2, 5};
+  const CrlbPair same = crlb_pair_at(m, c, c, 0.8, 1.3);
+  EXPECT_FALSE(same.first.identifiable);
+  EXPECT_FALSE(same.second.identifiable);
+  EXPECT_EQ(same.first.sd_xy_mm, kUnidentifiableMm);
+  const CrlbPair nan = crlb_pair_at(m, Contact{std::nan(""), 0, 2, 5}, c, 0.8, 1.3);
+  EXPECT_FALSE(nan.first.identifiable);
+  EXPECT_EQ(nan.second.sd_depth_mm, kUnidentifiableMm);
+  const CrlbPair off = crlb_pair_at(m, c, Contact{400, 0, 2, 5}, 0.8, 1.3);  // one out of reach
+  EXPECT_FALSE(off.first.identifiable);
+}
+
 }  // namespace
 }  // namespace skinbus::sim

@@ -26,8 +26,20 @@ struct CrlbPoint {
 CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut, double noise_z_ut,
                   bool ambient_nuisance = false);
 
-// Inverts a symmetric positive-definite n x n matrix in place (n <= 8) by Gauss-Jordan with
+// The bound for two simultaneous contacts (each with its own u, v, depth: 6 unknowns, 9 with the
+// ambient nuisance): what the second press costs the first, as a function of where both are.
+// The Jacobian is the superposed field's (PatchModel::contact_field_ut), by central differences
+// (h = 1e-4 mm). Two contacts that the field cannot tell apart (coincident, or one out of reach)
+// give identifiable = false and kUnidentifiableMm for both, never NaN; so do non-finite inputs.
+struct CrlbPair {
+  CrlbPoint first, second;
+};
+CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
+                      double noise_xy_ut, double noise_z_ut, bool ambient_nuisance = false);
+
+// Inverts a symmetric positive-definite n x n matrix in place (n <= 12) by Gauss-Jordan with
 // partial pivoting; false if it is singular to working precision.
+inline constexpr int kInvertSmallMax = 12;
 bool invert_small(double* a, int n);
 
 }  // namespace skinbus::sim
