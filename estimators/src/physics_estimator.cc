@@ -82,6 +82,60 @@ class FieldResidual final : public ceres::CostFunction {
   int nc_;
 };
 
+// The same for two contacts: parameter blocks (u, v, depth) of each and the ambient offset.
+class PairResidual final : public ceres::CostFunction {
+ public:
+  PairResidual(const sim::PatchModel& model, const double* field, const uint8_t* ok,
+               const double* inv_sigma, const double* ambient_jac, double tip_radius_mm)
+      : model_(model),
+        field_(field),
+        ok_(ok),
+        inv_sigma_(inv_sigma),
+        ambient_jac_(ambient_jac),
+        tip_(tip_radius_mm),
+        nc_(model.channel_count()) {
+    set_num_residuals(nc_);
+    for (int b = 0; b < 3; ++b) mutable_parameter_block_sizes()->push_back(3);
+  }
+
+  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
+    using J = ceres::Jet<double, 6>;
+    const sim::ContactT<J> c[2] = {
+        {J(params[0][0], 0), J(params[0][1], 1), J(params[0][2], 2), tip_},
+        {J(params[1][0], 3), J(params[1][1], 4), J(params[1][2], 5), tip_}};
+    J out[kMaxChannels];
+    model_.contact_field_ut<J>(std::span<const sim::ContactT<J>>(c, 2), out);
+    const double* b = params[2];
+    for (int i = 0; i < nc_; ++i) {
+      const double* a = ambient_jac_ + 3 * i;
+      const double w = ok_[i] ? inv_sigma_[i] : 0.0;
+      const double pred = out[i].a + a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+      residuals[i] = ok_[i] ? (pred - field_[i]) * w : 0.0;
+      if (!std::isfinite(residuals[i])) return false;
+      if (jacobians == nullptr) continue;
+      for (int blk = 0; blk < 2; ++blk) {
+        if (jacobians[blk] == nullptr) continue;
+        for (int k = 0; k < 3; ++k) {
+          jacobians[blk][3 * i + k] = out[i].v[static_cast<Eigen::Index>(3 * blk + k)] * w;
+        }
+      }
+      if (jacobians[2] != nullptr) {
+        for (int k = 0; k < 3; ++k) jacobians[2][3 * i + k] = a[k] * w;
+      }
+    }
+    return true;
+  }
+
+ private:
+  const sim::PatchModel& model_;
+  const double* field_;
+  const uint8_t* ok_;
+  const double* inv_sigma_;
+  const double* ambient_jac_;
+  double tip_;
+  int nc_;
+};
+
 Status check_options(const PhysicsOptions& o) {
   if (!(o.tip_radius_mm >= 0) || o.max_iterations < 1 || o.min_channels < 4 ||
       !(o.poor_fit_ratio > 0) || !(o.no_contact_snr >= 0) || !(o.uv_margin_mm >= 0) ||
@@ -309,6 +363,127 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
     out = PhysicsEstimate{};
     out.contact.flags = kEstimateRejected;
     out.contact.reason = RejectReason::kNonFinite;
+  }
+  return out;
+}
+
+ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double> field_ut,
+                                                         std::span<const uint8_t> channel_ok,
+                                                         const ContactCountOptions& count) const {
+  ContactCountEstimate out;
+  out.single = estimate(field_ut, channel_ok);
+  const ContactEstimate& one = out.single.contact;
+  if (!one.valid() || (one.flags & kEstimateNoContact)) return out;  // rejected, or nothing
+  out.count = 1;
+  out.contacts[0] = one;
+  if (!(out.single.reduced_chi2 > count.try_ratio)) return out;  // one explains it: done
+
+  const int nc = model_.channel_count();
+  uint8_t ok[kMaxChannels];
+  for (int c = 0; c < nc; ++c) ok[c] = channel_ok.empty() ? 1 : channel_ok[c];
+  (void)check_sample(field_ut, std::span<uint8_t>(ok, static_cast<std::size_t>(nc)),
+                     options_.limits);
+  const int usable = out.single.channels_used;
+  const int unknowns = options_.fit_ambient ? 9 : 6;
+  if (usable <= unknowns) return out;
+  double inv_sigma[kMaxChannels], y[kMaxChannels];
+  for (int c = 0; c < nc; ++c) {
+    inv_sigma[c] = 1 / options_.noise.sigma(c);
+    y[c] = ok[c] ? field_ut[c] : 0.0;
+  }
+  const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
+  const double lo[3] = {-half_u - options_.uv_margin_mm, -half_v - options_.uv_margin_mm,
+                        kMinDepthMm};
+  const double hi[3] = {half_u + options_.uv_margin_mm, half_v + options_.uv_margin_mm,
+                        model_.max_depth_mm()};
+  PairResidual residual(model_, y, ok, inv_sigma, ambient_jac_.data(), options_.tip_radius_mm);
+  ceres::Solver::Options so;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = options_.max_iterations;
+  so.function_tolerance = options_.function_tolerance;
+  so.parameter_tolerance = options_.parameter_tolerance;
+  so.gradient_tolerance = 1e-14;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  double best[2][3] = {}, best_cost = std::numeric_limits<double>::infinity();
+  out.pair_tried = true;
+  // Starts: the single contact and a single fit of what it leaves (greedy); then the single
+  // contact split along 4 directions.
+  double starts[5][2][3];
+  int n_starts = 0;
+  {
+    double f1[kMaxChannels];
+    const sim::Contact c1{one.u_mm, one.v_mm, one.depth_mm, options_.tip_radius_mm};
+    model_.contact_field_ut(std::span<const sim::Contact>(&c1, 1),
+                            std::span<double>(f1, static_cast<std::size_t>(nc)));
+    double rest[kMaxChannels];
+    for (int i = 0; i < nc; ++i) {
+      const double* a = ambient_jac_.data() + 3 * i;
+      rest[i] = y[i] - f1[i] -
+                (a[0] * out.single.ambient_ut[0] + a[1] * out.single.ambient_ut[1] +
+                 a[2] * out.single.ambient_ut[2]);
+    }
+    const PhysicsEstimate second =
+        estimate(std::span<const double>(rest, static_cast<std::size_t>(nc)),
+                 std::span<const uint8_t>(ok, static_cast<std::size_t>(nc)));
+    if (second.contact.valid()) {
+      const double x[2][3] = {{one.u_mm, one.v_mm, one.depth_mm},
+                              {second.contact.u_mm, second.contact.v_mm, second.contact.depth_mm}};
+      std::copy(&x[0][0], &x[0][0] + 6, &starts[n_starts++][0][0]);
+    }
+  }
+  for (double deg : {0.0, 45.0, 90.0, 135.0}) {
+    const double du = count.start_offset_mm * std::cos(deg * M_PI / 180);
+    const double dv = count.start_offset_mm * std::sin(deg * M_PI / 180);
+    const double x[2][3] = {{one.u_mm + du, one.v_mm + dv, one.depth_mm},
+                            {one.u_mm - du, one.v_mm - dv, one.depth_mm}};
+    std::copy(&x[0][0], &x[0][0] + 6, &starts[n_starts++][0][0]);
+  }
+  for (int s = 0; s < n_starts; ++s) {
+    double x[2][3];
+    std::copy(&starts[s][0][0], &starts[s][0][0] + 6, &x[0][0]);
+    double b[3] = {out.single.ambient_ut[0], out.single.ambient_ut[1], out.single.ambient_ut[2]};
+    ceres::Problem::Options po;
+    po.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    ceres::Problem problem(po);
+    problem.AddResidualBlock(&residual, nullptr, x[0], x[1], b);
+    for (auto& xc : x) {
+      for (int k = 0; k < 3; ++k) {
+        xc[k] = std::clamp(xc[k], lo[k], hi[k]);
+        problem.SetParameterLowerBound(xc, k, lo[k]);
+        problem.SetParameterUpperBound(xc, k, hi[k]);
+      }
+    }
+    if (!options_.fit_ambient) problem.SetParameterBlockConstant(b);
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    out.pair_iterations += static_cast<int>(summary.iterations.size()) - 1;
+    if (std::isfinite(summary.final_cost) && summary.final_cost < best_cost) {
+      best_cost = summary.final_cost;
+      std::copy(&x[0][0], &x[0][0] + 6, &best[0][0]);
+    }
+    if (2 * best_cost / (usable - unknowns) <= 1.0) break;  // at the noise: no start beats it
+  }
+  if (!std::isfinite(best_cost)) return out;
+  out.pair_chi2 = 2 * best_cost;
+  out.pair_reduced_chi2 = out.pair_chi2 / (usable - unknowns);
+  const double separation = std::hypot(best[0][0] - best[1][0], best[0][1] - best[1][1]);
+  const bool split = out.pair_reduced_chi2 <= count.max_reduced_chi2 &&
+                     out.single.reduced_chi2 >= count.min_improvement * out.pair_reduced_chi2 &&
+                     out.single.chi2 - out.pair_chi2 >= count.min_chi2_drop &&
+                     separation >= count.min_separation_mm && best[0][2] >= count.min_depth_mm &&
+                     best[1][2] >= count.min_depth_mm;
+  if (!split) return out;
+  out.count = 2;
+  for (int k = 0; k < 2; ++k) {
+    ContactEstimate& e = out.contacts[k];
+    e = ContactEstimate{};
+    e.u_mm = best[k][0];
+    e.v_mm = best[k][1];
+    e.depth_mm = best[k][2];
+    e.force_n = model_.force_n(best[k][2]);
+    flag_range(e, half_u, half_v, model_.max_depth_mm());
   }
   return out;
 }

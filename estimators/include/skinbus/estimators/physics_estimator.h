@@ -71,6 +71,41 @@ struct PhysicsEstimate {
   int channels_used = 0;
 };
 
+// How many contacts a sample holds (0, 1 or 2) and where: PhysicsEstimator::estimate_contacts().
+// A second contact is fitted only when the single fit leaves more than noise
+// (reduced chi-square above `try_ratio`), by Levenberg-Marquardt over both contacts' (u, v,
+// depth) and the ambient offset, started from the single contact and a single fit of what it
+// leaves, then from the single contact split `start_offset_mm` each way along 4 directions
+// (the best of the starts is kept); it is kept only when it explains the sample to near the noise
+// (reduced chi-square <= `max_reduced_chi2`), lowers the chi-square by at least `min_chi2_drop`
+// (noise units; 3 ln(48) = 11.6 is the Bayesian information criterion's price of 3 more
+// unknowns on 48 channels), improves the reduced chi-square `min_improvement` times, and its
+// contacts are at least `min_separation_mm` apart and `min_depth_mm` deep. A model mismatch the
+// single fit cannot absorb must not become a second press: 3 more unknowns absorb much of a
+// mismatch too (a single press on a unit outside the model class, fitted at 2-20x the noise,
+// is fitted near the noise by two: improvements up to 15x seen in ~1000 such presses), so the
+// improvement asked is larger than a mismatch gives; 97 % of two presses 30 mm apart give more
+// (docs/benchmarks/two_contacts.md).
+struct ContactCountOptions {
+  double try_ratio = 1.5;
+  double max_reduced_chi2 = 1.6;
+  double min_chi2_drop = 11.6;
+  double min_improvement = 20;
+  double min_separation_mm = 8;
+  double min_depth_mm = 0.3;
+  double start_offset_mm = 10;
+};
+
+struct ContactCountEstimate {
+  int count = 0;                 // contacts in the sample: 0, 1 or 2
+  ContactEstimate contacts[2];   // the first `count` are valid
+  PhysicsEstimate single;        // the single-contact fit (always made)
+  bool pair_tried = false;       // the two-contact fit was made
+  double pair_chi2 = 0;          // its chi-square (noise units), when tried
+  double pair_reduced_chi2 = 0;  // chi2 / (channels used - unknowns)
+  int pair_iterations = 0;
+};
+
 class PhysicsEstimator {
  public:
   // An estimator over `model` (copied), with its own start table from options.start_grid
@@ -93,6 +128,12 @@ class PhysicsEstimator {
   // The same started from `guess` (its u, v, depth; another estimator's answer).
   PhysicsEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& guess) const;
+  // The number of contacts in the sample (0, 1 or 2) and each one (ContactCountOptions). Cost:
+  // estimate(), and when the single fit leaves more than noise, up to 4 two-contact solves (each
+  // ~2x a single one: 6 contact unknowns).
+  ContactCountEstimate estimate_contacts(std::span<const double> field_ut,
+                                         std::span<const uint8_t> channel_ok = {},
+                                         const ContactCountOptions& count = {}) const;
 
  private:
   PhysicsEstimator(const sim::PatchModel& model, const PhysicsOptions& options,
