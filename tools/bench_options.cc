@@ -80,6 +80,25 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
   sub->add_option("--csv", a.csv, "write the table as CSV");
 }
 
+void add_pairs_options(CLI::App* sub, estimators_bench::PairsBenchArgs& a) {
+  sub->add_option("--separations", a.separations, "separations of the two presses, mm")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--depths", a.depths, "depths of both presses, mm")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--trials", a.trials, "pairs per separation and depth")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--single-trials", a.single_trials, "single presses per unit")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--uid", a.uid, "hardware UID of the fabricated unit")->capture_default_str();
+  sub->add_option("--seed", a.seed, "random seed of the presses and the noise")
+      ->capture_default_str();
+  sub->add_option("--csv", a.csv, "write the pairs table as CSV");
+}
+
 void add_finetune_options(CLI::App* sub, estimators_bench::FinetuneBenchArgs& a) {
   sub->add_option("--base", a.base_path, "the base network (trained on the nominal patch)")
       ->required();

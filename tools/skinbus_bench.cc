@@ -90,6 +90,13 @@ int main(int argc, char** argv) {
       "accuracy from one unit's 361 presses (the seed's robot-time budget): the seed recipe "
       "against the physics pipeline, per simulated unit, off-grid and at grid points");
   skinbus::tools::add_budget_options(budget, ba);
+  skinbus::estimators_bench::PairsBenchArgs pa;
+  CLI::App* pairs = app.add_subcommand(
+      "pairs",
+      "two presses on one patch: how often the count is right and each contact's error against "
+      "their separation and depth, next to the two-contact Cramer-Rao bound; how often a single "
+      "press is split, on units whose physics the model lacks");
+  skinbus::tools::add_pairs_options(pairs, pa);
   skinbus::host_bench::AmbientBenchArgs aa;
   CLI::App* ambient = app.add_subcommand(
       "ambient",
@@ -116,6 +123,7 @@ int main(int argc, char** argv) {
   if (finetune->parsed()) return report(skinbus::estimators_bench::bench_finetune(fa));
 #endif
   if (budget->parsed()) return report(skinbus::estimators_bench::bench_budget(ba));
+  if (pairs->parsed()) return report(skinbus::estimators_bench::bench_pairs(pa));
   if (ambient->parsed()) return report(skinbus::host_bench::bench_ambient(aa));
   if (host->parsed()) return report(skinbus::host_bench::bench_host(ha));
   if (models->parsed()) return report(skinbus::estimators_bench::bench_models(ma));
