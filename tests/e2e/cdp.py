@@ -199,6 +199,12 @@ class Browser:
             "width": self._width, "height": self._height, "deviceScaleFactor": 1,
             "mobile": False})
 
+    @property
+    def pid(self):
+        """The browser's process ID; it leads its own session, which holds its renderer and GPU
+        processes (for accounting their CPU time)."""
+        return self._proc.pid
+
     # -- page ----------------------------------------------------------------------------------
 
     def open(self, url, timeout_s=30.0):

@@ -679,7 +679,8 @@ function addEvent(event) {
 
 // -- the stream ----------------------------------------------------------------------------------
 
-const messageCounts = {};
+const messageCounts = {};        // type -> messages handled
+const handlingMs = {};           // type -> main-thread ms spent handling them (parsing excluded)
 const stream = {
   live: true,
   socketOpen: false,
@@ -688,9 +689,7 @@ const stream = {
   replay: null,                    // {position, total, ended} in replay mode
 };
 
-function handleMessage(msg) {
-  const type = typeof msg?.type === 'string' ? msg.type : '(none)';
-  messageCounts[type] = (messageCounts[type] ?? 0) + 1;
+function handleMessage(type, msg) {
   switch (type) {
     case 'joint_state':
       applyJointState(msg);
@@ -721,12 +720,18 @@ function markFresh() {
   stream.hostAgeMs = null;
 }
 
+// Handles one message, counted and timed by its type (performance.now() around the handler: the
+// DOM and scene updates it makes, not the layout or rendering they cause later in the frame).
 function handleMessageSafely(msg) {
+  const type = typeof msg?.type === 'string' ? msg.type : '(none)';
+  const startMs = performance.now();
   try {
-    handleMessage(msg);
+    handleMessage(type, msg);
   } catch (e) {
-    recordError(`${msg?.type ?? 'message'}: ${e.message}`);
+    recordError(`${type}: ${e.message}`);
   }
+  messageCounts[type] = (messageCounts[type] ?? 0) + 1;
+  handlingMs[type] = (handlingMs[type] ?? 0) + performance.now() - startMs;
 }
 
 function connect() {
@@ -893,6 +898,7 @@ window.skinbusView = {
       // node -> the largest field change (uT) of its latest `fields` message
       fields: Object.fromEntries([...fieldsByNode].map(([node, f]) => [node, f.max_ut])),
       messages: { ...messageCounts },
+      handling_ms: { ...handlingMs },
       stalled: stallReason(performance.now()) !== null,
       fps: Math.round(fpsMeter.fps * 10) / 10,
       errors: [...errors],

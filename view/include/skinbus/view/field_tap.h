@@ -29,17 +29,17 @@
 namespace skinbus::view {
 
 struct FieldTapOptions {
-  double show_ut = 5.0;      // a patch is shown while some channel's change is at least this
-  double max_rate_hz = 10;   // fields messages per patch per second, at most
-  int max_interfaces = 16;   // buses kept apart (frames of more are ignored, counted)
+  double show_ut = 5.0;     // a patch is shown while some channel's change is at least this
+  double max_rate_hz = 10;  // fields messages per patch per second, at most
+  int max_interfaces = 16;  // buses kept apart (frames of more are ignored, counted)
 };
 
 struct FieldTapStats {
-  uint64_t frames = 0;          // fed
-  uint64_t samples = 0;         // sample messages reassembled
-  uint64_t rejected = 0;        // frames the reassembler rejected (not skinbus, corrupt)
-  uint64_t updates = 0;         // fields messages produced
-  uint64_t ignored_buses = 0;   // frames of interfaces past max_interfaces
+  uint64_t frames = 0;         // fed
+  uint64_t samples = 0;        // sample messages reassembled
+  uint64_t rejected = 0;       // frames the reassembler rejected (not skinbus, corrupt)
+  uint64_t updates = 0;        // fields messages produced
+  uint64_t ignored_buses = 0;  // frames of interfaces past max_interfaces
 };
 
 class FieldTap {
@@ -54,10 +54,10 @@ class FieldTap {
 
  private:
   struct Patch {
-    std::string json;       // the latest sample as a fields message
-    bool fresh = false;     // a sample arrived since the last update
-    bool shown = false;     // the page shows it (the last update was at or above show_ut)
-    bool above = false;     // the latest sample is at or above show_ut
+    std::string json;    // the latest sample as a fields message
+    bool fresh = false;  // a sample arrived since the last update
+    bool shown = false;  // the page shows it (the last update was at or above show_ut)
+    bool above = false;  // the latest sample is at or above show_ut
     uint64_t last_sent_us = 0;
   };
   FieldTapOptions options_;
