@@ -71,8 +71,19 @@ window.addEventListener('unhandledrejection', (e) => recordError(e.reason?.messa
 
 const viewEl = document.getElementById('view');
 
-const renderer = new THREE.WebGLRenderer({ antialias: true });
-renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+// WebGL drawn by the CPU (no GPU: SwiftShader, llvmpipe) spends most of each frame on
+// multisampling; there the page draws without it, at one pixel per CSS pixel
+// (docs/benchmarks/view.md).
+function softwareRendering() {
+  const gl = document.createElement('canvas').getContext('webgl2');
+  const info = gl?.getExtension('WEBGL_debug_renderer_info');
+  const name = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : '';
+  gl?.getExtension('WEBGL_lose_context')?.loseContext();
+  return /swiftshader|llvmpipe|softpipe|software/i.test(name);
+}
+const software = softwareRendering();
+const renderer = new THREE.WebGLRenderer({ antialias: !software });
+renderer.setPixelRatio(software ? 1 : Math.min(window.devicePixelRatio, 2));
 viewEl.prepend(renderer.domElement);
 
 const labelRenderer = new CSS2DRenderer();
@@ -853,7 +864,7 @@ function frame(now) {
     fpsMeter.fps = (1000 * fpsMeter.frames) / (now - fpsMeter.sinceMs);
     fpsMeter.frames = 0;
     fpsMeter.sinceMs = now;
-    fpsEl.textContent = `${fpsMeter.fps.toFixed(0)} fps`;
+    fpsEl.textContent = `${fpsMeter.fps.toFixed(0)} fps${software ? ' (software rendering)' : ''}`;
   }
 }
 
@@ -901,6 +912,7 @@ window.skinbusView = {
       handling_ms: { ...handlingMs },
       stalled: stallReason(performance.now()) !== null,
       fps: Math.round(fpsMeter.fps * 10) / 10,
+      software_rendering: software,
       errors: [...errors],
       replay: stream.replay ? { ...stream.replay } : null,
     };
