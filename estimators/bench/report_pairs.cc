@@ -25,7 +25,8 @@ std::vector<double> noisy_field(const sim::PatchModel& truth, std::span<const Co
   std::vector<double> f(static_cast<std::size_t>(truth.channel_count()));
   truth.contact_field_ut(contacts, f);
   const ChannelNoise noise = ChannelNoise::of(truth.design());
-  for (std::size_t k = 0; k < f.size(); ++k) f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+  for (std::size_t k = 0; k < f.size(); ++k)
+    f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
   return f;
 }
 
@@ -64,9 +65,8 @@ Status bench_pairs(const PairsBenchArgs& a) {
       for (int t = 0; t < a.trials; ++t) {
         const double mu = rng.uniform(-30, 30), mv = rng.uniform(-30, 30);
         const double th = rng.uniform(0, M_PI);
-        const Contact p[2] = {
-            {mu + sep / 2 * std::cos(th), mv + sep / 2 * std::sin(th), depth, 5},
-            {mu - sep / 2 * std::cos(th), mv - sep / 2 * std::sin(th), depth, 5}};
+        const Contact p[2] = {{mu + sep / 2 * std::cos(th), mv + sep / 2 * std::sin(th), depth, 5},
+                              {mu - sep / 2 * std::cos(th), mv - sep / 2 * std::sin(th), depth, 5}};
         const auto f = noisy_field(*unit, p, rng);
         const auto t0 = Clock::now();
         const ContactCountEstimate e = physics->estimate_contacts(f);
@@ -142,8 +142,8 @@ Status bench_pairs(const PairsBenchArgs& a) {
       poor += s.reduced_chi2 > 1.5;
       splits += e.count == 2;
     }
-    std::printf("| %s | %s | %d | %d | %d | %.0f | %.0f |\n", c.unit, c.model, a.single_trials, poor,
-                splits, us_single / a.single_trials, us_count / a.single_trials);
+    std::printf("| %s | %s | %d | %d | %d | %.0f | %.0f |\n", c.unit, c.model, a.single_trials,
+                poor, splits, us_single / a.single_trials, us_count / a.single_trials);
   }
   if (!a.csv.empty()) {
     if (Status st = write_file_atomic(a.csv, csv, "pairs table"); !st.ok()) return st;

@@ -20,7 +20,8 @@ std::vector<double> noisy_field(const sim::PatchModel& truth, std::span<const Co
   std::vector<double> f(static_cast<std::size_t>(truth.channel_count()));
   truth.contact_field_ut(contacts, f);
   const ChannelNoise noise = ChannelNoise::of(truth.design());
-  for (std::size_t k = 0; k < f.size(); ++k) f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+  for (std::size_t k = 0; k < f.size(); ++k)
+    f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
   return f;
 }
 
@@ -30,7 +31,8 @@ double distance(const ContactEstimate& e, const Contact& c) {
 
 TEST(ContactCount, TwoPressesThirtyMillimetresApartAreResolvedOnAFabricatedUnit) {
   const sim::PatchDesign design;
-  const sim::PatchModel unit = sim::PatchModel::fabricated(design, 0x5b0000000000002a, sim::FabricationVariation{}).value();
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(design, 0x5b0000000000002a, sim::FabricationVariation{}).value();
   // The estimator on the unit's own model (what identification gives, to its residual).
   const PhysicsEstimator physics = PhysicsEstimator::create(unit).value();
   sim::Rng rng(test_seed("TwoPressesThirtyMillimetresApartAreResolvedOnAFabricatedUnit"));
@@ -46,8 +48,9 @@ TEST(ContactCount, TwoPressesThirtyMillimetresApartAreResolvedOnAFabricatedUnit)
     if (e.count != 2) continue;
     ++resolved;
     // Either order: each press has an estimate within 2 mm (the bound at 30 mm: ~0.3-0.4 mm).
-    const bool straight = distance(e.contacts[0], presses[0]) + distance(e.contacts[1], presses[1]) <
-                          distance(e.contacts[0], presses[1]) + distance(e.contacts[1], presses[0]);
+    const bool straight =
+        distance(e.contacts[0], presses[0]) + distance(e.contacts[1], presses[1]) <
+        distance(e.contacts[0], presses[1]) + distance(e.contacts[1], presses[0]);
     const ContactEstimate& first = straight ? e.contacts[0] : e.contacts[1];
     const ContactEstimate& second = straight ? e.contacts[1] : e.contacts[0];
     if (distance(first, presses[0]) < 2 && distance(second, presses[1]) < 2) ++placed;
@@ -68,9 +71,9 @@ TEST(ContactCount, OnePressIsNeverSplitOnUnitsWhosePhysicsIsOutsideTheModelClass
   sim::PatchDesign anisotropic, lateral;
   anisotropic.anisotropy = 0.1;
   lateral.lateral_mm = 2.6;
-  const sim::PatchModel units[] = {sim::PatchModel::nominal(anisotropic).value(),
-                                   sim::PatchModel::nominal(lateral).value(),
-                                   sim::PatchModel::fabricated(sim::PatchDesign{}, 7, sim::FabricationVariation{}).value()};
+  const sim::PatchModel units[] = {
+      sim::PatchModel::nominal(anisotropic).value(), sim::PatchModel::nominal(lateral).value(),
+      sim::PatchModel::fabricated(sim::PatchDesign{}, 7, sim::FabricationVariation{}).value()};
   sim::Rng rng(test_seed("OnePressIsNeverSplitOnUnitsWhosePhysicsIsOutsideTheModelClass"));
   int splits = 0, poor = 0, total = 0;
   for (const auto& unit : units) {
@@ -82,11 +85,12 @@ TEST(ContactCount, OnePressIsNeverSplitOnUnitsWhosePhysicsIsOutsideTheModelClass
       poor += e.single.reduced_chi2 > 1.5;
       if (e.count == 2) {
         ++splits;
-        std::printf("split: press (%.1f, %.1f, %.2f) -> (%.1f, %.1f, %.2f) + (%.1f, %.1f, %.2f), "
-                    "reduced chi2 %.2f -> %.2f\n",
-                    press.u_mm, press.v_mm, press.depth_mm, e.contacts[0].u_mm, e.contacts[0].v_mm,
-                    e.contacts[0].depth_mm, e.contacts[1].u_mm, e.contacts[1].v_mm,
-                    e.contacts[1].depth_mm, e.single.reduced_chi2, e.pair_reduced_chi2);
+        std::printf(
+            "split: press (%.1f, %.1f, %.2f) -> (%.1f, %.1f, %.2f) + (%.1f, %.1f, %.2f), "
+            "reduced chi2 %.2f -> %.2f\n",
+            press.u_mm, press.v_mm, press.depth_mm, e.contacts[0].u_mm, e.contacts[0].v_mm,
+            e.contacts[0].depth_mm, e.contacts[1].u_mm, e.contacts[1].v_mm, e.contacts[1].depth_mm,
+            e.single.reduced_chi2, e.pair_reduced_chi2);
       }
     }
   }
@@ -103,7 +107,8 @@ TEST(ContactCount, NothingCoincidentAndNonFiniteGiveCountsWithoutNaN) {
   const auto quiet = noisy_field(nominal, {}, rng);
   EXPECT_EQ(physics.estimate_contacts(quiet).count, 0);
   const Contact same[2] = {{10, -5, 2, 5}, {10, -5, 2, 5}};
-  const ContactCountEstimate coincident = physics.estimate_contacts(noisy_field(nominal, same, rng));
+  const ContactCountEstimate coincident =
+      physics.estimate_contacts(noisy_field(nominal, same, rng));
   EXPECT_EQ(coincident.count, 1);  // two presses at one place are one deeper press
   for (const auto& c : coincident.contacts) {
     EXPECT_TRUE(std::isfinite(c.u_mm) && std::isfinite(c.v_mm) && std::isfinite(c.depth_mm));

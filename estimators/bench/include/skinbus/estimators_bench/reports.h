@@ -92,7 +92,7 @@ Status bench_finetune(const FinetuneBenchArgs& a);
 struct PairsBenchArgs {
   std::vector<double> separations = {10, 15, 20, 30, 40, 60, 80};
   std::vector<double> depths = {1, 2, 3, 4};
-  int trials = 40;         // pairs per (separation, depth)
+  int trials = 40;          // pairs per (separation, depth)
   int single_trials = 200;  // single presses per unit
   uint64_t uid = 0x5B00000000000001ull;
   uint64_t seed = 1;
