@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include <sys/stat.h>
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -19,10 +20,12 @@
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/bus/candump.h"
+#include "skinbus/bus/codec.h"
 #include "skinbus/bus/socketcan.h"
 #include "skinbus/dds/dds.h"
 #include "skinbus/host/contacts_json.h"
 #include "skinbus/view/field_tap.h"
+#include "skinbus/view/page_command.h"
 #include "skinbus/view/scene_json.h"
 #include "skinbus/view/server.h"
 #include "tool_util.h"
@@ -102,7 +105,7 @@ int main(int argc, char** argv) {
       "  - every contact at its body-frame position, sized by depth and coloured by force, with\n"
       "    its track ID and a trail; the patches' counters, the events, a stalled-stream banner.\n"
       "The page and its libraries are served from this machine (nothing from the internet);\n"
-      "read-only: nothing a page sends reaches the patches. Binds to 127.0.0.1: on a robot, open\n"
+      "read-only unless --allow-commands (below). Binds to 127.0.0.1: on a robot, open\n"
       "it through an SSH tunnel (docs/guides/web_view.md).\n\n"
       "With -i (or --candump) it also reads the bus: a selected patch's panel shows its 16\n"
       "sensors' field change (tared on the patch) as a heat map with in-plane arrows.\n\n"
@@ -112,6 +115,9 @@ int main(int argc, char** argv) {
       "  ssh -L 8080:localhost:8080 robot            # then open http://localhost:8080/ here\n"
       "  skinbus-view --map skin.yaml --recording out/demo/host.jsonl\n"
       "      # then http://localhost:8080/?replay=/recording.jsonl\n\n"
+      "Read-only by default: a page's commands are refused. With --allow-commands, a page on\n"
+      "this machine (or through an SSH tunnel, which arrives on it) may tare a patch or set its\n"
+      "mode; they go on the bus given with -i, and as candump -L lines to --commands-out.\n\n"
       "Exit status: 0; 1 when DDS, the map or the port failed; 2 on bad arguments."};
   std::string map_path, ns, bind = "127.0.0.1", recording;
   std::string web_root = SKINBUS_VIEW_WEB_DIR;
@@ -119,7 +125,8 @@ int main(int argc, char** argv) {
   double duration_s = 0, joint_rate_hz = 30;
   bool quiet = false;
   std::vector<std::string> interfaces;
-  std::string candump_path;
+  std::string candump_path, commands_out;
+  bool allow_commands = false;
   app.add_option("--map", map_path, "skin map (YAML): the patches and the robot")->required();
   app.add_option("--namespace", ns, "the host's --namespace (topics rt/NS/skin/...)");
   app.add_option("--domain", domain, "DDS domain ID (default: Cyclone DDS's)");
@@ -147,10 +154,20 @@ int main(int argc, char** argv) {
   app.add_option("--candump", candump_path,
                  "the same from candump -L lines in a file or '-' (standard input)")
       ->excludes("--interface");
+  app.add_flag("--allow-commands", allow_commands,
+               "let pages on this machine tare a patch or set its mode (needs -i or "
+               "--commands-out)");
+  app.add_option("--commands-out", commands_out,
+                 "also write the commands sent as candump -L lines to this file ('-': standard "
+                 "output)");
   app.add_flag("-q,--quiet", quiet, "no address line, no counters at exit");
   CLI11_PARSE(app, argc, argv);
   constexpr const char* kTool = "skinbus-view";
 
+  if (allow_commands && interfaces.empty() && commands_out.empty()) {
+    return tools::fail(kTool, "--allow-commands: give the bus to send on (-i) or --commands-out",
+                       2);
+  }
   auto map = body_map::load_skin_map_file(map_path);
   if (!map) return tools::report_error(kTool, map.error());
   if (!is_dir(web_root + "/node_modules/three") ||
@@ -178,7 +195,7 @@ int main(int argc, char** argv) {
   (*server)->add_folder("/", web_root);
   (*server)->add_folder("/node_modules/", web_root + "/node_modules");
   (*server)->add_document("/api/scene", "application/json",
-                          view::scene_to_json(*map, robot_url, base_frame, true));
+                          view::scene_to_json(*map, robot_url, base_frame, !allow_commands));
   if (!recording.empty()) {
     std::ifstream in(recording, std::ios::binary);
     std::ostringstream text;
@@ -200,17 +217,75 @@ int main(int argc, char** argv) {
   // The latest state a page opened now must see at once.
   std::string last_joint_state, last_status;
   (*server)->set_greeting([&] {
-    std::vector<std::string> m{view::hello_to_json(true)};
+    std::vector<std::string> m{view::hello_to_json(!allow_commands)};
     if (!last_joint_state.empty()) m.push_back(last_joint_state);
     if (!last_status.empty()) m.push_back(last_status);
     return m;
   });
   if (!quiet) {
-    std::printf("skinbus-view: serving http://%s:%u/ (%zu patches%s)\n",
-                bind == "0.0.0.0" ? "localhost" : bind.c_str(), (*server)->port(),
-                map->patches.size(), robot_url.empty() ? ", no robot" : "");
+    // (on standard error when the commands go to standard output)
+    std::fprintf(commands_out == "-" ? stderr : stdout,
+                 "skinbus-view: serving http://%s:%u/ (%zu patches%s)\n",
+                 bind == "0.0.0.0" ? "localhost" : bind.c_str(), (*server)->port(),
+                 map->patches.size(), robot_url.empty() ? ", no robot" : "");
     std::fflush(stdout);
   }
+
+  // Commands from pages: refused unless --allow-commands, and then only from this machine.
+  std::unique_ptr<bus::SocketCanPort> command_port;
+  if (allow_commands && !interfaces.empty()) {
+    bus::SocketCanOptions opts;
+    opts.fd = true;
+    auto opened = bus::SocketCanPort::open(interfaces.front(), opts);
+    if (!opened.ok()) return tools::report_error(kTool, opened.error());
+    command_port = std::move(opened).value();
+  }
+  std::FILE* commands_file = nullptr;
+  if (!commands_out.empty()) {
+    commands_file = commands_out == "-" ? stdout : std::fopen(commands_out.c_str(), "w");
+    if (commands_file == nullptr) return tools::fail(kTool, "cannot write " + commands_out, 2);
+  }
+  uint8_t command_seq = 0;
+  uint64_t commands_sent = 0, commands_refused = 0;
+  (*server)->set_message_handler([&](uint64_t page, std::string_view text, bool loopback) {
+    auto cmd = view::parse_page_command(text);
+    auto answer = [&](bool ok, const std::string& detail) {
+      (*server)->send_to(page,
+                         view::command_result_to_json(cmd.ok() ? &*cmd : nullptr, ok, detail));
+      ok ? ++commands_sent : ++commands_refused;
+    };
+    if (!cmd.ok()) return answer(false, cmd.error().message);
+    if (!allow_commands) {
+      return answer(false, "read-only: skinbus-view runs without --allow-commands");
+    }
+    if (!loopback) return answer(false, "commands are taken from this machine only");
+    bus::Message m;
+    m.node = cmd->node;
+    m.seq = command_seq++;
+    m.kind = bus::FrameKind::kFd;
+    m.body = cmd->command;
+    std::array<bus::CanFrame, 1> frame;
+    if (bus::encode(m, frame).frames != 1) return answer(false, "the command did not encode");
+    std::string where;
+    if (command_port) {
+      if (Status st = command_port->send_blocking(frame[0], 100); !st.ok()) {
+        return answer(false, "send: " + st.error().message);
+      }
+      where = "sent on " + interfaces.front();
+    }
+    if (commands_file != nullptr) {
+      const std::string line = bus::format_candump_line(
+          frame[0], bus::realtime_now_us(), interfaces.empty() ? "can0" : interfaces.front());
+      std::fprintf(commands_file, "%s\n", line.c_str());
+      std::fflush(commands_file);
+      if (where.empty()) where = "written to " + commands_out;
+    }
+    if (!quiet) {
+      std::fprintf(stderr, "skinbus-view: a page's command: %s to node %d (%s)\n",
+                   cmd->name.c_str(), cmd->node, where.c_str());
+    }
+    answer(true, where);
+  });
 
   tools::install_stop_handler();
   view::FieldTap tap;
@@ -270,13 +345,14 @@ int main(int argc, char** argv) {
   }
   tools::stop_requested() = true;  // ends the bus reader
   if (bus_reader.joinable()) bus_reader.join();
+  if (commands_file != nullptr && commands_file != stdout) std::fclose(commands_file);
   if (!quiet) {
     const auto s = (*server)->stats();
     std::fprintf(stderr,
                  "skinbus-view: contact arrays %llu, status arrays %llu; pages connected %llu "
                  "(refused %llu, dropped for not reading %llu, closed for bad frames %llu), page "
-                 "messages ignored %llu, files %llu, bad requests %llu; bus samples %llu, "
-                 "field updates %llu\n",
+                 "messages %llu (commands sent %llu, refused %llu), files %llu, bad requests "
+                 "%llu; bus samples %llu, field updates %llu\n",
                  static_cast<unsigned long long>(contact_arrays),
                  static_cast<unsigned long long>(status_arrays),
                  static_cast<unsigned long long>(s.clients_connected),
@@ -284,6 +360,8 @@ int main(int argc, char** argv) {
                  static_cast<unsigned long long>(s.clients_dropped_slow),
                  static_cast<unsigned long long>(s.protocol_errors),
                  static_cast<unsigned long long>(s.client_messages),
+                 static_cast<unsigned long long>(commands_sent),
+                 static_cast<unsigned long long>(commands_refused),
                  static_cast<unsigned long long>(s.http_requests),
                  static_cast<unsigned long long>(s.http_errors),
                  static_cast<unsigned long long>(tap.stats().samples),

@@ -5,7 +5,9 @@
 // - FrameReader: no frame's payload is over the bound; after an error it returns only errors
 //   and holds nothing; it never buffers more than what was fed and not yet returned;
 // - the head parser: a request it accepts has a path starting with '/' and holding no "..",
-//   '\\' or '%', and header names in lower case.
+//   '\\' or '%', and header names in lower case;
+// - the page command parser (the same bytes as a page's message): a command it accepts is a tare
+//   or a mode change of a node in 1..125, and its answer is JSON.
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -13,6 +15,7 @@
 #include <string_view>
 
 #include "skinbus/view/http_request.h"
+#include "skinbus/view/page_command.h"
 #include "skinbus/view/websocket.h"
 
 using namespace skinbus;
@@ -75,5 +78,16 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     }
     (void)request->is_websocket_upgrade();
   }
+  auto command = parse_page_command(head);
+  if (command.ok()) {
+    if (command->node < 1 || command->node > 125) fail("a command to a node outside 1..125");
+    if (command->command.opcode != bus::Opcode::kTare &&
+        command->command.opcode != bus::Opcode::kSetMode) {
+      fail("a command other than tare and mode");
+    }
+  }
+  const std::string answer =
+      command_result_to_json(command.ok() ? &*command : nullptr, command.ok(), "fuzz");
+  if (answer.empty() || answer.front() != '{') fail("an answer that is not a JSON object");
   return 0;
 }

@@ -87,6 +87,8 @@ std::string content_type_for(std::string_view name) {
 struct Server::Impl {
   struct Connection {
     int fd = -1;
+    uint64_t id = 0;        // for send_to()
+    bool loopback = false;  // the peer is on this machine (127.0.0.0/8)
     bool websocket = false;
     bool closing = false;  // close once `out` is sent
     std::string in;        // the request head so far (HTTP)
@@ -105,6 +107,8 @@ struct Server::Impl {
   std::map<std::string, std::string> folders;                            // prefix -> folder
   std::string stream_path = "/ws";
   std::function<std::vector<std::string>()> greeting;
+  std::function<void(uint64_t, std::string_view, bool)> message_handler;
+  uint64_t next_id = 1;
   std::list<Connection> connections;
   ServerStats stats;
 
@@ -115,7 +119,10 @@ struct Server::Impl {
 
   void accept_all() {
     for (;;) {
-      const int fd = ::accept4(listen_fd, nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC);
+      sockaddr_in peer{};
+      socklen_t peer_len = sizeof peer;
+      const int fd = ::accept4(listen_fd, reinterpret_cast<sockaddr*>(&peer), &peer_len,
+                               SOCK_NONBLOCK | SOCK_CLOEXEC);
       if (fd < 0) return;  // EAGAIN, or an error of one connection: nothing to do
       if (static_cast<int>(connections.size()) >= options.max_connections) {
         ++stats.connections_refused;
@@ -126,6 +133,9 @@ struct Server::Impl {
       ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
       connections.emplace_back(options.max_message_bytes);
       connections.back().fd = fd;
+      connections.back().id = next_id++;
+      connections.back().loopback =
+          peer.sin_family == AF_INET && (ntohl(peer.sin_addr.s_addr) >> 24) == 127;
       connections.back().opened = Clock::now();
     }
   }
@@ -235,7 +245,8 @@ struct Server::Impl {
       if (step == FrameReader::Step::kNeedMore) return;
       if (step == FrameReader::Step::kError) return protocol_error(c, c.frames.close_code());
       if (frame.kind == ClientFrame::Kind::kText) {
-        ++stats.client_messages;  // read-only: counted, ignored
+        ++stats.client_messages;
+        if (message_handler) message_handler(c.id, frame.payload, c.loopback);
       } else if (frame.kind == ClientFrame::Kind::kBinary) {
         return protocol_error(c, kCloseUnsupportedData);
       } else if (frame.kind == ClientFrame::Kind::kPing) {
@@ -319,6 +330,20 @@ void Server::set_stream_path(const std::string& path) {
 
 void Server::set_greeting(std::function<std::vector<std::string>()> greeting) {
   impl_->greeting = std::move(greeting);
+}
+
+void Server::set_message_handler(
+    std::function<void(uint64_t page, std::string_view text, bool loopback)> handler) {
+  impl_->message_handler = std::move(handler);
+}
+
+void Server::send_to(uint64_t page, std::string_view text) {
+  for (auto& c : impl_->connections) {
+    if (c.id == page && c.websocket && !c.closing) {
+      append_text_frame(text, &c.out);
+      return;
+    }
+  }
 }
 
 void Server::broadcast(std::string_view text) {

@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <tuple>
 
 #include "skinbus/view/websocket.h"
 
@@ -158,6 +159,30 @@ TEST(ViewServer, APageGetsTheGreetingThenEveryBroadcast) {
   page.send(masked(0x88, std::string("\x03\xe8", 2)));
   ASSERT_TRUE(pump(*server, {&page}, [&] { return !page.open(); }));
   EXPECT_EQ(server->stats().clients, 0);
+}
+
+TEST(ViewServer, APagesMessageReachesTheHandlerWhichAnswersThatPageAlone) {
+  auto server = make_server();
+  std::vector<std::tuple<uint64_t, std::string, bool>> got;
+  server->set_message_handler([&](uint64_t page, std::string_view text, bool loopback) {
+    got.emplace_back(page, std::string(text), loopback);
+    server->send_to(page, "answer");
+  });
+  TestClient asker(server->port()), other(server->port());
+  asker.send(kUpgrade);
+  other.send(kUpgrade);
+  ASSERT_TRUE(pump(*server, {&asker, &other}, [&] { return server->stats().clients == 2; }));
+  asker.received.clear();
+  other.received.clear();
+  asker.send(masked(0x81, "{\"type\":\"command\"}"));
+  ASSERT_TRUE(pump(*server, {&asker}, [&] { return contains(asker.received, "answer"); }));
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_EQ(std::get<1>(got[0]), "{\"type\":\"command\"}");
+  EXPECT_TRUE(std::get<2>(got[0]));  // 127.0.0.1
+  ASSERT_TRUE(server->poll(20).ok());
+  other.read_available();
+  EXPECT_FALSE(contains(other.received, "answer"));
+  server->send_to(987654, "nobody");  // a page that is not there: nothing happens
 }
 
 TEST(ViewServer, FramesSentWithTheUpgradeAreRead) {

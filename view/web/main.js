@@ -440,6 +440,36 @@ function fadeTrails(now) {
 // The latest `fields` message per node: the 16 sensors' field change, tared on the patch, uT,
 // sensor-major x,y,z in each chip's axes; sent while a patch is pressed (docs/view.md).
 const fieldsByNode = new Map();
+
+// Commands to a patch (skinbus-view --allow-commands; the page is read-only otherwise).
+const commandResults = [];   // the latest command_result messages, newest first
+
+function sendCommand(node, command, mode) {
+  if (stream.readOnly !== false || !stream.socketOpen) return false;
+  stream.socket.send(JSON.stringify({ type: 'command', node, command, ...(mode ? { mode } : {}) }));
+  return true;
+}
+
+function commandPanel(node) {
+  const wrap = document.createElement('div');
+  wrap.id = 'commands';
+  for (const [label, command, mode] of [['tare', 'tare'], ['stream', 'mode', 'stream'],
+    ['event', 'mode', 'event'], ['off', 'mode', 'off']]) {
+    const button = document.createElement('button');
+    button.textContent = label;
+    button.title = mode ? `set the patch's mode to ${mode}` : 'capture a new baseline';
+    button.addEventListener('click', () => sendCommand(node, command, mode));
+    wrap.append(button);
+  }
+  const last = commandResults.find((r) => r.node === node);
+  if (last) {
+    const note = document.createElement('p');
+    note.className = 'hint';
+    note.textContent = `${last.command}: ${last.ok ? 'ok' : 'refused'} (${last.detail})`;
+    wrap.append(note);
+  }
+  return wrap;
+}
 const SENSOR_GRID = 4;            // sensors per row (index = row * 4 + column, from -u,-v)
 const FIELD_SCALE_UT = 50;        // the heat map's full scale
 const SENSOR_CELL_PX = 44;
@@ -584,6 +614,7 @@ function refreshDetails(now, force = false) {
   if (selection?.patch) {
     const { spec, status } = selection.patch;
     const geometry = Object.entries(spec).filter(([key]) => key !== 'grid' && key !== 'node');
+    if (stream.readOnly === false) detailsEl.append(commandPanel(spec.node));
     detailsEl.append(sensorPanel(spec.node));
     detailsEl.append(detailsTable(`patch ${spec.node} (${selection.patch.state})`, [
       ...geometry,
@@ -694,7 +725,9 @@ const messageCounts = {};        // type -> messages handled
 const handlingMs = {};           // type -> main-thread ms spent handling them (parsing excluded)
 const stream = {
   live: true,
+  socket: null,                    // the live WebSocket
   socketOpen: false,
+  readOnly: true,                  // until the server's hello says otherwise
   lastFreshMs: performance.now(),  // when the host last showed signs of life
   hostAgeMs: null,                 // the latest heartbeat's host_age_ms, null once superseded
   replay: null,                    // {position, total, ended} in replay mode
@@ -715,6 +748,15 @@ function handleMessage(type, msg) {
       break;
     case 'fields':
       updateFields(msg);
+      break;
+    case 'hello':
+      stream.readOnly = msg.read_only !== false;
+      markDetailsDirty();
+      break;
+    case 'command_result':
+      commandResults.unshift(msg);
+      commandResults.length = Math.min(commandResults.length, 10);
+      markDetailsDirty();
       break;
     case 'heartbeat':
       // host_age_ms: how long ago the server last heard the host (-1: never).
@@ -748,6 +790,7 @@ function handleMessageSafely(msg) {
 function connect() {
   const url = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`;
   const socket = new WebSocket(url);
+  stream.socket = socket;
   socket.onopen = () => { stream.socketOpen = true; };
   socket.onmessage = (e) => {
     let msg;
@@ -871,6 +914,12 @@ function frame(now) {
 // -- for tests -----------------------------------------------------------------------------------
 
 window.skinbusView = {
+  // Sends a command to patch `node` as its buttons do ('tare', or 'mode' with 'stream', 'event'
+  // or 'off'); false when the page is read-only or not connected. The answer arrives as a
+  // command_result (summary().command_results).
+  command(node, command, mode) {
+    return sendCommand(node, command, mode);
+  },
   // Selects patch `node` as a click would and returns what its sensor panel shows: the heat
   // map's largest field change (uT), or null when the panel has no grid.
   selectPatch(node) {
@@ -907,6 +956,8 @@ window.skinbusView = {
         position_base_mm: round(v.positionBaseMm()),
       })),
       // node -> the largest field change (uT) of its latest `fields` message
+      read_only: stream.readOnly !== false,
+      command_results: commandResults.map((r) => ({ ...r })),
       fields: Object.fromEntries([...fieldsByNode].map(([node, f]) => [node, f.max_ut])),
       messages: { ...messageCounts },
       handling_ms: { ...handlingMs },

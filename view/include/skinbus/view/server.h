@@ -6,8 +6,9 @@
 // no callback into the owner but the greeting. Bounded in everything a client controls: at most
 // `max_clients` pages and `max_connections` sockets at once, a request head of 8 KiB, a client
 // frame of `max_message_bytes`, `max_backlog_bytes` queued for a page that does not read (then it
-// is disconnected), and 10 s for a request to arrive. Messages from pages are counted and
-// ignored: the stream is read-only. Binds to the loopback address by default.
+// is disconnected), and 10 s for a request to arrive. Messages from pages go to the message
+// handler, if one is set (else they are counted and ignored), with whether they come from this
+// machine. Binds to the loopback address by default.
 #pragma once
 
 #include <cstddef>
@@ -39,7 +40,7 @@ struct ServerStats {
   uint64_t clients_refused = 0;       // WebSocket handshakes refused (max_clients reached)
   uint64_t clients_dropped_slow = 0;  // disconnected for not reading (max_backlog_bytes)
   uint64_t protocol_errors = 0;       // connections closed for a malformed or oversized frame
-  uint64_t client_messages = 0;       // text messages from pages (ignored: read-only)
+  uint64_t client_messages = 0;       // text messages from pages
   uint64_t connections_refused = 0;   // sockets closed at once (max_connections reached)
   uint64_t timeouts = 0;              // requests that did not arrive in time
   uint64_t messages_broadcast = 0;    // broadcast() calls
@@ -67,6 +68,14 @@ class Server {
   void set_stream_path(const std::string& path);
   // Called for every page that connects: the messages it gets first (the latest state).
   void set_greeting(std::function<std::vector<std::string>()> greeting);
+
+  // Called (from poll()) for every text message a page sends: `page` names its connection (for
+  // send_to()), `loopback` says whether it comes from this machine (127.0.0.0/8; an SSH tunnel
+  // arrives there too). Without a handler, messages are counted and ignored.
+  void set_message_handler(
+      std::function<void(uint64_t page, std::string_view text, bool loopback)> handler);
+  // Queues `text` as one message to page `page` (nothing when it has gone).
+  void send_to(uint64_t page, std::string_view text);
 
   // Queues `text` as one message to every connected page and sends what the sockets take now.
   void broadcast(std::string_view text);
