@@ -3,10 +3,19 @@
 #include <nlohmann/json.hpp>
 
 namespace skinbus::view {
+namespace {
+
+// The string at `key`, or "" when it is absent or not a string (json::value() would throw).
+std::string string_field(const nlohmann::json& j, const char* key) {
+  const auto it = j.find(key);
+  return it != j.end() && it->is_string() ? it->get<std::string>() : std::string();
+}
+
+}  // namespace
 
 Result<PageCommand> parse_page_command(std::string_view text) {
   const nlohmann::json j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
-  if (!j.is_object() || j.value("type", std::string()) != "command") {
+  if (!j.is_object() || string_field(j, "type") != "command") {
     return make_error(ErrorCode::kParse, "a page message that is not a command");
   }
   const auto node = j.find("node");
@@ -16,12 +25,12 @@ Result<PageCommand> parse_page_command(std::string_view text) {
   }
   PageCommand c;
   c.node = static_cast<uint8_t>(node->get<int64_t>());
-  const std::string name = j.value("command", std::string());
+  const std::string name = string_field(j, "command");
   if (name == "tare") {
     c.command.opcode = bus::Opcode::kTare;
     c.name = "tare";
   } else if (name == "mode") {
-    const std::string mode = j.value("mode", std::string());
+    const std::string mode = string_field(j, "mode");
     c.command.opcode = bus::Opcode::kSetMode;
     if (mode == "stream") {
       c.command.arg[0] = static_cast<uint8_t>(bus::PatchMode::kStream);

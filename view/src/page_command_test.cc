@@ -34,7 +34,10 @@ TEST(PageCommand, RefusesAnythingElseWithAReason) {
         R"({"type":"command","node":"3","command":"tare"})",
         R"({"type":"command","node":3,"command":"reboot"})",
         R"({"type":"command","node":3,"command":"mode","mode":"fast"})",
-        R"({"type":"command","node":3.5,"command":"tare"})"}) {
+        R"({"type":"command","node":3.5,"command":"tare"})",
+        // Found by fuzzing: a key of another type threw instead of failing.
+        R"({"type":3,"node":3,"command":"tare"})", R"({"type":"command","node":3,"command":7})",
+        R"({"type":"command","node":3,"command":"mode","mode":[]})"}) {
     auto r = parse_page_command(bad);
     ASSERT_FALSE(r.ok()) << bad;
     EXPECT_FALSE(r.error().message.empty());
