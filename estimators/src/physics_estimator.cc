@@ -14,12 +14,14 @@ namespace {
 
 constexpr double kMinDepthMm = 1e-3;  // the fit's lower depth bound: no press moves nothing
 
-// Whitened residuals of one sample against (contact, ambient). Masked channels give 0 with a zero
+// Whitened residuals of one sample against N contacts and the ambient offset: parameter blocks
+// (u, v, depth) of each contact, then the ambient offset (3). Masked channels give 0 with a zero
 // Jacobian row, so the problem keeps one shape whatever is masked.
-class FieldResidual final : public ceres::CostFunction {
+template <int N>
+class ContactsResidual final : public ceres::CostFunction {
  public:
-  FieldResidual(const sim::PatchModel& model, const double* field, const uint8_t* ok,
-                const double* inv_sigma, const double* ambient_jac, double tip_radius_mm)
+  ContactsResidual(const sim::PatchModel& model, const double* field, const uint8_t* ok,
+                   const double* inv_sigma, const double* ambient_jac, double tip_radius_mm)
       : model_(model),
         field_(field),
         ok_(ok),
@@ -28,100 +30,55 @@ class FieldResidual final : public ceres::CostFunction {
         tip_(tip_radius_mm),
         nc_(model.channel_count()) {
     set_num_residuals(nc_);
-    mutable_parameter_block_sizes()->push_back(3);
-    mutable_parameter_block_sizes()->push_back(3);
+    for (int b = 0; b <= N; ++b) mutable_parameter_block_sizes()->push_back(3);
   }
 
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
-    const sim::Contact c{params[0][0], params[0][1], params[0][2], tip_};
-    const double* b = params[1];
     double f[kMaxChannels];
-    double j[3 * kMaxChannels];
+    double j[3 * N * kMaxChannels];
     const std::size_t n = static_cast<std::size_t>(nc_);
-    if (jacobians != nullptr && jacobians[0] != nullptr) {
+    bool want_jacobian = false;
+    for (int blk = 0; jacobians != nullptr && blk < N; ++blk)
+      want_jacobian |= jacobians[blk] != nullptr;
+    if (want_jacobian) {
       // Forward-mode jets through the simulator's template (as PatchModel::contact_jacobian,
       // with Ceres' jets, which compile to tighter code than sim's own dual numbers).
-      using J = ceres::Jet<double, 3>;
-      const sim::ContactT<J> cj{J(c.u_mm, 0), J(c.v_mm, 1), J(c.depth_mm, 2), tip_};
+      using J = ceres::Jet<double, 3 * N>;
+      sim::ContactT<J> c[N];
+      for (int k = 0; k < N; ++k) {
+        c[k] = {J(params[k][0], 3 * k), J(params[k][1], 3 * k + 1), J(params[k][2], 3 * k + 2),
+                tip_};
+      }
       J out[kMaxChannels];
-      model_.contact_field_ut<J>(std::span<const sim::ContactT<J>>(&cj, 1), out);
+      model_.contact_field_ut<J>(std::span<const sim::ContactT<J>>(c, N), out);
       for (std::size_t i = 0; i < n; ++i) {
         f[i] = out[i].a;
-        for (std::size_t k = 0; k < 3; ++k) j[3 * i + k] = out[i].v[static_cast<Eigen::Index>(k)];
+        for (std::size_t k = 0; k < 3 * N; ++k) {
+          j[3 * N * i + k] = out[i].v[static_cast<Eigen::Index>(k)];
+        }
       }
     } else {
-      model_.contact_field_ut(std::span<const sim::Contact>(&c, 1), std::span<double>(f, n));
+      sim::Contact c[N];
+      for (int k = 0; k < N; ++k) c[k] = {params[k][0], params[k][1], params[k][2], tip_};
+      model_.contact_field_ut(std::span<const sim::Contact>(c, N), std::span<double>(f, n));
     }
+    const double* b = params[N];
     for (int i = 0; i < nc_; ++i) {
       const double* a = ambient_jac_ + 3 * i;
       const double w = ok_[i] ? inv_sigma_[i] : 0.0;
       const double pred = f[i] + a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
       residuals[i] = ok_[i] ? (pred - field_[i]) * w : 0.0;
-      if (jacobians != nullptr) {
-        if (jacobians[0] != nullptr) {
-          for (int k = 0; k < 3; ++k) jacobians[0][3 * i + k] = j[3 * i + k] * w;
-        }
-        if (jacobians[1] != nullptr) {
-          for (int k = 0; k < 3; ++k) jacobians[1][3 * i + k] = a[k] * w;
-        }
-      }
-    }
-    for (int i = 0; i < nc_; ++i) {
-      if (!std::isfinite(residuals[i])) return false;
-    }
-    return true;
-  }
-
- private:
-  const sim::PatchModel& model_;
-  const double* field_;
-  const uint8_t* ok_;
-  const double* inv_sigma_;
-  const double* ambient_jac_;
-  double tip_;
-  int nc_;
-};
-
-// The same for two contacts: parameter blocks (u, v, depth) of each and the ambient offset.
-class PairResidual final : public ceres::CostFunction {
- public:
-  PairResidual(const sim::PatchModel& model, const double* field, const uint8_t* ok,
-               const double* inv_sigma, const double* ambient_jac, double tip_radius_mm)
-      : model_(model),
-        field_(field),
-        ok_(ok),
-        inv_sigma_(inv_sigma),
-        ambient_jac_(ambient_jac),
-        tip_(tip_radius_mm),
-        nc_(model.channel_count()) {
-    set_num_residuals(nc_);
-    for (int b = 0; b < 3; ++b) mutable_parameter_block_sizes()->push_back(3);
-  }
-
-  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
-    using J = ceres::Jet<double, 6>;
-    const sim::ContactT<J> c[2] = {
-        {J(params[0][0], 0), J(params[0][1], 1), J(params[0][2], 2), tip_},
-        {J(params[1][0], 3), J(params[1][1], 4), J(params[1][2], 5), tip_}};
-    J out[kMaxChannels];
-    model_.contact_field_ut<J>(std::span<const sim::ContactT<J>>(c, 2), out);
-    const double* b = params[2];
-    for (int i = 0; i < nc_; ++i) {
-      const double* a = ambient_jac_ + 3 * i;
-      const double w = ok_[i] ? inv_sigma_[i] : 0.0;
-      const double pred = out[i].a + a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-      residuals[i] = ok_[i] ? (pred - field_[i]) * w : 0.0;
-      if (!std::isfinite(residuals[i])) return false;
       if (jacobians == nullptr) continue;
-      for (int blk = 0; blk < 2; ++blk) {
+      for (int blk = 0; blk < N; ++blk) {
         if (jacobians[blk] == nullptr) continue;
-        for (int k = 0; k < 3; ++k) {
-          jacobians[blk][3 * i + k] = out[i].v[static_cast<Eigen::Index>(3 * blk + k)] * w;
-        }
+        for (int k = 0; k < 3; ++k) jacobians[blk][3 * i + k] = j[3 * N * i + 3 * blk + k] * w;
       }
-      if (jacobians[2] != nullptr) {
-        for (int k = 0; k < 3; ++k) jacobians[2][3 * i + k] = a[k] * w;
+      if (jacobians[N] != nullptr) {
+        for (int k = 0; k < 3; ++k) jacobians[N][3 * i + k] = a[k] * w;
       }
+    }
+    for (int i = 0; i < nc_; ++i) {
+      if (!std::isfinite(residuals[i])) return false;
     }
     return true;
   }
@@ -293,7 +250,8 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
     n_starts = 1;
   }
 
-  FieldResidual residual(model_, y, ok, inv_sigma, ambient_jac_.data(), options_.tip_radius_mm);
+  ContactsResidual<1> residual(model_, y, ok, inv_sigma, ambient_jac_.data(),
+                               options_.tip_radius_mm);
   ceres::Solver::Options so;
   so.minimizer_type = ceres::TRUST_REGION;
   so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
@@ -396,7 +354,8 @@ ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double>
                         kMinDepthMm};
   const double hi[3] = {half_u + options_.uv_margin_mm, half_v + options_.uv_margin_mm,
                         model_.max_depth_mm()};
-  PairResidual residual(model_, y, ok, inv_sigma, ambient_jac_.data(), options_.tip_radius_mm);
+  ContactsResidual<2> residual(model_, y, ok, inv_sigma, ambient_jac_.data(),
+                               options_.tip_radius_mm);
   ceres::Solver::Options so;
   so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
   so.linear_solver_type = ceres::DENSE_QR;

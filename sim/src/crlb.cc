@@ -1,5 +1,6 @@
 #include "skinbus/sim/crlb.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -64,6 +65,35 @@ CrlbPoint point_from_inverse(const double* inv, int np, int first, bool ok) {
   return p;
 }
 
+// The Fisher information (np x np, row-major, into `fisher`) of a contact Jacobian `jac`
+// (channels x k, row-major) whitened by the channel noise, with the ambient offset's 3 columns
+// appended when `ambient` (np = k + 3, else k).
+void fisher_information(const PatchModel& model, const std::vector<double>& jac, int k,
+                        double noise_xy_ut, double noise_z_ut, bool ambient, double* fisher) {
+  const int nc = model.channel_count();
+  const int np = ambient ? k + 3 : k;
+  const auto& sensors = model.sensors();
+  std::fill(fisher, fisher + np * np, 0.0);
+  for (int i = 0; i < nc; ++i) {
+    const double sigma = (i % 3 == 2) ? noise_z_ut : noise_xy_ut;
+    const double w = 1 / (sigma * sigma);
+    double row[kInvertSmallMax] = {};
+    for (int c = 0; c < k; ++c) row[c] = jac[static_cast<std::size_t>(k * i + c)];
+    if (ambient) {
+      // d channel / d ambient: the sensor's axis (row of its frame) times its gain.
+      const auto& s = sensors[i / 3];
+      const int axis = i % 3;
+      const double g = axis == 0 ? s.gain.x : axis == 1 ? s.gain.y : s.gain.z;
+      row[k] = s.frame.r[axis].x * g;
+      row[k + 1] = s.frame.r[axis].y * g;
+      row[k + 2] = s.frame.r[axis].z * g;
+    }
+    for (int a = 0; a < np; ++a) {
+      for (int b = 0; b < np; ++b) fisher[a * np + b] += w * row[a] * row[b];
+    }
+  }
+}
+
 }  // namespace
 
 CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut, double noise_z_ut,
@@ -72,25 +102,8 @@ CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
   const int np = ambient ? 6 : 3;
   std::vector<double> jac(static_cast<std::size_t>(nc) * 3);
   model.contact_jacobian(c, jac);
-  double fisher[36] = {};
-  const auto& sensors = model.sensors();
-  for (int i = 0; i < nc; ++i) {
-    const double sigma = (i % 3 == 2) ? noise_z_ut : noise_xy_ut;
-    const double w = 1 / (sigma * sigma);
-    double row[6] = {jac[3 * i], jac[3 * i + 1], jac[3 * i + 2], 0, 0, 0};
-    if (ambient) {
-      // d channel / d ambient: the sensor's axis (row of its frame) times its gain.
-      const auto& s = sensors[i / 3];
-      const int axis = i % 3;
-      const double g = axis == 0 ? s.gain.x : axis == 1 ? s.gain.y : s.gain.z;
-      row[3] = s.frame.r[axis].x * g;
-      row[4] = s.frame.r[axis].y * g;
-      row[5] = s.frame.r[axis].z * g;
-    }
-    for (int a = 0; a < np; ++a) {
-      for (int b = 0; b < np; ++b) fisher[a * np + b] += w * row[a] * row[b];
-    }
-  }
+  double fisher[36];
+  fisher_information(model, jac, 3, noise_xy_ut, noise_z_ut, ambient, fisher);
   return point_from_inverse(fisher, np, 0, invert_small(fisher, np));
 }
 
@@ -122,25 +135,8 @@ CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Conta
     model.contact_field_ut(std::span<const Contact>(c[1], 2), minus);
     for (int i = 0; i < nc; ++i) jac[6 * i + k] = (plus[i] - minus[i]) / (2 * kStepMm);
   }
-  double fisher[kInvertSmallMax * kInvertSmallMax] = {};
-  const auto& sensors = model.sensors();
-  for (int i = 0; i < nc; ++i) {
-    const double sigma = (i % 3 == 2) ? noise_z_ut : noise_xy_ut;
-    const double w = 1 / (sigma * sigma);
-    double row[9] = {};
-    for (int k = 0; k < 6; ++k) row[k] = jac[6 * i + k];
-    if (ambient) {
-      const auto& s = sensors[i / 3];
-      const int axis = i % 3;
-      const double g = axis == 0 ? s.gain.x : axis == 1 ? s.gain.y : s.gain.z;
-      row[6] = s.frame.r[axis].x * g;
-      row[7] = s.frame.r[axis].y * g;
-      row[8] = s.frame.r[axis].z * g;
-    }
-    for (int a = 0; a < np; ++a) {
-      for (int b = 0; b < np; ++b) fisher[a * np + b] += w * row[a] * row[b];
-    }
-  }
+  double fisher[kInvertSmallMax * kInvertSmallMax];
+  fisher_information(model, jac, 6, noise_xy_ut, noise_z_ut, ambient, fisher);
   const bool ok = invert_small(fisher, np);
   pair.first = point_from_inverse(fisher, np, 0, ok);
   pair.second = point_from_inverse(fisher, np, 3, ok);
