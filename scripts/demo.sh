@@ -37,7 +37,9 @@ while (($#)); do
 done
 if ((setup)); then
   scripts/setup.sh
-  scripts/build.sh
+  # Only the programs the demo runs (scripts/build.sh alone builds everything, tests too).
+  scripts/build.sh --target skinbus-touchsim --target skinbus-patchd --target skinbus-host \
+    --target skinbus-listen --target skinbus-joints --target skinbus-top --target skinbus-view
 fi
 bin=$src/build/tools
 scene=$src/sim/scenes/whole_body
