@@ -1,9 +1,6 @@
 // Names of the aggregator's states and events (contacts.h).
 #include "skinbus/host/contacts.h"
 
-#include <cinttypes>
-#include <cstdio>
-
 namespace skinbus::host {
 
 std::string_view patch_link_state_name(PatchLinkState s) {
@@ -64,12 +61,6 @@ std::string_view patch_event_name(PatchEventKind k) {
       return "log_time";
   }
   return "unknown";
-}
-
-std::string format_uid(uint64_t uid) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "%016" PRIx64, uid);
-  return buf;
 }
 
 }  // namespace skinbus::host

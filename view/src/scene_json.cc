@@ -1,9 +1,9 @@
 #include "skinbus/view/scene_json.h"
 
-#include <cinttypes>
 #include <cmath>
-#include <cstdio>
 #include <nlohmann/json.hpp>
+
+#include "skinbus/common/uid.h"
 
 namespace skinbus::view {
 namespace {
@@ -15,12 +15,6 @@ nlohmann::json vec(const Eigen::Vector3d& v) {
 // One line; bytes that are not UTF-8 (a link name from a file) are replaced, never thrown on.
 std::string dump(const nlohmann::json& j) {
   return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
-}
-
-std::string uid_hex(uint64_t uid) {
-  char s[17];
-  std::snprintf(s, sizeof s, "%016" PRIx64, uid);
-  return s;
 }
 
 }  // namespace
@@ -41,7 +35,7 @@ std::string scene_to_json(const body_map::SkinMap& map, const std::string& robot
     }
     patches.push_back({
         {"node", p.node_id},
-        {"hardware_uid", uid_hex(p.hardware_uid)},
+        {"hardware_uid", format_uid(p.hardware_uid)},
         {"link", p.link},
         {"kind", g.kind == body_map::SurfaceKind::kFlat ? "flat" : "cylinder"},
         {"size_u_mm", g.size_u_mm},

@@ -12,6 +12,8 @@
 #include <string_view>
 #include <vector>
 
+#include "skinbus/common/uid.h"
+
 namespace skinbus::host {
 
 // Bits of BodyContact::flags.
@@ -88,8 +90,8 @@ enum class PatchEventKind : uint8_t {
 };
 std::string_view patch_event_name(PatchEventKind k);
 
-// A hardware UID as 16 lower-case hex digits, as logs, events and JSON print it.
-std::string format_uid(uint64_t uid);
+// A hardware UID as 16 lower-case hex digits (skinbus/common/uid.h).
+using skinbus::format_uid;
 
 struct PatchEvent {
   uint64_t time_us = 0;
