@@ -6,7 +6,6 @@
 //   skinbus-view --map skin.yaml --port 0 --duration 30
 #include <CLI/CLI.hpp>
 
-#include <sys/stat.h>
 #include <array>
 #include <chrono>
 #include <cstdio>
@@ -33,12 +32,6 @@
 using namespace skinbus;
 
 namespace {
-
-uint64_t now_us() {
-  return static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::microseconds>(
-                                   std::chrono::system_clock::now().time_since_epoch())
-                                   .count());
-}
 
 // Reads the bus into `tap` until stopped: candump -L lines from `candump_path` ("-": standard
 // input), or SocketCAN `interfaces`. Ends quietly at the end of a log; a read error is printed.
@@ -85,11 +78,6 @@ void read_bus(const std::string& candump_path, const std::vector<std::string>& i
   } catch (const std::exception& e) {
     std::fprintf(stderr, "skinbus-view: the bus: %s (the sensor panel stays empty)\n", e.what());
   }
-}
-
-bool is_dir(const std::string& p) {
-  struct stat st {};
-  return ::stat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode);
 }
 
 }  // namespace
@@ -170,8 +158,9 @@ int main(int argc, char** argv) {
   }
   auto map = body_map::load_skin_map_file(map_path);
   if (!map) return tools::report_error(kTool, map.error());
-  if (!is_dir(web_root + "/node_modules/three") ||
-      !is_dir(web_root + "/node_modules/urdf-loader")) {
+  std::error_code no_throw;
+  if (!std::filesystem::is_directory(web_root + "/node_modules/three", no_throw) ||
+      !std::filesystem::is_directory(web_root + "/node_modules/urdf-loader", no_throw)) {
     return tools::fail(kTool,
                        "the page's libraries are not installed in " + web_root +
                            "/node_modules (scripts/setup.sh installs them: npm ci in view/web)",
@@ -332,14 +321,14 @@ int main(int argc, char** argv) {
       next_joint = now + std::chrono::duration_cast<Clock::duration>(joint_period);
     }
     field_updates.clear();
-    tap.take_updates(now_us(), &field_updates);
+    tap.take_updates(bus::realtime_now_us(), &field_updates);
     for (const auto& m : field_updates) (*server)->broadcast(m);
     if (now >= next_heartbeat) {
       const int64_t age_ms =
           last_host
               ? std::chrono::duration_cast<std::chrono::milliseconds>(now - *last_host).count()
               : -1;
-      (*server)->broadcast(view::heartbeat_to_json(now_us(), age_ms));
+      (*server)->broadcast(view::heartbeat_to_json(bus::realtime_now_us(), age_ms));
       next_heartbeat = now + std::chrono::seconds(1);
     }
   }
