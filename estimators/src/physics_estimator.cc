@@ -93,6 +93,55 @@ class ContactsResidual final : public ceres::CostFunction {
   int nc_;
 };
 
+// What a fit of one sample works on: the channels it uses (the caller's mask and
+// check_sample()'s), their weights (1 / sigma) and values (0 where masked).
+struct FitInput {
+  uint8_t ok[kMaxChannels];
+  double inv_sigma[kMaxChannels];
+  double y[kMaxChannels];
+  SampleCheck check;
+};
+
+void prepare_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok, int nc,
+                 const PhysicsOptions& options, FitInput* in) {
+  for (int c = 0; c < nc; ++c) in->ok[c] = channel_ok.empty() ? 1 : channel_ok[c];
+  in->check = check_sample(field_ut, std::span<uint8_t>(in->ok, static_cast<std::size_t>(nc)),
+                           options.limits);
+  for (int c = 0; c < nc; ++c) {
+    in->inv_sigma[c] = 1 / options.noise.sigma(c);
+    in->y[c] = in->ok[c] ? field_ut[c] : 0.0;
+  }
+}
+
+// A contact's bounds: (u, v) within the patch extent plus the margin, depth in
+// [kMinDepthMm, the deepest press].
+void contact_bounds(const sim::PatchModel& model, const PhysicsOptions& options, double lo[3],
+                    double hi[3]) {
+  const double half_u = model.design().size_u_mm / 2, half_v = model.design().size_v_mm / 2;
+  lo[0] = -half_u - options.uv_margin_mm;
+  lo[1] = -half_v - options.uv_margin_mm;
+  lo[2] = kMinDepthMm;
+  hi[0] = half_u + options.uv_margin_mm;
+  hi[1] = half_v + options.uv_margin_mm;
+  hi[2] = model.max_depth_mm();
+}
+
+// Levenberg-Marquardt as every fit here runs it: dense QR, one thread, silent.
+ceres::Solver::Options solver_options(const PhysicsOptions& options) {
+  ceres::Solver::Options so;
+  so.minimizer_type = ceres::TRUST_REGION;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = options.max_iterations;
+  so.function_tolerance = options.function_tolerance;
+  so.parameter_tolerance = options.parameter_tolerance;
+  so.gradient_tolerance = 1e-14;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  so.minimizer_progress_to_stdout = false;
+  return so;
+}
+
 Status check_options(const PhysicsOptions& o) {
   if (!(o.tip_radius_mm >= 0) || o.max_iterations < 1 || o.min_channels < 4 ||
       !(o.poor_fit_ratio > 0) || !(o.no_contact_snr >= 0) || !(o.uv_margin_mm >= 0) ||
@@ -193,10 +242,12 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
     e.reason = RejectReason::kWrongShape;
     return out;
   }
-  uint8_t ok[kMaxChannels];
-  for (int c = 0; c < nc; ++c) ok[c] = channel_ok.empty() ? 1 : channel_ok[c];
-  const SampleCheck check =
-      check_sample(field_ut, std::span<uint8_t>(ok, static_cast<std::size_t>(nc)), options_.limits);
+  FitInput in;
+  prepare_fit(field_ut, channel_ok, nc, options_, &in);
+  const uint8_t* ok = in.ok;
+  const double* inv_sigma = in.inv_sigma;
+  const double* y = in.y;
+  const SampleCheck& check = in.check;
   const int usable = nc - check.masked;
   const int unknowns = options_.fit_ambient ? 6 : 3;
   if (usable < std::max(options_.min_channels, unknowns + 1)) {
@@ -204,20 +255,15 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
     e.reason = RejectReason::kTooFewChannels;
     return out;
   }
-  double inv_sigma[kMaxChannels], y[kMaxChannels], whitened[kMaxChannels];
-  for (int c = 0; c < nc; ++c) {
-    inv_sigma[c] = 1 / options_.noise.sigma(c);
-    y[c] = ok[c] ? field_ut[c] : 0.0;
-    whitened[c] = y[c] * inv_sigma[c];
-  }
+  double whitened[kMaxChannels];
+  for (int c = 0; c < nc; ++c) whitened[c] = y[c] * inv_sigma[c];
 
   // Starts: the guess, or the nearest rows of the start table. The first is tried; the others
   // only when it ends in a poor fit (a local minimum), and the best fit is kept.
   const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
   const double max_depth = model_.max_depth_mm();
-  const double lo[3] = {-half_u - options_.uv_margin_mm, -half_v - options_.uv_margin_mm,
-                        kMinDepthMm};
-  const double hi[3] = {half_u + options_.uv_margin_mm, half_v + options_.uv_margin_mm, max_depth};
+  double lo[3], hi[3];
+  contact_bounds(model_, options_, lo, hi);
   constexpr int kStarts = 3;
   double starts[kStarts][3];
   int n_starts = 0;
@@ -252,17 +298,7 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
 
   ContactsResidual<1> residual(model_, y, ok, inv_sigma, ambient_jac_.data(),
                                options_.tip_radius_mm);
-  ceres::Solver::Options so;
-  so.minimizer_type = ceres::TRUST_REGION;
-  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  so.linear_solver_type = ceres::DENSE_QR;
-  so.max_num_iterations = options_.max_iterations;
-  so.function_tolerance = options_.function_tolerance;
-  so.parameter_tolerance = options_.parameter_tolerance;
-  so.gradient_tolerance = 1e-14;
-  so.num_threads = 1;
-  so.logging_type = ceres::SILENT;
-  so.minimizer_progress_to_stdout = false;
+  const ceres::Solver::Options so = solver_options(options_);
   double best_x[3] = {0, 0, 0}, best_b[3] = {0, 0, 0};
   double best_cost = std::numeric_limits<double>::infinity();
   bool best_converged = false;
@@ -337,34 +373,19 @@ ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double>
   if (!(out.single.reduced_chi2 > count.try_ratio)) return out;  // one explains it: done
 
   const int nc = model_.channel_count();
-  uint8_t ok[kMaxChannels];
-  for (int c = 0; c < nc; ++c) ok[c] = channel_ok.empty() ? 1 : channel_ok[c];
-  (void)check_sample(field_ut, std::span<uint8_t>(ok, static_cast<std::size_t>(nc)),
-                     options_.limits);
   const int usable = out.single.channels_used;
   const int unknowns = options_.fit_ambient ? 9 : 6;
   if (usable <= unknowns) return out;
-  double inv_sigma[kMaxChannels], y[kMaxChannels];
-  for (int c = 0; c < nc; ++c) {
-    inv_sigma[c] = 1 / options_.noise.sigma(c);
-    y[c] = ok[c] ? field_ut[c] : 0.0;
-  }
+  FitInput in;
+  prepare_fit(field_ut, channel_ok, nc, options_, &in);
+  const uint8_t* ok = in.ok;
+  const double* y = in.y;
   const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
-  const double lo[3] = {-half_u - options_.uv_margin_mm, -half_v - options_.uv_margin_mm,
-                        kMinDepthMm};
-  const double hi[3] = {half_u + options_.uv_margin_mm, half_v + options_.uv_margin_mm,
-                        model_.max_depth_mm()};
-  ContactsResidual<2> residual(model_, y, ok, inv_sigma, ambient_jac_.data(),
+  double lo[3], hi[3];
+  contact_bounds(model_, options_, lo, hi);
+  ContactsResidual<2> residual(model_, y, ok, in.inv_sigma, ambient_jac_.data(),
                                options_.tip_radius_mm);
-  ceres::Solver::Options so;
-  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  so.linear_solver_type = ceres::DENSE_QR;
-  so.max_num_iterations = options_.max_iterations;
-  so.function_tolerance = options_.function_tolerance;
-  so.parameter_tolerance = options_.parameter_tolerance;
-  so.gradient_tolerance = 1e-14;
-  so.num_threads = 1;
-  so.logging_type = ceres::SILENT;
+  const ceres::Solver::Options so = solver_options(options_);
   double best[2][3] = {}, best_cost = std::numeric_limits<double>::infinity();
   out.pair_tried = true;
   // Starts: the single contact and a single fit of what it leaves (greedy); then the single
