@@ -54,11 +54,15 @@ else
   echo "setup: all ${#packages[@]} packages present"
 fi
 
-# The web view's libraries (three.js, urdf-loader), pinned in view/web/package-lock.json, into
-# view/web/node_modules; again only when the lock file changed.
-web=$(cd "$(dirname "$0")/../view/web" && pwd)
-if ! cmp -s "$web/package-lock.json" "$web/node_modules/.skinbus-installed-lock" 2>/dev/null; then
-  echo "setup: installing the web view's libraries (npm ci in $web)"
-  (cd "$web" && npm ci --no-audit --no-fund --loglevel=error)
-  cp "$web/package-lock.json" "$web/node_modules/.skinbus-installed-lock"
-fi
+# npm packages, pinned in their package-lock.json, installed with npm ci (again only when the
+# lock file changed): the web view's libraries (view/web: three.js, urdf-loader), served locally
+# to its page, and the independent readers of the interoperability tests (tests/interop:
+# @mcap/core, @foxglove/rosmsg2-serialization, @foxglove/ws-protocol), run with Node.js.
+root=$(cd "$(dirname "$0")/.." && pwd)
+for dir in "$root/view/web" "$root/tests/interop"; do
+  if ! cmp -s "$dir/package-lock.json" "$dir/node_modules/.skinbus-installed-lock" 2>/dev/null; then
+    echo "setup: installing the npm packages of ${dir#"$root"/} (npm ci)"
+    (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error)
+    cp "$dir/package-lock.json" "$dir/node_modules/.skinbus-installed-lock"
+  fi
+done
