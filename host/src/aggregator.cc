@@ -294,6 +294,7 @@ void Aggregator::on_frame(int bus, const bus::CanFrame& frame, uint64_t rx_us) {
   Impl& s = *impl_;
   if (bus < 0 || bus >= static_cast<int>(s.reassemblers.size())) return;
   ++s.stats.frames;
+  if (s.options.tap != nullptr) s.options.tap->frame(bus, frame, rx_us);
   const bus::FeedResult r = s.reassemblers[static_cast<std::size_t>(bus)].feed(frame, rx_us);
   if (r.status != bus::FeedStatus::kMessage) return;
   const bus::Message& m = *r.message;
@@ -321,6 +322,10 @@ void Aggregator::Impl::on_sample(int bus, uint8_t node, const bus::Sample& smp, 
   if (e == nullptr) {
     ++stats.unattributed;
     return;
+  }
+  if (options.tap != nullptr) {
+    auto host = e->clock.to_host_us(smp.timestamp_us);
+    options.tap->sample(*e, smp, rx_us, host ? *host : rx_us);
   }
   const std::size_t k = slot(bus, node);
   if ((smp.flags & bus::sample_flags::kContact) == 0) {
@@ -512,6 +517,7 @@ void Aggregator::set_joint_state(std::span<const std::string> names,
     return;
   }
   s.q_at_valid = false;
+  if (s.options.tap != nullptr) s.options.tap->joint_state(s.q_new, stamp_us);
   if (s.joints_stale_reported) {
     s.joints_stale_reported = false;
     s.registry.add_event(PatchEventKind::kKinematicsFresh, stamp_us, "joint states resumed");

@@ -80,6 +80,25 @@
 
 namespace skinbus::host {
 
+// What the aggregator takes in, for a recorder (record/recorder.h writes it to an MCAP file).
+// Every call is on the thread that feeds the aggregator, inside on_frame() or
+// set_joint_state(); the arguments are valid for the call only. A tap must not call back into
+// the aggregator.
+class InputTap {
+ public:
+  virtual ~InputTap() = default;
+  // Every frame fed, received on bus `bus` at host time `rx_us`.
+  virtual void frame(int bus, const bus::CanFrame& frame, uint64_t rx_us) = 0;
+  // Every complete sample the registry attributed to a patch (pressed or idle, tared or not):
+  // received at `rx_us`, taken at host time `time_us` (the patch clock mapped by its aligner;
+  // rx_us where the aligner gives no mapping yet).
+  virtual void sample(const PatchEntry& patch, const bus::Sample& sample, uint64_t rx_us,
+                      uint64_t time_us) = 0;
+  // The robot's pose after each joint state the history took: every joint of the robot model
+  // (RobotModel order and units: rad, prismatic joints in mm) at `stamp_us`.
+  virtual void joint_state(std::span<const double> q, uint64_t stamp_us) = 0;
+};
+
 struct AggregatorOptions {
   RegistryOptions registry;
   TrackerOptions tracker;
@@ -107,6 +126,8 @@ struct AggregatorOptions {
   // Test aid, 0 in use: every model run busy-waits this long per sample after computing, as a
   // CPU this much slower per estimate would (tests of the lag bound). At most 1 s.
   uint64_t model_delay_us = 0;
+  // Sees every input (above); borrowed, must outlive the aggregator. Null: none (no cost).
+  InputTap* tap = nullptr;
 };
 
 struct AggregatorStats {
