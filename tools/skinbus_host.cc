@@ -27,6 +27,7 @@
 #include "skinbus/host/aggregator.h"
 #include "skinbus/host/contacts_json.h"
 #include "skinbus/host/host_loop.h"
+#include "skinbus/record/recorder.h"
 #ifdef SKINBUS_HAVE_DDS
 #include "skinbus/dds/dds.h"
 #endif
@@ -59,6 +60,8 @@ struct HostArgs {
   int model_delay_us = 0;
   bool allow_no_models = false;
   double max_gap_s = 10;
+  std::string record;  // an MCAP file to record the session into
+  bool record_samples = true, record_frames = true;
 };
 
 // The loop's sink: JSON lines on stdout, DDS, events and the log on stderr, latency statistics.
@@ -85,6 +88,7 @@ class Outputs : public host::HostSink {
   // JSON lines are flushed one by one and checked: a reader gone (`| head`) ends the host at
   // once and quietly, a failed write (a full disk) with a message and status 1.
   void contacts(const host::ContactArray& c, std::span<const uint64_t> estimated_rx_us) override {
+    if (recorder != nullptr) recorder->contacts(c);
     if (json_) {
       std::fputs(host::contacts_to_json(c).c_str(), stdout);
       std::fputc('\n', stdout);
@@ -105,6 +109,7 @@ class Outputs : public host::HostSink {
     }
   }
   void status(const host::PatchStatusArray& s) override {
+    if (recorder != nullptr) recorder->status(s);
     if (!quiet_) {
       for (const host::PatchEvent& e : s.events) {
         const bool loud = e.kind == host::PatchEventKind::kDuplicateId;
@@ -129,7 +134,8 @@ class Outputs : public host::HostSink {
     std::fprintf(stderr, "skinbus-host: %s\n", line.c_str());
   }
 
-  tools::LatencyHistogram latency_us;  // fixed memory, however long the run
+  tools::LatencyHistogram latency_us;    // fixed memory, however long the run
+  record::Recorder* recorder = nullptr;  // --record: the session into an MCAP file
 
  private:
   bool json_, json_status_, quiet_, stats_;
@@ -193,6 +199,11 @@ std::unique_ptr<host::JointInput> make_joints(const HostArgs& a,
 #else
     throw std::runtime_error("--joints dds: this build has no DDS");
 #endif
+  }
+  if (mode.ends_with(".mcap")) {  // a recording's joint states, for a replay of its frames
+    auto m = record::McapJointInput::load(mode);
+    if (!m) throw std::runtime_error("--joints " + mode + ": " + m.error().message);
+    return std::move(*m);
   }
   auto t = body_map::load_joint_trajectory(mode);
   if (!t) throw std::runtime_error(t.error().to_string());
@@ -281,8 +292,17 @@ int main(int argc, char** argv) {
   app.add_flag("--live-and-replay", a.live_and_replay,
                "read the -i interfaces live AND replay --replay at recorded speed on one more "
                "bus (named 'replay')");
-  app.add_option("--joints", a.joints, "auto | dds | none | FILE (joint trajectory CSV)")
+  app.add_option("--joints", a.joints,
+                 "auto | dds | none | FILE (joint trajectory CSV, or a recording's .mcap: its "
+                 "joint states, with its frames replayed)")
       ->capture_default_str();
+  app.add_option("--record", a.record,
+                 "record the session into this MCAP file (as rosbag2 would: contacts, patch "
+                 "status, diagnostics, each patch's tared samples, the CAN frames, joint states; "
+                 "the skin map and URDF attached; docs/recording.md)");
+  app.add_flag("!--record-no-samples", a.record_samples, "--record: leave out /skin/samples");
+  app.add_flag("!--record-no-frames", a.record_frames,
+               "--record: leave out /skin/can (the recording can then not be replayed)");
   app.add_flag("--json", a.json, "print contacts as JSON lines on stdout");
   app.add_flag("--json-status", a.json_status, "print patch status as JSON lines on stdout");
   app.add_flag("!--no-dds", a.dds, "do not publish on DDS");
@@ -398,6 +418,31 @@ int main(int argc, char** argv) {
       }
     }
     if (a.base_frame.empty()) o.base_frame = robot ? robot->link(0).name : "base_link";
+    std::unique_ptr<record::Recorder> recorder;
+    if (!a.record.empty()) {
+      record::RecorderOptions ro;
+      ro.samples = a.record_samples;
+      ro.frames = a.record_frames;
+      ro.attachments[std::filesystem::path(a.map_path).filename().string()] = a.map_path;
+      if (!robot_path.empty()) {
+        ro.attachments[std::filesystem::path(robot_path).filename().string()] = robot_path;
+      }
+      std::string models;
+      for (const body_map::PatchPlacement& p : map->patches) {
+        if (models.find(p.model) == std::string::npos)
+          models += (models.empty() ? "" : ", ") + p.model;
+      }
+      ro.metadata = {{"skin_map", a.map_path},
+                     {"robot", robot_path},
+                     {"models", models},
+                     {"base_frame", o.base_frame},
+                     {"runtime", a.backend + " " + a.precision + " " + a.isa},
+                     {"input", a.replay.empty() ? "interfaces" : "replay " + a.replay}};
+      auto r = record::Recorder::create(a.record, host::HostLoop::bus_names(lo), robot.get(), ro);
+      if (!r) return skinbus::tools::fail("skinbus-host", "--record: " + r.error().message, 1);
+      recorder = std::move(*r);
+      o.tap = recorder.get();
+    }
     auto agg =
         host::Aggregator::create(&*map, map_dir, robot.get(), host::HostLoop::bus_names(lo), o);
     if (!agg) {
@@ -411,6 +456,7 @@ int main(int argc, char** argv) {
       }
     }
     Outputs out(a);
+    out.recorder = recorder.get();
     const std::unique_ptr<host::JointInput> joints = make_joints(a, robot.get());
     if ((*agg)->model_descriptions().empty() && !a.allow_no_models) {
       host::PatchStatusArray why;
@@ -427,8 +473,20 @@ int main(int argc, char** argv) {
     }
     tools::install_stop_handler();
     host::HostLoop loop(**agg, out, lo, joints.get());
-    if (Status st = loop.run(); !st.ok()) {
-      return skinbus::tools::fail("skinbus-host", st.error().message, 1);
+    Status run = loop.run();
+    if (recorder) {
+      const Status closed = recorder->close();
+      const record::RecorderStats rs = recorder->stats();
+      if (!a.quiet || !closed.ok()) {
+        std::fprintf(
+            stderr, "skinbus-host: recorded %" PRIu64 " messages (%.1f MB) into %s%s%s\n",
+            rs.messages, static_cast<double>(rs.bytes) / 1e6, a.record.c_str(),
+            closed.ok() ? "" : "; stopped: ", closed.ok() ? "" : closed.error().message.c_str());
+      }
+      if (run.ok() && !closed.ok()) run = closed;
+    }
+    if (!run.ok()) {
+      return skinbus::tools::fail("skinbus-host", run.error().message, 1);
     }
     if (a.stats) {
       const host::AggregatorStats& s = (*agg)->stats();
