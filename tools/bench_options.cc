@@ -160,6 +160,9 @@ void add_host_options(CLI::App* sub, host_bench::HostBenchArgs& a) {
                   "of their time are superseded (counted as late)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 60'000.0));
+  sub->add_option("--record", a.record,
+                  "also time each configuration while recorded into this MCAP file (as "
+                  "skinbus-host --record; overwritten): the added time and MB per minute");
   sub->add_option("--model-delay-us", a.model_delay_us,
                   "every estimate busy-waits this many us more, as on a slower CPU (paced runs "
                   "only)")

@@ -42,6 +42,7 @@
 #include "skinbus/host/aggregator.h"
 #include "skinbus/host/host_loop.h"
 #include "skinbus/host_bench/reports.h"
+#include "skinbus/record/recorder.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 
@@ -198,13 +199,17 @@ struct Row {
   double p50_us = NAN, p99_us = NAN, max_us = NAN, cpu_percent = NAN;
   double period_us = NAN, idle_patch_us = NAN;
   uint64_t estimated = 0, publications = 0, late = 0;
+  // --record: the same unpaced run while recorded (us/period) and the recording's size.
+  double recorded_period_us = NAN, mb_per_min = NAN, messages_per_s = NAN;
 };
 
 // `paced`: on the monotonic clock (the frames' times), with the lag bound measuring the runs.
 skinbus::Result<std::unique_ptr<host::Aggregator>> make_aggregator(const Setup& s,
                                                                    const HostBenchArgs& a,
-                                                                   bool paced) {
+                                                                   bool paced,
+                                                                   host::InputTap* tap = nullptr) {
   host::AggregatorOptions o;
+  o.tap = tap;
   o.runtime.threads = a.threads;
   o.runtime.precision = a.precision == "int8"       ? estimators::RuntimePrecision::kInt8
                         : a.precision == "bfloat16" ? estimators::RuntimePrecision::kBfloat16
@@ -228,20 +233,25 @@ skinbus::Result<std::unique_ptr<host::Aggregator>> make_aggregator(const Setup& 
 // end of the process() that published it, over the samples received from `from_us` on.
 class LatencySink : public host::HostSink {
  public:
-  LatencySink(uint64_t from_us, std::vector<double>* latencies_us)
-      : from_us_(from_us), lat_(latencies_us) {}
-  void contacts(const host::ContactArray&, std::span<const uint64_t> rx_us) override {
+  LatencySink(uint64_t from_us, std::vector<double>* latencies_us,
+              record::Recorder* recorder = nullptr)
+      : from_us_(from_us), lat_(latencies_us), recorder_(recorder) {}
+  void contacts(const host::ContactArray& c, std::span<const uint64_t> rx_us) override {
+    if (recorder_ != nullptr) recorder_->contacts(c);
     if (lat_ == nullptr) return;
     const uint64_t done = bus::monotonic_now_us();
     for (uint64_t rx : rx_us) {
       if (rx >= from_us_) lat_->push_back(static_cast<double>(done - rx));
     }
   }
-  void status(const host::PatchStatusArray&) override {}
+  void status(const host::PatchStatusArray& s) override {
+    if (recorder_ != nullptr) recorder_->status(s);
+  }
 
  private:
   uint64_t from_us_;
   std::vector<double>* lat_;
+  record::Recorder* recorder_;
 };
 
 Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r) {
@@ -295,11 +305,20 @@ Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r) {
   return Status::Ok();
 }
 
-Status run_unpaced(const Setup& s, const HostBenchArgs& a, Row* r) {
-  auto made = make_aggregator(s, a, false);
+// Fed as fast as possible; with `record_path`, recorded into it (r->recorded_period_us and the
+// recording's size; else r->period_us).
+Status run_unpaced(const Setup& s, const HostBenchArgs& a, Row* r,
+                   const std::string& record_path = {}) {
+  std::unique_ptr<record::Recorder> recorder;
+  if (!record_path.empty()) {
+    auto made = record::Recorder::create(record_path, s.buses, nullptr);
+    if (!made.ok()) return made.error();
+    recorder = std::move(*made);
+  }
+  auto made = make_aggregator(s, a, false, recorder.get());
   if (!made.ok()) return made.error();
   std::unique_ptr<host::Aggregator> agg = std::move(made.value());
-  LatencySink sink(0, nullptr);
+  LatencySink sink(0, nullptr, recorder.get());
   host::HostLoop loop(*agg, sink);
   // Warm-up: the heartbeats (identification), outside the timing.
   std::size_t i = 0;
@@ -316,8 +335,19 @@ Status run_unpaced(const Setup& s, const HostBenchArgs& a, Row* r) {
     agg->on_frame(f.bus, f.frame, f.at_us);
   }
   loop.step(last + 1);
+  if (recorder) {
+    loop.finish(last + 1);
+    if (Status st = recorder->close(); !st.ok()) return st;
+  }
   const double us =
       std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+  if (recorder) {
+    r->recorded_period_us = us / s.periods;
+    const double minutes = static_cast<double>(s.end_us) / 60e6;
+    r->mb_per_min = static_cast<double>(recorder->stats().bytes) / 1e6 / minutes;
+    r->messages_per_s = static_cast<double>(recorder->stats().messages) / (minutes * 60);
+    return Status::Ok();
+  }
   r->period_us = us / s.periods;
   if (r->touched == 0) r->idle_patch_us = r->period_us / r->patches;
   return Status::Ok();
@@ -352,6 +382,9 @@ Status bench_host(const HostBenchArgs& a) {
       if (Status st = run_paced(s, a, &r); !st.ok()) return st;
       if (a.model_delay_us == 0) {
         if (Status st = run_unpaced(s, a, &r); !st.ok()) return st;
+        if (!a.record.empty()) {
+          if (Status st = run_unpaced(s, a, &r, a.record); !st.ok()) return st;
+        }
       }
       std::printf(
           "%8d %6d %7.0f%% %10.0f %10.0f %10.0f %8.1f %12.1f %14s %10llu %8llu\n", n, r.buses, pct,
@@ -369,14 +402,28 @@ Status bench_host(const HostBenchArgs& a) {
       "time while paced. us/period: host time per 1/41.7 s period when fed as fast as "
       "possible; us/idle patch: that over the patches, with none touched. late: samples the lag "
       "bound superseded while paced.\n");
+  if (!a.record.empty()) {
+    std::printf(
+        "\nrecording (skinbus-host --record: every frame, sample, publication and status "
+        "into %s; the same unpaced runs, recorded and not):\n",
+        a.record.c_str());
+    std::printf("\n%8s %8s %12s %14s %10s %12s %12s\n", "patches", "touched", "us/period",
+                "recorded us/p", "added %", "MB/minute", "messages/s");
+    for (const Row& r : rows) {
+      std::printf("%8d %8d %12.1f %14.1f %10.1f %12.2f %12.0f\n", r.patches, r.touched, r.period_us,
+                  r.recorded_period_us, 100 * (r.recorded_period_us - r.period_us) / r.period_us,
+                  r.mb_per_min, r.messages_per_s);
+    }
+  }
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
     f << "mode,patches,buses,touched,p50_us,p99_us,max_us,cpu_percent,us_per_period,us_per_idle_"
-         "patch,late\n";
+         "patch,late,recorded_us_per_period,recording_mb_per_min\n";
     for (const Row& r : rows) {
       f << a.mode << ',' << r.patches << ',' << r.buses << ',' << r.touched << ',' << r.p50_us
         << ',' << r.p99_us << ',' << r.max_us << ',' << r.cpu_percent << ',' << r.period_us << ','
-        << r.idle_patch_us << ',' << r.late << '\n';
+        << r.idle_patch_us << ',' << r.late << ',' << r.recorded_period_us << ',' << r.mb_per_min
+        << '\n';
     }
   }
   return Status::Ok();

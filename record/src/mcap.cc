@@ -32,12 +32,17 @@ enum Op : uint8_t {
   kDataEnd = 0x0F,
 };
 
-std::array<uint32_t, 256> make_crc_table() {
-  std::array<uint32_t, 256> t{};
+// CRC-32 tables for slicing by 8 (eight bytes a step): table[0] is the classic byte table,
+// table[k][i] the CRC of byte i followed by k zero bytes.
+std::array<std::array<uint32_t, 256>, 8> make_crc_tables() {
+  std::array<std::array<uint32_t, 256>, 8> t{};
   for (uint32_t i = 0; i < 256; ++i) {
     uint32_t c = i;
     for (int k = 0; k < 8; ++k) c = (c & 1u) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
-    t[i] = c;
+    t[0][i] = c;
+  }
+  for (uint32_t i = 0; i < 256; ++i) {
+    for (std::size_t k = 1; k < 8; ++k) t[k][i] = (t[k - 1][i] >> 8) ^ t[0][t[k - 1][i] & 0xFFu];
   }
   return t;
 }
@@ -79,9 +84,19 @@ std::vector<uint8_t> record(uint8_t op, const std::vector<uint8_t>& content) {
 }  // namespace
 
 uint32_t crc32(std::span<const uint8_t> data, uint32_t crc) {
-  static const std::array<uint32_t, 256> table = make_crc_table();
+  static const std::array<std::array<uint32_t, 256>, 8> t = make_crc_tables();
   crc = ~crc;
-  for (uint8_t byte : data) crc = table[(crc ^ byte) & 0xFFu] ^ (crc >> 8);
+  const uint8_t* p = data.data();
+  std::size_t n = data.size();
+  for (; n >= 8; n -= 8, p += 8) {
+    uint32_t lo = 0, hi = 0;
+    std::memcpy(&lo, p, 4);
+    std::memcpy(&hi, p + 4, 4);
+    lo ^= crc;
+    crc = t[7][lo & 0xFFu] ^ t[6][(lo >> 8) & 0xFFu] ^ t[5][(lo >> 16) & 0xFFu] ^ t[4][lo >> 24] ^
+          t[3][hi & 0xFFu] ^ t[2][(hi >> 8) & 0xFFu] ^ t[1][(hi >> 16) & 0xFFu] ^ t[0][hi >> 24];
+  }
+  for (; n > 0; --n, ++p) crc = t[0][(crc ^ *p) & 0xFFu] ^ (crc >> 8);
   return ~crc;
 }
 
@@ -259,14 +274,22 @@ Status McapWriter::write_message(uint16_t channel_id, uint64_t log_time_ns,
   s.message_start_ns = std::min(s.message_start_ns, log_time_ns);
   s.message_end_ns = std::max(s.message_end_ns, log_time_ns);
   s.chunk_index[channel_id].emplace_back(log_time_ns, s.chunk.size());
-  Bytes m;
-  m.num(channel_id);
-  m.num(seq->second++);
-  m.num(log_time_ns);
-  m.num(publish_time_ns);
-  m.raw(data);
-  const std::vector<uint8_t> r = record(kMessage, m.b);
-  s.chunk.insert(s.chunk.end(), r.begin(), r.end());
+  // The Message record straight into the open chunk (no copy of its own).
+  const uint64_t length = 2 + 4 + 8 + 8 + data.size();
+  const std::size_t at = s.chunk.size();
+  s.chunk.resize(at + kRecordHeaderBytes + static_cast<std::size_t>(length));
+  uint8_t* p = s.chunk.data() + at;
+  auto put = [&p](const auto& v) {
+    std::memcpy(p, &v, sizeof v);
+    p += sizeof v;
+  };
+  put(static_cast<uint8_t>(kMessage));
+  put(length);
+  put(channel_id);
+  put(seq->second++);
+  put(log_time_ns);
+  put(publish_time_ns);
+  if (!data.empty()) std::memcpy(p, data.data(), data.size());
   ++s.channel_counts[channel_id];
   ++message_count_;
   if (s.chunk.size() >= s.options.chunk_bytes) flush_chunk(s, &offset_);

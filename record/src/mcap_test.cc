@@ -43,6 +43,22 @@ std::span<const uint8_t> as_bytes(const std::string& s) {
 TEST(McapTest, Crc32MatchesTheCheckValue) {
   EXPECT_EQ(crc32(as_bytes("123456789")), 0xCBF43926u);  // CRC-32/ISO-HDLC check value
   EXPECT_EQ(crc32(as_bytes("6789"), crc32(as_bytes("12345"))), 0xCBF43926u);
+  // Eight bytes a step and one at a time agree at every length and split.
+  std::string text;
+  for (int i = 0; i < 100; ++i) text += static_cast<char>(i * 37 + 11);
+  auto bytewise = [](std::span<const uint8_t> d) {
+    uint32_t c = ~0u;
+    for (uint8_t b : d) {
+      c ^= b;
+      for (int k = 0; k < 8; ++k) c = (c & 1u) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
+    }
+    return ~c;
+  };
+  for (std::size_t n = 0; n <= text.size(); ++n) {
+    const auto d = as_bytes(text).first(n);
+    EXPECT_EQ(crc32(d), bytewise(d)) << n;
+    EXPECT_EQ(crc32(d.subspan(n / 3), crc32(d.first(n / 3))), bytewise(d)) << n;
+  }
 }
 
 TEST(McapTest, RandomMessagesRoundTripAcrossChunks) {

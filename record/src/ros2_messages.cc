@@ -72,18 +72,29 @@ std::vector<std::string> used_types(const std::string& text, const std::string& 
 class Check {
  public:
   explicit Check(std::string what) : what_(std::move(what)) {}
-  double finite(double v, const std::string& field) {
+  // `v`, checked; the field's name ("field", "field[index]" or "field[index].member") is made
+  // only when it is not finite.
+  double finite(double v, const char* field, std::size_t index = kNoIndex,
+                const char* member = nullptr) {
     if (!std::isfinite(v) && bad_.ok()) {
+      std::string name = field;
+      if (index != kNoIndex) name += "[" + std::to_string(index) + "]";
+      if (member != nullptr) name += std::string(".") + member;
       bad_ = make_error(ErrorCode::kInvalidArgument,
-                        what_ + ": " + field + " is " + (std::isnan(v) ? "nan" : "inf"));
+                        what_ + ": " + name + " is " + (std::isnan(v) ? "nan" : "inf"));
     }
     return v;
   }
-  void time(CdrWriter& w, uint64_t us, const std::string& field) {
+  static constexpr std::size_t kNoIndex = static_cast<std::size_t>(-1);
+  void time(CdrWriter& w, uint64_t us, const char* field, std::size_t index = kNoIndex,
+            const char* member = nullptr) {
     const uint64_t sec = us / 1000000u;
     if (sec > static_cast<uint64_t>(std::numeric_limits<int32_t>::max()) && bad_.ok()) {
+      std::string name = field;
+      if (index != kNoIndex) name += "[" + std::to_string(index) + "]";
+      if (member != nullptr) name += std::string(".") + member;
       bad_ = make_error(ErrorCode::kOutOfRange,
-                        what_ + ": " + field + " " + std::to_string(us) +
+                        what_ + ": " + name + " " + std::to_string(us) +
                             " us is beyond builtin_interfaces/Time (int32 seconds)");
     }
     w.i32(static_cast<int32_t>(sec));
@@ -99,10 +110,6 @@ class Check {
 void header(CdrWriter& w, Check& check, uint64_t stamp_us, const std::string& frame_id) {
   check.time(w, stamp_us, "header.stamp");
   w.string(frame_id);
-}
-
-std::string at(const char* field, std::size_t i, const char* member) {
-  return std::string(field) + "[" + std::to_string(i) + "]." + member;
 }
 
 // ---- decoding helpers ------------------------------------------------------------------------
@@ -162,20 +169,20 @@ Status encode(const host::ContactArray& contacts, std::vector<uint8_t>* out) {
   for (std::size_t i = 0; i < contacts.contacts.size(); ++i) {
     const host::BodyContact& c = contacts.contacts[i];
     for (int k = 0; k < 3; ++k)
-      w.f64(check.finite(c.position_mm[k] / kMmPerM, at("contacts", i, "position")));
-    for (int k = 0; k < 3; ++k) w.f64(check.finite(c.normal[k], at("contacts", i, "normal")));
-    w.f64(check.finite(c.depth_mm / kMmPerM, at("contacts", i, "depth")));
-    w.f64(check.finite(c.force_n, at("contacts", i, "force")));
+      w.f64(check.finite(c.position_mm[k] / kMmPerM, "contacts", i, "position"));
+    for (int k = 0; k < 3; ++k) w.f64(check.finite(c.normal[k], "contacts", i, "normal"));
+    w.f64(check.finite(c.depth_mm / kMmPerM, "contacts", i, "depth"));
+    w.f64(check.finite(c.force_n, "contacts", i, "force"));
     w.u8(c.node);
     w.u64(c.hardware_uid);
     w.string(c.link);
-    w.f64(check.finite(c.u_mm / kMmPerM, at("contacts", i, "u")));
-    w.f64(check.finite(c.v_mm / kMmPerM, at("contacts", i, "v")));
-    w.f64(check.finite(c.uncertainty_mm / kMmPerM, at("contacts", i, "uncertainty")));
+    w.f64(check.finite(c.u_mm / kMmPerM, "contacts", i, "u"));
+    w.f64(check.finite(c.v_mm / kMmPerM, "contacts", i, "v"));
+    w.f64(check.finite(c.uncertainty_mm / kMmPerM, "contacts", i, "uncertainty"));
     w.u32(c.track_id);
     w.u32(c.patch_count);
     w.u32(c.flags);
-    check.time(w, c.first_seen_us, at("contacts", i, "first_seen"));
+    check.time(w, c.first_seen_us, "contacts", i, "first_seen");
   }
   return check.status();
 }
@@ -201,16 +208,16 @@ Status encode(const host::PatchStatusArray& status, std::vector<uint8_t>* out) {
     w.u64(p.samples);
     w.u64(p.samples_lost);
     w.u64(p.contacts);
-    w.f64(check.finite(p.clock_offset_us / kUsPerS, at("patches", i, "clock_offset")));
-    w.f64(check.finite(p.clock_drift_ppm, at("patches", i, "clock_drift_ppm")));
-    check.time(w, p.last_heard_us, at("patches", i, "last_heard"));
+    w.f64(check.finite(p.clock_offset_us / kUsPerS, "patches", i, "clock_offset"));
+    w.f64(check.finite(p.clock_drift_ppm, "patches", i, "clock_drift_ppm"));
+    check.time(w, p.last_heard_us, "patches", i, "last_heard");
     w.boolean(p.duplicate_id);
     w.string(p.detail);
   }
   w.count(status.events.size());
   for (std::size_t i = 0; i < status.events.size(); ++i) {
     const host::PatchEvent& e = status.events[i];
-    check.time(w, e.time_us, at("events", i, "stamp"));
+    check.time(w, e.time_us, "events", i, "stamp");
     w.u8(static_cast<uint8_t>(e.kind));
     w.string(std::string(host::patch_event_name(e.kind)));
     w.u8(e.node);
@@ -251,7 +258,7 @@ Status encode(const PatchSampleMsg& s, std::vector<uint8_t>* out) {
   w.u16(s.saturation_mask);
   w.count(s.field_ut.size());
   for (std::size_t i = 0; i < s.field_ut.size(); ++i) {
-    w.f32(static_cast<float>(check.finite(s.field_ut[i], "field_ut[" + std::to_string(i) + "]")));
+    w.f32(static_cast<float>(check.finite(s.field_ut[i], "field_ut", i)));
   }
   return check.status();
 }
@@ -285,7 +292,7 @@ Status encode(const JointStateMsg& j, std::vector<uint8_t>* out) {
   for (const std::string& n : j.names) w.string(n);
   w.count(j.positions.size());
   for (std::size_t i = 0; i < j.positions.size(); ++i) {
-    w.f64(check.finite(j.positions[i], "position[" + std::to_string(i) + "] (" + j.names[i] + ")"));
+    w.f64(check.finite(j.positions[i], "position", i));
   }
   w.count(0);  // velocity
   w.count(0);  // effort

@@ -37,6 +37,9 @@ struct HostBenchArgs {
   std::string isa = "avx512";         // the widest instruction set of its kernels
   double max_lag_ms = 100;            // the aggregator's lag bound (0: none)
   int model_delay_us = 0;             // test aid: every estimate this much slower
+  // An MCAP file: each configuration's unpaced run is repeated while recorded into it
+  // (record/recorder.h; overwritten), and the added time and the recording's size reported.
+  std::string record;
   std::string csv;
 };
 
