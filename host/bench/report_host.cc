@@ -201,6 +201,7 @@ struct Row {
   uint64_t estimated = 0, publications = 0, late = 0;
   // --record: the same unpaced run while recorded (us/period) and the recording's size.
   double recorded_period_us = NAN, mb_per_min = NAN, messages_per_s = NAN;
+  double recorded_cpu_percent = NAN;  // the paced run, recorded
 };
 
 // `paced`: on the monotonic clock (the frames' times), with the lag bound measuring the runs.
@@ -254,14 +255,22 @@ class LatencySink : public host::HostSink {
   record::Recorder* recorder_;
 };
 
-Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r) {
-  auto made = make_aggregator(s, a, true);
+// Paced; with `record_path`, recorded into it (only r->recorded_cpu_percent is set then).
+Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r,
+                 const std::string& record_path = {}) {
+  std::unique_ptr<record::Recorder> recorder;
+  if (!record_path.empty()) {
+    auto made = record::Recorder::create(record_path, s.buses, nullptr);
+    if (!made.ok()) return made.error();
+    recorder = std::move(*made);
+  }
+  auto made = make_aggregator(s, a, true, recorder.get());
   if (!made.ok()) return made.error();
   std::unique_ptr<host::Aggregator> agg = std::move(made.value());
   std::vector<double> lat;
   lat.reserve(s.frames.size());
   const uint64_t t_start = bus::monotonic_now_us() + 1000;
-  LatencySink sink(t_start + kWarmUpUs, &lat);
+  LatencySink sink(t_start + kWarmUpUs, &lat, recorder.get());
   host::HostLoop loop(*agg, sink);
   loop.start(t_start);
   const double cpu0 = cpu_s();
@@ -292,7 +301,15 @@ Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r) {
     std::this_thread::sleep_for(
         std::chrono::microseconds(std::min<uint64_t>(20'000, t_start + s.end_us - t)));
   }
+  if (recorder) {
+    loop.finish(bus::monotonic_now_us());
+    if (Status st = recorder->close(); !st.ok()) return st;
+  }
   const double wall = static_cast<double>(bus::monotonic_now_us() - t_start) * 1e-6;
+  if (recorder) {
+    r->recorded_cpu_percent = 100 * (cpu_s() - cpu0) / wall;
+    return Status::Ok();
+  }
   r->cpu_percent = 100 * (cpu_s() - cpu0) / wall;
   if (!lat.empty()) {
     r->p50_us = quantile(lat, 0.5);
@@ -384,6 +401,7 @@ Status bench_host(const HostBenchArgs& a) {
         if (Status st = run_unpaced(s, a, &r); !st.ok()) return st;
         if (!a.record.empty()) {
           if (Status st = run_unpaced(s, a, &r, a.record); !st.ok()) return st;
+          if (Status st = run_paced(s, a, &r, a.record); !st.ok()) return st;
         }
       }
       std::printf(
@@ -407,23 +425,29 @@ Status bench_host(const HostBenchArgs& a) {
         "\nrecording (skinbus-host --record: every frame, sample, publication and status "
         "into %s; the same unpaced runs, recorded and not):\n",
         a.record.c_str());
-    std::printf("\n%8s %8s %12s %14s %10s %12s %12s\n", "patches", "touched", "us/period",
-                "recorded us/p", "added %", "MB/minute", "messages/s");
+    std::printf("\n%8s %8s %12s %14s %12s %8s %15s %12s %12s\n", "patches", "touched", "us/period",
+                "recorded us/p", "added CPU", "CPU %", "recorded CPU %", "MB/minute", "messages/s");
     for (const Row& r : rows) {
-      std::printf("%8d %8d %12.1f %14.1f %10.1f %12.2f %12.0f\n", r.patches, r.touched, r.period_us,
-                  r.recorded_period_us, 100 * (r.recorded_period_us - r.period_us) / r.period_us,
-                  r.mb_per_min, r.messages_per_s);
+      const double added = 100 * (r.recorded_period_us - r.period_us) / (1e6 / kRateHz);
+      std::printf("%8d %8d %12.1f %14.1f %11.2f%% %8.1f %15.1f %12.2f %12.0f\n", r.patches,
+                  r.touched, r.period_us, r.recorded_period_us, added, r.cpu_percent,
+                  r.recorded_cpu_percent, r.mb_per_min, r.messages_per_s);
     }
+    std::printf(
+        "\nus/period: the host's time per 1/41.7 s period fed as fast as possible, without "
+        "and with recording; added CPU: their difference, in percent of one core at "
+        "41.7 Hz. CPU %%: of one core while paced (as the host runs), without and with "
+        "(noisier: the model runs' own spread).\n");
   }
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);
     f << "mode,patches,buses,touched,p50_us,p99_us,max_us,cpu_percent,us_per_period,us_per_idle_"
-         "patch,late,recorded_us_per_period,recording_mb_per_min\n";
+         "patch,late,recorded_us_per_period,recording_mb_per_min,recorded_cpu_percent\n";
     for (const Row& r : rows) {
       f << a.mode << ',' << r.patches << ',' << r.buses << ',' << r.touched << ',' << r.p50_us
         << ',' << r.p99_us << ',' << r.max_us << ',' << r.cpu_percent << ',' << r.period_us << ','
         << r.idle_patch_us << ',' << r.late << ',' << r.recorded_period_us << ',' << r.mb_per_min
-        << '\n';
+        << ',' << r.recorded_cpu_percent << '\n';
     }
   }
   return Status::Ok();
