@@ -285,11 +285,14 @@ std::string ContactSceneEncoder::encode(uint64_t stamp_us, const std::string& ba
                                 {"force_n", number_text(c.force_n)}});
     entities.push_back(std::move(e));
   }
+  // Foxglove deletes entities stamped earlier than the deletion: the host publishes a stamp again
+  // when only a track ended, so the deletion is stamped 1 ns after the publication.
+  Json deletion_time = time_json(stamp_us);
+  deletion_time["nsec"] = deletion_time["nsec"].get<uint64_t>() + 1;
   for (uint32_t id : previous_) {
     if (std::find(now.begin(), now.end(), id) == now.end()) {
-      deletions.push_back({{"timestamp", time_json(stamp_us)},
-                           {"type", 0},
-                           {"id", "contact/" + std::to_string(id)}});
+      deletions.push_back(
+          {{"timestamp", deletion_time}, {"type", 0}, {"id", "contact/" + std::to_string(id)}});
     }
   }
   previous_ = std::move(now);

@@ -138,6 +138,7 @@ TEST(Foxglove, ContactsAreSpheresInTheBaseFrameAndEndedTracksAreDeleted) {
   ASSERT_EQ(j["deletions"].size(), 1u);
   EXPECT_EQ(j["deletions"][0]["type"], 0);
   EXPECT_EQ(j["deletions"][0]["id"], "contact/3");
+  EXPECT_EQ(j["deletions"][0]["timestamp"]["nsec"], 600'000'001u);
   ASSERT_EQ(j["entities"].size(), 1u);
   j = Json::parse(enc.encode(1'795'267'568'700'000, "pelvis", {}));
   EXPECT_EQ(j["deletions"].size(), 1u);

@@ -50,7 +50,9 @@ double contact_sphere_diameter_mm(double depth_mm);
 // The contacts of one publication as a SceneUpdate: entity "contact/<track_id>" per contact in
 // `base_frame` (a sphere at its position, sized by depth, coloured by force; metadata track_id,
 // node, link, depth_mm, force_n), and a MATCHING_ID deletion for every track of the previous
-// publication that has ended. Keeps the track IDs it sent last (at most one publication's).
+// publication that has ended, stamped 1 ns after `stamp_us` (Foxglove deletes entities stamped
+// earlier than the deletion, and the host publishes a stamp again when only a track ends). Keeps
+// the track IDs it sent last (at most one publication's).
 class ContactSceneEncoder {
  public:
   std::string encode(uint64_t stamp_us, const std::string& base_frame,
