@@ -10,7 +10,8 @@
 // and patches, and collects messages until the file --done exists. Then it checks the values
 // against what it reads itself (not through skinbus code):
 // - /skin/contacts: every contact publication skinbus-host wrote (--host-jsonl, its --json lines)
-//   arrives with the host's stamp as the message time, one sphere entity per contact, the same
+//   arrives, in order, with the host's stamp as the message time (at most the first 10 % may be
+//   missing: published before DDS discovery matched skinbus-view; none after the first arrived), one sphere entity per contact, the same
 //   track IDs, positions within 1e-6 m of the host's (mm / 1000), the sphere sized by depth, and a
 //   deletion for every track that ended; at the end no contact is left;
 // - /skin/contacts patch markers: one entity per patch of the skin map (--map, YAML read here),
@@ -21,7 +22,8 @@
 //   trajectory's last row (--joints, CSV);
 // - all together: every contact, carried into its patch's frame through the /tf chain and the
 //   map's pose, lies on that patch's surface (0.01 mm).
-// Prints PASS/FAIL lines; exits 1 on any failure.
+// Prints PASS/FAIL lines; exits 1 on any failure. FOXGLOVE_DUMP=FILE also writes every message
+// received there (JSON lines: topic, timeNs, msg), to look at when a check fails.
 import fs from "node:fs";
 import wsProtocol from "@foxglove/ws-protocol"; // CommonJS: its exports through the default
 import WebSocket from "ws";
@@ -253,14 +255,17 @@ for (let j = 0, i = 0; i < hostArrays.length; i++) {
   while (j < contactUpdates.length && contactUpdates[j].timeNs < t) j++;
   if (j < contactUpdates.length && contactUpdates[j].timeNs === t) updateOf.set(hostArrays[i], contactUpdates[j++].msg);
 }
-let matched = 0, worstPos = 0;
+let matched = 0, leading = 0, worstPos = 0;
 const problems = [];
 let previous = new Set();
 for (const h of hostArrays) {
   const u = updateOf.get(h);
   const now = new Set(h.contacts.map((c) => c.track_id));
   if (!u) {
-    problems.push(`no update stamped ${h.stamp_us}`);
+    // Before skinbus-view's reader matched the host's writer (DDS discovery, volatile) a
+    // publication may not reach it; after the first that did, every one must.
+    if (matched > 0) problems.push(`no update stamped ${h.stamp_us}`);
+    else leading += 1;
     previous = now;
     continue;
   }
@@ -290,8 +295,9 @@ for (const h of hostArrays) {
 const pressed = hostArrays.filter((h) => h.contacts.length > 0).length;
 check("the host published contacts", pressed >= 10, `${hostArrays.length} publications, ${pressed} with contacts`);
 check("every contact publication of the host arrived as a SceneUpdate with its contacts",
-  matched === hostArrays.length && problems.length === 0,
-  `${matched} of ${hostArrays.length}; worst position error ${worstPos.toExponential(2)} m` +
+  matched + leading === hostArrays.length && leading <= hostArrays.length / 10 && problems.length === 0,
+  `${matched} of ${hostArrays.length} (${leading} before DDS matched); ` +
+    `worst position error ${worstPos.toExponential(2)} m` +
     (problems.length ? `; ${problems.slice(0, 5).join("; ")}` : ""));
 const lastHost = hostArrays[hostArrays.length - 1];
 check("the last publication leaves no contact", lastHost && lastHost.contacts.length === 0 &&
