@@ -11,11 +11,13 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include "skinbus/body_map/joint_map.h"
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/bus/candump.h"
@@ -24,6 +26,8 @@
 #include "skinbus/dds/dds.h"
 #include "skinbus/host/contacts_json.h"
 #include "skinbus/view/field_tap.h"
+#include "skinbus/view/foxglove.h"
+#include "skinbus/view/foxglove_json.h"
 #include "skinbus/view/page_command.h"
 #include "skinbus/view/scene_json.h"
 #include "skinbus/view/server.h"
@@ -106,6 +110,17 @@ int main(int argc, char** argv) {
       "Read-only by default: a page's commands are refused. With --allow-commands, a page on\n"
       "this machine (or through an SSH tunnel, which arrives on it) may tare a patch or set its\n"
       "mode; they go on the bus given with -i, and as candump -L lines to --commands-out.\n\n"
+      "Foxglove / Lichtblick: with --foxglove-port it also serves the Foxglove WebSocket\n"
+      "protocol (foxglove.websocket.v1, JSON messages) on that port: open Foxglove or\n"
+      "Lichtblick, 'Open connection', 'Foxglove WebSocket', ws://localhost:8765. Channels:\n"
+      "  /skin/contacts      foxglove.SceneUpdate: a sphere per contact (base frame, sized by\n"
+      "                      depth), and every patch as its surface on its link, by state\n"
+      "  /tf                 foxglove.FrameTransforms: every link from its parent (URDF, posed\n"
+      "                      by the joint states)\n"
+      "  /skin/patch_status  skinbus.PatchStatusArray: the host's status, as --json writes it\n"
+      "  skinbus-view --map skin.yaml --foxglove-port 8765   # ws://localhost:8765\n"
+      "Read-only (no client publishing, parameters or services); loopback only unless\n"
+      "--foxglove-bind. docs/foxglove.md.\n\n"
       "Exit status: 0; 1 when DDS, the map or the port failed; 2 on bad arguments."};
   std::string map_path, ns, bind = "127.0.0.1", recording;
   std::string web_root = SKINBUS_VIEW_WEB_DIR;
@@ -115,6 +130,8 @@ int main(int argc, char** argv) {
   std::vector<std::string> interfaces;
   std::string candump_path, commands_out;
   bool allow_commands = false;
+  int foxglove_port = -1;
+  std::string foxglove_bind = "127.0.0.1";
   app.add_option("--map", map_path, "skin map (YAML): the patches and the robot")->required();
   app.add_option("--namespace", ns, "the host's --namespace (topics rt/NS/skin/...)");
   app.add_option("--domain", domain, "DDS domain ID (default: Cyclone DDS's)");
@@ -148,6 +165,15 @@ int main(int argc, char** argv) {
   app.add_option("--commands-out", commands_out,
                  "also write the commands sent as candump -L lines to this file ('-': standard "
                  "output)");
+  app.add_option("--foxglove-port", foxglove_port,
+                 "also serve the Foxglove WebSocket protocol (Foxglove, Lichtblick) on this TCP "
+                 "port (0: any free one, printed; default: off): contacts and patches as "
+                 "foxglove.SceneUpdate on /skin/contacts, the links on /tf, the status on "
+                 "/skin/patch_status")
+      ->check(CLI::Range(0, 65535));
+  app.add_option("--foxglove-bind", foxglove_bind,
+                 "IPv4 address the Foxglove port serves on (0.0.0.0: every interface)")
+      ->capture_default_str();
   app.add_flag("-q,--quiet", quiet, "no address line, no counters at exit");
   CLI11_PARSE(app, argc, argv);
   constexpr const char* kTool = "skinbus-view";
@@ -173,11 +199,13 @@ int main(int argc, char** argv) {
   auto server = view::Server::create(options);
   if (!server) return tools::report_error(kTool, server.error());
   std::string robot_url, base_frame = "base_link";
+  std::optional<body_map::RobotModel> robot_model;
   if (!map->robot.empty()) {
     const std::filesystem::path urdf = body_map::path_beside(map_path, map->robot);
     auto robot = body_map::RobotModel::from_urdf_file(urdf.string());
     if (!robot) return tools::report_error(kTool, robot.error());
     base_frame = robot->link(0).name;  // the frame skinbus-host publishes contacts in
+    robot_model = std::move(robot).value();
     (*server)->add_folder("/robot/", urdf.parent_path().string());
     robot_url = "/robot/" + urdf.filename().string();
   }
@@ -191,6 +219,65 @@ int main(int argc, char** argv) {
     text << in.rdbuf();
     if (!in.good() && !in.eof()) return tools::fail(kTool, "cannot read " + recording, 2);
     (*server)->add_document("/recording.jsonl", "application/x-ndjson", text.str());
+  }
+
+  // The Foxglove WebSocket server (--foxglove-port): a second server on its own port, the same
+  // loop. Its channels' messages are made from what the page gets.
+  std::unique_ptr<view::Server> fox;
+  view::FoxgloveProtocol foxglove("skinbus-view");
+  const uint32_t fox_contacts = foxglove.add_channel("/skin/contacts", view::kSceneUpdateSchemaName,
+                                                     view::foxglove_scene_update_schema());
+  const uint32_t fox_tf = foxglove.add_channel("/tf", view::kFrameTransformsSchemaName,
+                                               view::foxglove_frame_transforms_schema());
+  const uint32_t fox_status = foxglove.add_channel(
+      "/skin/patch_status", view::kPatchStatusSchemaName, view::skinbus_patch_status_schema());
+  if (foxglove_port >= 0) {
+    view::ServerOptions fo;
+    fo.bind_address = foxglove_bind;
+    fo.port = static_cast<uint16_t>(foxglove_port);
+    fo.max_clients = max_pages;
+    auto created = view::Server::create(fo);
+    if (!created) return tools::report_error(kTool, created.error());
+    fox = std::move(created).value();
+    fox->set_stream_path("/");
+    fox->set_subprotocol(view::kFoxgloveSubprotocol);
+    fox->set_greeting([&] {
+      return std::vector<std::string>{foxglove.server_info_json(), foxglove.advertise_json()};
+    });
+    fox->set_message_handler([&](uint64_t client, std::string_view text, bool /*loopback*/) {
+      foxglove.on_message(*fox, client, text);
+    });
+  }
+  // The patches' states in map order, as the last status named them ("" before any).
+  std::vector<std::string> patch_states(map->patches.size());
+  auto publish_patches = [&](uint64_t stamp_us) {
+    foxglove.publish(*fox, fox_contacts, stamp_us * 1000,
+                     view::patches_scene_update_json(stamp_us, *map, patch_states));
+  };
+  std::vector<body_map::Pose> link_poses;
+  std::vector<double> q;
+  body_map::JointMap joint_map;
+  // Every link from its parent at joint positions `names` = `positions` (radians, metres).
+  auto publish_tf = [&](uint64_t stamp_us, std::span<const std::string> names,
+                        std::span<const double> positions) {
+    if (!robot_model) return;
+    if (!joint_map.same_source(names, body_map::PrismaticUnit::kMetres)) {
+      joint_map = body_map::JointMap(*robot_model, names, body_map::PrismaticUnit::kMetres);
+    }
+    joint_map.apply(positions, q);
+    if (!robot_model->forward_kinematics(q, link_poses).ok()) return;
+    foxglove.publish(*fox, fox_tf, stamp_us * 1000,
+                     view::frame_transforms_json(stamp_us, *robot_model, link_poses));
+  };
+  view::ContactSceneEncoder contact_scene;
+  std::vector<view::SceneContact> scene_contacts;
+  if (fox) {
+    if (robot_model) {
+      q.assign(robot_model->joint_count(), 0.0);  // the zero pose until joint states arrive
+      link_poses.resize(robot_model->link_count());
+      publish_tf(bus::realtime_now_us(), {}, {});
+    }
+    publish_patches(bus::realtime_now_us());
   }
 
   dds::DdsOptions o;
@@ -217,6 +304,11 @@ int main(int argc, char** argv) {
                  "skinbus-view: serving http://%s:%u/ (%zu patches%s)\n",
                  bind == "0.0.0.0" ? "localhost" : bind.c_str(), (*server)->port(),
                  map->patches.size(), robot_url.empty() ? ", no robot" : "");
+    if (fox) {
+      std::fprintf(commands_out == "-" ? stderr : stdout,
+                   "skinbus-view: serving the Foxglove WebSocket protocol at ws://%s:%u/\n",
+                   foxglove_bind == "0.0.0.0" ? "localhost" : foxglove_bind.c_str(), fox->port());
+    }
     std::fflush(stdout);
   }
 
@@ -301,6 +393,21 @@ int main(int argc, char** argv) {
       (*server)->broadcast(host::contacts_to_json(ca));
       last_host = Clock::now();
       ++contact_arrays;
+      if (fox) {
+        scene_contacts.resize(ca.contacts.size());
+        for (std::size_t i = 0; i < ca.contacts.size(); ++i) {
+          const auto& c = ca.contacts[i];
+          auto& s = scene_contacts[i];
+          s.track_id = c.track_id;
+          std::copy(c.position_mm, c.position_mm + 3, s.position_mm);
+          s.depth_mm = c.depth_mm;
+          s.force_n = c.force_n;
+          s.node = c.node;
+          s.link = c.link;
+        }
+        foxglove.publish(*fox, fox_contacts, ca.stamp_us * 1000,
+                         contact_scene.encode(ca.stamp_us, ca.base_frame, scene_contacts));
+      }
     }
     host::PatchStatusArray sa;
     for (;;) {
@@ -310,6 +417,19 @@ int main(int argc, char** argv) {
       (*server)->broadcast(last_status);
       last_host = Clock::now();
       ++status_arrays;
+      if (fox) {
+        foxglove.publish(*fox, fox_status, sa.stamp_us * 1000, last_status);
+        bool changed = false;
+        for (std::size_t i = 0; i < map->patches.size(); ++i) {
+          for (const auto& p : sa.patches) {
+            if (p.node != map->patches[i].node_id) continue;
+            const std::string state(host::patch_link_state_name(p.state));
+            changed = changed || state != patch_states[i];
+            patch_states[i] = state;
+          }
+        }
+        if (changed) publish_patches(sa.stamp_us);
+      }
     }
     // Joint states: the latest, at most joint_rate_hz.
     if ((*joints)->take_latest(&js)) joint_pending = true;
@@ -317,6 +437,7 @@ int main(int argc, char** argv) {
     if (joint_pending && now >= next_joint) {
       last_joint_state = view::joint_state_to_json(js.stamp_us, js.names, js.positions);
       (*server)->broadcast(last_joint_state);
+      if (fox) publish_tf(js.stamp_us, js.names, js.positions);
       joint_pending = false;
       next_joint = now + std::chrono::duration_cast<Clock::duration>(joint_period);
     }
@@ -330,6 +451,10 @@ int main(int argc, char** argv) {
               : -1;
       (*server)->broadcast(view::heartbeat_to_json(bus::realtime_now_us(), age_ms));
       next_heartbeat = now + std::chrono::seconds(1);
+    }
+    // The Foxglove clients: what was queued above goes out, their requests are read.
+    if (fox) {
+      if (Status st = fox->poll(0); !st.ok()) return tools::report_error(kTool, st.error());
     }
   }
   tools::stop_requested() = true;  // ends the bus reader
@@ -355,6 +480,20 @@ int main(int argc, char** argv) {
                  static_cast<unsigned long long>(s.http_errors),
                  static_cast<unsigned long long>(tap.stats().samples),
                  static_cast<unsigned long long>(tap.stats().updates));
+    if (fox) {
+      const auto f = fox->stats();
+      std::fprintf(stderr,
+                   "skinbus-view: Foxglove clients connected %llu (refused %llu, dropped for not "
+                   "reading %llu, closed for bad frames %llu), subscription requests %llu, "
+                   "refused %llu, bad requests %llu\n",
+                   static_cast<unsigned long long>(f.clients_connected),
+                   static_cast<unsigned long long>(f.clients_refused),
+                   static_cast<unsigned long long>(f.clients_dropped_slow),
+                   static_cast<unsigned long long>(f.protocol_errors),
+                   static_cast<unsigned long long>(foxglove.subscribes()),
+                   static_cast<unsigned long long>(foxglove.refusals()),
+                   static_cast<unsigned long long>(f.http_errors));
+    }
   }
   return 0;
 }

@@ -106,6 +106,7 @@ struct Server::Impl {
   std::map<std::string, std::pair<std::string, std::string>> documents;  // path -> (type, body)
   std::map<std::string, std::string> folders;                            // prefix -> folder
   std::string stream_path = "/ws";
+  std::string subprotocol;  // "" when none is negotiated
   std::function<std::vector<std::string>()> greeting;
   std::function<void(uint64_t, std::string_view, bool)> message_handler;
   uint64_t next_id = 1;
@@ -176,10 +177,18 @@ struct Server::Impl {
       ++stats.clients_refused;
       return answer(c, 503, "text/plain", "too many pages connected\n");
     }
+    if (!subprotocol.empty() &&
+        !offers_subprotocol(request.header("sec-websocket-protocol"), subprotocol)) {
+      return answer(c, 400, "text/plain",
+                    "this stream speaks the WebSocket subprotocol " + subprotocol +
+                        " (Sec-WebSocket-Protocol)\n");
+    }
     c.out +=
         "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
         "Sec-WebSocket-Accept: " +
-        websocket_accept_key(request.header("sec-websocket-key")) + "\r\n\r\n";
+        websocket_accept_key(request.header("sec-websocket-key")) + "\r\n";
+    if (!subprotocol.empty()) c.out += "Sec-WebSocket-Protocol: " + subprotocol + "\r\n";
+    c.out += "\r\n";
     c.websocket = true;
     ++stats.clients;
     ++stats.clients_connected;
@@ -272,6 +281,26 @@ struct Server::Impl {
     return true;
   }
 
+  // Queues one frame for page `page` (see Server::send_to). A page over its backlog is not closed
+  // here (send_to may run inside poll()'s walk over the connections): its queue is emptied and it
+  // is marked closing, so poll() closes it.
+  bool send_frame_to(uint64_t page, std::string_view payload, bool binary) {
+    for (auto& c : connections) {
+      if (c.id != page) continue;
+      if (!c.websocket || c.closing) return false;
+      if (c.pending() + payload.size() > options.max_backlog_bytes) {
+        ++stats.clients_dropped_slow;
+        c.out.clear();
+        c.out_sent = 0;
+        c.closing = true;
+        return false;
+      }
+      binary ? append_binary_frame(payload, &c.out) : append_text_frame(payload, &c.out);
+      return true;
+    }
+    return false;
+  }
+
   void close(std::list<Connection>::iterator it) {
     if (it->websocket) --stats.clients;
     ::close(it->fd);
@@ -337,13 +366,16 @@ void Server::set_message_handler(
   impl_->message_handler = std::move(handler);
 }
 
-void Server::send_to(uint64_t page, std::string_view text) {
-  for (auto& c : impl_->connections) {
-    if (c.id == page && c.websocket && !c.closing) {
-      append_text_frame(text, &c.out);
-      return;
-    }
-  }
+void Server::set_subprotocol(const std::string& subprotocol) {
+  impl_->subprotocol = subprotocol;
+}
+
+bool Server::send_to(uint64_t page, std::string_view text) {
+  return impl_->send_frame_to(page, text, /*binary=*/false);
+}
+
+bool Server::send_binary_to(uint64_t page, std::string_view bytes) {
+  return impl_->send_frame_to(page, bytes, /*binary=*/true);
 }
 
 void Server::broadcast(std::string_view text) {

@@ -252,6 +252,24 @@ TEST(ViewServer, APageThatDoesNotReadIsDroppedAtItsBacklog) {
   EXPECT_GT(read_bytes, 0u);
 }
 
+TEST(ViewServer, MessagesToOnePageAreBoundedByItsBacklogToo) {
+  ServerOptions options;
+  options.max_backlog_bytes = 64 * 1024;
+  auto server = make_server(options);
+  TestClient sleeper(server->port());
+  sleeper.send(kUpgrade);
+  ASSERT_TRUE(pump(*server, {&sleeper}, [&] { return server->stats().clients == 1; }));
+  const uint64_t page = 1;  // the first connection
+  const std::string message(16 * 1024, 'm');
+  int sent = 0;
+  while (sent < 100 && server->send_binary_to(page, message)) ++sent;  // nothing polled: queued
+  EXPECT_EQ(sent, 3);  // the fourth would pass 64 KiB
+  EXPECT_EQ(server->stats().clients_dropped_slow, 1u);
+  EXPECT_FALSE(server->send_to(page, "gone"));
+  ASSERT_TRUE(pump(*server, {&sleeper}, [&] { return server->stats().clients == 0; }));
+  EXPECT_FALSE(server->send_binary_to(987654, "nobody"));
+}
+
 TEST(ViewServer, ManyPagesComingAndGoingLeaveNothingBehind) {
   auto server = make_server();
   for (int round = 0; round < 50; ++round) {

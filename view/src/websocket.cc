@@ -108,6 +108,25 @@ void append_text_frame(std::string_view text, std::string* out) {
   out->append(text);
 }
 
+void append_binary_frame(std::string_view bytes, std::string* out) {
+  append_header(0x2, bytes.size(), out);
+  out->append(bytes);
+}
+
+bool offers_subprotocol(std::string_view offered, std::string_view subprotocol) {
+  while (!offered.empty()) {
+    const std::size_t comma = offered.find(',');
+    std::string_view token = offered.substr(0, comma);
+    while (!token.empty() && (token.front() == ' ' || token.front() == '\t'))
+      token.remove_prefix(1);
+    while (!token.empty() && (token.back() == ' ' || token.back() == '\t')) token.remove_suffix(1);
+    if (!token.empty() && token == subprotocol) return true;
+    if (comma == std::string_view::npos) break;
+    offered.remove_prefix(comma + 1);
+  }
+  return false;
+}
+
 void append_close_frame(uint16_t code, std::string* out) {
   append_header(0x8, 2, out);
   out->push_back(static_cast<char>(code >> 8));

@@ -162,5 +162,16 @@ TEST(WebSocket, ProtocolViolationsCloseWithTheirCodes) {
   }
 }
 
+TEST(WebSocketSubprotocol, AnOfferNamesItExactlyAmongOthers) {
+  EXPECT_TRUE(offers_subprotocol("foxglove.websocket.v1", "foxglove.websocket.v1"));
+  EXPECT_TRUE(offers_subprotocol("chat ,  foxglove.websocket.v1 ", "foxglove.websocket.v1"));
+  EXPECT_FALSE(offers_subprotocol("foxglove.websocket.v10", "foxglove.websocket.v1"));
+  EXPECT_FALSE(offers_subprotocol("", "foxglove.websocket.v1"));
+  EXPECT_FALSE(offers_subprotocol(",,", ""));
+  std::string frame;
+  append_binary_frame(std::string("\x01\x00", 2), &frame);
+  EXPECT_EQ(frame, std::string("\x82\x02\x01\x00", 4));
+}
+
 }  // namespace
 }  // namespace skinbus::view

@@ -1,6 +1,7 @@
 // skinbus/view/server.h: a small HTTP + WebSocket server for the web view (docs/view.md): static
 // files and in-memory documents over HTTP/1.1 (one request a connection), and a text stream
-// broadcast to every connected page over WebSocket.
+// broadcast to every connected page over WebSocket, or messages (text or binary) sent to one page
+// (the Foxglove WebSocket protocol's per-subscription data, docs/foxglove.md).
 //
 // Single-threaded: the owner calls poll() in its loop (and broadcast() between polls); no thread,
 // no callback into the owner but the greeting. Bounded in everything a client controls: at most
@@ -35,7 +36,8 @@ struct ServerOptions {
 
 struct ServerStats {
   uint64_t http_requests = 0;         // answered with a document or a file (200)
-  uint64_t http_errors = 0;           // answered 4xx/5xx (bad request, not found, refused)
+  uint64_t http_errors = 0;           // answered 4xx/5xx (bad request, not found, refused,
+                                      // an upgrade without the subprotocol)
   uint64_t clients_connected = 0;     // WebSocket handshakes accepted, ever
   uint64_t clients_refused = 0;       // WebSocket handshakes refused (max_clients reached)
   uint64_t clients_dropped_slow = 0;  // disconnected for not reading (max_backlog_bytes)
@@ -68,14 +70,23 @@ class Server {
   void set_stream_path(const std::string& path);
   // Called for every page that connects: the messages it gets first (the latest state).
   void set_greeting(std::function<std::vector<std::string>()> greeting);
+  // The WebSocket subprotocol the stream speaks (RFC 6455 Sec-WebSocket-Protocol), e.g.
+  // "foxglove.websocket.v1". When set, an upgrade must offer it (else HTTP 400) and the answer
+  // selects it; empty (the default): no subprotocol is negotiated and any offer is ignored.
+  void set_subprotocol(const std::string& subprotocol);
 
   // Called (from poll()) for every text message a page sends: `page` names its connection (for
   // send_to()), `loopback` says whether it comes from this machine (127.0.0.0/8; an SSH tunnel
   // arrives there too). Without a handler, messages are counted and ignored.
   void set_message_handler(
       std::function<void(uint64_t page, std::string_view text, bool loopback)> handler);
-  // Queues `text` as one message to page `page` (nothing when it has gone).
-  void send_to(uint64_t page, std::string_view text);
+  // Queues `text` as one text message (UTF-8) to page `page`, or `bytes` as one binary message;
+  // the socket takes it on the next poll() or broadcast(). False when that page has gone (closed,
+  // never was, or closing): a caller keeping per-page state forgets the page then. A page whose
+  // queue would pass max_backlog_bytes is dropped instead (counted in clients_dropped_slow) and
+  // false is returned. Page IDs are never reused. Costs one copy of the message.
+  bool send_to(uint64_t page, std::string_view text);
+  bool send_binary_to(uint64_t page, std::string_view bytes);
 
   // Queues `text` as one message to every connected page and sends what the sockets take now.
   void broadcast(std::string_view text);

@@ -1,6 +1,7 @@
-// skinbus/view/websocket.h: the parts of the WebSocket protocol (RFC 6455) a server that only
-// streams text to browsers needs: the handshake's accept key, server frames (unmasked text and
-// close) and an incremental reader of client frames (masked, bounded).
+// skinbus/view/websocket.h: the parts of the WebSocket protocol (RFC 6455) a server that streams
+// to browsers and other clients needs: the handshake's accept key and subprotocol choice, server
+// frames (unmasked text, binary and close) and an incremental reader of client frames (masked,
+// bounded).
 //
 // No allocation beyond the vectors a caller hands in; no socket: server.h does the I/O.
 #pragma once
@@ -21,17 +22,22 @@ std::string websocket_accept_key(std::string_view client_key);
 std::string sha1(std::string_view data);
 std::string base64(std::string_view bytes);
 
+// Whether the Sec-WebSocket-Protocol header `offered` (a comma-separated list of tokens, as a
+// client sends it; spaces around the commas allowed) names `subprotocol` exactly.
+bool offers_subprotocol(std::string_view offered, std::string_view subprotocol);
+
 // Close status codes (RFC 6455 section 7.4.1) the server sends.
 enum CloseCode : uint16_t {
   kCloseNormal = 1000,
   kCloseGoingAway = 1001,
   kCloseProtocolError = 1002,
-  kCloseUnsupportedData = 1003,  // a binary frame: the stream is text (JSON) only
+  kCloseUnsupportedData = 1003,  // a binary frame: the server reads text (JSON) only
   kCloseTooBig = 1009,
 };
 
 // Appends one unfragmented, unmasked server frame to *out.
 void append_text_frame(std::string_view text, std::string* out);
+void append_binary_frame(std::string_view bytes, std::string* out);
 void append_close_frame(uint16_t code, std::string* out);
 void append_pong_frame(std::string_view payload, std::string* out);
 
