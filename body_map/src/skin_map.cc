@@ -109,7 +109,7 @@ void parse_calibration(YamlReader& r, const YAML::Node& c, const std::string& pa
 void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, PatchPlacement* out) {
   r.only(p, path,
          {"node", "uid", "link", "position_mm", "rpy_deg", "quaternion_wxyz", "geometry", "model",
-          "calibration"});
+          "unit", "design", "calibration"});
   if (r.error) return;
   for (const char* k : {"node", "link", "position_mm"})
     if (!p[k]) r.fail(path + "." + k, p, "missing");
@@ -146,6 +146,8 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
   }
   if (const YAML::Node g = p["geometry"]) parse_geometry(r, g, path + ".geometry", &out->geometry);
   r.get_string(p, "model", path + ".", &out->model);
+  r.get_string(p, "unit", path + ".", &out->unit);
+  r.get_string(p, "design", path + ".", &out->design);
   if (const YAML::Node c = p["calibration"]) {
     out->calibration.emplace();
     parse_calibration(r, c, path + ".calibration", &*out->calibration);
@@ -363,6 +365,8 @@ std::string skin_map_to_yaml(const SkinMap& map) {
       o << "      # arc_deg: " << buf << "\n";
     }
     if (!p.model.empty()) o << "    model: " << yaml_string(p.model) << "\n";
+    if (!p.unit.empty()) o << "    unit: " << yaml_string(p.unit) << "\n";
+    if (!p.design.empty()) o << "    design: " << yaml_string(p.design) << "\n";
     if (p.calibration) {
       const PoseUncertainty& c = *p.calibration;
       std::snprintf(buf, sizeof buf, "%.6g", c.rms_residual_mm);

@@ -2,6 +2,8 @@
 
 #include <ceres/ceres.h>
 
+#include <Eigen/Dense>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -352,6 +354,7 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   }
   if (!(energy >= options_.no_contact_snr * options_.no_contact_snr)) e.flags |= kEstimateNoContact;
   flag_range(e, half_u, half_v, max_depth);
+  if (options_.covariance) covariance(c, ok, inv_sigma, &out);
   if (!std::isfinite(out.chi2) || !std::isfinite(best_b[0]) || !std::isfinite(best_b[1]) ||
       !std::isfinite(best_b[2])) {
     out = PhysicsEstimate{};
@@ -359,6 +362,39 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
     out.contact.reason = RejectReason::kNonFinite;
   }
   return out;
+}
+
+void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, const double* inv_sigma,
+                                  PhysicsEstimate* out) const {
+  const int nc = model_.channel_count();
+  const int n = options_.fit_ambient ? 6 : 3;
+  std::vector<double> jac(3 * static_cast<std::size_t>(nc));
+  model_.contact_jacobian(c, jac);
+  // J^T J of the whitened residuals over (u, v, depth[, ambient]).
+  Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
+  for (int i = 0; i < nc; ++i) {
+    if (!ok[i]) continue;
+    double row[6];
+    for (int k = 0; k < 3; ++k) row[k] = jac[3 * static_cast<std::size_t>(i) + k] * inv_sigma[i];
+    for (int k = 0; k < 3; ++k)
+      row[3 + k] = ambient_jac_[3 * static_cast<std::size_t>(i) + k] * inv_sigma[i];
+    for (int a = 0; a < n; ++a) {
+      for (int b = 0; b < n; ++b) jtj(a, b) += row[a] * row[b];
+    }
+  }
+  const Eigen::MatrixXd m = jtj.topLeftCorner(n, n);
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(m);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
+      ldlt.vectorD().minCoeff() <= 1e-12 * std::max(1.0, ldlt.vectorD().maxCoeff())) {
+    return;  // singular: the sigmas stay NaN
+  }
+  const Eigen::MatrixXd cov = ldlt.solve(Eigen::MatrixXd::Identity(n, n));
+  const double scale = std::max(1.0, out->reduced_chi2);
+  const double var_uv = (cov(0, 0) + cov(1, 1)) * scale, var_d = cov(2, 2) * scale;
+  if (std::isfinite(var_uv) && var_uv >= 0 && std::isfinite(var_d) && var_d >= 0) {
+    out->sigma_uv_mm = std::sqrt(var_uv);
+    out->sigma_depth_mm = std::sqrt(var_d);
+  }
 }
 
 ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double> field_ut,

@@ -63,6 +63,11 @@ struct PatchPlacement {
   Pose pose_on_link;          // patch frame -> link frame
   PatchGeometry geometry;
   std::string model;  // the patch's model file (relative paths are relative to the map file)
+  // The unit's calibration, for the host's physics refinement (docs/aggregator.md): its unit file
+  // (sim/unit_parameters.h, written by skinbus-identify) and design file (docs/design_file.md;
+  // empty: the built-in design). Relative paths are relative to the map file. Empty unit: none.
+  std::string unit;
+  std::string design;
   std::optional<PoseUncertainty> calibration;
 };
 

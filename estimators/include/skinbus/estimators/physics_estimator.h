@@ -28,6 +28,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -54,6 +55,9 @@ struct PhysicsOptions {
   // start_pitch_mm(design), which follows the magnets (a start must fall within the basin of
   // the field pattern, which repeats at the magnet spacing).
   LookupGrid start_grid{0.0, {0.5, 1.0, 2.0, 3.0, 4.0, 5.5}, 5.0};
+  // Also compute the fit's covariance (PhysicsEstimate::sigma_*): one more Jacobian and a 6 x 6
+  // inverse per sample.
+  bool covariance = false;
 };
 
 // The start table's pitch for a design: the magnets' spacing (their grid pitch, or the median
@@ -69,6 +73,13 @@ struct PhysicsEstimate {
   double chi2 = 0;                   // final sum of squared whitened residuals (noise units)
   double reduced_chi2 = 0;           // chi2 / (channels used - unknowns); ~1 for a good fit
   int channels_used = 0;
+  // With PhysicsOptions::covariance: 1-sigma uncertainties from the fit's covariance (the inverse
+  // of J^T J of the whitened residuals over the contact and the ambient offset, scaled by the
+  // reduced chi-square when it is above 1: a fit worse than the noise widens them): the
+  // position's radial sigma sqrt(var u + var v) and the depth's, mm. NaN otherwise, or when the
+  // fit is singular (e.g. a contact beyond every magnet's reach).
+  double sigma_uv_mm = std::numeric_limits<double>::quiet_NaN();
+  double sigma_depth_mm = std::numeric_limits<double>::quiet_NaN();
 };
 
 // How many contacts a sample holds (0, 1 or 2) and where: PhysicsEstimator::estimate_contacts().
@@ -140,6 +151,8 @@ class PhysicsEstimator {
                    LookupEstimator start);
   PhysicsEstimate solve(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                         const ContactEstimate* guess) const;
+  void covariance(const sim::Contact& c, const uint8_t* ok, const double* inv_sigma,
+                  PhysicsEstimate* out) const;
 
   sim::PatchModel model_;
   PhysicsOptions options_;

@@ -1,0 +1,36 @@
+// skinbus/estimators/refiner.h: a second, costlier estimate of one sample, started from a first
+// one: the host's refinement of a network's answer (docs/aggregator.md, "Physics refinement").
+//
+// The interface lives here, with the estimates, so that the host runs refiners without linking
+// how they are made; physics_refiner.h makes one that fits the identified unit's physics model
+// by Levenberg-Marquardt (Ceres).
+#pragma once
+
+#include <limits>
+#include <span>
+
+#include "skinbus/estimators/estimate.h"
+
+namespace skinbus::estimators {
+
+struct RefinedEstimate {
+  // The refined contact (mm, patch frame), with the refiner's flags: kEstimatePoorFit when the
+  // fit leaves much more than noise (the caller should keep its first estimate), kEstimateRejected
+  // when it could not fit (too few channels, non-finite).
+  ContactEstimate contact;
+  double sigma_uv_mm = std::numeric_limits<double>::quiet_NaN();   // 1-sigma, radial; NaN: none
+  double reduced_chi2 = std::numeric_limits<double>::quiet_NaN();  // the fit's, noise units
+};
+
+class ContactRefiner {
+ public:
+  virtual ~ContactRefiner() = default;
+  // Refines `start` (the first estimate, patch frame) for a tared sample (`field_ut`: the model's
+  // channel count in uT; `channel_ok`: 0 for channels to leave out, empty: all). Const and
+  // thread-safe; cost: the refiner's (a few Levenberg-Marquardt iterations for the physics one).
+  virtual RefinedEstimate refine(std::span<const double> field_ut,
+                                 std::span<const uint8_t> channel_ok,
+                                 const ContactEstimate& start) const = 0;
+};
+
+}  // namespace skinbus::estimators

@@ -1,0 +1,89 @@
+// The physics refiner (physics_refiner.h): from a rough first estimate it reaches the unit's
+// contact, and its covariance is an honest uncertainty: near the Cramer-Rao bound of the press
+// (the bound is the covariance at the true contact) and equal to the spread of its own errors.
+#include "skinbus/estimators/physics_refiner.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <vector>
+
+#include <unistd.h>
+
+#include "skinbus/sim/crlb.h"
+#include "skinbus/sim/rng.h"
+#include "skinbus/sim/unit_parameters.h"
+
+namespace skinbus::estimators {
+namespace {
+
+using sim::Contact;
+
+TEST(PhysicsRefinerTest, RefinesARoughStartWithAnHonestUncertainty) {
+  const uint64_t seed = 20261124;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchDesign design;
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(design, 0x5B00000000000007ull, sim::FabricationVariation{})
+          .value();
+  auto refiner = make_physics_refiner(unit);
+  ASSERT_TRUE(refiner.ok()) << refiner.error().message;
+  const ChannelNoise noise = ChannelNoise::of(design);
+  sim::Rng rng(seed);
+  double err2 = 0, sigma2 = 0, bound2 = 0;
+  int n = 0;
+  for (int i = 0; i < 80; ++i) {
+    const Contact c{rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(1.0, 4.0), 5};
+    std::vector<double> f(static_cast<std::size_t>(unit.channel_count()));
+    unit.contact_field_ut(std::span<const Contact>(&c, 1), f);
+    for (std::size_t k = 0; k < f.size(); ++k) {
+      f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+    }
+    // A network's answer: off by a couple of millimetres and a few tenths in depth.
+    ContactEstimate start;
+    start.u_mm = c.u_mm + rng.uniform(-3, 3);
+    start.v_mm = c.v_mm + rng.uniform(-3, 3);
+    start.depth_mm = c.depth_mm + rng.uniform(-0.3, 0.3);
+    const RefinedEstimate r = (*refiner)->refine(f, {}, start);
+    ASSERT_TRUE(r.contact.valid());
+    ASSERT_TRUE(std::isfinite(r.sigma_uv_mm));
+    EXPECT_EQ(r.contact.flags & kEstimatePoorFit, 0u);
+    const sim::CrlbPoint b = sim::crlb_at(unit, c, noise.xy_ut, noise.z_ut, true);
+    err2 += std::pow(r.contact.u_mm - c.u_mm, 2) + std::pow(r.contact.v_mm - c.v_mm, 2);
+    sigma2 += r.sigma_uv_mm * r.sigma_uv_mm;
+    bound2 += b.sd_xy_mm * b.sd_xy_mm;
+    // The covariance at the fitted contact is the bound at a nearby point: within 30 %.
+    EXPECT_NEAR(r.sigma_uv_mm / b.sd_xy_mm, 1.0, 0.3)
+        << c.u_mm << ", " << c.v_mm << ", " << c.depth_mm;
+    ++n;
+  }
+  const double rms = std::sqrt(err2 / n), sigma = std::sqrt(sigma2 / n),
+               bound = std::sqrt(bound2 / n);
+  std::printf("refined from +-3 mm: RMS error %.4f mm, RMS sigma %.4f mm, RMS bound %.4f mm\n", rms,
+              sigma, bound);
+  // The stated uncertainty is the errors' spread (80 presses: ~10 % on the ratio).
+  EXPECT_GT(rms / sigma, 0.75);
+  EXPECT_LT(rms / sigma, 1.3);
+}
+
+TEST(PhysicsRefinerTest, LoadsAUnitFileAndNamesWhatItCannotRead) {
+  const sim::PatchDesign design;
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(design, 0x5B00000000000003ull, sim::FabricationVariation{})
+          .value();
+  const std::string path = (std::filesystem::temp_directory_path() /
+                            ("skinbus_refiner_" + std::to_string(::getpid()) + ".json"))
+                               .string();
+  ASSERT_TRUE(sim::write_unit_parameters(unit.parameters(), path).ok());
+  auto r = make_physics_refiner(path, "");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  std::filesystem::remove(path);
+  auto missing = make_physics_refiner(path, "");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().message.find(path), std::string::npos);
+}
+
+}  // namespace
+}  // namespace skinbus::estimators
