@@ -30,6 +30,7 @@ using host::kContactNoKinematics;
 using host::kContactOutsidePatch;
 using host::kContactStaleKinematics;
 using host::kContactUnmapped;
+using host::kContactUnrefined;
 using host::PatchDiagnostic;
 using host::PatchEvent;
 using host::PatchEventKind;
@@ -64,6 +65,7 @@ SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_MASKED_CHANNELS,
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_AMBIENT_LARGE,
                       kContactAmbientLarge);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_UNMAPPED, kContactUnmapped);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_UNREFINED, kContactUnrefined);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchStatus_Constants_STATE_DISCOVERING,
                       PatchLinkState::kDiscovering);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchStatus_Constants_STATE_ONLINE,

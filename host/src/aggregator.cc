@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <map>
 #include <optional>
 
@@ -85,6 +86,8 @@ struct Aggregator::Impl {
     std::vector<std::size_t> refused;  // admit(): the samples a run cannot take in time
   };
   std::vector<Model> models;
+  // The physics refiner of each skin-map entry (index of map->patches), null: none.
+  std::vector<std::unique_ptr<estimators::ContactRefiner>> refiners;
 
   // Queued samples, newest per patch: slot per registry index, and the list of used slots.
   struct Pending {
@@ -286,6 +289,29 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
   impl->registry.set_models(model_of);
   for (const auto& [path, why] : failures) {
     impl->registry.add_event(PatchEventKind::kNoModel, 0, "model " + path + ": " + why);
+  }
+  // The physics refiners of the entries that name a unit.
+  impl->refiners.resize(map->patches.size());
+  if (options.refiner_factory) {
+    auto resolve = [&map_dir](const std::string& name) {
+      std::filesystem::path p(name);
+      if (!name.empty() && p.is_relative() && !map_dir.empty())
+        p = std::filesystem::path(map_dir) / p;
+      return name.empty() ? std::string() : p.lexically_normal().string();
+    };
+    for (std::size_t i = 0; i < map->patches.size(); ++i) {
+      const body_map::PatchPlacement& pl = map->patches[i];
+      if (pl.unit.empty()) continue;
+      auto r = options.refiner_factory(resolve(pl.unit), resolve(pl.design));
+      if (r.ok()) {
+        impl->refiners[i] = std::move(*r);
+      } else {
+        impl->registry.add_event(PatchEventKind::kNoModel, 0,
+                                 "node " + std::to_string(pl.node_id) + ": unit " + pl.unit + ": " +
+                                     r.error().message +
+                                     " (its contacts are the network's, unrefined)");
+      }
+    }
   }
   return std::unique_ptr<Aggregator>(new Aggregator(std::move(impl)));
 }
@@ -540,7 +566,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   }
   s.processed_rx.clear();
   if (s.pending_list.empty() && !s.released) return false;
-  bool changed = s.released;  // a contact ended, or (below) one was placed
+  double refine_spent_us = 0;  // this call's refinement time (options.refine_budget_us)
+  bool changed = s.released;   // a contact ended, or (below) one was placed
 
   // Sort the queued samples per model; those already older than the lag bound go.
   for (Impl::Model& m : s.models) m.slots.clear();
@@ -602,7 +629,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
     s.stats.estimated += static_cast<uint64_t>(batch);
     for (int b = 0; b < batch; ++b) {
       const std::size_t k = m.slots[static_cast<std::size_t>(b)];
-      const ContactEstimate& est = m.out[static_cast<std::size_t>(b)];
+      ContactEstimate est = m.out[static_cast<std::size_t>(b)];
       Impl::Pending& p = s.pending[k];
       s.processed_rx.push_back(p.rx_us);
       if (!est.valid()) {
@@ -615,12 +642,46 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         continue;
       }
       uint32_t flags = amb_flags[static_cast<std::size_t>(b)];
+      // Physics refinement of the network's answer, within the call's budget.
+      double refined_sigma_mm = std::numeric_limits<double>::quiet_NaN();
+      const estimators::ContactRefiner* refiner =
+          p.placement != nullptr
+              ? s.refiners[static_cast<std::size_t>(p.placement - s.map->patches.data())].get()
+              : nullptr;
+      if (refiner != nullptr) {
+        if (refine_spent_us >= static_cast<double>(s.options.refine_budget_us)) {
+          flags |= kContactUnrefined;
+          ++s.stats.unrefined_budget;
+        } else {
+          const auto t0 = std::chrono::steady_clock::now();
+          const std::size_t row = static_cast<std::size_t>(b) * kChannels;
+          const estimators::RefinedEstimate r =
+              refiner->refine(std::span<const double>(m.fields.data() + row, kChannels),
+                              std::span<const uint8_t>(m.ok.data() + row, kChannels), est);
+          const double us =
+              std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
+                  .count();
+          refine_spent_us += us;
+          s.stats.refine_us += us;
+          const uint32_t bad =
+              estimators::kEstimatePoorFit | kEstimateNoContact | estimators::kEstimateNotConverged;
+          if (r.contact.valid() && (r.contact.flags & bad) == 0) {
+            est = r.contact;
+            refined_sigma_mm = r.sigma_uv_mm;
+            ++s.stats.refined;
+          } else {
+            flags |= kContactUnrefined;
+            ++s.stats.unrefined_poor_fit;
+          }
+        }
+      }
       if (est.flags & kEstimateOutsidePatch) flags |= kContactOutsidePatch;
       if (est.flags & kEstimateDepthRange) flags |= kContactDepthRange;
       if (est.flags & kEstimateMasked) flags |= kContactMaskedChannels;
       PatchContact& placed = s.placed;  // placed aside: a bad estimate never erases a held one
       int link = -1;
       s.place(*p.entry, est, m, flags, &placed, &link);
+      if (std::isfinite(refined_sigma_mm)) placed.uncertainty_mm = refined_sigma_mm;
       // A place that is not finite, or farther than any robot reaches (an absurd estimate or
       // placement), is no contact: counted, and the patch degraded with the reason if it lasts.
       bool finite = true;

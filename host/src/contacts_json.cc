@@ -26,6 +26,7 @@ std::vector<std::string> contact_flag_names(uint32_t flags) {
       {kContactMaskedChannels, "masked_channels"},
       {kContactAmbientLarge, "ambient_large"},
       {kContactUnmapped, "unmapped"},
+      {kContactUnrefined, "unrefined"},
   };
   std::vector<std::string> out;
   for (const auto& n : kNames) {

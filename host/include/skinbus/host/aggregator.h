@@ -72,6 +72,7 @@
 #include "skinbus/bus/reassembler.h"
 #include "skinbus/common/result.h"
 #include "skinbus/estimators/network_runtime.h"
+#include "skinbus/estimators/refiner.h"
 #include "skinbus/host/ambient.h"
 #include "skinbus/host/contact_tracker.h"
 #include "skinbus/host/contacts.h"
@@ -128,6 +129,17 @@ struct AggregatorOptions {
   uint64_t model_delay_us = 0;
   // Sees every input (above); borrowed, must outlive the aggregator. Null: none (no cost).
   InputTap* tap = nullptr;
+  // Physics refinement: for each skin-map entry that names a unit (PatchPlacement::unit), the
+  // refiner this makes of it, given the unit's and the design's paths (relative ones resolved
+  // against the map's folder; the design "" when the entry names none). skinbus-host passes
+  // estimators::make_physics_refiner. Empty: no refinement. A unit that cannot be made into a
+  // refiner leaves its patch on the network's answers (an event says why).
+  std::function<Result<std::unique_ptr<estimators::ContactRefiner>>(const std::string& unit_path,
+                                                                    const std::string& design_path)>
+      refiner_factory;
+  // Host time (steady clock) process() may spend refining, per call. A sample beyond it is
+  // published with the network's answer, flagged kContactUnrefined (never late).
+  uint64_t refine_budget_us = 8000;
 };
 
 struct AggregatorStats {
@@ -148,6 +160,10 @@ struct AggregatorStats {
   // publication.
   uint64_t kinematics_uncovered = 0;
   uint64_t publications = 0;  // ContactArrays produced by process()
+  // Physics refinement: estimates refined; published unrefined because the period's budget was
+  // spent, or because the fit was poor (or failed); the time spent refining (us).
+  uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
+  double refine_us = 0;
 };
 
 class Aggregator {

@@ -29,6 +29,9 @@ enum BodyContactFlag : uint32_t {
   kContactMaskedChannels = 1u << 5,  // some sensors were left out (dead or saturated)
   kContactAmbientLarge = 1u << 6,    // the common-mode field removed was large (> limit)
   kContactUnmapped = 1u << 7,        // the patch has no skin-map entry: position is patch-frame
+  // The patch has a physics refinement but this contact is the network's answer: the period's
+  // refinement budget was spent, or the fit was poor (docs/aggregator.md).
+  kContactUnrefined = 1u << 8,
 };
 
 // One contact in the robot's base frame.
