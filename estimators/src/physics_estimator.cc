@@ -364,37 +364,202 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   return out;
 }
 
-void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, const double* inv_sigma,
-                                  PhysicsEstimate* out) const {
-  const int nc = model_.channel_count();
-  const int n = options_.fit_ambient ? 6 : 3;
-  std::vector<double> jac(3 * static_cast<std::size_t>(nc));
-  model_.contact_jacobian(c, jac);
-  // J^T J of the whitened residuals over (u, v, depth[, ambient]).
-  Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
-  for (int i = 0; i < nc; ++i) {
-    if (!ok[i]) continue;
-    double row[6];
-    for (int k = 0; k < 3; ++k) row[k] = jac[3 * static_cast<std::size_t>(i) + k] * inv_sigma[i];
-    for (int k = 0; k < 3; ++k)
-      row[3 + k] = ambient_jac_[3 * static_cast<std::size_t>(i) + k] * inv_sigma[i];
-    for (int a = 0; a < n; ++a) {
-      for (int b = 0; b < n; ++b) jtj(a, b) += row[a] * row[b];
-    }
-  }
-  const Eigen::MatrixXd m = jtj.topLeftCorner(n, n);
-  const Eigen::LDLT<Eigen::MatrixXd> ldlt(m);
+namespace {
+
+// The 1-sigma uncertainties of PhysicsEstimate from J^T J of the whitened residuals over the
+// first `n` unknowns (u, v, depth[, ambient]), scaled by the reduced chi-square above 1; left NaN
+// when J^T J is singular.
+void sigmas_from(const Eigen::Matrix<double, 6, 6>& jtj, int n, PhysicsEstimate* out) {
+  Eigen::Matrix<double, 6, 6> m = Eigen::Matrix<double, 6, 6>::Identity();
+  m.topLeftCorner(n, n) = jtj.topLeftCorner(n, n);
+  const Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(m);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
       ldlt.vectorD().minCoeff() <= 1e-12 * std::max(1.0, ldlt.vectorD().maxCoeff())) {
-    return;  // singular: the sigmas stay NaN
+    return;
   }
-  const Eigen::MatrixXd cov = ldlt.solve(Eigen::MatrixXd::Identity(n, n));
+  const Eigen::Matrix<double, 6, 6> cov = ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
   const double scale = std::max(1.0, out->reduced_chi2);
   const double var_uv = (cov(0, 0) + cov(1, 1)) * scale, var_d = cov(2, 2) * scale;
   if (std::isfinite(var_uv) && var_uv >= 0 && std::isfinite(var_d) && var_d >= 0) {
     out->sigma_uv_mm = std::sqrt(var_uv);
     out->sigma_depth_mm = std::sqrt(var_d);
   }
+}
+
+}  // namespace
+
+PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
+                                            std::span<const uint8_t> channel_ok,
+                                            const ContactEstimate& start) const {
+  PhysicsEstimate out;
+  ContactEstimate& e = out.contact;
+  const int nc = model_.channel_count();
+  if (static_cast<int>(field_ut.size()) != nc ||
+      (!channel_ok.empty() && static_cast<int>(channel_ok.size()) != nc)) {
+    e.flags = kEstimateRejected;
+    e.reason = RejectReason::kWrongShape;
+    return out;
+  }
+  FitInput in;
+  prepare_fit(field_ut, channel_ok, nc, options_, &in);
+  const int usable = nc - in.check.masked;
+  const int unknowns = options_.fit_ambient ? 6 : 3;
+  if (usable < std::max(options_.min_channels, unknowns + 1)) {
+    e.flags = kEstimateRejected;
+    e.reason = RejectReason::kTooFewChannels;
+    return out;
+  }
+  double lo[3], hi[3];
+  contact_bounds(model_, options_, lo, hi);
+  // Unknowns: (u, v, depth) and the ambient offset (held at 0 unless fitted).
+  using Vec6 = Eigen::Matrix<double, 6, 1>;
+  using Mat6 = Eigen::Matrix<double, 6, 6>;
+  Vec6 x = Vec6::Zero();
+  const double s0[3] = {start.u_mm, start.v_mm, start.depth_mm};
+  for (int k = 0; k < 3; ++k) {
+    x(k) = std::isfinite(s0[k]) ? std::clamp(s0[k], lo[k], hi[k]) : (lo[k] + hi[k]) / 2;
+  }
+  const double tip = options_.tip_radius_mm;
+  double f[kMaxChannels], ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels][3];
+  auto field = [&](double u, double v, double d, double* into) {
+    const sim::Contact c{u, v, d, tip};
+    model_.contact_field_ut(std::span<const sim::Contact>(&c, 1),
+                            std::span<double>(into, static_cast<std::size_t>(nc)));
+  };
+  // Whitened residuals of the contact's field `fc` with the ambient of `p`; their squared sum.
+  auto residuals = [&](const double* fc, const Vec6& p, double* into) {
+    double cost = 0;
+    for (int i = 0; i < nc; ++i) {
+      if (!in.ok[i]) {
+        into[i] = 0;
+        continue;
+      }
+      const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
+      into[i] = (fc[i] + a[0] * p(3) + a[1] * p(4) + a[2] * p(5) - in.y[i]) * in.inv_sigma[i];
+      cost += into[i] * into[i];
+    }
+    return cost;
+  };
+  field(x(0), x(1), x(2), f);
+  double cost = residuals(f, x, r);
+  double lambda = 1e-3;
+  bool converged = false;
+  int iterations = 0;
+  constexpr double kStepMm = 1e-4;       // forward-difference step of (u, v, depth)
+  constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
+  while (iterations < options_.max_iterations && std::isfinite(cost) && !converged) {
+    ++iterations;
+    // The contact's columns by forward differences; the ambient's are constant.
+    for (int k = 0; k < 3; ++k) {
+      double p[3] = {x(0), x(1), x(2)};
+      const double h = p[k] + kStepMm <= hi[k] ? kStepMm : -kStepMm;
+      p[k] += h;
+      field(p[0], p[1], p[2], ft);
+      for (int i = 0; i < nc; ++i) jac[i][k] = (ft[i] - f[i]) / h;
+    }
+    Mat6 jtj = Mat6::Zero();
+    Vec6 jtr = Vec6::Zero();
+    for (int i = 0; i < nc; ++i) {
+      if (!in.ok[i]) continue;
+      const double w = in.inv_sigma[i];
+      const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
+      Vec6 row;
+      row << jac[i][0] * w, jac[i][1] * w, jac[i][2] * w, a[0] * w, a[1] * w, a[2] * w;
+      jtj.noalias() += row * row.transpose();
+      jtr.noalias() += row * r[i];
+    }
+    if (!options_.fit_ambient) {  // the ambient held at 0: its rows and columns out
+      jtj.bottomRows<3>().setZero();
+      jtj.rightCols<3>().setZero();
+      jtj.bottomRightCorner<3, 3>().setIdentity();
+      jtr.tail<3>().setZero();
+    }
+    // Damped steps until one lowers the cost; the damping relaxes after a success.
+    bool accepted = false;
+    for (int tries = 0; tries < 12 && !accepted; ++tries) {
+      Mat6 a = jtj;
+      for (int p = 0; p < 6; ++p) a(p, p) += lambda * std::max(jtj(p, p), 1e-9);
+      const Vec6 step = a.ldlt().solve(-jtr);
+      Vec6 xt = x + step;
+      for (int k = 0; k < 3; ++k) xt(k) = std::clamp(xt(k), lo[k], hi[k]);
+      field(xt(0), xt(1), xt(2), ft);
+      double rt[kMaxChannels];
+      const double cost_t = residuals(ft, xt, rt);
+      if (std::isfinite(cost_t) && cost_t <= cost) {
+        const double moved = (xt.head<3>() - x.head<3>()).norm();
+        const double drop = cost - cost_t;
+        x = xt;
+        std::copy(ft, ft + nc, f);
+        std::copy(rt, rt + nc, r);
+        converged = drop <= options_.function_tolerance * cost || moved <= kConvergedMm;
+        cost = cost_t;
+        lambda = std::max(lambda / 3, 1e-9);
+        accepted = true;
+      } else {
+        lambda *= 4;
+      }
+    }
+    if (!accepted) {
+      converged = true;  // no step lowers the cost: a minimum to the damping's resolution
+    }
+  }
+
+  e.u_mm = x(0);
+  e.v_mm = x(1);
+  e.depth_mm = x(2);
+  e.force_n = model_.force_n(x(2));
+  for (int k = 0; k < 3; ++k) out.ambient_ut[k] = x(3 + k);
+  out.iterations = iterations;
+  out.chi2 = cost;
+  out.channels_used = usable;
+  out.reduced_chi2 = cost / (usable - unknowns);
+  if (in.check.masked > 0) e.flags |= kEstimateMasked;
+  if (!converged) e.flags |= kEstimateNotConverged;
+  if (!(out.reduced_chi2 <= options_.poor_fit_ratio)) e.flags |= kEstimatePoorFit;
+  double energy = 0;
+  for (int i = 0; i < nc; ++i) {
+    if (in.ok[i]) energy += f[i] * f[i] * in.inv_sigma[i] * in.inv_sigma[i];
+  }
+  if (!(energy >= options_.no_contact_snr * options_.no_contact_snr)) e.flags |= kEstimateNoContact;
+  flag_range(e, model_.design().size_u_mm / 2, model_.design().size_v_mm / 2,
+             model_.max_depth_mm());
+  if (options_.covariance) {
+    // From the last Jacobian (at the step before the minimum: within the tolerance of it).
+    Mat6 jtj = Mat6::Zero();
+    for (int i = 0; i < nc; ++i) {
+      if (!in.ok[i]) continue;
+      const double w = in.inv_sigma[i];
+      const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
+      Vec6 row;
+      row << jac[i][0] * w, jac[i][1] * w, jac[i][2] * w, a[0] * w, a[1] * w, a[2] * w;
+      jtj.noalias() += row * row.transpose();
+    }
+    sigmas_from(jtj, unknowns, &out);
+  }
+  if (!std::isfinite(out.chi2) || !x.allFinite()) {
+    out = PhysicsEstimate{};
+    out.contact.flags = kEstimateRejected;
+    out.contact.reason = RejectReason::kNonFinite;
+  }
+  return out;
+}
+
+void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, const double* inv_sigma,
+                                  PhysicsEstimate* out) const {
+  const int nc = model_.channel_count();
+  double jac[3 * kMaxChannels];
+  model_.contact_jacobian(c, std::span<double>(jac, 3 * static_cast<std::size_t>(nc)));
+  Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
+  for (int i = 0; i < nc; ++i) {
+    if (!ok[i]) continue;
+    const double w = inv_sigma[i];
+    const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
+    const double* j = &jac[3 * i];
+    Eigen::Matrix<double, 6, 1> row;
+    row << j[0] * w, j[1] * w, j[2] * w, a[0] * w, a[1] * w, a[2] * w;
+    jtj.noalias() += row * row.transpose();
+  }
+  sigmas_from(jtj, options_.fit_ambient ? 6 : 3, out);
 }
 
 ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double> field_ut,

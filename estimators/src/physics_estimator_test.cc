@@ -290,3 +290,84 @@ TEST(PhysicsStartPitch, FollowsTheMagnetSpacingAtMostFiveMillimetres) {
 
 }  // namespace
 }  // namespace skinbus::estimators
+
+namespace skinbus::estimators {
+namespace {
+
+// The lean Levenberg-Marquardt (refine_lm) reaches the minimum the Ceres fit (refine) reaches,
+// from the same starts, with the same flags; degenerate input is refused or flagged, never NaN.
+TEST(PhysicsEstimatorLeanTest, RefineLmReachesTheCeresFitsMinimum) {
+  const uint64_t seed = 4242;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5B0000000000000Aull,
+                                  sim::FabricationVariation{})
+          .value();
+  const PhysicsEstimator est = PhysicsEstimator::create(unit).value();
+  const ChannelNoise noise = ChannelNoise::of(unit.design());
+  sim::Rng rng(seed);
+  for (int i = 0; i < 40; ++i) {
+    const sim::Contact c{rng.uniform(-55, 55), rng.uniform(-55, 55), rng.uniform(0.8, 4.5), 5};
+    std::vector<double> f(static_cast<std::size_t>(unit.channel_count()));
+    unit.contact_field_ut(std::span<const sim::Contact>(&c, 1), f);
+    for (std::size_t k = 0; k < f.size(); ++k)
+      f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+    ContactEstimate start;
+    start.u_mm = c.u_mm + rng.uniform(-2, 2);
+    start.v_mm = c.v_mm + rng.uniform(-2, 2);
+    start.depth_mm = c.depth_mm + rng.uniform(-0.3, 0.3);
+    const PhysicsEstimate a = est.refine(f, {}, start);
+    const PhysicsEstimate b = est.refine_lm(f, {}, start);
+    SCOPED_TRACE(testing::Message() << "press " << c.u_mm << ", " << c.v_mm << ", " << c.depth_mm);
+    ASSERT_TRUE(a.contact.valid());
+    ASSERT_TRUE(b.contact.valid());
+    EXPECT_NEAR(b.contact.u_mm, a.contact.u_mm, 2e-3);
+    EXPECT_NEAR(b.contact.v_mm, a.contact.v_mm, 2e-3);
+    EXPECT_NEAR(b.contact.depth_mm, a.contact.depth_mm, 1e-3);  // bounds: ~0.02 mm
+    EXPECT_NEAR(b.chi2, a.chi2, 1e-3 * a.chi2 + 1e-6);
+    EXPECT_EQ(b.contact.flags & (kEstimatePoorFit | kEstimateNotConverged), 0u);
+    EXPECT_LE(b.iterations, 12);
+  }
+}
+
+TEST(PhysicsEstimatorLeanTest, DegenerateInputIsRefusedOrFlaggedNeverNaN) {
+  const sim::PatchModel unit = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const PhysicsEstimator est = PhysicsEstimator::create(unit).value();
+  const std::size_t nc = static_cast<std::size_t>(unit.channel_count());
+  ContactEstimate start;
+  start.u_mm = 3;
+  start.v_mm = 4;
+  start.depth_mm = 1;
+  // Nothing pressed: flagged no contact, finite.
+  const std::vector<double> zero(nc, 0.0);
+  const PhysicsEstimate z = est.refine_lm(zero, {}, start);
+  EXPECT_NE(z.contact.flags & kEstimateNoContact, 0u);
+  EXPECT_TRUE(std::isfinite(z.contact.u_mm) && std::isfinite(z.contact.depth_mm));
+  // A NaN start, and a start far outside the patch: clamped, finite.
+  ContactEstimate bad;
+  bad.u_mm = std::numeric_limits<double>::quiet_NaN();
+  bad.v_mm = 1e9;
+  bad.depth_mm = -5;
+  std::vector<double> f(nc);
+  const sim::Contact c{10, -10, 2, 5};
+  unit.contact_field_ut(std::span<const sim::Contact>(&c, 1), f);
+  const PhysicsEstimate n = est.refine_lm(f, {}, bad);
+  EXPECT_TRUE(std::isfinite(n.contact.u_mm) && std::isfinite(n.contact.v_mm) &&
+              std::isfinite(n.contact.depth_mm) && std::isfinite(n.chi2));
+  // Too few channels, and the wrong shape: rejected with the reason.
+  std::vector<uint8_t> ok(nc, 0);
+  for (int i = 0; i < 6; ++i) ok[static_cast<std::size_t>(i)] = 1;
+  EXPECT_EQ(est.refine_lm(f, ok, start).contact.reason, RejectReason::kTooFewChannels);
+  EXPECT_EQ(est.refine_lm(std::span<const double>(f.data(), 5), {}, start).contact.reason,
+            RejectReason::kWrongShape);
+  // Non-finite channels are masked, not used.
+  f[3] = std::numeric_limits<double>::infinity();
+  f[7] = std::numeric_limits<double>::quiet_NaN();
+  const PhysicsEstimate m = est.refine_lm(f, {}, start);
+  EXPECT_NE(m.contact.flags & kEstimateMasked, 0u);
+  EXPECT_NEAR(m.contact.u_mm, 10, 1e-3);
+  EXPECT_NEAR(m.contact.v_mm, -10, 1e-3);
+}
+
+}  // namespace
+}  // namespace skinbus::estimators

@@ -12,7 +12,7 @@ class PhysicsRefiner : public ContactRefiner {
   explicit PhysicsRefiner(PhysicsEstimator estimator) : estimator_(std::move(estimator)) {}
   RefinedEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& start) const override {
-    const PhysicsEstimate p = estimator_.refine(field_ut, channel_ok, start);
+    const PhysicsEstimate p = estimator_.refine_lm(field_ut, channel_ok, start);
     RefinedEstimate out;
     out.contact = p.contact;
     out.sigma_uv_mm = p.sigma_uv_mm;

@@ -139,6 +139,14 @@ class PhysicsEstimator {
   // The same started from `guess` (its u, v, depth; another estimator's answer).
   PhysicsEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& guess) const;
+  // The same fit as refine() by a lean Levenberg-Marquardt of its own (no Ceres; the Jacobian by
+  // forward differences of the vectorised field, PatchModel::contact_field_ut; the ambient
+  // offset's columns are constant), for the host's refinement of every touched sample: from a
+  // start within a few millimetres it reaches the same minimum (tested against refine()) at a
+  // fraction of the cost (docs/benchmarks/refinement.md). One start only; a fit that ends poor is
+  // flagged (kEstimatePoorFit), not retried. No allocation.
+  PhysicsEstimate refine_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
+                            const ContactEstimate& start) const;
   // The number of contacts in the sample (0, 1 or 2) and each one (ContactCountOptions). Cost:
   // estimate(), and when the single fit leaves more than noise, up to 4 two-contact solves (each
   // ~2x a single one: 6 contact unknowns).
