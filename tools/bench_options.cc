@@ -122,6 +122,18 @@ void add_finetune_options(CLI::App* sub, estimators_bench::FinetuneBenchArgs& a)
   sub->add_option("--csv", a.csv, "write the table as CSV");
 }
 
+void add_refine_options(CLI::App* sub, host_bench::RefineBenchArgs& a) {
+  sub->add_option("--uids", a.uids, "fabricated units (hardware UIDs)")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--presses", a.presses, "presses per unit")->capture_default_str();
+  sub->add_option("--samples", a.samples_per_press, "samples per press (41.7 Hz)")
+      ->capture_default_str()
+      ->check(CLI::Range(3, 1000));
+  sub->add_option("--seed", a.seed, "random seed")->capture_default_str();
+  sub->add_option("--csv", a.csv, "write the error table as CSV");
+}
+
 void add_ambient_options(CLI::App* sub, host_bench::AmbientBenchArgs& a) {
   sub->add_option("--model", a.model_path, "per-patch model (stem, .json or .safetensors)")
       ->capture_default_str();

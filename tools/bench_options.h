@@ -16,5 +16,6 @@ void add_pairs_options(CLI::App* sub, estimators_bench::PairsBenchArgs& a);
 void add_finetune_options(CLI::App* sub, estimators_bench::FinetuneBenchArgs& a);
 void add_host_options(CLI::App* sub, host_bench::HostBenchArgs& a);
 void add_ambient_options(CLI::App* sub, host_bench::AmbientBenchArgs& a);
+void add_refine_options(CLI::App* sub, host_bench::RefineBenchArgs& a);
 
 }  // namespace skinbus::tools

@@ -109,6 +109,13 @@ int main(int argc, char** argv) {
       "the host aggregator: latency from frame arrival to publication and CPU use for 16, 64 "
       "and 200 patches with 100, 10 and 0 % touched, and host time per idle patch");
   skinbus::tools::add_host_options(host, ha);
+  skinbus::host_bench::RefineBenchArgs ra;
+  CLI::App* refine = app.add_subcommand(
+      "refine",
+      "the host's physics refinement on fabricated units: XY and depth error per depth bin of "
+      "the network alone and refined, against the unit's Cramer-Rao bound, and the cost per "
+      "touched sample from cold and warm starts");
+  skinbus::tools::add_refine_options(refine, ra);
 #ifdef SKINBUS_HAVE_TORCH
   skinbus::estimators_bench::FinetuneBenchArgs fa;
   CLI::App* finetune = app.add_subcommand(
@@ -126,6 +133,7 @@ int main(int argc, char** argv) {
   if (pairs->parsed()) return report(skinbus::estimators_bench::bench_pairs(pa));
   if (ambient->parsed()) return report(skinbus::host_bench::bench_ambient(aa));
   if (host->parsed()) return report(skinbus::host_bench::bench_host(ha));
+  if (refine->parsed()) return report(skinbus::host_bench::bench_refine(ra));
   if (models->parsed()) return report(skinbus::estimators_bench::bench_models(ma));
   if (cpu->parsed()) return report(skinbus::estimators_bench::bench_cpu(cpua));
   return report(skinbus::body_map_bench::bench_fk(fk_robot, fk_calls));

@@ -447,6 +447,10 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   int iterations = 0;
   constexpr double kStepMm = 1e-4;       // forward-difference step of (u, v, depth)
   constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
+  // A step that lowers the chi-square by less than this ends the fit: what is left to gain moves
+  // the contact by a few percent of its uncertainty (a chi-square change of d^2 is a move of d
+  // standard deviations).
+  constexpr double kConvergedChi2 = 1e-3;
   while (iterations < options_.max_iterations && std::isfinite(cost) && !converged) {
     ++iterations;
     // The contact's columns by forward differences; the ambient's are constant.
@@ -491,7 +495,7 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
         x = xt;
         std::copy(ft, ft + nc, f);
         std::copy(rt, rt + nc, r);
-        converged = drop <= options_.function_tolerance * cost || moved <= kConvergedMm;
+        converged = drop <= kConvergedChi2 || moved <= kConvergedMm;
         cost = cost_t;
         lambda = std::max(lambda / 3, 1e-9);
         accepted = true;

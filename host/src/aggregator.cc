@@ -655,9 +655,20 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         } else {
           const auto t0 = std::chrono::steady_clock::now();
           const std::size_t row = static_cast<std::size_t>(b) * kChannels;
+          // Warm start: the patch's previous refined contact, when this is the same press.
+          ContactEstimate start = est;
+          const Impl::Current& prev = s.current[k];
+          if (prev.used && (prev.contact.flags & kContactUnrefined) == 0 &&
+              std::hypot(prev.contact.u_mm - est.u_mm, prev.contact.v_mm - est.v_mm) <
+                  s.options.refine_warm_start_mm) {
+            start.u_mm = prev.contact.u_mm;
+            start.v_mm = prev.contact.v_mm;
+            start.depth_mm = prev.contact.depth_mm;
+            ++s.stats.refine_warm_starts;
+          }
           const estimators::RefinedEstimate r =
               refiner->refine(std::span<const double>(m.fields.data() + row, kChannels),
-                              std::span<const uint8_t>(m.ok.data() + row, kChannels), est);
+                              std::span<const uint8_t>(m.ok.data() + row, kChannels), start);
           const double us =
               std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
                   .count();

@@ -140,6 +140,10 @@ struct AggregatorOptions {
   // Host time (steady clock) process() may spend refining, per call. A sample beyond it is
   // published with the network's answer, flagged kContactUnrefined (never late).
   uint64_t refine_budget_us = 8000;
+  // Start a refinement from the same patch's previous refined contact when the network's answer
+  // is within this of it (the same press, moved little in one sample period), else from the
+  // network's answer. 0: always from the network's.
+  double refine_warm_start_mm = 3.0;
 };
 
 struct AggregatorStats {
@@ -163,6 +167,7 @@ struct AggregatorStats {
   // Physics refinement: estimates refined; published unrefined because the period's budget was
   // spent, or because the fit was poor (or failed); the time spent refining (us).
   uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
+  uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
   double refine_us = 0;
 };
 

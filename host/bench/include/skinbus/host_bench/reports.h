@@ -45,4 +45,18 @@ struct HostBenchArgs {
 
 Status bench_host(const HostBenchArgs& a);
 
+// `skinbus-bench refine`: the host's physics refinement on fabricated units, against the network
+// alone and the unit's Cramer-Rao bound, and its cost per touched sample (cold and warm starts).
+struct RefineBenchArgs {
+  std::vector<uint64_t> uids = {0x5B00000000000001ull, 0x5B00000000000002ull,
+                                0x5B00000000000003ull};
+  int presses = 40;
+  int samples_per_press = 24;
+  double half_extent_mm = 55;
+  uint64_t seed = 1;
+  std::string csv;
+};
+
+Status bench_refine(const RefineBenchArgs& a);
+
 }  // namespace skinbus::host_bench
