@@ -24,6 +24,7 @@
 #include "skinbus/body_map/robot_model.h"
 #include "skinbus/body_map/skin_map.h"
 #include "skinbus/bus/socketcan.h"
+#include "skinbus/estimators/physics_refiner.h"
 #include "skinbus/host/aggregator.h"
 #include "skinbus/host/contacts_json.h"
 #include "skinbus/host/host_loop.h"
@@ -62,6 +63,8 @@ struct HostArgs {
   double max_gap_s = 10;
   std::string record;  // an MCAP file to record the session into
   bool record_samples = true, record_frames = true;
+  bool refine = true;
+  int refine_budget_us = 8000;
 };
 
 // The loop's sink: JSON lines on stdout, DDS, events and the log on stderr, latency statistics.
@@ -352,6 +355,14 @@ int main(int argc, char** argv) {
                  "--replay at recorded speed: a silence in the log longer than this is replayed "
                  "as this long (reported as a log_time event), s")
       ->capture_default_str();
+  app.add_flag("!--no-refine", a.refine,
+               "do not refine: publish the networks' answers even for patches whose skin-map "
+               "entry names an identified unit (physics refinement: docs/aggregator.md)");
+  app.add_option("--refine-budget-us", a.refine_budget_us,
+                 "host time the physics refinement may take per pipeline run (about one sample "
+                 "period); samples beyond it publish the network's answer, flagged unrefined")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1'000'000));
   app.add_flag("--allow-no-models", a.allow_no_models,
                "run even when no patch of the map has a usable model (patch status only); "
                "without it that is an error (exit 1)");
@@ -385,6 +396,11 @@ int main(int argc, char** argv) {
     o.base_frame = a.base_frame;
     o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
     o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
+    if (a.refine)
+      o.refiner_factory = [](const std::string& unit, const std::string& design) {
+        return estimators::make_physics_refiner(unit, design);
+      };
+    o.refine_budget_us = static_cast<uint64_t>(a.refine_budget_us);
     host::HostLoopOptions lo;
     lo.interfaces = a.interfaces;
     lo.replay = a.replay;
@@ -503,6 +519,14 @@ int main(int argc, char** argv) {
                    s.untared_samples, s.unattributed, s.superseded, s.late_superseded, s.estimated,
                    s.model_runs, s.rejected, s.publications, s.unknown_joints,
                    s.joint_states_out_of_order, s.kinematics_uncovered);
+      if (s.refined + s.unrefined_budget + s.unrefined_poor_fit > 0) {
+        std::fprintf(stderr,
+                     "skinbus-host: refined %" PRIu64 " (%.0f us each, %" PRIu64
+                     " from the previous contact), unrefined %" PRIu64
+                     " over the budget and %" PRIu64 " poor fits\n",
+                     s.refined, s.refined > 0 ? s.refine_us / static_cast<double>(s.refined) : 0.0,
+                     s.refine_warm_starts, s.unrefined_budget, s.unrefined_poor_fit);
+      }
       if (out.latency_us.count() > 0) {
         std::fprintf(stderr,
                      "skinbus-host: latency frame arrival -> publication over %zu samples: "

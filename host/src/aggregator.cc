@@ -674,9 +674,11 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
                   .count();
           refine_spent_us += us;
           s.stats.refine_us += us;
-          const uint32_t bad =
-              estimators::kEstimatePoorFit | kEstimateNoContact | estimators::kEstimateNotConverged;
-          if (r.contact.valid() && (r.contact.flags & bad) == 0) {
+          const uint32_t bad = kEstimateNoContact | estimators::kEstimateNotConverged;
+          if (r.contact.valid() && (r.contact.flags & bad) == 0 &&
+              r.reduced_chi2 <= s.options.refine_max_reduced_chi2 &&
+              std::hypot(r.contact.u_mm - est.u_mm, r.contact.v_mm - est.v_mm) <=
+                  s.options.refine_max_shift_mm) {
             est = r.contact;
             refined_sigma_mm = r.sigma_uv_mm;
             ++s.stats.refined;

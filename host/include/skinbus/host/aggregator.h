@@ -144,6 +144,15 @@ struct AggregatorOptions {
   // is within this of it (the same press, moved little in one sample period), else from the
   // network's answer. 0: always from the network's.
   double refine_warm_start_mm = 3.0;
+  // A refined contact is published when its fit converged, found a contact, explains the sample
+  // to at most this reduced chi-square (noise units; its uncertainty is widened by the square root
+  // above 1) and lies within `refine_max_shift_mm` of the network's answer; else the network's
+  // answer is, flagged kContactUnrefined. A real unit has physics its identified model lacks: a
+  // fit several times the noise can still place the press far better than the network (a
+  // simulated patch through the emulated chips: reduced chi-square 4-10 and 0.05 mm), while a
+  // fit that wandered to another minimum moves far from the network's answer.
+  double refine_max_reduced_chi2 = 25;
+  double refine_max_shift_mm = 5;
 };
 
 struct AggregatorStats {
