@@ -115,6 +115,28 @@ void prepare_fit(std::span<const double> field_ut, std::span<const uint8_t> chan
   }
 }
 
+// The checks every single-contact fit starts with: the sample's shape, its usable channels
+// (prepare_fit) and that they outnumber the unknowns. False with `out` a rejection (the reason
+// set) when the fit cannot be made.
+bool begin_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok, int nc,
+               const PhysicsOptions& options, FitInput* in, PhysicsEstimate* out) {
+  ContactEstimate& e = out->contact;
+  if (static_cast<int>(field_ut.size()) != nc ||
+      (!channel_ok.empty() && static_cast<int>(channel_ok.size()) != nc)) {
+    e.flags = kEstimateRejected;
+    e.reason = RejectReason::kWrongShape;
+    return false;
+  }
+  prepare_fit(field_ut, channel_ok, nc, options, in);
+  const int unknowns = options.fit_ambient ? 6 : 3;
+  if (nc - in->check.masked < std::max(options.min_channels, unknowns + 1)) {
+    e.flags = kEstimateRejected;
+    e.reason = RejectReason::kTooFewChannels;
+    return false;
+  }
+  return true;
+}
+
 // A contact's bounds: (u, v) within the patch extent plus the margin, depth in
 // [kMinDepthMm, the deepest press].
 void contact_bounds(const sim::PatchModel& model, const PhysicsOptions& options, double lo[3],
@@ -238,25 +260,14 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   PhysicsEstimate out;
   ContactEstimate& e = out.contact;
   const int nc = model_.channel_count();
-  if (static_cast<int>(field_ut.size()) != nc ||
-      (!channel_ok.empty() && static_cast<int>(channel_ok.size()) != nc)) {
-    e.flags = kEstimateRejected;
-    e.reason = RejectReason::kWrongShape;
-    return out;
-  }
   FitInput in;
-  prepare_fit(field_ut, channel_ok, nc, options_, &in);
+  if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
   const uint8_t* ok = in.ok;
   const double* inv_sigma = in.inv_sigma;
   const double* y = in.y;
   const SampleCheck& check = in.check;
   const int usable = nc - check.masked;
   const int unknowns = options_.fit_ambient ? 6 : 3;
-  if (usable < std::max(options_.min_channels, unknowns + 1)) {
-    e.flags = kEstimateRejected;
-    e.reason = RejectReason::kTooFewChannels;
-    return out;
-  }
   double whitened[kMaxChannels];
   for (int c = 0; c < nc; ++c) whitened[c] = y[c] * inv_sigma[c];
 
@@ -394,21 +405,10 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   PhysicsEstimate out;
   ContactEstimate& e = out.contact;
   const int nc = model_.channel_count();
-  if (static_cast<int>(field_ut.size()) != nc ||
-      (!channel_ok.empty() && static_cast<int>(channel_ok.size()) != nc)) {
-    e.flags = kEstimateRejected;
-    e.reason = RejectReason::kWrongShape;
-    return out;
-  }
   FitInput in;
-  prepare_fit(field_ut, channel_ok, nc, options_, &in);
+  if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
   const int usable = nc - in.check.masked;
   const int unknowns = options_.fit_ambient ? 6 : 3;
-  if (usable < std::max(options_.min_channels, unknowns + 1)) {
-    e.flags = kEstimateRejected;
-    e.reason = RejectReason::kTooFewChannels;
-    return out;
-  }
   double lo[3], hi[3];
   contact_bounds(model_, options_, lo, hi);
   // Unknowns: (u, v, depth) and the ambient offset (held at 0 unless fitted).
@@ -445,6 +445,7 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   double lambda = 1e-3;
   bool converged = false;
   int iterations = 0;
+  Mat6 last_jtj = Mat6::Zero();
   constexpr double kStepMm = 1e-4;       // forward-difference step of (u, v, depth)
   constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
   // A step that lowers the chi-square by less than this ends the fit: what is left to gain moves
@@ -472,6 +473,7 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
       jtj.noalias() += row * row.transpose();
       jtr.noalias() += row * r[i];
     }
+    last_jtj = jtj;
     if (!options_.fit_ambient) {  // the ambient held at 0: its rows and columns out
       jtj.bottomRows<3>().setZero();
       jtj.rightCols<3>().setZero();
@@ -527,19 +529,9 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   if (!(energy >= options_.no_contact_snr * options_.no_contact_snr)) e.flags |= kEstimateNoContact;
   flag_range(e, model_.design().size_u_mm / 2, model_.design().size_v_mm / 2,
              model_.max_depth_mm());
-  if (options_.covariance) {
-    // From the last Jacobian (at the step before the minimum: within the tolerance of it).
-    Mat6 jtj = Mat6::Zero();
-    for (int i = 0; i < nc; ++i) {
-      if (!in.ok[i]) continue;
-      const double w = in.inv_sigma[i];
-      const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
-      Vec6 row;
-      row << jac[i][0] * w, jac[i][1] * w, jac[i][2] * w, a[0] * w, a[1] * w, a[2] * w;
-      jtj.noalias() += row * row.transpose();
-    }
-    sigmas_from(jtj, unknowns, &out);
-  }
+  // From the last iteration's J^T J (at the point before its step: within the tolerance of the
+  // minimum).
+  if (options_.covariance && iterations > 0) sigmas_from(last_jtj, unknowns, &out);
   if (!std::isfinite(out.chi2) || !x.allFinite()) {
     out = PhysicsEstimate{};
     out.contact.flags = kEstimateRejected;

@@ -255,15 +255,21 @@ class LatencySink : public host::HostSink {
   record::Recorder* recorder_;
 };
 
+// A recorder into `path` for a run of `s` (none for an empty path).
+Status open_recorder(const std::string& path, const Setup& s,
+                     std::unique_ptr<record::Recorder>* out) {
+  if (path.empty()) return Status::Ok();
+  auto made = record::Recorder::create(path, s.buses, nullptr);
+  if (!made.ok()) return made.error();
+  *out = std::move(*made);
+  return Status::Ok();
+}
+
 // Paced; with `record_path`, recorded into it (only r->recorded_cpu_percent is set then).
 Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r,
                  const std::string& record_path = {}) {
   std::unique_ptr<record::Recorder> recorder;
-  if (!record_path.empty()) {
-    auto made = record::Recorder::create(record_path, s.buses, nullptr);
-    if (!made.ok()) return made.error();
-    recorder = std::move(*made);
-  }
+  if (Status st = open_recorder(record_path, s, &recorder); !st.ok()) return st;
   auto made = make_aggregator(s, a, true, recorder.get());
   if (!made.ok()) return made.error();
   std::unique_ptr<host::Aggregator> agg = std::move(made.value());
@@ -327,11 +333,7 @@ Status run_paced(const Setup& s, const HostBenchArgs& a, Row* r,
 Status run_unpaced(const Setup& s, const HostBenchArgs& a, Row* r,
                    const std::string& record_path = {}) {
   std::unique_ptr<record::Recorder> recorder;
-  if (!record_path.empty()) {
-    auto made = record::Recorder::create(record_path, s.buses, nullptr);
-    if (!made.ok()) return made.error();
-    recorder = std::move(*made);
-  }
+  if (Status st = open_recorder(record_path, s, &recorder); !st.ok()) return st;
   auto made = make_aggregator(s, a, false, recorder.get());
   if (!made.ok()) return made.error();
   std::unique_ptr<host::Aggregator> agg = std::move(made.value());

@@ -461,21 +461,13 @@ class Cursor {
   }
   std::string str() {
     const auto len = num<uint32_t>();
-    if (!ok || len > n_ - pos_) {
-      ok = false;
-      pos_ = n_;
-      return {};
-    }
+    if (!fits(len)) return {};
     std::string s(reinterpret_cast<const char*>(p_ + pos_), len);
     pos_ += len;
     return s;
   }
   std::vector<uint8_t> bytes(uint64_t len) {
-    if (!ok || len > n_ - pos_) {
-      ok = false;
-      pos_ = n_;
-      return {};
-    }
+    if (!fits(len)) return {};
     std::vector<uint8_t> b(p_ + pos_, p_ + pos_ + len);
     pos_ += static_cast<std::size_t>(len);
     return b;
@@ -483,11 +475,7 @@ class Cursor {
   std::map<std::string, std::string> map() {
     const auto len = num<uint32_t>();
     std::map<std::string, std::string> m;
-    if (!ok || len > n_ - pos_) {
-      ok = false;
-      pos_ = n_;
-      return m;
-    }
+    if (!fits(len)) return m;
     Cursor inner(p_ + pos_, len);
     while (inner.ok && inner.remaining() > 0) {
       std::string k = inner.str();
@@ -503,6 +491,14 @@ class Cursor {
   bool ok = true;
 
  private:
+  // Whether `len` more bytes are there; if not, the cursor fails and stays at the end.
+  bool fits(uint64_t len) {
+    if (ok && len <= n_ - pos_) return true;
+    ok = false;
+    pos_ = n_;
+    return false;
+  }
+
   const uint8_t* p_;
   std::size_t n_;
   std::size_t pos_ = 0;
