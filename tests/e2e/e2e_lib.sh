@@ -15,7 +15,8 @@
 #   use_loopback_dds
 #       Cyclone DDS on loopback only (tools/dds/loopback.xml), unless CYCLONEDDS_URI is set
 #   use_loopback_domain
-#       use_loopback_dds, and $domain set to a random DDS domain 20..219 of the test's own
+#       use_loopback_dds, and $domain set to a DDS domain in 120..219 that no other test on this
+#       machine holds while this one runs (a lock file per domain)
 #   fail_with_logs MESSAGE...
 #       prints FAIL MESSAGE and every *.err file of the current folder, and exits 1
 #   wait_for PATTERN SECONDS FILE PID
@@ -65,7 +66,21 @@ use_loopback_dds() {
   export CYCLONEDDS_URI=${CYCLONEDDS_URI:-file://$src/tools/dds/loopback.xml}
 }
 use_loopback_domain() {
-  domain=$((RANDOM % 200 + 20))
+  # A domain no other test of this machine holds: the first free lock of 120..219 in random order,
+  # kept until the script ends (its processes inherit it). The unit tests' DDS domains are 1..100
+  # (dds_test_support.h), the soak's 220..231: the end-to-end tests publish the real topic names,
+  # so two of them in one domain would hear each other.
+  local d
+  for d in $(shuf -i 120-219); do
+    exec {domain_lock}>"${TMPDIR:-/tmp}/skinbus-dds-domain-$d.lock"
+    if flock -n "$domain_lock"; then
+      domain=$d
+      use_loopback_dds
+      return
+    fi
+    exec {domain_lock}>&-
+  done
+  domain=$((RANDOM % 100 + 120))
   use_loopback_dds
 }
 record_bus() {
