@@ -1,0 +1,141 @@
+#!/usr/bin/env bash
+# One command from a lab recording of a patch's presses to a calibrated patch: its physics
+# identified, its network trained on simulated presses of the identified unit, both measured,
+# and the skin-map entry that tells skinbus-host to use them (the network, refined on the unit:
+# docs/aggregator.md, "Physics refinement").
+#
+#   scripts/calibrate_unit.sh PRESSES.csv -o OUT [--held-out HELD.csv] [--design DESIGN.yaml]
+#       [--node N] [--uid UID] [--link LINK] [--epochs N] [--synthetic N] [--base MODEL]
+#
+# PRESSES.csv: the unit's presses at known places and depths (docs/dataset_format.md), e.g. the
+# seed's 19 x 19 grid of ramps by an indentation robot (361 presses). HELD.csv: other presses of
+# the same unit, not fitted, on which both are measured (default: none; the network is then
+# measured on simulated presses of the identified unit). DESIGN.yaml: the patch's design file
+# (docs/design_file.md; default: the built-in design). Writes into OUT:
+#   unit.json            the identified unit (skinbus-identify)
+#   identify.log         its fit: residuals in noise units, overall and per depth bin
+#   network.safetensors  the unit's network (skinbus-train: fine-tuned from --base, the shipped
+#   network.json           model by default ('none': trained from scratch), on --synthetic (2000)
+#                          simulated presses of the identified unit, each a ramp sampled at 8 Hz;
+#                          about 15 s an epoch on two cores, --epochs (30) at most)
+#   train.log            its training
+#   report.md            the residuals, the network's errors per depth bin next to the design's
+#                        Cramer-Rao bound, what is and is not measured
+#   skin_map_entry.yaml  the entry for the skin map (position and orientation: skinbus-calibrate)
+# Progress: one line per step on standard error; each tool's own progress in its log.
+# Exit status: 0 done, 1 a step failed (its log says why), 2 bad arguments.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+bin=${SKINBUS_BIN:-$root/build/tools}
+usage() {
+  sed -n '6,8p' "$0" | sed 's/^# //' >&2
+  exit 2
+}
+presses="" out="" held="" design="" node=1 uid="" link="LINK" epochs=30 synthetic=2000
+base=$root/estimators/models/nominal_seed_cnn
+while (($#)); do
+  case $1 in
+    -o) out=${2:?}; shift 2 ;;
+    --held-out) held=${2:?}; shift 2 ;;
+    --design) design=${2:?}; shift 2 ;;
+    --node) node=${2:?}; shift 2 ;;
+    --uid) uid=${2:?}; shift 2 ;;
+    --link) link=${2:?}; shift 2 ;;
+    --epochs) epochs=${2:?}; shift 2 ;;
+    --synthetic) synthetic=${2:?}; shift 2 ;;
+    --base) base=${2:?}; shift 2 ;;
+    -h | --help) sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
+    *) [[ -z $presses ]] || usage; presses=$1; shift ;;
+  esac
+done
+[[ -n $presses && -n $out ]] || usage
+[[ -f $presses ]] || { echo "calibrate_unit: $presses: no such file" >&2; exit 2; }
+[[ -z $held || -f $held ]] || { echo "calibrate_unit: $held: no such file" >&2; exit 2; }
+[[ -z $design || -f $design ]] || { echo "calibrate_unit: $design: no such file" >&2; exit 2; }
+for tool in skinbus-identify skinbus-dataset skinbus-train skinbus-crlb; do
+  [[ -x $bin/$tool ]] || { echo "calibrate_unit: $bin/$tool missing: scripts/build.sh" >&2; exit 1; }
+done
+mkdir -p "$out"
+design_opt=()
+[[ -n $design ]] && design_opt=(--design "$design")
+step() { echo "calibrate_unit: [$1/4] $2 ($(date +%T))" >&2; }
+failed() { echo "calibrate_unit: $1 failed; see $2" >&2; exit 1; }
+
+step 1 "identifying the unit's physics from $presses"
+held_opt=()
+[[ -n $held ]] && held_opt=(--held-out "$held")
+"$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "${held_opt[@]}" \
+  >"$out/identify.log" 2>&1 || failed "identification" "$out/identify.log"
+grep -i "residual" "$out/identify.log" | head -3 >&2 || true
+
+step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8 Hz)"
+"$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 --unit "$out/unit.json" \
+  "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
+  failed "the synthetic presses" "$out/dataset.log"
+"$bin/skinbus-dataset" --plan random-test --count 500 --seed 7 --unit "$out/unit.json" \
+  "${design_opt[@]}" -o "$out/synthetic_test.csv" >>"$out/dataset.log" 2>&1 ||
+  failed "the synthetic test presses" "$out/dataset.log"
+
+step 3 "training the unit's network ($epochs epochs at most, from $(basename "$base"))"
+test_set=${held:-$out/synthetic_test.csv}
+base_opt=()
+# Fine-tuning starts from a trained network: a smaller step than training from scratch.
+[[ -n $base && $base != none ]] && base_opt=(--base "$base" --lr 3e-4)
+"$bin/skinbus-train" "$out/synthetic.csv" -o "$out/network" --test "$test_set" \
+  --epochs "$epochs" "${base_opt[@]}" >"$out/train.log" 2>&1 || failed "training" "$out/train.log"
+tail -1 "$out/train.log" >&2
+
+step 4 "writing the report and the skin-map entry"
+"$bin/skinbus-crlb" --depths 1.5 2.5 3.5 --ambient "${design_opt[@]}" >"$out/crlb.log" 2>&1 ||
+  failed "the Cramer-Rao bound" "$out/crlb.log"
+python3 - "$out" "$presses" "$test_set" "${held:+held-out lab presses}" <<'PY'
+import json, re, sys
+out, presses, test_set, held = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4]
+meta = json.load(open(f"{out}/network.json"))
+metrics = meta.get("metrics", meta.get("meta", {}).get("metrics", {}))
+bound = {}
+for line in open(f"{out}/crlb.log"):
+    m = re.match(r"\| ([0-9.]+) \| ([0-9.]+) \|", line)
+    if m:
+        bound[float(m.group(1))] = float(m.group(2))
+ident = [l.rstrip() for l in open(f"{out}/identify.log") if l.strip()]
+rows = []
+for name, mid in (("1-2", 1.5), ("2-3", 2.5), ("3-4", 3.5)):
+    xy = metrics.get(f"test_xy_mean_mm_depth_{name}")
+    d = metrics.get(f"test_depth_mean_mm_depth_{name}")
+    b = bound.get(mid)
+    ratio = f"{xy / b:.2f}" if xy is not None and b else "-"
+    fmt = lambda v: f"{v:.3f}" if isinstance(v, (int, float)) else "-"
+    rows.append(f"| {name} | {fmt(xy)} | {fmt(b)} | {ratio} | {fmt(d)} |")
+with open(f"{out}/report.md", "w") as f:
+    f.write(f"# Unit calibration: {presses}\n\n")
+    f.write("## Identification (skinbus-identify)\n\n```\n" + "\n".join(ident[-12:]) + "\n```\n\n")
+    f.write("A residual near 1 noise unit: the model explains the unit to its noise; clearly above"
+            " (> 1.1): the unit has physics the model class lacks.\n\n")
+    f.write(f"## The unit's network on {held or 'simulated test presses of the identified unit'}"
+            f" ({test_set})\n\n")
+    f.write("| depth (mm) | XY mean (mm) | design's CRLB, map mean (mm) | x CRLB | depth mean (mm) |\n")
+    f.write("|---|---:|---:|---:|---:|\n" + "\n".join(rows) + "\n\n")
+    f.write(f"Overall: XY mean {metrics.get('test_xy_mean_mm', float('nan')):.3f} mm, depth mean "
+            f"{metrics.get('test_depth_mean_mm', float('nan')):.3f} mm. The bound is the design's"
+            " (nominal unit, ambient field estimated) averaged over the patch at 1.5, 2.5 and 3.5 mm"
+            ", not at the test presses themselves.\n\n")
+    f.write("Not measured here: the host's refinement on this unit against the held-out presses"
+            " (skinbus-bench refine measures it on simulated units: docs/benchmarks/refinement.md)."
+            "\n")
+PY
+design_line=""
+[[ -n $design ]] && design_line="    design: $(realpath "$design")"$'\n'
+uid_line=""
+[[ -n $uid ]] && uid_line="    uid: $uid"$'\n'
+{
+  echo "  - node: $node"
+  printf '%s' "$uid_line"
+  echo "    link: $link"
+  echo "    position_mm: [0, 0, 0]     # where the patch sits on its link: skinbus-calibrate"
+  echo "    model: $(realpath "$out")/network"
+  echo "    unit: $(realpath "$out")/unit.json"
+  printf '%s' "$design_line"
+} >"$out/skin_map_entry.yaml"
+echo "calibrate_unit: done: $out/report.md, $out/skin_map_entry.yaml" >&2

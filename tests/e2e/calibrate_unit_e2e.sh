@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# The one-command unit calibration (scripts/calibrate_unit.sh) on a simulated lab session: a
+# fabricated unit's 19 x 19 grid of ramps and 300 held-out presses (skinbus-dataset --fabricated
+# with the board's UID), calibrated with a small synthetic set and few epochs (the check is of
+# the chain, not of the network's accuracy). Checked: every output is written, the
+# identification explains the unit near its noise, the report has the network's errors per
+# depth bin on the held-out presses next to the bound, and skinbus-host runs the skin-map entry
+# (the network refined on the unit) on a log of that patch: its contacts are refined.
+#   tests/e2e/calibrate_unit_e2e.sh BUILD_DIR
+set -euo pipefail
+# shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
+source "$(dirname "$0")/e2e_lib.sh"
+e2e_init "$@"
+[[ -x $bin/skinbus-train ]] || { echo "SKIP: no skinbus-train (LibTorch)"; exit 77; }
+
+node=6
+uid=$(patch_uid $node)
+"$bin/skinbus-dataset" --plan grid --fabricated --uid "$uid" -o lab.csv
+"$bin/skinbus-dataset" --plan random-test --count 300 --seed 3 --fabricated --uid "$uid" -o held.csv
+SKINBUS_BIN=$bin "$src/scripts/calibrate_unit.sh" lab.csv -o cal --held-out held.csv \
+  --node $node --uid "$uid" --link torso_link --synthetic 200 --epochs 2 2>cal.err ||
+  fail_with_logs "calibrate_unit.sh failed"
+cat cal.err
+for f in unit.json network.safetensors network.json report.md skin_map_entry.yaml identify.log; do
+  [[ -s cal/$f ]] || fail_with_logs "cal/$f was not written"
+done
+cat cal/report.md
+grep -q "^| 2-3 | [0-9.]* | [0-9.]* | [0-9.]* |" cal/report.md || fail_with_logs "no 2-3 mm row"
+grep -q "held-out lab presses" cal/report.md || fail_with_logs "not measured on the held-out presses"
+python3 - <<'PY' || fail_with_logs "the identification residual"
+import re, sys
+text = open("cal/identify.log").read()
+m = re.search(r"residual RMS ([0-9.]+) noise units identified", text)
+print("identified residual:", m and m.group(1))
+sys.exit(0 if m and float(m.group(1)) < 1.15 else 1)
+PY
+
+# The entry, into the skin map of the project's robot in place of node 6's own.
+make_skin_map map.yaml
+python3 - <<'PY'
+import re
+text = open("map.yaml").read()
+entries = re.split(r"(?m)^  - ", text)
+entry = open("cal/skin_map_entry.yaml").read()
+out = [entries[0]]
+for e in entries[1:]:
+    if re.match(r"node: 6\b", e):
+        # keep the map's pose and geometry; take the model and unit of the calibration
+        keep = "".join(l for l in e.splitlines(True) if not re.match(r"\s*model:", l))
+        extra = "".join(l for l in entry.splitlines(True) if re.match(r"\s+(model|unit|design):", l))
+        e = keep.rstrip("\n") + "\n" + extra
+    out.append(e)
+open("map.yaml", "w").write("  - ".join(out))
+PY
+printf '# t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node\n0.3,1.5,-8,14,2.5,5,6\n' >presses.csv
+record_bus bus.log 2 "$node" --contacts presses.csv
+"$bin/skinbus-host" --map map.yaml --replay bus.log --fast --joints none --no-dds --json --stats \
+  >host.jsonl 2>host.err || fail_with_logs "skinbus-host on the calibrated entry failed"
+grep "refined" host.err || fail_with_logs "nothing refined"
+refined=$(sed -n 's/.*refined \([0-9]*\) (.*/\1/p' host.err)
+((refined > 20)) || fail_with_logs "only $refined samples refined"
+echo PASS
