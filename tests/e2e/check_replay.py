@@ -62,7 +62,9 @@ def main():
         t = p["stamp_us"] - t0b
         near = min(times, key=lambda x: abs(x - t))
         if abs(near - t) > 1000:
-            bad.append(f"no publication of the first run within 1 ms of {t} us")
+            # A publication's stamp is its newest sample's: batched otherwise (a loaded machine
+            # runs the paced replay late), a run publishes at times the other never did.
+            unmatched += [f"no publication of the first run within 1 ms of {t} us"] * len(p["contacts"])
             continue
         q = by_time[near]
         want = {(c["node"]): c for c in q["contacts"]}
