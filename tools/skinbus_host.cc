@@ -302,7 +302,7 @@ int main(int argc, char** argv) {
   app.add_option("--record", a.record,
                  "record the session into this MCAP file (as rosbag2 would: contacts, patch "
                  "status, diagnostics, each patch's tared samples, the CAN frames, joint states; "
-                 "the skin map and URDF attached; docs/recording.md)");
+                 "the skin map, URDF, design and unit files attached; docs/recording.md)");
   app.add_flag("!--record-no-samples", a.record_samples, "--record: leave out /skin/samples");
   app.add_flag("!--record-no-frames", a.record_frames,
                "--record: leave out /skin/can (the recording can then not be replayed)");
@@ -442,6 +442,20 @@ int main(int argc, char** argv) {
       ro.attachments[std::filesystem::path(a.map_path).filename().string()] = a.map_path;
       if (!robot_path.empty()) {
         ro.attachments[std::filesystem::path(robot_path).filename().string()] = robot_path;
+      }
+      // The design and unit files the map's entries name (as the refinement reads them), each
+      // once, by its file name (the node's number before it when two differ in folder only).
+      for (const body_map::PatchPlacement& p : map->patches) {
+        for (const std::string& f : {p.design, p.unit}) {
+          if (f.empty()) continue;
+          const std::string path = body_map::path_beside(a.map_path, f);
+          std::string name = std::filesystem::path(path).filename().string();
+          auto it = ro.attachments.find(name);
+          if (it != ro.attachments.end() && it->second != path) {
+            name = "node" + std::to_string(p.node_id) + "_" + name;
+          }
+          ro.attachments[name] = path;
+        }
       }
       std::string models;
       for (const body_map::PatchPlacement& p : map->patches) {

@@ -79,7 +79,9 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path,
     *want.id = *id;
   }
   for (const auto& [name, text] : files) {
-    const std::string media = name.ends_with(".urdf") ? "application/xml" : "application/yaml";
+    const std::string media = name.ends_with(".urdf")   ? "application/xml"
+                              : name.ends_with(".json") ? "application/json"
+                                                        : "application/yaml";
     if (Status st = mw.write_attachment(
             name, media,
             std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(text.data()), text.size()), 0,

@@ -44,11 +44,15 @@ record_bus bus.log 4.2 "$node" --contacts presses.csv
 for run in refined network overbudget; do
   opts=()
   [[ $run == network ]] && opts=(--no-refine)
+  [[ $run == refined ]] && opts=(--record refined.mcap)
   [[ $run == overbudget ]] && opts=(--refine-budget-us 0)
   "$bin/skinbus-host" --map map.yaml --replay bus.log --fast --joints none --no-dds --json \
     --stats "${opts[@]}" >"$run.jsonl" 2>"$run.err" || fail_with_logs "skinbus-host ($run) failed"
   grep "refined\|estimated" "$run.err" || true
 done
+# The recording of the refined run carries the unit file the map names.
+"$bin/skinbus-mcap" info refined.mcap | grep "attachment unit5.json (application/json" ||
+  fail_with_logs "the recording does not carry the unit file"
 python3 "$src/tests/e2e/check_refine.py" presses.csv refined.jsonl network.jsonl overbudget.jsonl ||
   fail_with_logs "the refinement check failed"
 echo PASS

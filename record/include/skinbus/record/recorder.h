@@ -8,10 +8,10 @@
 //   /skin/can           skin_msgs/msg/CanFrame              every frame the host was fed
 //   /joint_states       sensor_msgs/msg/JointState          the robot's pose after each state
 //
-// plus the files it ran with (skin map, URDF) as attachments and a "skinbus" metadata record
-// (the run's options and models). The CAN frames are what a recording is replayed from: the
-// host's input exactly (skinbus-mcap candump, with McapJointInput for the joint states), so a
-// session can be estimated again with another model.
+// plus the files it ran with (skin map, URDF, design and unit files) as attachments and a "skinbus"
+// metadata record (the run's options and models). The CAN frames are what a recording is replayed
+// from: the host's input exactly (skinbus-mcap candump, with McapJointInput for the joint states),
+// so a session can be estimated again with another model.
 //
 // Times: a message's log time is when the host had it (a frame's or sample's receive time; for
 // a publication or status, the newest receive time seen, never before its stamp), in ns of the
