@@ -137,6 +137,45 @@ bool begin_fit(std::span<const double> field_ut, std::span<const uint8_t> channe
   return true;
 }
 
+// The end every single-contact fit shares: the contact at `x` (u, v, depth) with the ambient
+// offset `b`, its chi-square (noise units) and iterations, and its flags: masked channels, not
+// converged, a poor fit, no contact (the fitted contact's whitened signal `contact_field`, its
+// field change, below options.no_contact_snr), the range; a non-finite fit becomes a rejection.
+void finish_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
+                const double x[3], const double b[3], double chi2, int iterations, bool converged,
+                const double* contact_field, PhysicsEstimate* out) {
+  ContactEstimate& e = out->contact;
+  const int nc = model.channel_count();
+  const int usable = nc - in.check.masked;
+  const int unknowns = options.fit_ambient ? 6 : 3;
+  e.u_mm = x[0];
+  e.v_mm = x[1];
+  e.depth_mm = x[2];
+  e.force_n = model.force_n(x[2]);
+  for (int k = 0; k < 3; ++k) out->ambient_ut[k] = b[k];
+  out->iterations = iterations;
+  out->chi2 = chi2;
+  out->channels_used = usable;
+  out->reduced_chi2 = chi2 / (usable - unknowns);
+  if (in.check.masked > 0) e.flags |= kEstimateMasked;
+  if (!converged) e.flags |= kEstimateNotConverged;
+  if (!(out->reduced_chi2 <= options.poor_fit_ratio)) e.flags |= kEstimatePoorFit;
+  // Signal of the fitted contact in noise units: at noise level, nothing was pressed.
+  double energy = 0;
+  for (int i = 0; i < nc; ++i) {
+    if (in.ok[i]) energy += contact_field[i] * contact_field[i] * in.inv_sigma[i] * in.inv_sigma[i];
+  }
+  if (!(energy >= options.no_contact_snr * options.no_contact_snr)) e.flags |= kEstimateNoContact;
+  flag_range(e, model.design().size_u_mm / 2, model.design().size_v_mm / 2, model.max_depth_mm());
+  bool finite = std::isfinite(chi2);
+  for (int k = 0; k < 3; ++k) finite = finite && std::isfinite(x[k]) && std::isfinite(b[k]);
+  if (!finite) {
+    *out = PhysicsEstimate{};
+    out->contact.flags = kEstimateRejected;
+    out->contact.reason = RejectReason::kNonFinite;
+  }
+}
+
 // A contact's bounds: (u, v) within the patch extent plus the margin, depth in
 // [kMinDepthMm, the deepest press].
 void contact_bounds(const sim::PatchModel& model, const PhysicsOptions& options, double lo[3],
@@ -258,23 +297,19 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
                                         std::span<const uint8_t> channel_ok,
                                         const ContactEstimate* guess) const {
   PhysicsEstimate out;
-  ContactEstimate& e = out.contact;
   const int nc = model_.channel_count();
   FitInput in;
   if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
   const uint8_t* ok = in.ok;
   const double* inv_sigma = in.inv_sigma;
   const double* y = in.y;
-  const SampleCheck& check = in.check;
-  const int usable = nc - check.masked;
+  const int usable = nc - in.check.masked;
   const int unknowns = options_.fit_ambient ? 6 : 3;
   double whitened[kMaxChannels];
   for (int c = 0; c < nc; ++c) whitened[c] = y[c] * inv_sigma[c];
 
   // Starts: the guess, or the nearest rows of the start table. The first is tried; the others
   // only when it ends in a poor fit (a local minimum), and the best fit is kept.
-  const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
-  const double max_depth = model_.max_depth_mm();
   double lo[3], hi[3];
   contact_bounds(model_, options_, lo, hi);
   constexpr int kStarts = 3;
@@ -341,37 +376,13 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
     if (s + 1 == n_starts && !looked_up) add_table_starts();
   }
 
-  const double* x = best_x;
-  e.u_mm = x[0];
-  e.v_mm = x[1];
-  e.depth_mm = x[2];
-  e.force_n = model_.force_n(x[2]);
-  for (int k = 0; k < 3; ++k) out.ambient_ut[k] = best_b[k];
-  out.iterations = iterations;
-  out.chi2 = 2 * best_cost;
-  out.channels_used = usable;
-  out.reduced_chi2 = out.chi2 / (usable - unknowns);
-  if (check.masked > 0) e.flags |= kEstimateMasked;
-  if (!best_converged) e.flags |= kEstimateNotConverged;
-  if (!(out.reduced_chi2 <= options_.poor_fit_ratio)) e.flags |= kEstimatePoorFit;
-  // Signal of the fitted contact in noise units: at noise level, nothing was pressed.
   double f[kMaxChannels];
-  const sim::Contact c{x[0], x[1], x[2], options_.tip_radius_mm};
+  const sim::Contact c{best_x[0], best_x[1], best_x[2], options_.tip_radius_mm};
   model_.contact_field_ut(std::span<const sim::Contact>(&c, 1),
                           std::span<double>(f, static_cast<std::size_t>(nc)));
-  double energy = 0;
-  for (int i = 0; i < nc; ++i) {
-    if (ok[i]) energy += f[i] * f[i] * inv_sigma[i] * inv_sigma[i];
-  }
-  if (!(energy >= options_.no_contact_snr * options_.no_contact_snr)) e.flags |= kEstimateNoContact;
-  flag_range(e, half_u, half_v, max_depth);
-  if (options_.covariance) covariance(c, ok, inv_sigma, &out);
-  if (!std::isfinite(out.chi2) || !std::isfinite(best_b[0]) || !std::isfinite(best_b[1]) ||
-      !std::isfinite(best_b[2])) {
-    out = PhysicsEstimate{};
-    out.contact.flags = kEstimateRejected;
-    out.contact.reason = RejectReason::kNonFinite;
-  }
+  finish_fit(model_, options_, in, best_x, best_b, 2 * best_cost, iterations, best_converged, f,
+             &out);
+  if (options_.covariance && out.contact.valid()) covariance(c, ok, inv_sigma, &out);
   return out;
 }
 
@@ -403,11 +414,9 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
                                             std::span<const uint8_t> channel_ok,
                                             const ContactEstimate& start) const {
   PhysicsEstimate out;
-  ContactEstimate& e = out.contact;
   const int nc = model_.channel_count();
   FitInput in;
   if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
-  const int usable = nc - in.check.masked;
   const int unknowns = options_.fit_ambient ? 6 : 3;
   double lo[3], hi[3];
   contact_bounds(model_, options_, lo, hi);
@@ -510,32 +519,12 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
     }
   }
 
-  e.u_mm = x(0);
-  e.v_mm = x(1);
-  e.depth_mm = x(2);
-  e.force_n = model_.force_n(x(2));
-  for (int k = 0; k < 3; ++k) out.ambient_ut[k] = x(3 + k);
-  out.iterations = iterations;
-  out.chi2 = cost;
-  out.channels_used = usable;
-  out.reduced_chi2 = cost / (usable - unknowns);
-  if (in.check.masked > 0) e.flags |= kEstimateMasked;
-  if (!converged) e.flags |= kEstimateNotConverged;
-  if (!(out.reduced_chi2 <= options_.poor_fit_ratio)) e.flags |= kEstimatePoorFit;
-  double energy = 0;
-  for (int i = 0; i < nc; ++i) {
-    if (in.ok[i]) energy += f[i] * f[i] * in.inv_sigma[i] * in.inv_sigma[i];
-  }
-  if (!(energy >= options_.no_contact_snr * options_.no_contact_snr)) e.flags |= kEstimateNoContact;
-  flag_range(e, model_.design().size_u_mm / 2, model_.design().size_v_mm / 2,
-             model_.max_depth_mm());
+  const double xc[3] = {x(0), x(1), x(2)}, xb[3] = {x(3), x(4), x(5)};
+  finish_fit(model_, options_, in, xc, xb, cost, iterations, converged, f, &out);
   // From the last iteration's J^T J (at the point before its step: within the tolerance of the
   // minimum).
-  if (options_.covariance && iterations > 0) sigmas_from(last_jtj, unknowns, &out);
-  if (!std::isfinite(out.chi2) || !x.allFinite()) {
-    out = PhysicsEstimate{};
-    out.contact.flags = kEstimateRejected;
-    out.contact.reason = RejectReason::kNonFinite;
+  if (options_.covariance && iterations > 0 && out.contact.valid()) {
+    sigmas_from(last_jtj, unknowns, &out);
   }
   return out;
 }
