@@ -100,20 +100,6 @@ uint32_t crc32(std::span<const uint8_t> data, uint32_t crc) {
   return ~crc;
 }
 
-namespace {
-
-// Writes `bytes` to the writer's file at its offset (and into the data section's CRC while in it).
-void put_bytes(std::FILE* f, const std::string& path, std::span<const uint8_t> bytes, Status* error,
-               uint64_t* offset, uint32_t* crc) {
-  if (error->ok() && std::fwrite(bytes.data(), 1, bytes.size(), f) != bytes.size()) {
-    *error = make_error(ErrorCode::kIo, path + ": write failed: " + std::strerror(errno));
-  }
-  if (crc != nullptr) *crc = crc32(bytes, *crc);
-  *offset += bytes.size();
-}
-
-}  // namespace
-
 // ---- writer ----------------------------------------------------------------------------------
 
 struct McapWriter::Impl {
@@ -121,8 +107,20 @@ struct McapWriter::Impl {
   std::string path;
   McapWriterOptions options;
   Status error;
+  uint64_t offset = 0;  // bytes written
+  uint64_t message_count = 0;
   uint32_t data_crc = 0;
   bool in_data = true;  // the data section's bytes are summed into data_crc
+
+  // Writes `bytes` at the offset (and into the data section's CRC while in it); the first failure
+  // is kept in `error`.
+  void put(std::span<const uint8_t> bytes) {
+    if (error.ok() && std::fwrite(bytes.data(), 1, bytes.size(), f) != bytes.size()) {
+      error = make_error(ErrorCode::kIo, path + ": write failed: " + std::strerror(errno));
+    }
+    if (in_data) data_crc = crc32(bytes, data_crc);
+    offset += bytes.size();
+  }
 
   std::vector<std::vector<uint8_t>> schema_records, channel_records;
   std::map<uint16_t, uint32_t> sequence;  // per channel: the next sequence number
@@ -156,20 +154,14 @@ Result<std::unique_ptr<McapWriter>> McapWriter::create(const std::string& path,
   }
   std::unique_ptr<McapWriter> w(new McapWriter(f, path, std::move(options)));
   Impl& s = *w->impl_;
-  auto put = [&](std::span<const uint8_t> bytes) {
-    put_bytes(s.f, path, bytes, &s.error, &w->offset_, &s.data_crc);
-  };
-  put(kMagic);
+  s.put(kMagic);
   Bytes h;
   h.str(s.options.profile);
   h.str(s.options.library);
-  put(record(kHeader, h.b));
+  s.put(record(kHeader, h.b));
   if (!s.error.ok()) return s.error.error();
   return w;
 }
-
-#define SKINBUS_MCAP_PUT(bytes) \
-  put_bytes(s.f, s.path, (bytes), &s.error, &offset_, s.in_data ? &s.data_crc : nullptr)
 
 uint16_t McapWriter::add_schema(const std::string& name, const std::string& encoding,
                                 std::span<const uint8_t> data) {
@@ -182,7 +174,7 @@ uint16_t McapWriter::add_schema(const std::string& name, const std::string& enco
   c.num(static_cast<uint32_t>(data.size()));
   c.raw(data);
   s.schema_records.push_back(record(kSchema, c.b));
-  SKINBUS_MCAP_PUT(s.schema_records.back());
+  s.put(s.schema_records.back());
   return id;
 }
 
@@ -200,16 +192,16 @@ uint16_t McapWriter::add_channel(uint16_t schema_id, const std::string& topic,
   s.channel_records.push_back(record(kChannel, c.b));
   s.sequence[id] = 0;
   s.channel_counts[id] = 0;
-  SKINBUS_MCAP_PUT(s.channel_records.back());
+  s.put(s.channel_records.back());
   return id;
 }
 
 namespace {
 
 // Closes the open chunk: the Chunk record, its Message Indexes, its Chunk Index (kept).
-void flush_chunk(McapWriter::Impl& s, uint64_t* offset) {
+void flush_chunk(McapWriter::Impl& s) {
   if (s.chunk.empty()) return;
-  const uint64_t chunk_start = *offset;
+  const uint64_t chunk_start = s.offset;
   Bytes c;
   c.num(s.chunk_start_ns);
   c.num(s.chunk_end_ns);
@@ -219,12 +211,12 @@ void flush_chunk(McapWriter::Impl& s, uint64_t* offset) {
   c.num(static_cast<uint64_t>(s.chunk.size()));
   c.raw(s.chunk);
   const std::vector<uint8_t> chunk_record = record(kChunk, c.b);
-  put_bytes(s.f, s.path, chunk_record, &s.error, offset, &s.data_crc);
-  const uint64_t index_start = *offset;
+  s.put(chunk_record);
+  const uint64_t index_start = s.offset;
   Bytes offsets;  // map<uint16, uint64>: channel -> its Message Index's offset
   for (const auto& [channel, entries] : s.chunk_index) {
     offsets.num(channel);
-    offsets.num(*offset);
+    offsets.num(s.offset);
     Bytes m;
     m.num(channel);
     m.num(static_cast<uint32_t>(entries.size() * 16));
@@ -232,7 +224,7 @@ void flush_chunk(McapWriter::Impl& s, uint64_t* offset) {
       m.num(t);
       m.num(o);
     }
-    put_bytes(s.f, s.path, record(kMessageIndex, m.b), &s.error, offset, &s.data_crc);
+    s.put(record(kMessageIndex, m.b));
   }
   Bytes ci;
   ci.num(s.chunk_start_ns);
@@ -241,7 +233,7 @@ void flush_chunk(McapWriter::Impl& s, uint64_t* offset) {
   ci.num(static_cast<uint64_t>(chunk_record.size()));
   ci.num(static_cast<uint32_t>(offsets.b.size()));
   ci.raw(offsets.b);
-  ci.num(*offset - index_start);
+  ci.num(s.offset - index_start);
   ci.str("");
   ci.num(static_cast<uint64_t>(s.chunk.size()));  // compressed size: stored as is
   ci.num(static_cast<uint64_t>(s.chunk.size()));
@@ -267,7 +259,7 @@ Status McapWriter::write_message(uint16_t channel_id, uint64_t log_time_ns,
   }
   s.chunk_start_ns = std::min(s.chunk_start_ns, log_time_ns);
   s.chunk_end_ns = std::max(s.chunk_end_ns, log_time_ns);
-  if (message_count_ == 0) {
+  if (s.message_count == 0) {
     s.message_start_ns = log_time_ns;
     s.message_end_ns = log_time_ns;
   }
@@ -291,8 +283,8 @@ Status McapWriter::write_message(uint16_t channel_id, uint64_t log_time_ns,
   put(publish_time_ns);
   if (!data.empty()) std::memcpy(p, data.data(), data.size());
   ++s.channel_counts[channel_id];
-  ++message_count_;
-  if (s.chunk.size() >= s.options.chunk_bytes) flush_chunk(s, &offset_);
+  ++s.message_count;
+  if (s.chunk.size() >= s.options.chunk_bytes) flush_chunk(s);
   return s.error;
 }
 
@@ -300,7 +292,7 @@ Status McapWriter::write_attachment(const std::string& name, const std::string& 
                                     std::span<const uint8_t> data, uint64_t log_time_ns,
                                     uint64_t create_time_ns) {
   Impl& s = *impl_;
-  flush_chunk(s, &offset_);  // attachments sit between chunks
+  flush_chunk(s);  // attachments sit between chunks
   Bytes a;
   a.num(log_time_ns);
   a.num(create_time_ns);
@@ -309,9 +301,9 @@ Status McapWriter::write_attachment(const std::string& name, const std::string& 
   a.num(static_cast<uint64_t>(data.size()));
   a.raw(data);
   a.num(crc32(a.b));
-  const uint64_t at = offset_;
+  const uint64_t at = s.offset;
   const std::vector<uint8_t> r = record(kAttachment, a.b);
-  SKINBUS_MCAP_PUT(r);
+  s.put(r);
   Bytes i;
   i.num(at);
   i.num(static_cast<uint64_t>(r.size()));
@@ -328,13 +320,13 @@ Status McapWriter::write_attachment(const std::string& name, const std::string& 
 Status McapWriter::write_metadata(const std::string& name,
                                   const std::map<std::string, std::string>& map) {
   Impl& s = *impl_;
-  flush_chunk(s, &offset_);
+  flush_chunk(s);
   Bytes m;
   m.str(name);
   m.map(map);
-  const uint64_t at = offset_;
+  const uint64_t at = s.offset;
   const std::vector<uint8_t> r = record(kMetadata, m.b);
-  SKINBUS_MCAP_PUT(r);
+  s.put(r);
   Bytes i;
   i.num(at);
   i.num(static_cast<uint64_t>(r.size()));
@@ -347,28 +339,28 @@ Status McapWriter::write_metadata(const std::string& name,
 Status McapWriter::close() {
   Impl& s = *impl_;
   if (s.f == nullptr) return s.error;
-  flush_chunk(s, &offset_);
+  flush_chunk(s);
   Bytes end;
   end.num(s.data_crc);
   s.in_data = false;
-  SKINBUS_MCAP_PUT(record(kDataEnd, end.b));
+  s.put(record(kDataEnd, end.b));
 
   // The summary: each group's records, then a Summary Offset per group; its CRC runs from the
   // summary's first byte through the footer's offsets.
-  const uint64_t summary_start = offset_;
+  const uint64_t summary_start = s.offset;
   uint32_t summary_crc = 0;
   std::vector<std::tuple<uint8_t, uint64_t, uint64_t>> groups;
   auto group = [&](uint8_t op, const std::vector<std::vector<uint8_t>>& records) {
     if (records.empty()) return;
-    const uint64_t start = offset_;
+    const uint64_t start = s.offset;
     for (const auto& r : records) {
-      SKINBUS_MCAP_PUT(r);
+      s.put(r);
       summary_crc = crc32(r, summary_crc);
     }
-    groups.emplace_back(op, start, offset_ - start);
+    groups.emplace_back(op, start, s.offset - start);
   };
   Bytes st;
-  st.num(message_count_);
+  st.num(s.message_count);
   st.num(static_cast<uint16_t>(s.schema_records.size()));
   st.num(static_cast<uint32_t>(s.channel_records.size()));
   st.num(s.attachment_count);
@@ -389,14 +381,14 @@ Status McapWriter::close() {
   group(kChunkIndex, s.chunk_indexes);
   group(kAttachmentIndex, s.attachment_indexes);
   group(kMetadataIndex, s.metadata_indexes);
-  const uint64_t offsets_start = offset_;
+  const uint64_t offsets_start = s.offset;
   for (const auto& [op, start, length] : groups) {
     Bytes o;
     o.num(op);
     o.num(start);
     o.num(length);
     const std::vector<uint8_t> r = record(kSummaryOffset, o.b);
-    SKINBUS_MCAP_PUT(r);
+    s.put(r);
     summary_crc = crc32(r, summary_crc);
   }
   Bytes footer;
@@ -406,8 +398,8 @@ Status McapWriter::close() {
   footer.num(offsets_start);
   summary_crc = crc32(footer.b, summary_crc);
   footer.num(summary_crc);
-  SKINBUS_MCAP_PUT(footer.b);
-  SKINBUS_MCAP_PUT(kMagic);
+  s.put(footer.b);
+  s.put(kMagic);
   if (std::fclose(s.f) != 0 && s.error.ok()) {
     s.error = make_error(ErrorCode::kIo, s.path + ": close failed: " + std::strerror(errno));
   }
@@ -415,7 +407,12 @@ Status McapWriter::close() {
   return s.error;
 }
 
-#undef SKINBUS_MCAP_PUT
+uint64_t McapWriter::bytes_written() const {
+  return impl_->offset;
+}
+uint64_t McapWriter::message_count() const {
+  return impl_->message_count;
+}
 
 // ---- reader ----------------------------------------------------------------------------------
 

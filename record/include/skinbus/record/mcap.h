@@ -73,16 +73,14 @@ class McapWriter {
   // failed write (the first failure of any call is kept and returned here too).
   Status close();
 
-  uint64_t bytes_written() const { return offset_; }
-  uint64_t message_count() const { return message_count_; }
+  uint64_t bytes_written() const;
+  uint64_t message_count() const;
 
   struct Impl;
 
  private:
   McapWriter(std::FILE* f, std::string path, McapWriterOptions options);
   std::unique_ptr<Impl> impl_;
-  uint64_t offset_ = 0;
-  uint64_t message_count_ = 0;
 };
 
 struct McapSchema {
