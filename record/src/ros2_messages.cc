@@ -77,11 +77,8 @@ class Check {
   double finite(double v, const char* field, std::size_t index = kNoIndex,
                 const char* member = nullptr) {
     if (!std::isfinite(v) && bad_.ok()) {
-      std::string name = field;
-      if (index != kNoIndex) name += "[" + std::to_string(index) + "]";
-      if (member != nullptr) name += std::string(".") + member;
-      bad_ = make_error(ErrorCode::kInvalidArgument,
-                        what_ + ": " + name + " is " + (std::isnan(v) ? "nan" : "inf"));
+      bad_ = make_error(ErrorCode::kInvalidArgument, what_ + ": " + name(field, index, member) +
+                                                         " is " + (std::isnan(v) ? "nan" : "inf"));
     }
     return v;
   }
@@ -90,11 +87,8 @@ class Check {
             const char* member = nullptr) {
     const uint64_t sec = us / 1000000u;
     if (sec > static_cast<uint64_t>(std::numeric_limits<int32_t>::max()) && bad_.ok()) {
-      std::string name = field;
-      if (index != kNoIndex) name += "[" + std::to_string(index) + "]";
-      if (member != nullptr) name += std::string(".") + member;
       bad_ = make_error(ErrorCode::kOutOfRange,
-                        what_ + ": " + name + " " + std::to_string(us) +
+                        what_ + ": " + name(field, index, member) + " " + std::to_string(us) +
                             " us is beyond builtin_interfaces/Time (int32 seconds)");
     }
     w.i32(static_cast<int32_t>(sec));
@@ -103,6 +97,14 @@ class Check {
   Status status() const { return bad_; }
 
  private:
+  // "field", "field[index]" or "field[index].member".
+  static std::string name(const char* field, std::size_t index, const char* member) {
+    std::string n = field;
+    if (index != kNoIndex) n += "[" + std::to_string(index) + "]";
+    if (member != nullptr) n += std::string(".") + member;
+    return n;
+  }
+
   std::string what_;
   Status bad_;
 };
