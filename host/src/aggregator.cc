@@ -61,6 +61,13 @@ ErrorTable error_table(const ModelMeta& m) {
   return t;
 }
 
+// A file the skin map names: relative paths are relative to the map's folder `map_dir`.
+std::string beside_map(const std::string& map_dir, const std::string& name) {
+  std::filesystem::path p(name);
+  if (p.is_relative() && !map_dir.empty()) p = std::filesystem::path(map_dir) / p;
+  return p.lexically_normal().string();
+}
+
 }  // namespace
 
 struct Aggregator::Impl {
@@ -256,9 +263,7 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
   for (std::size_t i = 0; i < map->patches.size(); ++i) {
     const std::string& name = map->patches[i].model;
     if (name.empty()) continue;
-    std::filesystem::path p(name);
-    if (p.is_relative() && !map_dir.empty()) p = std::filesystem::path(map_dir) / p;
-    const std::string key = model_stem(p.lexically_normal().string());
+    const std::string key = model_stem(beside_map(map_dir, name));
     auto it = by_path.find(key);
     if (it != by_path.end()) {
       model_of[i] = it->second;
@@ -293,16 +298,12 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
   // The physics refiners of the entries that name a unit.
   impl->refiners.resize(map->patches.size());
   if (options.refiner_factory) {
-    auto resolve = [&map_dir](const std::string& name) {
-      std::filesystem::path p(name);
-      if (!name.empty() && p.is_relative() && !map_dir.empty())
-        p = std::filesystem::path(map_dir) / p;
-      return name.empty() ? std::string() : p.lexically_normal().string();
-    };
     for (std::size_t i = 0; i < map->patches.size(); ++i) {
       const body_map::PatchPlacement& pl = map->patches[i];
       if (pl.unit.empty()) continue;
-      auto r = options.refiner_factory(resolve(pl.unit), resolve(pl.design));
+      auto r = options.refiner_factory(
+          beside_map(map_dir, pl.unit),
+          pl.design.empty() ? std::string() : beside_map(map_dir, pl.design));
       if (r.ok()) {
         impl->refiners[i] = std::move(*r);
       } else {
