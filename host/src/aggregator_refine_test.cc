@@ -8,7 +8,7 @@
 #include <cstdio>
 #include <vector>
 
-#include "skinbus/bus/codec.h"
+#include "aggregator_test_support.h"
 #include "skinbus/estimators/physics_refiner.h"
 #include "skinbus/host/aggregator.h"
 #include "skinbus/sim/crlb.h"
@@ -19,7 +19,6 @@ namespace skinbus::host {
 namespace {
 
 constexpr uint64_t kUid = 0x5EED000000000004ull;
-constexpr uint64_t kPeriodUs = 23'981;
 
 std::string source_dir() {
   const char* d = std::getenv("SKINBUS_SOURCE_DIR");
@@ -36,13 +35,6 @@ body_map::SkinMap one_patch_map(bool with_unit) {
   if (with_unit) p.unit = "units/unit4.json";
   map.patches.push_back(p);
   return map;
-}
-
-void send(Aggregator& a, const bus::Message& m, uint64_t rx_us) {
-  std::array<bus::CanFrame, 4> frames;
-  const bus::EncodeResult r = bus::encode(m, frames);
-  ASSERT_EQ(r.error, bus::EncodeError::kNone);
-  for (std::size_t i = 0; i < r.frames; ++i) a.on_frame(0, frames[i], rx_us + i * 50);
 }
 
 struct Press {
@@ -84,25 +76,12 @@ RunResult run(const std::vector<Press>& ps, bool with_unit, AggregatorOptions o)
   if (!a.ok()) return out;
   Aggregator& agg = **a;
   uint64_t t = 1'000'000;
-  uint8_t seq = 0, seq_hb = 0;
-  bus::Heartbeat hb;
-  hb.state = bus::PatchState::kRunning;
-  hb.mode = bus::PatchMode::kEvent;
-  hb.hardware_uid = kUid;
-  hb.uptime_s = 1;
-  send(agg, bus::Message{4, seq_hb++, bus::FrameKind::kFd, hb}, t);
-  uint32_t clock = 1000;
+  test_support::Node node{4, kUid};
+  node.heartbeat(agg, t, 1);
+  const std::vector<double> released(bus::kChannelCount, 0.0);
   for (const Press& p : ps) {
     for (bool contact : {true, false}) {
-      bus::Sample s;
-      s.timestamp_us = clock;
-      clock += static_cast<uint32_t>(kPeriodUs);
-      s.flags = bus::sample_flags::kTared | (contact ? bus::sample_flags::kContact : 0);
-      for (int c = 0; c < bus::kChannelCount; ++c) {
-        s.field_lsb[static_cast<std::size_t>(c)] =
-            contact ? bus::field_ut_to_lsb(p.tared_ut[static_cast<std::size_t>(c)]) : 0;
-      }
-      send(agg, bus::Message{4, seq++, bus::FrameKind::kFd, s}, t += kPeriodUs);
+      node.sample(agg, t += test_support::kPeriodUs, contact ? p.tared_ut : released, contact);
       ContactArray arr;
       if (agg.process(t + 100, &arr) && contact) {
         EXPECT_EQ(arr.contacts.size(), 1u);

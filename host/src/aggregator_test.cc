@@ -13,6 +13,7 @@
 
 #include <unistd.h>
 
+#include "aggregator_test_support.h"
 #include "skinbus/bus/codec.h"
 #include "skinbus/estimators/model_file.h"
 #include "skinbus/sim/simulated_patch.h"
@@ -27,7 +28,8 @@ namespace {
 
 constexpr uint64_t kUid3 = 0x5EED000000000003ull;
 constexpr uint64_t kUid4 = 0x5EED000000000004ull;
-constexpr uint64_t kPeriodUs = 23'981;  // 41.7 Hz
+using test_support::kPeriodUs;
+using test_support::Node;
 
 std::string source_dir() {
   const char* d = std::getenv("SKINBUS_SOURCE_DIR");
@@ -60,49 +62,6 @@ const char* kUrdf = R"(<?xml version="1.0"?>
     <limit lower="-3" upper="3" effort="1" velocity="1"/>
   </joint>
 </robot>)";
-
-// Sends messages of one node as frames into the aggregator.
-struct Node {
-  uint8_t node;
-  uint64_t uid;
-  uint8_t seq_sample = 0, seq_hb = 0;
-  uint32_t clock_us = 1000;
-
-  void heartbeat(Aggregator& a, uint64_t rx_us, uint32_t uptime_s) {
-    bus::Heartbeat hb;
-    hb.state = bus::PatchState::kRunning;
-    hb.mode = bus::PatchMode::kEvent;
-    hb.hardware_uid = uid;
-    hb.uptime_s = uptime_s;
-    send(a, bus::Message{node, seq_hb++, bus::FrameKind::kFd, hb}, rx_us);
-  }
-  // A sample taken at host time `rx_us` (the patch clock set to follow the host's, as a real
-  // patch's does however late the host processes it).
-  void sample_at(Aggregator& a, uint64_t rx_us, std::span<const double> tared_ut) {
-    clock_us = static_cast<uint32_t>(rx_us);
-    sample(a, rx_us, tared_ut, true);
-  }
-  void sample(Aggregator& a, uint64_t rx_us, std::span<const double> tared_ut, bool contact,
-              uint16_t fault_mask = 0) {
-    bus::Sample s;
-    s.timestamp_us = clock_us;
-    clock_us += static_cast<uint32_t>(kPeriodUs);
-    s.flags = bus::sample_flags::kTared | (contact ? bus::sample_flags::kContact : 0);
-    if (fault_mask) s.flags |= bus::sample_flags::kSensorFault;
-    s.fault_mask = fault_mask;
-    for (int c = 0; c < bus::kChannelCount; ++c) {
-      s.field_lsb[static_cast<std::size_t>(c)] =
-          bus::field_ut_to_lsb(tared_ut[static_cast<std::size_t>(c)]);
-    }
-    send(a, bus::Message{node, seq_sample++, bus::FrameKind::kFd, s}, rx_us);
-  }
-  static void send(Aggregator& a, const bus::Message& m, uint64_t rx_us) {
-    std::array<bus::CanFrame, 4> frames;
-    const bus::EncodeResult r = bus::encode(m, frames);
-    ASSERT_EQ(r.error, bus::EncodeError::kNone);
-    for (std::size_t i = 0; i < r.frames; ++i) a.on_frame(0, frames[i], rx_us + i * 50);
-  }
-};
 
 // Tared fields of the nominal unit pressed at (u, v, depth), with an optional uniform change.
 std::vector<double> press(double u_mm, double v_mm, double depth_mm, uint64_t seed,
