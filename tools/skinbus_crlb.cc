@@ -3,6 +3,8 @@
 //   skinbus-crlb                         # table for 1, 2 and 4 mm at the sensor's noise
 //   skinbus-crlb --csv crlb.csv --step 2.5
 //   skinbus-crlb --pair --csv pair.csv     # two contacts: the bound against their separation
+//   skinbus-crlb --shear --csv shear.csv   # a shear force: its bound and what it costs the
+//   position
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -91,6 +93,64 @@ std::string pair_report(const skinbus::sim::PatchModel& model, const std::vector
   return out;
 }
 
+// --shear: prints the table, returns the CSV.
+std::string shear_report(const skinbus::sim::PatchModel& model, const std::vector<double>& depths,
+                         double step, double extent, double tip_radius, double noise_xy,
+                         double noise_z, bool ambient) {
+  using namespace skinbus::sim;
+  std::string out;
+  skinbus::tools::appendf(out,
+                          "# tip_radius_mm: %.3f\n# noise_xy_ut: %.4f\n# noise_z_ut: %.4f\n"
+                          "# ambient_nuisance: %d\n",
+                          tip_radius, noise_xy, noise_z, ambient);
+  out +=
+      "depth_mm,u_mm,v_mm,sd_shear_u_n,sd_shear_v_n,sd_shear_n,sd_xy_mm,sd_xy_known_shear_mm,"
+      "sd_depth_mm,identifiable\n";
+  std::printf(
+      "Cramer-Rao bound of a contact's shear force (u, v, depth, F_u, F_v unknown), %s design, "
+      "noise %.2f / %.2f uT%s, tip %.1f mm, shear stiffness %.2f N/mm, spread %.1f mm, over "
+      "+-%.1f mm (step %.1f mm)\n\n",
+      model.design().magnet_list.empty() ? "grid" : "listed", noise_xy, noise_z,
+      ambient ? ", ambient estimated" : "", tip_radius, model.design().shear_stiffness_n_per_mm,
+      model.design().shear_spread_mm, extent, step);
+  std::printf(
+      "| depth (mm) | normal force (N) | shear bound mean (N) | median | p95 | mean / normal "
+      "force | XY bound, shear unknown (mm) | shear known (mm) | x known | points without "
+      "information |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+  for (double depth : depths) {
+    std::vector<double> sh, xy, known;
+    int unident = 0;
+    const int n = static_cast<int>(std::floor(2 * extent / step + 1e-9)) + 1;
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) {
+        const double u = -extent + i * step, v = -extent + j * step;
+        const Contact c{u, v, depth, tip_radius};
+        const CrlbShear p = crlb_shear_at(model, c, noise_xy, noise_z, ambient);
+        const CrlbPoint k = crlb_at(model, c, noise_xy, noise_z, ambient);
+        const bool ok = p.identifiable && k.identifiable;
+        if (ok) {
+          sh.push_back(p.sd_shear_n);
+          xy.push_back(p.contact.sd_xy_mm);
+          known.push_back(k.sd_xy_mm);
+        } else {
+          ++unident;
+        }
+        skinbus::tools::appendf(out, "%g,%g,%g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%d\n", depth, u, v,
+                                p.sd_shear_u_n, p.sd_shear_v_n, p.sd_shear_n, p.contact.sd_xy_mm,
+                                k.sd_xy_mm, p.contact.sd_depth_mm, ok);
+      }
+    }
+    const Stats a = stats_of(sh, unident);
+    const double m_xy = xy.empty() ? 0 : skinbus::tools::mean(xy);
+    const double m_known = known.empty() ? 0 : skinbus::tools::mean(known);
+    const double fn = model.force_n(depth);
+    std::printf("| %.1f | %.2f | %.4f | %.4f | %.4f | %.3f | %.3f | %.3f | %.2f | %d |\n", depth,
+                fn, a.mean, a.median, a.p95, fn > 0 ? a.mean / fn : 0.0, m_xy, m_known,
+                m_known > 0 ? m_xy / m_known : 0.0, unident);
+  }
+  return out;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -105,13 +165,19 @@ int main(int argc, char** argv) {
       "pair along u and along v; the table gives the mean bound per contact, its ratio to the\n"
       "bound of the same contact pressed alone, and the pairs the field cannot tell apart\n"
       "(tools/plot_crlb_pair.py plots the CSV).\n\n"
+      "--shear: the bound on a tangential (shear) force at the contact, its (u, v, depth) and the\n"
+      "force's two components all unknown, over the map's grid; the table gives the force's bound\n"
+      "(N, and as a fraction of the normal force at that depth: the friction coefficient one can\n"
+      "tell) and what not knowing the shear costs the position (the design file's\n"
+      "lattice.shear_stiffness_n_per_mm and shear_spread_mm set the physics).\n\n"
       "Examples:\n"
       "  skinbus-crlb\n"
       "  skinbus-crlb --depths 1,2,4 --csv crlb.csv && tools/plot_crlb.py crlb.csv crlb.png\n"
-      "  skinbus-crlb --pair --csv pair.csv && tools/plot_crlb_pair.py pair.csv pair.png\n"};
+      "  skinbus-crlb --pair --csv pair.csv && tools/plot_crlb_pair.py pair.csv pair.png\n"
+      "  skinbus-crlb --shear --depths 1,2,3,4 --step 5\n"};
   std::vector<double> depths = {1, 2, 4};
   double step = 2.5, extent = 67.5, noise_xy = -1, noise_z = -1;
-  bool ambient = false, pair = false;
+  bool ambient = false, pair = false, shear = false;
   std::vector<double> separations = {10, 15, 20, 30, 40, 50, 60, 80};
   double tip_radius = 5.0;
   std::string csv;
@@ -131,6 +197,8 @@ int main(int argc, char** argv) {
                "also estimate a uniform ambient field (3 nuisance parameters)");
   app.add_option("--csv", csv, "write every map point (every pair with --pair) to this CSV file");
   app.add_flag("--pair", pair, "two contacts: the bound against their separation (see above)");
+  app.add_flag("--shear", shear, "a shear force's bound and its cost to the position (see above)")
+      ->excludes("--pair");
   app.add_option("--separations", separations, "--pair: separations, mm")
       ->delimiter(',')
       ->capture_default_str();
@@ -150,12 +218,13 @@ int main(int argc, char** argv) {
   const skinbus::mlx90393::Config& cfg = model->design().sensor_config;
   if (noise_xy <= 0) noise_xy = mlx90393_noise_xy_ut(cfg);
   if (noise_z <= 0) noise_z = mlx90393_noise_z_ut(cfg);
-  if (pair) {
+  if (pair || shear) {
     const std::string out =
-        pair_report(*model, depths, separations, tip_radius, noise_xy, noise_z, ambient);
+        pair ? pair_report(*model, depths, separations, tip_radius, noise_xy, noise_z, ambient)
+             : shear_report(*model, depths, step, extent, tip_radius, noise_xy, noise_z, ambient);
     if (!csv.empty()) {
       try {
-        skinbus::tools::write_output(csv, out, "CRLB pair table");
+        skinbus::tools::write_output(csv, out, pair ? "CRLB pair table" : "CRLB shear table");
       } catch (const std::exception& e) {
         return skinbus::tools::fail("skinbus-crlb", e.what(), 1);
       }

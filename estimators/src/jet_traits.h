@@ -12,5 +12,6 @@ namespace skinbus::sim {
 template <typename S, int N>
 struct ScalarTraits<ceres::Jet<S, N>> {
   static double value(const ceres::Jet<S, N>& x) { return x.a; }
+  static bool zero(const ceres::Jet<S, N>& x) { return x.a == 0 && x.v.isZero(0); }
 };
 }  // namespace skinbus::sim

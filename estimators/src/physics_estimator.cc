@@ -5,6 +5,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -15,6 +16,13 @@ namespace skinbus::estimators {
 namespace {
 
 constexpr double kMinDepthMm = 1e-3;  // the fit's lower depth bound: no press moves nothing
+constexpr double kMaxShearN = 100;    // the fit's shear bound, each component
+
+// Unknowns of a single-contact fit: (u, v, depth), the ambient offset's 3 when fitted, the shear
+// force's 2 when fitted.
+int unknowns_of(const PhysicsOptions& options) {
+  return 3 + (options.fit_ambient ? 3 : 0) + (options.fit_shear ? 2 : 0);
+}
 
 // Whitened residuals of one sample against N contacts and the ambient offset: parameter blocks
 // (u, v, depth) of each contact, then the ambient offset (3). Masked channels give 0 with a zero
@@ -128,7 +136,7 @@ bool begin_fit(std::span<const double> field_ut, std::span<const uint8_t> channe
     return false;
   }
   prepare_fit(field_ut, channel_ok, nc, options, in);
-  const int unknowns = options.fit_ambient ? 6 : 3;
+  const int unknowns = unknowns_of(options);
   if (nc - in->check.masked < std::max(options.min_channels, unknowns + 1)) {
     e.flags = kEstimateRejected;
     e.reason = RejectReason::kTooFewChannels;
@@ -138,20 +146,25 @@ bool begin_fit(std::span<const double> field_ut, std::span<const uint8_t> channe
 }
 
 // The end every single-contact fit shares: the contact at `x` (u, v, depth) with the ambient
-// offset `b`, its chi-square (noise units) and iterations, and its flags: masked channels, not
-// converged, a poor fit, no contact (the fitted contact's whitened signal `contact_field`, its
-// field change, below options.no_contact_snr), the range; a non-finite fit becomes a rejection.
+// offset `b` and the shear force `shear` (N; null: not fitted), its chi-square (noise units) and
+// iterations, and its flags: masked channels, not converged, a poor fit, no contact (the fitted
+// contact's whitened signal `contact_field`, its field change, below options.no_contact_snr), the
+// range; a non-finite fit becomes a rejection.
 void finish_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
-                const double x[3], const double b[3], double chi2, int iterations, bool converged,
-                const double* contact_field, PhysicsEstimate* out) {
+                const double x[3], const double b[3], const double* shear, double chi2,
+                int iterations, bool converged, const double* contact_field, PhysicsEstimate* out) {
   ContactEstimate& e = out->contact;
   const int nc = model.channel_count();
   const int usable = nc - in.check.masked;
-  const int unknowns = options.fit_ambient ? 6 : 3;
+  const int unknowns = unknowns_of(options);
   e.u_mm = x[0];
   e.v_mm = x[1];
   e.depth_mm = x[2];
   e.force_n = model.force_n(x[2]);
+  if (shear != nullptr) {
+    e.shear_u_n = shear[0];
+    e.shear_v_n = shear[1];
+  }
   for (int k = 0; k < 3; ++k) out->ambient_ut[k] = b[k];
   out->iterations = iterations;
   out->chi2 = chi2;
@@ -169,6 +182,7 @@ void finish_fit(const sim::PatchModel& model, const PhysicsOptions& options, con
   flag_range(e, model.design().size_u_mm / 2, model.design().size_v_mm / 2, model.max_depth_mm());
   bool finite = std::isfinite(chi2);
   for (int k = 0; k < 3; ++k) finite = finite && std::isfinite(x[k]) && std::isfinite(b[k]);
+  finite = finite && std::isfinite(e.shear_u_n) && std::isfinite(e.shear_v_n);
   if (!finite) {
     *out = PhysicsEstimate{};
     out->contact.flags = kEstimateRejected;
@@ -304,7 +318,7 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   const double* inv_sigma = in.inv_sigma;
   const double* y = in.y;
   const int usable = nc - in.check.masked;
-  const int unknowns = options_.fit_ambient ? 6 : 3;
+  const int unknowns = options_.fit_ambient ? 6 : 3;  // the shear, if fitted, comes after
   double whitened[kMaxChannels];
   for (int c = 0; c < nc; ++c) whitened[c] = y[c] * inv_sigma[c];
 
@@ -380,32 +394,94 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   const sim::Contact c{best_x[0], best_x[1], best_x[2], options_.tip_radius_mm};
   model_.contact_field_ut(std::span<const sim::Contact>(&c, 1),
                           std::span<double>(f, static_cast<std::size_t>(nc)));
-  finish_fit(model_, options_, in, best_x, best_b, 2 * best_cost, iterations, best_converged, f,
-             &out);
+  if (options_.fit_shear) {
+    // The shear by the lean fit, which knows it, from this fit's contact without shear; a strong
+    // shear misleads that fit, so when the joint fit ends poor it is tried again from the other
+    // starts, and from this contact with a shear of 0.3 of its normal force along 8 directions;
+    // the lowest chi-square is kept.
+    auto joint_from = [&](const double x[3], double shear_u_n, double shear_v_n) {
+      ContactEstimate start;
+      start.u_mm = x[0];
+      start.v_mm = x[1];
+      start.depth_mm = x[2];
+      start.shear_u_n = shear_u_n;
+      start.shear_v_n = shear_v_n;
+      PhysicsEstimate e = refine_lm(field_ut, channel_ok, start);
+      iterations += e.iterations;
+      return e;
+    };
+    auto poor = [&](const PhysicsEstimate& e) {
+      return !e.contact.valid() || (e.contact.flags & kEstimatePoorFit) != 0;
+    };
+    PhysicsEstimate joint = joint_from(best_x, 0, 0);
+    if (poor(joint) && !looked_up) add_table_starts();
+    for (int k = 0; k < n_starts + 8 && poor(joint); ++k) {
+      PhysicsEstimate e;
+      if (k < n_starts) {
+        e = joint_from(starts[k], 0, 0);
+      } else {
+        const double angle = (k - n_starts) * M_PI / 4, mag = 0.3 * model_.force_n(best_x[2]);
+        e = joint_from(best_x, mag * std::cos(angle), mag * std::sin(angle));
+      }
+      if (e.contact.valid() && (!joint.contact.valid() || e.chi2 < joint.chi2)) joint = e;
+    }
+    joint.iterations = iterations;
+    return joint;
+  }
+  finish_fit(model_, options_, in, best_x, best_b, nullptr, 2 * best_cost, iterations,
+             best_converged, f, &out);
   if (options_.covariance && out.contact.valid()) covariance(c, ok, inv_sigma, &out);
   return out;
 }
 
 namespace {
 
+// The lean fit's unknowns, in this order: the contact (u, v, depth), the ambient offset (3), the
+// shear force (2). Those not fitted are held: their rows and columns left out.
+constexpr int kLeanUnknowns = 8;
+constexpr int kAmbientAt = 3, kShearAt = 6;
+using LeanVec = Eigen::Matrix<double, kLeanUnknowns, 1>;
+using LeanMat = Eigen::Matrix<double, kLeanUnknowns, kLeanUnknowns>;
+
+// Which of the lean fit's unknowns a fit with `options` estimates.
+std::array<bool, kLeanUnknowns> fitted_unknowns(const PhysicsOptions& options) {
+  std::array<bool, kLeanUnknowns> f{};
+  for (int k = 0; k < kLeanUnknowns; ++k) {
+    f[k] = k < kAmbientAt || (k < kShearAt ? options.fit_ambient : options.fit_shear);
+  }
+  return f;
+}
+
+// `m` with the rows and columns of unknowns not fitted replaced by the identity's.
+LeanMat hold_unfitted(LeanMat m, const std::array<bool, kLeanUnknowns>& fitted) {
+  for (int k = 0; k < kLeanUnknowns; ++k) {
+    if (fitted[k]) continue;
+    m.row(k).setZero();
+    m.col(k).setZero();
+    m(k, k) = 1;
+  }
+  return m;
+}
+
 // The 1-sigma uncertainties of PhysicsEstimate from J^T J of the whitened residuals over the
-// first `n` unknowns (u, v, depth[, ambient]), scaled by the reduced chi-square above 1; left NaN
-// when J^T J is singular.
-void sigmas_from(const Eigen::Matrix<double, 6, 6>& jtj, int n, PhysicsEstimate* out) {
-  Eigen::Matrix<double, 6, 6> m = Eigen::Matrix<double, 6, 6>::Identity();
-  m.topLeftCorner(n, n) = jtj.topLeftCorner(n, n);
-  const Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(m);
+// fitted unknowns, scaled by the reduced chi-square above 1; left NaN when J^T J is singular.
+void sigmas_from(const LeanMat& jtj, const std::array<bool, kLeanUnknowns>& fitted,
+                 PhysicsEstimate* out) {
+  const LeanMat m = hold_unfitted(jtj, fitted);
+  const Eigen::LDLT<LeanMat> ldlt(m);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
       ldlt.vectorD().minCoeff() <= 1e-12 * std::max(1.0, ldlt.vectorD().maxCoeff())) {
     return;
   }
-  const Eigen::Matrix<double, 6, 6> cov = ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
+  const LeanMat cov = ldlt.solve(LeanMat::Identity());
   const double scale = std::max(1.0, out->reduced_chi2);
   const double var_uv = (cov(0, 0) + cov(1, 1)) * scale, var_d = cov(2, 2) * scale;
   if (std::isfinite(var_uv) && var_uv >= 0 && std::isfinite(var_d) && var_d >= 0) {
     out->sigma_uv_mm = std::sqrt(var_uv);
     out->sigma_depth_mm = std::sqrt(var_d);
   }
+  const double var_s = (cov(kShearAt, kShearAt) + cov(kShearAt + 1, kShearAt + 1)) * scale;
+  if (fitted[kShearAt] && std::isfinite(var_s) && var_s >= 0) out->sigma_shear_n = std::sqrt(var_s);
 }
 
 }  // namespace
@@ -417,26 +493,37 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   const int nc = model_.channel_count();
   FitInput in;
   if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
-  const int unknowns = options_.fit_ambient ? 6 : 3;
-  double lo[3], hi[3];
+  const std::array<bool, kLeanUnknowns> fitted = fitted_unknowns(options_);
+  // Bounds of the contact's (u, v, depth) and the shear; the ambient is free.
+  double lo[kLeanUnknowns], hi[kLeanUnknowns];
   contact_bounds(model_, options_, lo, hi);
-  // Unknowns: (u, v, depth) and the ambient offset (held at 0 unless fitted).
-  using Vec6 = Eigen::Matrix<double, 6, 1>;
-  using Mat6 = Eigen::Matrix<double, 6, 6>;
-  Vec6 x = Vec6::Zero();
-  const double s0[3] = {start.u_mm, start.v_mm, start.depth_mm};
+  for (int k = kAmbientAt; k < kLeanUnknowns; ++k) {
+    lo[k] = k < kShearAt ? -std::numeric_limits<double>::infinity() : -kMaxShearN;
+    hi[k] = k < kShearAt ? std::numeric_limits<double>::infinity() : kMaxShearN;
+  }
+  LeanVec x = LeanVec::Zero();
+  const double s0[5] = {start.u_mm, start.v_mm, start.depth_mm, start.shear_u_n, start.shear_v_n};
   for (int k = 0; k < 3; ++k) {
     x(k) = std::isfinite(s0[k]) ? std::clamp(s0[k], lo[k], hi[k]) : (lo[k] + hi[k]) / 2;
   }
+  for (int k = 0; k < 2 && options_.fit_shear; ++k) {
+    x(kShearAt + k) = std::isfinite(s0[3 + k]) ? std::clamp(s0[3 + k], -kMaxShearN, kMaxShearN) : 0;
+  }
+  // The columns by forward differences: the contact's and the shear's (the ambient's are
+  // constant).
+  int varied[5] = {0, 1, 2, kShearAt, kShearAt + 1};
+  const int n_varied = options_.fit_shear ? 5 : 3;
   const double tip = options_.tip_radius_mm;
-  double f[kMaxChannels], ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels][3];
-  auto field = [&](double u, double v, double d, double* into) {
-    const sim::Contact c{u, v, d, tip};
+  double f[kMaxChannels], ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels][5];
+  auto field = [&](const LeanVec& p, double* into) {
+    sim::Contact c{p(0), p(1), p(2), tip};
+    c.shear_u_n = p(kShearAt);
+    c.shear_v_n = p(kShearAt + 1);
     model_.contact_field_ut(std::span<const sim::Contact>(&c, 1),
                             std::span<double>(into, static_cast<std::size_t>(nc)));
   };
   // Whitened residuals of the contact's field `fc` with the ambient of `p`; their squared sum.
-  auto residuals = [&](const double* fc, const Vec6& p, double* into) {
+  auto residuals = [&](const double* fc, const LeanVec& p, double* into) {
     double cost = 0;
     for (int i = 0; i < nc; ++i) {
       if (!in.ok[i]) {
@@ -444,18 +531,21 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
         continue;
       }
       const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
-      into[i] = (fc[i] + a[0] * p(3) + a[1] * p(4) + a[2] * p(5) - in.y[i]) * in.inv_sigma[i];
+      into[i] = (fc[i] + a[0] * p(kAmbientAt) + a[1] * p(kAmbientAt + 1) +
+                 a[2] * p(kAmbientAt + 2) - in.y[i]) *
+                in.inv_sigma[i];
       cost += into[i] * into[i];
     }
     return cost;
   };
-  field(x(0), x(1), x(2), f);
+  field(x, f);
   double cost = residuals(f, x, r);
   double lambda = 1e-3;
   bool converged = false;
   int iterations = 0;
-  Mat6 last_jtj = Mat6::Zero();
-  constexpr double kStepMm = 1e-4;       // forward-difference step of (u, v, depth)
+  LeanMat last_jtj = LeanMat::Zero();
+  // Forward-difference steps: of (u, v, depth), mm; of the shear, N (moves the surface ~1e-4 mm).
+  constexpr double kStepMm = 1e-4, kStepN = 1e-4;
   constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
   // A step that lowers the chi-square by less than this ends the fit: what is left to gain moves
   // the contact by a few percent of its uncertainty (a chi-square change of d^2 is a move of d
@@ -463,41 +553,41 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   constexpr double kConvergedChi2 = 1e-3;
   while (iterations < options_.max_iterations && std::isfinite(cost) && !converged) {
     ++iterations;
-    // The contact's columns by forward differences; the ambient's are constant.
-    for (int k = 0; k < 3; ++k) {
-      double p[3] = {x(0), x(1), x(2)};
-      const double h = p[k] + kStepMm <= hi[k] ? kStepMm : -kStepMm;
-      p[k] += h;
-      field(p[0], p[1], p[2], ft);
-      for (int i = 0; i < nc; ++i) jac[i][k] = (ft[i] - f[i]) / h;
+    for (int j = 0; j < n_varied; ++j) {
+      const int k = varied[j];
+      const double step = k < 3 ? kStepMm : kStepN;
+      LeanVec p = x;
+      const double h = p(k) + step <= hi[k] ? step : -step;
+      p(k) += h;
+      field(p, ft);
+      for (int i = 0; i < nc; ++i) jac[i][j] = (ft[i] - f[i]) / h;
     }
-    Mat6 jtj = Mat6::Zero();
-    Vec6 jtr = Vec6::Zero();
+    LeanMat jtj = LeanMat::Zero();
+    LeanVec jtr = LeanVec::Zero();
     for (int i = 0; i < nc; ++i) {
       if (!in.ok[i]) continue;
       const double w = in.inv_sigma[i];
       const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
-      Vec6 row;
-      row << jac[i][0] * w, jac[i][1] * w, jac[i][2] * w, a[0] * w, a[1] * w, a[2] * w;
+      LeanVec row = LeanVec::Zero();
+      for (int j = 0; j < n_varied; ++j) row(varied[j]) = jac[i][j] * w;
+      for (int k = 0; k < 3; ++k) row(kAmbientAt + k) = a[k] * w;
       jtj.noalias() += row * row.transpose();
       jtr.noalias() += row * r[i];
     }
     last_jtj = jtj;
-    if (!options_.fit_ambient) {  // the ambient held at 0: its rows and columns out
-      jtj.bottomRows<3>().setZero();
-      jtj.rightCols<3>().setZero();
-      jtj.bottomRightCorner<3, 3>().setIdentity();
-      jtr.tail<3>().setZero();
+    jtj = hold_unfitted(jtj, fitted);
+    for (int k = 0; k < kLeanUnknowns; ++k) {
+      if (!fitted[k]) jtr(k) = 0;
     }
     // Damped steps until one lowers the cost; the damping relaxes after a success.
     bool accepted = false;
     for (int tries = 0; tries < 12 && !accepted; ++tries) {
-      Mat6 a = jtj;
-      for (int p = 0; p < 6; ++p) a(p, p) += lambda * std::max(jtj(p, p), 1e-9);
-      const Vec6 step = a.ldlt().solve(-jtr);
-      Vec6 xt = x + step;
-      for (int k = 0; k < 3; ++k) xt(k) = std::clamp(xt(k), lo[k], hi[k]);
-      field(xt(0), xt(1), xt(2), ft);
+      LeanMat a = jtj;
+      for (int p = 0; p < kLeanUnknowns; ++p) a(p, p) += lambda * std::max(jtj(p, p), 1e-9);
+      const LeanVec step = a.ldlt().solve(-jtr);
+      LeanVec xt = x + step;
+      for (int k = 0; k < kLeanUnknowns; ++k) xt(k) = std::clamp(xt(k), lo[k], hi[k]);
+      field(xt, ft);
       double rt[kMaxChannels];
       const double cost_t = residuals(ft, xt, rt);
       if (std::isfinite(cost_t) && cost_t <= cost) {
@@ -519,12 +609,16 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
     }
   }
 
-  const double xc[3] = {x(0), x(1), x(2)}, xb[3] = {x(3), x(4), x(5)};
-  finish_fit(model_, options_, in, xc, xb, cost, iterations, converged, f, &out);
+  const double xc[3] = {x(0), x(1), x(2)};
+  const double xb[3] = {x(kAmbientAt), x(kAmbientAt + 1), x(kAmbientAt + 2)};
+  const double xs[2] = {x(kShearAt), x(kShearAt + 1)};
+  // The contact's own field (its signal), without the shear when it was not fitted.
+  finish_fit(model_, options_, in, xc, xb, options_.fit_shear ? xs : nullptr, cost, iterations,
+             converged, f, &out);
   // From the last iteration's J^T J (at the point before its step: within the tolerance of the
   // minimum).
   if (options_.covariance && iterations > 0 && out.contact.valid()) {
-    sigmas_from(last_jtj, unknowns, &out);
+    sigmas_from(last_jtj, fitted, &out);
   }
   return out;
 }
@@ -534,17 +628,17 @@ void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, cons
   const int nc = model_.channel_count();
   double jac[3 * kMaxChannels];
   model_.contact_jacobian(c, std::span<double>(jac, 3 * static_cast<std::size_t>(nc)));
-  Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
+  LeanMat jtj = LeanMat::Zero();
   for (int i = 0; i < nc; ++i) {
     if (!ok[i]) continue;
     const double w = inv_sigma[i];
     const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
     const double* j = &jac[3 * i];
-    Eigen::Matrix<double, 6, 1> row;
-    row << j[0] * w, j[1] * w, j[2] * w, a[0] * w, a[1] * w, a[2] * w;
+    LeanVec row = LeanVec::Zero();
+    row << j[0] * w, j[1] * w, j[2] * w, a[0] * w, a[1] * w, a[2] * w, 0, 0;
     jtj.noalias() += row * row.transpose();
   }
-  sigmas_from(jtj, options_.fit_ambient ? 6 : 3, out);
+  sigmas_from(jtj, fitted_unknowns(options_), out);
 }
 
 ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double> field_ut,

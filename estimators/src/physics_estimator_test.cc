@@ -369,5 +369,108 @@ TEST(PhysicsEstimatorLeanTest, DegenerateInputIsRefusedOrFlaggedNeverNaN) {
   EXPECT_NEAR(m.contact.v_mm, -10, 1e-3);
 }
 
+// The shear force (PhysicsOptions::fit_shear): exact on noise-free presses, at its Cramer-Rao
+// bound with noise, signs right wherever the force is well above the bound; a press without
+// shear is fitted as one; without the shear in the fit, a sheared press is misplaced.
+TEST(PhysicsEstimatorShearTest, RecoversTheShearForceAtItsBound) {
+  const uint64_t seed = 7311;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5B00000000000031ull,
+                                  sim::FabricationVariation{})
+          .value();
+  PhysicsOptions with;
+  with.fit_shear = true;
+  with.covariance = true;
+  const PhysicsEstimator shear = PhysicsEstimator::create(unit, with).value();
+  const PhysicsEstimator plain = PhysicsEstimator::create(unit).value();
+  const ChannelNoise noise = ChannelNoise::of(unit.design());
+  const std::size_t nc = static_cast<std::size_t>(unit.channel_count());
+  sim::Rng rng(seed);
+  double norm2 = 0, err2 = 0, bound2 = 0, stated2 = 0, xy2_shear = 0, xy2_plain = 0, xy2_bound = 0;
+  int told = 0, signs_right = 0;
+  const int n = 60;
+  for (int i = 0; i < n; ++i) {
+    sim::Contact c{rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(1.0, 4.0), 5};
+    // Up to a friction coefficient of 0.5, in any direction; every fourth press without shear.
+    const double mag = i % 4 == 0 ? 0.0 : rng.uniform(0, 0.5) * unit.force_n(c.depth_mm);
+    const double dir = rng.uniform(0, 2 * M_PI);
+    c.shear_u_n = mag * std::cos(dir);
+    c.shear_v_n = mag * std::sin(dir);
+    std::vector<double> f(nc);
+    unit.contact_field_ut(std::span<const sim::Contact>(&c, 1), f);
+    if (i < 4) {  // noise-free: exact
+      const PhysicsEstimate e = shear.estimate(f);
+      ASSERT_TRUE(e.contact.valid());
+      EXPECT_NEAR(e.contact.shear_u_n, c.shear_u_n, 1e-3) << i;
+      EXPECT_NEAR(e.contact.shear_v_n, c.shear_v_n, 1e-3) << i;
+      EXPECT_NEAR(e.contact.u_mm, c.u_mm, 1e-3) << i;
+    }
+    for (std::size_t k = 0; k < nc; ++k) f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+    const PhysicsEstimate e = shear.estimate(f);
+    const PhysicsEstimate p = plain.estimate(f);
+    SCOPED_TRACE(testing::Message() << "press " << c.u_mm << ", " << c.v_mm << ", " << c.depth_mm
+                                    << " shear " << c.shear_u_n << ", " << c.shear_v_n);
+    ASSERT_TRUE(e.contact.valid());
+    EXPECT_EQ(e.contact.flags & (kEstimateNotConverged | kEstimatePoorFit), 0u);
+    ASSERT_TRUE(std::isfinite(e.sigma_shear_n));
+    const sim::CrlbShear b = sim::crlb_shear_at(unit, c, noise.xy_ut, noise.z_ut, true);
+    ASSERT_TRUE(b.identifiable);
+    const double eu = e.contact.shear_u_n - c.shear_u_n, ev = e.contact.shear_v_n - c.shear_v_n;
+    err2 += eu * eu + ev * ev;
+    bound2 += b.sd_shear_n * b.sd_shear_n;
+    norm2 += (eu * eu + ev * ev) / (b.sd_shear_n * b.sd_shear_n);
+    stated2 += e.sigma_shear_n * e.sigma_shear_n;
+    xy2_shear += std::pow(e.contact.u_mm - c.u_mm, 2) + std::pow(e.contact.v_mm - c.v_mm, 2);
+    xy2_plain += std::pow(p.contact.u_mm - c.u_mm, 2) + std::pow(p.contact.v_mm - c.v_mm, 2);
+    xy2_bound += b.contact.sd_xy_mm * b.contact.sd_xy_mm;
+    for (int k = 0; k < 2; ++k) {
+      const double truth = k == 0 ? c.shear_u_n : c.shear_v_n;
+      const double got = k == 0 ? e.contact.shear_u_n : e.contact.shear_v_n;
+      const double sd = k == 0 ? b.sd_shear_u_n : b.sd_shear_v_n;
+      if (std::fabs(truth) > 4 * sd) {
+        ++told;
+        signs_right += (got > 0) == (truth > 0);
+      }
+    }
+  }
+  // Each press's error in units of its own bound (the bound varies 10x over the patch).
+  const double ratio = std::sqrt(norm2 / n), stated = std::sqrt(stated2 / bound2);
+  std::printf(
+      "shear RMS error %.3f N, bound %.3f N, RMS of error / bound %.2f, stated sigma / bound "
+      "%.2f; position RMS with the shear fitted %.3f mm (bound %.3f), without %.3f mm; signs "
+      "right %d of %d\n",
+      std::sqrt(err2 / n), std::sqrt(bound2 / n), ratio, stated, std::sqrt(xy2_shear / n),
+      std::sqrt(xy2_bound / n), std::sqrt(xy2_plain / n), signs_right, told);
+  EXPECT_GT(ratio, 0.7);
+  EXPECT_LT(ratio, 1.3);
+  EXPECT_NEAR(stated, 1.0, 0.25);  // the fit's covariance states the bound
+  EXPECT_GT(told, 40);
+  EXPECT_EQ(signs_right, told);
+  EXPECT_LT(std::sqrt(xy2_shear / xy2_bound), 1.3);
+  EXPECT_GT(xy2_plain, 2 * xy2_shear);  // a shear left out of the model misplaces the press
+}
+
+TEST(PhysicsEstimatorShearTest, DegenerateInputNeverGivesNaN) {
+  const sim::PatchModel unit = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  PhysicsOptions with;
+  with.fit_shear = true;
+  with.covariance = true;
+  const PhysicsEstimator est = PhysicsEstimator::create(unit, with).value();
+  const std::size_t nc = static_cast<std::size_t>(unit.channel_count());
+  ContactEstimate start;
+  start.shear_u_n = std::numeric_limits<double>::quiet_NaN();
+  start.shear_v_n = 1e9;
+  for (const std::vector<double>& f :
+       {std::vector<double>(nc, 0.0), std::vector<double>(nc, 1e3),
+        std::vector<double>(nc, std::numeric_limits<double>::quiet_NaN())}) {
+    for (const PhysicsEstimate& e : {est.estimate(f), est.refine_lm(f, {}, start)}) {
+      EXPECT_TRUE(std::isfinite(e.contact.shear_u_n) && std::isfinite(e.contact.shear_v_n));
+      EXPECT_TRUE(std::isfinite(e.contact.u_mm) && std::isfinite(e.contact.depth_mm));
+      EXPECT_LE(std::fabs(e.contact.shear_v_n), 100.0);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace skinbus::estimators

@@ -107,6 +107,46 @@ CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
   return point_from_inverse(fisher, np, 0, invert_small(fisher, np));
 }
 
+CrlbShear crlb_shear_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
+                        double noise_z_ut, bool ambient) {
+  constexpr int k = 5;
+  const int np = ambient ? k + 3 : k;
+  CrlbShear out;
+  auto unidentifiable = [&] {
+    out.contact = point_from_inverse(nullptr, np, 0, false);
+    out.sd_shear_u_n = out.sd_shear_v_n = out.sd_shear_n = kUnidentifiableN;
+    out.identifiable = false;
+    return out;
+  };
+  const double inputs[] = {c.u_mm,      c.v_mm,      c.depth_mm,  c.tip_radius_mm,
+                           c.shear_u_n, c.shear_v_n, noise_xy_ut, noise_z_ut};
+  for (double x : inputs) {
+    if (!std::isfinite(x)) return unidentifiable();
+  }
+  using D = Dual<k>;
+  const ContactT<D> cd{D::variable(c.u_mm, 0),      D::variable(c.v_mm, 1),
+                       D::variable(c.depth_mm, 2),  c.tip_radius_mm,
+                       D::variable(c.shear_u_n, 3), D::variable(c.shear_v_n, 4)};
+  const int nc = model.channel_count();
+  std::vector<D> field(static_cast<std::size_t>(nc));
+  model.contact_field_ut<D>(std::span<const ContactT<D>>(&cd, 1), field.data());
+  std::vector<double> jac(static_cast<std::size_t>(nc) * k);
+  for (int i = 0; i < nc; ++i) {
+    for (int j = 0; j < k; ++j) jac[static_cast<std::size_t>(k * i + j)] = field[i].d[j];
+  }
+  double fisher[kInvertSmallMax * kInvertSmallMax];
+  fisher_information(model, jac, k, noise_xy_ut, noise_z_ut, ambient, fisher);
+  const bool ok = invert_small(fisher, np);
+  out.contact = point_from_inverse(fisher, np, 0, ok);
+  const double vu = fisher[3 * np + 3], vv = fisher[4 * np + 4];
+  if (!ok || !out.contact.identifiable || !(vu >= 0) || !(vv >= 0)) return unidentifiable();
+  out.sd_shear_u_n = std::fmin(std::sqrt(vu), kUnidentifiableN);
+  out.sd_shear_v_n = std::fmin(std::sqrt(vv), kUnidentifiableN);
+  out.sd_shear_n = std::fmin(std::sqrt(vu + vv), kUnidentifiableN);
+  out.identifiable = out.sd_shear_n < kUnidentifiableN;
+  return out;
+}
+
 CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
                       double noise_xy_ut, double noise_z_ut, bool ambient) {
   const int nc = model.channel_count();

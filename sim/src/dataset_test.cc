@@ -287,5 +287,34 @@ TEST(CrlbTest, TwoContactsCostMoreTheCloserTheyAreAndCoincidentOnesHaveNoBound) 
   EXPECT_FALSE(off.first.identifiable);
 }
 
+TEST(CrlbTest, ShearBoundScalesWithNoiseAndStiffnessAndCostsThePosition) {
+  PatchDesign design;
+  const PatchModel m = *PatchModel::nominal(design);
+  design.shear_stiffness_n_per_mm *= 2;
+  const PatchModel stiff = *PatchModel::nominal(design);
+  for (const Contact c : {Contact{-41, -44, 2.5, 5.0}, Contact{7, -3, 1.0, 5.0, 0.3, 0.1}}) {
+    const CrlbShear s = crlb_shear_at(m, c, 0.8, 1.3, true);
+    ASSERT_TRUE(s.identifiable);
+    EXPECT_GT(s.sd_shear_n, 0.0);
+    EXPECT_LT(s.sd_shear_n, 1.0);  // N: a finger's drag is told from none
+    EXPECT_NEAR(s.sd_shear_n * s.sd_shear_n,
+                s.sd_shear_u_n * s.sd_shear_u_n + s.sd_shear_v_n * s.sd_shear_v_n, 1e-12);
+    // Not knowing the shear can only cost the position.
+    const CrlbPoint known = crlb_at(m, c, 0.8, 1.3, true);
+    EXPECT_GE(s.contact.sd_xy_mm, known.sd_xy_mm * (1 - 1e-9));
+    EXPECT_GE(s.contact.sd_depth_mm, known.sd_depth_mm * (1 - 1e-9));
+    // The bound is linear in the noise; a stiffer lattice moves less per newton.
+    const CrlbShear twice = crlb_shear_at(m, c, 1.6, 2.6, true);
+    EXPECT_NEAR(twice.sd_shear_n / s.sd_shear_n, 2.0, 1e-9);
+    const CrlbShear stiffer = crlb_shear_at(stiff, c, 0.8, 1.3, true);
+    EXPECT_GT(stiffer.sd_shear_n / s.sd_shear_n, 1.8);
+  }
+  EXPECT_FALSE(crlb_shear_at(m, Contact{400, 0, 2, 5}, 0.8, 1.3).identifiable);
+  const CrlbShear nan = crlb_shear_at(m, Contact{0, 0, 2, 5, std::nan("")}, 0.8, 1.3);
+  EXPECT_FALSE(nan.identifiable);
+  EXPECT_EQ(nan.sd_shear_n, kUnidentifiableN);
+  EXPECT_EQ(nan.contact.sd_xy_mm, kUnidentifiableMm);
+}
+
 }  // namespace
 }  // namespace skinbus::sim

@@ -142,10 +142,14 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
     }
   }
   if (const YAML::Node l = root["lattice"]; l && !r.error) {
-    r.only(l, "lattice", {"spread_mm", "lateral_mm", "anisotropy"});
+    r.only(
+        l, "lattice",
+        {"spread_mm", "lateral_mm", "anisotropy", "shear_stiffness_n_per_mm", "shear_spread_mm"});
     r.get_double(l, "spread_mm", "lattice.", 1e-3, kMaxLengthMm, &d.spread_mm);
     r.get_double(l, "lateral_mm", "lattice.", 0, kMaxLengthMm, &d.lateral_mm);
     r.get_double(l, "anisotropy", "lattice.", -0.499, 0.499, &d.anisotropy);
+    r.get_double(l, "shear_stiffness_n_per_mm", "lattice.", 1e-6, 1e6, &d.shear_stiffness_n_per_mm);
+    r.get_double(l, "shear_spread_mm", "lattice.", 1e-3, kMaxLengthMm, &d.shear_spread_mm);
   }
   if (const YAML::Node f = root["force_law"]; f && !r.error) {
     r.only(f, "force_law", {"stiffness_n_per_mm", "stiffening_n_per_mm3"});
@@ -237,6 +241,10 @@ std::string design_to_yaml(const PatchDesign& d) {
     << "  lateral_mm: " << yaml_number(d.lateral_mm) << "   # in-plane motion = -lateral x slope\n"
     << "  anisotropy: " << yaml_number(d.anisotropy)
     << "   # spread l(1+a) along u, l(1-a) along v\n"
+    << "  shear_stiffness_n_per_mm: " << yaml_number(d.shear_stiffness_n_per_mm)
+    << "   # in-plane shift under a tangential force F: F / this\n"
+    << "  shear_spread_mm: " << yaml_number(d.shear_spread_mm)
+    << "   # ... decaying as exp(-r / this) around the contact\n"
     << "force_law:   # F = k d + k3 d^3\n"
     << "  stiffness_n_per_mm: " << yaml_number(d.stiffness_n_per_mm) << "\n"
     << "  stiffening_n_per_mm3: " << yaml_number(d.stiffening_n_per_mm3) << "\n";

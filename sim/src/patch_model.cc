@@ -60,6 +60,8 @@ Status validate(const PatchDesign& d) {
     return bad("anisotropy must be in (-0.5, 0.5)");
   if (!std::isfinite(d.stiffness_n_per_mm) || d.stiffness_n_per_mm <= 0)
     return bad("stiffness_n_per_mm must be > 0");
+  if (!positive(d.shear_stiffness_n_per_mm)) return bad("shear_stiffness_n_per_mm must be > 0");
+  if (!positive(d.shear_spread_mm)) return bad("shear_spread_mm must be > 0");
   if (d.sensor_list.empty() && ((d.sensors_u - 1) * d.sensor_pitch_mm > d.size_u_mm ||
                                 (d.sensors_v - 1) * d.sensor_pitch_mm > d.size_v_mm)) {
     return bad("the sensor grid does not fit inside the patch");
@@ -315,7 +317,7 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
   const double lu = spread_u_, lv = spread_v_, max_depth = max_depth_mm();
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
-    double w = 0, pu = 0, pv = 0;
+    double w = 0, pu = 0, pv = 0, su = 0, sv = 0;
     bool moved = false;
     for (const Contact& c : contacts) {
       if (!(c.depth_mm > 0)) continue;
@@ -324,11 +326,11 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
       const double s2 = du * du / (lu * lu) + dv * dv / (lv * lv);
       if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
       moved = true;
-      double a2 = 0, amp = depth;  // round tip: see ContactT
+      double a2 = 0, ac2 = 0, amp = depth;  // round tip: see ContactT
       if (c.tip_radius_mm > 0) {
         const double r = c.tip_radius_mm;
-        a2 = std::fmin((depth < r ? 2 * r * depth - depth * depth : r * r) / (lu * lv),
-                       kMaxTipContact2);
+        ac2 = depth < r ? 2 * r * depth - depth * depth : r * r;
+        a2 = std::fmin(ac2 / (lu * lv), kMaxTipContact2);
         double g0, dg0;
         plate_kernel(std::sqrt(a2), &g0, &dg0);
         amp = depth / g0;
@@ -340,11 +342,16 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
       w += amp * g;
       pu -= amp * q * du / (lu * lu);
       pv -= amp * q * dv / (lv * lv);
+      if (c.shear_u_n != 0 || c.shear_v_n != 0) {
+        const double shape = shear_shape(du * du + dv * dv, ac2);
+        su += c.shear_u_n * shape;
+        sv += c.shear_v_n * shape;
+      }
     }
     if (!moved) continue;
     Vec3<double> tu, tv, nn;
     const Vec3<double> pos =
-        surface_point(m.u - lateral_ * pu, m.v - lateral_ * pv, m.h - w, &tu, &tv, &nn);
+        surface_point(m.u - lateral_ * pu + su, m.v - lateral_ * pv + sv, m.h - w, &tu, &tv, &nn);
     const double mu = m.m_loc.x - pu * m.m_loc.z, mv = m.m_loc.y - pv * m.m_loc.z, mz = m.m_loc.z;
     const double k = std::sqrt(dot(m.m_loc, m.m_loc) / (mu * mu + mv * mv + mz * mz));
     const Vec3<double> mom = tu * (mu * k) + tv * (mv * k) + nn * (mz * k);

@@ -191,11 +191,99 @@ TEST_F(PatchModelTest, FastPathEqualsTheTemplate) {
   design.radius_mm = 50;
   auto made = PatchModel::fabricated(design, 77, FabricationVariation{});
   ASSERT_TRUE(made.ok());
-  const Contact cs[2] = {{10, -20, 2.5, 8.0}, {-30, 35, 1.0}};
+  const Contact cs[2] = {{10, -20, 2.5, 8.0, 0.5, -0.3}, {-30, 35, 1.0}};
   std::vector<double> fast(48), slow(48);
   made->contact_field_ut(cs, fast);
   made->contact_field_ut<double>(std::span<const Contact>(cs, 2), slow.data());
   for (int i = 0; i < 48; ++i) EXPECT_NEAR(fast[i], slow[i], 1e-9 * (1 + std::fabs(slow[i])));
+}
+
+TEST_F(PatchModelTest, ShearMovesTheSurfaceAlongTheForce) {
+  const PatchModel p = nominal();
+  const PatchModel::Magnet* centre = nullptr;  // the magnet at the patch centre
+  for (const auto& m : p.magnets()) {
+    if (m.u == 0 && m.v == 0) centre = &m;
+  }
+  ASSERT_NE(centre, nullptr);
+  // A press right on the magnet: bending moves it straight down, shear along the force by
+  // F / k_t under the tip; 8 mm away the shift has decayed by exp(-8 / l_t) (a point tip).
+  for (double tip : {0.0, 5.0}) {
+    ContactT<double> c{0, 0, 2.0, tip, 0.7, -0.35};
+    Vec3<double> pos, moment;
+    ASSERT_TRUE(p.magnet_pose<double>(centre->u, centre->v, centre->h, centre->m_loc,
+                                      p.spread_u_mm(), p.spread_v_mm(), p.lateral_mm(),
+                                      std::span<const Contact>(&c, 1), &pos, &moment));
+    EXPECT_NEAR(pos.x, 0.7 / design.shear_stiffness_n_per_mm, 1e-12) << tip;
+    EXPECT_NEAR(pos.y, -0.35 / design.shear_stiffness_n_per_mm, 1e-12) << tip;
+  }
+  ContactT<double> off{-8, 0, 2.0, 0.0, 0.7, 0};
+  Vec3<double> pos, moment, pos0, moment0;
+  p.magnet_pose<double>(centre->u, centre->v, centre->h, centre->m_loc, p.spread_u_mm(),
+                        p.spread_v_mm(), p.lateral_mm(), std::span<const Contact>(&off, 1), &pos,
+                        &moment);
+  off.shear_u_n = 0;
+  p.magnet_pose<double>(centre->u, centre->v, centre->h, centre->m_loc, p.spread_u_mm(),
+                        p.spread_v_mm(), p.lateral_mm(), std::span<const Contact>(&off, 1), &pos0,
+                        &moment0);
+  EXPECT_NEAR(pos.x - pos0.x, 0.7 / design.shear_stiffness_n_per_mm * std::exp(-8.0 / 8.0), 1e-12);
+  EXPECT_EQ(pos.y, pos0.y);
+  // No press, no shear: a tangential force needs a contact.
+  const Contact lifted{0, 0, 0, 5.0, 2.0, 2.0};
+  std::vector<double> out(48, 1.0);
+  p.contact_field_ut(std::span<const Contact>(&lifted, 1), out);
+  for (double x : out) EXPECT_EQ(x, 0.0);
+}
+
+TEST_F(PatchModelTest, ShearFieldIsOddInTheForceAndSeenBySensors) {
+  const PatchModel p = nominal();
+  std::vector<double> f0(48), fp(48), fm(48);
+  Contact c{-41, -44, 2.5, 5.0};
+  p.contact_field_ut(std::span<const Contact>(&c, 1), f0);
+  c.shear_u_n = 0.3;
+  p.contact_field_ut(std::span<const Contact>(&c, 1), fp);
+  c.shear_u_n = -0.3;
+  p.contact_field_ut(std::span<const Contact>(&c, 1), fm);
+  double change = 0, even = 0;
+  for (int i = 0; i < 48; ++i) {
+    change += (fp[i] - f0[i]) * (fp[i] - f0[i]);
+    even += (fp[i] + fm[i] - 2 * f0[i]) * (fp[i] + fm[i] - 2 * f0[i]);
+  }
+  EXPECT_GT(std::sqrt(change), 5.0);  // uT: many times the 0.7 uT noise for 0.3 N
+  EXPECT_LT(std::sqrt(even), 0.05 * std::sqrt(change));  // nearly linear at this force
+}
+
+TEST_F(PatchModelTest, ShearJacobianMatchesFiniteDifferences) {
+  auto made = PatchModel::fabricated(design, 0x5EA5, FabricationVariation{});
+  ASSERT_TRUE(made.ok());
+  const PatchModel& p = *made;
+  // Derivatives at zero shear must not be skipped: the fit starts there.
+  for (const Contact c : {Contact{3.3, -7.1, 1.5, 5.0}, Contact{-40, 22, 3.5, 5.0, 0.4, -0.2}}) {
+    using D = Dual<2>;
+    const ContactT<D> cd{c.u_mm,
+                         c.v_mm,
+                         c.depth_mm,
+                         c.tip_radius_mm,
+                         D::variable(c.shear_u_n, 0),
+                         D::variable(c.shear_v_n, 1)};
+    D out[48];
+    p.contact_field_ut<D>(std::span<const ContactT<D>>(&cd, 1), out);
+    double largest = 0;
+    for (int k = 0; k < 2; ++k) {
+      const double h = 1e-5;
+      Contact cp = c, cm = c;
+      (k == 0 ? cp.shear_u_n : cp.shear_v_n) += h;
+      (k == 0 ? cm.shear_u_n : cm.shear_v_n) -= h;
+      std::vector<double> fp(48), fm(48);
+      p.contact_field_ut(std::span<const Contact>(&cp, 1), fp);
+      p.contact_field_ut(std::span<const Contact>(&cm, 1), fm);
+      for (int i = 0; i < 48; ++i) {
+        const double fd = (fp[i] - fm[i]) / (2 * h);
+        EXPECT_NEAR(out[i].d[k], fd, 1e-4 * (1 + std::fabs(fd))) << i << " " << k;
+        largest = std::fmax(largest, std::fabs(fd));
+      }
+    }
+    EXPECT_GT(largest, 2.0);  // uT per N (the noise: 0.7 uT)
+  }
 }
 
 TEST_F(PatchModelTest, FabricatedUnitsAreDeterministicPerUid) {

@@ -58,6 +58,12 @@ struct PhysicsOptions {
   // Also compute the fit's covariance (PhysicsEstimate::sigma_*): one more Jacobian and a 6 x 6
   // inverse per sample.
   bool covariance = false;
+  // Also fit a tangential (shear) force at the contact (ContactEstimate::shear_u_n, shear_v_n;
+  // the model's shear law, sim::PatchDesign::shear_stiffness_n_per_mm): 2 more unknowns, each
+  // component within +-100 N. refine_lm() fits it jointly; estimate() and refine() make their fit
+  // without it and then refine_lm() from there. Costs the position some precision (the shear
+  // moves the magnets as a shifted press partly does: skinbus-crlb --shear).
+  bool fit_shear = false;
 };
 
 // The start table's pitch for a design: the magnets' spacing (their grid pitch, or the median
@@ -80,6 +86,8 @@ struct PhysicsEstimate {
   // fit is singular (e.g. a contact beyond every magnet's reach).
   double sigma_uv_mm = std::numeric_limits<double>::quiet_NaN();
   double sigma_depth_mm = std::numeric_limits<double>::quiet_NaN();
+  // With covariance and fit_shear: the shear force's sqrt(var F_u + var F_v), N.
+  double sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
 };
 
 // How many contacts a sample holds (0, 1 or 2) and where: PhysicsEstimator::estimate_contacts().
@@ -141,7 +149,8 @@ class PhysicsEstimator {
                          const ContactEstimate& guess) const;
   // The same fit as refine() by a lean Levenberg-Marquardt of its own (no Ceres; the Jacobian by
   // forward differences of the vectorised field, PatchModel::contact_field_ut; the ambient
-  // offset's columns are constant), for the host's refinement of every touched sample: from a
+  // offset's columns are constant; with options().fit_shear the shear too, started from
+  // `start`'s), for the host's refinement of every touched sample: from a
   // start within a few millimetres it reaches the same minimum (tested against refine()) at a
   // fraction of the cost (docs/benchmarks/refinement.md). One start only; a fit that ends poor is
   // flagged (kEstimatePoorFit), not retried. No allocation.

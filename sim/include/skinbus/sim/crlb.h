@@ -37,6 +37,23 @@ struct CrlbPair {
 CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
                       double noise_xy_ut, double noise_z_ut, bool ambient_nuisance = false);
 
+// The bound for a contact with a tangential (shear) force: its (u, v, depth) and the force's
+// (F_u, F_v) all unknown (5 unknowns, 8 with the ambient nuisance), at the contact `c` with its
+// shear (ContactT::shear_u_n, shear_v_n; the bound barely depends on it, the field being nearly
+// linear in the shear). `contact` is what the unknown shear costs the position (compare
+// crlb_at(), which knows the shear is 0); sd_shear_* bound the force's error, N. The Jacobian is
+// exact (forward-mode dual numbers through the model). Unidentifiable or non-finite input:
+// identifiable = false, kUnidentifiableMm / kUnidentifiableN, never NaN.
+inline constexpr double kUnidentifiableN = 1e3;  // reported shear bound where F is singular
+struct CrlbShear {
+  CrlbPoint contact;
+  double sd_shear_u_n = 0, sd_shear_v_n = 0;
+  double sd_shear_n = 0;  // sqrt(var F_u + var F_v): the RMS error bound of the force vector
+  bool identifiable = true;
+};
+CrlbShear crlb_shear_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
+                        double noise_z_ut, bool ambient_nuisance = false);
+
 // Inverts a symmetric positive-definite n x n matrix in place (n <= 12) by Gauss-Jordan with
 // partial pivoting; false if it is singular to working precision.
 inline constexpr int kInvertSmallMax = 12;

@@ -129,17 +129,30 @@ Dual<N> cos(const Dual<N>& a) {
 // How a scalar type exposes its value part. Specialise for other jet types.
 template <typename T>
 struct ScalarTraits;
+// value(): the value part; zero(): value and every derivative exactly 0 (a term that cannot
+// change the result or its derivatives, so the model may skip it).
 template <>
 struct ScalarTraits<double> {
   static double value(double x) { return x; }
+  static bool zero(double x) { return x == 0; }
 };
 template <int N>
 struct ScalarTraits<Dual<N>> {
   static double value(const Dual<N>& x) { return x.v; }
+  static bool zero(const Dual<N>& x) {
+    for (double d : x.d) {
+      if (d != 0) return false;
+    }
+    return x.v == 0;
+  }
 };
 template <typename T>
 double value_of(const T& x) {
   return ScalarTraits<T>::value(x);
+}
+template <typename T>
+bool is_zero(const T& x) {
+  return ScalarTraits<T>::zero(x);
 }
 
 // f(x) for a function known by its value and slope at value_of(x): exact to first order, so

@@ -81,6 +81,12 @@ struct PatchDesign {
   double spread_mm = 10;    // plate-on-foundation length l
   double lateral_mm = 2.0;  // in-plane motion of a magnet = -lateral * surface slope
   double anisotropy = 0;    // l_u = l (1 + a), l_v = l (1 - a); the nominal model has 0
+  // Shear: a tangential force F at a contact moves the surface layer in-plane, along F, by
+  // (F / shear_stiffness) exp(a/l_t - sqrt(r^2 + a^2)/l_t) at distance r from the contact
+  // (l_t = shear_spread_mm, a = the tip's contact radius): F / shear_stiffness under the tip,
+  // decaying over l_t around it. Both values are assumptions (docs/sim/physics.md).
+  double shear_stiffness_n_per_mm = 1.4;
+  double shear_spread_mm = 8;
   // Depth -> normal force: F = k d + k3 d^3.
   double stiffness_n_per_mm = 2.0;
   double stiffening_n_per_mm3 = 0.05;
@@ -123,6 +129,10 @@ struct ContactT {
   // depth (the sphere's chord), scaled so the deflection under the tip is depth_mm: a blunter
   // tip at the same depth spreads wider.
   double tip_radius_mm = 0;
+  // Tangential (shear) force the indenter applies to the skin, along u and v (N): it moves the
+  // surface in-plane (PatchDesign::shear_stiffness_n_per_mm, shear_spread_mm). Acts only while
+  // the contact presses (depth > 0). 0: a pure normal press (the model skips the term).
+  T shear_u_n{}, shear_v_n{};
 };
 using Contact = ContactT<double>;
 
@@ -191,6 +201,11 @@ class PatchModel {
     return du * du + dv * dv < kPlateKernelCutoff * kPlateKernelCutoff;
   }
 
+  // In-plane shift of the surface per newton of shear (mm/N) at squared distance `r2` (mm^2)
+  // from a contact whose tip touches over squared radius `ac2` (mm^2): PatchDesign's shear law.
+  template <typename T>
+  T shear_shape(const T& r2, const T& ac2) const;
+
   // Normal force for a press of `depth_mm` (N); 0 for depth <= 0.
   double force_n(double depth_mm) const;
   // Deepest press the lattice takes (densified beyond): 60 % of its thickness. Deeper presses
@@ -253,6 +268,21 @@ Vec3<T> PatchModel::surface_point(const T& u, const T& v, const T& h, Vec3<T>* t
 }
 
 template <typename T>
+T PatchModel::shear_shape(const T& r2, const T& ac2) const {
+  using std::sqrt;
+  const double lt2 = design_.shear_spread_mm * design_.shear_spread_mm;
+  T at2 = ac2 / lt2;
+  if (value_of(at2) > kMaxTipContact2) at2 = T(kMaxTipContact2);
+  const T st2 = r2 / lt2 + at2;
+  // No derivative through the square root at 0 (a point tip right under the press).
+  const T st = value_of(st2) > 0 ? sqrt(st2) : T(0.0);
+  const T st0 = value_of(at2) > 0 ? sqrt(at2) : T(0.0);
+  const T x = st0 - st;
+  const double ex = std::exp(value_of(x));
+  return first_order(x, ex, ex) / design_.shear_stiffness_n_per_mm;
+}
+
+template <typename T>
 bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& m_loc,
                              const T& spread_u, const T& spread_v, const T& lateral,
                              std::span<const ContactT<T>> contacts, Vec3<T>* pos,
@@ -260,8 +290,9 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
   using std::sqrt;
   const double lu = value_of(spread_u), lv = value_of(spread_v);
   const T lu2 = spread_u * spread_u, lv2 = spread_v * spread_v, luv = spread_u * spread_v;
-  // Surface deflection and slope at the magnet, summed over contacts (the plate is linear).
-  T w(0.0), pu(0.0), pv(0.0);
+  // Surface deflection and slope at the magnet, summed over contacts (the plate is linear), and
+  // its in-plane shift by shear.
+  T w(0.0), pu(0.0), pv(0.0), shift_u(0.0), shift_v(0.0);
   bool moved = false;
   for (const ContactT<T>& c : contacts) {
     // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
@@ -273,12 +304,13 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
     const double s2 = sdu * sdu + sdv * sdv;
     if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
     moved = true;
-    T a2(0.0);  // squared contact radius of the tip, over l_u l_v
+    T ac2(0.0);  // squared contact radius of the tip, mm^2
     if (c.tip_radius_mm > 0) {
       const double r = c.tip_radius_mm;
-      a2 = value_of(depth) < r ? (T(2 * r) * depth - depth * depth) / luv : T(r * r) / luv;
-      if (value_of(a2) > kMaxTipContact2) a2 = T(kMaxTipContact2);
+      ac2 = value_of(depth) < r ? T(2 * r) * depth - depth * depth : T(r * r);
     }
+    T a2 = ac2 / luv;  // over l_u l_v
+    if (value_of(a2) > kMaxTipContact2) a2 = T(kMaxTipContact2);
     // At the very point of a point load (s = 0) the kernel is flat (g'(0) = 0): no derivative
     // through the square root there, which would be 0/0 for jets.
     const T s_sq = du * du / lu2 + dv * dv / lv2 + a2;
@@ -302,6 +334,11 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
     w = w + amp * gs;                // deflection into the skin
     pu = pu - amp * dgs * du / lu2;  // slope of the surface height h = -w
     pv = pv - amp * dgs * dv / lv2;
+    if (!is_zero(c.shear_u_n) || !is_zero(c.shear_v_n)) {
+      const T shape = shear_shape(du * du + dv * dv, ac2);
+      shift_u = shift_u + c.shear_u_n * shape;
+      shift_v = shift_v + c.shear_v_n * shape;
+    }
   }
   Vec3<T> tu, tv, nn;
   if (!moved) {
@@ -310,7 +347,8 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
     return false;
   }
   // New magnet pose in surface coordinates.
-  *pos = surface_point(u - lateral * pu, v - lateral * pv, h - w, &tu, &tv, &nn);
+  *pos =
+      surface_point(u - lateral * pu + shift_u, v - lateral * pv + shift_v, h - w, &tu, &tv, &nn);
   // Moment follows the surface normal: local direction (m_u - slope_u |m_z|, ...), its
   // magnitude kept.
   const T mu = m_loc.x - pu * m_loc.z;
