@@ -99,6 +99,21 @@ void add_pairs_options(CLI::App* sub, estimators_bench::PairsBenchArgs& a) {
   sub->add_option("--csv", a.csv, "write the pairs table as CSV");
 }
 
+void add_shear_options(CLI::App* sub, estimators_bench::ShearBenchArgs& a) {
+  sub->add_option("--depths", a.depths, "press depths, mm")->delimiter(',')->capture_default_str();
+  sub->add_option("--trials", a.trials, "presses per depth and per unit outside the model")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--max-friction", a.max_friction,
+                  "shear up to this fraction of the normal force (friction coefficient)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 2.0));
+  sub->add_option("--uid", a.uid, "hardware UID of the fabricated unit")->capture_default_str();
+  sub->add_option("--seed", a.seed, "random seed of the presses and the noise")
+      ->capture_default_str();
+  sub->add_option("--csv", a.csv, "write the per-depth table as CSV");
+}
+
 void add_finetune_options(CLI::App* sub, estimators_bench::FinetuneBenchArgs& a) {
   sub->add_option("--base", a.base_path, "the base network (trained on the nominal patch)")
       ->required();

@@ -97,6 +97,12 @@ int main(int argc, char** argv) {
       "their separation and depth, next to the two-contact Cramer-Rao bound; how often a single "
       "press is split, on units whose physics the model lacks");
   skinbus::tools::add_pairs_options(pairs, pa);
+  skinbus::estimators_bench::ShearBenchArgs sa;
+  CLI::App* shear = app.add_subcommand(
+      "shear",
+      "a contact's shear force: its error against the Cramer-Rao bound per depth, the position "
+      "with and without the shear fitted, the run time, and units whose physics the model lacks");
+  skinbus::tools::add_shear_options(shear, sa);
   skinbus::host_bench::AmbientBenchArgs aa;
   CLI::App* ambient = app.add_subcommand(
       "ambient",
@@ -131,6 +137,7 @@ int main(int argc, char** argv) {
 #endif
   if (budget->parsed()) return report(skinbus::estimators_bench::bench_budget(ba));
   if (pairs->parsed()) return report(skinbus::estimators_bench::bench_pairs(pa));
+  if (shear->parsed()) return report(skinbus::estimators_bench::bench_shear(sa));
   if (ambient->parsed()) return report(skinbus::host_bench::bench_ambient(aa));
   if (host->parsed()) return report(skinbus::host_bench::bench_host(ha));
   if (refine->parsed()) return report(skinbus::host_bench::bench_refine(ra));

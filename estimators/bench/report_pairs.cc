@@ -20,16 +20,6 @@ using namespace skinbus::estimators;
 using sim::Contact;
 using Clock = std::chrono::steady_clock;
 
-std::vector<double> noisy_field(const sim::PatchModel& truth, std::span<const Contact> contacts,
-                                sim::Rng& rng) {
-  std::vector<double> f(static_cast<std::size_t>(truth.channel_count()));
-  truth.contact_field_ut(contacts, f);
-  const ChannelNoise noise = ChannelNoise::of(truth.design());
-  for (std::size_t k = 0; k < f.size(); ++k)
-    f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
-  return f;
-}
-
 double us_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
 }

@@ -14,17 +14,6 @@ namespace {
 
 using sim::Contact;
 
-// A tared sample of `contacts` on `truth` with the design's sensor noise.
-std::vector<double> noisy_field(const sim::PatchModel& truth, std::span<const Contact> contacts,
-                                sim::Rng& rng) {
-  std::vector<double> f(static_cast<std::size_t>(truth.channel_count()));
-  truth.contact_field_ut(contacts, f);
-  const ChannelNoise noise = ChannelNoise::of(truth.design());
-  for (std::size_t k = 0; k < f.size(); ++k)
-    f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
-  return f;
-}
-
 double distance(const ContactEstimate& e, const Contact& c) {
   return std::hypot(e.u_mm - c.u_mm, e.v_mm - c.v_mm);
 }

@@ -76,6 +76,16 @@ ChannelNoise ChannelNoise::of(const sim::PatchDesign& design) {
           sim::mlx90393_noise_z_ut(design.sensor_config)};
 }
 
+std::vector<double> noisy_field(const sim::PatchModel& truth,
+                                std::span<const sim::Contact> contacts, sim::Rng& rng) {
+  std::vector<double> f(static_cast<std::size_t>(truth.channel_count()));
+  truth.contact_field_ut(contacts, f);
+  const ChannelNoise noise = ChannelNoise::of(truth.design());
+  for (std::size_t k = 0; k < f.size(); ++k)
+    f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+  return f;
+}
+
 Result<LookupEstimator> LookupEstimator::from_model(const sim::PatchModel& model,
                                                     const LookupGrid& grid,
                                                     const LookupOptions& options) {

@@ -61,11 +61,11 @@ constexpr const char* reject_reason_name(RejectReason r) {
 
 struct ContactEstimate {
   double u_mm = 0, v_mm = 0, depth_mm = 0, force_n = 0;
+  uint32_t flags = kEstimateOk;
+  RejectReason reason = RejectReason::kNone;
   // Tangential force on the skin along u and v, N: 0 from estimators that do not estimate it
   // (PhysicsOptions::fit_shear).
   double shear_u_n = 0, shear_v_n = 0;
-  uint32_t flags = kEstimateOk;
-  RejectReason reason = RejectReason::kNone;
 
   bool valid() const { return (flags & kEstimateRejected) == 0; }
 };

@@ -26,6 +26,7 @@
 #include "skinbus/estimators/estimate.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/rng.h"
 
 namespace skinbus::estimators {
 
@@ -39,6 +40,12 @@ struct ChannelNoise {
   static ChannelNoise of(const sim::PatchDesign& design);
   double sigma(int channel) const { return channel % 3 == 2 ? z_ut : xy_ut; }
 };
+
+// A tared sample of `contacts` on `truth` with its design's sensor noise (independent Gaussian
+// per channel, drawn from `rng`): the simulated sample the tests and benchmarks feed the
+// estimators. Allocates the result.
+std::vector<double> noisy_field(const sim::PatchModel& truth,
+                                std::span<const sim::Contact> contacts, sim::Rng& rng);
 
 // A (u, v, depth) grid of presses for a table built from a model.
 struct LookupGrid {

@@ -101,4 +101,17 @@ struct PairsBenchArgs {
 
 Status bench_pairs(const PairsBenchArgs& a);
 
+// `skinbus-bench shear`: a contact's shear force against its Cramer-Rao bound per depth, the
+// position with and without the shear fitted, the run time, and units outside the model.
+struct ShearBenchArgs {
+  std::vector<double> depths = {1, 2, 3, 4};
+  int trials = 100;           // presses per depth and per unit outside the model
+  double max_friction = 0.5;  // shear up to this fraction of the normal force
+  uint64_t uid = 0x5B00000000000001ull;
+  uint64_t seed = 1;
+  std::string csv;
+};
+
+Status bench_shear(const ShearBenchArgs& a);
+
 }  // namespace skinbus::estimators_bench
