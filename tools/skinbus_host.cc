@@ -397,8 +397,10 @@ int main(int argc, char** argv) {
     o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
     o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
     if (a.refine)
-      o.refiner_factory = [](const std::string& unit, const std::string& design) {
-        return estimators::make_physics_refiner(unit, design);
+      o.refiner_factory = [](const std::string& unit, const std::string& design, bool shear) {
+        estimators::PhysicsOptions po;
+        po.fit_shear = shear;
+        return estimators::make_physics_refiner(unit, design, po);
       };
     o.refine_budget_us = static_cast<uint64_t>(a.refine_budget_us);
     host::HostLoopOptions lo;

@@ -109,7 +109,7 @@ void parse_calibration(YamlReader& r, const YAML::Node& c, const std::string& pa
 void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, PatchPlacement* out) {
   r.only(p, path,
          {"node", "uid", "link", "position_mm", "rpy_deg", "quaternion_wxyz", "geometry", "model",
-          "unit", "design", "calibration"});
+          "unit", "design", "refine_shear", "calibration"});
   if (r.error) return;
   for (const char* k : {"node", "link", "position_mm"})
     if (!p[k]) r.fail(path + "." + k, p, "missing");
@@ -148,6 +148,7 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
   r.get_string(p, "model", path + ".", &out->model);
   r.get_string(p, "unit", path + ".", &out->unit);
   r.get_string(p, "design", path + ".", &out->design);
+  r.get_bool(p, "refine_shear", path + ".", &out->refine_shear);
   if (const YAML::Node c = p["calibration"]) {
     out->calibration.emplace();
     parse_calibration(r, c, path + ".calibration", &*out->calibration);
@@ -239,17 +240,20 @@ SurfacePoint patch_surface_point(const PatchGeometry& g, double u_mm, double v_m
   } else if (g.axis == CylinderAxis::kV) {
     const double theta = u_mm / g.radius_mm;
     s.normal = {std::sin(theta), 0, std::cos(theta)};
+    s.tangent_u = {std::cos(theta), 0, -std::sin(theta)};
   } else {
     const double theta = v_mm / g.radius_mm;
     s.normal = {0, std::sin(theta), std::cos(theta)};
+    s.tangent_v = {0, std::cos(theta), -std::sin(theta)};
   }
   return s;
 }
 
 SurfacePoint link_surface_point(const PatchPlacement& p, double u_mm, double v_mm,
                                 double depth_mm) {
-  SurfacePoint s = patch_surface_point(p.geometry, u_mm, v_mm, depth_mm);
-  return {p.pose_on_link.apply(s.point_mm), p.pose_on_link.rotation * s.normal};
+  const SurfacePoint s = patch_surface_point(p.geometry, u_mm, v_mm, depth_mm);
+  return {p.pose_on_link.apply(s.point_mm), p.pose_on_link.rotation * s.normal,
+          p.pose_on_link.rotation * s.tangent_u, p.pose_on_link.rotation * s.tangent_v};
 }
 
 Result<PatchCoordinates> patch_coordinates(const PatchGeometry& g, const Eigen::Vector3d& p) {
@@ -367,6 +371,7 @@ std::string skin_map_to_yaml(const SkinMap& map) {
     if (!p.model.empty()) o << "    model: " << yaml_string(p.model) << "\n";
     if (!p.unit.empty()) o << "    unit: " << yaml_string(p.unit) << "\n";
     if (!p.design.empty()) o << "    design: " << yaml_string(p.design) << "\n";
+    if (p.refine_shear) o << "    refine_shear: true\n";
     if (p.calibration) {
       const PoseUncertainty& c = *p.calibration;
       std::snprintf(buf, sizeof buf, "%.6g", c.rms_residual_mm);

@@ -303,7 +303,7 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
       if (pl.unit.empty()) continue;
       auto r = options.refiner_factory(
           beside_map(map_dir, pl.unit),
-          pl.design.empty() ? std::string() : beside_map(map_dir, pl.design));
+          pl.design.empty() ? std::string() : beside_map(map_dir, pl.design), pl.refine_shear);
       if (r.ok()) {
         impl->refiners[i] = std::move(*r);
       } else {
@@ -429,10 +429,14 @@ void Aggregator::Impl::place(const PatchEntry& e, const ContactEstimate& est, co
     // The link is not in the robot: its frame taken as the base.
     if (*link < 0) flags |= kContactUnmapped;
   }
+  // The shear (0 unless a refinement fitted it) along the surface's tangents.
+  const Eigen::Vector3d shear = sp.tangent_u * est.shear_u_n + sp.tangent_v * est.shear_v_n;
   for (int i = 0; i < 3; ++i) {
     out->position_mm[i] = sp.point_mm[i];
     out->normal[i] = sp.normal[i];
+    out->shear_n[i] = shear[i];
   }
+  out->shear_uncertainty_n = 0;
   out->depth_mm = est.depth_mm;
   out->force_n = est.force_n;
   out->u_mm = est.u_mm;
@@ -453,9 +457,12 @@ bool Aggregator::Impl::to_base(int link, uint64_t time_us, PatchContact* c) {
       pose->apply(Eigen::Vector3d(c->position_mm[0], c->position_mm[1], c->position_mm[2]));
   const Eigen::Vector3d n =
       pose->rotation * Eigen::Vector3d(c->normal[0], c->normal[1], c->normal[2]);
+  const Eigen::Vector3d s =
+      pose->rotation * Eigen::Vector3d(c->shear_n[0], c->shear_n[1], c->shear_n[2]);
   for (int i = 0; i < 3; ++i) {
     c->position_mm[i] = p[i];
     c->normal[i] = n[i];
+    c->shear_n[i] = s[i];
   }
   return true;
 }
@@ -645,6 +652,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       uint32_t flags = amb_flags[static_cast<std::size_t>(b)];
       // Physics refinement of the network's answer, within the call's budget.
       double refined_sigma_mm = std::numeric_limits<double>::quiet_NaN();
+      double refined_sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
       const estimators::ContactRefiner* refiner =
           p.placement != nullptr
               ? s.refiners[static_cast<std::size_t>(p.placement - s.map->patches.data())].get()
@@ -678,10 +686,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           const uint32_t bad = kEstimateNoContact | estimators::kEstimateNotConverged;
           if (r.contact.valid() && (r.contact.flags & bad) == 0 &&
               r.reduced_chi2 <= s.options.refine_max_reduced_chi2 &&
-              std::hypot(r.contact.u_mm - est.u_mm, r.contact.v_mm - est.v_mm) <=
-                  s.options.refine_max_shift_mm) {
+              (r.reduced_chi2 <= s.options.refine_trusted_chi2 ||
+               std::hypot(r.contact.u_mm - est.u_mm, r.contact.v_mm - est.v_mm) <=
+                   s.options.refine_max_shift_mm)) {
             est = r.contact;
             refined_sigma_mm = r.sigma_uv_mm;
+            refined_sigma_shear_n = r.sigma_shear_n;
             ++s.stats.refined;
           } else {
             flags |= kContactUnrefined;
@@ -696,6 +706,10 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       int link = -1;
       s.place(*p.entry, est, m, flags, &placed, &link);
       if (std::isfinite(refined_sigma_mm)) placed.uncertainty_mm = refined_sigma_mm;
+      if (std::isfinite(refined_sigma_shear_n)) {  // the refinement fitted the shear
+        placed.flags |= kContactShear;
+        placed.shear_uncertainty_n = refined_sigma_shear_n;
+      }
       // A place that is not finite, or farther than any robot reaches (an absurd estimate or
       // placement), is no contact: counted, and the patch degraded with the reason if it lasts.
       bool finite = true;
@@ -703,7 +717,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         finite = finite && std::isfinite(placed.normal[i]) &&
                  std::fabs(placed.position_mm[i]) <= kMaxContactMagnitude;
       }
-      for (double v : {est.u_mm, est.v_mm, est.depth_mm}) {
+      for (double v : {est.u_mm, est.v_mm, est.depth_mm, placed.shear_n[0], placed.shear_n[1],
+                       placed.shear_n[2], placed.shear_uncertainty_n}) {
         finite = finite && std::fabs(v) <= kMaxContactMagnitude;
       }
       if (!finite) {

@@ -25,7 +25,7 @@ std::string source_dir() {
   return d != nullptr ? d : ".";
 }
 
-body_map::SkinMap one_patch_map(bool with_unit) {
+body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false) {
   body_map::SkinMap map;
   body_map::PatchPlacement p;
   p.node_id = 4;
@@ -33,6 +33,7 @@ body_map::SkinMap one_patch_map(bool with_unit) {
   p.link = "arm";
   p.model = "estimators/models/nominal_seed_cnn";
   if (with_unit) p.unit = "units/unit4.json";
+  p.refine_shear = refine_shear;
   map.patches.push_back(p);
   return map;
 }
@@ -42,8 +43,10 @@ struct Press {
   std::vector<double> tared_ut;
 };
 
-// Presses on a fabricated unit, measured with its noise, tared.
-std::vector<Press> presses(const sim::PatchModel& unit, int n, uint64_t seed) {
+// Presses on a fabricated unit, measured with its noise, tared; with a shear force of a friction
+// coefficient up to `max_friction` of the normal force, in a random direction.
+std::vector<Press> presses(const sim::PatchModel& unit, int n, uint64_t seed,
+                           double max_friction = 0) {
   sim::SimulatedPatch patch(unit, seed);
   sim::Rng rng(seed);
   sim::Environment env;
@@ -53,6 +56,12 @@ std::vector<Press> presses(const sim::PatchModel& unit, int n, uint64_t seed) {
   for (int i = 0; i < n; ++i) {
     Press p;
     p.truth = {rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(1.0, 4.0), 5.0};
+    if (max_friction > 0) {
+      const double mag = rng.uniform(0, max_friction) * unit.force_n(p.truth.depth_mm);
+      const double dir = rng.uniform(0, 2 * M_PI);
+      p.truth.shear_u_n = mag * std::cos(dir);
+      p.truth.shear_v_n = mag * std::sin(dir);
+    }
     p.tared_ut.resize(base.size());
     patch.measure(std::span<const sim::Contact>(&p.truth, 1), env, p.tared_ut);
     for (std::size_t c = 0; c < base.size(); ++c) p.tared_ut[c] -= base[c];
@@ -68,9 +77,10 @@ struct RunResult {
 };
 
 // Each press as its own sample (with a release between), through an aggregator with `o`.
-RunResult run(const std::vector<Press>& ps, bool with_unit, AggregatorOptions o) {
+RunResult run(const std::vector<Press>& ps, bool with_unit, AggregatorOptions o,
+              bool refine_shear = false) {
   RunResult out;
-  const body_map::SkinMap map = one_patch_map(with_unit);
+  const body_map::SkinMap map = one_patch_map(with_unit, refine_shear);
   auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o);
   EXPECT_TRUE(a.ok()) << a.error().to_string();
   if (!a.ok()) return out;
@@ -102,10 +112,13 @@ class AggregatorRefineTest : public ::testing::Test {
     unit_ = std::make_unique<sim::PatchModel>(
         sim::PatchModel::fabricated(sim::PatchDesign{}, kUid, sim::FabricationVariation{}).value());
     options_.max_lag_us = 0;  // the test's clock is its own
-    options_.refiner_factory = [this](const std::string& unit_path, const std::string& design) {
+    options_.refiner_factory = [this](const std::string& unit_path, const std::string& design,
+                                      bool shear) {
       EXPECT_NE(unit_path.find("units/unit4.json"), std::string::npos);  // resolved, named
       EXPECT_EQ(design, "");
-      return estimators::make_physics_refiner(*unit_);
+      estimators::PhysicsOptions po;
+      po.fit_shear = shear;
+      return estimators::make_physics_refiner(*unit_, po);
     };
   }
   std::unique_ptr<sim::PatchModel> unit_;
@@ -147,6 +160,53 @@ TEST_F(AggregatorRefineTest, RefinedContactsReachTheUnitsBoundWithTheFitsUncerta
   EXPECT_LT(err_ref, err_net);
 }
 
+// An entry with refine_shear publishes each contact's shear force (the patch frame is the base
+// frame here: no robot), at its bound, with its uncertainty and in its wrench; one without
+// publishes none.
+TEST_F(AggregatorRefineTest, ShearIsPublishedWhenTheEntryAsksForIt) {
+  const uint64_t seed = 78;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const std::vector<Press> ps = presses(*unit_, 40, seed, 0.3);
+  const RunResult with = run(ps, true, options_, true);
+  const RunResult without = run(ps, true, options_, false);
+  ASSERT_EQ(with.contacts.size(), ps.size());
+  ASSERT_EQ(without.contacts.size(), ps.size());
+  EXPECT_EQ(with.stats.refined, ps.size());
+  const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit_->design());
+  double norm2 = 0, xy_with = 0, xy_without = 0;
+  for (std::size_t i = 0; i < ps.size(); ++i) {
+    const sim::Contact& c = ps[i].truth;
+    const BodyContact& w = with.contacts[i];
+    ASSERT_NE(w.flags & kContactShear, 0u) << i;
+    EXPECT_EQ(w.shear_n[2], 0.0);  // in the (flat) surface
+    const sim::CrlbShear b = sim::crlb_shear_at(*unit_, c, noise.xy_ut, noise.z_ut, true);
+    const double e = std::hypot(w.shear_n[0] - c.shear_u_n, w.shear_n[1] - c.shear_v_n);
+    norm2 += e * e / (b.sd_shear_n * b.sd_shear_n);
+    EXPECT_NEAR(w.shear_uncertainty_n / b.sd_shear_n, 1.0, 0.35) << i;
+    double force[3], torque[3];
+    contact_wrench(w, force, torque);
+    EXPECT_NEAR(force[0], w.shear_n[0], 1e-12);
+    EXPECT_NEAR(force[2], -w.force_n, 1e-12);  // into the skin (outward normal +z)
+    const double r[3] = {w.position_mm[0] / 1000, w.position_mm[1] / 1000,
+                         w.position_mm[2] / 1000};
+    EXPECT_NEAR(torque[2], r[0] * force[1] - r[1] * force[0], 1e-12);
+    const BodyContact& o = without.contacts[i];
+    EXPECT_EQ(o.flags & kContactShear, 0u);
+    EXPECT_EQ(o.shear_n[0], 0.0);
+    EXPECT_EQ(o.shear_uncertainty_n, 0.0);
+    xy_with += std::hypot(w.u_mm - c.u_mm, w.v_mm - c.v_mm);
+    xy_without += std::hypot(o.u_mm - c.u_mm, o.v_mm - c.v_mm);
+  }
+  const double k = static_cast<double>(ps.size());
+  std::printf(
+      "shear RMS error / bound %.2f; XY mean error with the shear fitted %.3f mm, without "
+      "%.3f mm; refinement %.0f us a sample with shear\n",
+      std::sqrt(norm2 / k), xy_with / k, xy_without / k, with.stats.refine_us / k);
+  EXPECT_LT(std::sqrt(norm2 / k), 1.3);
+  EXPECT_GT(std::sqrt(norm2 / k), 0.7);
+  EXPECT_LT(xy_with, xy_without);  // a shear left out of the fit misplaces the press
+}
+
 TEST_F(AggregatorRefineTest, OverBudgetTheNetworksAnswerIsPublishedFlagged) {
   const std::vector<Press> ps = presses(*unit_, 10, 5);
   options_.refine_budget_us = 0;
@@ -168,8 +228,8 @@ TEST_F(AggregatorRefineTest, OverBudgetTheNetworksAnswerIsPublishedFlagged) {
 
 TEST_F(AggregatorRefineTest, AUnitThatCannotBeLoadedIsNamedAndItsPatchStillPublishes) {
   options_.refiner_factory =
-      [](const std::string& unit_path,
-         const std::string&) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
+      [](const std::string& unit_path, const std::string&,
+         bool) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
     return make_error(ErrorCode::kNotFound, unit_path + ": no such file");
   };
   const RunResult r = run(presses(*unit_, 3, 9), true, options_);

@@ -133,6 +133,7 @@ void ContactTracker::merge(std::span<const PatchContact> in) {
       m.force_n = first.force_n;
       m.uncertainty_mm = 1.0 / std::sqrt(valid_[r].weight);
       m.deepest = valid_[r].index;
+      m.shear = (first.flags & kContactShear) ? valid_[r].index : kNone;
       m.count = 1;
       m.flags = first.flags;
       merged_.push_back(m);
@@ -140,7 +141,7 @@ void ContactTracker::merge(std::span<const PatchContact> in) {
     }
     double w_sum = 0, depth = 0, pos[3] = {0, 0, 0}, nrm[3] = {0, 0, 0};
     double force = -std::numeric_limits<double>::infinity();
-    std::size_t deepest = kNone;
+    std::size_t deepest = kNone, shear = kNone;
     uint32_t count = 0, flags = kContactMerged;
     for (std::size_t i = r; i != kNone; i = next_member_[i]) {
       const Valid& v = valid_[i];
@@ -156,14 +157,17 @@ void ContactTracker::merge(std::span<const PatchContact> in) {
           (c.depth_mm == in[deepest].depth_mm && v.index < deepest)) {
         deepest = v.index;
       }
+      if ((c.flags & kContactShear) && shear == kNone) shear = v.index;
       ++count;
       flags |= c.flags;
     }
+    if (in[deepest].flags & kContactShear) shear = deepest;
     for (int k = 0; k < 3; ++k) m.position_mm[k] = pos[k] / w_sum;
     m.depth_mm = depth / w_sum;
     m.force_n = force;
     m.uncertainty_mm = 1.0 / std::sqrt(w_sum);
     m.deepest = deepest;
+    m.shear = shear;
     m.count = count;
     m.flags = flags;
     // The weighted normal; if the members' normals cancel, the deepest member's, then +z.
@@ -198,9 +202,10 @@ void ContactTracker::update(uint64_t stamp_us, std::span<const PatchContact> in,
     const PatchContact& c = in[i];
     bool ok = within(c.depth_mm, kMaxMagnitude) && within(c.force_n, kMaxMagnitude) &&
               within(c.u_mm, kMaxMagnitude) && within(c.v_mm, kMaxMagnitude) &&
-              !std::isnan(c.uncertainty_mm);
+              !std::isnan(c.uncertainty_mm) && within(c.shear_uncertainty_n, kMaxMagnitude);
     for (int k = 0; k < 3; ++k) {
-      ok = ok && within(c.position_mm[k], kMaxMagnitude) && std::isfinite(c.normal[k]);
+      ok = ok && within(c.position_mm[k], kMaxMagnitude) && std::isfinite(c.normal[k]) &&
+           within(c.shear_n[k], kMaxMagnitude);
     }
     if (!ok) {
       ++dropped_;
@@ -273,6 +278,8 @@ void ContactTracker::update(uint64_t stamp_us, std::span<const PatchContact> in,
     b.patch_count = g.count;
     b.flags = g.flags;
     b.first_seen_us = track.first_seen_us;
+    for (int k = 0; k < 3; ++k) b.shear_n[k] = g.shear != kNone ? in[g.shear].shear_n[k] : 0.0;
+    b.shear_uncertainty_n = g.shear != kNone ? in[g.shear].shear_uncertainty_n : 0.0;
   }
 }
 

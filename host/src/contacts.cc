@@ -1,7 +1,15 @@
-// Names of the aggregator's states and events (contacts.h).
+// Names of the aggregator's states and events, and a contact's wrench (contacts.h).
 #include "skinbus/host/contacts.h"
 
 namespace skinbus::host {
+
+void contact_wrench(const BodyContact& c, double force_n[3], double torque_nm[3]) {
+  for (int k = 0; k < 3; ++k) force_n[k] = -c.force_n * c.normal[k] + c.shear_n[k];
+  const double r[3] = {c.position_mm[0] * 1e-3, c.position_mm[1] * 1e-3, c.position_mm[2] * 1e-3};
+  torque_nm[0] = r[1] * force_n[2] - r[2] * force_n[1];
+  torque_nm[1] = r[2] * force_n[0] - r[0] * force_n[2];
+  torque_nm[2] = r[0] * force_n[1] - r[1] * force_n[0];
+}
 
 std::string_view patch_link_state_name(PatchLinkState s) {
   switch (s) {

@@ -68,6 +68,10 @@ struct PatchPlacement {
   // empty: the built-in design). Relative paths are relative to the map file. Empty unit: none.
   std::string unit;
   std::string design;
+  // The refinement also fits each contact's shear force (published as its shear and in its
+  // wrench). It costs the position precision (about 2.3x the bound without it:
+  // docs/benchmarks/shear.md), so it is for patches where shear matters.
+  bool refine_shear = false;
   std::optional<PoseUncertainty> calibration;
 };
 
@@ -84,6 +88,9 @@ struct SkinMap {
 struct SurfacePoint {
   Eigen::Vector3d point_mm;
   Eigen::Vector3d normal;  // unit, outward
+  // Unit tangents along increasing u and v at the point (u, v, normal: right-handed; a shear
+  // force's patch components become a vector along them).
+  Eigen::Vector3d tangent_u = Eigen::Vector3d::UnitX(), tangent_v = Eigen::Vector3d::UnitY();
 };
 
 // The patch-frame point at (u, v, depth) for a geometry, over any scalar (double or a Ceres jet)

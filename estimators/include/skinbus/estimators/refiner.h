@@ -20,6 +20,9 @@ struct RefinedEstimate {
   ContactEstimate contact;
   double sigma_uv_mm = std::numeric_limits<double>::quiet_NaN();   // 1-sigma, radial; NaN: none
   double reduced_chi2 = std::numeric_limits<double>::quiet_NaN();  // the fit's, noise units
+  // With a refiner that fits the shear (contact.shear_u_n, shear_v_n): its 1-sigma,
+  // sqrt(var F_u + var F_v), N; NaN: the shear was not fitted.
+  double sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
 };
 
 class ContactRefiner {

@@ -131,11 +131,13 @@ struct AggregatorOptions {
   InputTap* tap = nullptr;
   // Physics refinement: for each skin-map entry that names a unit (PatchPlacement::unit), the
   // refiner this makes of it, given the unit's and the design's paths (relative ones resolved
-  // against the map's folder; the design "" when the entry names none). skinbus-host passes
-  // estimators::make_physics_refiner. Empty: no refinement. A unit that cannot be made into a
-  // refiner leaves its patch on the network's answers (an event says why).
-  std::function<Result<std::unique_ptr<estimators::ContactRefiner>>(const std::string& unit_path,
-                                                                    const std::string& design_path)>
+  // against the map's folder; the design "" when the entry names none) and whether the entry
+  // asks for the shear force too (PatchPlacement::refine_shear: the refiner then fills
+  // RefinedEstimate::sigma_shear_n and its contact's shear, published with kContactShear).
+  // skinbus-host passes estimators::make_physics_refiner. Empty: no refinement. A unit that
+  // cannot be made into a refiner leaves its patch on the network's answers (an event says why).
+  std::function<Result<std::unique_ptr<estimators::ContactRefiner>>(
+      const std::string& unit_path, const std::string& design_path, bool fit_shear)>
       refiner_factory;
   // Host time (steady clock) process() may spend refining, per call. A sample beyond it is
   // published with the network's answer, flagged kContactUnrefined (never late).
@@ -146,13 +148,17 @@ struct AggregatorOptions {
   double refine_warm_start_mm = 3.0;
   // A refined contact is published when its fit converged, found a contact, explains the sample
   // to at most this reduced chi-square (noise units; its uncertainty is widened by the square root
-  // above 1) and lies within `refine_max_shift_mm` of the network's answer; else the network's
-  // answer is, flagged kContactUnrefined. A real unit has physics its identified model lacks: a
-  // fit several times the noise can still place the press far better than the network (a
-  // simulated patch through the emulated chips: reduced chi-square 4-10 and 0.05 mm), while a
-  // fit that wandered to another minimum moves far from the network's answer.
+  // above 1) and lies within `refine_max_shift_mm` of the network's answer, or explains the
+  // sample to the noise (reduced chi-square at most `refine_trusted_chi2`) wherever it lies;
+  // else the network's answer is, flagged kContactUnrefined. A real unit has physics its
+  // identified model lacks: a fit several times the noise can still place the press far better
+  // than the network (a simulated patch through the emulated chips: reduced chi-square 4-10 and
+  // 0.05 mm), while a fit that wandered to another minimum moves far from the network's answer
+  // and does not reach the noise. A press the network was not trained for (a strong shear
+  // force) can put the network's answer 5 mm or more off while the fit reaches the noise.
   double refine_max_reduced_chi2 = 25;
   double refine_max_shift_mm = 5;
+  double refine_trusted_chi2 = 2;
 };
 
 struct AggregatorStats {

@@ -13,6 +13,7 @@
 //   position, normal, depth   the mean weighted by 1/uncertainty^2 (normal re-normalised);
 //   force                     the largest of the members' (each patch sees the whole press);
 //   u, v, node, uid, link     those of the deepest member (the patch closest to the press);
+//   shear                     the deepest member's with kContactShear, else the first such one's;
 //   uncertainty               1 / sqrt(sum of 1/uncertainty^2);
 //   patch_count, flags        the number of members; their flags OR-ed, plus kContactMerged.
 // A single contact passes unchanged but for its normal (normalised) and uncertainty (clamped).
@@ -63,7 +64,9 @@ struct PatchContact {
   uint8_t node = 0;           // CAN node of the patch
   uint64_t hardware_uid = 0;
   std::string link;
-  uint32_t flags = kContactOk;  // BodyContactFlag bits
+  uint32_t flags = kContactOk;     // BodyContactFlag bits
+  double shear_n[3] = {0, 0, 0};   // base frame, with kContactShear
+  double shear_uncertainty_n = 0;  // N, 1-sigma
 };
 
 struct TrackerOptions {
@@ -120,6 +123,7 @@ class ContactTracker {
     double position_mm[3], normal[3];
     double depth_mm, force_n, uncertainty_mm;
     std::size_t deepest;  // into `in`
+    std::size_t shear;    // into `in`: the member whose shear is output (kNone: none has one)
     uint32_t count, flags;
   };
 

@@ -32,6 +32,9 @@ enum BodyContactFlag : uint32_t {
   // The patch has a physics refinement but this contact is the network's answer: the period's
   // refinement budget was spent, or the fit was poor (docs/aggregator.md).
   kContactUnrefined = 1u << 8,
+  // The contact's shear force was estimated (a refinement with the skin map's refine_shear):
+  // shear_n and shear_uncertainty_n hold it. Without it both are 0.
+  kContactShear = 1u << 9,
 };
 
 // One contact in the robot's base frame.
@@ -49,7 +52,14 @@ struct BodyContact {
   uint32_t patch_count = 1;           // patches that saw it
   uint32_t flags = kContactOk;        // BodyContactFlag
   uint64_t first_seen_us = 0;         // host time the track started
+  double shear_n[3] = {0, 0, 0};      // tangential force on the skin, base frame (kContactShear)
+  double shear_uncertainty_n = 0;     // its 1-sigma: sqrt(var of both components), N
 };
+
+// The force the contact applies to the skin, N, base frame: its normal force into the skin
+// (-force_n along the outward normal) plus its shear; and the torque of that force about the
+// base frame's origin, N m (position in metres x force): the contact as a wrench on the body.
+void contact_wrench(const BodyContact& c, double force_n[3], double torque_nm[3]);
 
 // One publication: every contact of one period.
 struct ContactArray {
