@@ -175,12 +175,12 @@ TEST(SurfaceMap, RoundTripsAndNormals) {
       EXPECT_NEAR(s.normal.norm(), 1, 1e-12);
       // The tangents are unit, along the surface's own derivatives, right-handed with the normal.
       const double h = 1e-5;
-      const Eigen::Vector3d du =
-          (link_surface_point(p, u + h, v, 0).point_mm - link_surface_point(p, u - h, v, 0).point_mm) /
-          (2 * h);
-      const Eigen::Vector3d dv =
-          (link_surface_point(p, u, v + h, 0).point_mm - link_surface_point(p, u, v - h, 0).point_mm) /
-          (2 * h);
+      const Eigen::Vector3d du = (link_surface_point(p, u + h, v, 0).point_mm -
+                                  link_surface_point(p, u - h, v, 0).point_mm) /
+                                 (2 * h);
+      const Eigen::Vector3d dv = (link_surface_point(p, u, v + h, 0).point_mm -
+                                  link_surface_point(p, u, v - h, 0).point_mm) /
+                                 (2 * h);
       EXPECT_LT((s.tangent_u - du.normalized()).norm(), 1e-6);
       EXPECT_LT((s.tangent_v - dv.normalized()).norm(), 1e-6);
       EXPECT_LT((s.tangent_u.cross(s.tangent_v) - s.normal).norm(), 1e-9);

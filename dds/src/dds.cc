@@ -529,6 +529,10 @@ Result<ContactArray> from_msg(const ContactArrayMsg& m, const std::string& topic
           what + ": " + field_name("contacts", i, "first_seen") + first_seen.error().message);
     }
     b.first_seen_us = *first_seen;
+    b.shear_n[0] = s(c.shear.x, 1.0, "contacts", i, "shear.x");
+    b.shear_n[1] = s(c.shear.y, 1.0, "contacts", i, "shear.y");
+    b.shear_n[2] = s(c.shear.z, 1.0, "contacts", i, "shear.z");
+    b.shear_uncertainty_n = s(c.shear_uncertainty, 1.0, "contacts", i, "shear_uncertainty");
   }
   if (Status st = s.status(); !st.ok()) return st.error();
   return out;
@@ -719,6 +723,8 @@ Status SkinPublisher::publish(const ContactArray& contacts) {
     finite(c.u_mm, name("u_mm"));
     finite(c.v_mm, name("v_mm"));
     finite(c.uncertainty_mm, name("uncertainty_mm"));
+    for (int k = 0; k < 3; ++k) finite(c.shear_n[k], name("shear_n", k));
+    finite(c.shear_uncertainty_n, name("shear_uncertainty_n"));
   }
   if (Status s = finite.status(); !s.ok()) return s;
   auto stamp = to_time(contacts.stamp_us, what + ": stamp_us");
@@ -749,6 +755,12 @@ Status SkinPublisher::publish(const ContactArray& contacts) {
           what + ": " + field_name("contacts", i, "first_seen_us") + first_seen.error().message);
     }
     m.first_seen = *first_seen;
+    m.shear = {c.shear_n[0], c.shear_n[1], c.shear_n[2]};
+    m.shear_uncertainty = c.shear_uncertainty_n;
+    double force[3], torque[3];
+    contact_wrench(c, force, torque);
+    m.wrench.force = {force[0], force[1], force[2]};
+    m.wrench.torque = {torque[0], torque[1], torque[2]};
   }
   ContactArrayMsg msg{};
   msg.header.stamp = *stamp;

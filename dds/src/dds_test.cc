@@ -79,6 +79,8 @@ void expect_same(const ContactArray& got, const ContactArray& want) {
     EXPECT_EQ(g.patch_count, w.patch_count);
     EXPECT_EQ(g.flags, w.flags);
     EXPECT_EQ(g.first_seen_us, w.first_seen_us);
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(g.shear_n[k], w.shear_n[k], kTol);
+    EXPECT_NEAR(g.shear_uncertainty_n, w.shear_uncertainty_n, kTol);
   }
 }
 
@@ -509,6 +511,8 @@ TEST(DdsTest, ListenToolInAnotherProcessPrintsThePublishedValues) {
       EXPECT_EQ(c.at("patch_count").get<uint32_t>(), w.patch_count);
       EXPECT_EQ(c.at("flags").get<std::vector<std::string>>(), contact_flag_names(w.flags));
       EXPECT_EQ(c.at("first_seen_us").get<uint64_t>(), w.first_seen_us);
+      for (int k = 0; k < 3; ++k) EXPECT_NEAR(c.at("shear_n")[k].get<double>(), w.shear_n[k], kTol);
+      EXPECT_NEAR(c.at("shear_uncertainty_n").get<double>(), w.shear_uncertainty_n, kTol);
     }
   }
   EXPECT_EQ(n, 3);
@@ -718,6 +722,9 @@ TEST(DdsMessagesTest, StandardTypesHaveTheRos2Layouts) {
        {{"double", "x", ""}, {"double", "y", ""}, {"double", "z", ""}}},
       {"geometry_msgs::msg::dds_::Vector3_",
        {{"double", "x", ""}, {"double", "y", ""}, {"double", "z", ""}}},
+      {"geometry_msgs::msg::dds_::Wrench_",
+       {{"geometry_msgs::msg::dds_::Vector3_", "force", ""},
+        {"geometry_msgs::msg::dds_::Vector3_", "torque", ""}}},
       {"sensor_msgs::msg::dds_::JointState_",
        {{"std_msgs::msg::dds_::Header_", "header", ""},
         {"sequence<string>", "name", ""},

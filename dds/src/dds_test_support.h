@@ -139,8 +139,10 @@ inline ContactArray random_contacts(std::mt19937_64& rng, uint64_t stamp_us, int
     c.link = "link_" + std::to_string(u64(rng) % 7) + (i % 2 == 0 ? "_forearm" : "");
     c.track_id = static_cast<uint32_t>(1 + u64(rng) % 100000);
     c.patch_count = static_cast<uint32_t>(1 + u64(rng) % 3);
-    c.flags = static_cast<uint32_t>(u64(rng) & 0xFF);
+    c.flags = static_cast<uint32_t>(u64(rng) & 0x3FF);
     c.first_seen_us = a.stamp_us - u64(rng) % 5'000'000u;
+    for (double& s : c.shear_n) s = unit(rng) * 3;
+    c.shear_uncertainty_n = pos(rng) / 60;
     a.contacts.push_back(c);
   }
   return a;

@@ -131,10 +131,9 @@ Status bench_shear(const ShearBenchArgs& a) {
     char row[320];
     std::snprintf(row, sizeof row,
                   "%g,%d,%.5f,%.5f,%.4f,%d,%d,%.5f,%.5f,%.5f,%.5f,%.1f,%.1f,%.1f\n", depth,
-                  a.trials, rms(err), rms(bound), rms(norm), right, told,
-                  xy.empty() ? 0 : mean(xy), xy_plain.empty() ? 0 : mean(xy_plain),
-                  xy_bound.empty() ? 0 : mean(xy_bound), derr.empty() ? 0 : mean(derr),
-                  us_cold / n, us_warm / n, us_plain / n);
+                  a.trials, rms(err), rms(bound), rms(norm), right, told, xy.empty() ? 0 : mean(xy),
+                  xy_plain.empty() ? 0 : mean(xy_plain), xy_bound.empty() ? 0 : mean(xy_bound),
+                  derr.empty() ? 0 : mean(derr), us_cold / n, us_warm / n, us_plain / n);
     csv += row;
     std::fflush(stdout);
   }
@@ -181,8 +180,8 @@ Status bench_shear(const ShearBenchArgs& a) {
       const double true_mag = std::hypot(c.shear_u_n, c.shear_v_n);
       if (true_mag > 1) {
         ratio.push_back(std::hypot(fu, fv) / true_mag);
-        const double cosang = (fu * c.shear_u_n + fv * c.shear_v_n) /
-                              (std::hypot(fu, fv) * true_mag + 1e-300);
+        const double cosang =
+            (fu * c.shear_u_n + fv * c.shear_v_n) / (std::hypot(fu, fv) * true_mag + 1e-300);
         angle.push_back(std::acos(std::clamp(cosang, -1.0, 1.0)) * 180 / M_PI);
       }
       if (true_mag == 0) {

@@ -187,8 +187,7 @@ TEST_F(AggregatorRefineTest, ShearIsPublishedWhenTheEntryAsksForIt) {
     contact_wrench(w, force, torque);
     EXPECT_NEAR(force[0], w.shear_n[0], 1e-12);
     EXPECT_NEAR(force[2], -w.force_n, 1e-12);  // into the skin (outward normal +z)
-    const double r[3] = {w.position_mm[0] / 1000, w.position_mm[1] / 1000,
-                         w.position_mm[2] / 1000};
+    const double r[3] = {w.position_mm[0] / 1000, w.position_mm[1] / 1000, w.position_mm[2] / 1000};
     EXPECT_NEAR(torque[2], r[0] * force[1] - r[1] * force[0], 1e-12);
     const BodyContact& o = without.contacts[i];
     EXPECT_EQ(o.flags & kContactShear, 0u);
@@ -227,9 +226,8 @@ TEST_F(AggregatorRefineTest, OverBudgetTheNetworksAnswerIsPublishedFlagged) {
 }
 
 TEST_F(AggregatorRefineTest, AUnitThatCannotBeLoadedIsNamedAndItsPatchStillPublishes) {
-  options_.refiner_factory =
-      [](const std::string& unit_path, const std::string&,
-         bool) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
+  options_.refiner_factory = [](const std::string& unit_path, const std::string&,
+                                bool) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
     return make_error(ErrorCode::kNotFound, unit_path + ": no such file");
   };
   const RunResult r = run(presses(*unit_, 3, 9), true, options_);

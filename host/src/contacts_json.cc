@@ -27,6 +27,7 @@ std::vector<std::string> contact_flag_names(uint32_t flags) {
       {kContactAmbientLarge, "ambient_large"},
       {kContactUnmapped, "unmapped"},
       {kContactUnrefined, "unrefined"},
+      {kContactShear, "shear"},
   };
   std::vector<std::string> out;
   for (const auto& n : kNames) {
@@ -57,6 +58,8 @@ std::string contacts_to_json(const ContactArray& a) {
     o["patch_count"] = c.patch_count;
     o["first_seen_us"] = c.first_seen_us;
     o["flags"] = contact_flag_names(c.flags);
+    o["shear_n"] = {c.shear_n[0], c.shear_n[1], c.shear_n[2]};
+    o["shear_uncertainty_n"] = c.shear_uncertainty_n;
     list.push_back(std::move(o));
   }
   j["contacts"] = std::move(list);

@@ -185,6 +185,12 @@ Status encode(const host::ContactArray& contacts, std::vector<uint8_t>* out) {
     w.u32(c.patch_count);
     w.u32(c.flags);
     check.time(w, c.first_seen_us, "contacts", i, "first_seen");
+    for (int k = 0; k < 3; ++k) w.f64(check.finite(c.shear_n[k], "contacts", i, "shear"));
+    w.f64(check.finite(c.shear_uncertainty_n, "contacts", i, "shear_uncertainty"));
+    double force[3], torque[3];
+    host::contact_wrench(c, force, torque);
+    for (int k = 0; k < 3; ++k) w.f64(check.finite(force[k], "contacts", i, "wrench.force"));
+    for (int k = 0; k < 3; ++k) w.f64(check.finite(torque[k], "contacts", i, "wrench.torque"));
   }
   return check.status();
 }
@@ -308,8 +314,8 @@ Result<host::ContactArray> decode_contacts(std::span<const uint8_t> cdr) {
   host::ContactArray out;
   out.stamp_us = read_time(r, "header.stamp", &bad);
   out.base_frame = r.string("header.frame_id");
-  // A contact is at least 8 x 8 + 1 + 8 + 4 + 3 x 8 + 3 x 4 + 8 bytes.
-  const uint32_t n = r.count("contacts", 100);
+  // A contact is at least 8 x 8 + 1 + 8 + 4 + 3 x 8 + 3 x 4 + 8 + 10 x 8 bytes.
+  const uint32_t n = r.count("contacts", 200);
   out.contacts.resize(n);
   for (host::BodyContact& c : out.contacts) {
     for (double& p : c.position_mm) p = r.f64("contacts[].position") * kMmPerM;
@@ -326,6 +332,9 @@ Result<host::ContactArray> decode_contacts(std::span<const uint8_t> cdr) {
     c.patch_count = r.u32("contacts[].patch_count");
     c.flags = r.u32("contacts[].flags");
     c.first_seen_us = read_time(r, "contacts[].first_seen", &bad);
+    for (double& s : c.shear_n) s = r.f64("contacts[].shear");
+    c.shear_uncertainty_n = r.f64("contacts[].shear_uncertainty");
+    for (int k = 0; k < 6; ++k) r.f64("contacts[].wrench");  // derived from the fields above
   }
   return finish(r, bad, what, std::move(out));
 }

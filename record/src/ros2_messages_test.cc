@@ -24,12 +24,12 @@ TEST(Ros2MessagesTest, SchemasCarryEveryUsedTypeOnceAfterASeparator) {
   auto s = ros2_schema("skin_msgs/msg/ContactArray");
   ASSERT_TRUE(s.ok()) << s.error().message;
   EXPECT_EQ(s->find("std_msgs/Header header"), s->find("std_msgs/Header"));
-  for (const char* dep :
-       {"MSG: std_msgs/Header\n", "MSG: skin_msgs/Contact\n", "MSG: builtin_interfaces/Time\n",
-        "MSG: geometry_msgs/Point\n", "MSG: geometry_msgs/Vector3\n"}) {
+  for (const char* dep : {"MSG: std_msgs/Header\n", "MSG: skin_msgs/Contact\n",
+                          "MSG: builtin_interfaces/Time\n", "MSG: geometry_msgs/Point\n",
+                          "MSG: geometry_msgs/Vector3\n", "MSG: geometry_msgs/Wrench\n"}) {
     EXPECT_EQ(count_of(*s, dep), 1) << dep;
   }
-  EXPECT_EQ(count_of(*s, std::string(80, '=') + "\nMSG: "), 5);
+  EXPECT_EQ(count_of(*s, std::string(80, '=') + "\nMSG: "), 6);
   auto d = ros2_schema("diagnostic_msgs/msg/DiagnosticArray");
   ASSERT_TRUE(d.ok());
   EXPECT_EQ(count_of(*d, "MSG: diagnostic_msgs/KeyValue\n"), 1);

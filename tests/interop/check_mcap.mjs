@@ -116,6 +116,19 @@ for (let i = 0; i < Math.min(recContacts.length, hostContacts.length); ++i) {
     check(a.track_id === b.track_id && a.patch_count === b.patch_count, `${w}.track_id, patch_count`);
     check((a.flags === 0) === (b.flags.length === 0), `${w}.flags ${a.flags} vs ${b.flags}`);
     check(usOf(a.first_seen) === b.first_seen_us, `${w}.first_seen`);
+    const s = [a.shear.x, a.shear.y, a.shear.z];
+    for (let j = 0; j < 3; ++j) check(near(s[j], b.shear_n[j], 1e-12), `${w}.shear`);
+    check(near(a.shear_uncertainty, b.shear_uncertainty_n, 1e-12), `${w}.shear_uncertainty`);
+    // The wrench from its definition in Contact.msg: -force along the normal plus the shear,
+    // its torque about the frame's origin.
+    const f = [0, 1, 2].map((j) => -b.force_n * b.normal[j] + b.shear_n[j]);
+    const pm = b.position_mm.map((x) => x / 1000);
+    const t = [pm[1] * f[2] - pm[2] * f[1], pm[2] * f[0] - pm[0] * f[2], pm[0] * f[1] - pm[1] * f[0]];
+    const wf = [a.wrench.force.x, a.wrench.force.y, a.wrench.force.z];
+    const wt = [a.wrench.torque.x, a.wrench.torque.y, a.wrench.torque.z];
+    for (let j = 0; j < 3; ++j) {
+      check(near(wf[j], f[j], 1e-9) && near(wt[j], t[j], 1e-9), `${w}.wrench ${wf} ${wt} vs ${f} ${t}`);
+    }
     ++contactsCompared;
   }
 }

@@ -217,6 +217,20 @@ TEST(FastDdsInterop, AFastDdsSubscriberDecodesEveryFieldOfContactsStatusAndDiagn
       EXPECT_EQ(c.at("patch_count"), w.patch_count);
       EXPECT_EQ(c.at("flags"), w.flags);
       EXPECT_EQ(time_us(c.at("first_seen")), w.first_seen_us);
+      // The wrench, computed here from its definition in Contact.msg.
+      double force[3], r[3];
+      for (int k = 0; k < 3; ++k) {
+        EXPECT_NEAR(c.at("shear")[k].get<double>(), w.shear_n[k], kTol);
+        force[k] = -w.force_n * w.normal[k] + w.shear_n[k];
+        r[k] = w.position_mm[k] / 1000;
+        EXPECT_NEAR(c.at("wrench").at("force")[k].get<double>(), force[k], kTol);
+      }
+      const double torque[3] = {r[1] * force[2] - r[2] * force[1],
+                                r[2] * force[0] - r[0] * force[2],
+                                r[0] * force[1] - r[1] * force[0]};
+      for (int k = 0; k < 3; ++k)
+        EXPECT_NEAR(c.at("wrench").at("torque")[k].get<double>(), torque[k], kTol);
+      EXPECT_NEAR(c.at("shear_uncertainty").get<double>(), w.shear_uncertainty_n, kTol);
     }
   }
   EXPECT_GE(arrays, 3);

@@ -63,6 +63,9 @@ struct Contact {                   // skin_msgs/Contact
   double u = 0, v = 0, uncertainty = 0;
   uint32_t track_id = 0, patch_count = 0, flags = 0;
   Time first_seen;
+  double shear[3] = {0, 0, 0};  // geometry_msgs/Vector3
+  double shear_uncertainty = 0;
+  double wrench_force[3] = {0, 0, 0}, wrench_torque[3] = {0, 0, 0};  // geometry_msgs/Wrench
 };
 struct ContactArray {  // skin_msgs/ContactArray
   Header header;
@@ -127,6 +130,10 @@ void read(Cdr& c, Contact& m) {
   c >> m.depth >> m.force >> m.patch_id >> m.hardware_uid >> m.link_name >> m.u >> m.v >>
       m.uncertainty >> m.track_id >> m.patch_count >> m.flags;
   read(c, m.first_seen);
+  for (double& x : m.shear) c >> x;
+  c >> m.shear_uncertainty;
+  for (double& x : m.wrench_force) c >> x;
+  for (double& x : m.wrench_torque) c >> x;
 }
 void read(Cdr& c, PatchStatus& m) {
   c >> m.node >> m.hardware_uid >> m.can_interface >> m.link_name >> m.state >> m.state_name >>
@@ -257,7 +264,11 @@ std::string to_json(const ContactArray& a) {
          ",\"uncertainty\":" + num(c.uncertainty) + ",\"track_id\":" + std::to_string(c.track_id) +
          ",\"patch_count\":" + std::to_string(c.patch_count) +
          ",\"flags\":" + std::to_string(c.flags) + ",\"first_seen\":" + time_json(c.first_seen) +
-         "}";
+         ",\"shear\":[" + num(c.shear[0]) + "," + num(c.shear[1]) + "," + num(c.shear[2]) +
+         "],\"shear_uncertainty\":" + num(c.shear_uncertainty) + ",\"wrench\":{\"force\":[" +
+         num(c.wrench_force[0]) + "," + num(c.wrench_force[1]) + "," + num(c.wrench_force[2]) +
+         "],\"torque\":[" + num(c.wrench_torque[0]) + "," + num(c.wrench_torque[1]) + "," +
+         num(c.wrench_torque[2]) + "]}}";
   }
   return o + "]}";
 }
