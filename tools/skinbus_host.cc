@@ -397,10 +397,11 @@ int main(int argc, char** argv) {
     o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
     o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
     if (a.refine)
-      o.refiner_factory = [](const std::string& unit, const std::string& design, bool shear) {
-        estimators::PhysicsOptions po;
-        po.fit_shear = shear;
-        return estimators::make_physics_refiner(unit, design, po);
+      o.refiner_factory = [](const host::RefinerRequest& r) {
+        estimators::RefinerOptions ro;
+        ro.physics.fit_shear = r.fit_shear;
+        ro.max_contacts = r.max_contacts;
+        return estimators::make_physics_refiner(r.unit_path, r.design_path, ro);
       };
     o.refine_budget_us = static_cast<uint64_t>(a.refine_budget_us);
     host::HostLoopOptions lo;
@@ -538,10 +539,11 @@ int main(int argc, char** argv) {
       if (s.refined + s.unrefined_budget + s.unrefined_poor_fit > 0) {
         std::fprintf(stderr,
                      "skinbus-host: refined %" PRIu64 " (%.0f us each, %" PRIu64
-                     " from the previous contact), unrefined %" PRIu64
+                     " from the previous contact, %" PRIu64 " with two presses), unrefined %" PRIu64
                      " over the budget and %" PRIu64 " poor fits\n",
                      s.refined, s.refined > 0 ? s.refine_us / static_cast<double>(s.refined) : 0.0,
-                     s.refine_warm_starts, s.unrefined_budget, s.unrefined_poor_fit);
+                     s.refine_warm_starts, s.refined_pairs, s.unrefined_budget,
+                     s.unrefined_poor_fit);
       }
       if (out.latency_us.count() > 0) {
         std::fprintf(stderr,

@@ -46,12 +46,13 @@ Status bench_pairs(const PairsBenchArgs& a) {
       static_cast<unsigned long long>(a.uid), a.trials, static_cast<unsigned long long>(a.seed));
   std::printf(
       "| separation (mm) | depth (mm) | counted 2 | counted 1 | XY error (mm) | CRLB (mm) | x "
-      "CRLB | depth error (mm) | us / sample |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+      "CRLB | depth error (mm) | us / sample | pair iterations |\n"
+      "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
   for (double sep : a.separations) {
     for (double depth : a.depths) {
       int two = 0, one = 0;
       std::vector<double> err, bound, derr;
-      double us = 0;
+      double us = 0, iterations = 0;
       for (int t = 0; t < a.trials; ++t) {
         const double mu = rng.uniform(-30, 30), mv = rng.uniform(-30, 30);
         const double th = rng.uniform(0, M_PI);
@@ -61,6 +62,7 @@ Status bench_pairs(const PairsBenchArgs& a) {
         const auto t0 = Clock::now();
         const ContactCountEstimate e = physics->estimate_contacts(f);
         us += us_since(t0);
+        iterations += e.pair_iterations;
         one += e.count == 1;
         if (e.count != 2) continue;
         ++two;
@@ -79,9 +81,9 @@ Status bench_pairs(const PairsBenchArgs& a) {
       }
       const double e_xy = err.empty() ? 0 : mean(err), b_xy = bound.empty() ? 0 : mean(bound);
       const double e_d = derr.empty() ? 0 : mean(derr);
-      std::printf("| %.0f | %.1f | %.0f %% | %.0f %% | %.3f | %.3f | %.2f | %.3f | %.0f |\n", sep,
-                  depth, 100.0 * two / a.trials, 100.0 * one / a.trials, e_xy, b_xy,
-                  b_xy > 0 ? e_xy / b_xy : 0.0, e_d, us / a.trials);
+      std::printf("| %.0f | %.1f | %.0f %% | %.0f %% | %.3f | %.3f | %.2f | %.3f | %.0f | %.1f |\n",
+                  sep, depth, 100.0 * two / a.trials, 100.0 * one / a.trials, e_xy, b_xy,
+                  b_xy > 0 ? e_xy / b_xy : 0.0, e_d, us / a.trials, iterations / a.trials);
       char row[160];
       std::snprintf(row, sizeof row, "%g,%g,%d,%.4f,%.4f,%.5f,%.5f,%.5f,%.1f\n", sep, depth,
                     a.trials, double(two) / a.trials, double(one) / a.trials, e_xy, b_xy, e_d,

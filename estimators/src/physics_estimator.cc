@@ -436,25 +436,45 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
 
 namespace {
 
-// The lean fit's unknowns, in this order: the contact (u, v, depth), the ambient offset (3), the
-// shear force (2). Those not fitted are held: their rows and columns left out.
-constexpr int kLeanUnknowns = 8;
-constexpr int kAmbientAt = 3, kShearAt = 6;
-using LeanVec = Eigen::Matrix<double, kLeanUnknowns, 1>;
-using LeanMat = Eigen::Matrix<double, kLeanUnknowns, kLeanUnknowns>;
+// The lean fit's unknowns: each contact's (u, v, depth[, shear u, v]) in turn, then the ambient
+// offset (3; held at 0 unless fitted). At most 2 contacts with their shear: 13. Fixed capacity:
+// no allocation.
+constexpr int kLeanMax = 2 * 5 + 3;
+using LeanVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kLeanMax, 1>;
+using LeanMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kLeanMax, kLeanMax>;
 
-// Which of the lean fit's unknowns a fit with `options` estimates.
-std::array<bool, kLeanUnknowns> fitted_unknowns(const PhysicsOptions& options) {
-  std::array<bool, kLeanUnknowns> f{};
-  for (int k = 0; k < kLeanUnknowns; ++k) {
-    f[k] = k < kAmbientAt || (k < kShearAt ? options.fit_ambient : options.fit_shear);
+struct LeanLayout {
+  int contacts = 1;
+  bool shear = false;
+  int per_contact() const { return shear ? 5 : 3; }
+  int ambient_at() const { return contacts * per_contact(); }
+  int size() const { return ambient_at() + 3; }
+};
+
+struct LeanFit {
+  LeanVec x;
+  double cost = std::numeric_limits<double>::infinity();  // chi-square, noise units
+  int iterations = 0;
+  bool converged = false;
+  LeanMat jtj;                 // J^T J (whitened) at the start of the last iteration, every unknown
+  double field[kMaxChannels];  // the contacts' field change at x
+};
+
+// The contacts of `x` (layout `l`) with the indenter's tip.
+void lean_contacts(const LeanLayout& l, const LeanVec& x, double tip_radius_mm, sim::Contact* c) {
+  for (int j = 0; j < l.contacts; ++j) {
+    const int o = j * l.per_contact();
+    c[j] = sim::Contact{x(o), x(o + 1), x(o + 2), tip_radius_mm};
+    if (l.shear) {
+      c[j].shear_u_n = x(o + 3);
+      c[j].shear_v_n = x(o + 4);
+    }
   }
-  return f;
 }
 
-// `m` with the rows and columns of unknowns not fitted replaced by the identity's.
-LeanMat hold_unfitted(LeanMat m, const std::array<bool, kLeanUnknowns>& fitted) {
-  for (int k = 0; k < kLeanUnknowns; ++k) {
+// `m` with the rows and columns of the unknowns not fitted replaced by the identity's.
+LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
+  for (int k = 0; k < m.rows(); ++k) {
     if (fitted[k]) continue;
     m.row(k).setZero();
     m.col(k).setZero();
@@ -463,25 +483,163 @@ LeanMat hold_unfitted(LeanMat m, const std::array<bool, kLeanUnknowns>& fitted) 
   return m;
 }
 
-// The 1-sigma uncertainties of PhysicsEstimate from J^T J of the whitened residuals over the
-// fitted unknowns, scaled by the reduced chi-square above 1; left NaN when J^T J is singular.
-void sigmas_from(const LeanMat& jtj, const std::array<bool, kLeanUnknowns>& fitted,
-                 PhysicsEstimate* out) {
+// Levenberg-Marquardt over the layout's unknowns from `x` (non-finite entries start mid-range,
+// the rest clamped to the bounds: each contact within contact_bounds(), each shear component
+// within +-kMaxShearN): the Jacobian by forward differences of the vectorised field
+// (PatchModel::contact_field_ut), the ambient's columns constant. No allocation.
+LeanFit lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
+                 const double* ambient_jac, const LeanLayout& l, LeanVec x) {
+  const int nc = model.channel_count();
+  const int n = l.size(), pc = l.per_contact(), amb = l.ambient_at();
+  double lo[kLeanMax], hi[kLeanMax];
+  bool fitted[kLeanMax];
+  double clo[3], chi[3];
+  contact_bounds(model, options, clo, chi);
+  for (int k = 0; k < n; ++k) {
+    const int within = k % pc;
+    if (k >= amb) {
+      lo[k] = -std::numeric_limits<double>::infinity();
+      hi[k] = std::numeric_limits<double>::infinity();
+    } else if (within < 3) {
+      lo[k] = clo[within];
+      hi[k] = chi[within];
+    } else {
+      lo[k] = -kMaxShearN;
+      hi[k] = kMaxShearN;
+    }
+    fitted[k] = k < amb || options.fit_ambient;
+    const bool bounded = std::isfinite(lo[k]) && std::isfinite(hi[k]);
+    if (!std::isfinite(x(k))) {
+      x(k) = bounded && within < 3 && k < amb ? (lo[k] + hi[k]) / 2 : 0.0;
+    } else {
+      x(k) = std::clamp(x(k), lo[k], hi[k]);
+    }
+  }
+  LeanFit fit;
+  const double tip = options.tip_radius_mm;
+  sim::Contact contacts[2];
+  auto field = [&](const LeanVec& p, double* into) {
+    lean_contacts(l, p, tip, contacts);
+    model.contact_field_ut(std::span<const sim::Contact>(contacts, l.contacts),
+                           std::span<double>(into, static_cast<std::size_t>(nc)));
+  };
+  // Whitened residuals of the contacts' field `fc` with the ambient of `p`; their squared sum.
+  auto residuals = [&](const double* fc, const LeanVec& p, double* into) {
+    double cost = 0;
+    for (int i = 0; i < nc; ++i) {
+      if (!in.ok[i]) {
+        into[i] = 0;
+        continue;
+      }
+      const double* a = ambient_jac + 3 * static_cast<std::size_t>(i);
+      into[i] = (fc[i] + a[0] * p(amb) + a[1] * p(amb + 1) + a[2] * p(amb + 2) - in.y[i]) *
+                in.inv_sigma[i];
+      cost += into[i] * into[i];
+    }
+    return cost;
+  };
+  double ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels][kLeanMax - 3];
+  field(x, fit.field);
+  double cost = residuals(fit.field, x, r);
+  double lambda = 1e-3;
+  fit.jtj = LeanMat::Zero(n, n);
+  // Forward-difference steps: of (u, v, depth), mm; of the shear, N (moves the surface ~1e-4 mm).
+  constexpr double kStepMm = 1e-4, kStepN = 1e-4;
+  constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
+  // A step that lowers the chi-square by less than this ends the fit: what is left to gain moves
+  // the contact by a few percent of its uncertainty (a chi-square change of d^2 is a move of d
+  // standard deviations).
+  constexpr double kConvergedChi2 = 1e-3;
+  while (fit.iterations < options.max_iterations && std::isfinite(cost) && !fit.converged) {
+    ++fit.iterations;
+    for (int k = 0; k < amb; ++k) {
+      const double step = k % pc < 3 ? kStepMm : kStepN;
+      LeanVec p = x;
+      const double h = p(k) + step <= hi[k] ? step : -step;
+      p(k) += h;
+      field(p, ft);
+      for (int i = 0; i < nc; ++i) jac[i][k] = (ft[i] - fit.field[i]) / h;
+    }
+    LeanMat jtj = LeanMat::Zero(n, n);
+    LeanVec jtr = LeanVec::Zero(n);
+    for (int i = 0; i < nc; ++i) {
+      if (!in.ok[i]) continue;
+      const double w = in.inv_sigma[i];
+      const double* a = ambient_jac + 3 * static_cast<std::size_t>(i);
+      LeanVec row(n);
+      for (int k = 0; k < amb; ++k) row(k) = jac[i][k] * w;
+      for (int k = 0; k < 3; ++k) row(amb + k) = a[k] * w;
+      jtj.noalias() += row * row.transpose();
+      jtr.noalias() += row * r[i];
+    }
+    fit.jtj = jtj;
+    jtj = hold_unfitted(jtj, fitted);
+    for (int k = 0; k < n; ++k) {
+      if (!fitted[k]) jtr(k) = 0;
+    }
+    // Damped steps until one lowers the cost; the damping relaxes after a success.
+    bool accepted = false;
+    for (int tries = 0; tries < 12 && !accepted; ++tries) {
+      LeanMat a = jtj;
+      for (int p = 0; p < n; ++p) a(p, p) += lambda * std::max(jtj(p, p), 1e-9);
+      const LeanVec step = a.ldlt().solve(-jtr);
+      LeanVec xt = x + step;
+      for (int k = 0; k < n; ++k) xt(k) = std::clamp(xt(k), lo[k], hi[k]);
+      field(xt, ft);
+      double rt[kMaxChannels];
+      const double cost_t = residuals(ft, xt, rt);
+      if (std::isfinite(cost_t) && cost_t <= cost) {
+        double moved = 0;
+        for (int j = 0; j < l.contacts; ++j) {
+          moved = std::max(moved, (xt.segment<3>(j * pc) - x.segment<3>(j * pc)).norm());
+        }
+        const double drop = cost - cost_t;
+        x = xt;
+        std::copy(ft, ft + nc, fit.field);
+        std::copy(rt, rt + nc, r);
+        fit.converged = drop <= kConvergedChi2 || moved <= kConvergedMm;
+        cost = cost_t;
+        lambda = std::max(lambda / 3, 1e-9);
+        accepted = true;
+      } else {
+        lambda *= 4;
+      }
+    }
+    if (!accepted) {
+      fit.converged = true;  // no step lowers the cost: a minimum to the damping's resolution
+    }
+  }
+  fit.x = x;
+  fit.cost = cost;
+  return fit;
+}
+
+// 1-sigma uncertainties of contact `j` of layout `l` from J^T J of the whitened residuals over
+// the fitted unknowns (the ambient held unless `fit_ambient`), scaled by the reduced chi-square
+// above 1: its radial position, depth and shear (when the layout has it). False, the outputs
+// untouched, when J^T J is singular.
+bool lean_sigmas(const LeanMat& jtj, const LeanLayout& l, bool fit_ambient, double reduced_chi2,
+                 int j, double* sigma_uv_mm, double* sigma_depth_mm, double* sigma_shear_n) {
+  bool fitted[kLeanMax];
+  for (int k = 0; k < l.size(); ++k) fitted[k] = k < l.ambient_at() || fit_ambient;
   const LeanMat m = hold_unfitted(jtj, fitted);
   const Eigen::LDLT<LeanMat> ldlt(m);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
       ldlt.vectorD().minCoeff() <= 1e-12 * std::max(1.0, ldlt.vectorD().maxCoeff())) {
-    return;
+    return false;
   }
-  const LeanMat cov = ldlt.solve(LeanMat::Identity());
-  const double scale = std::max(1.0, out->reduced_chi2);
-  const double var_uv = (cov(0, 0) + cov(1, 1)) * scale, var_d = cov(2, 2) * scale;
-  if (std::isfinite(var_uv) && var_uv >= 0 && std::isfinite(var_d) && var_d >= 0) {
-    out->sigma_uv_mm = std::sqrt(var_uv);
-    out->sigma_depth_mm = std::sqrt(var_d);
+  const LeanMat cov = ldlt.solve(LeanMat::Identity(l.size(), l.size()));
+  const double scale = std::max(1.0, reduced_chi2);
+  const int o = j * l.per_contact();
+  const double var_uv = (cov(o, o) + cov(o + 1, o + 1)) * scale, var_d = cov(o + 2, o + 2) * scale;
+  if (!(std::isfinite(var_uv) && var_uv >= 0 && std::isfinite(var_d) && var_d >= 0)) return false;
+  *sigma_uv_mm = std::sqrt(var_uv);
+  *sigma_depth_mm = std::sqrt(var_d);
+  if (l.shear && sigma_shear_n != nullptr) {
+    const double var_s = (cov(o + 3, o + 3) + cov(o + 4, o + 4)) * scale;
+    if (std::isfinite(var_s) && var_s >= 0) *sigma_shear_n = std::sqrt(var_s);
   }
-  const double var_s = (cov(kShearAt, kShearAt) + cov(kShearAt + 1, kShearAt + 1)) * scale;
-  if (fitted[kShearAt] && std::isfinite(var_s) && var_s >= 0) out->sigma_shear_n = std::sqrt(var_s);
+  return true;
 }
 
 }  // namespace
@@ -493,132 +651,27 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   const int nc = model_.channel_count();
   FitInput in;
   if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
-  const std::array<bool, kLeanUnknowns> fitted = fitted_unknowns(options_);
-  // Bounds of the contact's (u, v, depth) and the shear; the ambient is free.
-  double lo[kLeanUnknowns], hi[kLeanUnknowns];
-  contact_bounds(model_, options_, lo, hi);
-  for (int k = kAmbientAt; k < kLeanUnknowns; ++k) {
-    lo[k] = k < kShearAt ? -std::numeric_limits<double>::infinity() : -kMaxShearN;
-    hi[k] = k < kShearAt ? std::numeric_limits<double>::infinity() : kMaxShearN;
+  const LeanLayout l{1, options_.fit_shear};
+  LeanVec x0 = LeanVec::Zero(l.size());
+  x0(0) = start.u_mm;
+  x0(1) = start.v_mm;
+  x0(2) = start.depth_mm;
+  if (l.shear) {
+    x0(3) = start.shear_u_n;
+    x0(4) = start.shear_v_n;
   }
-  LeanVec x = LeanVec::Zero();
-  const double s0[5] = {start.u_mm, start.v_mm, start.depth_mm, start.shear_u_n, start.shear_v_n};
-  for (int k = 0; k < 3; ++k) {
-    x(k) = std::isfinite(s0[k]) ? std::clamp(s0[k], lo[k], hi[k]) : (lo[k] + hi[k]) / 2;
-  }
-  for (int k = 0; k < 2 && options_.fit_shear; ++k) {
-    x(kShearAt + k) = std::isfinite(s0[3 + k]) ? std::clamp(s0[3 + k], -kMaxShearN, kMaxShearN) : 0;
-  }
-  // The columns by forward differences: the contact's and the shear's (the ambient's are
-  // constant).
-  int varied[5] = {0, 1, 2, kShearAt, kShearAt + 1};
-  const int n_varied = options_.fit_shear ? 5 : 3;
-  const double tip = options_.tip_radius_mm;
-  double f[kMaxChannels], ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels][5];
-  auto field = [&](const LeanVec& p, double* into) {
-    sim::Contact c{p(0), p(1), p(2), tip};
-    c.shear_u_n = p(kShearAt);
-    c.shear_v_n = p(kShearAt + 1);
-    model_.contact_field_ut(std::span<const sim::Contact>(&c, 1),
-                            std::span<double>(into, static_cast<std::size_t>(nc)));
-  };
-  // Whitened residuals of the contact's field `fc` with the ambient of `p`; their squared sum.
-  auto residuals = [&](const double* fc, const LeanVec& p, double* into) {
-    double cost = 0;
-    for (int i = 0; i < nc; ++i) {
-      if (!in.ok[i]) {
-        into[i] = 0;
-        continue;
-      }
-      const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
-      into[i] = (fc[i] + a[0] * p(kAmbientAt) + a[1] * p(kAmbientAt + 1) +
-                 a[2] * p(kAmbientAt + 2) - in.y[i]) *
-                in.inv_sigma[i];
-      cost += into[i] * into[i];
-    }
-    return cost;
-  };
-  field(x, f);
-  double cost = residuals(f, x, r);
-  double lambda = 1e-3;
-  bool converged = false;
-  int iterations = 0;
-  LeanMat last_jtj = LeanMat::Zero();
-  // Forward-difference steps: of (u, v, depth), mm; of the shear, N (moves the surface ~1e-4 mm).
-  constexpr double kStepMm = 1e-4, kStepN = 1e-4;
-  constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
-  // A step that lowers the chi-square by less than this ends the fit: what is left to gain moves
-  // the contact by a few percent of its uncertainty (a chi-square change of d^2 is a move of d
-  // standard deviations).
-  constexpr double kConvergedChi2 = 1e-3;
-  while (iterations < options_.max_iterations && std::isfinite(cost) && !converged) {
-    ++iterations;
-    for (int j = 0; j < n_varied; ++j) {
-      const int k = varied[j];
-      const double step = k < 3 ? kStepMm : kStepN;
-      LeanVec p = x;
-      const double h = p(k) + step <= hi[k] ? step : -step;
-      p(k) += h;
-      field(p, ft);
-      for (int i = 0; i < nc; ++i) jac[i][j] = (ft[i] - f[i]) / h;
-    }
-    LeanMat jtj = LeanMat::Zero();
-    LeanVec jtr = LeanVec::Zero();
-    for (int i = 0; i < nc; ++i) {
-      if (!in.ok[i]) continue;
-      const double w = in.inv_sigma[i];
-      const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
-      LeanVec row = LeanVec::Zero();
-      for (int j = 0; j < n_varied; ++j) row(varied[j]) = jac[i][j] * w;
-      for (int k = 0; k < 3; ++k) row(kAmbientAt + k) = a[k] * w;
-      jtj.noalias() += row * row.transpose();
-      jtr.noalias() += row * r[i];
-    }
-    last_jtj = jtj;
-    jtj = hold_unfitted(jtj, fitted);
-    for (int k = 0; k < kLeanUnknowns; ++k) {
-      if (!fitted[k]) jtr(k) = 0;
-    }
-    // Damped steps until one lowers the cost; the damping relaxes after a success.
-    bool accepted = false;
-    for (int tries = 0; tries < 12 && !accepted; ++tries) {
-      LeanMat a = jtj;
-      for (int p = 0; p < kLeanUnknowns; ++p) a(p, p) += lambda * std::max(jtj(p, p), 1e-9);
-      const LeanVec step = a.ldlt().solve(-jtr);
-      LeanVec xt = x + step;
-      for (int k = 0; k < kLeanUnknowns; ++k) xt(k) = std::clamp(xt(k), lo[k], hi[k]);
-      field(xt, ft);
-      double rt[kMaxChannels];
-      const double cost_t = residuals(ft, xt, rt);
-      if (std::isfinite(cost_t) && cost_t <= cost) {
-        const double moved = (xt.head<3>() - x.head<3>()).norm();
-        const double drop = cost - cost_t;
-        x = xt;
-        std::copy(ft, ft + nc, f);
-        std::copy(rt, rt + nc, r);
-        converged = drop <= kConvergedChi2 || moved <= kConvergedMm;
-        cost = cost_t;
-        lambda = std::max(lambda / 3, 1e-9);
-        accepted = true;
-      } else {
-        lambda *= 4;
-      }
-    }
-    if (!accepted) {
-      converged = true;  // no step lowers the cost: a minimum to the damping's resolution
-    }
-  }
-
-  const double xc[3] = {x(0), x(1), x(2)};
-  const double xb[3] = {x(kAmbientAt), x(kAmbientAt + 1), x(kAmbientAt + 2)};
-  const double xs[2] = {x(kShearAt), x(kShearAt + 1)};
-  // The contact's own field (its signal), without the shear when it was not fitted.
-  finish_fit(model_, options_, in, xc, xb, options_.fit_shear ? xs : nullptr, cost, iterations,
-             converged, f, &out);
+  const LeanFit fit = lean_fit(model_, options_, in, ambient_jac_.data(), l, x0);
+  const int amb = l.ambient_at();
+  const double xc[3] = {fit.x(0), fit.x(1), fit.x(2)};
+  const double xb[3] = {fit.x(amb), fit.x(amb + 1), fit.x(amb + 2)};
+  const double xs[2] = {l.shear ? fit.x(3) : 0.0, l.shear ? fit.x(4) : 0.0};
+  finish_fit(model_, options_, in, xc, xb, l.shear ? xs : nullptr, fit.cost, fit.iterations,
+             fit.converged, fit.field, &out);
   // From the last iteration's J^T J (at the point before its step: within the tolerance of the
   // minimum).
-  if (options_.covariance && iterations > 0 && out.contact.valid()) {
-    sigmas_from(last_jtj, fitted, &out);
+  if (options_.covariance && fit.iterations > 0 && out.contact.valid()) {
+    lean_sigmas(fit.jtj, l, options_.fit_ambient, out.reduced_chi2, 0, &out.sigma_uv_mm,
+                &out.sigma_depth_mm, &out.sigma_shear_n);
   }
   return out;
 }
@@ -628,51 +681,72 @@ void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, cons
   const int nc = model_.channel_count();
   double jac[3 * kMaxChannels];
   model_.contact_jacobian(c, std::span<double>(jac, 3 * static_cast<std::size_t>(nc)));
-  LeanMat jtj = LeanMat::Zero();
+  const LeanLayout l{1, false};
+  LeanMat jtj = LeanMat::Zero(l.size(), l.size());
   for (int i = 0; i < nc; ++i) {
     if (!ok[i]) continue;
     const double w = inv_sigma[i];
     const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
     const double* j = &jac[3 * i];
-    LeanVec row = LeanVec::Zero();
-    row << j[0] * w, j[1] * w, j[2] * w, a[0] * w, a[1] * w, a[2] * w, 0, 0;
+    LeanVec row(l.size());
+    row << j[0] * w, j[1] * w, j[2] * w, a[0] * w, a[1] * w, a[2] * w;
     jtj.noalias() += row * row.transpose();
   }
-  sigmas_from(jtj, fitted_unknowns(options_), out);
+  lean_sigmas(jtj, l, options_.fit_ambient, out->reduced_chi2, 0, &out->sigma_uv_mm,
+              &out->sigma_depth_mm, nullptr);
 }
 
 ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double> field_ut,
                                                          std::span<const uint8_t> channel_ok,
                                                          const ContactCountOptions& count) const {
+  return count_contacts(field_ut, channel_ok, estimate(field_ut, channel_ok), count, nullptr);
+}
+
+ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> field_ut,
+                                                      std::span<const uint8_t> channel_ok,
+                                                      const PhysicsEstimate& single,
+                                                      const ContactCountOptions& count,
+                                                      const ContactEstimate* pair_start) const {
   ContactCountEstimate out;
-  out.single = estimate(field_ut, channel_ok);
+  out.single = single;
   const ContactEstimate& one = out.single.contact;
   if (!one.valid() || (one.flags & kEstimateNoContact)) return out;  // rejected, or nothing
   out.count = 1;
   out.contacts[0] = one;
+  out.sigma_uv_mm[0] = single.sigma_uv_mm;
   if (!(out.single.reduced_chi2 > count.try_ratio)) return out;  // one explains it: done
 
   const int nc = model_.channel_count();
   const int usable = out.single.channels_used;
+  const LeanLayout l{2, false};  // two contacts; their shear is not fitted
   const int unknowns = options_.fit_ambient ? 9 : 6;
-  if (usable <= unknowns) return out;
+  if (usable <= unknowns || static_cast<int>(field_ut.size()) != nc) return out;
   FitInput in;
   prepare_fit(field_ut, channel_ok, nc, options_, &in);
   const uint8_t* ok = in.ok;
   const double* y = in.y;
   const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
-  double lo[3], hi[3];
-  contact_bounds(model_, options_, lo, hi);
-  ContactsResidual<2> residual(model_, y, ok, in.inv_sigma, ambient_jac_.data(),
-                               options_.tip_radius_mm);
-  const ceres::Solver::Options so = solver_options(options_);
-  double best[2][3] = {}, best_cost = std::numeric_limits<double>::infinity();
   out.pair_tried = true;
-  // Starts: the single contact and a single fit of what it leaves (greedy); then the single
-  // contact split along 4 directions.
-  double starts[5][2][3];
-  int n_starts = 0;
-  {
+  // Starts, in turn, until a fit explains the sample to the noise: the given pair; the single
+  // contact and a single fit of what it leaves (greedy); the single contact split along 4
+  // directions. The best fit is kept.
+  LeanFit best;
+  auto try_start = [&](const double(&x)[2][3]) {
+    LeanVec x0(l.size());
+    for (int k = 0; k < 6; ++k) x0(k) = x[k / 3][k % 3];
+    for (int k = 0; k < 3; ++k) x0(6 + k) = out.single.ambient_ut[k];
+    LeanFit fit = lean_fit(model_, options_, in, ambient_jac_.data(), l, x0);
+    out.pair_iterations += fit.iterations;
+    if (std::isfinite(fit.cost) && fit.cost < best.cost) best = fit;
+    return best.cost / (usable - unknowns) <= count.max_reduced_chi2;
+  };
+  bool done = false;
+  if (pair_start != nullptr) {
+    const double x[2][3] = {{pair_start[0].u_mm, pair_start[0].v_mm, pair_start[0].depth_mm},
+                            {pair_start[1].u_mm, pair_start[1].v_mm, pair_start[1].depth_mm}};
+    done = try_start(x);
+  }
+  if (!done) {
     double f1[kMaxChannels];
     const sim::Contact c1{one.u_mm, one.v_mm, one.depth_mm, options_.tip_radius_mm};
     model_.contact_field_ut(std::span<const sim::Contact>(&c1, 1),
@@ -690,60 +764,42 @@ ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double>
     if (second.contact.valid()) {
       const double x[2][3] = {{one.u_mm, one.v_mm, one.depth_mm},
                               {second.contact.u_mm, second.contact.v_mm, second.contact.depth_mm}};
-      std::copy(&x[0][0], &x[0][0] + 6, &starts[n_starts++][0][0]);
+      done = try_start(x);
     }
   }
   for (double deg : {0.0, 45.0, 90.0, 135.0}) {
+    if (done) break;
     const double du = count.start_offset_mm * std::cos(deg * M_PI / 180);
     const double dv = count.start_offset_mm * std::sin(deg * M_PI / 180);
     const double x[2][3] = {{one.u_mm + du, one.v_mm + dv, one.depth_mm},
                             {one.u_mm - du, one.v_mm - dv, one.depth_mm}};
-    std::copy(&x[0][0], &x[0][0] + 6, &starts[n_starts++][0][0]);
+    done = try_start(x);
   }
-  for (int s = 0; s < n_starts; ++s) {
-    double x[2][3];
-    std::copy(&starts[s][0][0], &starts[s][0][0] + 6, &x[0][0]);
-    double b[3] = {out.single.ambient_ut[0], out.single.ambient_ut[1], out.single.ambient_ut[2]};
-    ceres::Problem::Options po;
-    po.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    ceres::Problem problem(po);
-    problem.AddResidualBlock(&residual, nullptr, x[0], x[1], b);
-    for (auto& xc : x) {
-      for (int k = 0; k < 3; ++k) {
-        xc[k] = std::clamp(xc[k], lo[k], hi[k]);
-        problem.SetParameterLowerBound(xc, k, lo[k]);
-        problem.SetParameterUpperBound(xc, k, hi[k]);
-      }
-    }
-    if (!options_.fit_ambient) problem.SetParameterBlockConstant(b);
-    ceres::Solver::Summary summary;
-    ceres::Solve(so, &problem, &summary);
-    out.pair_iterations += static_cast<int>(summary.iterations.size()) - 1;
-    if (std::isfinite(summary.final_cost) && summary.final_cost < best_cost) {
-      best_cost = summary.final_cost;
-      std::copy(&x[0][0], &x[0][0] + 6, &best[0][0]);
-    }
-    if (2 * best_cost / (usable - unknowns) <= 1.0) break;  // at the noise: no start beats it
-  }
-  if (!std::isfinite(best_cost)) return out;
-  out.pair_chi2 = 2 * best_cost;
+  if (!std::isfinite(best.cost)) return out;
+  out.pair_chi2 = best.cost;
   out.pair_reduced_chi2 = out.pair_chi2 / (usable - unknowns);
-  const double separation = std::hypot(best[0][0] - best[1][0], best[0][1] - best[1][1]);
+  const double separation = std::hypot(best.x(0) - best.x(3), best.x(1) - best.x(4));
   const bool split = out.pair_reduced_chi2 <= count.max_reduced_chi2 &&
                      out.single.reduced_chi2 >= count.min_improvement * out.pair_reduced_chi2 &&
                      out.single.chi2 - out.pair_chi2 >= count.min_chi2_drop &&
-                     separation >= count.min_separation_mm && best[0][2] >= count.min_depth_mm &&
-                     best[1][2] >= count.min_depth_mm;
+                     separation >= count.min_separation_mm && best.x(2) >= count.min_depth_mm &&
+                     best.x(5) >= count.min_depth_mm;
   if (!split) return out;
   out.count = 2;
   for (int k = 0; k < 2; ++k) {
     ContactEstimate& e = out.contacts[k];
     e = ContactEstimate{};
-    e.u_mm = best[k][0];
-    e.v_mm = best[k][1];
-    e.depth_mm = best[k][2];
-    e.force_n = model_.force_n(best[k][2]);
+    e.u_mm = best.x(3 * k);
+    e.v_mm = best.x(3 * k + 1);
+    e.depth_mm = best.x(3 * k + 2);
+    e.force_n = model_.force_n(e.depth_mm);
     flag_range(e, half_u, half_v, model_.max_depth_mm());
+    out.sigma_uv_mm[k] = std::numeric_limits<double>::quiet_NaN();
+    double sigma_depth = 0;
+    if (options_.covariance) {
+      lean_sigmas(best.jtj, l, options_.fit_ambient, out.pair_reduced_chi2, k, &out.sigma_uv_mm[k],
+                  &sigma_depth, nullptr);
+    }
   }
   return out;
 }

@@ -9,10 +9,41 @@ namespace {
 
 class PhysicsRefiner : public ContactRefiner {
  public:
-  explicit PhysicsRefiner(PhysicsEstimator estimator) : estimator_(std::move(estimator)) {}
+  PhysicsRefiner(PhysicsEstimator estimator, const RefinerOptions& options)
+      : estimator_(std::move(estimator)), options_(options) {}
+
   RefinedEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& start) const override {
-    const PhysicsEstimate p = estimator_.refine_lm(field_ut, channel_ok, start);
+    return from(estimator_.refine_lm(field_ut, channel_ok, start));
+  }
+
+  RefinedContacts refine_contacts(std::span<const double> field_ut,
+                                  std::span<const uint8_t> channel_ok, const ContactEstimate& start,
+                                  std::span<const ContactEstimate> previous) const override {
+    RefinedContacts out;
+    const PhysicsEstimate single = estimator_.refine_lm(field_ut, channel_ok, start);
+    out.contacts[0] = from(single);
+    if (options_.max_contacts < 2 || !single.contact.valid() ||
+        !(single.reduced_chi2 > options_.count.try_ratio)) {
+      return out;
+    }
+    const ContactCountEstimate c =
+        estimator_.count_contacts(field_ut, channel_ok, single, options_.count,
+                                  previous.size() == 2 ? previous.data() : nullptr);
+    if (c.count != 2) return out;
+    out.count = 2;
+    for (int k = 0; k < 2; ++k) {
+      RefinedEstimate& r = out.contacts[k];
+      r = RefinedEstimate{};
+      r.contact = c.contacts[k];
+      r.sigma_uv_mm = c.sigma_uv_mm[k];
+      r.reduced_chi2 = c.pair_reduced_chi2;
+    }
+    return out;
+  }
+
+ private:
+  RefinedEstimate from(const PhysicsEstimate& p) const {
     RefinedEstimate out;
     out.contact = p.contact;
     out.sigma_uv_mm = p.sigma_uv_mm;
@@ -21,27 +52,34 @@ class PhysicsRefiner : public ContactRefiner {
     return out;
   }
 
- private:
   PhysicsEstimator estimator_;
+  RefinerOptions options_;
 };
 
 }  // namespace
 
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const sim::PatchModel& model,
-                                                             PhysicsOptions options) {
-  options.covariance = true;
-  // A one-row start table: a refinement starts from its first estimate; the table is only the
-  // last resort of a start that ends in a poor fit.
-  options.start_grid.pitch_mm = std::max(model.design().size_u_mm, model.design().size_v_mm);
-  options.start_grid.depths_mm = {2.0};
-  auto e = PhysicsEstimator::create(model, options);
+                                                             const RefinerOptions& options) {
+  if (options.max_contacts < 1 || options.max_contacts > 2) {
+    return make_error(ErrorCode::kInvalidArgument, "physics refiner: max_contacts must be 1 or 2");
+  }
+  PhysicsOptions po = options.physics;
+  po.covariance = true;
+  if (options.max_contacts < 2) {
+    // A one-row start table: a refinement starts from its first estimate; the table is only the
+    // last resort of a start that ends in a poor fit. Counting contacts needs the whole table
+    // (the fit of what a first contact leaves starts from it).
+    po.start_grid.pitch_mm = std::max(model.design().size_u_mm, model.design().size_v_mm);
+    po.start_grid.depths_mm = {2.0};
+  }
+  auto e = PhysicsEstimator::create(model, po);
   if (!e.ok()) return e.error();
-  return std::unique_ptr<ContactRefiner>(new PhysicsRefiner(std::move(*e)));
+  return std::unique_ptr<ContactRefiner>(new PhysicsRefiner(std::move(*e), options));
 }
 
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& unit_path,
                                                              const std::string& design_path,
-                                                             PhysicsOptions options) {
+                                                             const RefinerOptions& options) {
   auto design = sim::read_design_or_builtin(design_path);
   if (!design.ok()) return design.error();
   auto params = sim::read_unit_parameters(unit_path);
@@ -53,7 +91,7 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& 
                           (design_path.empty() ? std::string("(built-in)") : design_path) + ": " +
                           model.error().message);
   }
-  return make_physics_refiner(*model, std::move(options));
+  return make_physics_refiner(*model, options);
 }
 
 }  // namespace skinbus::estimators

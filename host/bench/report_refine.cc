@@ -90,7 +90,7 @@ Outcome run(const sim::PatchModel& unit, const std::vector<Sample>& session, uin
   o.max_lag_us = 0;
   o.refine_budget_us = 1'000'000;  // the whole call: every sample refined, each timed
   o.refine_warm_start_mm = warm_start_mm;
-  o.refiner_factory = [&unit](const std::string&, const std::string&, bool) {
+  o.refiner_factory = [&unit](const host::RefinerRequest&) {
     return estimators::make_physics_refiner(unit);
   };
   auto agg = host::Aggregator::create(&map, SKINBUS_SOURCE_DIR, nullptr, {"can0"}, o);

@@ -119,6 +119,8 @@ struct Aggregator::Impl {
   struct Current {
     bool used = false;
     PatchContact contact;
+    bool has_second = false;  // a second press on the patch (a refiner with max_contacts 2)
+    PatchContact second;
     int link = -1;         // robot link index; -1: the base frame (no robot, or unmapped)
     uint64_t time_us = 0;  // aligned sample time
     uint64_t last_us = 0;  // host time of its last contact sample
@@ -165,7 +167,7 @@ struct Aggregator::Impl {
                                    now_us);
   }
   std::vector<int> link_of_placement;  // robot link index of each skin-map entry, -1: none
-  PatchContact placed;                 // the contact being placed
+  PatchContact placed[2];              // the contacts being placed
   std::vector<PatchContact> scratch_contacts;
   std::vector<BodyContact> scratch_out;
 
@@ -301,9 +303,12 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
     for (std::size_t i = 0; i < map->patches.size(); ++i) {
       const body_map::PatchPlacement& pl = map->patches[i];
       if (pl.unit.empty()) continue;
-      auto r = options.refiner_factory(
-          beside_map(map_dir, pl.unit),
-          pl.design.empty() ? std::string() : beside_map(map_dir, pl.design), pl.refine_shear);
+      RefinerRequest request;
+      request.unit_path = beside_map(map_dir, pl.unit);
+      request.design_path = pl.design.empty() ? std::string() : beside_map(map_dir, pl.design);
+      request.fit_shear = pl.refine_shear;
+      request.max_contacts = pl.max_contacts;
+      auto r = options.refiner_factory(request);
       if (r.ok()) {
         impl->refiners[i] = std::move(*r);
       } else {
@@ -650,8 +655,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         continue;
       }
       uint32_t flags = amb_flags[static_cast<std::size_t>(b)];
-      // Physics refinement of the network's answer, within the call's budget.
-      double refined_sigma_mm = std::numeric_limits<double>::quiet_NaN();
+      // Physics refinement of the network's answer, within the call's budget: one contact, or
+      // with the entry's max_contacts 2, one or two.
+      int count = 1;
+      ContactEstimate ests[2] = {est, {}};
+      double refined_sigma_mm[2] = {std::numeric_limits<double>::quiet_NaN(),
+                                    std::numeric_limits<double>::quiet_NaN()};
       double refined_sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
       const estimators::ContactRefiner* refiner =
           p.placement != nullptr
@@ -664,10 +673,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         } else {
           const auto t0 = std::chrono::steady_clock::now();
           const std::size_t row = static_cast<std::size_t>(b) * kChannels;
-          // Warm start: the patch's previous refined contact, when this is the same press.
+          // Warm start: the patch's previous refined contact, when this is the same press; a
+          // previous pair is tried again first.
           ContactEstimate start = est;
           const Impl::Current& prev = s.current[k];
-          if (prev.used && (prev.contact.flags & kContactUnrefined) == 0 &&
+          const bool prev_refined = prev.used && (prev.contact.flags & kContactUnrefined) == 0;
+          if (prev_refined &&
               std::hypot(prev.contact.u_mm - est.u_mm, prev.contact.v_mm - est.v_mm) <
                   s.options.refine_warm_start_mm) {
             start.u_mm = prev.contact.u_mm;
@@ -675,51 +686,78 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             start.depth_mm = prev.contact.depth_mm;
             ++s.stats.refine_warm_starts;
           }
-          const estimators::RefinedEstimate r =
-              refiner->refine(std::span<const double>(m.fields.data() + row, kChannels),
-                              std::span<const uint8_t>(m.ok.data() + row, kChannels), start);
+          ContactEstimate previous[2];
+          std::size_t n_previous = 0;
+          if (prev_refined) {
+            for (const PatchContact* pc :
+                 {&prev.contact, prev.has_second ? &prev.second : nullptr}) {
+              if (pc == nullptr) continue;
+              previous[n_previous].u_mm = pc->u_mm;
+              previous[n_previous].v_mm = pc->v_mm;
+              previous[n_previous++].depth_mm = pc->depth_mm;
+            }
+          }
+          const estimators::RefinedContacts rc = refiner->refine_contacts(
+              std::span<const double>(m.fields.data() + row, kChannels),
+              std::span<const uint8_t>(m.ok.data() + row, kChannels), start,
+              std::span<const ContactEstimate>(previous, n_previous));
           const double us =
               std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
                   .count();
           refine_spent_us += us;
           s.stats.refine_us += us;
           const uint32_t bad = kEstimateNoContact | estimators::kEstimateNotConverged;
-          if (r.contact.valid() && (r.contact.flags & bad) == 0 &&
-              r.reduced_chi2 <= s.options.refine_max_reduced_chi2 &&
-              (r.reduced_chi2 <= s.options.refine_trusted_chi2 ||
-               std::hypot(r.contact.u_mm - est.u_mm, r.contact.v_mm - est.v_mm) <=
-                   s.options.refine_max_shift_mm)) {
-            est = r.contact;
-            refined_sigma_mm = r.sigma_uv_mm;
-            refined_sigma_shear_n = r.sigma_shear_n;
+          auto acceptable = [&](const estimators::RefinedEstimate& r) {
+            return r.contact.valid() && (r.contact.flags & bad) == 0 &&
+                   r.reduced_chi2 <= s.options.refine_max_reduced_chi2 &&
+                   (r.reduced_chi2 <= s.options.refine_trusted_chi2 ||
+                    std::hypot(r.contact.u_mm - est.u_mm, r.contact.v_mm - est.v_mm) <=
+                        s.options.refine_max_shift_mm);
+          };
+          const int found = std::clamp(rc.count, 1, 2);
+          bool ok = true;
+          for (int j = 0; j < found; ++j) ok = ok && acceptable(rc.contacts[j]);
+          if (ok) {
+            count = found;
+            for (int j = 0; j < found; ++j) {
+              ests[j] = rc.contacts[j].contact;
+              refined_sigma_mm[j] = rc.contacts[j].sigma_uv_mm;
+            }
+            refined_sigma_shear_n = rc.contacts[0].sigma_shear_n;
             ++s.stats.refined;
+            if (found == 2) ++s.stats.refined_pairs;
           } else {
             flags |= kContactUnrefined;
             ++s.stats.unrefined_poor_fit;
           }
         }
       }
-      if (est.flags & kEstimateOutsidePatch) flags |= kContactOutsidePatch;
-      if (est.flags & kEstimateDepthRange) flags |= kContactDepthRange;
-      if (est.flags & kEstimateMasked) flags |= kContactMaskedChannels;
-      PatchContact& placed = s.placed;  // placed aside: a bad estimate never erases a held one
+      // Each contact placed aside (a bad estimate never erases a held one); a place that is not
+      // finite, or farther than any robot reaches (an absurd estimate or placement), is no
+      // contact: counted, and the patch degraded with the reason if it lasts.
       int link = -1;
-      s.place(*p.entry, est, m, flags, &placed, &link);
-      if (std::isfinite(refined_sigma_mm)) placed.uncertainty_mm = refined_sigma_mm;
-      if (std::isfinite(refined_sigma_shear_n)) {  // the refinement fitted the shear
-        placed.flags |= kContactShear;
-        placed.shear_uncertainty_n = refined_sigma_shear_n;
-      }
-      // A place that is not finite, or farther than any robot reaches (an absurd estimate or
-      // placement), is no contact: counted, and the patch degraded with the reason if it lasts.
       bool finite = true;
-      for (int i = 0; i < 3; ++i) {
-        finite = finite && std::isfinite(placed.normal[i]) &&
-                 std::fabs(placed.position_mm[i]) <= kMaxContactMagnitude;
-      }
-      for (double v : {est.u_mm, est.v_mm, est.depth_mm, placed.shear_n[0], placed.shear_n[1],
-                       placed.shear_n[2], placed.shear_uncertainty_n}) {
-        finite = finite && std::fabs(v) <= kMaxContactMagnitude;
+      for (int j = 0; j < count; ++j) {
+        const ContactEstimate& e = ests[j];
+        uint32_t f = flags;
+        if (e.flags & kEstimateOutsidePatch) f |= kContactOutsidePatch;
+        if (e.flags & kEstimateDepthRange) f |= kContactDepthRange;
+        if (e.flags & kEstimateMasked) f |= kContactMaskedChannels;
+        PatchContact& placed = s.placed[j];
+        s.place(*p.entry, e, m, f, &placed, &link);
+        if (std::isfinite(refined_sigma_mm[j])) placed.uncertainty_mm = refined_sigma_mm[j];
+        if (count == 1 && std::isfinite(refined_sigma_shear_n)) {  // the fit had the shear
+          placed.flags |= kContactShear;
+          placed.shear_uncertainty_n = refined_sigma_shear_n;
+        }
+        for (int i = 0; i < 3; ++i) {
+          finite = finite && std::isfinite(placed.normal[i]) &&
+                   std::fabs(placed.position_mm[i]) <= kMaxContactMagnitude;
+        }
+        for (double v : {e.u_mm, e.v_mm, e.depth_mm, placed.shear_n[0], placed.shear_n[1],
+                         placed.shear_n[2], placed.shear_uncertainty_n}) {
+          finite = finite && std::fabs(v) <= kMaxContactMagnitude;
+        }
       }
       if (!finite) {
         ++s.stats.rejected;
@@ -729,7 +767,9 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       }
       s.estimate_outcome(p, nullptr, now_us);
       Impl::Current& c = s.current[k];
-      c.contact = placed;
+      c.contact = s.placed[0];
+      c.has_second = count == 2;
+      if (c.has_second) c.second = s.placed[1];
       c.link = link;
       ++p.entry->contacts;
       changed = true;
@@ -755,8 +795,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   for (std::size_t k : s.current_list) stamp = std::max(stamp, s.current[k].time_us);
   if (stamp == 0) stamp = now_us;
   for (std::size_t k : s.current_list) {
-    PatchContact& c = s.scratch_contacts.emplace_back(s.current[k].contact);
-    if (!s.to_base(s.current[k].link, stamp, &c)) s.scratch_contacts.pop_back();
+    const Impl::Current& cur = s.current[k];
+    for (const PatchContact* pc : {&cur.contact, cur.has_second ? &cur.second : nullptr}) {
+      if (pc == nullptr) continue;
+      PatchContact& c = s.scratch_contacts.emplace_back(*pc);
+      if (!s.to_base(cur.link, stamp, &c)) s.scratch_contacts.pop_back();
+    }
   }
   out->stamp_us = stamp;
   out->base_frame = s.options.base_frame;

@@ -25,7 +25,7 @@ std::string source_dir() {
   return d != nullptr ? d : ".";
 }
 
-body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false) {
+body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false, int max_contacts = 1) {
   body_map::SkinMap map;
   body_map::PatchPlacement p;
   p.node_id = 4;
@@ -34,6 +34,7 @@ body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false) {
   p.model = "estimators/models/nominal_seed_cnn";
   if (with_unit) p.unit = "units/unit4.json";
   p.refine_shear = refine_shear;
+  p.max_contacts = max_contacts;
   map.patches.push_back(p);
   return map;
 }
@@ -78,9 +79,9 @@ struct RunResult {
 
 // Each press as its own sample (with a release between), through an aggregator with `o`.
 RunResult run(const std::vector<Press>& ps, bool with_unit, AggregatorOptions o,
-              bool refine_shear = false) {
+              bool refine_shear = false, int max_contacts = 1) {
   RunResult out;
-  const body_map::SkinMap map = one_patch_map(with_unit, refine_shear);
+  const body_map::SkinMap map = one_patch_map(with_unit, refine_shear, max_contacts);
   auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o);
   EXPECT_TRUE(a.ok()) << a.error().to_string();
   if (!a.ok()) return out;
@@ -112,13 +113,13 @@ class AggregatorRefineTest : public ::testing::Test {
     unit_ = std::make_unique<sim::PatchModel>(
         sim::PatchModel::fabricated(sim::PatchDesign{}, kUid, sim::FabricationVariation{}).value());
     options_.max_lag_us = 0;  // the test's clock is its own
-    options_.refiner_factory = [this](const std::string& unit_path, const std::string& design,
-                                      bool shear) {
-      EXPECT_NE(unit_path.find("units/unit4.json"), std::string::npos);  // resolved, named
-      EXPECT_EQ(design, "");
-      estimators::PhysicsOptions po;
-      po.fit_shear = shear;
-      return estimators::make_physics_refiner(*unit_, po);
+    options_.refiner_factory = [this](const RefinerRequest& r) {
+      EXPECT_NE(r.unit_path.find("units/unit4.json"), std::string::npos);  // resolved, named
+      EXPECT_EQ(r.design_path, "");
+      estimators::RefinerOptions ro;
+      ro.physics.fit_shear = r.fit_shear;
+      ro.max_contacts = r.max_contacts;
+      return estimators::make_physics_refiner(*unit_, ro);
     };
   }
   std::unique_ptr<sim::PatchModel> unit_;
@@ -206,6 +207,80 @@ TEST_F(AggregatorRefineTest, ShearIsPublishedWhenTheEntryAsksForIt) {
   EXPECT_LT(xy_with, xy_without);  // a shear left out of the fit misplaces the press
 }
 
+// Two fingers on one patch (an entry with max_contacts 2): two presses 60 mm apart slide toward
+// each other, held in a continuous stream of samples, until they meet. While they are 30 mm or
+// more apart each is published with its own track, the same from sample to sample, at its
+// two-contact bound; once one press, one contact; the same entry never splits a single press.
+TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
+  const uint64_t seed = 79;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const body_map::SkinMap map = one_patch_map(true, false, 2);
+  auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, options_);
+  ASSERT_TRUE(a.ok()) << a.error().to_string();
+  Aggregator& agg = **a;
+  sim::SimulatedPatch patch(*unit_, seed);
+  sim::Environment env;
+  std::vector<double> base(static_cast<std::size_t>(patch.channel_count())), f(base.size());
+  patch.tare(env, 32, base);
+  const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit_->design());
+  test_support::Node node{4, kUid};
+  uint64_t t = 1'000'000;
+  node.heartbeat(agg, t, 1);
+  constexpr int kSamples = 80;  // 1.9 s at 41.7 Hz: 0.75 mm closer a sample
+  uint32_t ids[2] = {0, 0};
+  int apart = 0, apart_two = 0, met = 0, met_one = 0;
+  double err = 0, bound = 0;
+  for (int i = 0; i < kSamples; ++i) {
+    const double half = 30.0 * (1.0 - static_cast<double>(i) / (kSamples - 20));  // 0 from 60
+    const double h = std::max(half, 0.0);
+    const sim::Contact p[2] = {{-5 - h, 8, 2.5, 5.0}, {-5 + h, 8, 2.5, 5.0}};
+    patch.measure(std::span<const sim::Contact>(p, h > 0 ? 2 : 1), env, f);
+    for (std::size_t c = 0; c < f.size(); ++c) f[c] -= base[c];
+    node.sample(agg, t += test_support::kPeriodUs, f, true);
+    ContactArray arr;
+    ASSERT_TRUE(agg.process(t + 100, &arr));
+    if (2 * h >= 30) {
+      ++apart;
+      if (arr.contacts.size() != 2) continue;
+      ++apart_two;
+      // Each truth's nearest contact; the track IDs stay with their press.
+      for (int k = 0; k < 2; ++k) {
+        const BodyContact* best = nullptr;
+        for (const BodyContact& c : arr.contacts) {
+          if (best == nullptr || std::hypot(c.u_mm - p[k].u_mm, c.v_mm - p[k].v_mm) <
+                                     std::hypot(best->u_mm - p[k].u_mm, best->v_mm - p[k].v_mm))
+            best = &c;
+        }
+        if (ids[k] == 0) ids[k] = best->track_id;
+        EXPECT_EQ(best->track_id, ids[k]) << "sample " << i << " press " << k;
+        err += std::hypot(best->u_mm - p[k].u_mm, best->v_mm - p[k].v_mm);
+      }
+      const sim::CrlbPair b = sim::crlb_pair_at(*unit_, p[0], p[1], noise.xy_ut, noise.z_ut, true);
+      bound += b.first.sd_xy_mm + b.second.sd_xy_mm;
+      EXPECT_NE(arr.contacts[0].track_id, arr.contacts[1].track_id);
+    } else if (h == 0) {
+      ++met;
+      met_one += arr.contacts.size() == 1;
+    }
+  }
+  const AggregatorStats st = agg.stats();
+  std::printf(
+      "apart: %d of %d samples with two contacts, XY mean error %.3f mm (mean two-contact bound "
+      "%.3f mm); met: %d of %d samples with one; %llu of %llu refined samples with two, %.0f us "
+      "a refined sample\n",
+      apart_two, apart, err / (2 * apart_two), bound / (2 * apart_two), met_one, met,
+      static_cast<unsigned long long>(st.refined_pairs),
+      static_cast<unsigned long long>(st.refined), st.refine_us / static_cast<double>(st.refined));
+  EXPECT_GE(apart_two, apart - 2);  // the first sample or two may still be one
+  EXPECT_LT(err / bound, 1.3);
+  EXPECT_EQ(met_one, met);
+  // A single press is never split by the same entry.
+  const std::vector<Press> singles = presses(*unit_, 30, seed + 1);
+  const RunResult one = run(singles, true, options_, false, 2);
+  EXPECT_EQ(one.contacts.size(), singles.size());  // one a sample (run() checks each has one)
+  EXPECT_EQ(one.stats.refined_pairs, 0u);
+}
+
 TEST_F(AggregatorRefineTest, OverBudgetTheNetworksAnswerIsPublishedFlagged) {
   const std::vector<Press> ps = presses(*unit_, 10, 5);
   options_.refine_budget_us = 0;
@@ -226,9 +301,9 @@ TEST_F(AggregatorRefineTest, OverBudgetTheNetworksAnswerIsPublishedFlagged) {
 }
 
 TEST_F(AggregatorRefineTest, AUnitThatCannotBeLoadedIsNamedAndItsPatchStillPublishes) {
-  options_.refiner_factory = [](const std::string& unit_path, const std::string&,
-                                bool) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
-    return make_error(ErrorCode::kNotFound, unit_path + ": no such file");
+  options_.refiner_factory =
+      [](const RefinerRequest& r) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
+    return make_error(ErrorCode::kNotFound, r.unit_path + ": no such file");
   };
   const RunResult r = run(presses(*unit_, 3, 9), true, options_);
   EXPECT_EQ(r.contacts.size(), 3u);

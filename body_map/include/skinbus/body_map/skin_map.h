@@ -72,6 +72,10 @@ struct PatchPlacement {
   // wrench). It costs the position precision (about 2.3x the bound without it:
   // docs/benchmarks/shear.md), so it is for patches where shear matters.
   bool refine_shear = false;
+  // How many presses the refinement looks for on this patch: 1, or 2 (two fingers; each
+  // published with its own track). Counting costs a few milliseconds when a second press
+  // appears, then about 0.5 ms a sample while both last (docs/aggregator.md).
+  int max_contacts = 1;
   std::optional<PoseUncertainty> calibration;
 };
 

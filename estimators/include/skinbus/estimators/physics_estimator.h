@@ -116,8 +116,12 @@ struct ContactCountOptions {
 };
 
 struct ContactCountEstimate {
-  int count = 0;                 // contacts in the sample: 0, 1 or 2
-  ContactEstimate contacts[2];   // the first `count` are valid
+  int count = 0;                // contacts in the sample: 0, 1 or 2
+  ContactEstimate contacts[2];  // the first `count` are valid
+  // With PhysicsOptions::covariance: each contact's radial 1-sigma (the pair's from the
+  // two-contact fit's covariance), mm; NaN otherwise or when singular.
+  double sigma_uv_mm[2] = {std::numeric_limits<double>::quiet_NaN(),
+                           std::numeric_limits<double>::quiet_NaN()};
   PhysicsEstimate single;        // the single-contact fit (always made)
   bool pair_tried = false;       // the two-contact fit was made
   double pair_chi2 = 0;          // its chi-square (noise units), when tried
@@ -157,11 +161,21 @@ class PhysicsEstimator {
   PhysicsEstimate refine_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                             const ContactEstimate& start) const;
   // The number of contacts in the sample (0, 1 or 2) and each one (ContactCountOptions). Cost:
-  // estimate(), and when the single fit leaves more than noise, up to 4 two-contact solves (each
-  // ~2x a single one: 6 contact unknowns).
+  // estimate(), and when the single fit leaves more than noise, a single fit of what it leaves
+  // and up to 5 two-contact solves (the lean Levenberg-Marquardt of refine_lm() over both
+  // contacts and the ambient offset; each ~2-3x a single one). The pair's shear is not fitted.
   ContactCountEstimate estimate_contacts(std::span<const double> field_ut,
                                          std::span<const uint8_t> channel_ok = {},
                                          const ContactCountOptions& count = {}) const;
+  // The same from a single-contact fit already made of this sample (`single`: estimate(),
+  // refine() or refine_lm()), and a pair to try first when given (`pair_start`: 2 contacts,
+  // e.g. the previous sample's): the host's refinement counts contacts after its own single fit
+  // and follows two presses from sample to sample at the cost of one two-contact solve.
+  ContactCountEstimate count_contacts(std::span<const double> field_ut,
+                                      std::span<const uint8_t> channel_ok,
+                                      const PhysicsEstimate& single,
+                                      const ContactCountOptions& count = {},
+                                      const ContactEstimate* pair_start = nullptr) const;
 
  private:
   PhysicsEstimator(const sim::PatchModel& model, const PhysicsOptions& options,

@@ -25,6 +25,12 @@ struct RefinedEstimate {
   double sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
 };
 
+// Every contact a refiner found in one sample (refine_contacts()): the first `count` (1 or 2).
+struct RefinedContacts {
+  int count = 1;
+  RefinedEstimate contacts[2];
+};
+
 class ContactRefiner {
  public:
   virtual ~ContactRefiner() = default;
@@ -34,6 +40,18 @@ class ContactRefiner {
   virtual RefinedEstimate refine(std::span<const double> field_ut,
                                  std::span<const uint8_t> channel_ok,
                                  const ContactEstimate& start) const = 0;
+  // The same, for a refiner that may find more than one contact in a sample (two fingers on one
+  // patch): `previous` holds the same patch's refined contacts of its previous sample (0, 1 or
+  // 2; a pair is tried first from there). By default the one contact of refine().
+  virtual RefinedContacts refine_contacts(std::span<const double> field_ut,
+                                          std::span<const uint8_t> channel_ok,
+                                          const ContactEstimate& start,
+                                          std::span<const ContactEstimate> previous) const {
+    (void)previous;
+    RefinedContacts out;
+    out.contacts[0] = refine(field_ut, channel_ok, start);
+    return out;
+  }
 };
 
 }  // namespace skinbus::estimators

@@ -100,6 +100,18 @@ class InputTap {
   virtual void joint_state(std::span<const double> q, uint64_t stamp_us) = 0;
 };
 
+// What a skin-map entry asks of its refiner (AggregatorOptions::refiner_factory).
+struct RefinerRequest {
+  std::string unit_path;    // the unit file, resolved against the map's folder
+  std::string design_path;  // the design file, resolved; "" when the entry names none
+  // PatchPlacement::refine_shear: also fit the shear force (the refiner fills
+  // RefinedEstimate::sigma_shear_n and its contact's shear, published with kContactShear).
+  bool fit_shear = false;
+  // PatchPlacement::max_contacts: 2 to find two presses on the patch
+  // (ContactRefiner::refine_contacts; each published with its own track).
+  int max_contacts = 1;
+};
+
 struct AggregatorOptions {
   RegistryOptions registry;
   TrackerOptions tracker;
@@ -130,14 +142,10 @@ struct AggregatorOptions {
   // Sees every input (above); borrowed, must outlive the aggregator. Null: none (no cost).
   InputTap* tap = nullptr;
   // Physics refinement: for each skin-map entry that names a unit (PatchPlacement::unit), the
-  // refiner this makes of it, given the unit's and the design's paths (relative ones resolved
-  // against the map's folder; the design "" when the entry names none) and whether the entry
-  // asks for the shear force too (PatchPlacement::refine_shear: the refiner then fills
-  // RefinedEstimate::sigma_shear_n and its contact's shear, published with kContactShear).
-  // skinbus-host passes estimators::make_physics_refiner. Empty: no refinement. A unit that
-  // cannot be made into a refiner leaves its patch on the network's answers (an event says why).
-  std::function<Result<std::unique_ptr<estimators::ContactRefiner>>(
-      const std::string& unit_path, const std::string& design_path, bool fit_shear)>
+  // refiner this makes of it (RefinerRequest). skinbus-host passes
+  // estimators::make_physics_refiner. Empty: no refinement. A unit that cannot be made into a
+  // refiner leaves its patch on the network's answers (an event says why).
+  std::function<Result<std::unique_ptr<estimators::ContactRefiner>>(const RefinerRequest&)>
       refiner_factory;
   // Host time (steady clock) process() may spend refining, per call. A sample beyond it is
   // published with the network's answer, flagged kContactUnrefined (never late).
@@ -183,6 +191,7 @@ struct AggregatorStats {
   // spent, or because the fit was poor (or failed); the time spent refining (us).
   uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
+  uint64_t refined_pairs = 0;       // refined samples that held two presses (max_contacts 2)
   double refine_us = 0;
 };
 
