@@ -39,7 +39,8 @@ if ((setup)); then
   scripts/setup.sh
   # Only the programs the demo runs (scripts/build.sh alone builds everything, tests too).
   scripts/build.sh --target skinbus-touchsim --target skinbus-patchd --target skinbus-host \
-    --target skinbus-listen --target skinbus-joints --target skinbus-top --target skinbus-view
+    --target skinbus-listen --target skinbus-joints --target skinbus-top --target skinbus-view \
+    --target skinbus-dataset --target skinbus-identify
 fi
 bin=$src/build/tools
 scene=$src/sim/scenes/whole_body
@@ -65,6 +66,30 @@ patches=$(grep -c '^  - node:' "$out/skin.yaml")
 echo "== the robot skinbot wears $patches patches (skin map: $out/skin.yaml)"
 awk '/^  - node:/ {n=$3} /^    link:/ {print "   node " n " on " $2}' "$out/skin.yaml" |
   sort -k4 | awk '{l[$4] = l[$4] " " $2} END {for (k in l) print "   " k ":" l[k]}' | sort
+
+# ---- Two chest patches calibrated: their units identified from a grid of presses -------------
+# (docs/guides/calibration.md does this on a real unit.) The host then refines their contacts on
+# the identified physics: node 9 looks for two presses at once (max_contacts: 2), node 10 for the
+# shear of a sliding press (refine_shear: true). The simulated daemons' units are the fabricated
+# units of their UIDs, pressed here by the simulated indentation robot.
+mkdir -p "$out/units"
+for n in 9 10; do
+  uid=$(printf '0x5b%014x' "$n")
+  "$bin/skinbus-dataset" --plan grid --fabricated --uid "$uid" -o "$out/units/node$n.csv" 2>/dev/null
+  "$bin/skinbus-identify" "$out/units/node$n.csv" -o "$out/units/node$n.json" \
+    >"$out/units/node$n.txt" 2>&1 &
+  pids+=($!)
+done
+wait "${pids[@]}"
+pids=()
+awk -v units="$out/units" '
+  /^  - node:/ {n = $3}
+  {print}
+  /^    model:/ && n == 9 {print "    unit: \"" units "/node9.json\"\n    max_contacts: 2"}
+  /^    model:/ && n == 10 {print "    unit: \"" units "/node10.json\"\n    refine_shear: true"}
+' "$out/skin.yaml" >"$out/skin.yaml.tmp" && mv "$out/skin.yaml.tmp" "$out/skin.yaml"
+echo "== nodes 9 and 10 calibrated: $(grep -h '^identified' "$out"/units/node{9,10}.txt | tr '\n' ' ')"
+echo "   node 9 finds two fingers at once, node 10 the shear of a sliding press"
 
 # ---- DDS: loopback only unless the caller configured Cyclone DDS ------------------------------
 export CYCLONEDDS_URI=${CYCLONEDDS_URI:-file://$src/tools/dds/loopback.xml}

@@ -21,22 +21,23 @@ Result<std::vector<sim::SceneContact>> parse_contact_script(const std::string& t
     if (hash != std::string::npos) line.resize(hash);
     if (is_csv_comment_or_blank(line)) continue;
     if (line.rfind("t_start", 0) == 0) continue;  // header
-    double v[7] = {0, 0, 0, 0, 0, 8.0, 0};
+    double v[10] = {0, 0, 0, 0, 0, 8.0, 0, 0, 0, 0};
     const std::vector<std::string_view> fields = split_csv_fields(line);
     int n = 0;
     for (std::string_view field : fields) {
-      if (n >= 7 || !parse_csv_number(field, &v[n])) {
-        return make_error(ErrorCode::kParse, "contact script line " + std::to_string(line_no) +
-                                                 ": field " + std::to_string(n + 1) + " '" +
-                                                 std::string(field) +
-                                                 "' (expected t_start_s,t_end_s,u_mm,v_mm,depth_mm"
-                                                 "[,tip_radius_mm[,node]])");
+      if (n >= 10 || !parse_csv_number(field, &v[n])) {
+        return make_error(ErrorCode::kParse,
+                          "contact script line " + std::to_string(line_no) + ": field " +
+                              std::to_string(n + 1) + " '" + std::string(field) +
+                              "' (expected t_start_s,t_end_s,u_mm,v_mm,depth_mm"
+                              "[,tip_radius_mm[,node[,u_end_mm,v_end_mm[,friction]]]])");
       }
       ++n;
     }
-    if (n < 5) {
+    if (n < 5 || n == 8) {
       return make_error(ErrorCode::kParse, "contact script line " + std::to_string(line_no) + ": " +
-                                               std::to_string(n) + " fields, at least 5 needed");
+                                               std::to_string(n) +
+                                               " fields (5 to 7, or 9 or 10 for a slide)");
     }
     sim::SceneContact c;
     c.t_start_s = v[0];
@@ -45,13 +46,19 @@ Result<std::vector<sim::SceneContact>> parse_contact_script(const std::string& t
     c.v_mm = v[3];
     c.depth_mm = v[4];
     c.tip_radius_mm = v[5];
+    if (n >= 9) {
+      c.u_end_mm = v[7];
+      c.v_end_mm = v[8];
+      c.friction = v[9];
+    }
     const int for_node = static_cast<int>(v[6]);
     if (!(c.t_end_s > c.t_start_s) || c.t_start_s < 0 || !(c.depth_mm >= 0) ||
-        !(c.tip_radius_mm >= 0) || for_node < 0 || for_node > bus::kNodeMax) {
+        !(c.tip_radius_mm >= 0) || for_node < 0 || for_node > bus::kNodeMax ||
+        !(c.friction >= 0 && c.friction <= 2)) {
       return make_error(ErrorCode::kOutOfRange,
                         "contact script line " + std::to_string(line_no) +
                             ": needs t_end_s > t_start_s >= 0, depth_mm >= 0, tip_radius_mm >= 0, "
-                            "node 0..125");
+                            "node 0..125, friction 0..2");
     }
     c.ramp_s = std::min(0.15, 0.5 * (c.t_end_s - c.t_start_s));
     if (for_node == 0 || for_node == node) out.push_back(c);

@@ -31,10 +31,12 @@ Status Scene::add_contact(const SceneContact& c) {
     return make_error(ErrorCode::kInvalidArgument,
                       "scene: contact on unknown patch " + std::to_string(c.patch));
   if (!(c.t_end_s > c.t_start_s) || !(c.ramp_s >= 0) || !(c.depth_mm >= 0) ||
-      !std::isfinite(c.u_mm) || !std::isfinite(c.v_mm)) {
-    return make_error(
-        ErrorCode::kInvalidArgument,
-        "scene: contact needs t_end_s > t_start_s, ramp_s >= 0, depth_mm >= 0, finite position");
+      !std::isfinite(c.u_mm) || !std::isfinite(c.v_mm) || !(c.friction >= 0) ||
+      !(c.friction <= 2) || std::isinf(c.u_end_mm) || std::isinf(c.v_end_mm) ||
+      std::isnan(c.u_end_mm) != std::isnan(c.v_end_mm)) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "scene: contact needs t_end_s > t_start_s, ramp_s >= 0, depth_mm >= 0, "
+                      "finite positions (both ends of a slide or neither), friction in [0, 2]");
   }
   contacts_.push_back(c);
   patches_[c.patch]->contacts.push_back(static_cast<int>(contacts_.size()) - 1);
@@ -60,7 +62,21 @@ void Scene::active_contacts(int i, double t_s, std::vector<Contact>* out) {
     // Creep follows a fraction of the depth with a lag; it also relaxes after release.
     p.creep_mm[j] += (config_.creep_fraction * d - p.creep_mm[j]) * k;
     const double total = d > 0 ? d + p.creep_mm[j] : 0.0;
-    if (total > 0) out->push_back(Contact{c.u_mm, c.v_mm, total, c.tip_radius_mm});
+    if (!(total > 0)) continue;
+    Contact now{c.u_mm, c.v_mm, total, c.tip_radius_mm};
+    if (c.slides()) {
+      const double f = std::clamp((t_s - c.t_start_s) / (c.t_end_s - c.t_start_s), 0.0, 1.0);
+      const double du = c.u_end_mm - c.u_mm, dv = c.v_end_mm - c.v_mm;
+      now.u_mm += f * du;
+      now.v_mm += f * dv;
+      const double len = std::hypot(du, dv);
+      if (len > 0 && c.friction > 0) {
+        const double shear = c.friction * p.sim.model().force_n(total);
+        now.shear_u_n = shear * du / len;
+        now.shear_v_n = shear * dv / len;
+      }
+    }
+    out->push_back(now);
   }
   p.last_t_s = std::max(p.last_t_s, t_s);
 }

@@ -74,6 +74,40 @@ TEST(SceneTest, CreepAndRelease) {
   EXPECT_TRUE(c.empty());
 }
 
+TEST(SceneTest, ASlidingPressMovesAndDragsTheSkinAlong) {
+  Scene scene;
+  ASSERT_TRUE(scene.add_patch(9, PatchDesign{}).ok());
+  SceneContact slide{0, 1.0, 3.0, -20, 10, 2.0, 0.1};
+  slide.u_end_mm = 20;
+  slide.v_end_mm = -20;
+  slide.friction = 0.5;
+  ASSERT_TRUE(scene.add_contact(slide).ok());
+  std::vector<Contact> c;
+  scene.active_contacts(0, 2.0, &c);  // half way
+  ASSERT_EQ(c.size(), 1u);
+  EXPECT_NEAR(c[0].u_mm, 0, 1e-9);
+  EXPECT_NEAR(c[0].v_mm, -5, 1e-9);
+  // Along the slide (40, -30)/50, half the normal force.
+  const double fn = scene.patch(0).model().force_n(c[0].depth_mm);
+  EXPECT_NEAR(c[0].shear_u_n, 0.5 * fn * 0.8, 1e-9);
+  EXPECT_NEAR(c[0].shear_v_n, -0.5 * fn * 0.6, 1e-9);
+  // It changes the field beyond the move alone.
+  std::vector<double> with(48), without(48);
+  scene.patch(0).model().contact_field_ut(c, with);
+  Contact plain = c[0];
+  plain.shear_u_n = plain.shear_v_n = 0;
+  scene.patch(0).model().contact_field_ut(std::span<const Contact>(&plain, 1), without);
+  double diff = 0;
+  for (int i = 0; i < 48; ++i) diff = std::max(diff, std::fabs(with[i] - without[i]));
+  EXPECT_GT(diff, 5.0);  // uT
+  SceneContact bad = slide;
+  bad.v_end_mm = std::nan("");  // one end only
+  EXPECT_FALSE(scene.add_contact(bad).ok());
+  bad = slide;
+  bad.friction = -1;
+  EXPECT_FALSE(scene.add_contact(bad).ok());
+}
+
 TEST(SceneTest, BadInputsAreRefused) {
   Scene scene;
   ASSERT_TRUE(scene.add_patch(1, PatchDesign{}).ok());

@@ -7,7 +7,11 @@ Every contact skinbus-listen received (OUT_DIR/contacts.jsonl) must come from a 
 pressed, on that patch's link; contacts at least 1 mm deep must lie, in the base frame, within the
 model's error (median < 5 mm, p90 < 12 mm per patch) of where the press is on the moving body:
 skinbus-locate at the contact's time into the arm trajectory (time zero from OUT_DIR/joints.log).
-Every scripted press must have been seen. PASS/FAIL lines; exit 1 on any FAIL.
+A patch pressed twice at once is judged against the nearer press, a sliding press against the
+nearest point of its path. Every scripted press must have been seen. The two fingers on one
+patch must be published as two contacts at once, each on its press with a track of its own; the
+sliding press's shear must point along the slide in the base frame, its size the scene's
+friction times the normal force. PASS/FAIL lines; exit 1 on any FAIL.
 """
 import json
 import math
@@ -18,14 +22,41 @@ from xml.etree import ElementTree
 
 
 def read_presses(scene):
-    """The scene's scripted presses: node -> (u_mm, v_mm) (one press a patch)."""
+    """The scene's scripted presses: node -> [press], each a dict with u, v, the slide's end (the
+    same for a press that stays) and its friction."""
     presses = {}
     for line in open(f"{scene}/presses.csv"):
         if line.startswith("#") or not line.strip():
             continue
-        t0, t1, u, v, depth, tip, node = line.strip().split(",")
-        presses[int(node)] = (float(u), float(v))
+        f = [float(x) for x in line.strip().split(",")]
+        p = {"t0": f[0], "t1": f[1], "u": f[2], "v": f[3], "u_end": f[2], "v_end": f[3],
+             "friction": 0.0}
+        if len(f) >= 9:
+            p["u_end"], p["v_end"] = f[7], f[8]
+            p["friction"] = f[9] if len(f) >= 10 else 0.0
+        presses.setdefault(int(f[6]), []).append(p)
     return presses
+
+
+def nearest_on(press, u, v):
+    """The point of the press's path (a point, or a slide's segment) nearest (u, v), and its
+    distance."""
+    au, av, bu, bv = press["u"], press["v"], press["u_end"], press["v_end"]
+    du, dv = bu - au, bv - av
+    n2 = du * du + dv * dv
+    t = 0.0 if n2 == 0 else max(0.0, min(1.0, ((u - au) * du + (v - av) * dv) / n2))
+    pu, pv = au + t * du, av + t * dv
+    return pu, pv, math.hypot(u - pu, v - pv)
+
+
+def nearest_press(presses, node, u, v):
+    """(index, point u, point v, distance) of the node's press nearest (u, v)."""
+    best = None
+    for i, p in enumerate(presses[node]):
+        pu, pv, d = nearest_on(p, u, v)
+        if best is None or d < best[3]:
+            best = (i, pu, pv, d)
+    return best
 
 
 def main():
@@ -63,8 +94,11 @@ def main():
     stray = sorted({c["node"] for c in contacts if c["node"] not in presses})
     check("contacts only on pressed patches", not stray, f"stray nodes {stray}" if stray else "")
     deep = [c for c in contacts if c["node"] in presses and c["depth_mm"] >= 1.0]
+    for c in deep:
+        c["press"], c["truth_u"], c["truth_v"], _ = nearest_press(presses, c["node"], c["u_mm"],
+                                                                  c["v_mm"])
     query = "".join(f"{(c['stamp_us'] - t_zero_us) / 1e6:.4f} {c['node']} "
-                    f"{presses[c['node']][0]} {presses[c['node']][1]}\n" for c in deep)
+                    f"{c['truth_u']} {c['truth_v']}\n" for c in deep)
     truth = subprocess.run([f"{build}/tools/skinbus-locate", "--map", f"{out}/skin.yaml",
                             "--joints", f"{scene}/arms.csv", "-"], input=query, text=True,
                            capture_output=True, check=True).stdout.splitlines()
@@ -77,9 +111,64 @@ def main():
             math.dist(c["position_mm"], (float(x), float(y), float(z))))
     check("contacts on their patch's link", not wrong_link,
           f"wrong on nodes {sorted(set(wrong_link))}" if wrong_link else "")
-    missing = sorted(set(presses) - set(errs))
+    scripted = {(n, i) for n, ps in presses.items() for i in range(len(ps))}
+    seen = {(c["node"], c["press"]) for c in deep}
+    missing = sorted(scripted - seen)
     check("every scripted press seen at least 1 mm deep", not missing,
-          f"{len(presses) - len(missing)} of {len(presses)}" + (f", missing {missing}" if missing else ""))
+          f"{len(scripted) - len(missing)} of {len(scripted)}" + (f", missing {missing}" if missing else ""))
+
+    # Two fingers on one patch: two contacts in one publication, each near its own press, each
+    # press followed by one track.
+    for node, ps in sorted(presses.items()):
+        if len(ps) < 2:
+            continue
+        both, tracks = 0, {0: {}, 1: {}}
+        for line in open(f"{out}/contacts.jsonl"):
+            j = json.loads(line)
+            if j["type"] != "contacts":
+                continue
+            mine = [c for c in j["contacts"] if c["node"] == node and c["depth_mm"] >= 1.0]
+            near = [nearest_press(presses, node, c["u_mm"], c["v_mm"]) for c in mine]
+            if len(mine) == 2 and {n[0] for n in near} == {0, 1} and max(n[3] for n in near) < 5:
+                both += 1
+                for c, n in zip(mine, near):
+                    tracks[n[0]][c["track_id"]] = tracks[n[0]].get(c["track_id"], 0) + 1
+        overlap_s = min(ps[0]["t1"], ps[1]["t1"]) - max(ps[0]["t0"], ps[1]["t0"])
+        check(f"node {node}: two fingers published as two contacts at once", both >= 15,
+              f"{both} publications with both (the presses overlap {overlap_s:.1f} s)")
+        kept = [max(t.values()) / sum(t.values()) if t else 0 for t in tracks.values()]
+        shared = set(tracks[0]) & set(tracks[1])
+        check(f"node {node}: each finger keeps a track of its own", min(kept) >= 0.8 and not shared,
+              f"dominant track share {kept[0]:.2f}, {kept[1]:.2f}; shared IDs {sorted(shared)}")
+
+    # A sliding press's shear: along the slide in the base frame, friction times normal force.
+    for node, ps in sorted(presses.items()):
+        for p in ps:
+            if p["friction"] <= 0:
+                continue
+            ends = "".join(f"0 {node} {u} {v}\n" for u, v in ((p["u"], p["v"]), (p["u_end"], p["v_end"])))
+            a, b = [list(map(float, t.split()[2:5])) for t in subprocess.run(
+                [f"{build}/tools/skinbus-locate", "--map", f"{out}/skin.yaml", "-"], input=ends,
+                text=True, capture_output=True, check=True).stdout.splitlines()]
+            along = [y - x for x, y in zip(a, b)]
+            n = math.hypot(*along)
+            along = [x / n for x in along]
+            sheared = [c for c in contacts if c["node"] == node and "shear" in c["flags"] and
+                       math.hypot(*c["shear_n"]) > 3 * c["shear_uncertainty_n"] and c["depth_mm"] >= 1]
+            cosines = sorted(sum(x * y for x, y in zip(c["shear_n"], along)) / math.hypot(*c["shear_n"])
+                             for c in sheared)
+            ratios = sorted(math.hypot(*c["shear_n"]) / c["force_n"] for c in sheared)
+            check(f"node {node}: the sliding press's shear is seen", len(sheared) >= 20,
+                  f"{len(sheared)} contacts with a shear beyond 3 sigma")
+            if sheared:
+                med_cos, med_ratio = cosines[len(cosines) // 2], ratios[len(ratios) // 2]
+                check(f"node {node}: shear along the slide", med_cos > 0.9,
+                      f"median cosine to the slide {med_cos:.3f}")
+                check(f"node {node}: shear / normal force is the friction {p['friction']}",
+                      abs(med_ratio - p["friction"]) < 0.15, f"median {med_ratio:.3f}")
+            us = [c["u_mm"] for c in contacts if c["node"] == node and c["depth_mm"] >= 1]
+            check(f"node {node}: the contact follows the slide", min(us) < p["u"] + 10 and
+                  max(us) > p["u_end"] - 10, f"u from {min(us):.1f} to {max(us):.1f} mm")
     for node, e in sorted(errs.items()):
         e.sort()
         med, p90 = e[len(e) // 2], e[int(0.9 * len(e))]

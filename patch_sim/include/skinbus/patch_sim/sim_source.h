@@ -8,9 +8,11 @@
 // FakeGpioChip. The settings are the daemon's own (patch_fw/config.h, its `sim` section).
 //
 // Contact script (CSV, one press a line, '#' comments, an optional header line):
-//   t_start_s,t_end_s,u_mm,v_mm,depth_mm[,tip_radius_mm[,node]]
+//   t_start_s,t_end_s,u_mm,v_mm,depth_mm[,tip_radius_mm[,node[,u_end_mm,v_end_mm[,friction]]]]
 // Times are seconds since the daemon started; a press ramps in and out over 0.15 s within its
-// window. `node` (0 or absent: every node) lets one script drive several daemons.
+// window. `node` (0 or absent: every node) lets one script drive several daemons. A press with
+// an end slides there over its window, dragging the skin with `friction` times its normal force
+// (sim::SceneContact).
 #pragma once
 
 #include <cstdint>

@@ -8,7 +8,9 @@
 // need"), and a scene can report which patches are touched without measuring at all.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -31,6 +33,13 @@ struct SceneContact {
   double depth_mm = 2;         // held depth
   double ramp_s = 0.15;        // press-in and release time
   double tip_radius_mm = 8.0;  // a fingertip
+  // A sliding press: it moves at constant speed from (u_mm, v_mm) at t_start_s to (u_end_mm,
+  // v_end_mm) at t_end_s (NaN: it stays), dragging the skin along with a shear force of
+  // `friction` times its normal force (kinetic friction; 0: none) while it moves.
+  double u_end_mm = std::numeric_limits<double>::quiet_NaN();
+  double v_end_mm = std::numeric_limits<double>::quiet_NaN();
+  double friction = 0;
+  bool slides() const { return std::isfinite(u_end_mm) && std::isfinite(v_end_mm); }
 };
 
 struct SceneConfig {
@@ -55,7 +64,8 @@ class Scene {
   SimulatedPatch& patch(int i) { return patches_[i]->sim; }
   uint64_t uid(int i) const { return patches_[i]->uid; }
 
-  // The contacts pressing patch `i` at `t_s` (depth after ramps and creep), appended to `out`.
+  // The contacts pressing patch `i` at `t_s` (depth after ramps and creep; a sliding press where
+  // it is then, with its shear), appended to `out`.
   void active_contacts(int i, double t_s, std::vector<Contact>* out);
   // The environment of patch `i` at `t_s`: the Earth's field in its frame, its temperature.
   Environment environment(int i, double t_s) const;
