@@ -59,6 +59,18 @@ def nearest_press(presses, node, u, v):
     return best
 
 
+def slide_direction(build, skin, node, press):
+    """The unit direction of a sliding press in the base frame (a patch that does not move)."""
+    ends = "".join(f"0 {node} {u} {v}\n" for u, v in ((press["u"], press["v"]),
+                                                     (press["u_end"], press["v_end"])))
+    a, b = [list(map(float, t.split()[2:5])) for t in subprocess.run(
+        [f"{build}/tools/skinbus-locate", "--map", skin, "-"], input=ends, text=True,
+        capture_output=True, check=True).stdout.splitlines()]
+    along = [y - x for x, y in zip(a, b)]
+    n = math.hypot(*along)
+    return [x / n for x in along]
+
+
 def main():
     if len(sys.argv) != 4:
         sys.exit(__doc__)
@@ -146,13 +158,7 @@ def main():
         for p in ps:
             if p["friction"] <= 0:
                 continue
-            ends = "".join(f"0 {node} {u} {v}\n" for u, v in ((p["u"], p["v"]), (p["u_end"], p["v_end"])))
-            a, b = [list(map(float, t.split()[2:5])) for t in subprocess.run(
-                [f"{build}/tools/skinbus-locate", "--map", f"{out}/skin.yaml", "-"], input=ends,
-                text=True, capture_output=True, check=True).stdout.splitlines()]
-            along = [y - x for x, y in zip(a, b)]
-            n = math.hypot(*along)
-            along = [x / n for x in along]
+            along = slide_direction(build, f"{out}/skin.yaml", node, p)
             sheared = [c for c in contacts if c["node"] == node and "shear" in c["flags"] and
                        math.hypot(*c["shear_n"]) > 3 * c["shear_uncertainty_n"] and c["depth_mm"] >= 1]
             cosines = sorted(sum(x * y for x, y in zip(c["shear_n"], along)) / math.hypot(*c["shear_n"])

@@ -27,7 +27,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import cdp  # noqa: E402
-from check_demo import read_presses  # noqa: E402
+from check_demo import nearest_press, read_presses, slide_direction  # noqa: E402
 
 
 def hostile_clients(port):
@@ -151,9 +151,12 @@ def main():
     # As check_demo.py: the contacts at least 1 mm deep (a press's first and last samples are
     # shallow, where no estimator places them well).
     deep = [c for c in shown if c["depth_mm"] >= 1.0]
+    # Each against its press (the nearer of two, the nearest point of a slide), as check_demo.py.
+    for c in deep:
+        _, c["truth_u"], c["truth_v"], _ = nearest_press(presses, c["node"], c["u_mm"], c["v_mm"])
     truth = locate(build, f"{demo}/skin.yaml", f"{scene}/arms.csv",
                    [f"{(c['stamp_us'] - t_zero_us) / 1e6:.4f} {c['node']} "
-                    f"{presses[c['node']][0]} {presses[c['node']][1]}\n" for c in deep])
+                    f"{c['truth_u']} {c['truth_v']}\n" for c in deep])
     errs = {}
     for c, t in zip(deep, truth):
         c["truth_mm"] = [float(x) for x in t[2:5]]
@@ -170,6 +173,38 @@ def main():
             bad.append(f"node {node}: median {med:.1f}, p90 {p90:.1f} mm")
     check("contacts in the page where the presses are, within the model's error", not bad and len(errs) >= 8,
           f"{len(errs)} patches, median mm by node {' '.join(medians)}" + (f"; {bad}" if bad else ""))
+    # Two fingers on one patch: both shown at one instant, each near its press.
+    for node, ps in sorted(presses.items()):
+        if len(ps) < 2:
+            continue
+        by_stamp = {}
+        for c in deep:
+            if c["node"] == node:
+                by_stamp.setdefault(c["stamp_us"], []).append(
+                    nearest_press(presses, node, c["u_mm"], c["v_mm"]))
+        both = sum(1 for near in by_stamp.values()
+                   if len(near) == 2 and {n[0] for n in near} == {0, 1} and max(n[3] for n in near) < 5)
+        check(f"node {node}: the page shows both fingers at once", both >= 3,
+              f"{both} instants read back with both")
+    # A sliding press: the page draws its shear as an arrow along the slide.
+    for node, ps in sorted(presses.items()):
+        for p in ps:
+            if p["friction"] <= 0:
+                continue
+            along = slide_direction(build, f"{demo}/skin.yaml", node, p)
+            arrows = [c for c in shown if c["node"] == node and c.get("shear_arrow_base")]
+            cos_msg, cos_slide = [], []
+            for c in arrows:
+                a, s = c["shear_arrow_base"], c["shear_n"]
+                na, ns = math.hypot(*a), math.hypot(*s)
+                cos_msg.append(sum(x * y for x, y in zip(a, s)) / (na * ns))
+                cos_slide.append(sum(x * y for x, y in zip(a, along)) / na)
+            cos_slide.sort()
+            check(f"node {node}: the page draws the sliding press's shear as an arrow along it",
+                  len(arrows) >= 3 and min(cos_msg) > 0.999 and cos_slide[len(cos_slide) // 2] > 0.9,
+                  f"{len(arrows)} arrows read back" + (
+                      f", worst cosine to the message's shear {min(cos_msg):.4f}, median cosine to "
+                      f"the slide {cos_slide[len(cos_slide) // 2]:.3f}" if arrows else ""))
     check("node 11 shown stale or offline after its daemon stopped",
           bool(states.get(11, set()) & {"stale", "offline"}), f"states seen {sorted(states.get(11, []))}")
     check("the other patches never shown offline",

@@ -39,6 +39,9 @@ const PATCH_LIFT_MM = 1.5;        // patches are drawn this far out of the skin
 
 // Contact sphere radius (mm) from its depth (mm): visible at zero depth, growing with depth.
 const contactRadiusMm = (depthMm) => 5 + 3 * Math.min(Math.max(depthMm, 0), 5);
+// A contact's shear force (flag "shear") is drawn as an arrow from the contact along the force,
+// this long per newton, from the sphere's surface.
+const SHEAR_MM_PER_N = 12;
 
 // Force colour ramp: the top stop is reached at FORCE_MAX_N and held above it.
 const FORCE_MAX_N = 8;
@@ -334,7 +337,11 @@ class ContactView {
     // Their bounding spheres would go stale as the trail moves: never culled.
     this.trail.frustumCulled = false;
     this.trail.children[0].frustumCulled = false;
-    contactsGroup.add(this.sphere, this.trail);
+    // The shear arrow (hidden unless the contact carries a shear force).
+    this.arrow = new THREE.ArrowHelper(new THREE.Vector3(1, 0, 0), new THREE.Vector3(), 1,
+                                       '#ffd23f');
+    this.arrow.visible = false;
+    contactsGroup.add(this.sphere, this.trail, this.arrow);
     this.reset();
   }
 
@@ -346,6 +353,7 @@ class ContactView {
     this.setTrailOpacity(0.9);
     this.sphere.visible = false;
     this.trail.visible = false;
+    this.arrow.visible = false;
     this.endedMs = 0;
   }
 
@@ -362,6 +370,7 @@ class ContactView {
     if (trackChanged) this.labelEl.textContent = `#${contact.track_id}`;
     this.sphere.visible = true;
     this.trail.visible = true;
+    this.updateShear(contact);
 
     // Append to the trail (base frame, metres), dropping the oldest point when it is full.
     if (this.trailCount === TRAIL_POINTS) {
@@ -379,8 +388,34 @@ class ContactView {
     this.trailDotMaterial.opacity = opacity;
   }
 
+  // The shear arrow: from the sphere's surface along the force, SHEAR_MM_PER_N long per newton.
+  updateShear(contact) {
+    const s = contact.shear_n;
+    const newtons = s ? Math.hypot(s[0], s[1], s[2]) : 0;
+    const shown = (contact.flags ?? []).includes('shear') && newtons > 0;
+    this.arrow.visible = shown;
+    if (!shown) return;
+    const dir = new THREE.Vector3(s[0], s[1], s[2]).divideScalar(newtons);
+    const radius = contactRadiusMm(contact.depth_mm ?? 0);
+    this.arrow.position.copy(this.sphere.position).addScaledVector(dir, radius * MM);
+    this.arrow.setDirection(dir);
+    const length = Math.max(newtons * SHEAR_MM_PER_N, 4) * MM;
+    this.arrow.setLength(length, Math.min(6 * MM, 0.4 * length), Math.min(4 * MM, 0.3 * length));
+  }
+
+  // The arrow's direction in the base frame read back from its world transform (null: hidden).
+  shearArrowBase() {
+    if (!this.arrow.visible) return null;
+    const tip = this.arrow.localToWorld(new THREE.Vector3(0, 1, 0));
+    const tail = this.arrow.localToWorld(new THREE.Vector3(0, 0, 0));
+    base.worldToLocal(tip);
+    base.worldToLocal(tail);
+    return [tip.x - tail.x, tip.y - tail.y, tip.z - tail.z];
+  }
+
   end(nowMs) {
     this.sphere.visible = false;
+    this.arrow.visible = false;
     this.endedMs = nowMs;
   }
 
@@ -953,7 +988,11 @@ window.skinbusView = {
         node: v.data.node,
         stamp_us: v.stampUs,
         depth_mm: v.data.depth_mm,
+        u_mm: v.data.u_mm,
+        v_mm: v.data.v_mm,
         position_base_mm: round(v.positionBaseMm()),
+        shear_n: v.data.shear_n ?? null,
+        shear_arrow_base: v.shearArrowBase(),
       })),
       // node -> the largest field change (uT) of its latest `fields` message
       read_only: stream.readOnly !== false,
