@@ -437,21 +437,22 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
 namespace {
 
 // The lean fit's unknowns: each contact's (u, v, depth[, shear u, v]) in turn, then the ambient
-// offset (3; held at 0 unless fitted). At most 2 contacts with their shear: 13. Fixed capacity:
-// no allocation.
+// offset (3; held at 0 unless fitted). Sized at compile time (N unknowns: 6 for one contact, 8
+// with its shear, 9 for two): no allocation, fixed-size algebra.
 constexpr int kLeanMax = 2 * 5 + 3;
-using LeanVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kLeanMax, 1>;
-using LeanMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kLeanMax, kLeanMax>;
 
 struct LeanLayout {
   int contacts = 1;
   bool shear = false;
-  int per_contact() const { return shear ? 5 : 3; }
-  int ambient_at() const { return contacts * per_contact(); }
-  int size() const { return ambient_at() + 3; }
+  constexpr int per_contact() const { return shear ? 5 : 3; }
+  constexpr int ambient_at() const { return contacts * per_contact(); }
+  constexpr int size() const { return ambient_at() + 3; }
 };
 
+template <int N>
 struct LeanFit {
+  using LeanVec = Eigen::Matrix<double, N, 1>;
+  using LeanMat = Eigen::Matrix<double, N, N>;
   LeanVec x;
   double cost = std::numeric_limits<double>::infinity();  // chi-square, noise units
   int iterations = 0;
@@ -461,6 +462,7 @@ struct LeanFit {
 };
 
 // The contacts of `x` (layout `l`) with the indenter's tip.
+template <typename LeanVec>
 void lean_contacts(const LeanLayout& l, const LeanVec& x, double tip_radius_mm, sim::Contact* c) {
   for (int j = 0; j < l.contacts; ++j) {
     const int o = j * l.per_contact();
@@ -473,6 +475,7 @@ void lean_contacts(const LeanLayout& l, const LeanVec& x, double tip_radius_mm, 
 }
 
 // `m` with the rows and columns of the unknowns not fitted replaced by the identity's.
+template <typename LeanMat>
 LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
   for (int k = 0; k < m.rows(); ++k) {
     if (fitted[k]) continue;
@@ -487,10 +490,14 @@ LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
 // the rest clamped to the bounds: each contact within contact_bounds(), each shear component
 // within +-kMaxShearN): the Jacobian by forward differences of the vectorised field
 // (PatchModel::contact_field_ut), the ambient's columns constant. No allocation.
-LeanFit lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
-                 const double* ambient_jac, const LeanLayout& l, LeanVec x) {
+template <int N>
+LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
+                    const double* ambient_jac, const LeanLayout& l,
+                    typename LeanFit<N>::LeanVec x) {
+  using LeanVec = typename LeanFit<N>::LeanVec;
+  using LeanMat = typename LeanFit<N>::LeanMat;
   const int nc = model.channel_count();
-  const int n = l.size(), pc = l.per_contact(), amb = l.ambient_at();
+  const int n = N, pc = l.per_contact(), amb = l.ambient_at();
   double lo[kLeanMax], hi[kLeanMax];
   bool fitted[kLeanMax];
   double clo[3], chi[3];
@@ -515,7 +522,7 @@ LeanFit lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, co
       x(k) = std::clamp(x(k), lo[k], hi[k]);
     }
   }
-  LeanFit fit;
+  LeanFit<N> fit;
   const double tip = options.tip_radius_mm;
   sim::Contact contacts[2];
   auto field = [&](const LeanVec& p, double* into) {
@@ -542,7 +549,7 @@ LeanFit lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, co
   field(x, fit.field);
   double cost = residuals(fit.field, x, r);
   double lambda = 1e-3;
-  fit.jtj = LeanMat::Zero(n, n);
+  fit.jtj = LeanMat::Zero();
   // Forward-difference steps: of (u, v, depth), mm; of the shear, N (moves the surface ~1e-4 mm).
   constexpr double kStepMm = 1e-4, kStepN = 1e-4;
   constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
@@ -560,13 +567,13 @@ LeanFit lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, co
       field(p, ft);
       for (int i = 0; i < nc; ++i) jac[i][k] = (ft[i] - fit.field[i]) / h;
     }
-    LeanMat jtj = LeanMat::Zero(n, n);
-    LeanVec jtr = LeanVec::Zero(n);
+    LeanMat jtj = LeanMat::Zero();
+    LeanVec jtr = LeanVec::Zero();
     for (int i = 0; i < nc; ++i) {
       if (!in.ok[i]) continue;
       const double w = in.inv_sigma[i];
       const double* a = ambient_jac + 3 * static_cast<std::size_t>(i);
-      LeanVec row(n);
+      LeanVec row;
       for (int k = 0; k < amb; ++k) row(k) = jac[i][k] * w;
       for (int k = 0; k < 3; ++k) row(amb + k) = a[k] * w;
       jtj.noalias() += row * row.transpose();
@@ -591,7 +598,7 @@ LeanFit lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, co
       if (std::isfinite(cost_t) && cost_t <= cost) {
         double moved = 0;
         for (int j = 0; j < l.contacts; ++j) {
-          moved = std::max(moved, (xt.segment<3>(j * pc) - x.segment<3>(j * pc)).norm());
+          moved = std::max(moved, (xt.template segment<3>(j * pc) - x.template segment<3>(j * pc)).norm());
         }
         const double drop = cost - cost_t;
         x = xt;
@@ -618,6 +625,7 @@ LeanFit lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, co
 // the fitted unknowns (the ambient held unless `fit_ambient`), scaled by the reduced chi-square
 // above 1: its radial position, depth and shear (when the layout has it). False, the outputs
 // untouched, when J^T J is singular.
+template <typename LeanMat>
 bool lean_sigmas(const LeanMat& jtj, const LeanLayout& l, bool fit_ambient, double reduced_chi2,
                  int j, double* sigma_uv_mm, double* sigma_depth_mm, double* sigma_shear_n) {
   bool fitted[kLeanMax];
@@ -628,7 +636,7 @@ bool lean_sigmas(const LeanMat& jtj, const LeanLayout& l, bool fit_ambient, doub
       ldlt.vectorD().minCoeff() <= 1e-12 * std::max(1.0, ldlt.vectorD().maxCoeff())) {
     return false;
   }
-  const LeanMat cov = ldlt.solve(LeanMat::Identity(l.size(), l.size()));
+  const LeanMat cov = ldlt.solve(LeanMat::Identity());
   const double scale = std::max(1.0, reduced_chi2);
   const int o = j * l.per_contact();
   const double var_uv = (cov(o, o) + cov(o + 1, o + 1)) * scale, var_d = cov(o + 2, o + 2) * scale;
@@ -642,6 +650,35 @@ bool lean_sigmas(const LeanMat& jtj, const LeanLayout& l, bool fit_ambient, doub
   return true;
 }
 
+// refine_lm()'s fit: one contact, with its shear when N is 8.
+template <int N>
+void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
+                 const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result) {
+  PhysicsEstimate& out = *result;
+  const LeanLayout l{1, N == 8};
+  typename LeanFit<N>::LeanVec x0 = LeanFit<N>::LeanVec::Zero();
+  x0(0) = start.u_mm;
+  x0(1) = start.v_mm;
+  x0(2) = start.depth_mm;
+  if (l.shear) {
+    x0(3) = start.shear_u_n;
+    x0(4) = start.shear_v_n;
+  }
+  const LeanFit<N> fit = lean_fit<N>(model, options, in, ambient_jac, l, x0);
+  const int amb = l.ambient_at();
+  const double xc[3] = {fit.x(0), fit.x(1), fit.x(2)};
+  const double xb[3] = {fit.x(amb), fit.x(amb + 1), fit.x(amb + 2)};
+  const double xs[2] = {l.shear ? fit.x(3) : 0.0, l.shear ? fit.x(4) : 0.0};
+  finish_fit(model, options, in, xc, xb, l.shear ? xs : nullptr, fit.cost, fit.iterations,
+             fit.converged, fit.field, &out);
+  // From the last iteration's J^T J (at the point before its step: within the tolerance of the
+  // minimum).
+  if (options.covariance && fit.iterations > 0 && out.contact.valid()) {
+    lean_sigmas(fit.jtj, l, options.fit_ambient, out.reduced_chi2, 0, &out.sigma_uv_mm,
+                &out.sigma_depth_mm, &out.sigma_shear_n);
+  }
+}
+
 }  // namespace
 
 PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
@@ -651,27 +688,10 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   const int nc = model_.channel_count();
   FitInput in;
   if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
-  const LeanLayout l{1, options_.fit_shear};
-  LeanVec x0 = LeanVec::Zero(l.size());
-  x0(0) = start.u_mm;
-  x0(1) = start.v_mm;
-  x0(2) = start.depth_mm;
-  if (l.shear) {
-    x0(3) = start.shear_u_n;
-    x0(4) = start.shear_v_n;
-  }
-  const LeanFit fit = lean_fit(model_, options_, in, ambient_jac_.data(), l, x0);
-  const int amb = l.ambient_at();
-  const double xc[3] = {fit.x(0), fit.x(1), fit.x(2)};
-  const double xb[3] = {fit.x(amb), fit.x(amb + 1), fit.x(amb + 2)};
-  const double xs[2] = {l.shear ? fit.x(3) : 0.0, l.shear ? fit.x(4) : 0.0};
-  finish_fit(model_, options_, in, xc, xb, l.shear ? xs : nullptr, fit.cost, fit.iterations,
-             fit.converged, fit.field, &out);
-  // From the last iteration's J^T J (at the point before its step: within the tolerance of the
-  // minimum).
-  if (options_.covariance && fit.iterations > 0 && out.contact.valid()) {
-    lean_sigmas(fit.jtj, l, options_.fit_ambient, out.reduced_chi2, 0, &out.sigma_uv_mm,
-                &out.sigma_depth_mm, &out.sigma_shear_n);
+  if (options_.fit_shear) {
+    refine_lean<8>(model_, options_, in, ambient_jac_.data(), start, &out);
+  } else {
+    refine_lean<6>(model_, options_, in, ambient_jac_.data(), start, &out);
   }
   return out;
 }
@@ -682,13 +702,15 @@ void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, cons
   double jac[3 * kMaxChannels];
   model_.contact_jacobian(c, std::span<double>(jac, 3 * static_cast<std::size_t>(nc)));
   const LeanLayout l{1, false};
-  LeanMat jtj = LeanMat::Zero(l.size(), l.size());
+  using LeanMat = LeanFit<6>::LeanMat;
+  using LeanVec = LeanFit<6>::LeanVec;
+  LeanMat jtj = LeanMat::Zero();
   for (int i = 0; i < nc; ++i) {
     if (!ok[i]) continue;
     const double w = inv_sigma[i];
     const double* a = &ambient_jac_[3 * static_cast<std::size_t>(i)];
     const double* j = &jac[3 * i];
-    LeanVec row(l.size());
+    LeanVec row;
     row << j[0] * w, j[1] * w, j[2] * w, a[0] * w, a[1] * w, a[2] * w;
     jtj.noalias() += row * row.transpose();
   }
@@ -730,12 +752,12 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
   // Starts, in turn, until a fit explains the sample to the noise: the given pair; the single
   // contact and a single fit of what it leaves (greedy); the single contact split along 4
   // directions. The best fit is kept.
-  LeanFit best;
+  LeanFit<9> best;
   auto try_start = [&](const double(&x)[2][3]) {
-    LeanVec x0(l.size());
+    LeanFit<9>::LeanVec x0;
     for (int k = 0; k < 6; ++k) x0(k) = x[k / 3][k % 3];
     for (int k = 0; k < 3; ++k) x0(6 + k) = out.single.ambient_ut[k];
-    LeanFit fit = lean_fit(model_, options_, in, ambient_jac_.data(), l, x0);
+    LeanFit<9> fit = lean_fit<9>(model_, options_, in, ambient_jac_.data(), l, x0);
     out.pair_iterations += fit.iterations;
     if (std::isfinite(fit.cost) && fit.cost < best.cost) best = fit;
     return best.cost / (usable - unknowns) <= count.max_reduced_chi2;
