@@ -46,18 +46,22 @@ std::string pair_report(const skinbus::sim::PatchModel& model, const std::vector
                           noise_xy, noise_z, ambient);
   out +=
       "separation_mm,depth_mm,mid_u_mm,mid_v_mm,along,sd_xy_first_mm,sd_xy_second_mm,"
-      "sd_depth_first_mm,sd_depth_second_mm,alone_xy_first_mm,alone_xy_second_mm,identifiable\n";
+      "sd_depth_first_mm,sd_depth_second_mm,alone_xy_first_mm,alone_xy_second_mm,identifiable,"
+      "non_additive\n";
   std::printf(
       "Cramer-Rao bound of two simultaneous contacts, nominal patch, noise %.2f / %.2f uT%s, "
       "tip %.1f mm: mean per contact over midpoints within +-30 mm, pairs along u and v\n\n",
       noise_xy, noise_z, ambient ? ", ambient estimated" : "", tip_radius);
   std::printf(
       "| separation (mm) | depth (mm) | XY bound (mm) | alone (mm) | x alone | depth bound (mm) | "
-      "pairs not told apart |\n|---:|---:|---:|---:|---:|---:|---:|\n");
+      "pairs not told apart | non-additive (noise units) |\n"
+      "|---:|---:|---:|---:|---:|---:|---:|---:|\n");
   for (double sep : separations) {
     for (double depth : depths) {
-      std::vector<double> xy, alone, dd;
+      std::vector<double> xy, alone, dd, nonadd;
       int total = 0, lost = 0;
+      const int nc = model.channel_count();
+      std::vector<double> fab(nc), fa(nc), fb(nc);
       for (double mu = -30; mu <= 30; mu += 10) {
         for (double mv = -30; mv <= 30; mv += 10) {
           for (int along = 0; along < 2; ++along) {
@@ -67,6 +71,20 @@ std::string pair_report(const skinbus::sim::PatchModel& model, const std::vector
             const CrlbPair p = crlb_pair_at(model, a, b, noise_xy, noise_z, ambient);
             const CrlbPoint one = crlb_at(model, a, noise_xy, noise_z, ambient);
             const CrlbPoint two = crlb_at(model, b, noise_xy, noise_z, ambient);
+            // How far the pair's field is from the sum of each press's alone (RMS over the
+            // channels, in noise units): the model's response is not additive where the presses
+            // move the same magnets (the dipole field is not linear in their displacement).
+            const Contact ab[2] = {a, b};
+            model.contact_field_ut(std::span<const Contact>(ab, 2), fab);
+            model.contact_field_ut(std::span<const Contact>(&a, 1), fa);
+            model.contact_field_ut(std::span<const Contact>(&b, 1), fb);
+            double na = 0;
+            for (int i = 0; i < nc; ++i) {
+              const double d = (fab[i] - fa[i] - fb[i]) / (i % 3 == 2 ? noise_z : noise_xy);
+              na += d * d;
+            }
+            na = std::sqrt(na / nc);
+            nonadd.push_back(na);
             ++total;
             const bool ok = p.first.identifiable && one.identifiable && two.identifiable;
             if (ok) {
@@ -76,18 +94,19 @@ std::string pair_report(const skinbus::sim::PatchModel& model, const std::vector
             } else {
               ++lost;
             }
-            skinbus::tools::appendf(out, "%g,%g,%g,%g,%c,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%d\n", sep,
-                                    depth, mu, mv, along == 0 ? 'u' : 'v', p.first.sd_xy_mm,
+            skinbus::tools::appendf(out, "%g,%g,%g,%g,%c,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%d,%.6g\n",
+                                    sep, depth, mu, mv, along == 0 ? 'u' : 'v', p.first.sd_xy_mm,
                                     p.second.sd_xy_mm, p.first.sd_depth_mm, p.second.sd_depth_mm,
-                                    one.sd_xy_mm, two.sd_xy_mm, ok);
+                                    one.sd_xy_mm, two.sd_xy_mm, ok, na);
           }
         }
       }
       const double m_xy = xy.empty() ? 0 : skinbus::tools::mean(xy);
       const double m_alone = alone.empty() ? 0 : skinbus::tools::mean(alone);
-      std::printf("| %.0f | %.1f | %.3f | %.3f | %.2f | %.4f | %d of %d |\n", sep, depth, m_xy,
-                  m_alone, m_alone > 0 ? m_xy / m_alone : 0.0,
-                  dd.empty() ? 0 : skinbus::tools::mean(dd), lost, total);
+      std::printf("| %.0f | %.1f | %.3f | %.3f | %.2f | %.4f | %d of %d | %.2f |\n", sep, depth,
+                  m_xy, m_alone, m_alone > 0 ? m_xy / m_alone : 0.0,
+                  dd.empty() ? 0 : skinbus::tools::mean(dd), lost, total,
+                  nonadd.empty() ? 0 : skinbus::tools::mean(nonadd));
     }
   }
   return out;

@@ -96,7 +96,8 @@ Status bench_pairs(const PairsBenchArgs& a) {
       const double e_xy = err.empty() ? 0 : mean(err), b_xy = bound.empty() ? 0 : mean(bound);
       const double e_d = derr.empty() ? 0 : mean(derr);
       std::printf(
-          "| %.0f | %.1f | %.0f %% | %.0f %% | %.3f | %.3f | %.2f | %.3f | %.0f | %.1f | %.0f | %.0f "
+          "| %.0f | %.1f | %.0f %% | %.0f %% | %.3f | %.3f | %.2f | %.3f | %.0f | %.1f | %.0f | "
+          "%.0f "
           "%% |\n",
           sep, depth, 100.0 * two / a.trials, 100.0 * one / a.trials, e_xy, b_xy,
           b_xy > 0 ? e_xy / b_xy : 0.0, e_d, us / a.trials, iterations / a.trials,

@@ -598,7 +598,8 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       if (std::isfinite(cost_t) && cost_t <= cost) {
         double moved = 0;
         for (int j = 0; j < l.contacts; ++j) {
-          moved = std::max(moved, (xt.template segment<3>(j * pc) - x.template segment<3>(j * pc)).norm());
+          moved = std::max(moved,
+                           (xt.template segment<3>(j * pc) - x.template segment<3>(j * pc)).norm());
         }
         const double drop = cost - cost_t;
         x = xt;
