@@ -404,6 +404,8 @@ int main(int argc, char** argv) {
           s.force_n = c.force_n;
           s.node = c.node;
           s.link = c.link;
+          s.has_shear = (c.flags & host::kContactShear) != 0;
+          std::copy(c.shear_n, c.shear_n + 3, s.shear_n);
         }
         foxglove.publish(*fox, fox_contacts, ca.stamp_us * 1000,
                          contact_scene.encode(ca.stamp_us, ca.base_frame, scene_contacts));

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_time.h"
 #include "skinbus/common/atomic_file.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/estimators/physics_estimator.h"
@@ -18,11 +19,6 @@ namespace {
 
 using namespace skinbus::estimators;
 using sim::Contact;
-using Clock = std::chrono::steady_clock;
-
-double us_since(Clock::time_point t0) {
-  return std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
-}
 
 }  // namespace
 

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_time.h"
 #include "skinbus/common/atomic_file.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/estimators/physics_estimator.h"
@@ -20,11 +21,6 @@ namespace {
 
 using namespace skinbus::estimators;
 using sim::Contact;
-using Clock = std::chrono::steady_clock;
-
-double us_since(Clock::time_point t0) {
-  return std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
-}
 
 // A press anywhere within +-55 mm at `depth_mm` (5 mm tip) with a shear of a friction
 // coefficient uniform in [0, max_friction] of its normal force, in a random direction; every

@@ -59,6 +59,11 @@ def nearest_press(presses, node, u, v):
     return best
 
 
+def sliding_presses(presses):
+    """(node, press) for every press that drags the skin (a slide with friction)."""
+    return [(node, p) for node, ps in sorted(presses.items()) for p in ps if p["friction"] > 0]
+
+
 def slide_direction(build, skin, node, press):
     """The unit direction of a sliding press in the base frame (a patch that does not move)."""
     ends = "".join(f"0 {node} {u} {v}\n" for u, v in ((press["u"], press["v"]),
@@ -154,27 +159,24 @@ def main():
               f"dominant track share {kept[0]:.2f}, {kept[1]:.2f}; shared IDs {sorted(shared)}")
 
     # A sliding press's shear: along the slide in the base frame, friction times normal force.
-    for node, ps in sorted(presses.items()):
-        for p in ps:
-            if p["friction"] <= 0:
-                continue
-            along = slide_direction(build, f"{out}/skin.yaml", node, p)
-            sheared = [c for c in contacts if c["node"] == node and "shear" in c["flags"] and
-                       math.hypot(*c["shear_n"]) > 3 * c["shear_uncertainty_n"] and c["depth_mm"] >= 1]
-            cosines = sorted(sum(x * y for x, y in zip(c["shear_n"], along)) / math.hypot(*c["shear_n"])
-                             for c in sheared)
-            ratios = sorted(math.hypot(*c["shear_n"]) / c["force_n"] for c in sheared)
-            check(f"node {node}: the sliding press's shear is seen", len(sheared) >= 20,
-                  f"{len(sheared)} contacts with a shear beyond 3 sigma")
-            if sheared:
-                med_cos, med_ratio = cosines[len(cosines) // 2], ratios[len(ratios) // 2]
-                check(f"node {node}: shear along the slide", med_cos > 0.9,
-                      f"median cosine to the slide {med_cos:.3f}")
-                check(f"node {node}: shear / normal force is the friction {p['friction']}",
-                      abs(med_ratio - p["friction"]) < 0.15, f"median {med_ratio:.3f}")
-            us = [c["u_mm"] for c in contacts if c["node"] == node and c["depth_mm"] >= 1]
-            check(f"node {node}: the contact follows the slide", min(us) < p["u"] + 10 and
-                  max(us) > p["u_end"] - 10, f"u from {min(us):.1f} to {max(us):.1f} mm")
+    for node, p in sliding_presses(presses):
+        along = slide_direction(build, f"{out}/skin.yaml", node, p)
+        sheared = [c for c in contacts if c["node"] == node and "shear" in c["flags"] and
+                   math.hypot(*c["shear_n"]) > 3 * c["shear_uncertainty_n"] and c["depth_mm"] >= 1]
+        cosines = sorted(sum(x * y for x, y in zip(c["shear_n"], along)) / math.hypot(*c["shear_n"])
+                         for c in sheared)
+        ratios = sorted(math.hypot(*c["shear_n"]) / c["force_n"] for c in sheared)
+        check(f"node {node}: the sliding press's shear is seen", len(sheared) >= 20,
+              f"{len(sheared)} contacts with a shear beyond 3 sigma")
+        if sheared:
+            med_cos, med_ratio = cosines[len(cosines) // 2], ratios[len(ratios) // 2]
+            check(f"node {node}: shear along the slide", med_cos > 0.9,
+                  f"median cosine to the slide {med_cos:.3f}")
+            check(f"node {node}: shear / normal force is the friction {p['friction']}",
+                  abs(med_ratio - p["friction"]) < 0.15, f"median {med_ratio:.3f}")
+        us = [c["u_mm"] for c in contacts if c["node"] == node and c["depth_mm"] >= 1]
+        check(f"node {node}: the contact follows the slide", min(us) < p["u"] + 10 and
+              max(us) > p["u_end"] - 10, f"u from {min(us):.1f} to {max(us):.1f} mm")
     for node, e in sorted(errs.items()):
         e.sort()
         med, p90 = e[len(e) // 2], e[int(0.9 * len(e))]

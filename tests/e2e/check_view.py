@@ -27,7 +27,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import cdp  # noqa: E402
-from check_demo import nearest_press, read_presses, slide_direction  # noqa: E402
+from check_demo import nearest_press, read_presses, slide_direction, sliding_presses  # noqa: E402
 
 
 def hostile_clients(port):
@@ -187,24 +187,21 @@ def main():
         check(f"node {node}: the page shows both fingers at once", both >= 3,
               f"{both} instants read back with both")
     # A sliding press: the page draws its shear as an arrow along the slide.
-    for node, ps in sorted(presses.items()):
-        for p in ps:
-            if p["friction"] <= 0:
-                continue
-            along = slide_direction(build, f"{demo}/skin.yaml", node, p)
-            arrows = [c for c in shown if c["node"] == node and c.get("shear_arrow_base")]
-            cos_msg, cos_slide = [], []
-            for c in arrows:
-                a, s = c["shear_arrow_base"], c["shear_n"]
-                na, ns = math.hypot(*a), math.hypot(*s)
-                cos_msg.append(sum(x * y for x, y in zip(a, s)) / (na * ns))
-                cos_slide.append(sum(x * y for x, y in zip(a, along)) / na)
-            cos_slide.sort()
-            check(f"node {node}: the page draws the sliding press's shear as an arrow along it",
-                  len(arrows) >= 3 and min(cos_msg) > 0.999 and cos_slide[len(cos_slide) // 2] > 0.9,
-                  f"{len(arrows)} arrows read back" + (
-                      f", worst cosine to the message's shear {min(cos_msg):.4f}, median cosine to "
-                      f"the slide {cos_slide[len(cos_slide) // 2]:.3f}" if arrows else ""))
+    for node, p in sliding_presses(presses):
+        along = slide_direction(build, f"{demo}/skin.yaml", node, p)
+        arrows = [c for c in shown if c["node"] == node and c.get("shear_arrow_base")]
+        cos_msg, cos_slide = [], []
+        for c in arrows:
+            a, s = c["shear_arrow_base"], c["shear_n"]
+            na, ns = math.hypot(*a), math.hypot(*s)
+            cos_msg.append(sum(x * y for x, y in zip(a, s)) / (na * ns))
+            cos_slide.append(sum(x * y for x, y in zip(a, along)) / na)
+        cos_slide.sort()
+        check(f"node {node}: the page draws the sliding press's shear as an arrow along it",
+              len(arrows) >= 3 and min(cos_msg) > 0.999 and cos_slide[len(cos_slide) // 2] > 0.9,
+              f"{len(arrows)} arrows read back" + (
+                  f", worst cosine to the message's shear {min(cos_msg):.4f}, median cosine to "
+                  f"the slide {cos_slide[len(cos_slide) // 2]:.3f}" if arrows else ""))
     check("node 11 shown stale or offline after its daemon stopped",
           bool(states.get(11, set()) & {"stale", "offline"}), f"states seen {sorted(states.get(11, []))}")
     check("the other patches never shown offline",

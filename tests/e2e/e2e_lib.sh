@@ -40,6 +40,32 @@ e2e_cleanup() {
 patch_uid() {
   printf '0x5b%014x' "$1"
 }
+# calibrate_node MAP NODE [KEY: VALUE ...]: identifies the simulated patch NODE's unit from its
+# grid of presses (skinbus-dataset --fabricated with its UID, skinbus-identify: unitNODE.json)
+# and names it in NODE's entry of the skin map MAP, with the extra settings given.
+calibrate_node() {
+  local map=$1 node=$2
+  shift 2
+  "$bin/skinbus-dataset" --plan grid --fabricated --uid "$(patch_uid "$node")" -o "unit$node.csv" \
+    2>/dev/null
+  "$bin/skinbus-identify" "unit$node.csv" -o "unit$node.json" 2>"identify$node.err" >/dev/null ||
+    fail_with_logs "skinbus-identify failed"
+  tail -3 "identify$node.err"
+  python3 - "$map" "$node" "$@" <<'PY'
+import re
+import sys
+path, node, extra = sys.argv[1], sys.argv[2], sys.argv[3:]
+text = open(path).read()
+entries = re.split(r"(?m)^  - ", text)
+out = [entries[0]]
+for e in entries[1:]:
+    if re.match(rf"node: {node}\b", e):
+        e = e.rstrip("\n") + f"\n    unit: unit{node}.json\n" + "".join(f"    {x}\n" for x in extra)
+    out.append(e)
+open(path, "w").write("  - ".join(out))
+PY
+  grep -A14 "node: $node$" "$map" | grep -q "unit:" || fail_with_logs "the unit was not added to the map"
+}
 fail_with_logs() {
   echo "FAIL $*"
   for f in *.err; do echo "--- $f"; cat "$f"; done

@@ -14,24 +14,8 @@ source "$(dirname "$0")/e2e_lib.sh"
 e2e_init "$@"
 
 node=5  # a flat patch on the torso
-uid=$(patch_uid $node)
 make_skin_map map.yaml
-"$bin/skinbus-dataset" --plan grid --fabricated --uid "$uid" -o unit.csv
-"$bin/skinbus-identify" unit.csv -o unit5.json 2>identify.err || fail_with_logs "skinbus-identify failed"
-tail -3 identify.err
-# The map's entry for the node names its unit.
-python3 - <<'PY'
-import re
-text = open("map.yaml").read()
-entries = re.split(r"(?m)^  - ", text)
-out = [entries[0]]
-for e in entries[1:]:
-    if re.match(r"node: 5\b", e):
-        e = e.rstrip("\n") + "\n    unit: unit5.json\n"
-    out.append(e)
-open("map.yaml", "w").write("  - ".join(out))
-PY
-grep -A12 "node: 5$" map.yaml | grep "unit:" || fail_with_logs "the unit was not added to the map"
+calibrate_node map.yaml $node  # the map's entry for the node names its unit
 
 cat >presses.csv <<'CSV'
 # t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node

@@ -23,11 +23,13 @@ fi
 e2e_init "$@"
 
 make_skin_map map.yaml
+# Node 5 (on the torso) is calibrated and slides: its contacts carry their shear (arrows).
+calibrate_node map.yaml 5 "refine_shear: true"
 cat >presses.csv <<'CSV'
-# t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
+# t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node[,u_end_mm,v_end_mm,friction]
 0.8,1.9,10,-20,2.0,5,1
 1.1,2.2,-30,35,2.5,5,2
-1.4,2.6,25,10,1.8,5,5
+1.4,2.6,-5,10,2.2,5,5,35,10,0.4
 CSV
 cat >joints.csv <<'CSV'
 time_s,left_shoulder_pitch_joint,left_elbow_joint,right_elbow_joint,waist_yaw_joint

@@ -258,6 +258,7 @@ for (let j = 0, i = 0; i < hostArrays.length; i++) {
 let matched = 0, leading = 0, worstPos = 0;
 const problems = [];
 let previous = new Set();
+let sheared = 0;  // contacts whose shear arrow was checked
 for (const h of hostArrays) {
   const u = updateOf.get(h);
   const now = new Set(h.contacts.map((c) => c.track_id));
@@ -283,6 +284,19 @@ for (const h of hostArrays) {
     if (err > 1e-6) problems.push(`${h.stamp_us}: track ${c.track_id} ${err} m off`);
     const diameter = (2 * (5 + 3 * Math.min(Math.max(c.depth_mm, 0), 5))) / 1000;
     if (Math.abs(s.size.x - diameter) > 1e-9) problems.push(`${h.stamp_us}: track ${c.track_id} sphere ${s.size.x} m, depth ${c.depth_mm} mm`);
+    // A contact with a shear force has one arrow along it (its pose's x axis), the others none.
+    const newtons = Math.hypot(...c.shear_n);
+    const wantArrow = c.flags.includes("shear") && newtons > 0;
+    if (e.arrows.length !== (wantArrow ? 1 : 0)) {
+      problems.push(`${h.stamp_us}: track ${c.track_id} has ${e.arrows.length} arrows`);
+    } else if (wantArrow) {
+      const o = e.arrows[0].pose.orientation;
+      // The quaternion's rotation of (1, 0, 0).
+      const x = [1 - 2 * (o.y * o.y + o.z * o.z), 2 * (o.x * o.y + o.w * o.z), 2 * (o.x * o.z - o.w * o.y)];
+      const cos = x.reduce((acc, v, k) => acc + v * c.shear_n[k], 0) / newtons;
+      if (!(cos > 1 - 1e-9)) problems.push(`${h.stamp_us}: track ${c.track_id} arrow off the shear (cos ${cos})`);
+      sheared += 1;
+    }
   }
   const after = BigInt(h.stamp_us) * 1000n + 1n; // deletions stamped just after the publication
   const deleted = new Set(u.deletions.filter((d) => d.type === 0 &&
@@ -299,6 +313,8 @@ check("every contact publication of the host arrived as a SceneUpdate with its c
   `${matched} of ${hostArrays.length} (${leading} before DDS matched); ` +
     `worst position error ${worstPos.toExponential(2)} m` +
     (problems.length ? `; ${problems.slice(0, 5).join("; ")}` : ""));
+check("contacts with a shear force drawn with an arrow along it", sheared >= 10,
+  `${sheared} arrows checked against the host's shear`);
 const lastHost = hostArrays[hostArrays.length - 1];
 check("the last publication leaves no contact", lastHost && lastHost.contacts.length === 0 &&
   updateOf.get(lastHost)?.entities.length === 0);

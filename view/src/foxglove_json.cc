@@ -79,7 +79,7 @@ Json state_colour(const std::string& state) {
   return hex_colour(0xd8d8e8, kAlpha);
 }
 
-Json key_values(std::initializer_list<std::pair<const char*, std::string>> pairs) {
+Json key_values(const std::vector<std::pair<std::string, std::string>>& pairs) {
   Json out = Json::array();
   for (const auto& [k, v] : pairs) out.push_back({{"key", k}, {"value", v}});
   return out;
@@ -174,6 +174,12 @@ std::string foxglove_scene_update_schema() {
                      {"color", colour_schema()},
                      {"colors", array_of(colour_schema())},
                      {"indices", array_of({{"type", "integer"}, {"minimum", 0}})}});
+  const Json arrow = object_schema("foxglove.ArrowPrimitive", {{"pose", pose_schema()},
+                                                               {"shaft_length", number_schema()},
+                                                               {"shaft_diameter", number_schema()},
+                                                               {"head_length", number_schema()},
+                                                               {"head_diameter", number_schema()},
+                                                               {"color", colour_schema()}});
   const Json key_value = object_schema(
       "foxglove.KeyValuePair", {{"key", {{"type", "string"}}}, {"value", {{"type", "string"}}}});
   Json entity_properties = {
@@ -186,8 +192,8 @@ std::string foxglove_scene_update_schema() {
       {"spheres", array_of(sphere)},
       {"cubes", array_of(cube)},
       {"triangles", array_of(triangles)},
+      {"arrows", array_of(arrow)},
       // Primitives these messages leave empty (see Foxglove's schema for their fields).
-      {"arrows", array_of({{"type", "object"}})},
       {"cylinders", array_of({{"type", "object"}})},
       {"lines", array_of({{"type", "object"}})},
       {"texts", array_of({{"type", "object"}})},
@@ -257,6 +263,10 @@ std::string skinbus_patch_status_schema() {
   return dump(schema);
 }
 
+double shear_arrow_length_mm(double shear_n) {
+  return std::isfinite(shear_n) ? std::max(12.0 * shear_n, 4.0) : 4.0;
+}
+
 double contact_sphere_diameter_mm(double depth_mm) {
   const double d = std::isfinite(depth_mm) ? std::clamp(depth_mm, 0.0, 5.0) : 0.0;
   return 2 * (5 + 3 * d);
@@ -278,11 +288,36 @@ std::string ContactSceneEncoder::encode(uint64_t stamp_us, const std::string& ba
            {"orientation", {{"x", 0}, {"y", 0}, {"z", 0}, {"w", 1}}}}},
          {"size", vec3(d_m, d_m, d_m)},
          {"color", force_colour(c.force_n)}});
-    e["metadata"] = key_values({{"track_id", std::to_string(c.track_id)},
-                                {"node", std::to_string(c.node)},
-                                {"link", c.link},
-                                {"depth_mm", number_text(c.depth_mm)},
-                                {"force_n", number_text(c.force_n)}});
+    std::vector<std::pair<std::string, std::string>> meta = {
+        {"track_id", std::to_string(c.track_id)},
+        {"node", std::to_string(c.node)},
+        {"link", c.link},
+        {"depth_mm", number_text(c.depth_mm)},
+        {"force_n", number_text(c.force_n)}};
+    const Eigen::Vector3d shear(c.shear_n[0], c.shear_n[1], c.shear_n[2]);
+    const double newtons = shear.norm();
+    if (c.has_shear && newtons > 0 && std::isfinite(newtons)) {
+      // From the sphere's surface along the force; the arrow points along its pose's x axis.
+      const Eigen::Vector3d dir = shear / newtons;
+      const Eigen::Vector3d from =
+          Eigen::Vector3d(c.position_mm[0], c.position_mm[1], c.position_mm[2]) +
+          dir * (contact_sphere_diameter_mm(c.depth_mm) / 2);
+      const Eigen::Quaterniond q =
+          Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitX(), dir);
+      const double length_m = shear_arrow_length_mm(newtons) * kMetresPerMm;
+      e["arrows"].push_back(
+          {{"pose",
+            {{"position", point_m(from)},
+             {"orientation", {{"x", q.x()}, {"y", q.y()}, {"z", q.z()}, {"w", q.w()}}}}},
+           {"shaft_length", 0.7 * length_m},
+           {"shaft_diameter", 1.5 * kMetresPerMm},
+           {"head_length", 0.3 * length_m},
+           {"head_diameter", 4 * kMetresPerMm},
+           {"color", {{"r", 1.0}, {"g", 0.82}, {"b", 0.25}, {"a", 1.0}}}});
+      meta.push_back({"shear_n", number_text(shear.x()) + " " + number_text(shear.y()) + " " +
+                                     number_text(shear.z())});
+    }
+    e["metadata"] = key_values(meta);
     entities.push_back(std::move(e));
   }
   // Foxglove deletes entities stamped earlier than the deletion: the host publishes a stamp again

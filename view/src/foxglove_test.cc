@@ -132,6 +132,31 @@ TEST(Foxglove, ContactsAreSpheresInTheBaseFrameAndEndedTracksAreDeleted) {
   EXPECT_DOUBLE_EQ(contact_sphere_diameter_mm(9), 40);
   EXPECT_EQ(e["metadata"][0]["key"], "track_id");
   EXPECT_EQ(e["metadata"][0]["value"], "3");
+  EXPECT_TRUE(e["arrows"].empty());  // no shear
+  // A contact with a shear force: an arrow from the sphere's surface along it.
+  {
+    ContactSceneEncoder sheared;
+    std::vector<SceneContact> one(1);
+    one[0].track_id = 9;
+    one[0].depth_mm = 2;  // sphere radius 11 mm
+    one[0].has_shear = true;
+    one[0].shear_n[1] = -1.2;
+    one[0].shear_n[2] = 1.6;  // 2 N along (0, -0.6, 0.8)
+    const auto a = Json::parse(sheared.encode(1'000'000, "pelvis", one))["entities"][0]["arrows"];
+    ASSERT_EQ(a.size(), 1u);
+    const auto& pose = a[0]["pose"];
+    EXPECT_NEAR(pose["position"]["y"].get<double>(), -0.6 * 0.011, 1e-12);
+    EXPECT_NEAR(pose["position"]["z"].get<double>(), 0.8 * 0.011, 1e-12);
+    const Eigen::Quaterniond q(
+        pose["orientation"]["w"].get<double>(), pose["orientation"]["x"].get<double>(),
+        pose["orientation"]["y"].get<double>(), pose["orientation"]["z"].get<double>());
+    EXPECT_LT((q * Eigen::Vector3d::UnitX() - Eigen::Vector3d(0, -0.6, 0.8)).norm(), 1e-12);
+    EXPECT_NEAR(a[0]["shaft_length"].get<double>() + a[0]["head_length"].get<double>(), 0.024,
+                1e-12);        // 12 mm a newton
+    one[0].has_shear = false;  // the host did not estimate it: no arrow
+    EXPECT_TRUE(
+        Json::parse(sheared.encode(2'000'000, "pelvis", one))["entities"][0]["arrows"].empty());
+  }
   // Track 3 ends: deleted by ID; track 4 goes on.
   c.erase(c.begin());
   j = Json::parse(enc.encode(1'795'267'568'600'000, "pelvis", c));

@@ -41,15 +41,25 @@ struct SceneContact {
   double force_n = 0;
   int node = 0;
   std::string link;
+  // The contact's shear force (N, base frame) when it has one (host's kContactShear): drawn as an
+  // arrow. `has_shear` false: none.
+  bool has_shear = false;
+  double shear_n[3] = {0, 0, 0};
 };
+
+// A shear arrow's length (mm) for a force (N), as the web page draws it: 12 mm a newton, at least
+// 4 mm.
+double shear_arrow_length_mm(double shear_n);
 
 // The contact sphere's diameter (mm) for a depth (mm), as the web page draws it: 2 * (5 + 3 *
 // depth), depth clamped to [0, 5] mm.
 double contact_sphere_diameter_mm(double depth_mm);
 
 // The contacts of one publication as a SceneUpdate: entity "contact/<track_id>" per contact in
-// `base_frame` (a sphere at its position, sized by depth, coloured by force; metadata track_id,
-// node, link, depth_mm, force_n), and a MATCHING_ID deletion for every track of the previous
+// `base_frame` (a sphere at its position, sized by depth, coloured by force; with a shear force,
+// an arrow from the sphere's surface along it, its pose's x axis the force's direction, its
+// length shear_arrow_length_mm(); metadata track_id, node, link, depth_mm, force_n, and shear_n
+// with a shear), and a MATCHING_ID deletion for every track of the previous
 // publication that has ended, stamped 1 ns after `stamp_us` (Foxglove deletes entities stamped
 // earlier than the deletion, and the host publishes a stamp again when only a track ends). Keeps
 // the track IDs it sent last (at most one publication's).
