@@ -322,6 +322,16 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
   return std::unique_ptr<Aggregator>(new Aggregator(std::move(impl)));
 }
 
+bool refinement_accepted(const estimators::RefinedEstimate& r,
+                         const estimators::ContactEstimate& network, const AggregatorOptions& o) {
+  const uint32_t bad = kEstimateNoContact | estimators::kEstimateNotConverged;
+  return r.contact.valid() && (r.contact.flags & bad) == 0 &&
+         r.reduced_chi2 <= o.refine_max_reduced_chi2 &&
+         (r.reduced_chi2 <= o.refine_trusted_chi2 ||
+          std::hypot(r.contact.u_mm - network.u_mm, r.contact.v_mm - network.v_mm) <=
+              o.refine_max_shift_mm);
+}
+
 void Aggregator::on_frame(int bus, const bus::CanFrame& frame, uint64_t rx_us) {
   Impl& s = *impl_;
   if (bus < 0 || bus >= static_cast<int>(s.reassemblers.size())) return;
@@ -706,17 +716,11 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
                   .count();
           refine_spent_us += us;
           s.stats.refine_us += us;
-          const uint32_t bad = kEstimateNoContact | estimators::kEstimateNotConverged;
-          auto acceptable = [&](const estimators::RefinedEstimate& r) {
-            return r.contact.valid() && (r.contact.flags & bad) == 0 &&
-                   r.reduced_chi2 <= s.options.refine_max_reduced_chi2 &&
-                   (r.reduced_chi2 <= s.options.refine_trusted_chi2 ||
-                    std::hypot(r.contact.u_mm - est.u_mm, r.contact.v_mm - est.v_mm) <=
-                        s.options.refine_max_shift_mm);
-          };
           const int found = std::clamp(rc.count, 1, 2);
           bool ok = true;
-          for (int j = 0; j < found; ++j) ok = ok && acceptable(rc.contacts[j]);
+          for (int j = 0; j < found; ++j) {
+            ok = ok && refinement_accepted(rc.contacts[j], est, s.options);
+          }
           if (ok) {
             count = found;
             for (int j = 0; j < found; ++j) {

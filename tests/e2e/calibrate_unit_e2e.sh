@@ -27,6 +27,16 @@ done
 cat cal/report.md
 grep -q "^| 2-3 | [0-9.]* | [0-9.]* | [0-9.]* |" cal/report.md || fail_with_logs "no 2-3 mm row"
 grep -q "held-out lab presses" cal/report.md || fail_with_logs "not measured on the held-out presses"
+# The network refined on the unit on the same presses: below the network in every bin, near the
+# unit's bound (about 0.89 x CRLB is at it; 1.5 allows the samples that keep the network's answer).
+python3 - <<'PY' || fail_with_logs "the refinement's errors on the held-out presses"
+import re, sys
+rows = re.findall(r"^\| (\d-\d) \| (\d+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \|",
+                  open("cal/report.md").read(), re.M)
+print("refined rows:", rows)
+ok = len(rows) == 3 and all(float(r[3]) < float(r[2]) and float(r[5]) < 1.5 for r in rows)
+sys.exit(0 if ok else 1)
+PY
 python3 - <<'PY' || fail_with_logs "the identification residual"
 import re, sys
 text = open("cal/identify.log").read()

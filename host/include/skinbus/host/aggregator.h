@@ -169,6 +169,13 @@ struct AggregatorOptions {
   double refine_trusted_chi2 = 2;
 };
 
+// Whether the host publishes a refined contact instead of the network's answer `network`
+// (AggregatorOptions::refine_max_reduced_chi2, refine_trusted_chi2, refine_max_shift_mm): the
+// fit converged, found a contact, explains the sample well enough and lies near the network's
+// answer or fits to the noise.
+bool refinement_accepted(const estimators::RefinedEstimate& refined,
+                         const estimators::ContactEstimate& network, const AggregatorOptions& o);
+
 struct AggregatorStats {
   uint64_t frames = 0;
   uint64_t samples = 0;          // complete samples received
