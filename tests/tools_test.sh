@@ -125,6 +125,16 @@ head -400 "$work/id/unit.csv" >"$work/id/few.csv"
 [[ $rc == 1 ]] && grep -q "degenerate" "$work/id/few.txt" && [[ ! -e $work/id/few.json ]] &&
   ok "too few presses: a clear error and no unit file" || { bad "identify with too few presses (rc $rc)"; cat "$work/id/few.txt"; }
 grep -q "noise units" <<<"$("$bin/skinbus-identify" --help)" && ok "skinbus-identify --help" || bad "skinbus-identify --help"
+# The shipped network alone and refined on the identified unit, on that unit's own presses.
+"$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+  --unit "$work/id/unit.json" >"$work/id/eval.txt" 2>&1; rc=$?
+row=$(grep "^| 2-3 |" "$work/id/eval.txt" || true)
+[[ $rc == 0 ]] && awk -F'|' '{exit !($5 + 0 < $4 + 0)}' <<<"$row" &&
+  ok "skinbus-evaluate: refined below the network ($row)" || { bad "skinbus-evaluate (rc $rc)"; cat "$work/id/eval.txt"; }
+"$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+  --unit "$work/id/bad.json" >/dev/null 2>"$work/id/eval_bad.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "bad.json: magnets\[0\].v_mm is missing" "$work/id/eval_bad.txt" &&
+  ok "skinbus-evaluate: a corrupt unit file named" || { bad "skinbus-evaluate with a corrupt unit"; cat "$work/id/eval_bad.txt"; }
 
 "$bin/skinbus-crlb" --depths 2 --step 10 --csv "$work/crlb.csv" >"$work/crlb.txt" &&
   grep -q "^| 2.0 |" "$work/crlb.txt" && ok "skinbus-crlb table" || bad "skinbus-crlb table"
@@ -295,8 +305,13 @@ r10=$(awk -F'|' '$2+0 == 10 {print $6+0}' <<<"$pair")
 r60=$(awk -F'|' '$2+0 == 60 {print $6+0}' <<<"$pair")
 awk -v a="$r10" -v b="$r60" 'BEGIN {exit !(a > 3 && b < 1.2 && b >= 1)}' &&
   ok "skinbus-crlb --pair: x alone $r10 at 10 mm, $r60 at 60 mm" || { bad "crlb --pair ($r10, $r60)"; echo "$pair"; }
+# The shear bound: a few tenths of a newton, and an unknown shear costing the position.
+shear=$("$bin/skinbus-crlb" --shear --depths 2 --step 10 --ambient 2>&1)
+row=$(grep "^| 2.0 |" <<<"$shear" || true)
+awk -F'|' '{exit !($4 > 0.05 && $4 < 2 && $10 > 1.5)}' <<<"$row" &&
+  ok "skinbus-crlb --shear: $row" || { bad "crlb --shear"; echo "$shear"; }
 
-for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate skinbus-view; do
+for t in skinbus-decode skinbus-gen skinbus-budget skinbus-dbc skinbus-patchd skinbus-cmd skinbus-touchsim skinbus-calibrate skinbus-host skinbus-locate skinbus-view skinbus-evaluate; do
   grep -q "Examples:\|Example:\|skinbus-dbc:" <<<"$("$bin/$t" --help)" && ok "$t --help" || bad "$t --help"
 done
 grep -q "calibration" <<<"$("$bin/skinbus-bench" --help)" && ok "skinbus-bench --help" || bad "skinbus-bench --help"
