@@ -87,18 +87,19 @@ int main(int argc, char** argv) {
   const std::size_t n = data->rows();
   std::vector<estimators::ContactEstimate> net(n), ref(n);
   std::vector<double> bound(n, std::nan(""));
-  std::size_t kept_network = 0;
+  std::size_t attempted = 0, kept_network = 0;
   double refine_us = 0;
   for (std::size_t r = 0; r < n; ++r) {
     const std::span<const double> f(data->field(r), static_cast<std::size_t>(nc));
     net[r] = runtime->estimate(f);
     ref[r] = net[r];
     if (net[r].valid() && (net[r].flags & estimators::kEstimateNoContact) == 0) {
+      ++attempted;
       const auto t0 = std::chrono::steady_clock::now();
       const estimators::RefinedEstimate e = (*refiner)->refine(f, {}, net[r]);
       refine_us +=
           std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
-      if (host::refinement_accepted(e, net[r], host_rule)) {
+      if (host::refinement_accepted(e, &net[r], host_rule)) {
         ref[r] = e.contact;
       } else {
         ++kept_network;
@@ -113,10 +114,12 @@ int main(int argc, char** argv) {
   const estimators::ErrorSummary sn = estimators::summarize_errors(net, truth);
   const estimators::ErrorSummary sr = estimators::summarize_errors(ref, truth);
   std::printf(
-      "%zu presses of %s; network %s (%s); unit %s; refined %zu, %zu kept the network's "
-      "answer (the host's rule); %.0f us a refinement on average\n\n",
+      "%zu presses of %s; network %s (%s); unit %s; %zu refined, %zu kept the network's "
+      "answer (the host's rule), %zu without a network contact; %.0f us a refinement on "
+      "average\n\n",
       n, test_path.c_str(), model_path.c_str(), runtime->kernel_name(), unit_path.c_str(),
-      n - kept_network, kept_network, n > 0 ? refine_us / static_cast<double>(n) : 0.0);
+      attempted - kept_network, kept_network, n - attempted,
+      attempted > 0 ? refine_us / static_cast<double>(attempted) : 0.0);
   std::printf(
       "| depth (mm) | presses | network XY mean (mm) | refined XY mean (mm) | CRLB (mm) | "
       "refined x CRLB | network depth mean (mm) | refined depth mean (mm) |\n"

@@ -596,11 +596,9 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       double rt[kMaxChannels];
       const double cost_t = residuals(ft, xt, rt);
       if (std::isfinite(cost_t) && cost_t <= cost) {
-        double moved = 0;
-        for (int j = 0; j < l.contacts; ++j) {
-          moved = std::max(moved,
-                           (xt.template segment<3>(j * pc) - x.template segment<3>(j * pc)).norm());
-        }
+        // How far the step moved the unknowns of the contacts (mm; a shear change in N counts as
+        // the surface shift it makes at 1 N/mm).
+        const double moved = (xt.head(amb) - x.head(amb)).norm();
         const double drop = cost - cost_t;
         x = xt;
         std::copy(ft, ft + nc, fit.field);
@@ -771,7 +769,9 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
   }
   if (!done) {
     double f1[kMaxChannels];
-    const sim::Contact c1{one.u_mm, one.v_mm, one.depth_mm, options_.tip_radius_mm};
+    sim::Contact c1{one.u_mm, one.v_mm, one.depth_mm, options_.tip_radius_mm};
+    c1.shear_u_n = one.shear_u_n;  // 0 unless the single fit had the shear
+    c1.shear_v_n = one.shear_v_n;
     model_.contact_field_ut(std::span<const sim::Contact>(&c1, 1),
                             std::span<double>(f1, static_cast<std::size_t>(nc)));
     double rest[kMaxChannels];
@@ -816,6 +816,8 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
     e.v_mm = best.x(3 * k + 1);
     e.depth_mm = best.x(3 * k + 2);
     e.force_n = model_.force_n(e.depth_mm);
+    e.flags = one.flags & kEstimateMasked;
+    if (!best.converged) e.flags |= kEstimateNotConverged;
     flag_range(e, half_u, half_v, model_.max_depth_mm());
     out.sigma_uv_mm[k] = std::numeric_limits<double>::quiet_NaN();
     double sigma_depth = 0;

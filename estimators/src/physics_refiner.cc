@@ -19,17 +19,21 @@ class PhysicsRefiner : public ContactRefiner {
 
   RefinedContacts refine_contacts(std::span<const double> field_ut,
                                   std::span<const uint8_t> channel_ok, const ContactEstimate& start,
-                                  std::span<const ContactEstimate> previous) const override {
+                                  std::span<const ContactEstimate> previous,
+                                  double search_above_chi2) const override {
     RefinedContacts out;
     const PhysicsEstimate single = estimator_.refine_lm(field_ut, channel_ok, start);
     out.contacts[0] = from(single);
+    out.single_reduced_chi2 = single.reduced_chi2;
+    const bool pair_known = previous.size() == 2;
     if (options_.max_contacts < 2 || !single.contact.valid() ||
-        !(single.reduced_chi2 > options_.count.try_ratio)) {
+        !(single.reduced_chi2 > options_.count.try_ratio) ||
+        (!pair_known && !(single.reduced_chi2 > search_above_chi2))) {
       return out;
     }
-    const ContactCountEstimate c =
-        estimator_.count_contacts(field_ut, channel_ok, single, options_.count,
-                                  previous.size() == 2 ? previous.data() : nullptr);
+    out.searched = !pair_known;
+    const ContactCountEstimate c = estimator_.count_contacts(
+        field_ut, channel_ok, single, options_.count, pair_known ? previous.data() : nullptr);
     if (c.count != 2) return out;
     out.count = 2;
     for (int k = 0; k < 2; ++k) {

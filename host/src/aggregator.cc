@@ -116,8 +116,19 @@ struct Aggregator::Impl {
   // The current contact of each patch that has one, in its link's frame (position and normal;
   // flags without the kinematics ones): every publication places all of them with the pose at
   // its own stamp, so one array is one instant of the robot.
+  // What the refinement of a press keeps from sample to sample (patch frame): the last refined
+  // pair, the searches for a second press, the single contact's shear. A new press starts anew.
+  struct RefineMemory {
+    bool pair = false;
+    ContactEstimate pair_start[2];
+    bool searched = false;
+    double searched_chi2 = 0;
+    int since_search = 0;
+    double shear_u_n = 0, shear_v_n = 0;
+  };
   struct Current {
     bool used = false;
+    RefineMemory refine;
     PatchContact contact;
     bool has_second = false;  // a second press on the patch (a refiner with max_contacts 2)
     PatchContact second;
@@ -323,12 +334,12 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
 }
 
 bool refinement_accepted(const estimators::RefinedEstimate& r,
-                         const estimators::ContactEstimate& network, const AggregatorOptions& o) {
+                         const estimators::ContactEstimate* network, const AggregatorOptions& o) {
   const uint32_t bad = kEstimateNoContact | estimators::kEstimateNotConverged;
   return r.contact.valid() && (r.contact.flags & bad) == 0 &&
          r.reduced_chi2 <= o.refine_max_reduced_chi2 &&
-         (r.reduced_chi2 <= o.refine_trusted_chi2 ||
-          std::hypot(r.contact.u_mm - network.u_mm, r.contact.v_mm - network.v_mm) <=
+         (network == nullptr || r.reduced_chi2 <= o.refine_trusted_chi2 ||
+          std::hypot(r.contact.u_mm - network->u_mm, r.contact.v_mm - network->v_mm) <=
               o.refine_max_shift_mm);
 }
 
@@ -375,6 +386,7 @@ void Aggregator::Impl::on_sample(int bus, uint8_t node, const bus::Sample& smp, 
     // The press is over (event-mode tail, or a stream-mode idle sample).
     if (current[k].used) {
       current[k].used = false;
+      current[k].refine = {};
       current_list.erase(std::find(current_list.begin(), current_list.end(), k));
       released = true;
     }
@@ -580,6 +592,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
     const std::size_t k = s.current_list[i];
     if (now_us > s.current[k].last_us + s.options.contact_hold_us) {
       s.current[k].used = false;
+      s.current[k].refine = {};
       s.current_list[i] = s.current_list.back();
       s.current_list.pop_back();
       s.released = true;
@@ -686,7 +699,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           // Warm start: the patch's previous refined contact, when this is the same press; a
           // previous pair is tried again first.
           ContactEstimate start = est;
-          const Impl::Current& prev = s.current[k];
+          Impl::Current& prev = s.current[k];
+          Impl::RefineMemory& mem = prev.refine;
           const bool prev_refined = prev.used && (prev.contact.flags & kContactUnrefined) == 0;
           if (prev_refined &&
               std::hypot(prev.contact.u_mm - est.u_mm, prev.contact.v_mm - est.v_mm) <
@@ -694,23 +708,28 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             start.u_mm = prev.contact.u_mm;
             start.v_mm = prev.contact.v_mm;
             start.depth_mm = prev.contact.depth_mm;
+            start.shear_u_n = mem.shear_u_n;  // patch frame; 0 without a fitted shear
+            start.shear_v_n = mem.shear_v_n;
             ++s.stats.refine_warm_starts;
           }
-          ContactEstimate previous[2];
-          std::size_t n_previous = 0;
-          if (prev_refined) {
-            for (const PatchContact* pc :
-                 {&prev.contact, prev.has_second ? &prev.second : nullptr}) {
-              if (pc == nullptr) continue;
-              previous[n_previous].u_mm = pc->u_mm;
-              previous[n_previous].v_mm = pc->v_mm;
-              previous[n_previous++].depth_mm = pc->depth_mm;
-            }
-          }
+          // A search for a second press from nothing: the first time this press's single fit
+          // leaves more than noise, then when that fit gets 1.5x worse than at the last search
+          // (a finger added), or every kSearchEverySamples samples.
+          constexpr int kSearchEverySamples = 10;
+          const double search_above = !mem.searched || mem.since_search >= kSearchEverySamples
+                                          ? 0.0
+                                          : 1.5 * mem.searched_chi2;
           const estimators::RefinedContacts rc = refiner->refine_contacts(
               std::span<const double>(m.fields.data() + row, kChannels),
               std::span<const uint8_t>(m.ok.data() + row, kChannels), start,
-              std::span<const ContactEstimate>(previous, n_previous));
+              std::span<const ContactEstimate>(mem.pair_start, mem.pair ? 2 : 0), search_above);
+          if (rc.searched) {
+            mem.searched = true;
+            mem.searched_chi2 = rc.single_reduced_chi2;
+            mem.since_search = 0;
+          } else {
+            ++mem.since_search;
+          }
           const double us =
               std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
                   .count();
@@ -719,7 +738,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           const int found = std::clamp(rc.count, 1, 2);
           bool ok = true;
           for (int j = 0; j < found; ++j) {
-            ok = ok && refinement_accepted(rc.contacts[j], est, s.options);
+            ok = ok && refinement_accepted(rc.contacts[j], found == 1 ? &est : nullptr, s.options);
           }
           if (ok) {
             count = found;
@@ -730,6 +749,13 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             refined_sigma_shear_n = rc.contacts[0].sigma_shear_n;
             ++s.stats.refined;
             if (found == 2) ++s.stats.refined_pairs;
+            // What the next sample starts from: the pair (kept over unrefined samples until a
+            // refined one finds a single press), the single contact's shear.
+            mem.pair = found == 2;
+            for (int j = 0; j < found; ++j) mem.pair_start[j] = ests[j];
+            const bool shear = found == 1 && std::isfinite(refined_sigma_shear_n);
+            mem.shear_u_n = shear ? ests[0].shear_u_n : 0.0;
+            mem.shear_v_n = shear ? ests[0].shear_v_n : 0.0;
           } else {
             flags |= kContactUnrefined;
             ++s.stats.unrefined_poor_fit;

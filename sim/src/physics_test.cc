@@ -367,6 +367,18 @@ TEST_F(PatchModelTest, BadDesignsNameTheParameter) {
   design = PatchDesign{};
   design.sensor_pitch_mm = 60;
   EXPECT_FALSE(PatchModel::nominal(design).ok());
+  for (double bad : {0.0, 12.0}) {  // none, or beyond the bending's reach (spread 10 mm)
+    design = PatchDesign{};
+    design.shear_spread_mm = bad;
+    m = PatchModel::nominal(design);
+    ASSERT_FALSE(m.ok());
+    EXPECT_NE(m.error().message.find("shear_spread_mm"), std::string::npos);
+  }
+  design = PatchDesign{};
+  design.shear_stiffness_n_per_mm = -1;
+  m = PatchModel::nominal(design);
+  ASSERT_FALSE(m.ok());
+  EXPECT_NE(m.error().message.find("shear_stiffness_n_per_mm"), std::string::npos);
 }
 
 }  // namespace

@@ -174,9 +174,14 @@ def main():
                   f"median cosine to the slide {med_cos:.3f}")
             check(f"node {node}: shear / normal force is the friction {p['friction']}",
                   abs(med_ratio - p["friction"]) < 0.15, f"median {med_ratio:.3f}")
-        us = [c["u_mm"] for c in contacts if c["node"] == node and c["depth_mm"] >= 1]
-        check(f"node {node}: the contact follows the slide", min(us) < p["u"] + 10 and
-              max(us) > p["u_end"] - 10, f"u from {min(us):.1f} to {max(us):.1f} mm")
+        # Along the slide (patch frame), from its start to its end within 10 mm.
+        du, dv = p["u_end"] - p["u"], p["v_end"] - p["v"]
+        length = math.hypot(du, dv)
+        s = [((c["u_mm"] - p["u"]) * du + (c["v_mm"] - p["v"]) * dv) / length
+             for c in contacts if c["node"] == node and c["depth_mm"] >= 1]
+        check(f"node {node}: the contact follows the slide",
+              bool(s) and min(s) < 10 and max(s) > length - 10,
+              f"from {min(s):.1f} to {max(s):.1f} mm of {length:.1f}" if s else "no contact")
     for node, e in sorted(errs.items()):
         e.sort()
         med, p90 = e[len(e) // 2], e[int(0.9 * len(e))]

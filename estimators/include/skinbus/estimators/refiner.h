@@ -29,6 +29,9 @@ struct RefinedEstimate {
 struct RefinedContacts {
   int count = 1;
   RefinedEstimate contacts[2];
+  bool searched = false;  // a search for a second contact was made (whatever it found)
+  // The single-contact fit's reduced chi-square (what decides a search), NaN if none was made.
+  double single_reduced_chi2 = std::numeric_limits<double>::quiet_NaN();
 };
 
 class ContactRefiner {
@@ -41,13 +44,19 @@ class ContactRefiner {
                                  std::span<const uint8_t> channel_ok,
                                  const ContactEstimate& start) const = 0;
   // The same, for a refiner that may find more than one contact in a sample (two fingers on one
-  // patch): `previous` holds the same patch's refined contacts of its previous sample (0, 1 or
-  // 2; a pair is tried first from there). By default the one contact of refine().
+  // patch): `previous` holds the same patch's last refined pair (2 contacts: tried first, at the
+  // cost of one two-contact solve) or nothing; without a pair, the costly search for a second
+  // contact from nothing is made only when the single fit's reduced chi-square is above
+  // `search_above_chi2` as well as the refiner's own threshold (the caller rate-limits searches:
+  // a unit whose physics the model lacks leaves more than noise on every sample; infinity: no
+  // search). By default the one contact of refine().
   virtual RefinedContacts refine_contacts(std::span<const double> field_ut,
                                           std::span<const uint8_t> channel_ok,
                                           const ContactEstimate& start,
-                                          std::span<const ContactEstimate> previous) const {
+                                          std::span<const ContactEstimate> previous,
+                                          double search_above_chi2) const {
     (void)previous;
+    (void)search_above_chi2;
     RefinedContacts out;
     out.contacts[0] = refine(field_ut, channel_ok, start);
     return out;

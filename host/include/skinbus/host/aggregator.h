@@ -172,9 +172,10 @@ struct AggregatorOptions {
 // Whether the host publishes a refined contact instead of the network's answer `network`
 // (AggregatorOptions::refine_max_reduced_chi2, refine_trusted_chi2, refine_max_shift_mm): the
 // fit converged, found a contact, explains the sample well enough and lies near the network's
-// answer or fits to the noise.
+// answer or fits to the noise. `network` null: no distance to it is asked (a contact of a pair,
+// which the network's single answer does not describe).
 bool refinement_accepted(const estimators::RefinedEstimate& refined,
-                         const estimators::ContactEstimate& network, const AggregatorOptions& o);
+                         const estimators::ContactEstimate* network, const AggregatorOptions& o);
 
 struct AggregatorStats {
   uint64_t frames = 0;
