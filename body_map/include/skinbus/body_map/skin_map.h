@@ -73,8 +73,9 @@ struct PatchPlacement {
   // docs/benchmarks/shear.md), so it is for patches where shear matters.
   bool refine_shear = false;
   // How many presses the refinement looks for on this patch: 1, or 2 (two fingers; each
-  // published with its own track). Counting costs a few milliseconds when a second press
-  // appears, then about 0.5 ms a sample while both last (docs/aggregator.md).
+  // published with its own track). A search for a second press costs a few milliseconds (made
+  // when a press's fit leaves more than noise, rate-limited), a held pair about 0.5 ms a sample
+  // (docs/aggregator.md).
   int max_contacts = 1;
   std::optional<PoseUncertainty> calibration;
 };
