@@ -68,6 +68,8 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     d.lateral_mm = 4 * u01(rng);
     d.anisotropy = -0.3 + 0.6 * u01(rng);
     d.stiffness_n_per_mm = 0.5 + 3 * u01(rng);
+    d.shear_stiffness_n_per_mm = 0.3 + 3 * u01(rng);
+    d.shear_spread_mm = 2 + 12 * u01(rng);
     d.sensor_config.gain_sel = static_cast<uint8_t>(rng() % 8);
     d.sensor_config.osr = static_cast<uint8_t>(rng() % 4);
     d.sensor_config.temperature = rng() % 2 == 1;
