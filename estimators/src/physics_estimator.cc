@@ -18,10 +18,22 @@ namespace {
 constexpr double kMinDepthMm = 1e-3;  // the fit's lower depth bound: no press moves nothing
 constexpr double kMaxShearN = 100;    // the fit's shear bound, each component
 
-// Unknowns of a single-contact fit: (u, v, depth), the ambient offset's 3 when fitted, the shear
-// force's 2 when fitted.
+// The unknowns of a fit: each contact's (u, v, depth[, shear u, v]) in turn, then the ambient
+// offset (3; held at 0 unless fitted).
+struct LeanLayout {
+  int contacts = 1;
+  bool shear = false;
+  constexpr int per_contact() const { return shear ? 5 : 3; }
+  constexpr int ambient_at() const { return contacts * per_contact(); }
+  constexpr int size() const { return ambient_at() + 3; }
+  // Whether unknown `k` is fitted (the ambient's only with `fit_ambient`), and how many are.
+  constexpr bool fitted(int k, bool fit_ambient) const { return k < ambient_at() || fit_ambient; }
+  constexpr int unknowns(bool fit_ambient) const { return fit_ambient ? size() : ambient_at(); }
+};
+
+// Unknowns of a single-contact fit with `options`.
 int unknowns_of(const PhysicsOptions& options) {
-  return 3 + (options.fit_ambient ? 3 : 0) + (options.fit_shear ? 2 : 0);
+  return LeanLayout{1, options.fit_shear}.unknowns(options.fit_ambient);
 }
 
 // Whitened residuals of one sample against N contacts and the ambient offset: parameter blocks
@@ -111,6 +123,11 @@ struct FitInput {
   double y[kMaxChannels];
   SampleCheck check;
 };
+
+// refine_lm()'s fit of one contact (with its shear when N is 8) on a prepared sample; below.
+template <int N>
+void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
+                 const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result);
 
 void prepare_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok, int nc,
                  const PhysicsOptions& options, FitInput* in) {
@@ -318,7 +335,8 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   const double* inv_sigma = in.inv_sigma;
   const double* y = in.y;
   const int usable = nc - in.check.masked;
-  const int unknowns = options_.fit_ambient ? 6 : 3;  // the shear, if fitted, comes after
+  // The Ceres fit has no shear: with fit_shear the lean fit takes over from its answer (below).
+  const int unknowns = LeanLayout{1, false}.unknowns(options_.fit_ambient);
   double whitened[kMaxChannels];
   for (int c = 0; c < nc; ++c) whitened[c] = y[c] * inv_sigma[c];
 
@@ -406,7 +424,8 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
       start.depth_mm = x[2];
       start.shear_u_n = shear_u_n;
       start.shear_v_n = shear_v_n;
-      PhysicsEstimate e = refine_lm(field_ut, channel_ok, start);
+      PhysicsEstimate e;  // on the sample already prepared (refine_lm() would check it again)
+      refine_lean<8>(model_, options_, in, ambient_jac_.data(), start, &e);
       iterations += e.iterations;
       return e;
     };
@@ -436,18 +455,9 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
 
 namespace {
 
-// The lean fit's unknowns: each contact's (u, v, depth[, shear u, v]) in turn, then the ambient
-// offset (3; held at 0 unless fitted). Sized at compile time (N unknowns: 6 for one contact, 8
+// The lean fit's unknowns (LeanLayout), sized at compile time (N unknowns: 6 for one contact, 8
 // with its shear, 9 for two): no allocation, fixed-size algebra.
 constexpr int kLeanMax = 2 * 5 + 3;
-
-struct LeanLayout {
-  int contacts = 1;
-  bool shear = false;
-  constexpr int per_contact() const { return shear ? 5 : 3; }
-  constexpr int ambient_at() const { return contacts * per_contact(); }
-  constexpr int size() const { return ambient_at() + 3; }
-};
 
 template <int N>
 struct LeanFit {
@@ -514,7 +524,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       lo[k] = -kMaxShearN;
       hi[k] = kMaxShearN;
     }
-    fitted[k] = k < amb || options.fit_ambient;
+    fitted[k] = l.fitted(k, options.fit_ambient);
     const bool bounded = std::isfinite(lo[k]) && std::isfinite(hi[k]);
     if (!std::isfinite(x(k))) {
       x(k) = bounded && within < 3 && k < amb ? (lo[k] + hi[k]) / 2 : 0.0;
@@ -628,7 +638,7 @@ template <typename LeanMat>
 bool lean_sigmas(const LeanMat& jtj, const LeanLayout& l, bool fit_ambient, double reduced_chi2,
                  int j, double* sigma_uv_mm, double* sigma_depth_mm, double* sigma_shear_n) {
   bool fitted[kLeanMax];
-  for (int k = 0; k < l.size(); ++k) fitted[k] = k < l.ambient_at() || fit_ambient;
+  for (int k = 0; k < l.size(); ++k) fitted[k] = l.fitted(k, fit_ambient);
   const LeanMat m = hold_unfitted(jtj, fitted);
   const Eigen::LDLT<LeanMat> ldlt(m);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive() ||
@@ -740,7 +750,7 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
   const int nc = model_.channel_count();
   const int usable = out.single.channels_used;
   const LeanLayout l{2, false};  // two contacts; their shear is not fitted
-  const int unknowns = options_.fit_ambient ? 9 : 6;
+  const int unknowns = l.unknowns(options_.fit_ambient);
   if (usable <= unknowns || static_cast<int>(field_ut.size()) != nc) return out;
   FitInput in;
   prepare_fit(field_ut, channel_ok, nc, options_, &in);

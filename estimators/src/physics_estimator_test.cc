@@ -304,14 +304,10 @@ TEST(PhysicsEstimatorLeanTest, RefineLmReachesTheCeresFitsMinimum) {
                                   sim::FabricationVariation{})
           .value();
   const PhysicsEstimator est = PhysicsEstimator::create(unit).value();
-  const ChannelNoise noise = ChannelNoise::of(unit.design());
   sim::Rng rng(seed);
   for (int i = 0; i < 40; ++i) {
     const sim::Contact c{rng.uniform(-55, 55), rng.uniform(-55, 55), rng.uniform(0.8, 4.5), 5};
-    std::vector<double> f(static_cast<std::size_t>(unit.channel_count()));
-    unit.contact_field_ut(std::span<const sim::Contact>(&c, 1), f);
-    for (std::size_t k = 0; k < f.size(); ++k)
-      f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+    const std::vector<double> f = noisy_field(unit, std::span<const sim::Contact>(&c, 1), rng);
     ContactEstimate start;
     start.u_mm = c.u_mm + rng.uniform(-2, 2);
     start.v_mm = c.v_mm + rng.uniform(-2, 2);
@@ -397,16 +393,16 @@ TEST(PhysicsEstimatorShearTest, RecoversTheShearForceAtItsBound) {
     const double dir = rng.uniform(0, 2 * M_PI);
     c.shear_u_n = mag * std::cos(dir);
     c.shear_v_n = mag * std::sin(dir);
-    std::vector<double> f(nc);
-    unit.contact_field_ut(std::span<const sim::Contact>(&c, 1), f);
     if (i < 4) {  // noise-free: exact
-      const PhysicsEstimate e = shear.estimate(f);
+      std::vector<double> exact(nc);
+      unit.contact_field_ut(std::span<const sim::Contact>(&c, 1), exact);
+      const PhysicsEstimate e = shear.estimate(exact);
       ASSERT_TRUE(e.contact.valid());
       EXPECT_NEAR(e.contact.shear_u_n, c.shear_u_n, 1e-3) << i;
       EXPECT_NEAR(e.contact.shear_v_n, c.shear_v_n, 1e-3) << i;
       EXPECT_NEAR(e.contact.u_mm, c.u_mm, 1e-3) << i;
     }
-    for (std::size_t k = 0; k < nc; ++k) f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+    const std::vector<double> f = noisy_field(unit, std::span<const sim::Contact>(&c, 1), rng);
     const PhysicsEstimate e = shear.estimate(f);
     const PhysicsEstimate p = plain.estimate(f);
     SCOPED_TRACE(testing::Message() << "press " << c.u_mm << ", " << c.v_mm << ", " << c.depth_mm

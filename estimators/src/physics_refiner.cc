@@ -52,7 +52,7 @@ class PhysicsRefiner : public ContactRefiner {
     out.contact = p.contact;
     out.sigma_uv_mm = p.sigma_uv_mm;
     out.reduced_chi2 = p.reduced_chi2;
-    if (estimator_.options().fit_shear) out.sigma_shear_n = p.sigma_shear_n;
+    out.sigma_shear_n = p.sigma_shear_n;  // NaN unless the fit had the shear
     return out;
   }
 
