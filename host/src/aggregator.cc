@@ -113,9 +113,6 @@ struct Aggregator::Impl {
   std::vector<Pending> pending;           // kMaxBuses * 128
   std::vector<std::size_t> pending_list;  // indices into pending
 
-  // The current contact of each patch that has one, in its link's frame (position and normal;
-  // flags without the kinematics ones): every publication places all of them with the pose at
-  // its own stamp, so one array is one instant of the robot.
   // What the refinement of a press keeps from sample to sample (patch frame): the last refined
   // pair, the searches for a second press, the single contact's shear. A new press starts anew.
   struct RefineMemory {
@@ -126,12 +123,14 @@ struct Aggregator::Impl {
     int since_search = 0;
     double shear_u_n = 0, shear_v_n = 0;
   };
+  // The current contacts of each patch that has one, in its link's frame (position and normal;
+  // flags without the kinematics ones): every publication places all of them with the pose at
+  // its own stamp, so one array is one instant of the robot.
   struct Current {
     bool used = false;
     RefineMemory refine;
-    PatchContact contact;
-    bool has_second = false;  // a second press on the patch (a refiner with max_contacts 2)
-    PatchContact second;
+    PatchContact contacts[2];  // the first `count`: two with a refiner of max_contacts 2
+    int count = 0;
     int link = -1;         // robot link index; -1: the base frame (no robot, or unmapped)
     uint64_t time_us = 0;  // aligned sample time
     uint64_t last_us = 0;  // host time of its last contact sample
@@ -701,13 +700,13 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           ContactEstimate start = est;
           Impl::Current& prev = s.current[k];
           Impl::RefineMemory& mem = prev.refine;
-          const bool prev_refined = prev.used && (prev.contact.flags & kContactUnrefined) == 0;
-          if (prev_refined &&
-              std::hypot(prev.contact.u_mm - est.u_mm, prev.contact.v_mm - est.v_mm) <
-                  s.options.refine_warm_start_mm) {
-            start.u_mm = prev.contact.u_mm;
-            start.v_mm = prev.contact.v_mm;
-            start.depth_mm = prev.contact.depth_mm;
+          const PatchContact& last = prev.contacts[0];
+          const bool prev_refined = prev.used && (last.flags & kContactUnrefined) == 0;
+          if (prev_refined && std::hypot(last.u_mm - est.u_mm, last.v_mm - est.v_mm) <
+                                  s.options.refine_warm_start_mm) {
+            start.u_mm = last.u_mm;
+            start.v_mm = last.v_mm;
+            start.depth_mm = last.depth_mm;
             start.shear_u_n = mem.shear_u_n;  // patch frame; 0 without a fitted shear
             start.shear_v_n = mem.shear_v_n;
             ++s.stats.refine_warm_starts;
@@ -797,9 +796,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       }
       s.estimate_outcome(p, nullptr, now_us);
       Impl::Current& c = s.current[k];
-      c.contact = s.placed[0];
-      c.has_second = count == 2;
-      if (c.has_second) c.second = s.placed[1];
+      std::copy(s.placed, s.placed + count, c.contacts);
+      c.count = count;
       c.link = link;
       ++p.entry->contacts;
       changed = true;
@@ -826,9 +824,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
   if (stamp == 0) stamp = now_us;
   for (std::size_t k : s.current_list) {
     const Impl::Current& cur = s.current[k];
-    for (const PatchContact* pc : {&cur.contact, cur.has_second ? &cur.second : nullptr}) {
-      if (pc == nullptr) continue;
-      PatchContact& c = s.scratch_contacts.emplace_back(*pc);
+    for (int j = 0; j < cur.count; ++j) {
+      PatchContact& c = s.scratch_contacts.emplace_back(cur.contacts[j]);
       if (!s.to_base(cur.link, stamp, &c)) s.scratch_contacts.pop_back();
     }
   }
