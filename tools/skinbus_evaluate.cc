@@ -63,16 +63,17 @@ int main(int argc, char** argv) {
   if (!model.ok()) return tools::report_error(kTool, model.error());
   auto runtime = estimators::NetworkRuntime::create(*model);
   if (!runtime.ok()) return tools::report_error(kTool, runtime.error());
-  estimators::RefinerOptions ro;
-  ro.physics.tip_radius_mm = tip_radius_mm;
-  auto refiner = estimators::make_physics_refiner(unit_path, design_path, ro);
-  if (!refiner.ok()) return tools::report_error(kTool, refiner.error());
+  // The unit once: the refiner fits it, the bound is its.
   auto design = sim::read_design_or_builtin(design_path);
   if (!design.ok()) return tools::report_error(kTool, design.error());
   auto params = sim::read_unit_parameters(unit_path);
   if (!params.ok()) return tools::report_error(kTool, params.error());
   auto unit = sim::PatchModel::from_parameters(*design, *params);
-  if (!unit.ok()) return tools::report_error(kTool, unit.error());
+  if (!unit.ok()) return tools::fail(kTool, unit_path + ": " + unit.error().message, 1);
+  estimators::RefinerOptions ro;
+  ro.physics.tip_radius_mm = tip_radius_mm;
+  auto refiner = estimators::make_physics_refiner(*unit, ro);
+  if (!refiner.ok()) return tools::report_error(kTool, refiner.error());
   const int nc = unit->channel_count();
   if (data->channels() != nc || runtime->channels() != nc) {
     return tools::fail(kTool,
