@@ -85,12 +85,13 @@ def main():
     if not m:
         sys.exit("check_demo.py: no time zero in joints.log")
     t_zero_us = int(m.group(1))
-    contacts, frames = [], set()
+    contacts, frames, publications = [], set(), []
     for line in open(f"{out}/contacts.jsonl"):
         j = json.loads(line)
         if j["type"] == "contacts":
             frames.add(j["base_frame"])
             contacts += j["contacts"]
+            publications.append(j["contacts"])
             for c in j["contacts"]:
                 c["stamp_us"] = j["stamp_us"]
     fails = 0
@@ -140,11 +141,8 @@ def main():
         if len(ps) < 2:
             continue
         both, tracks = 0, {0: {}, 1: {}}
-        for line in open(f"{out}/contacts.jsonl"):
-            j = json.loads(line)
-            if j["type"] != "contacts":
-                continue
-            mine = [c for c in j["contacts"] if c["node"] == node and c["depth_mm"] >= 1.0]
+        for published in publications:
+            mine = [c for c in published if c["node"] == node and c["depth_mm"] >= 1.0]
             near = [nearest_press(presses, node, c["u_mm"], c["v_mm"]) for c in mine]
             if len(mine) == 2 and {n[0] for n in near} == {0, 1} and max(n[3] for n in near) < 5:
                 both += 1
