@@ -108,5 +108,36 @@ TEST(ContactCount, NothingCoincidentAndNonFiniteGiveCountsWithoutNaN) {
   for (const auto& c : e.contacts) EXPECT_TRUE(std::isfinite(c.u_mm) && std::isfinite(c.depth_mm));
 }
 
+// A single fit started between two presses can run off the patch and find nothing; with the
+// previous pair given, the count still tries it and finds both. Without the pair it is nothing.
+TEST(ContactCount, AGivenPairIsTriedWhenTheSingleFitFoundNothing) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const PhysicsEstimator physics = PhysicsEstimator::create(nominal).value();
+  sim::Rng rng(test_seed("AGivenPairIsTriedWhenTheSingleFitFoundNothing"));
+  const Contact presses[2] = {{-33, 8, 2.5, 5}, {23, 8, 2.5, 5}};
+  const auto f = noisy_field(nominal, presses, rng);
+  // The single fit from the middle, taken as it may come out: off the patch, nothing pressed.
+  ContactEstimate mid;
+  mid.u_mm = -5;
+  mid.v_mm = 8;
+  mid.depth_mm = 2;
+  PhysicsEstimate single = physics.refine_lm(f, {}, mid);
+  single.contact.u_mm = 85;
+  single.contact.v_mm = 85;
+  single.contact.depth_mm = 0;
+  single.contact.flags |= kEstimateNoContact | kEstimateOutsidePatch;
+  ContactEstimate previous[2];
+  for (int k = 0; k < 2; ++k) {
+    previous[k].u_mm = presses[k].u_mm + 0.75;
+    previous[k].v_mm = presses[k].v_mm;
+    previous[k].depth_mm = presses[k].depth_mm;
+  }
+  const ContactCountEstimate with = physics.count_contacts(f, {}, single, {}, previous);
+  ASSERT_EQ(with.count, 2);
+  for (int k = 0; k < 2; ++k) EXPECT_LT(distance(with.contacts[k], presses[k]), 1.0) << k;
+  const ContactCountEstimate without = physics.count_contacts(f, {}, single, {}, nullptr);
+  EXPECT_EQ(without.count, 0);
+}
+
 }  // namespace
 }  // namespace skinbus::estimators

@@ -741,10 +741,15 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
   ContactCountEstimate out;
   out.single = single;
   const ContactEstimate& one = out.single.contact;
-  if (!one.valid() || (one.flags & kEstimateNoContact)) return out;  // rejected, or nothing
-  out.count = 1;
-  out.contacts[0] = one;
-  out.sigma_uv_mm[0] = single.sigma_uv_mm;
+  // Rejected, or nothing found: done, unless a pair is given (a single fit started between two
+  // presses can run off the patch while the pair still explains the sample).
+  const bool nothing = (one.flags & kEstimateNoContact) != 0;
+  if (!one.valid() || (nothing && pair_start == nullptr)) return out;
+  if (!nothing) {
+    out.count = 1;
+    out.contacts[0] = one;
+    out.sigma_uv_mm[0] = single.sigma_uv_mm;
+  }
   if (!(out.single.reduced_chi2 > count.try_ratio)) return out;  // one explains it: done
 
   const int nc = model_.channel_count();
@@ -777,7 +782,7 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
                             {pair_start[1].u_mm, pair_start[1].v_mm, pair_start[1].depth_mm}};
     done = try_start(x);
   }
-  if (!done) {
+  if (!done && !nothing) {
     double f1[kMaxChannels];
     sim::Contact c1{one.u_mm, one.v_mm, one.depth_mm, options_.tip_radius_mm};
     c1.shear_u_n = one.shear_u_n;  // 0 unless the single fit had the shear
@@ -801,7 +806,7 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
     }
   }
   for (double deg : {0.0, 45.0, 90.0, 135.0}) {
-    if (done) break;
+    if (done || nothing) break;
     const double du = count.start_offset_mm * std::cos(deg * M_PI / 180);
     const double dv = count.start_offset_mm * std::sin(deg * M_PI / 180);
     const double x[2][3] = {{one.u_mm + du, one.v_mm + dv, one.depth_mm},

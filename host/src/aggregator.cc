@@ -688,6 +688,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           p.placement != nullptr
               ? s.refiners[static_cast<std::size_t>(p.placement - s.map->patches.data())].get()
               : nullptr;
+      Impl::Current& prev = s.current[k];
+      Impl::RefineMemory& mem = prev.refine;
       if (refiner != nullptr) {
         if (refine_spent_us >= static_cast<double>(s.options.refine_budget_us)) {
           flags |= kContactUnrefined;
@@ -698,8 +700,6 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           // Warm start: the patch's previous refined contact, when this is the same press; a
           // previous pair is tried again first.
           ContactEstimate start = est;
-          Impl::Current& prev = s.current[k];
-          Impl::RefineMemory& mem = prev.refine;
           const PatchContact& last = prev.contacts[0];
           const bool prev_refined = prev.used && (last.flags & kContactUnrefined) == 0;
           if (prev_refined && std::hypot(last.u_mm - est.u_mm, last.v_mm - est.v_mm) <
@@ -760,6 +760,14 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             ++s.stats.unrefined_poor_fit;
           }
         }
+      }
+      // Two presses held and this sample unrefined: the network's one answer would sit between
+      // them. Late, not wrong: the pair stays as last refined (at its own time) and nothing is
+      // published for this sample; the hold (contact_hold_us) bounds how long.
+      if ((flags & kContactUnrefined) != 0 && mem.pair && prev.used && prev.count == 2) {
+        ++s.stats.held_pairs;
+        s.estimate_outcome(p, nullptr, now_us);
+        continue;
       }
       // Each contact placed aside (a bad estimate never erases a held one); a place that is not
       // finite, or farther than any robot reaches (an absurd estimate or placement), is no

@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <memory>
 #include <vector>
 
 #include "aggregator_test_support.h"
@@ -228,7 +229,7 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
   node.heartbeat(agg, t, 1);
   constexpr int kSamples = 80;  // 1.9 s at 41.7 Hz: 0.75 mm closer a sample
   uint32_t ids[2] = {0, 0};
-  int apart = 0, apart_two = 0, met = 0, met_one = 0;
+  int apart = 0, apart_two = 0, met = 0, met_one = 0, held = 0;
   double err = 0, bound = 0;
   for (int i = 0; i < kSamples; ++i) {
     const double half = 30.0 * (1.0 - static_cast<double>(i) / (kSamples - 20));  // 0 from 60
@@ -238,7 +239,12 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
     for (std::size_t c = 0; c < f.size(); ++c) f[c] -= base[c];
     node.sample(agg, t += test_support::kPeriodUs, f, true);
     ContactArray arr;
-    ASSERT_TRUE(agg.process(t + 100, &arr));
+    // A sample the host could not refine while it held the pair publishes nothing (the pair
+    // stands); anything published has both presses or, once they met, one.
+    if (!agg.process(t + 100, &arr)) {
+      ++held;
+      continue;
+    }
     if (2 * h >= 30) {
       ++apart;
       if (arr.contacts.size() != 2) continue;
@@ -267,11 +273,14 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
   std::printf(
       "apart: %d of %d samples with two contacts, XY mean error %.3f mm (mean two-contact bound "
       "%.3f mm); met: %d of %d samples with one; %llu of %llu refined samples with two, %.0f us "
-      "a refined sample\n",
+      "a refined sample; %d sample(s) held the pair unpublished\n",
       apart_two, apart, err / (2 * apart_two), bound / (2 * apart_two), met_one, met,
       static_cast<unsigned long long>(st.refined_pairs),
-      static_cast<unsigned long long>(st.refined), st.refine_us / static_cast<double>(st.refined));
+      static_cast<unsigned long long>(st.refined), st.refine_us / static_cast<double>(st.refined),
+      held);
   EXPECT_GE(apart_two, apart - 2);  // the first sample or two may still be one
+  EXPECT_LE(held, 2);
+  EXPECT_EQ(st.held_pairs, static_cast<uint64_t>(held));
   EXPECT_LT(err / bound, 1.3);
   EXPECT_EQ(met_one, met);
   // A single press is never split by the same entry.
@@ -279,6 +288,102 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
   const RunResult one = run(singles, true, options_, false, 2);
   EXPECT_EQ(one.contacts.size(), singles.size());  // one a sample (run() checks each has one)
   EXPECT_EQ(one.stats.refined_pairs, 0u);
+}
+
+// A refiner whose fits fail while `*failing` is set (a poor fit: the host then has only the
+// network's answer), the physics refiner's otherwise.
+class FailingRefiner : public estimators::ContactRefiner {
+ public:
+  FailingRefiner(std::unique_ptr<estimators::ContactRefiner> inner, const bool* failing)
+      : inner_(std::move(inner)), failing_(failing) {}
+  estimators::RefinedEstimate refine(std::span<const double> field_ut,
+                                     std::span<const uint8_t> channel_ok,
+                                     const estimators::ContactEstimate& start) const override {
+    return *failing_ ? failed(start) : inner_->refine(field_ut, channel_ok, start);
+  }
+  estimators::RefinedContacts refine_contacts(std::span<const double> field_ut,
+                                              std::span<const uint8_t> channel_ok,
+                                              const estimators::ContactEstimate& start,
+                                              std::span<const estimators::ContactEstimate> previous,
+                                              double search_above_chi2) const override {
+    if (!*failing_) {
+      return inner_->refine_contacts(field_ut, channel_ok, start, previous, search_above_chi2);
+    }
+    estimators::RefinedContacts out;
+    out.contacts[0] = failed(start);
+    return out;
+  }
+
+ private:
+  static estimators::RefinedEstimate failed(const estimators::ContactEstimate& start) {
+    estimators::RefinedEstimate r;
+    r.contact = start;
+    r.contact.flags |= estimators::kEstimateNotConverged;
+    r.reduced_chi2 = 1e6;
+    return r;
+  }
+  std::unique_ptr<estimators::ContactRefiner> inner_;
+  const bool* failing_;
+};
+
+// Two presses held, then samples the host cannot refine: it publishes nothing rather than the
+// network's one contact between the presses, until the hold runs out; then the network's answer,
+// flagged. Before the fix this published a single contact between the fingers.
+TEST_F(AggregatorRefineTest, AnUnrefinedSampleNeverReplacesAPairWithOneContactBetween) {
+  bool failing = false;
+  options_.refiner_factory =
+      [this,
+       &failing](const RefinerRequest& r) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
+    estimators::RefinerOptions ro;
+    ro.max_contacts = r.max_contacts;
+    auto inner = estimators::make_physics_refiner(*unit_, ro);
+    if (!inner.ok()) return inner.error();
+    return std::unique_ptr<estimators::ContactRefiner>(
+        std::make_unique<FailingRefiner>(std::move(*inner), &failing));
+  };
+  const body_map::SkinMap map = one_patch_map(true, false, 2);
+  auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, options_);
+  ASSERT_TRUE(a.ok()) << a.error().to_string();
+  Aggregator& agg = **a;
+  sim::SimulatedPatch patch(*unit_, 81);
+  sim::Environment env;
+  std::vector<double> base(static_cast<std::size_t>(patch.channel_count())), f(base.size());
+  patch.tare(env, 32, base);
+  test_support::Node node{4, kUid};
+  uint64_t t = 1'000'000;
+  node.heartbeat(agg, t, 1);
+  const sim::Contact p[2] = {{-30, 8, 2.5, 5.0}, {20, 8, 2.5, 5.0}};
+  const auto sample = [&](ContactArray* arr) {
+    patch.measure(std::span<const sim::Contact>(p, 2), env, f);
+    for (std::size_t c = 0; c < f.size(); ++c) f[c] -= base[c];
+    node.sample(agg, t += test_support::kPeriodUs, f, true);
+    return agg.process(t + 100, arr);
+  };
+  ContactArray arr;
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(sample(&arr));
+  ASSERT_EQ(arr.contacts.size(), 2u);  // the pair, refined
+  // Unrefined samples within the hold: nothing published, the pair stands.
+  failing = true;
+  const uint64_t hold_start_us = t;
+  int held = 0;
+  while (t + test_support::kPeriodUs + 100 <= hold_start_us + options_.contact_hold_us) {
+    ContactArray during;
+    EXPECT_FALSE(sample(&during)) << "published " << during.contacts.size() << " contact(s)";
+    ++held;
+  }
+  ASSERT_GE(held, 1);
+  EXPECT_EQ(agg.stats().held_pairs, static_cast<uint64_t>(held));
+  EXPECT_EQ(agg.stats().unrefined_poor_fit, static_cast<uint64_t>(held));
+  // The hold runs out: the pair is released and the network's answer goes out, flagged.
+  ContactArray after;
+  for (int i = 0; i < 3 && after.contacts.empty(); ++i) sample(&after);
+  ASSERT_EQ(after.contacts.size(), 1u);
+  EXPECT_NE(after.contacts[0].flags & kContactUnrefined, 0u);
+  // Refined again: the pair comes back.
+  failing = false;
+  ContactArray again;
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(sample(&again));
+  EXPECT_EQ(again.contacts.size(), 2u);
 }
 
 TEST_F(AggregatorRefineTest, OverBudgetTheNetworksAnswerIsPublishedFlagged) {

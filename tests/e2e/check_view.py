@@ -170,7 +170,10 @@ def main():
         med, p90 = e[len(e) // 2], e[int(0.9 * len(e))]
         medians.append(f"{node}:{med:.1f}")
         if not (med < 5 and p90 < 12):
-            bad.append(f"node {node}: median {med:.1f}, p90 {p90:.1f} mm")
+            worst = sorted((c for c in deep if c["node"] == node), key=lambda c: -c["error_mm"])[:3]
+            bad.append(f"node {node}: median {med:.1f}, p90 {p90:.1f} mm, worst " +
+                       ", ".join(f"({c['u_mm']:.1f}, {c['v_mm']:.1f}) {c['error_mm']:.1f} mm "
+                                 f"flags {c['flags']}" for c in worst))
     check("contacts in the page where the presses are, within the model's error", not bad and len(errs) >= 8,
           f"{len(errs)} patches, median mm by node {' '.join(medians)}" + (f"; {bad}" if bad else ""))
     # Two fingers on one patch: both shown at one instant, each near its press.

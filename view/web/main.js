@@ -992,6 +992,7 @@ window.skinbusView = {
         v_mm: v.data.v_mm,
         position_base_mm: round(v.positionBaseMm()),
         shear_n: v.data.shear_n ?? null,
+        flags: v.data.flags ?? [],
         shear_arrow_base: v.shearArrowBase(),
       })),
       // node -> the largest field change (uT) of its latest `fields` message

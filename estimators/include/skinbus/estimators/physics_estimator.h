@@ -170,7 +170,9 @@ class PhysicsEstimator {
   // The same from a single-contact fit already made of this sample (`single`: estimate(),
   // refine() or refine_lm()), and a pair to try first when given (`pair_start`: 2 contacts,
   // e.g. the previous sample's): the host's refinement counts contacts after its own single fit
-  // and follows two presses from sample to sample at the cost of one two-contact solve.
+  // and follows two presses from sample to sample at the cost of one two-contact solve. With a
+  // pair given, a single fit that found nothing (kEstimateNoContact: started between two presses,
+  // it can run off the patch) does not end the count: the pair is still tried.
   ContactCountEstimate count_contacts(std::span<const double> field_ut,
                                       std::span<const uint8_t> channel_ok,
                                       const PhysicsEstimate& single,

@@ -200,6 +200,10 @@ struct AggregatorStats {
   uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
   uint64_t refined_pairs = 0;       // refined samples that held two presses (max_contacts 2)
+  // Samples of a patch holding two presses that went unrefined (budget, poor fit): not published,
+  // since the network's single answer would be one contact between the presses; the pair stays
+  // as last refined, at its own time, until a sample is refined or contact_hold_us runs out.
+  uint64_t held_pairs = 0;
   double refine_us = 0;
 };
 
