@@ -44,9 +44,12 @@ const Samples& samples() {
   return s;
 }
 
+// Arg: PhysicsOptions::other_basins (0: the nearest starts only; 2: the default).
 void BM_PhysicsEstimate(benchmark::State& state) {
   const Samples& s = samples();
-  const estimators::PhysicsEstimator est = estimators::PhysicsEstimator::create(s.model).value();
+  estimators::PhysicsOptions o;
+  o.other_basins = static_cast<int>(state.range(0));
+  const estimators::PhysicsEstimator est = estimators::PhysicsEstimator::create(s.model, o).value();
   std::size_t i = 0;
   double iterations = 0, n = 0;
   for (auto _ : state) {
@@ -58,7 +61,7 @@ void BM_PhysicsEstimate(benchmark::State& state) {
   }
   state.counters["lm_iterations"] = iterations / n;
 }
-BENCHMARK(BM_PhysicsEstimate)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_PhysicsEstimate)->Arg(0)->Arg(2)->Unit(benchmark::kMicrosecond);
 
 void BM_PhysicsRefineFromGuess(benchmark::State& state) {
   const Samples& s = samples();

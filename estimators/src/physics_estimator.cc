@@ -239,11 +239,11 @@ ceres::Solver::Options solver_options(const PhysicsOptions& options) {
 Status check_options(const PhysicsOptions& o) {
   if (!(o.tip_radius_mm >= 0) || o.max_iterations < 1 || o.min_channels < 4 ||
       !(o.poor_fit_ratio > 0) || !(o.no_contact_snr >= 0) || !(o.uv_margin_mm >= 0) ||
-      !(o.noise.xy_ut >= 0) || !(o.noise.z_ut >= 0)) {
+      !(o.noise.xy_ut >= 0) || !(o.noise.z_ut >= 0) || o.other_basins < 0 || o.other_basins > 8) {
     return make_error(ErrorCode::kInvalidArgument,
                       "physics options: tip_radius_mm >= 0, max_iterations >= 1, min_channels "
                       ">= 4, poor_fit_ratio > 0, no_contact_snr >= 0, uv_margin_mm >= 0, noise "
-                      ">= 0 required");
+                      ">= 0, other_basins 0..8 required");
   }
   return Status::Ok();
 }
@@ -273,7 +273,10 @@ double start_pitch_mm(const sim::PatchDesign& design) {
 
 PhysicsEstimator::PhysicsEstimator(const sim::PatchModel& model, const PhysicsOptions& options,
                                    LookupEstimator start)
-    : model_(model), options_(options), start_(std::move(start)) {
+    : model_(model),
+      options_(options),
+      start_(std::move(start)),
+      other_basin_mm_(2 * start_pitch_mm(model.design())) {
   if (!(options_.noise.xy_ut > 0) || !(options_.noise.z_ut > 0))
     options_.noise = ChannelNoise::of(model_.design());
   const auto& sensors = model_.sensors();
@@ -354,15 +357,23 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
     starts[n_starts][2] = guess->depth_mm;
     ++n_starts;
   }
-  LookupNeighbour nb[kStarts];
+  // Nearest rows of the start table, fetched once when first needed (a good guess may not need
+  // them): the starts, and with other_basins the candidates for other basins (below).
+  constexpr int kCandidates = 32;
+  LookupNeighbour nb[kCandidates];
+  int n_nb = 0;
   bool looked_up = false;
-  // Nearest rows of the start table, fetched when first needed (a good guess may not need them).
-  auto add_table_starts = [&]() {
+  auto look_up = [&]() {
     looked_up = true;
-    const int found = start_.nearest(
+    n_nb = start_.nearest(
         std::span<const double>(whitened, static_cast<std::size_t>(nc)),
         std::span<const uint8_t>(ok, static_cast<std::size_t>(nc)),
-        std::span<LookupNeighbour>(nb, static_cast<std::size_t>(kStarts - n_starts)));
+        std::span<LookupNeighbour>(
+            nb, static_cast<std::size_t>(options_.other_basins > 0 ? kCandidates : kStarts)));
+  };
+  auto add_table_starts = [&]() {
+    if (!looked_up) look_up();
+    const int found = std::min(n_nb, kStarts - n_starts);
     for (int i = 0; i < found; ++i, ++n_starts) {
       starts[n_starts][0] = start_.row_u_mm(nb[i].row);
       starts[n_starts][1] = start_.row_v_mm(nb[i].row);
@@ -383,9 +394,10 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   double best_cost = std::numeric_limits<double>::infinity();
   bool best_converged = false;
   int iterations = 0;
-  for (int s = 0; s < n_starts; ++s) {
+  // One Levenberg-Marquardt fit from a start; the best kept.
+  auto fit_from = [&](const double start[3]) {
     double x[3], b[3] = {0, 0, 0};
-    for (int k = 0; k < 3; ++k) x[k] = std::clamp(starts[s][k], lo[k], hi[k]);
+    for (int k = 0; k < 3; ++k) x[k] = std::clamp(start[k], lo[k], hi[k]);
     ceres::Problem::Options po;
     po.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
     ceres::Problem problem(po);
@@ -404,8 +416,52 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
       std::copy(b, b + 3, best_b);
       best_converged = summary.termination_type == ceres::CONVERGENCE;
     }
+  };
+  for (int s = 0; s < n_starts; ++s) {
+    fit_from(starts[s]);
     if (2 * best_cost / (usable - unknowns) <= options_.poor_fit_ratio) break;
     if (s + 1 == n_starts && !looked_up) add_table_starts();
+  }
+  // Other basins: where the field is ambiguous (a press beyond the magnets, a design whose field
+  // repeats) two places some magnet spacing apart explain a sample to nearly the same
+  // chi-square, and the fit from the nearest start can land in the wrong one even though it fits
+  // well. The table rows nearest the sample that lie at least other_basin_mm from the fit, and
+  // from each other, are fitted too (by the lean fit); the lowest chi-square is kept.
+  if (options_.other_basins > 0 && std::isfinite(best_cost)) {
+    if (!looked_up) look_up();
+    const int found = n_nb;
+    const LookupNeighbour* cand = nb;
+    double tried[kCandidates][2];
+    int n_tried = 0;
+    const double first_u = best_x[0], first_v = best_x[1];
+    for (int i = 0; i < found && n_tried < options_.other_basins; ++i) {
+      const double start[3] = {start_.row_u_mm(cand[i].row), start_.row_v_mm(cand[i].row),
+                               start_.row_depth_mm(cand[i].row)};
+      bool apart = std::hypot(start[0] - first_u, start[1] - first_v) >= other_basin_mm_;
+      for (int t = 0; t < n_tried && apart; ++t) {
+        apart = std::hypot(start[0] - tried[t][0], start[1] - tried[t][1]) >= other_basin_mm_;
+      }
+      if (!apart) continue;
+      tried[n_tried][0] = start[0];
+      tried[n_tried][1] = start[1];
+      ++n_tried;
+      // The lean fit (refine_lm()'s): a tenth of the Ceres fit's cost, the same minimum.
+      ContactEstimate from;
+      from.u_mm = start[0];
+      from.v_mm = start[1];
+      from.depth_mm = start[2];
+      PhysicsEstimate e;
+      refine_lean<6>(model_, options_, in, ambient_jac_.data(), from, &e);
+      iterations += e.iterations;
+      if (e.contact.valid() && e.chi2 < 2 * best_cost) {
+        best_cost = e.chi2 / 2;
+        best_x[0] = e.contact.u_mm;
+        best_x[1] = e.contact.v_mm;
+        best_x[2] = e.contact.depth_mm;
+        std::copy(e.ambient_ut, e.ambient_ut + 3, best_b);
+        best_converged = (e.contact.flags & kEstimateNotConverged) == 0;
+      }
+    }
   }
 
   double f[kMaxChannels];

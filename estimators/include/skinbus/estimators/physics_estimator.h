@@ -64,6 +64,13 @@ struct PhysicsOptions {
   // without it and then refine_lm() from there. Costs the position some precision (the shear
   // moves the magnets as a shifted press partly does: skinbus-crlb --shear).
   bool fit_shear = false;
+  // estimate() and refine(): besides the nearest start, fit from up to this many rows of the
+  // start table that are nearest the sample in field but at least 2 start pitches (half the
+  // magnet spacing, at most 10 mm) from the fit and from each other; the lowest chi-square wins.
+  // Where the field is ambiguous (presses beyond the magnets, a one-polarity grid) two places
+  // fit nearly alike and the nearest start may find the wrong one (docs/benchmarks/designs.md).
+  // Each costs one more fit. 0: only the nearest starts.
+  int other_basins = 2;
 };
 
 // The start table's pitch for a design: the magnets' spacing (their grid pitch, or the median
@@ -190,6 +197,7 @@ class PhysicsEstimator {
   sim::PatchModel model_;
   PhysicsOptions options_;
   LookupEstimator start_;
+  double other_basin_mm_ = 0;        // PhysicsOptions::other_basins: 2 start pitches
   std::vector<double> ambient_jac_;  // channels x 3: d channel / d ambient (patch frame)
 };
 
