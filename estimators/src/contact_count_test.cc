@@ -3,10 +3,12 @@
 
 #include <cmath>
 #include <cstdio>
+#include <tuple>
 #include <vector>
 
 #include "skinbus/common/test_seed.h"
 #include "skinbus/estimators/physics_estimator.h"
+#include "skinbus/sim/crlb.h"
 #include "skinbus/sim/rng.h"
 
 namespace skinbus::estimators {
@@ -56,7 +58,11 @@ TEST(ContactCount, OnePressIsNeverSplitOnUnitsWhosePhysicsIsOutsideTheModelClass
   // longer along u than v), a stiffer in-plane coupling, and fabrication variation, none of
   // which the nominal model holds.
   const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
-  const PhysicsEstimator physics = PhysicsEstimator::create(nominal).value();
+  // With and without each contact's shear fitted (more unknowns absorb more of a mismatch).
+  PhysicsOptions with_shear;
+  with_shear.fit_shear = true;
+  const PhysicsEstimator estimators[2] = {PhysicsEstimator::create(nominal).value(),
+                                          PhysicsEstimator::create(nominal, with_shear).value()};
   sim::PatchDesign anisotropic, lateral;
   anisotropic.anisotropy = 0.1;
   lateral.lateral_mm = 2.6;
@@ -69,7 +75,7 @@ TEST(ContactCount, OnePressIsNeverSplitOnUnitsWhosePhysicsIsOutsideTheModelClass
     for (int i = 0; i < 40; ++i) {
       const Contact press{rng.uniform(-55, 55), rng.uniform(-55, 55), rng.uniform(0.5, 4.5), 5};
       const auto f = noisy_field(unit, std::span<const Contact>(&press, 1), rng);
-      const ContactCountEstimate e = physics.estimate_contacts(f);
+      const ContactCountEstimate e = estimators[i % 2].estimate_contacts(f);
       ++total;
       poor += e.single.reduced_chi2 > 1.5;
       if (e.count == 2) {
@@ -106,6 +112,68 @@ TEST(ContactCount, NothingCoincidentAndNonFiniteGiveCountsWithoutNaN) {
   bad[5] = std::nan("");
   const ContactCountEstimate e = physics.estimate_contacts(bad);
   for (const auto& c : e.contacts) EXPECT_TRUE(std::isfinite(c.u_mm) && std::isfinite(c.depth_mm));
+}
+
+// Two presses, each dragging the skin its own way: with fit_shear the pair's fit recovers each
+// one's shear, sign and magnitude, at the two-contact bound (sim::crlb_pair_shear_at).
+TEST(ContactCount, EachOfTwoPressesHasItsOwnShearAtTheBound) {
+  const sim::PatchModel unit = sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5b0000000000002b,
+                                                           sim::FabricationVariation{})
+                                   .value();
+  PhysicsOptions o;
+  o.fit_shear = true;
+  o.covariance = true;
+  const PhysicsEstimator physics = PhysicsEstimator::create(unit, o).value();
+  const ChannelNoise noise = ChannelNoise::of(unit.design());
+  sim::Rng rng(test_seed("EachOfTwoPressesHasItsOwnShearAtTheBound"));
+  int counted = 0, signs = 0, components = 0;
+  double err2 = 0, bound2 = 0, stated2 = 0;
+  const int n = 16;
+  for (int i = 0; i < n; ++i) {
+    const double mu = rng.uniform(-25, 25), mv = rng.uniform(-25, 25), a = rng.uniform(0, M_PI);
+    Contact presses[2] = {{mu + 20 * std::cos(a), mv + 20 * std::sin(a), rng.uniform(2, 3.5), 5},
+                          {mu - 20 * std::cos(a), mv - 20 * std::sin(a), rng.uniform(2, 3.5), 5}};
+    for (Contact& p : presses) {  // a friction coefficient of 0.2-0.4, any direction
+      const double mag = rng.uniform(0.2, 0.4) * unit.force_n(p.depth_mm);
+      const double dir = rng.uniform(0, 2 * M_PI);
+      p.shear_u_n = mag * std::cos(dir);
+      p.shear_v_n = mag * std::sin(dir);
+    }
+    const auto f = noisy_field(unit, presses, rng);
+    const ContactCountEstimate e = physics.estimate_contacts(f);
+    if (e.count != 2) continue;
+    ++counted;
+    const sim::CrlbPairShear b =
+        sim::crlb_pair_shear_at(unit, presses[0], presses[1], noise.xy_ut, noise.z_ut, true);
+    const bool straight = distance(e.contacts[0], presses[0]) < distance(e.contacts[0], presses[1]);
+    for (int k = 0; k < 2; ++k) {
+      const ContactEstimate& c = e.contacts[straight ? k : 1 - k];
+      const double su = presses[k].shear_u_n, sv = presses[k].shear_v_n;
+      const sim::CrlbShear& bk = k == 0 ? b.first : b.second;
+      for (const auto& [est, truth, sd] : {std::tuple{c.shear_u_n, su, bk.sd_shear_u_n},
+                                           std::tuple{c.shear_v_n, sv, bk.sd_shear_v_n}}) {
+        if (std::fabs(truth) > 4 * sd) {
+          ++components;
+          signs += (est > 0) == (truth > 0);
+        }
+      }
+      err2 += std::pow(c.shear_u_n - su, 2) + std::pow(c.shear_v_n - sv, 2);
+      bound2 += bk.sd_shear_n * bk.sd_shear_n;
+      const double stated = e.sigma_shear_n[straight ? k : 1 - k];
+      ASSERT_TRUE(std::isfinite(stated));
+      stated2 += stated * stated;
+    }
+  }
+  std::printf(
+      "two sheared presses 40 mm apart: %d of %d counted two; shear RMS error / bound %.2f, "
+      "stated / bound %.2f; %d of %d components beyond 4 bounds of the right sign\n",
+      counted, n, std::sqrt(err2 / bound2), std::sqrt(stated2 / bound2), signs, components);
+  EXPECT_GE(counted, n - 2);
+  EXPECT_EQ(signs, components);
+  EXPECT_GT(components, counted);  // the shear is told from none, mostly
+  EXPECT_LT(std::sqrt(err2 / bound2), 1.4);
+  EXPECT_GT(std::sqrt(err2 / bound2), 0.6);
+  EXPECT_NEAR(std::sqrt(stated2 / bound2), 1.0, 0.3);
 }
 
 // A single fit started between two presses can run off the patch and find nothing; with the

@@ -808,9 +808,23 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
   }
   if (!(out.single.reduced_chi2 > count.try_ratio)) return out;  // one explains it: done
 
+  // The pair's fit: both contacts' (u, v, depth), with fit_shear each one's shear too (9 or 13
+  // unknowns with the ambient), as one code path over the fixed-size lean fit.
+  return options_.fit_shear ? count_pair<13>(field_ut, channel_ok, count, pair_start, nothing, out)
+                            : count_pair<9>(field_ut, channel_ok, count, pair_start, nothing, out);
+}
+
+template <int N>
+ContactCountEstimate PhysicsEstimator::count_pair(std::span<const double> field_ut,
+                                                  std::span<const uint8_t> channel_ok,
+                                                  const ContactCountOptions& count,
+                                                  const ContactEstimate* pair_start, bool nothing,
+                                                  ContactCountEstimate out) const {
+  const ContactEstimate& one = out.single.contact;
   const int nc = model_.channel_count();
   const int usable = out.single.channels_used;
-  const LeanLayout l{2, false};  // two contacts; their shear is not fitted
+  const LeanLayout l{2, N == 13};
+  const int pc = l.per_contact();
   const int unknowns = l.unknowns(options_.fit_ambient);
   if (usable <= unknowns || static_cast<int>(field_ut.size()) != nc) return out;
   FitInput in;
@@ -821,80 +835,116 @@ ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> fi
   out.pair_tried = true;
   // Starts, in turn, until a fit explains the sample to the noise: the given pair; the single
   // contact and a single fit of what it leaves (greedy); the single contact split along 4
-  // directions. The best fit is kept.
-  LeanFit<9> best;
-  auto try_start = [&](const double(&x)[2][3]) {
-    LeanFit<9>::LeanVec x0;
-    for (int k = 0; k < 6; ++k) x0(k) = x[k / 3][k % 3];
-    for (int k = 0; k < 3; ++k) x0(6 + k) = out.single.ambient_ut[k];
-    LeanFit<9> fit = lean_fit<9>(model_, options_, in, ambient_jac_.data(), l, x0);
+  // directions. The best fit is kept. Each start: (u, v, depth, shear u, shear v) a contact.
+  LeanFit<N> best;
+  auto try_start = [&](const double(&x)[2][5]) {
+    typename LeanFit<N>::LeanVec x0;
+    for (int j = 0; j < 2; ++j) {
+      for (int k = 0; k < pc; ++k) x0(j * pc + k) = x[j][k];
+    }
+    for (int k = 0; k < 3; ++k) x0(l.ambient_at() + k) = out.single.ambient_ut[k];
+    LeanFit<N> fit = lean_fit<N>(model_, options_, in, ambient_jac_.data(), l, x0);
     out.pair_iterations += fit.iterations;
     if (std::isfinite(fit.cost) && fit.cost < best.cost) best = fit;
     return best.cost / (usable - unknowns) <= count.max_reduced_chi2;
   };
   bool done = false;
   if (pair_start != nullptr) {
-    const double x[2][3] = {{pair_start[0].u_mm, pair_start[0].v_mm, pair_start[0].depth_mm},
-                            {pair_start[1].u_mm, pair_start[1].v_mm, pair_start[1].depth_mm}};
+    const ContactEstimate& p = pair_start[0];
+    const ContactEstimate& q = pair_start[1];
+    const double x[2][5] = {{p.u_mm, p.v_mm, p.depth_mm, p.shear_u_n, p.shear_v_n},
+                            {q.u_mm, q.v_mm, q.depth_mm, q.shear_u_n, q.shear_v_n}};
     done = try_start(x);
   }
-  if (!done && !nothing) {
+  // From a single contact and its ambient: the greedy start (it and a single fit of what it
+  // leaves), then it split along 4 directions.
+  auto starts_from = [&](const ContactEstimate& base, const double(&ambient)[3]) {
     double f1[kMaxChannels];
-    sim::Contact c1{one.u_mm, one.v_mm, one.depth_mm, options_.tip_radius_mm};
-    c1.shear_u_n = one.shear_u_n;  // 0 unless the single fit had the shear
-    c1.shear_v_n = one.shear_v_n;
+    sim::Contact c1{base.u_mm, base.v_mm, base.depth_mm, options_.tip_radius_mm};
+    c1.shear_u_n = base.shear_u_n;  // 0 unless the fit had the shear
+    c1.shear_v_n = base.shear_v_n;
     model_.contact_field_ut(std::span<const sim::Contact>(&c1, 1),
                             std::span<double>(f1, static_cast<std::size_t>(nc)));
     double rest[kMaxChannels];
     for (int i = 0; i < nc; ++i) {
       const double* a = ambient_jac_.data() + 3 * i;
-      rest[i] = y[i] - f1[i] -
-                (a[0] * out.single.ambient_ut[0] + a[1] * out.single.ambient_ut[1] +
-                 a[2] * out.single.ambient_ut[2]);
+      rest[i] = y[i] - f1[i] - (a[0] * ambient[0] + a[1] * ambient[1] + a[2] * ambient[2]);
     }
     const PhysicsEstimate second =
         estimate(std::span<const double>(rest, static_cast<std::size_t>(nc)),
                  std::span<const uint8_t>(ok, static_cast<std::size_t>(nc)));
     if (second.contact.valid()) {
-      const double x[2][3] = {{one.u_mm, one.v_mm, one.depth_mm},
-                              {second.contact.u_mm, second.contact.v_mm, second.contact.depth_mm}};
-      done = try_start(x);
+      const ContactEstimate& t = second.contact;
+      const double x[2][5] = {{base.u_mm, base.v_mm, base.depth_mm, base.shear_u_n, base.shear_v_n},
+                              {t.u_mm, t.v_mm, t.depth_mm, t.shear_u_n, t.shear_v_n}};
+      if (try_start(x)) return true;
+    }
+    for (double deg : {0.0, 45.0, 90.0, 135.0}) {
+      const double du = count.start_offset_mm * std::cos(deg * M_PI / 180);
+      const double dv = count.start_offset_mm * std::sin(deg * M_PI / 180);
+      const double x[2][5] = {{base.u_mm + du, base.v_mm + dv, base.depth_mm, 0, 0},
+                              {base.u_mm - du, base.v_mm - dv, base.depth_mm, 0, 0}};
+      if (try_start(x)) return true;
+    }
+    return false;
+  };
+  if (!done && !nothing) done = starts_from(one, out.single.ambient_ut);
+  if constexpr (N == 13) {
+    // A single fit with the shear can sit between two presses (the shear absorbing the
+    // difference); the same starts from the single fit without it.
+    if (!done && !nothing) {
+      ContactEstimate from = one;
+      from.shear_u_n = from.shear_v_n = 0;
+      PhysicsOptions plain = options_;
+      plain.fit_shear = false;
+      PhysicsEstimate e;
+      refine_lean<6>(model_, plain, in, ambient_jac_.data(), from, &e);
+      if (e.contact.valid() && !(e.contact.flags & kEstimateNoContact)) {
+        done = starts_from(e.contact, e.ambient_ut);
+      }
     }
   }
-  for (double deg : {0.0, 45.0, 90.0, 135.0}) {
-    if (done || nothing) break;
-    const double du = count.start_offset_mm * std::cos(deg * M_PI / 180);
-    const double dv = count.start_offset_mm * std::sin(deg * M_PI / 180);
-    const double x[2][3] = {{one.u_mm + du, one.v_mm + dv, one.depth_mm},
-                            {one.u_mm - du, one.v_mm - dv, one.depth_mm}};
-    done = try_start(x);
-  }
   if (!std::isfinite(best.cost)) return out;
+  if (!best.converged) {
+    // Still moving after max_iterations (13 unknowns take longer): once more from there.
+    LeanFit<N> more = lean_fit<N>(model_, options_, in, ambient_jac_.data(), l, best.x);
+    out.pair_iterations += more.iterations;
+    if (std::isfinite(more.cost) && more.cost <= best.cost) best = more;
+  }
   out.pair_chi2 = best.cost;
   out.pair_reduced_chi2 = out.pair_chi2 / (usable - unknowns);
-  const double separation = std::hypot(best.x(0) - best.x(3), best.x(1) - best.x(4));
+  const double separation = std::hypot(best.x(0) - best.x(pc), best.x(1) - best.x(pc + 1));
+  // The information criterion's price: min_chi2_drop for the 3 unknowns a contact adds, 5 with
+  // its shear.
+  const double drop = count.min_chi2_drop * (pc / 3.0);
   const bool split = out.pair_reduced_chi2 <= count.max_reduced_chi2 &&
                      out.single.reduced_chi2 >= count.min_improvement * out.pair_reduced_chi2 &&
-                     out.single.chi2 - out.pair_chi2 >= count.min_chi2_drop &&
+                     out.single.chi2 - out.pair_chi2 >= drop &&
                      separation >= count.min_separation_mm && best.x(2) >= count.min_depth_mm &&
-                     best.x(5) >= count.min_depth_mm;
+                     best.x(pc + 2) >= count.min_depth_mm;
   if (!split) return out;
   out.count = 2;
   for (int k = 0; k < 2; ++k) {
     ContactEstimate& e = out.contacts[k];
     e = ContactEstimate{};
-    e.u_mm = best.x(3 * k);
-    e.v_mm = best.x(3 * k + 1);
-    e.depth_mm = best.x(3 * k + 2);
+    const int o = k * pc;
+    e.u_mm = best.x(o);
+    e.v_mm = best.x(o + 1);
+    e.depth_mm = best.x(o + 2);
+    if (l.shear) {
+      e.shear_u_n = best.x(o + 3);
+      e.shear_v_n = best.x(o + 4);
+    }
     e.force_n = model_.force_n(e.depth_mm);
     e.flags = one.flags & kEstimateMasked;
     if (!best.converged) e.flags |= kEstimateNotConverged;
     flag_range(e, half_u, half_v, model_.max_depth_mm());
     out.sigma_uv_mm[k] = std::numeric_limits<double>::quiet_NaN();
+    out.sigma_shear_n[k] = std::numeric_limits<double>::quiet_NaN();
     double sigma_depth = 0;
     if (options_.covariance) {
       lean_sigmas(best.jtj, l, options_.fit_ambient, out.pair_reduced_chi2, k, &out.sigma_uv_mm[k],
-                  &sigma_depth, nullptr);
+                  &sigma_depth, l.shear ? &out.sigma_shear_n[k] : nullptr);
     }
   }
   return out;

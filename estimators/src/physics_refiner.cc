@@ -41,6 +41,7 @@ class PhysicsRefiner : public ContactRefiner {
       r = RefinedEstimate{};
       r.contact = c.contacts[k];
       r.sigma_uv_mm = c.sigma_uv_mm[k];
+      r.sigma_shear_n = c.sigma_shear_n[k];  // NaN unless the fit had the shear
       r.reduced_chi2 = c.pair_reduced_chi2;
     }
     return out;

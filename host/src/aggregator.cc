@@ -683,7 +683,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       ContactEstimate ests[2] = {est, {}};
       double refined_sigma_mm[2] = {std::numeric_limits<double>::quiet_NaN(),
                                     std::numeric_limits<double>::quiet_NaN()};
-      double refined_sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
+      double refined_sigma_shear_n[2] = {std::numeric_limits<double>::quiet_NaN(),
+                                         std::numeric_limits<double>::quiet_NaN()};
       const estimators::ContactRefiner* refiner =
           p.placement != nullptr
               ? s.refiners[static_cast<std::size_t>(p.placement - s.map->patches.data())].get()
@@ -713,11 +714,15 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           }
           // A search for a second press from nothing: the first time this press's single fit
           // leaves more than noise, then when that fit gets 1.5x worse than at the last search
-          // (a finger added), or every kSearchEverySamples samples.
+          // (a finger added), or every kSearchEverySamples samples; and on every sample whose
+          // single fit could not be published anyway (above refine_max_reduced_chi2: the last
+          // search missed a pair that is there; the budget bounds the cost).
           constexpr int kSearchEverySamples = 10;
-          const double search_above = !mem.searched || mem.since_search >= kSearchEverySamples
-                                          ? 0.0
-                                          : 1.5 * mem.searched_chi2;
+          const bool last_unusable = mem.searched_chi2 > s.options.refine_max_reduced_chi2;
+          const double search_above =
+              !mem.searched || mem.since_search >= kSearchEverySamples || last_unusable
+                  ? 0.0
+                  : 1.5 * mem.searched_chi2;
           const estimators::RefinedContacts rc = refiner->refine_contacts(
               std::span<const double>(m.fields.data() + row, kChannels),
               std::span<const uint8_t>(m.ok.data() + row, kChannels), start,
@@ -744,15 +749,15 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             for (int j = 0; j < found; ++j) {
               ests[j] = rc.contacts[j].contact;
               refined_sigma_mm[j] = rc.contacts[j].sigma_uv_mm;
+              refined_sigma_shear_n[j] = rc.contacts[j].sigma_shear_n;
             }
-            refined_sigma_shear_n = rc.contacts[0].sigma_shear_n;
             ++s.stats.refined;
             if (found == 2) ++s.stats.refined_pairs;
             // What the next sample starts from: the pair (kept over unrefined samples until a
             // refined one finds a single press), the single contact's shear.
             mem.pair = found == 2;
             for (int j = 0; j < found; ++j) mem.pair_start[j] = ests[j];
-            const bool shear = found == 1 && std::isfinite(refined_sigma_shear_n);
+            const bool shear = found == 1 && std::isfinite(refined_sigma_shear_n[0]);
             mem.shear_u_n = shear ? ests[0].shear_u_n : 0.0;
             mem.shear_v_n = shear ? ests[0].shear_v_n : 0.0;
           } else {
@@ -783,9 +788,9 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         PatchContact& placed = s.placed[j];
         s.place(*p.entry, e, m, f, &placed, &link);
         if (std::isfinite(refined_sigma_mm[j])) placed.uncertainty_mm = refined_sigma_mm[j];
-        if (count == 1 && std::isfinite(refined_sigma_shear_n)) {  // the fit had the shear
+        if (std::isfinite(refined_sigma_shear_n[j])) {  // the fit had the shear
           placed.flags |= kContactShear;
-          placed.shear_uncertainty_n = refined_sigma_shear_n;
+          placed.shear_uncertainty_n = refined_sigma_shear_n[j];
         }
         for (int i = 0; i < 3; ++i) {
           finite = finite && std::isfinite(placed.normal[i]) &&

@@ -290,6 +290,61 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
   EXPECT_EQ(one.stats.refined_pairs, 0u);
 }
 
+// Two fingers each dragging the skin its own way on an entry with max_contacts 2 and
+// refine_shear: both published, each with its own shear at the two-contact bound.
+TEST_F(AggregatorRefineTest, TwoPressesEachCarryTheirOwnShear) {
+  const uint64_t seed = 83;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const body_map::SkinMap map = one_patch_map(true, true, 2);
+  auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, options_);
+  ASSERT_TRUE(a.ok()) << a.error().to_string();
+  Aggregator& agg = **a;
+  sim::SimulatedPatch patch(*unit_, seed);
+  sim::Environment env;
+  std::vector<double> base(static_cast<std::size_t>(patch.channel_count())), f(base.size());
+  patch.tare(env, 32, base);
+  const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit_->design());
+  test_support::Node node{4, kUid};
+  uint64_t t = 1'000'000;
+  node.heartbeat(agg, t, 1);
+  sim::Contact p[2] = {{-28, 5, 2.8, 5.0}, {22, -6, 2.4, 5.0}};
+  p[0].shear_u_n = 0.35 * unit_->force_n(p[0].depth_mm);  // dragged along +u
+  p[1].shear_v_n = -0.3 * unit_->force_n(p[1].depth_mm);  // dragged along -v
+  const sim::CrlbPairShear b =
+      sim::crlb_pair_shear_at(*unit_, p[0], p[1], noise.xy_ut, noise.z_ut, true);
+  int two = 0, samples = 0;
+  double norm2 = 0;
+  for (int i = 0; i < 12; ++i) {
+    patch.measure(std::span<const sim::Contact>(p, 2), env, f);
+    for (std::size_t c = 0; c < f.size(); ++c) f[c] -= base[c];
+    node.sample(agg, t += test_support::kPeriodUs, f, true);
+    ContactArray arr;
+    if (!agg.process(t + 100, &arr)) continue;
+    ++samples;
+    if (arr.contacts.size() != 2) continue;
+    ++two;
+    for (int k = 0; k < 2; ++k) {
+      const BodyContact* c = &arr.contacts[0];
+      if (std::hypot(arr.contacts[1].u_mm - p[k].u_mm, arr.contacts[1].v_mm - p[k].v_mm) <
+          std::hypot(c->u_mm - p[k].u_mm, c->v_mm - p[k].v_mm))
+        c = &arr.contacts[1];
+      ASSERT_NE(c->flags & kContactShear, 0u) << i;
+      const sim::CrlbShear& bk = k == 0 ? b.first : b.second;
+      EXPECT_NEAR(c->shear_uncertainty_n / bk.sd_shear_n, 1.0, 0.4) << i;
+      const double e = std::hypot(c->shear_n[0] - p[k].shear_u_n, c->shear_n[1] - p[k].shear_v_n);
+      norm2 += e * e / (bk.sd_shear_n * bk.sd_shear_n);
+    }
+  }
+  std::printf(
+      "two sheared presses: %d of %d publications with both; shear RMS error / bound %.2f "
+      "(bounds %.3f and %.3f N)\n",
+      two, samples, two > 0 ? std::sqrt(norm2 / (2 * two)) : 0.0, b.first.sd_shear_n,
+      b.second.sd_shear_n);
+  EXPECT_GE(two, samples - 2);
+  EXPECT_GT(two, 6);
+  EXPECT_LT(std::sqrt(norm2 / (2 * two)), 1.6);
+}
+
 // A refiner whose fits fail while `*failing` is set (a poor fit: the host then has only the
 // network's answer), the physics refiner's otherwise.
 class FailingRefiner : public estimators::ContactRefiner {

@@ -147,6 +147,58 @@ CrlbShear crlb_shear_at(const PatchModel& model, const Contact& c, double noise_
   return out;
 }
 
+CrlbPairShear crlb_pair_shear_at(const PatchModel& model, const Contact& first,
+                                 const Contact& second, double noise_xy_ut, double noise_z_ut,
+                                 bool ambient) {
+  constexpr int k = 10;
+  const int np = ambient ? k + 3 : k;
+  CrlbPairShear out;
+  auto unidentifiable = [&] {
+    CrlbShear none;
+    none.contact = point_from_inverse(nullptr, np, 0, false);
+    none.sd_shear_u_n = none.sd_shear_v_n = none.sd_shear_n = kUnidentifiableN;
+    none.identifiable = false;
+    out.first = out.second = none;
+    return out;
+  };
+  const double inputs[] = {
+      first.u_mm,       first.v_mm,       first.depth_mm, first.tip_radius_mm, first.shear_u_n,
+      first.shear_v_n,  second.u_mm,      second.v_mm,    second.depth_mm,     second.tip_radius_mm,
+      second.shear_u_n, second.shear_v_n, noise_xy_ut,    noise_z_ut};
+  for (double x : inputs) {
+    if (!std::isfinite(x)) return unidentifiable();
+  }
+  using D = Dual<k>;
+  const ContactT<D> cd[2] = {
+      {D::variable(first.u_mm, 0), D::variable(first.v_mm, 1), D::variable(first.depth_mm, 2),
+       first.tip_radius_mm, D::variable(first.shear_u_n, 3), D::variable(first.shear_v_n, 4)},
+      {D::variable(second.u_mm, 5), D::variable(second.v_mm, 6), D::variable(second.depth_mm, 7),
+       second.tip_radius_mm, D::variable(second.shear_u_n, 8), D::variable(second.shear_v_n, 9)}};
+  const int nc = model.channel_count();
+  std::vector<D> field(static_cast<std::size_t>(nc));
+  model.contact_field_ut<D>(std::span<const ContactT<D>>(cd, 2), field.data());
+  std::vector<double> jac(static_cast<std::size_t>(nc) * k);
+  for (int i = 0; i < nc; ++i) {
+    for (int j = 0; j < k; ++j) jac[static_cast<std::size_t>(k * i + j)] = field[i].d[j];
+  }
+  double fisher[kInvertSmallMax * kInvertSmallMax];
+  fisher_information(model, jac, k, noise_xy_ut, noise_z_ut, ambient, fisher);
+  const bool ok = invert_small(fisher, np);
+  for (int j = 0; j < 2; ++j) {
+    CrlbShear& c = j == 0 ? out.first : out.second;
+    const int o = 5 * j;
+    c.contact = point_from_inverse(fisher, np, o, ok);
+    const double vu = fisher[(o + 3) * np + o + 3], vv = fisher[(o + 4) * np + o + 4];
+    if (!ok || !c.contact.identifiable || !(vu >= 0) || !(vv >= 0)) return unidentifiable();
+    c.sd_shear_u_n = std::fmin(std::sqrt(vu), kUnidentifiableN);
+    c.sd_shear_v_n = std::fmin(std::sqrt(vv), kUnidentifiableN);
+    c.sd_shear_n = std::fmin(std::sqrt(vu + vv), kUnidentifiableN);
+    c.identifiable = c.sd_shear_n < kUnidentifiableN;
+  }
+  if (!out.first.identifiable || !out.second.identifiable) return unidentifiable();
+  return out;
+}
+
 CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
                       double noise_xy_ut, double noise_z_ut, bool ambient) {
   const int nc = model.channel_count();

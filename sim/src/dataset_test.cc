@@ -316,5 +316,33 @@ TEST(CrlbTest, ShearBoundScalesWithNoiseAndStiffnessAndCostsThePosition) {
   EXPECT_EQ(nan.contact.sd_xy_mm, kUnidentifiableMm);
 }
 
+TEST(CrlbTest, TwoShearedContactsFarApartAreBoundAsEachAlone) {
+  const PatchModel m = *PatchModel::nominal(PatchDesign{});
+  const Contact a{-50, 10, 2, 5, 0.4, -0.2}, b{50, -10, 3, 5, -0.3, 0.5};
+  for (bool ambient : {false, true}) {
+    const CrlbPairShear pair = crlb_pair_shear_at(m, a, b, 0.8, 1.3, ambient);
+    const CrlbShear one = crlb_shear_at(m, a, 0.8, 1.3, ambient),
+                    two = crlb_shear_at(m, b, 0.8, 1.3, ambient);
+    ASSERT_TRUE(pair.first.identifiable && pair.second.identifiable);
+    // 100 mm apart the presses barely share sensors; the ambient is shared by both (cost < 5 %).
+    EXPECT_NEAR(pair.first.sd_shear_n / one.sd_shear_n, 1, 0.05) << ambient;
+    EXPECT_NEAR(pair.second.sd_shear_n / two.sd_shear_n, 1, 0.05) << ambient;
+    EXPECT_NEAR(pair.first.contact.sd_xy_mm / one.contact.sd_xy_mm, 1, 0.05) << ambient;
+    EXPECT_GE(pair.first.sd_shear_n, one.sd_shear_n * (1 - 1e-9));  // a second press never helps
+  }
+  // Closer, the second press costs the first; coincident or non-finite: no bound, never NaN.
+  const CrlbPairShear near =
+      crlb_pair_shear_at(m, Contact{-8, 5, 2, 5}, Contact{8, 5, 2, 5}, 0.8, 1.3, true);
+  const CrlbShear alone = crlb_shear_at(m, Contact{-8, 5, 2, 5}, 0.8, 1.3, true);
+  ASSERT_TRUE(near.first.identifiable);
+  EXPECT_GT(near.first.sd_shear_n, 1.1 * alone.sd_shear_n);
+  const Contact c{7, -3, 2, 5};
+  EXPECT_FALSE(crlb_pair_shear_at(m, c, c, 0.8, 1.3).first.identifiable);
+  const CrlbPairShear nan =
+      crlb_pair_shear_at(m, Contact{0, 0, 2, 5, std::nan("")}, Contact{30, 0, 2, 5}, 0.8, 1.3);
+  EXPECT_FALSE(nan.second.identifiable);
+  EXPECT_EQ(nan.second.sd_shear_n, kUnidentifiableN);
+}
+
 }  // namespace
 }  // namespace skinbus::sim

@@ -129,6 +129,10 @@ struct ContactCountEstimate {
   // two-contact fit's covariance), mm; NaN otherwise or when singular.
   double sigma_uv_mm[2] = {std::numeric_limits<double>::quiet_NaN(),
                            std::numeric_limits<double>::quiet_NaN()};
+  // With fit_shear, a pair's contacts carry each its own shear (ContactEstimate::shear_u_n,
+  // shear_v_n) and, with covariance, its 1-sigma sqrt(var F_u + var F_v), N; NaN otherwise.
+  double sigma_shear_n[2] = {std::numeric_limits<double>::quiet_NaN(),
+                             std::numeric_limits<double>::quiet_NaN()};
   PhysicsEstimate single;        // the single-contact fit (always made)
   bool pair_tried = false;       // the two-contact fit was made
   double pair_chi2 = 0;          // its chi-square (noise units), when tried
@@ -170,7 +174,9 @@ class PhysicsEstimator {
   // The number of contacts in the sample (0, 1 or 2) and each one (ContactCountOptions). Cost:
   // estimate(), and when the single fit leaves more than noise, a single fit of what it leaves
   // and up to 5 two-contact solves (the lean Levenberg-Marquardt of refine_lm() over both
-  // contacts and the ambient offset; each ~2-3x a single one). The pair's shear is not fitted.
+  // contacts and the ambient offset; each ~2-3x a single one). With fit_shear each contact of
+  // the pair has its own shear (13 unknowns; the information criterion's drop is then
+  // min_chi2_drop x 5/3, for the 5 unknowns a sheared contact adds).
   ContactCountEstimate estimate_contacts(std::span<const double> field_ut,
                                          std::span<const uint8_t> channel_ok = {},
                                          const ContactCountOptions& count = {}) const;
@@ -191,6 +197,13 @@ class PhysicsEstimator {
                    LookupEstimator start);
   PhysicsEstimate solve(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                         const ContactEstimate* guess) const;
+  // count_contacts()'s pair fit with N unknowns (9: no shear, 13: each contact's shear).
+  template <int N>
+  ContactCountEstimate count_pair(std::span<const double> field_ut,
+                                  std::span<const uint8_t> channel_ok,
+                                  const ContactCountOptions& count,
+                                  const ContactEstimate* pair_start, bool nothing,
+                                  ContactCountEstimate out) const;
   void covariance(const sim::Contact& c, const uint8_t* ok, const double* inv_sigma,
                   PhysicsEstimate* out) const;
 

@@ -54,9 +54,20 @@ struct CrlbShear {
 CrlbShear crlb_shear_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
                         double noise_z_ut, bool ambient_nuisance = false);
 
-// Inverts a symmetric positive-definite n x n matrix in place (n <= 12) by Gauss-Jordan with
+// The bound for two contacts each with its own tangential force: both contacts' (u, v, depth) and
+// (F_u, F_v) unknown (10 unknowns, 13 with the ambient nuisance). Exact Jacobian (dual numbers
+// through the superposed field). Coincident, unreachable or non-finite: both unidentifiable,
+// never NaN.
+struct CrlbPairShear {
+  CrlbShear first, second;
+};
+CrlbPairShear crlb_pair_shear_at(const PatchModel& model, const Contact& first,
+                                 const Contact& second, double noise_xy_ut, double noise_z_ut,
+                                 bool ambient_nuisance = false);
+
+// Inverts a symmetric positive-definite n x n matrix in place (n <= 13) by Gauss-Jordan with
 // partial pivoting; false if it is singular to working precision.
-inline constexpr int kInvertSmallMax = 12;
+inline constexpr int kInvertSmallMax = 13;
 bool invert_small(double* a, int n);
 
 }  // namespace skinbus::sim
