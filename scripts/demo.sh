@@ -161,6 +161,13 @@ if [[ -n $vcan ]]; then
     >"$out/host.jsonl" 2>"$out/host.log" &
   host=$!
   pids+=($host)
+  # The daemons start once the host has built its estimators (networks, refiners' start tables:
+  # seconds on a slow or emulated CPU); started earlier, their first presses would be late.
+  for ((i = 0; i < 1200; i++)); do
+    grep -q "patches in the map" "$out/host.log" 2>/dev/null && break
+    kill -0 "$host" 2>/dev/null || break
+    sleep 0.1
+  done
   sleep 1
   start_patches -i "$vcan"
 else
