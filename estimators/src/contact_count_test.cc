@@ -168,7 +168,9 @@ TEST(ContactCount, EachOfTwoPressesHasItsOwnShearAtTheBound) {
       "two sheared presses 40 mm apart: %d of %d counted two; shear RMS error / bound %.2f, "
       "stated / bound %.2f; %d of %d components beyond 4 bounds of the right sign\n",
       counted, n, std::sqrt(err2 / bound2), std::sqrt(stated2 / bound2), signs, components);
-  EXPECT_GE(counted, n - 2);
+  // skinbus-bench shear counts 90-96 % of such pairs two (the rest one): 11 of 16 fails one run
+  // in ~500 (random seed).
+  EXPECT_GE(counted, n - 5);
   EXPECT_EQ(signs, components);
   EXPECT_GT(components, counted);  // the shear is told from none, mostly
   EXPECT_LT(std::sqrt(err2 / bound2), 1.4);

@@ -127,6 +127,40 @@ class AggregatorRefineTest : public ::testing::Test {
   AggregatorOptions options_;
 };
 
+// One patch's continuous stream of samples through an aggregator: an entry with the unit, and
+// refine_shear and max_contacts as given; each sample() measures the presses on the simulated
+// unit with its noise, tares, sends and processes it. `ok` is false if the aggregator was refused.
+struct Stream {
+  Stream(const sim::PatchModel& unit, const AggregatorOptions& o, bool refine_shear,
+         int max_contacts, uint64_t seed)
+      : map(one_patch_map(true, refine_shear, max_contacts)), patch(unit, seed) {
+    auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o);
+    EXPECT_TRUE(a.ok()) << a.error().to_string();
+    if (!a.ok()) return;
+    agg = std::move(*a);
+    base.resize(static_cast<std::size_t>(patch.channel_count()));
+    field.resize(base.size());
+    patch.tare(env, 32, base);
+    node.heartbeat(*agg, t, 1);
+  }
+  bool ok() const { return agg != nullptr; }
+  // Whether the aggregator published (into `out`).
+  bool sample(std::span<const sim::Contact> presses, ContactArray* out) {
+    patch.measure(presses, env, field);
+    for (std::size_t c = 0; c < field.size(); ++c) field[c] -= base[c];
+    node.sample(*agg, t += test_support::kPeriodUs, field, true);
+    return agg->process(t + 100, out);
+  }
+
+  body_map::SkinMap map;
+  std::unique_ptr<Aggregator> agg;
+  sim::SimulatedPatch patch;
+  sim::Environment env;
+  std::vector<double> base, field;
+  test_support::Node node{4, kUid};
+  uint64_t t = 1'000'000;
+};
+
 TEST_F(AggregatorRefineTest, RefinedContactsReachTheUnitsBoundWithTheFitsUncertainty) {
   const uint64_t seed = 77;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
@@ -215,18 +249,9 @@ TEST_F(AggregatorRefineTest, ShearIsPublishedWhenTheEntryAsksForIt) {
 TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
   const uint64_t seed = 79;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
-  const body_map::SkinMap map = one_patch_map(true, false, 2);
-  auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, options_);
-  ASSERT_TRUE(a.ok()) << a.error().to_string();
-  Aggregator& agg = **a;
-  sim::SimulatedPatch patch(*unit_, seed);
-  sim::Environment env;
-  std::vector<double> base(static_cast<std::size_t>(patch.channel_count())), f(base.size());
-  patch.tare(env, 32, base);
+  Stream stream(*unit_, options_, false, 2, seed);
+  ASSERT_TRUE(stream.ok());
   const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit_->design());
-  test_support::Node node{4, kUid};
-  uint64_t t = 1'000'000;
-  node.heartbeat(agg, t, 1);
   constexpr int kSamples = 80;  // 1.9 s at 41.7 Hz: 0.75 mm closer a sample
   uint32_t ids[2] = {0, 0};
   int apart = 0, apart_two = 0, met = 0, met_one = 0, held = 0;
@@ -235,13 +260,10 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
     const double half = 30.0 * (1.0 - static_cast<double>(i) / (kSamples - 20));  // 0 from 60
     const double h = std::max(half, 0.0);
     const sim::Contact p[2] = {{-5 - h, 8, 2.5, 5.0}, {-5 + h, 8, 2.5, 5.0}};
-    patch.measure(std::span<const sim::Contact>(p, h > 0 ? 2 : 1), env, f);
-    for (std::size_t c = 0; c < f.size(); ++c) f[c] -= base[c];
-    node.sample(agg, t += test_support::kPeriodUs, f, true);
     ContactArray arr;
     // A sample the host could not refine while it held the pair publishes nothing (the pair
     // stands); anything published has both presses or, once they met, one.
-    if (!agg.process(t + 100, &arr)) {
+    if (!stream.sample(std::span<const sim::Contact>(p, h > 0 ? 2 : 1), &arr)) {
       ++held;
       continue;
     }
@@ -269,7 +291,7 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
       met_one += arr.contacts.size() == 1;
     }
   }
-  const AggregatorStats st = agg.stats();
+  const AggregatorStats st = stream.agg->stats();
   std::printf(
       "apart: %d of %d samples with two contacts, XY mean error %.3f mm (mean two-contact bound "
       "%.3f mm); met: %d of %d samples with one; %llu of %llu refined samples with two, %.0f us "
@@ -295,18 +317,9 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
 TEST_F(AggregatorRefineTest, TwoPressesEachCarryTheirOwnShear) {
   const uint64_t seed = 83;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
-  const body_map::SkinMap map = one_patch_map(true, true, 2);
-  auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, options_);
-  ASSERT_TRUE(a.ok()) << a.error().to_string();
-  Aggregator& agg = **a;
-  sim::SimulatedPatch patch(*unit_, seed);
-  sim::Environment env;
-  std::vector<double> base(static_cast<std::size_t>(patch.channel_count())), f(base.size());
-  patch.tare(env, 32, base);
+  Stream stream(*unit_, options_, true, 2, seed);
+  ASSERT_TRUE(stream.ok());
   const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit_->design());
-  test_support::Node node{4, kUid};
-  uint64_t t = 1'000'000;
-  node.heartbeat(agg, t, 1);
   sim::Contact p[2] = {{-28, 5, 2.8, 5.0}, {22, -6, 2.4, 5.0}};
   p[0].shear_u_n = 0.35 * unit_->force_n(p[0].depth_mm);  // dragged along +u
   p[1].shear_v_n = -0.3 * unit_->force_n(p[1].depth_mm);  // dragged along -v
@@ -315,11 +328,8 @@ TEST_F(AggregatorRefineTest, TwoPressesEachCarryTheirOwnShear) {
   int two = 0, samples = 0;
   double norm2 = 0;
   for (int i = 0; i < 12; ++i) {
-    patch.measure(std::span<const sim::Contact>(p, 2), env, f);
-    for (std::size_t c = 0; c < f.size(); ++c) f[c] -= base[c];
-    node.sample(agg, t += test_support::kPeriodUs, f, true);
     ContactArray arr;
-    if (!agg.process(t + 100, &arr)) continue;
+    if (!stream.sample(p, &arr)) continue;
     ++samples;
     if (arr.contacts.size() != 2) continue;
     ++two;
@@ -396,24 +406,11 @@ TEST_F(AggregatorRefineTest, AnUnrefinedSampleNeverReplacesAPairWithOneContactBe
     return std::unique_ptr<estimators::ContactRefiner>(
         std::make_unique<FailingRefiner>(std::move(*inner), &failing));
   };
-  const body_map::SkinMap map = one_patch_map(true, false, 2);
-  auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, options_);
-  ASSERT_TRUE(a.ok()) << a.error().to_string();
-  Aggregator& agg = **a;
-  sim::SimulatedPatch patch(*unit_, 81);
-  sim::Environment env;
-  std::vector<double> base(static_cast<std::size_t>(patch.channel_count())), f(base.size());
-  patch.tare(env, 32, base);
-  test_support::Node node{4, kUid};
-  uint64_t t = 1'000'000;
-  node.heartbeat(agg, t, 1);
+  Stream stream(*unit_, options_, false, 2, 81);
+  ASSERT_TRUE(stream.ok());
   const sim::Contact p[2] = {{-30, 8, 2.5, 5.0}, {20, 8, 2.5, 5.0}};
-  const auto sample = [&](ContactArray* arr) {
-    patch.measure(std::span<const sim::Contact>(p, 2), env, f);
-    for (std::size_t c = 0; c < f.size(); ++c) f[c] -= base[c];
-    node.sample(agg, t += test_support::kPeriodUs, f, true);
-    return agg.process(t + 100, arr);
-  };
+  const auto sample = [&](ContactArray* arr) { return stream.sample(p, arr); };
+  uint64_t& t = stream.t;
   ContactArray arr;
   for (int i = 0; i < 4; ++i) ASSERT_TRUE(sample(&arr));
   ASSERT_EQ(arr.contacts.size(), 2u);  // the pair, refined
@@ -427,8 +424,8 @@ TEST_F(AggregatorRefineTest, AnUnrefinedSampleNeverReplacesAPairWithOneContactBe
     ++held;
   }
   ASSERT_GE(held, 1);
-  EXPECT_EQ(agg.stats().held_pairs, static_cast<uint64_t>(held));
-  EXPECT_EQ(agg.stats().unrefined_poor_fit, static_cast<uint64_t>(held));
+  EXPECT_EQ(stream.agg->stats().held_pairs, static_cast<uint64_t>(held));
+  EXPECT_EQ(stream.agg->stats().unrefined_poor_fit, static_cast<uint64_t>(held));
   // The hold runs out: the pair is released and the network's answer goes out, flagged.
   ContactArray after;
   for (int i = 0; i < 3 && after.contacts.empty(); ++i) sample(&after);

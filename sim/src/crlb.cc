@@ -107,44 +107,64 @@ CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
   return point_from_inverse(fisher, np, 0, invert_small(fisher, np));
 }
 
+namespace {
+
+// The bound of a sheared contact whose (u, v, depth, F_u, F_v) start at parameter `first` of the
+// inverted np x np Fisher matrix `inv` (ok: the inversion succeeded; inv may be null if not):
+// unidentifiable, never NaN, when any of its variances is not a variance.
+CrlbShear shear_from_inverse(const double* inv, int np, int first, bool ok) {
+  CrlbShear s;
+  s.contact = point_from_inverse(inv, np, first, ok);
+  const double vu = ok ? inv[(first + 3) * np + first + 3] : -1;
+  const double vv = ok ? inv[(first + 4) * np + first + 4] : -1;
+  if (!ok || !s.contact.identifiable || !(vu >= 0) || !(vv >= 0)) {
+    s.contact = point_from_inverse(nullptr, np, first, false);
+    s.sd_shear_u_n = s.sd_shear_v_n = s.sd_shear_n = kUnidentifiableN;
+    s.identifiable = false;
+    return s;
+  }
+  s.sd_shear_u_n = std::fmin(std::sqrt(vu), kUnidentifiableN);
+  s.sd_shear_v_n = std::fmin(std::sqrt(vv), kUnidentifiableN);
+  s.sd_shear_n = std::fmin(std::sqrt(vu + vv), kUnidentifiableN);
+  s.identifiable = s.sd_shear_n < kUnidentifiableN;
+  return s;
+}
+
+// The inverted Fisher information (into `fisher`, np x np with the ambient's 3 when `ambient`)
+// of the n contacts `cd`, dual numbers over all their K unknowns; whether it inverted.
+template <int K>
+bool inverse_fisher_of(const PatchModel& model, const ContactT<Dual<K>>* cd, int n,
+                       double noise_xy_ut, double noise_z_ut, bool ambient, double* fisher) {
+  const int nc = model.channel_count();
+  std::vector<Dual<K>> field(static_cast<std::size_t>(nc));
+  model.contact_field_ut<Dual<K>>(
+      std::span<const ContactT<Dual<K>>>(cd, static_cast<std::size_t>(n)), field.data());
+  std::vector<double> jac(static_cast<std::size_t>(nc) * K);
+  for (int i = 0; i < nc; ++i) {
+    for (int j = 0; j < K; ++j) jac[static_cast<std::size_t>(K * i + j)] = field[i].d[j];
+  }
+  fisher_information(model, jac, K, noise_xy_ut, noise_z_ut, ambient, fisher);
+  return invert_small(fisher, ambient ? K + 3 : K);
+}
+
+}  // namespace
+
 CrlbShear crlb_shear_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
                         double noise_z_ut, bool ambient) {
   constexpr int k = 5;
   const int np = ambient ? k + 3 : k;
-  CrlbShear out;
-  auto unidentifiable = [&] {
-    out.contact = point_from_inverse(nullptr, np, 0, false);
-    out.sd_shear_u_n = out.sd_shear_v_n = out.sd_shear_n = kUnidentifiableN;
-    out.identifiable = false;
-    return out;
-  };
   const double inputs[] = {c.u_mm,      c.v_mm,      c.depth_mm,  c.tip_radius_mm,
                            c.shear_u_n, c.shear_v_n, noise_xy_ut, noise_z_ut};
   for (double x : inputs) {
-    if (!std::isfinite(x)) return unidentifiable();
+    if (!std::isfinite(x)) return shear_from_inverse(nullptr, np, 0, false);
   }
   using D = Dual<k>;
   const ContactT<D> cd{D::variable(c.u_mm, 0),      D::variable(c.v_mm, 1),
                        D::variable(c.depth_mm, 2),  c.tip_radius_mm,
                        D::variable(c.shear_u_n, 3), D::variable(c.shear_v_n, 4)};
-  const int nc = model.channel_count();
-  std::vector<D> field(static_cast<std::size_t>(nc));
-  model.contact_field_ut<D>(std::span<const ContactT<D>>(&cd, 1), field.data());
-  std::vector<double> jac(static_cast<std::size_t>(nc) * k);
-  for (int i = 0; i < nc; ++i) {
-    for (int j = 0; j < k; ++j) jac[static_cast<std::size_t>(k * i + j)] = field[i].d[j];
-  }
   double fisher[kInvertSmallMax * kInvertSmallMax];
-  fisher_information(model, jac, k, noise_xy_ut, noise_z_ut, ambient, fisher);
-  const bool ok = invert_small(fisher, np);
-  out.contact = point_from_inverse(fisher, np, 0, ok);
-  const double vu = fisher[3 * np + 3], vv = fisher[4 * np + 4];
-  if (!ok || !out.contact.identifiable || !(vu >= 0) || !(vv >= 0)) return unidentifiable();
-  out.sd_shear_u_n = std::fmin(std::sqrt(vu), kUnidentifiableN);
-  out.sd_shear_v_n = std::fmin(std::sqrt(vv), kUnidentifiableN);
-  out.sd_shear_n = std::fmin(std::sqrt(vu + vv), kUnidentifiableN);
-  out.identifiable = out.sd_shear_n < kUnidentifiableN;
-  return out;
+  const bool ok = inverse_fisher_of<k>(model, &cd, 1, noise_xy_ut, noise_z_ut, ambient, fisher);
+  return shear_from_inverse(fisher, np, 0, ok);
 }
 
 CrlbPairShear crlb_pair_shear_at(const PatchModel& model, const Contact& first,
@@ -153,20 +173,15 @@ CrlbPairShear crlb_pair_shear_at(const PatchModel& model, const Contact& first,
   constexpr int k = 10;
   const int np = ambient ? k + 3 : k;
   CrlbPairShear out;
-  auto unidentifiable = [&] {
-    CrlbShear none;
-    none.contact = point_from_inverse(nullptr, np, 0, false);
-    none.sd_shear_u_n = none.sd_shear_v_n = none.sd_shear_n = kUnidentifiableN;
-    none.identifiable = false;
-    out.first = out.second = none;
-    return out;
-  };
   const double inputs[] = {
       first.u_mm,       first.v_mm,       first.depth_mm, first.tip_radius_mm, first.shear_u_n,
       first.shear_v_n,  second.u_mm,      second.v_mm,    second.depth_mm,     second.tip_radius_mm,
       second.shear_u_n, second.shear_v_n, noise_xy_ut,    noise_z_ut};
   for (double x : inputs) {
-    if (!std::isfinite(x)) return unidentifiable();
+    if (!std::isfinite(x)) {
+      out.first = out.second = shear_from_inverse(nullptr, np, 0, false);
+      return out;
+    }
   }
   using D = Dual<k>;
   const ContactT<D> cd[2] = {
@@ -174,28 +189,13 @@ CrlbPairShear crlb_pair_shear_at(const PatchModel& model, const Contact& first,
        first.tip_radius_mm, D::variable(first.shear_u_n, 3), D::variable(first.shear_v_n, 4)},
       {D::variable(second.u_mm, 5), D::variable(second.v_mm, 6), D::variable(second.depth_mm, 7),
        second.tip_radius_mm, D::variable(second.shear_u_n, 8), D::variable(second.shear_v_n, 9)}};
-  const int nc = model.channel_count();
-  std::vector<D> field(static_cast<std::size_t>(nc));
-  model.contact_field_ut<D>(std::span<const ContactT<D>>(cd, 2), field.data());
-  std::vector<double> jac(static_cast<std::size_t>(nc) * k);
-  for (int i = 0; i < nc; ++i) {
-    for (int j = 0; j < k; ++j) jac[static_cast<std::size_t>(k * i + j)] = field[i].d[j];
-  }
   double fisher[kInvertSmallMax * kInvertSmallMax];
-  fisher_information(model, jac, k, noise_xy_ut, noise_z_ut, ambient, fisher);
-  const bool ok = invert_small(fisher, np);
-  for (int j = 0; j < 2; ++j) {
-    CrlbShear& c = j == 0 ? out.first : out.second;
-    const int o = 5 * j;
-    c.contact = point_from_inverse(fisher, np, o, ok);
-    const double vu = fisher[(o + 3) * np + o + 3], vv = fisher[(o + 4) * np + o + 4];
-    if (!ok || !c.contact.identifiable || !(vu >= 0) || !(vv >= 0)) return unidentifiable();
-    c.sd_shear_u_n = std::fmin(std::sqrt(vu), kUnidentifiableN);
-    c.sd_shear_v_n = std::fmin(std::sqrt(vv), kUnidentifiableN);
-    c.sd_shear_n = std::fmin(std::sqrt(vu + vv), kUnidentifiableN);
-    c.identifiable = c.sd_shear_n < kUnidentifiableN;
+  const bool ok = inverse_fisher_of<k>(model, cd, 2, noise_xy_ut, noise_z_ut, ambient, fisher);
+  out.first = shear_from_inverse(fisher, np, 0, ok);
+  out.second = shear_from_inverse(fisher, np, 5, ok);
+  if (!out.first.identifiable || !out.second.identifiable) {  // one is not there: neither is told
+    out.first = out.second = shear_from_inverse(nullptr, np, 0, false);
   }
-  if (!out.first.identifiable || !out.second.identifiable) return unidentifiable();
   return out;
 }
 
