@@ -164,7 +164,8 @@ bool begin_fit(std::span<const double> field_ut, std::span<const uint8_t> channe
 
 // The end every single-contact fit shares: the contact at `x` (u, v, depth) with the ambient
 // offset `b` and the shear force `shear` (N; null: not fitted), its chi-square (noise units) and
-// iterations, and its flags: masked channels, not converged, a poor fit, no contact (the fitted
+// iterations, its reduced chi-square over the unknowns fitted (the shear's only when given), and
+// its flags: masked channels, not converged, a poor fit, no contact (the fitted
 // contact's whitened signal `contact_field`, its field change, below options.no_contact_snr), the
 // range; a non-finite fit becomes a rejection.
 void finish_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
@@ -173,7 +174,7 @@ void finish_fit(const sim::PatchModel& model, const PhysicsOptions& options, con
   ContactEstimate& e = out->contact;
   const int nc = model.channel_count();
   const int usable = nc - in.check.masked;
-  const int unknowns = unknowns_of(options);
+  const int unknowns = LeanLayout{1, shear != nullptr}.unknowns(options.fit_ambient);  // fitted
   e.u_mm = x[0];
   e.v_mm = x[1];
   e.depth_mm = x[2];
@@ -429,14 +430,12 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   // from each other, are fitted too (by the lean fit); the lowest chi-square is kept.
   if (options_.other_basins > 0 && std::isfinite(best_cost)) {
     if (!looked_up) look_up();
-    const int found = n_nb;
-    const LookupNeighbour* cand = nb;
     double tried[kCandidates][2];
     int n_tried = 0;
     const double first_u = best_x[0], first_v = best_x[1];
-    for (int i = 0; i < found && n_tried < options_.other_basins; ++i) {
-      const double start[3] = {start_.row_u_mm(cand[i].row), start_.row_v_mm(cand[i].row),
-                               start_.row_depth_mm(cand[i].row)};
+    for (int i = 0; i < n_nb && n_tried < options_.other_basins; ++i) {
+      const double start[3] = {start_.row_u_mm(nb[i].row), start_.row_v_mm(nb[i].row),
+                               start_.row_depth_mm(nb[i].row)};
       bool apart = std::hypot(start[0] - first_u, start[1] - first_v) >= other_basin_mm_;
       for (int t = 0; t < n_tried && apart; ++t) {
         apart = std::hypot(start[0] - tried[t][0], start[1] - tried[t][1]) >= other_basin_mm_;
@@ -895,10 +894,8 @@ ContactCountEstimate PhysicsEstimator::count_pair(std::span<const double> field_
     if (!done && !nothing) {
       ContactEstimate from = one;
       from.shear_u_n = from.shear_v_n = 0;
-      PhysicsOptions plain = options_;
-      plain.fit_shear = false;
       PhysicsEstimate e;
-      refine_lean<6>(model_, plain, in, ambient_jac_.data(), from, &e);
+      refine_lean<6>(model_, options_, in, ambient_jac_.data(), from, &e);
       if (e.contact.valid() && !(e.contact.flags & kEstimateNoContact)) {
         done = starts_from(e.contact, e.ambient_ut);
       }
