@@ -17,7 +17,6 @@
 #include "skinbus/estimators_bench/reports.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/design_file.h"
-#include "skinbus/sim/mlx90393.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::estimators_bench {
@@ -135,20 +134,18 @@ Status bench_budget(const BudgetBenchArgs& a) {
     if (!unit.ok()) {
       return unit.error();
     }
-    const std::array<double, kDepthBins> crlb = mean_per_bin(
-        crlb_per_row(unit->truth, unit->off_grid, static_cast<int>(unit->off_grid.rows())),
-        unit->off_grid.depth_mm);
+    // The bounds at the off-grid presses: the XY one's mean per bin, and an efficient
+    // estimator's depth mean (sqrt(2/pi) x the depth bound, mean over the presses).
+    const std::vector<sim::CrlbPoint> bounds =
+        crlb_points_per_row(unit->truth, unit->off_grid, static_cast<int>(unit->off_grid.rows()));
+    std::vector<double> xy_bounds;
     double depth_efficient_mm = 0;
-    {
-      const mlx90393::Config& cfg = unit->truth.design().sensor_config;
-      const double nxy = sim::mlx90393_noise_xy_ut(cfg), nz = sim::mlx90393_noise_z_ut(cfg);
-      const sim::Dataset& t = unit->off_grid;
-      for (std::size_t r = 0; r < t.rows(); ++r) {
-        const sim::Contact c{t.u_mm[r], t.v_mm[r], t.depth_mm[r], 5.0};
-        depth_efficient_mm += sim::crlb_at(unit->truth, c, nxy, nz).sd_depth_mm;
-      }
-      depth_efficient_mm *= std::sqrt(2 / M_PI) / static_cast<double>(t.rows());
+    for (const sim::CrlbPoint& b : bounds) {
+      xy_bounds.push_back(b.sd_xy_mm);
+      depth_efficient_mm += b.sd_depth_mm;
     }
+    depth_efficient_mm *= std::sqrt(2 / M_PI) / static_cast<double>(bounds.size());
+    const std::array<double, kDepthBins> crlb = mean_per_bin(xy_bounds, unit->off_grid.depth_mm);
     auto add_row = [&](const std::string& pipeline, const Estimator& est, double setup_s,
                        double residual) {
       std::fprintf(stderr, "skinbus-bench:   %s\n", pipeline.c_str());

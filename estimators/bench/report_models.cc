@@ -153,14 +153,21 @@ void write_bin_table(const std::vector<Measured>& rows, FILE* f) {
 
 }  // namespace
 
-std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n) {
+std::vector<sim::CrlbPoint> crlb_points_per_row(const sim::PatchModel& model,
+                                                const sim::Dataset& data, int n) {
   const mlx90393::Config& cfg = model.design().sensor_config;
   const double nxy = sim::mlx90393_noise_xy_ut(cfg), nz = sim::mlx90393_noise_z_ut(cfg);
-  std::vector<double> out(static_cast<std::size_t>(n));
+  std::vector<sim::CrlbPoint> out(static_cast<std::size_t>(n));
   for (int r = 0; r < n; ++r) {
     const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], 5.0};
-    out[static_cast<std::size_t>(r)] = sim::crlb_at(model, c, nxy, nz).sd_xy_mm;
+    out[static_cast<std::size_t>(r)] = sim::crlb_at(model, c, nxy, nz);
   }
+  return out;
+}
+
+std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n) {
+  std::vector<double> out;
+  for (const sim::CrlbPoint& p : crlb_points_per_row(model, data, n)) out.push_back(p.sd_xy_mm);
   return out;
 }
 

@@ -14,6 +14,7 @@
 
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/network_runtime.h"
+#include "skinbus/sim/crlb.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/patch_model.h"
 
@@ -32,8 +33,10 @@ struct ModelsBenchArgs {
   std::string design_path;               // the test split's patch design file; empty: built-in
 };
 
-// The CRLB RMS XY bound (mm) of each of the first `n` rows of `data` for `model` (its design's
-// sensor noise, a 5 mm tip), and its mean per depth bin.
+// The Cramer-Rao bound of each of the first `n` rows of `data` for `model` (its design's sensor
+// noise, a 5 mm tip); crlb_per_row() its RMS XY bound (mm); and a value's mean per depth bin.
+std::vector<sim::CrlbPoint> crlb_points_per_row(const sim::PatchModel& model,
+                                                const sim::Dataset& data, int n);
 std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n);
 std::array<double, estimators::kDepthBins> mean_per_bin(std::span<const double> values,
                                                         std::span<const double> depth_mm);
