@@ -6,7 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include "skinbus/estimators/lookup_estimator.h"
@@ -279,16 +281,12 @@ namespace {
 // often enough to put the mean error well above the bound; with the other basins tried it is at
 // the bound (the mean radial error of an efficient estimator is 0.89x the RMS bound).
 TEST(PhysicsEstimatorBasins, OtherBasinsBringPressesBeyondTheMagnetsToTheBound) {
-  const sim::PatchDesign design = sim::parse_design(R"(format: skinbus-patch-design
-magnets:
-  grid: {u: 9, v: 9, pitch_mm: 15}
-  polarity: uniform
-  centre_height_mm: -1
-sensors:
-  depth_mm: 18
-)",
-                                                    "test")
-                                      .value();
+  // The design docs/benchmarks/designs.md measures (the issue's example patch).
+  const char* dir = std::getenv("SKINBUS_SOURCE_DIR");
+  const auto read = sim::read_design_file(std::string(dir != nullptr ? dir : ".") +
+                                          "/docs/benchmarks/design_9x9_uniform.yaml");
+  ASSERT_TRUE(read.ok()) << read.error().to_string();
+  const sim::PatchDesign& design = *read;
   const sim::PatchModel model = sim::PatchModel::nominal(design).value();
   PhysicsOptions nearest_only;
   nearest_only.other_basins = 0;

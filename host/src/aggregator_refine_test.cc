@@ -127,6 +127,17 @@ class AggregatorRefineTest : public ::testing::Test {
   AggregatorOptions options_;
 };
 
+// The published contact nearest a press (patch-local u, v).
+const BodyContact& nearest_contact(const ContactArray& arr, const sim::Contact& press) {
+  const BodyContact* best = &arr.contacts.front();
+  for (const BodyContact& c : arr.contacts) {
+    if (std::hypot(c.u_mm - press.u_mm, c.v_mm - press.v_mm) <
+        std::hypot(best->u_mm - press.u_mm, best->v_mm - press.v_mm))
+      best = &c;
+  }
+  return *best;
+}
+
 // One patch's continuous stream of samples through an aggregator: an entry with the unit, and
 // refine_shear and max_contacts as given; each sample() measures the presses on the simulated
 // unit with its noise, tares, sends and processes it. `ok` is false if the aggregator was refused.
@@ -273,15 +284,10 @@ TEST_F(AggregatorRefineTest, TwoPressesOnOnePatchAreTrackedApartUntilTheyMeet) {
       ++apart_two;
       // Each truth's nearest contact; the track IDs stay with their press.
       for (int k = 0; k < 2; ++k) {
-        const BodyContact* best = nullptr;
-        for (const BodyContact& c : arr.contacts) {
-          if (best == nullptr || std::hypot(c.u_mm - p[k].u_mm, c.v_mm - p[k].v_mm) <
-                                     std::hypot(best->u_mm - p[k].u_mm, best->v_mm - p[k].v_mm))
-            best = &c;
-        }
-        if (ids[k] == 0) ids[k] = best->track_id;
-        EXPECT_EQ(best->track_id, ids[k]) << "sample " << i << " press " << k;
-        err += std::hypot(best->u_mm - p[k].u_mm, best->v_mm - p[k].v_mm);
+        const BodyContact& best = nearest_contact(arr, p[k]);
+        if (ids[k] == 0) ids[k] = best.track_id;
+        EXPECT_EQ(best.track_id, ids[k]) << "sample " << i << " press " << k;
+        err += std::hypot(best.u_mm - p[k].u_mm, best.v_mm - p[k].v_mm);
       }
       const sim::CrlbPair b = sim::crlb_pair_at(*unit_, p[0], p[1], noise.xy_ut, noise.z_ut, true);
       bound += b.first.sd_xy_mm + b.second.sd_xy_mm;
@@ -334,10 +340,7 @@ TEST_F(AggregatorRefineTest, TwoPressesEachCarryTheirOwnShear) {
     if (arr.contacts.size() != 2) continue;
     ++two;
     for (int k = 0; k < 2; ++k) {
-      const BodyContact* c = &arr.contacts[0];
-      if (std::hypot(arr.contacts[1].u_mm - p[k].u_mm, arr.contacts[1].v_mm - p[k].v_mm) <
-          std::hypot(c->u_mm - p[k].u_mm, c->v_mm - p[k].v_mm))
-        c = &arr.contacts[1];
+      const BodyContact* c = &nearest_contact(arr, p[k]);
       ASSERT_NE(c->flags & kContactShear, 0u) << i;
       const sim::CrlbShear& bk = k == 0 ? b.first : b.second;
       EXPECT_NEAR(c->shear_uncertainty_n / bk.sd_shear_n, 1.0, 0.4) << i;
