@@ -55,6 +55,15 @@ cleanup() {
   [[ -n ${made_vcan:-} ]] && ip link del "$made_vcan" 2>/dev/null || true
 }
 trap cleanup EXIT
+# Waits until FILE has a line matching PATTERN, PID exits, or TENTHS tenths of a second pass.
+wait_for_line() {  # PATTERN FILE PID TENTHS
+  local n
+  for ((n = 0; n < $4; n++)); do
+    grep -q "$1" "$2" 2>/dev/null && return 0
+    kill -0 "$3" 2>/dev/null || return 0
+    sleep 0.1
+  done
+}
 
 # ---- The body and its skin ---------------------------------------------------------------------
 "$bin/skinbus-touchsim" --robot "$src/body_map/robots/skinbot.urdf" --out-dir "$out/session" \
@@ -120,11 +129,8 @@ if [[ $view_port != off ]]; then
   "$bin/skinbus-view" --map "$out/skin.yaml" --domain "$domain" --port "$view_port" \
     "${view_bus[@]}" --duration $((duration + 4)) >"$out/view.log" 2>&1 &
   pids+=($!)
-  for _ in $(seq 50); do
-    view_url=$(grep -o 'http://[^ ]*' "$out/view.log" 2>/dev/null | head -1) && [[ -n $view_url ]] && break
-    kill -0 "${pids[-1]}" 2>/dev/null || break
-    sleep 0.1
-  done
+  wait_for_line 'http://' "$out/view.log" "${pids[-1]}" 50
+  view_url=$(grep -o 'http://[^ ]*' "$out/view.log" 2>/dev/null | head -1) || true
   if [[ -n $view_url ]]; then
     port=${view_url##*:}
     port=${port%/}
@@ -163,11 +169,7 @@ if [[ -n $vcan ]]; then
   pids+=($host)
   # The daemons start once the host has built its estimators (networks, refiners' start tables:
   # seconds on a slow or emulated CPU); started earlier, their first presses would be late.
-  for ((i = 0; i < 1200; i++)); do
-    grep -q "patches in the map" "$out/host.log" 2>/dev/null && break
-    kill -0 "$host" 2>/dev/null || break
-    sleep 0.1
-  done
+  wait_for_line "patches in the map" "$out/host.log" "$host" 1200
   sleep 1
   start_patches -i "$vcan"
 else
