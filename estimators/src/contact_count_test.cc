@@ -1,8 +1,10 @@
-// PhysicsEstimator::estimate_contacts: the contact count (0, 1, 2) and two contacts' places.
+// PhysicsEstimator::estimate_contacts: the contact count (0 to 3) and several contacts' places.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <tuple>
 #include <vector>
 
@@ -108,6 +110,15 @@ TEST(ContactCount, NothingCoincidentAndNonFiniteGiveCountsWithoutNaN) {
   for (const auto& c : coincident.contacts) {
     EXPECT_TRUE(std::isfinite(c.u_mm) && std::isfinite(c.v_mm) && std::isfinite(c.depth_mm));
   }
+  ContactCountOptions three;
+  three.max_contacts = 3;
+  const Contact triple[3] = {{10, -5, 2, 5}, {10, -5, 2, 5}, {-30, 20, 2.5, 5}};
+  const ContactCountEstimate two_at_one =
+      physics.estimate_contacts(noisy_field(nominal, triple, rng), {}, three);
+  EXPECT_LE(two_at_one.count, 2);  // two at one place and one apart: at most two
+  for (const auto& c : two_at_one.contacts) {
+    EXPECT_TRUE(std::isfinite(c.u_mm) && std::isfinite(c.v_mm) && std::isfinite(c.depth_mm));
+  }
   std::vector<double> bad(quiet);
   bad[5] = std::nan("");
   const ContactCountEstimate e = physics.estimate_contacts(bad);
@@ -205,8 +216,111 @@ TEST(ContactCount, AGivenPairIsTriedWhenTheSingleFitFoundNothing) {
   const ContactCountEstimate with = physics.count_contacts(f, {}, single, {}, previous);
   ASSERT_EQ(with.count, 2);
   for (int k = 0; k < 2; ++k) EXPECT_LT(distance(with.contacts[k], presses[k]), 1.0) << k;
-  const ContactCountEstimate without = physics.count_contacts(f, {}, single, {}, nullptr);
+  const ContactCountEstimate without = physics.count_contacts(f, {}, single, {}, {});
   EXPECT_EQ(without.count, 0);
+}
+
+// Three presses apart from each other: the nearest matching of estimates to presses (any
+// order), the sum of distances least over the 6 orders.
+double matched_error(const ContactEstimate* e, const Contact* p, double* worst) {
+  const int orders[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
+  double best = std::numeric_limits<double>::infinity();
+  for (const auto& o : orders) {
+    double sum = 0, most = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double d = distance(e[o[k]], p[k]);
+      sum += d;
+      most = std::max(most, d);
+    }
+    if (sum < best) {
+      best = sum;
+      *worst = most;
+    }
+  }
+  return best;
+}
+
+// Three fingers: presses at the corners of a triangle of 40 mm sides, on a fabricated unit with
+// the estimator on its own model and max_contacts 3.
+TEST(ContactCount, ThreePressesFortyMillimetresApartAreResolvedOnAFabricatedUnit) {
+  const sim::PatchModel unit = sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5b0000000000002c,
+                                                           sim::FabricationVariation{})
+                                   .value();
+  const PhysicsEstimator physics = PhysicsEstimator::create(unit).value();
+  ContactCountOptions three;
+  three.max_contacts = 3;
+  sim::Rng rng(test_seed("ThreePressesFortyMillimetresApartAreResolvedOnAFabricatedUnit"));
+  int counted = 0, placed = 0, two = 0;
+  const int n = 12;
+  for (int i = 0; i < n; ++i) {
+    const double mu = rng.uniform(-15, 15), mv = rng.uniform(-15, 15), a = rng.uniform(0, M_PI);
+    const double r = 40 / std::sqrt(3.0);  // the circumradius of the triangle
+    Contact presses[3];
+    for (int k = 0; k < 3; ++k) {
+      const double t = a + k * 2 * M_PI / 3;
+      presses[k] = {mu + r * std::cos(t), mv + r * std::sin(t), rng.uniform(2, 3.5), 5};
+    }
+    const auto f = noisy_field(unit, presses, rng);
+    const ContactCountEstimate e = physics.estimate_contacts(f, {}, three);
+    two += e.count == 2;
+    if (e.count != 3) continue;
+    ++counted;
+    double worst = 0;
+    matched_error(e.contacts, presses, &worst);
+    if (worst < 2) ++placed;
+    for (int k = 0; k < 3; ++k)
+      EXPECT_TRUE(std::isfinite(e.sigma_uv_mm[k]) || !physics.options().covariance);
+  }
+  std::printf("three presses 40 mm apart: %d of %d counted three (%d two), %d placed within 2 mm\n",
+              counted, n, two, placed);
+  EXPECT_GE(counted, n - 3);
+  EXPECT_GE(placed, counted - 1);
+  // The same presses with max_contacts 2 (the default): never three.
+  const Contact p3[3] = {{-20, -10, 3, 5}, {20, -10, 3, 5}, {0, 25, 3, 5}};
+  EXPECT_LE(physics.estimate_contacts(noisy_field(unit, p3, rng)).count, 2);
+}
+
+// Model-order choice beyond two: two presses on units whose physics the estimator's model lacks
+// are never counted three, and neither is one press.
+TEST(ContactCount, OneOrTwoPressesAreNeverCountedThreeOnUnitsOutsideTheModelClass) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const PhysicsEstimator physics = PhysicsEstimator::create(nominal).value();
+  ContactCountOptions three;
+  three.max_contacts = 3;
+  sim::PatchDesign anisotropic, lateral;
+  anisotropic.anisotropy = 0.1;
+  lateral.lateral_mm = 2.6;
+  const sim::PatchModel units[] = {
+      sim::PatchModel::nominal(anisotropic).value(), sim::PatchModel::nominal(lateral).value(),
+      sim::PatchModel::fabricated(sim::PatchDesign{}, 7, sim::FabricationVariation{}).value()};
+  sim::Rng rng(test_seed("OneOrTwoPressesAreNeverCountedThreeOnUnitsOutsideTheModelClass"));
+  int threes = 0, pairs = 0, tried = 0, total = 0;
+  for (const auto& unit : units) {
+    for (int i = 0; i < 20; ++i) {
+      const double mu = rng.uniform(-25, 25), mv = rng.uniform(-25, 25), a = rng.uniform(0, M_PI);
+      const double half = rng.uniform(12, 30);
+      const Contact presses[2] = {
+          {mu + half * std::cos(a), mv + half * std::sin(a), rng.uniform(1, 4), 5},
+          {mu - half * std::cos(a), mv - half * std::sin(a), rng.uniform(1, 4), 5}};
+      const std::size_t n = i % 4 == 0 ? 1 : 2;  // every fourth a single press
+      const auto f = noisy_field(unit, std::span<const Contact>(presses, n), rng);
+      const ContactCountEstimate e = physics.estimate_contacts(f, {}, three);
+      ++total;
+      pairs += e.count == 2;
+      tried += e.triple_tried;
+      if (e.count == 3) {
+        ++threes;
+        std::printf("three from %zu: reduced chi2 %.2f -> %.2f -> %.2f\n", n, e.single.reduced_chi2,
+                    e.pair_reduced_chi2, e.triple_reduced_chi2);
+      }
+    }
+  }
+  std::printf(
+      "one or two presses on mismatched units: %d of %d counted three (%d two; three "
+      "tried on %d)\n",
+      threes, total, pairs, tried);
+  EXPECT_GT(tried, total / 4);  // the mismatch leaves more than noise after the pair: tested
+  EXPECT_EQ(threes, 0);
 }
 
 }  // namespace

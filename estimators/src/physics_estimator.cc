@@ -511,8 +511,9 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
 namespace {
 
 // The lean fit's unknowns (LeanLayout), sized at compile time (N unknowns: 6 for one contact, 8
-// with its shear, 9 for two): no allocation, fixed-size algebra.
-constexpr int kLeanMax = 2 * 5 + 3;
+// with its shear, 9 for two, 12 for three, 18 for three with their shear): no allocation,
+// fixed-size algebra.
+constexpr int kLeanMax = kMaxContacts * 5 + 3;
 
 template <int N>
 struct LeanFit {
@@ -589,7 +590,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   }
   LeanFit<N> fit;
   const double tip = options.tip_radius_mm;
-  sim::Contact contacts[2];
+  sim::Contact contacts[kMaxContacts];
   auto field = [&](const LeanVec& p, double* into) {
     lean_contacts(l, p, tip, contacts);
     model.contact_field_ut(std::span<const sim::Contact>(contacts, l.contacts),
@@ -785,45 +786,71 @@ void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, cons
 ContactCountEstimate PhysicsEstimator::estimate_contacts(std::span<const double> field_ut,
                                                          std::span<const uint8_t> channel_ok,
                                                          const ContactCountOptions& count) const {
-  return count_contacts(field_ut, channel_ok, estimate(field_ut, channel_ok), count, nullptr);
+  return count_contacts(field_ut, channel_ok, estimate(field_ut, channel_ok), count, {});
 }
 
-ContactCountEstimate PhysicsEstimator::count_contacts(std::span<const double> field_ut,
-                                                      std::span<const uint8_t> channel_ok,
-                                                      const PhysicsEstimate& single,
-                                                      const ContactCountOptions& count,
-                                                      const ContactEstimate* pair_start) const {
+ContactCountEstimate PhysicsEstimator::count_contacts(
+    std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
+    const PhysicsEstimate& single, const ContactCountOptions& count,
+    std::span<const ContactEstimate> previous) const {
   ContactCountEstimate out;
   out.single = single;
+  std::copy(single.ambient_ut, single.ambient_ut + 3, out.ambient_ut);
   const ContactEstimate& one = out.single.contact;
-  // Rejected, or nothing found: done, unless a pair is given (a single fit started between two
-  // presses can run off the patch while the pair still explains the sample).
+  if (previous.size() < 2 || previous.size() > static_cast<std::size_t>(kMaxContacts)) {
+    previous = {};  // one contact, or none, is no start for several
+  }
+  // Rejected, or nothing found: done, unless contacts are given (a single fit started between
+  // two presses can run off the patch while the pair still explains the sample).
   const bool nothing = (one.flags & kEstimateNoContact) != 0;
-  if (!one.valid() || (nothing && pair_start == nullptr)) return out;
+  if (!one.valid() || (nothing && previous.empty())) return out;
   if (!nothing) {
     out.count = 1;
     out.contacts[0] = one;
     out.sigma_uv_mm[0] = single.sigma_uv_mm;
   }
-  if (!(out.single.reduced_chi2 > count.try_ratio)) return out;  // one explains it: done
+  if (count.max_contacts < 2 || !(out.single.reduced_chi2 > count.try_ratio)) return out;
 
   // The pair's fit: both contacts' (u, v, depth), with fit_shear each one's shear too (9 or 13
-  // unknowns with the ambient), as one code path over the fixed-size lean fit.
-  return options_.fit_shear ? count_pair<13>(field_ut, channel_ok, count, pair_start, nothing, out)
-                            : count_pair<9>(field_ut, channel_ok, count, pair_start, nothing, out);
+  // unknowns with the ambient), as one code path over the fixed-size lean fit; then, with
+  // max_contacts 3, when the best pair (kept or not: three presses are not explained by two)
+  // still leaves more than noise, three the same way.
+  CountFit single_fit;
+  single_fit.count = out.count;
+  single_fit.contacts[0] = one;
+  std::copy(single.ambient_ut, single.ambient_ut + 3, single_fit.ambient_ut);
+  single_fit.chi2 = single.chi2;
+  single_fit.reduced_chi2 = single.reduced_chi2;
+  CountFit pair_fit;
+  out =
+      options_.fit_shear
+          ? count_more<2, true>(field_ut, channel_ok, count, previous, single_fit, &pair_fit, out)
+          : count_more<2, false>(field_ut, channel_ok, count, previous, single_fit, &pair_fit, out);
+  if (count.max_contacts < 3 || pair_fit.count != 2 || !(pair_fit.reduced_chi2 > count.try_ratio)) {
+    return out;
+  }
+  CountFit triple_fit;
+  return options_.fit_shear ? count_more<3, true>(field_ut, channel_ok, count, previous, pair_fit,
+                                                  &triple_fit, out)
+                            : count_more<3, false>(field_ut, channel_ok, count, previous, pair_fit,
+                                                   &triple_fit, out);
 }
 
-template <int N>
-ContactCountEstimate PhysicsEstimator::count_pair(std::span<const double> field_ut,
+template <int K, bool Shear>
+ContactCountEstimate PhysicsEstimator::count_more(std::span<const double> field_ut,
                                                   std::span<const uint8_t> channel_ok,
                                                   const ContactCountOptions& count,
-                                                  const ContactEstimate* pair_start, bool nothing,
+                                                  std::span<const ContactEstimate> previous,
+                                                  const CountFit& base, CountFit* fitted,
                                                   ContactCountEstimate out) const {
-  const ContactEstimate& one = out.single.contact;
+  static_assert(K >= 2 && K <= kMaxContacts);
+  constexpr LeanLayout l{K, Shear};
+  constexpr int N = l.size();
+  constexpr int pc = l.per_contact();
+  // `base` has K - 1 contacts, or none when the single fit found nothing (then only the given
+  // contacts are tried).
   const int nc = model_.channel_count();
   const int usable = out.single.channels_used;
-  const LeanLayout l{2, N == 13};
-  const int pc = l.per_contact();
   const int unknowns = l.unknowns(options_.fit_ambient);
   if (usable <= unknowns || static_cast<int>(field_ut.size()) != nc) return out;
   FitInput in;
@@ -831,98 +858,122 @@ ContactCountEstimate PhysicsEstimator::count_pair(std::span<const double> field_
   const uint8_t* ok = in.ok;
   const double* y = in.y;
   const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
-  out.pair_tried = true;
-  // Starts, in turn, until a fit explains the sample to the noise: the given pair; the single
-  // contact and a single fit of what it leaves (greedy); the single contact split along 4
-  // directions. The best fit is kept. Each start: (u, v, depth, shear u, shear v) a contact.
+  bool& tried = K == 2 ? out.pair_tried : out.triple_tried;
+  int& iterations = K == 2 ? out.pair_iterations : out.triple_iterations;
+  tried = true;
+  // Starts, in turn, until a fit explains the sample to the noise: the given contacts; the kept
+  // ones and a single fit of what they leave (greedy); each kept one split along 4 directions.
+  // The best fit is kept. Each start: (u, v, depth, shear u, shear v) a contact.
+  using Start = std::array<std::array<double, 5>, K>;
+  auto row_of = [](const ContactEstimate& e) {
+    return std::array<double, 5>{e.u_mm, e.v_mm, e.depth_mm, e.shear_u_n, e.shear_v_n};
+  };
   LeanFit<N> best;
-  auto try_start = [&](const double(&x)[2][5]) {
+  auto try_start = [&](const Start& x, const double* ambient) {
     typename LeanFit<N>::LeanVec x0;
-    for (int j = 0; j < 2; ++j) {
-      for (int k = 0; k < pc; ++k) x0(j * pc + k) = x[j][k];
+    for (int j = 0; j < K; ++j) {
+      for (int k = 0; k < pc; ++k) x0(j * pc + k) = x[static_cast<std::size_t>(j)][k];
     }
-    for (int k = 0; k < 3; ++k) x0(l.ambient_at() + k) = out.single.ambient_ut[k];
+    for (int k = 0; k < 3; ++k) x0(l.ambient_at() + k) = ambient[k];
     LeanFit<N> fit = lean_fit<N>(model_, options_, in, ambient_jac_.data(), l, x0);
-    out.pair_iterations += fit.iterations;
+    iterations += fit.iterations;
     if (std::isfinite(fit.cost) && fit.cost < best.cost) best = fit;
     return best.cost / (usable - unknowns) <= count.max_reduced_chi2;
   };
   bool done = false;
-  if (pair_start != nullptr) {
-    const ContactEstimate& p = pair_start[0];
-    const ContactEstimate& q = pair_start[1];
-    const double x[2][5] = {{p.u_mm, p.v_mm, p.depth_mm, p.shear_u_n, p.shear_v_n},
-                            {q.u_mm, q.v_mm, q.depth_mm, q.shear_u_n, q.shear_v_n}};
-    done = try_start(x);
+  bool only_given = false;
+  if (previous.size() >= static_cast<std::size_t>(K)) {
+    // The given contacts, the deepest K of them; with more given than K, the next count follows
+    // from them and this one is fitted from them alone.
+    int order[kMaxContacts];
+    const int given = static_cast<int>(previous.size());
+    for (int j = 0; j < given; ++j) {  // by depth, deepest first (at most 3: insertion)
+      int at = j;
+      for (; at > 0 && previous[order[at - 1]].depth_mm < previous[j].depth_mm; --at) {
+        order[at] = order[at - 1];
+      }
+      order[at] = j;
+    }
+    Start x;
+    for (int j = 0; j < K; ++j) x[static_cast<std::size_t>(j)] = row_of(previous[order[j]]);
+    done = try_start(x, base.ambient_ut);
+    only_given = given > K;
   }
-  // From a single contact and its ambient: the greedy start (it and a single fit of what it
-  // leaves), then it split along 4 directions.
-  auto starts_from = [&](const ContactEstimate& base, const double(&ambient)[3]) {
+  // From kept contacts and their ambient: the greedy start (them and a single fit of what they
+  // leave), then each split along 4 directions.
+  auto starts_from = [&](const ContactEstimate* kept_in, const double(&ambient)[3]) {
+    sim::Contact kept[kMaxContacts];
+    for (int j = 0; j < K - 1; ++j) {
+      kept[j] = sim::Contact{kept_in[j].u_mm, kept_in[j].v_mm, kept_in[j].depth_mm,
+                             options_.tip_radius_mm};
+      kept[j].shear_u_n = kept_in[j].shear_u_n;  // 0 unless the fit had the shear
+      kept[j].shear_v_n = kept_in[j].shear_v_n;
+    }
     double f1[kMaxChannels];
-    sim::Contact c1{base.u_mm, base.v_mm, base.depth_mm, options_.tip_radius_mm};
-    c1.shear_u_n = base.shear_u_n;  // 0 unless the fit had the shear
-    c1.shear_v_n = base.shear_v_n;
-    model_.contact_field_ut(std::span<const sim::Contact>(&c1, 1),
+    model_.contact_field_ut(std::span<const sim::Contact>(kept, K - 1),
                             std::span<double>(f1, static_cast<std::size_t>(nc)));
     double rest[kMaxChannels];
     for (int i = 0; i < nc; ++i) {
       const double* a = ambient_jac_.data() + 3 * i;
       rest[i] = y[i] - f1[i] - (a[0] * ambient[0] + a[1] * ambient[1] + a[2] * ambient[2]);
     }
-    const PhysicsEstimate second =
+    const PhysicsEstimate next =
         estimate(std::span<const double>(rest, static_cast<std::size_t>(nc)),
                  std::span<const uint8_t>(ok, static_cast<std::size_t>(nc)));
-    if (second.contact.valid()) {
-      const ContactEstimate& t = second.contact;
-      const double x[2][5] = {{base.u_mm, base.v_mm, base.depth_mm, base.shear_u_n, base.shear_v_n},
-                              {t.u_mm, t.v_mm, t.depth_mm, t.shear_u_n, t.shear_v_n}};
-      if (try_start(x)) return true;
+    Start x;
+    for (int j = 0; j < K - 1; ++j) x[static_cast<std::size_t>(j)] = row_of(kept_in[j]);
+    if (next.contact.valid()) {
+      x[K - 1] = row_of(next.contact);
+      if (try_start(x, ambient)) return true;
     }
-    for (double deg : {0.0, 45.0, 90.0, 135.0}) {
-      const double du = count.start_offset_mm * std::cos(deg * M_PI / 180);
-      const double dv = count.start_offset_mm * std::sin(deg * M_PI / 180);
-      const double x[2][5] = {{base.u_mm + du, base.v_mm + dv, base.depth_mm, 0, 0},
-                              {base.u_mm - du, base.v_mm - dv, base.depth_mm, 0, 0}};
-      if (try_start(x)) return true;
+    for (int split = 0; split < K - 1; ++split) {
+      for (double deg : {0.0, 45.0, 90.0, 135.0}) {
+        const double du = count.start_offset_mm * std::cos(deg * M_PI / 180);
+        const double dv = count.start_offset_mm * std::sin(deg * M_PI / 180);
+        const ContactEstimate& b = kept_in[split];
+        Start xs;
+        for (int j = 0, o = 0; j < K - 1; ++j) {
+          if (j != split) xs[static_cast<std::size_t>(o++)] = row_of(kept_in[j]);
+        }
+        xs[K - 2] = {b.u_mm + du, b.v_mm + dv, b.depth_mm, 0, 0};
+        xs[K - 1] = {b.u_mm - du, b.v_mm - dv, b.depth_mm, 0, 0};
+        if (try_start(xs, ambient)) return true;
+      }
     }
     return false;
   };
-  if (!done && !nothing) done = starts_from(one, out.single.ambient_ut);
-  if constexpr (N == 13) {
+  if (!done && !only_given && base.count == K - 1)
+    done = starts_from(base.contacts, base.ambient_ut);
+  if constexpr (Shear && K == 2) {
     // A single fit with the shear can sit between two presses (the shear absorbing the
     // difference); the same starts from the single fit without it.
-    if (!done && !nothing) {
-      ContactEstimate from = one;
+    if (!done && !only_given && base.count == 1) {
+      ContactEstimate from = base.contacts[0];
       from.shear_u_n = from.shear_v_n = 0;
       PhysicsEstimate e;
       refine_lean<6>(model_, options_, in, ambient_jac_.data(), from, &e);
       if (e.contact.valid() && !(e.contact.flags & kEstimateNoContact)) {
-        done = starts_from(e.contact, e.ambient_ut);
+        done = starts_from(&e.contact, e.ambient_ut);
       }
     }
   }
   if (!std::isfinite(best.cost)) return out;
   if (!best.converged) {
-    // Still moving after max_iterations (13 unknowns take longer): once more from there.
+    // Still moving after max_iterations (more unknowns take longer): once more from there.
     LeanFit<N> more = lean_fit<N>(model_, options_, in, ambient_jac_.data(), l, best.x);
-    out.pair_iterations += more.iterations;
+    iterations += more.iterations;
     if (std::isfinite(more.cost) && more.cost <= best.cost) best = more;
   }
-  out.pair_chi2 = best.cost;
-  out.pair_reduced_chi2 = out.pair_chi2 / (usable - unknowns);
-  const double separation = std::hypot(best.x(0) - best.x(pc), best.x(1) - best.x(pc + 1));
-  // The information criterion's price: min_chi2_drop for the 3 unknowns a contact adds, 5 with
-  // its shear.
-  const double drop = count.min_chi2_drop * (pc / 3.0);
-  const bool split = out.pair_reduced_chi2 <= count.max_reduced_chi2 &&
-                     out.single.reduced_chi2 >= count.min_improvement * out.pair_reduced_chi2 &&
-                     out.single.chi2 - out.pair_chi2 >= drop &&
-                     separation >= count.min_separation_mm && best.x(2) >= count.min_depth_mm &&
-                     best.x(pc + 2) >= count.min_depth_mm;
-  if (!split) return out;
-  out.count = 2;
-  for (int k = 0; k < 2; ++k) {
-    ContactEstimate& e = out.contacts[k];
+  const double chi2 = best.cost;
+  const double reduced = chi2 / (usable - unknowns);
+  (K == 2 ? out.pair_chi2 : out.triple_chi2) = chi2;
+  (K == 2 ? out.pair_reduced_chi2 : out.triple_reduced_chi2) = reduced;
+  fitted->count = K;
+  fitted->chi2 = chi2;
+  fitted->reduced_chi2 = reduced;
+  for (int k = 0; k < 3; ++k) fitted->ambient_ut[k] = best.x(l.ambient_at() + k);
+  for (int k = 0; k < K; ++k) {
+    ContactEstimate& e = fitted->contacts[k];
     e = ContactEstimate{};
     const int o = k * pc;
     e.u_mm = best.x(o);
@@ -933,15 +984,36 @@ ContactCountEstimate PhysicsEstimator::count_pair(std::span<const double> field_
       e.shear_v_n = best.x(o + 4);
     }
     e.force_n = model_.force_n(e.depth_mm);
-    e.flags = one.flags & kEstimateMasked;
+    e.flags = out.single.contact.flags & kEstimateMasked;
     if (!best.converged) e.flags |= kEstimateNotConverged;
     flag_range(e, half_u, half_v, model_.max_depth_mm());
+  }
+  // Kept only when better than both the fit of one fewer (kept or not) and the single fit by the
+  // information criterion's price (min_chi2_drop for the 3 unknowns a contact adds, 5 with its
+  // shear) and min_improvement.
+  const double drop = count.min_chi2_drop * (pc / 3.0);
+  bool split = reduced <= count.max_reduced_chi2 &&
+               base.reduced_chi2 >= count.min_improvement * reduced && base.chi2 - chi2 >= drop &&
+               out.single.reduced_chi2 >= count.min_improvement * reduced &&
+               out.single.chi2 - chi2 >= drop * (K - 1);
+  for (int j = 0; j < K && split; ++j) {
+    split = best.x(j * pc + 2) >= count.min_depth_mm;
+    for (int i = 0; i < j && split; ++i) {
+      split = std::hypot(best.x(j * pc) - best.x(i * pc),
+                         best.x(j * pc + 1) - best.x(i * pc + 1)) >= count.min_separation_mm;
+    }
+  }
+  if (!split) return out;
+  out.count = K;
+  std::copy(fitted->ambient_ut, fitted->ambient_ut + 3, out.ambient_ut);
+  for (int k = 0; k < K; ++k) {
+    out.contacts[k] = fitted->contacts[k];
     out.sigma_uv_mm[k] = std::numeric_limits<double>::quiet_NaN();
     out.sigma_shear_n[k] = std::numeric_limits<double>::quiet_NaN();
     double sigma_depth = 0;
     if (options_.covariance) {
-      lean_sigmas(best.jtj, l, options_.fit_ambient, out.pair_reduced_chi2, k, &out.sigma_uv_mm[k],
-                  &sigma_depth, l.shear ? &out.sigma_shear_n[k] : nullptr);
+      lean_sigmas(best.jtj, l, options_.fit_ambient, reduced, k, &out.sigma_uv_mm[k], &sigma_depth,
+                  l.shear ? &out.sigma_shear_n[k] : nullptr);
     }
   }
   return out;

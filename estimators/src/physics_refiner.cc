@@ -1,5 +1,7 @@
 #include "skinbus/estimators/physics_refiner.h"
 
+#include <string>
+
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/unit_parameters.h"
 
@@ -25,24 +27,27 @@ class PhysicsRefiner : public ContactRefiner {
     const PhysicsEstimate single = estimator_.refine_lm(field_ut, channel_ok, start);
     out.contacts[0] = from(single);
     out.single_reduced_chi2 = single.reduced_chi2;
-    const bool pair_known = previous.size() == 2;
+    const bool known = previous.size() >= 2;  // the previous sample's contacts (2 or 3)
     if (options_.max_contacts < 2 || !single.contact.valid() ||
         !(single.reduced_chi2 > options_.count.try_ratio) ||
-        (!pair_known && !(single.reduced_chi2 > search_above_chi2))) {
+        (!known && !(single.reduced_chi2 > search_above_chi2))) {
       return out;
     }
-    out.searched = !pair_known;
+    out.searched = !known;
+    ContactCountOptions count = options_.count;
+    count.max_contacts = options_.max_contacts;
     const ContactCountEstimate c = estimator_.count_contacts(
-        field_ut, channel_ok, single, options_.count, pair_known ? previous.data() : nullptr);
-    if (c.count != 2) return out;
-    out.count = 2;
-    for (int k = 0; k < 2; ++k) {
+        field_ut, channel_ok, single, count, known ? previous : std::span<const ContactEstimate>{});
+    if (c.count < 2) return out;
+    out.count = c.count;
+    const double reduced = c.count == 3 ? c.triple_reduced_chi2 : c.pair_reduced_chi2;
+    for (int k = 0; k < c.count; ++k) {
       RefinedEstimate& r = out.contacts[k];
       r = RefinedEstimate{};
       r.contact = c.contacts[k];
       r.sigma_uv_mm = c.sigma_uv_mm[k];
       r.sigma_shear_n = c.sigma_shear_n[k];  // NaN unless the fit had the shear
-      r.reduced_chi2 = c.pair_reduced_chi2;
+      r.reduced_chi2 = reduced;
     }
     return out;
   }
@@ -65,8 +70,9 @@ class PhysicsRefiner : public ContactRefiner {
 
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const sim::PatchModel& model,
                                                              const RefinerOptions& options) {
-  if (options.max_contacts < 1 || options.max_contacts > 2) {
-    return make_error(ErrorCode::kInvalidArgument, "physics refiner: max_contacts must be 1 or 2");
+  if (options.max_contacts < 1 || options.max_contacts > kMaxContacts) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "physics refiner: max_contacts must be 1 to " + std::to_string(kMaxContacts));
   }
   PhysicsOptions po = options.physics;
   po.covariance = true;

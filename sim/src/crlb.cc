@@ -199,44 +199,68 @@ CrlbPairShear crlb_pair_shear_at(const PatchModel& model, const Contact& first,
   return out;
 }
 
-CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
-                      double noise_xy_ut, double noise_z_ut, bool ambient) {
-  const int nc = model.channel_count();
-  const int np = ambient ? 9 : 6;
-  CrlbPair pair;
-  const double inputs[] = {first.u_mm,  first.v_mm,      first.depth_mm, second.u_mm,
-                           second.v_mm, second.depth_mm, noise_xy_ut,    noise_z_ut};
-  for (double x : inputs) {
-    if (!std::isfinite(x)) {
-      pair.first = point_from_inverse(nullptr, np, 0, false);
-      pair.second = pair.first;
-      return pair;
-    }
-  }
-  // d field / d (u1, v1, d1, u2, v2, d2) by central differences on the superposed field.
-  constexpr double kStepMm = 1e-4;
-  std::vector<double> jac(static_cast<std::size_t>(nc) * 6), plus(nc), minus(nc);
-  for (int k = 0; k < 6; ++k) {
-    Contact c[2][2] = {{first, second}, {first, second}};
-    for (int side = 0; side < 2; ++side) {
-      Contact& moved = c[side][k / 3];
-      double* x = k % 3 == 0 ? &moved.u_mm : k % 3 == 1 ? &moved.v_mm : &moved.depth_mm;
-      *x += side == 0 ? kStepMm : -kStepMm;
-    }
-    model.contact_field_ut(std::span<const Contact>(c[0], 2), plus);
-    model.contact_field_ut(std::span<const Contact>(c[1], 2), minus);
-    for (int i = 0; i < nc; ++i) jac[6 * i + k] = (plus[i] - minus[i]) / (2 * kStepMm);
+namespace {
+
+// crlb_contacts_at() for K / 3 contacts (dual numbers over their K unknowns).
+template <int K>
+void contacts_bound(const PatchModel& model, std::span<const Contact> contacts, double noise_xy_ut,
+                    double noise_z_ut, bool ambient, std::span<CrlbPoint> out) {
+  constexpr int n = K / 3;
+  const int np = ambient ? K + 3 : K;
+  using D = Dual<K>;
+  ContactT<D> cd[n];
+  for (int j = 0; j < n; ++j) {
+    const Contact& c = contacts[static_cast<std::size_t>(j)];
+    cd[j] = {D::variable(c.u_mm, 3 * j),
+             D::variable(c.v_mm, 3 * j + 1),
+             D::variable(c.depth_mm, 3 * j + 2),
+             c.tip_radius_mm,
+             c.shear_u_n,
+             c.shear_v_n};
   }
   double fisher[kInvertSmallMax * kInvertSmallMax];
-  fisher_information(model, jac, 6, noise_xy_ut, noise_z_ut, ambient, fisher);
-  const bool ok = invert_small(fisher, np);
-  pair.first = point_from_inverse(fisher, np, 0, ok);
-  pair.second = point_from_inverse(fisher, np, 3, ok);
-  if (!pair.first.identifiable || !pair.second.identifiable) {
-    pair.first = point_from_inverse(nullptr, np, 0, false);  // one is not there: neither is told
-    pair.second = pair.first;
+  const bool ok = inverse_fisher_of<K>(model, cd, n, noise_xy_ut, noise_z_ut, ambient, fisher);
+  bool all = true;
+  for (int j = 0; j < n; ++j) {
+    out[static_cast<std::size_t>(j)] = point_from_inverse(fisher, np, 3 * j, ok);
+    all = all && out[static_cast<std::size_t>(j)].identifiable;
   }
-  return pair;
+  if (!all) {  // one is not there: none is told
+    for (int j = 0; j < n; ++j) {
+      out[static_cast<std::size_t>(j)] = point_from_inverse(nullptr, np, 0, false);
+    }
+  }
+}
+
+}  // namespace
+
+void crlb_contacts_at(const PatchModel& model, std::span<const Contact> contacts,
+                      double noise_xy_ut, double noise_z_ut, bool ambient,
+                      std::span<CrlbPoint> out) {
+  const std::size_t n = contacts.size();
+  bool finite = std::isfinite(noise_xy_ut) && std::isfinite(noise_z_ut);
+  for (const Contact& c : contacts) {
+    for (double x : {c.u_mm, c.v_mm, c.depth_mm, c.tip_radius_mm, c.shear_u_n, c.shear_v_n}) {
+      finite = finite && std::isfinite(x);
+    }
+  }
+  if (n < 1 || n > static_cast<std::size_t>(kCrlbMaxContacts) || out.size() < n || !finite) {
+    for (CrlbPoint& p : out.first(std::min(n, out.size()))) {
+      p = point_from_inverse(nullptr, 0, 0, false);
+    }
+    return;
+  }
+  if (n == 1) contacts_bound<3>(model, contacts, noise_xy_ut, noise_z_ut, ambient, out);
+  if (n == 2) contacts_bound<6>(model, contacts, noise_xy_ut, noise_z_ut, ambient, out);
+  if (n == 3) contacts_bound<9>(model, contacts, noise_xy_ut, noise_z_ut, ambient, out);
+}
+
+CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
+                      double noise_xy_ut, double noise_z_ut, bool ambient) {
+  const Contact both[2] = {first, second};
+  CrlbPoint out[2];
+  crlb_contacts_at(model, both, noise_xy_ut, noise_z_ut, ambient, out);
+  return {out[0], out[1]};
 }
 
 }  // namespace skinbus::sim

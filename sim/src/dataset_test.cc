@@ -287,6 +287,43 @@ TEST(CrlbTest, TwoContactsCostMoreTheCloserTheyAreAndCoincidentOnesHaveNoBound) 
   EXPECT_FALSE(off.first.identifiable);
 }
 
+TEST(CrlbTest, ThreeContactsCostEachOtherAndCoincidentOnesHaveNoBound) {
+  const PatchModel m = *PatchModel::nominal(PatchDesign{});
+  // One contact: the single bound; two: the pair's (the same Fisher information, exact Jacobian).
+  const Contact a{-30, -20, 2, 5}, b{30, -20, 3, 5}, c{0, 35, 2.5, 5};
+  CrlbPoint out[3];
+  crlb_contacts_at(m, std::span<const Contact>(&a, 1), 0.8, 1.3, true, out);
+  EXPECT_NEAR(out[0].sd_xy_mm / crlb_at(m, a, 0.8, 1.3, true).sd_xy_mm, 1, 1e-6);
+  const Contact ab[2] = {a, b}, abc[3] = {a, b, c};
+  crlb_contacts_at(m, ab, 0.8, 1.3, true, out);
+  const CrlbPoint pair_a = out[0];
+  crlb_contacts_at(m, abc, 0.8, 1.3, true, out);
+  for (const CrlbPoint& p : out) ASSERT_TRUE(p.identifiable);
+  // A third press can only cost the first two, and a closer one costs more.
+  EXPECT_GE(out[0].sd_xy_mm, pair_a.sd_xy_mm * (1 - 1e-9));
+  const double far = out[0].sd_xy_mm;
+  const Contact closer[3] = {a, b, {-15, -5, 2.5, 5}};
+  crlb_contacts_at(m, closer, 0.8, 1.3, true, out);
+  EXPECT_GT(out[0].sd_xy_mm, far);
+  // Two of the three at one place: no bound for any, never NaN; nor for bad input.
+  const Contact same[3] = {a, b, b};
+  crlb_contacts_at(m, same, 0.8, 1.3, true, out);
+  for (const CrlbPoint& p : out) {
+    EXPECT_FALSE(p.identifiable);
+    EXPECT_EQ(p.sd_xy_mm, kUnidentifiableMm);
+  }
+  const Contact bad[3] = {a, b, {0, std::nan(""), 2, 5}};
+  crlb_contacts_at(m, bad, 0.8, 1.3, true, out);
+  EXPECT_FALSE(out[2].identifiable);
+  EXPECT_EQ(out[0].sd_depth_mm, kUnidentifiableMm);
+  const Contact four[4] = {a, b, c, c};
+  CrlbPoint out4[4];
+  crlb_contacts_at(m, four, 0.8, 1.3, true, out4);  // more than kCrlbMaxContacts
+  for (const CrlbPoint& p : out4) EXPECT_FALSE(p.identifiable);
+  crlb_contacts_at(m, abc, 0.8, 1.3, true, std::span<CrlbPoint>(out, 2));  // `out` too short
+  EXPECT_FALSE(out[0].identifiable);
+}
+
 TEST(CrlbTest, ShearBoundScalesWithNoiseAndStiffnessAndCostsThePosition) {
   PatchDesign design;
   const PatchModel m = *PatchModel::nominal(design);

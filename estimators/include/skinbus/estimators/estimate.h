@@ -59,6 +59,9 @@ constexpr const char* reject_reason_name(RejectReason r) {
   return "unknown";
 }
 
+// The most contacts one sample of one patch is resolved into (PhysicsEstimator::count_contacts).
+inline constexpr int kMaxContacts = 3;
+
 struct ContactEstimate {
   double u_mm = 0, v_mm = 0, depth_mm = 0, force_n = 0;
   uint32_t flags = kEstimateOk;

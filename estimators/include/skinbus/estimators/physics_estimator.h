@@ -97,22 +97,23 @@ struct PhysicsEstimate {
   double sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
 };
 
-// How many contacts a sample holds (0, 1 or 2) and where: PhysicsEstimator::estimate_contacts().
-// A second contact is fitted only when the single fit leaves more than noise
-// (reduced chi-square above `try_ratio`), by Levenberg-Marquardt over both contacts' (u, v,
-// depth) and the ambient offset, started from the single contact and a single fit of what it
-// leaves, then from the single contact split `start_offset_mm` each way along 4 directions
-// (the best of the starts is kept); it is kept only when it explains the sample to near the noise
-// (reduced chi-square <= `max_reduced_chi2`), lowers the chi-square by at least `min_chi2_drop`
-// (noise units; 3 ln(48) = 11.6 is the Bayesian information criterion's price of 3 more
-// unknowns on 48 channels), improves the reduced chi-square `min_improvement` times, and its
-// contacts are at least `min_separation_mm` apart and `min_depth_mm` deep. A model mismatch the
-// single fit cannot absorb must not become a second press: 3 more unknowns absorb much of a
-// mismatch too (a single press on a unit outside the model class, fitted at 2-20x the noise,
-// is fitted near the noise by two: improvements up to 15x seen in ~1000 such presses), so the
-// improvement asked is larger than a mismatch gives; 97 % of two presses 30 mm apart give more
-// (docs/benchmarks/two_contacts.md).
+// How many contacts a sample holds (0 to max_contacts, at most kMaxContacts) and where:
+// PhysicsEstimator::estimate_contacts(). One more contact is fitted only when the fit of one
+// fewer leaves more than noise (reduced chi-square above `try_ratio`), by Levenberg-Marquardt
+// over every contact's (u, v, depth) and the ambient offset, started from the fewer contacts and
+// a single fit of what they leave, then from each of them split `start_offset_mm` each way along
+// 4 directions (the best of the starts is kept); it is kept only when it explains the sample to
+// near the noise (reduced chi-square <= `max_reduced_chi2`), lowers the chi-square by at least
+// `min_chi2_drop` (noise units; 3 ln(48) = 11.6 is the Bayesian information criterion's price of
+// 3 more unknowns on 48 channels), improves the reduced chi-square `min_improvement` times, and
+// its contacts are each at least `min_separation_mm` from the others and `min_depth_mm` deep. A
+// model mismatch the fewer contacts cannot absorb must not become one more press: 3 more unknowns
+// absorb much of a mismatch too (a single press on a unit outside the model class, fitted at
+// 2-20x the noise, is fitted near the noise by two: improvements up to 15x seen in ~1000 such
+// presses), so the improvement asked is larger than a mismatch gives; 97 % of two presses 30 mm
+// apart give more (docs/benchmarks/two_contacts.md; three: docs/benchmarks/three_contacts.md).
 struct ContactCountOptions {
+  int max_contacts = 2;  // 1 to kMaxContacts
   double try_ratio = 1.5;
   double max_reduced_chi2 = 1.6;
   double min_chi2_drop = 11.6;
@@ -123,21 +124,28 @@ struct ContactCountOptions {
 };
 
 struct ContactCountEstimate {
-  int count = 0;                // contacts in the sample: 0, 1 or 2
-  ContactEstimate contacts[2];  // the first `count` are valid
-  // With PhysicsOptions::covariance: each contact's radial 1-sigma (the pair's from the
-  // two-contact fit's covariance), mm; NaN otherwise or when singular.
-  double sigma_uv_mm[2] = {std::numeric_limits<double>::quiet_NaN(),
-                           std::numeric_limits<double>::quiet_NaN()};
-  // With fit_shear, a pair's contacts carry each its own shear (ContactEstimate::shear_u_n,
+  int count = 0;                           // contacts in the sample: 0 to max_contacts
+  ContactEstimate contacts[kMaxContacts];  // the first `count` are valid
+  // With PhysicsOptions::covariance: each contact's radial 1-sigma (a several-contact fit's from
+  // its covariance), mm; NaN otherwise or when singular.
+  double sigma_uv_mm[kMaxContacts] = {std::numeric_limits<double>::quiet_NaN(),
+                                      std::numeric_limits<double>::quiet_NaN(),
+                                      std::numeric_limits<double>::quiet_NaN()};
+  // With fit_shear, several contacts carry each its own shear (ContactEstimate::shear_u_n,
   // shear_v_n) and, with covariance, its 1-sigma sqrt(var F_u + var F_v), N; NaN otherwise.
-  double sigma_shear_n[2] = {std::numeric_limits<double>::quiet_NaN(),
-                             std::numeric_limits<double>::quiet_NaN()};
-  PhysicsEstimate single;        // the single-contact fit (always made)
-  bool pair_tried = false;       // the two-contact fit was made
-  double pair_chi2 = 0;          // its chi-square (noise units), when tried
-  double pair_reduced_chi2 = 0;  // chi2 / (channels used - unknowns)
+  double sigma_shear_n[kMaxContacts] = {std::numeric_limits<double>::quiet_NaN(),
+                                        std::numeric_limits<double>::quiet_NaN(),
+                                        std::numeric_limits<double>::quiet_NaN()};
+  double ambient_ut[3] = {0, 0, 0};  // the kept fit's ambient offset, patch frame, uT
+  PhysicsEstimate single;            // the single-contact fit (always made)
+  bool pair_tried = false;           // the two-contact fit was made
+  double pair_chi2 = 0;              // its chi-square (noise units), when tried
+  double pair_reduced_chi2 = 0;      // chi2 / (channels used - unknowns)
   int pair_iterations = 0;
+  bool triple_tried = false;  // the three-contact fit was made (max_contacts 3, two kept)
+  double triple_chi2 = 0;
+  double triple_reduced_chi2 = 0;
+  int triple_iterations = 0;
 };
 
 class PhysicsEstimator {
@@ -171,39 +179,51 @@ class PhysicsEstimator {
   // flagged (kEstimatePoorFit), not retried. No allocation.
   PhysicsEstimate refine_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                             const ContactEstimate& start) const;
-  // The number of contacts in the sample (0, 1 or 2) and each one (ContactCountOptions). Cost:
-  // estimate(), and when the single fit leaves more than noise, a single fit of what it leaves
-  // and up to 5 two-contact solves (the lean Levenberg-Marquardt of refine_lm() over both
-  // contacts and the ambient offset; each ~2-3x a single one). With fit_shear each contact of
-  // the pair has its own shear (13 unknowns; the information criterion's drop is then
-  // min_chi2_drop x 5/3, for the 5 unknowns a sheared contact adds).
+  // The number of contacts in the sample (0 to count.max_contacts) and each one
+  // (ContactCountOptions). Cost: estimate(), and when the single fit leaves more than noise, a
+  // single fit of what it leaves and up to 5 two-contact solves (the lean Levenberg-Marquardt of
+  // refine_lm() over both contacts and the ambient offset; each ~2-3x a single one); with
+  // max_contacts 3, when the pair still leaves more than noise, up to 9 three-contact solves.
+  // With fit_shear each contact has its own shear (5 unknowns a contact; the information
+  // criterion's drop is then min_chi2_drop x 5/3).
   ContactCountEstimate estimate_contacts(std::span<const double> field_ut,
                                          std::span<const uint8_t> channel_ok = {},
                                          const ContactCountOptions& count = {}) const;
   // The same from a single-contact fit already made of this sample (`single`: estimate(),
-  // refine() or refine_lm()), and a pair to try first when given (`pair_start`: 2 contacts,
-  // e.g. the previous sample's): the host's refinement counts contacts after its own single fit
-  // and follows two presses from sample to sample at the cost of one two-contact solve. With a
-  // pair given, a single fit that found nothing (kEstimateNoContact: started between two presses,
-  // it can run off the patch) does not end the count: the pair is still tried.
+  // refine() or refine_lm()), and the contacts to try first when given (`previous`: 2 or 3, e.g.
+  // the previous sample's): the host's refinement counts contacts after its own single fit and
+  // follows several presses from sample to sample at the cost of one solve a count. With
+  // previous contacts given, a single fit that found nothing (kEstimateNoContact: started between
+  // two presses, it can run off the patch) does not end the count: they are still tried. With
+  // three given, the pair is fitted from the deepest two only (one solve), the three next.
   ContactCountEstimate count_contacts(std::span<const double> field_ut,
                                       std::span<const uint8_t> channel_ok,
                                       const PhysicsEstimate& single,
                                       const ContactCountOptions& count = {},
-                                      const ContactEstimate* pair_start = nullptr) const;
+                                      std::span<const ContactEstimate> previous = {}) const;
 
  private:
   PhysicsEstimator(const sim::PatchModel& model, const PhysicsOptions& options,
                    LookupEstimator start);
   PhysicsEstimate solve(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                         const ContactEstimate* guess) const;
-  // count_contacts()'s pair fit with N unknowns (9: no shear, 13: each contact's shear).
-  template <int N>
-  ContactCountEstimate count_pair(std::span<const double> field_ut,
+  // A fit of several contacts as count_contacts() keeps it from one count to the next, whether or
+  // not it was accepted: its contacts, ambient offset and chi-square.
+  struct CountFit {
+    int count = 0;
+    ContactEstimate contacts[kMaxContacts];
+    double ambient_ut[3] = {0, 0, 0};
+    double chi2 = 0, reduced_chi2 = 0;
+  };
+  // count_contacts()'s fit of K contacts (each with its shear when Shear) from `base` (K - 1
+  // contacts: the single fit, or the best pair fit whether kept or not), judged against it;
+  // the best fit into `fitted`.
+  template <int K, bool Shear>
+  ContactCountEstimate count_more(std::span<const double> field_ut,
                                   std::span<const uint8_t> channel_ok,
                                   const ContactCountOptions& count,
-                                  const ContactEstimate* pair_start, bool nothing,
-                                  ContactCountEstimate out) const;
+                                  std::span<const ContactEstimate> previous, const CountFit& base,
+                                  CountFit* fitted, ContactCountEstimate out) const;
   void covariance(const sim::Contact& c, const uint8_t* ok, const double* inv_sigma,
                   PhysicsEstimate* out) const;
 

@@ -15,18 +15,19 @@ namespace skinbus::estimators {
 // The refiner of the unit in `unit_path` (a unit file, sim/unit_parameters.h, as skinbus-identify
 // writes it) built on `design_path` (a design file, docs/design_file.md; empty: the built-in
 // design). `options.covariance` is set; no start table is built (a refinement starts from its
-// first estimate) unless `max_contacts` is 2. Errors name the file: kNotFound / kParse /
+// first estimate) unless `max_contacts` is 2 or more. Errors name the file: kNotFound / kParse /
 // kInvalidArgument (a unit that does not fit the design). Cost: the unit's rest field table, a
 // few milliseconds (0.1 s more with the start table).
 //
-// max_contacts 2: refine_contacts() counts the contacts of a sample whose single fit leaves more
-// than noise (PhysicsEstimator::count_contacts with `count`), trying the previous sample's pair
-// first; a pair's contacts carry the two-contact fit's reduced chi-square and uncertainties.
-// Cost: the single fit, and for a sample with two presses one two-contact solve from the previous
-// pair (about 0.5 ms), or when the pair first appears the full search (a few milliseconds).
+// max_contacts 2 or 3: refine_contacts() counts the contacts of a sample whose single fit leaves
+// more than noise (PhysicsEstimator::count_contacts with `count`, its max_contacts set to this
+// one), trying the previous sample's contacts first; several contacts carry their fit's reduced
+// chi-square and uncertainties. Cost: the single fit, and for a sample with two presses one
+// two-contact solve from the previous pair (about 0.5 ms; three presses: one solve a count), or
+// when they first appear the full search (a few milliseconds, tens with three).
 struct RefinerOptions {
   PhysicsOptions physics;
-  int max_contacts = 1;  // 1 or 2
+  int max_contacts = 1;  // 1 to kMaxContacts
   ContactCountOptions count;
 };
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& unit_path,

@@ -25,10 +25,11 @@ struct RefinedEstimate {
   double sigma_shear_n = std::numeric_limits<double>::quiet_NaN();
 };
 
-// Every contact a refiner found in one sample (refine_contacts()): the first `count` (1 or 2).
+// Every contact a refiner found in one sample (refine_contacts()): the first `count` (1 to
+// kMaxContacts).
 struct RefinedContacts {
   int count = 1;
-  RefinedEstimate contacts[2];
+  RefinedEstimate contacts[kMaxContacts];
   bool searched = false;  // a search for a second contact was made (whatever it found)
   // The single-contact fit's reduced chi-square (what decides a search), NaN if none was made.
   double single_reduced_chi2 = std::numeric_limits<double>::quiet_NaN();
@@ -44,8 +45,8 @@ class ContactRefiner {
                                  std::span<const uint8_t> channel_ok,
                                  const ContactEstimate& start) const = 0;
   // The same, for a refiner that may find more than one contact in a sample (two fingers on one
-  // patch): `previous` holds the same patch's last refined pair (2 contacts: tried first, at the
-  // cost of one two-contact solve) or nothing; without a pair, the costly search for a second
+  // patch): `previous` holds the same patch's last refined contacts (2 or 3: tried first, at the
+  // cost of one solve a count) or nothing; without them, the costly search for a second
   // contact from nothing is made only when the single fit's reduced chi-square is above
   // `search_above_chi2` as well as the refiner's own threshold (the caller rate-limits searches:
   // a unit whose physics the model lacks leaves more than noise on every sample; infinity: no

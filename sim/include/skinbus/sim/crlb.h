@@ -28,14 +28,25 @@ CrlbPoint crlb_at(const PatchModel& model, const Contact& c, double noise_xy_ut,
 
 // The bound for two simultaneous contacts (each with its own u, v, depth: 6 unknowns, 9 with the
 // ambient nuisance): what the second press costs the first, as a function of where both are.
-// The Jacobian is the superposed field's (PatchModel::contact_field_ut), by central differences
-// (h = 1e-4 mm). Two contacts that the field cannot tell apart (coincident, or one out of reach)
-// give identifiable = false and kUnidentifiableMm for both, never NaN; so do non-finite inputs.
+// The Jacobian is exact (crlb_contacts_at() with two contacts). Two contacts that the field cannot
+// tell apart (coincident, or one out of reach) give identifiable = false and kUnidentifiableMm for
+// both, never NaN; so do non-finite inputs.
 struct CrlbPair {
   CrlbPoint first, second;
 };
 CrlbPair crlb_pair_at(const PatchModel& model, const Contact& first, const Contact& second,
                       double noise_xy_ut, double noise_z_ut, bool ambient_nuisance = false);
+
+// The bound for n simultaneous contacts, 1 <= n <= kCrlbMaxContacts (each its own u, v, depth:
+// 3n unknowns, 3n + 3 with the ambient nuisance), into out[0..n): crlb_pair_at() for any count
+// (the shear is not an unknown here; each contact's is taken as given). Exact Jacobian (dual
+// numbers through the superposed field). When any contact cannot be told from the others
+// (coincident, out of reach), n is out of range, `out` is shorter than n, or an input is not
+// finite: every written point is unidentifiable (kUnidentifiableMm), never NaN.
+inline constexpr int kCrlbMaxContacts = 3;
+void crlb_contacts_at(const PatchModel& model, std::span<const Contact> contacts,
+                      double noise_xy_ut, double noise_z_ut, bool ambient_nuisance,
+                      std::span<CrlbPoint> out);
 
 // The bound for a contact with a tangential (shear) force: its (u, v, depth) and the force's
 // (F_u, F_v) all unknown (5 unknowns, 8 with the ambient nuisance), at the contact `c` with its
