@@ -99,6 +99,26 @@ void add_pairs_options(CLI::App* sub, estimators_bench::PairsBenchArgs& a) {
   sub->add_option("--csv", a.csv, "write the pairs table as CSV");
 }
 
+void add_triples_options(CLI::App* sub, estimators_bench::TriplesBenchArgs& a) {
+  sub->add_option("--sides", a.sides, "sides of the presses' equilateral triangle, mm")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--depths", a.depths, "depths of the three presses, mm")
+      ->delimiter(',')
+      ->capture_default_str();
+  sub->add_option("--trials", a.trials, "triangles per side and depth")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--other-trials", a.other_trials,
+                  "one-press and two-press samples per unit (counted three or not)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--uid", a.uid, "hardware UID of the fabricated unit")->capture_default_str();
+  sub->add_option("--seed", a.seed, "random seed of the presses and the noise")
+      ->capture_default_str();
+  sub->add_option("--csv", a.csv, "write the triples table as CSV");
+}
+
 void add_shear_options(CLI::App* sub, estimators_bench::ShearBenchArgs& a) {
   sub->add_option("--depths", a.depths, "press depths, mm")->delimiter(',')->capture_default_str();
   sub->add_option("--trials", a.trials, "presses per depth and per unit outside the model")

@@ -13,6 +13,7 @@ void add_models_options(CLI::App* sub, estimators_bench::ModelsBenchArgs& a);
 void add_cpu_options(CLI::App* sub, estimators_bench::CpuBenchArgs& a);
 void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a);
 void add_pairs_options(CLI::App* sub, estimators_bench::PairsBenchArgs& a);
+void add_triples_options(CLI::App* sub, estimators_bench::TriplesBenchArgs& a);
 void add_shear_options(CLI::App* sub, estimators_bench::ShearBenchArgs& a);
 void add_finetune_options(CLI::App* sub, estimators_bench::FinetuneBenchArgs& a);
 void add_host_options(CLI::App* sub, host_bench::HostBenchArgs& a);

@@ -97,6 +97,13 @@ int main(int argc, char** argv) {
       "their separation and depth, next to the two-contact Cramer-Rao bound; how often a single "
       "press is split, on units whose physics the model lacks");
   skinbus::tools::add_pairs_options(pairs, pa);
+  skinbus::estimators_bench::TriplesBenchArgs ta;
+  CLI::App* triples = app.add_subcommand(
+      "triples",
+      "three presses on one patch: how often the count is right and each contact's error "
+      "against their spacing and depth, next to the three-contact Cramer-Rao bound; how often "
+      "one or two presses are counted three, on units whose physics the model lacks");
+  skinbus::tools::add_triples_options(triples, ta);
   skinbus::estimators_bench::ShearBenchArgs sa;
   CLI::App* shear = app.add_subcommand(
       "shear",
@@ -137,6 +144,7 @@ int main(int argc, char** argv) {
 #endif
   if (budget->parsed()) return report(skinbus::estimators_bench::bench_budget(ba));
   if (pairs->parsed()) return report(skinbus::estimators_bench::bench_pairs(pa));
+  if (triples->parsed()) return report(skinbus::estimators_bench::bench_triples(ta));
   if (shear->parsed()) return report(skinbus::estimators_bench::bench_shear(sa));
   if (ambient->parsed()) return report(skinbus::host_bench::bench_ambient(aa));
   if (host->parsed()) return report(skinbus::host_bench::bench_host(ha));

@@ -149,7 +149,7 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
   r.get_string(p, "unit", path + ".", &out->unit);
   r.get_string(p, "design", path + ".", &out->design);
   r.get_bool(p, "refine_shear", path + ".", &out->refine_shear);
-  r.get_int(p, "max_contacts", path + ".", 1, 2, &out->max_contacts);
+  r.get_int(p, "max_contacts", path + ".", 1, 3, &out->max_contacts);
   if (const YAML::Node c = p["calibration"]) {
     out->calibration.emplace();
     parse_calibration(r, c, path + ".calibration", &*out->calibration);

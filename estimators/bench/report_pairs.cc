@@ -9,6 +9,7 @@
 #include "bench_time.h"
 #include "skinbus/common/atomic_file.h"
 #include "skinbus/common/stats.h"
+#include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/estimators_bench/reports.h"
 #include "skinbus/sim/crlb.h"
@@ -77,15 +78,12 @@ Status bench_pairs(const PairsBenchArgs& a) {
           us_warm += us_since(w0);
           warm += w.count == 2;
         }
-        const auto& c = e.contacts;
-        const double straight = std::hypot(c[0].u_mm - p[0].u_mm, c[0].v_mm - p[0].v_mm) +
-                                std::hypot(c[1].u_mm - p[1].u_mm, c[1].v_mm - p[1].v_mm);
-        const double crossed = std::hypot(c[0].u_mm - p[1].u_mm, c[0].v_mm - p[1].v_mm) +
-                               std::hypot(c[1].u_mm - p[0].u_mm, c[1].v_mm - p[0].v_mm);
+        int match[2];
+        match_contacts<Contact>(e.contacts, p, match);
         for (int k = 0; k < 2; ++k) {
-          const Contact& truth = p[straight <= crossed ? k : 1 - k];
-          err.push_back(std::hypot(c[k].u_mm - truth.u_mm, c[k].v_mm - truth.v_mm));
-          derr.push_back(std::fabs(c[k].depth_mm - truth.depth_mm));
+          const ContactEstimate& c = e.contacts[match[k]];
+          err.push_back(std::hypot(c.u_mm - p[k].u_mm, c.v_mm - p[k].v_mm));
+          derr.push_back(std::fabs(c.depth_mm - p[k].depth_mm));
         }
         const sim::CrlbPair b = sim::crlb_pair_at(*unit, p[0], p[1], noise.xy_ut, noise.z_ut, true);
         bound.insert(bound.end(), {b.first.sd_xy_mm, b.second.sd_xy_mm});

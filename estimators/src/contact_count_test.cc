@@ -4,11 +4,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <limits>
 #include <tuple>
 #include <vector>
 
 #include "skinbus/common/test_seed.h"
+#include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/rng.h"
@@ -220,26 +220,6 @@ TEST(ContactCount, AGivenPairIsTriedWhenTheSingleFitFoundNothing) {
   EXPECT_EQ(without.count, 0);
 }
 
-// Three presses apart from each other: the nearest matching of estimates to presses (any
-// order), the sum of distances least over the 6 orders.
-double matched_error(const ContactEstimate* e, const Contact* p, double* worst) {
-  const int orders[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
-  double best = std::numeric_limits<double>::infinity();
-  for (const auto& o : orders) {
-    double sum = 0, most = 0;
-    for (int k = 0; k < 3; ++k) {
-      const double d = distance(e[o[k]], p[k]);
-      sum += d;
-      most = std::max(most, d);
-    }
-    if (sum < best) {
-      best = sum;
-      *worst = most;
-    }
-  }
-  return best;
-}
-
 // Three fingers: presses at the corners of a triangle of 40 mm sides, on a fabricated unit with
 // the estimator on its own model and max_contacts 3.
 TEST(ContactCount, ThreePressesFortyMillimetresApartAreResolvedOnAFabricatedUnit) {
@@ -265,8 +245,10 @@ TEST(ContactCount, ThreePressesFortyMillimetresApartAreResolvedOnAFabricatedUnit
     two += e.count == 2;
     if (e.count != 3) continue;
     ++counted;
+    int match[3];
+    ASSERT_TRUE(match_contacts<Contact>(e.contacts, presses, match));
     double worst = 0;
-    matched_error(e.contacts, presses, &worst);
+    for (int k = 0; k < 3; ++k) worst = std::max(worst, distance(e.contacts[match[k]], presses[k]));
     if (worst < 2) ++placed;
     for (int k = 0; k < 3; ++k)
       EXPECT_TRUE(std::isfinite(e.sigma_uv_mm[k]) || !physics.options().covariance);

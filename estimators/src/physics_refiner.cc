@@ -36,8 +36,17 @@ class PhysicsRefiner : public ContactRefiner {
     out.searched = !known;
     ContactCountOptions count = options_.count;
     count.max_contacts = options_.max_contacts;
-    const ContactCountEstimate c = estimator_.count_contacts(
-        field_ut, channel_ok, single, count, known ? previous : std::span<const ContactEstimate>{});
+    // A search from nothing counts from the better of this single fit and one from the start
+    // table (started from a first estimate between several presses, the single fit can end in a
+    // poor minimum or off the patch, and the count's starts come from it).
+    PhysicsEstimate table;
+    if (!known) table = estimator_.estimate(field_ut, channel_ok);
+    const bool from_table =
+        !known && table.contact.valid() && !(table.contact.flags & kEstimateNoContact) &&
+        (!(single.chi2 <= table.chi2) || (single.contact.flags & kEstimateNoContact) != 0);
+    const ContactCountEstimate c =
+        estimator_.count_contacts(field_ut, channel_ok, from_table ? table : single, count,
+                                  known ? previous : std::span<const ContactEstimate>{});
     if (c.count < 2) return out;
     out.count = c.count;
     const double reduced = c.count == 3 ? c.triple_reduced_chi2 : c.pair_reduced_chi2;

@@ -26,6 +26,7 @@ using estimators::kEstimateDepthRange;
 using estimators::kEstimateMasked;
 using estimators::kEstimateNoContact;
 using estimators::kEstimateOutsidePatch;
+using estimators::kMaxContacts;
 using estimators::model_stem;
 using estimators::ModelMeta;
 using estimators::NetworkRuntime;
@@ -114,10 +115,11 @@ struct Aggregator::Impl {
   std::vector<std::size_t> pending_list;  // indices into pending
 
   // What the refinement of a press keeps from sample to sample (patch frame): the last refined
-  // pair, the searches for a second press, the single contact's shear. A new press starts anew.
+  // presses when several, the searches for another press, the single contact's shear. A new
+  // press starts anew.
   struct RefineMemory {
-    bool pair = false;
-    ContactEstimate pair_start[2];
+    int held = 0;  // 2 or 3: the last refined sample held that many presses, in `previous`
+    ContactEstimate previous[kMaxContacts];
     bool searched = false;
     double searched_chi2 = 0;
     int since_search = 0;
@@ -129,7 +131,7 @@ struct Aggregator::Impl {
   struct Current {
     bool used = false;
     RefineMemory refine;
-    PatchContact contacts[2];  // the first `count`: two with a refiner of max_contacts 2
+    PatchContact contacts[kMaxContacts];  // the first `count`: more than one with max_contacts 2-3
     int count = 0;
     int link = -1;         // robot link index; -1: the base frame (no robot, or unmapped)
     uint64_t time_us = 0;  // aligned sample time
@@ -177,7 +179,7 @@ struct Aggregator::Impl {
                                    now_us);
   }
   std::vector<int> link_of_placement;  // robot link index of each skin-map entry, -1: none
-  PatchContact placed[2];              // the contacts being placed
+  PatchContact placed[kMaxContacts];   // the contacts being placed
   std::vector<PatchContact> scratch_contacts;
   std::vector<BodyContact> scratch_out;
 
@@ -678,13 +680,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       }
       uint32_t flags = amb_flags[static_cast<std::size_t>(b)];
       // Physics refinement of the network's answer, within the call's budget: one contact, or
-      // with the entry's max_contacts 2, one or two.
+      // with the entry's max_contacts 2 or 3, up to that many.
       int count = 1;
-      ContactEstimate ests[2] = {est, {}};
-      double refined_sigma_mm[2] = {std::numeric_limits<double>::quiet_NaN(),
-                                    std::numeric_limits<double>::quiet_NaN()};
-      double refined_sigma_shear_n[2] = {std::numeric_limits<double>::quiet_NaN(),
-                                         std::numeric_limits<double>::quiet_NaN()};
+      ContactEstimate ests[kMaxContacts] = {est};
+      double refined_sigma_mm[kMaxContacts], refined_sigma_shear_n[kMaxContacts];
+      std::fill_n(refined_sigma_mm, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
+      std::fill_n(refined_sigma_shear_n, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
       const estimators::ContactRefiner* refiner =
           p.placement != nullptr
               ? s.refiners[static_cast<std::size_t>(p.placement - s.map->patches.data())].get()
@@ -726,7 +727,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           const estimators::RefinedContacts rc = refiner->refine_contacts(
               std::span<const double>(m.fields.data() + row, kChannels),
               std::span<const uint8_t>(m.ok.data() + row, kChannels), start,
-              std::span<const ContactEstimate>(mem.pair_start, mem.pair ? 2 : 0), search_above);
+              std::span<const ContactEstimate>(mem.previous, static_cast<std::size_t>(mem.held)),
+              search_above);
           if (rc.searched) {
             mem.searched = true;
             mem.searched_chi2 = rc.single_reduced_chi2;
@@ -739,7 +741,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
                   .count();
           refine_spent_us += us;
           s.stats.refine_us += us;
-          const int found = std::clamp(rc.count, 1, 2);
+          const int found = std::clamp(rc.count, 1, kMaxContacts);
           bool ok = true;
           for (int j = 0; j < found; ++j) {
             ok = ok && refinement_accepted(rc.contacts[j], found == 1 ? &est : nullptr, s.options);
@@ -752,11 +754,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
               refined_sigma_shear_n[j] = rc.contacts[j].sigma_shear_n;
             }
             ++s.stats.refined;
-            if (found == 2) ++s.stats.refined_pairs;
-            // What the next sample starts from: the pair (kept over unrefined samples until a
-            // refined one finds a single press), the single contact's shear.
-            mem.pair = found == 2;
-            for (int j = 0; j < found; ++j) mem.pair_start[j] = ests[j];
+            if (found >= 2) ++s.stats.refined_pairs;
+            if (found == 3) ++s.stats.refined_triples;
+            // What the next sample starts from: the presses when several (kept over unrefined
+            // samples until a refined one finds a single press), the single contact's shear.
+            mem.held = found >= 2 ? found : 0;
+            for (int j = 0; j < found; ++j) mem.previous[j] = ests[j];
             const bool shear = found == 1 && std::isfinite(refined_sigma_shear_n[0]);
             mem.shear_u_n = shear ? ests[0].shear_u_n : 0.0;
             mem.shear_v_n = shear ? ests[0].shear_v_n : 0.0;
@@ -766,10 +769,10 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           }
         }
       }
-      // Two presses held and this sample unrefined: the network's one answer would sit between
-      // them. Late, not wrong: the pair stays as last refined (at its own time) and nothing is
-      // published for this sample; the hold (contact_hold_us) bounds how long.
-      if ((flags & kContactUnrefined) != 0 && mem.pair && prev.used && prev.count == 2) {
+      // Several presses held and this sample unrefined: the network's one answer would sit
+      // between them. Late, not wrong: they stay as last refined (at their own time) and nothing
+      // is published for this sample; the hold (contact_hold_us) bounds how long.
+      if ((flags & kContactUnrefined) != 0 && mem.held >= 2 && prev.used && prev.count >= 2) {
         ++s.stats.held_pairs;
         s.estimate_outcome(p, nullptr, now_us);
         continue;

@@ -358,6 +358,77 @@ TEST_F(AggregatorRefineTest, TwoPressesEachCarryTheirOwnShear) {
   EXPECT_LT(std::sqrt(norm2 / (2 * two)), 1.6);
 }
 
+// Three fingers of a grasp on one patch (an entry with max_contacts 3): three presses at the
+// corners of a 50 mm triangle that turns as the hand does. Each is published with its own track,
+// the same from sample to sample, at the three-contact bound; when one finger lifts, two remain.
+TEST_F(AggregatorRefineTest, ThreePressesOfAGraspAreTrackedApartAndOneLifts) {
+  const uint64_t seed = 84;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  Stream stream(*unit_, options_, false, 3, seed);
+  ASSERT_TRUE(stream.ok());
+  const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit_->design());
+  uint32_t ids[3] = {0, 0, 0};
+  int samples = 0, three = 0, held = 0;
+  double err = 0, bound = 0;
+  const double r = 50 / std::sqrt(3.0);
+  auto grasp = [&](int i, sim::Contact* p) {
+    const double turn = 0.3 + 0.01 * i;  // 0.57 degrees a sample
+    for (int k = 0; k < 3; ++k) {
+      const double th = turn + k * 2 * M_PI / 3;
+      p[k] = {-5 + r * std::cos(th), 5 + r * std::sin(th), 2.2 + 0.3 * k, 5.0};
+    }
+  };
+  for (int i = 0; i < 40; ++i) {
+    sim::Contact p[3];
+    grasp(i, p);
+    ContactArray arr;
+    if (!stream.sample(p, &arr)) {
+      ++held;
+      continue;
+    }
+    ++samples;
+    if (arr.contacts.size() != 3) {
+      std::printf("sample %d: %zu contacts\n", i, arr.contacts.size());
+      continue;
+    }
+    ++three;
+    for (int k = 0; k < 3; ++k) {
+      const BodyContact& best = nearest_contact(arr, p[k]);
+      if (ids[k] == 0) ids[k] = best.track_id;
+      EXPECT_EQ(best.track_id, ids[k]) << "sample " << i << " press " << k;
+      err += std::hypot(best.u_mm - p[k].u_mm, best.v_mm - p[k].v_mm);
+    }
+    sim::CrlbPoint b[3];
+    sim::crlb_contacts_at(*unit_, p, noise.xy_ut, noise.z_ut, true, b);
+    bound += b[0].sd_xy_mm + b[1].sd_xy_mm + b[2].sd_xy_mm;
+  }
+  // The third finger lifts: two presses remain, on their tracks.
+  int after = 0, two = 0;
+  for (int i = 40; i < 55; ++i) {
+    sim::Contact p[3];
+    grasp(i, p);
+    ContactArray arr;
+    if (!stream.sample(std::span<const sim::Contact>(p, 2), &arr)) continue;
+    ++after;
+    if (arr.contacts.size() != 2) continue;
+    ++two;
+    for (int k = 0; k < 2; ++k) EXPECT_EQ(nearest_contact(arr, p[k]).track_id, ids[k]) << i;
+  }
+  const AggregatorStats st = stream.agg->stats();
+  std::printf(
+      "grasp: %d of %d publications with three contacts, XY mean error %.3f mm (mean "
+      "three-contact bound %.3f mm), %d sample(s) held unpublished; lifted: %d of %d with two; "
+      "%llu refined samples with three, %.0f us a refined sample\n",
+      three, samples, three > 0 ? err / (3 * three) : 0.0, three > 0 ? bound / (3 * three) : 0.0,
+      held, two, after, static_cast<unsigned long long>(st.refined_triples),
+      st.refine_us / static_cast<double>(st.refined));
+  EXPECT_GE(three, samples - 3);  // the first samples may find fewer while the search runs
+  EXPECT_GT(samples, 30);
+  EXPECT_LT(err / bound, 1.3);
+  EXPECT_GE(two, after - 3);
+  EXPECT_GT(after, 10);
+}
+
 // A refiner whose fits fail while `*failing` is set (a poor fit: the host then has only the
 // network's answer), the physics refiner's otherwise.
 class FailingRefiner : public estimators::ContactRefiner {

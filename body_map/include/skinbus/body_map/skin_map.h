@@ -72,10 +72,10 @@ struct PatchPlacement {
   // wrench). It costs the position precision (about 2.3x the bound without it:
   // docs/benchmarks/shear.md), so it is for patches where shear matters.
   bool refine_shear = false;
-  // How many presses the refinement looks for on this patch: 1, or 2 (two fingers; each
-  // published with its own track). A search for a second press costs a few milliseconds (made
-  // when a press's fit leaves more than noise, rate-limited), a held pair about 0.5 ms a sample
-  // (docs/aggregator.md).
+  // How many presses the refinement looks for on this patch: 1, 2 (two fingers) or 3 (a grasp;
+  // each published with its own track). A search for another press costs a few milliseconds
+  // (tens with three; made when a press's fit leaves more than noise, rate-limited), held
+  // presses about 0.5 ms a sample for two, a few for three (docs/aggregator.md).
   int max_contacts = 1;
   std::optional<PoseUncertainty> calibration;
 };

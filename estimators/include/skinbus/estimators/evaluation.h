@@ -2,7 +2,10 @@
 // for the numbers every estimator is judged by (the training tool's test metrics, the benchmark).
 #pragma once
 
+#include <algorithm>
 #include <array>
+#include <cmath>
+#include <limits>
 #include <span>
 #include <string>
 
@@ -40,5 +43,37 @@ double xy_mean_from_bin(const ErrorSummary& s, int first_bin = 2);
 // Compares `estimates` with `truth` (same length; only the common length is compared). Rejected
 // estimates are counted, not averaged. Statistics of an empty set are NaN, never 0.
 ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const Truth& truth);
+
+// Which estimate is which press, for several contacts of one sample: the order of `estimates`
+// that makes the summed in-plane distance to `presses` least (every order is tried: n! for n
+// contacts, n = presses.size() <= kMaxContacts and <= estimates.size(); otherwise false, `match`
+// untouched). match[k]: the index into `estimates` of press k's (in order when no sum is
+// finite). The summed distance, mm, into `total_mm` when given. A press: anything with u_mm and
+// v_mm (sim::Contact, a ContactEstimate).
+template <typename Press>
+bool match_contacts(std::span<const ContactEstimate> estimates, std::span<const Press> presses,
+                    std::span<int> match, double* total_mm = nullptr) {
+  const std::size_t n = presses.size();
+  if (n > static_cast<std::size_t>(kMaxContacts) || n > estimates.size() || match.size() < n) {
+    return false;
+  }
+  std::array<int, kMaxContacts> order{};
+  for (std::size_t k = 0; k < n; ++k) match[k] = order[k] = static_cast<int>(k);
+  const auto end = order.begin() + static_cast<std::ptrdiff_t>(n);
+  double best = std::numeric_limits<double>::infinity();
+  do {
+    double sum = 0;
+    for (std::size_t k = 0; k < n; ++k) {
+      const ContactEstimate& e = estimates[static_cast<std::size_t>(order[k])];
+      sum += std::hypot(e.u_mm - presses[k].u_mm, e.v_mm - presses[k].v_mm);
+    }
+    if (sum < best) {
+      best = sum;
+      std::copy(order.begin(), end, match.begin());
+    }
+  } while (std::next_permutation(order.begin(), end));
+  if (total_mm != nullptr) *total_mm = n == 0 ? 0.0 : best;
+  return true;
+}
 
 }  // namespace skinbus::estimators

@@ -107,7 +107,7 @@ struct RefinerRequest {
   // PatchPlacement::refine_shear: also fit the shear force (the refiner fills
   // RefinedEstimate::sigma_shear_n and its contact's shear, published with kContactShear).
   bool fit_shear = false;
-  // PatchPlacement::max_contacts: 2 to find two presses on the patch
+  // PatchPlacement::max_contacts: 2 or 3 to find that many presses on the patch
   // (ContactRefiner::refine_contacts; each published with its own track).
   int max_contacts = 1;
 };
@@ -199,10 +199,12 @@ struct AggregatorStats {
   // spent, or because the fit was poor (or failed); the time spent refining (us).
   uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
-  uint64_t refined_pairs = 0;       // refined samples that held two presses (max_contacts 2)
-  // Samples of a patch holding two presses that went unrefined (budget, poor fit): not published,
-  // since the network's single answer would be one contact between the presses; the pair stays
-  // as last refined, at its own time, until a sample is refined or contact_hold_us runs out.
+  uint64_t refined_pairs = 0;    // refined samples that held two or more presses (max_contacts 2-3)
+  uint64_t refined_triples = 0;  // of those, the ones that held three (max_contacts 3)
+  // Samples of a patch holding several presses that went unrefined (budget, poor fit): not
+  // published, since the network's single answer would be one contact between the presses; they
+  // stay as last refined, at their own time, until a sample is refined or contact_hold_us runs
+  // out.
   uint64_t held_pairs = 0;
   double refine_us = 0;
 };

@@ -104,6 +104,21 @@ struct PairsBenchArgs {
 
 Status bench_pairs(const PairsBenchArgs& a);
 
+// `skinbus-bench triples`: three presses on one patch: the count and each contact's error against
+// their spacing and depth (next to the three-contact bound), and how often one or two presses are
+// counted three on units whose physics the model lacks.
+struct TriplesBenchArgs {
+  std::vector<double> sides = {20, 30, 40, 50, 60};
+  std::vector<double> depths = {1, 2, 3};
+  int trials = 30;         // triangles per (side, depth)
+  int other_trials = 100;  // one- and two-press samples per unit
+  uint64_t uid = 0x5B00000000000001ull;
+  uint64_t seed = 1;
+  std::string csv;
+};
+
+Status bench_triples(const TriplesBenchArgs& a);
+
 // `skinbus-bench shear`: a contact's shear force against its Cramer-Rao bound per depth, the
 // position with and without the shear fitted, the run time, and units outside the model.
 struct ShearBenchArgs {
