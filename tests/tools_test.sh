@@ -229,6 +229,10 @@ sed 's/link: torso_link/link: chest_link/' "$work/cal/initial.yaml" >"$work/cal/
 [[ $rc == 2 ]] && grep -q "'chest_link' is not a link of robot 'skinbot'" "$work/cal/err6.txt" && ok "unknown link in the skin map" || { bad "unknown link (rc $rc)"; cat "$work/cal/err6.txt"; }
 "$bin/skinbus-bench" calibration --sessions 2 --touches 30 --noise 0.5 >"$work/bench.md" 2>/dev/null &&
   grep -q "^| 30 | 0.5 | 20 | 0 |" "$work/bench.md" && ok "skinbus-bench calibration" || { bad "skinbus-bench calibration"; cat "$work/bench.md"; }
+"$bin/skinbus-bench" triples --sides 50 --depths 2 --trials 3 --other-trials 2 \
+  --csv "$work/triples.csv" >"$work/triples.md" 2>/dev/null &&
+  grep -q "^| 50 | 2.0 | " "$work/triples.md" && grep -q "^50,2,3," "$work/triples.csv" &&
+  ok "skinbus-bench triples" || { bad "skinbus-bench triples"; cat "$work/triples.md"; }
 
 # Models: train a tiny network end to end, refuse bad input with its reason, bench it.
 mkdir -p "$work/m"

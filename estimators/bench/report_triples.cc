@@ -100,8 +100,8 @@ Status bench_triples(const TriplesBenchArgs& a) {
           100.0 * counts[1] / a.trials, e_xy, b_xy, b_xy > 0 ? e_xy / b_xy : 0.0, e_d,
           us / a.trials, n3 > 0 ? us_warm / n3 : 0.0, n3 > 0 ? 100.0 * warm / n3 : 0.0);
       char row[192];
-      std::snprintf(row, sizeof row, "%g,%g,%d,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%.1f,%.1f,%.4f\n", side,
-                    depth, a.trials, double(n3) / a.trials, double(counts[2]) / a.trials,
+      std::snprintf(row, sizeof row, "%g,%g,%d,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%.1f,%.1f,%.4f\n",
+                    side, depth, a.trials, double(n3) / a.trials, double(counts[2]) / a.trials,
                     double(counts[1]) / a.trials, e_xy, b_xy, e_d, us / a.trials,
                     n3 > 0 ? us_warm / n3 : 0.0, n3 > 0 ? double(warm) / n3 : 0.0);
       csv += row;
@@ -169,8 +169,7 @@ Status bench_triples(const TriplesBenchArgs& a) {
         tried += e.triple_tried;
       }
       std::printf("| %s | %s | %d | %d | %d | %d | %d | %.0f | %.0f |\n", c.unit, c.model, presses,
-                  a.other_trials, threes, right, tried, us2 / a.other_trials,
-                  us3 / a.other_trials);
+                  a.other_trials, threes, right, tried, us2 / a.other_trials, us3 / a.other_trials);
       std::fflush(stdout);
     }
   }

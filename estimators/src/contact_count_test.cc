@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 #include "skinbus/common/test_seed.h"
@@ -260,6 +261,61 @@ TEST(ContactCount, ThreePressesFortyMillimetresApartAreResolvedOnAFabricatedUnit
   // The same presses with max_contacts 2 (the default): never three.
   const Contact p3[3] = {{-20, -10, 3, 5}, {20, -10, 3, 5}, {0, 25, 3, 5}};
   EXPECT_LE(physics.estimate_contacts(noisy_field(unit, p3, rng)).count, 2);
+}
+
+// Three presses each dragging the skin its own way, with fit_shear (each contact's shear fitted:
+// 18 unknowns): counted three, each press's shear of the right sign.
+TEST(ContactCount, ThreeShearedPressesAreCountedWithTheirShears) {
+  const sim::PatchModel unit = sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5b0000000000002d,
+                                                           sim::FabricationVariation{})
+                                   .value();
+  PhysicsOptions o;
+  o.fit_shear = true;
+  const PhysicsEstimator physics = PhysicsEstimator::create(unit, o).value();
+  ContactCountOptions three;
+  three.max_contacts = 3;
+  sim::Rng rng(test_seed("ThreeShearedPressesAreCountedWithTheirShears"));
+  int counted = 0, signs = 0, components = 0;
+  double err2 = 0, truth2 = 0;
+  const int n = 8;
+  for (int i = 0; i < n; ++i) {
+    const double a = rng.uniform(0, M_PI), r = 50 / std::sqrt(3.0);
+    Contact presses[3];
+    for (int k = 0; k < 3; ++k) {
+      const double t = a + k * 2 * M_PI / 3;
+      presses[k] = {r * std::cos(t), r * std::sin(t), rng.uniform(2, 3.5), 5};
+      const double mag = rng.uniform(0.25, 0.4) * unit.force_n(presses[k].depth_mm);
+      const double dir = rng.uniform(0, 2 * M_PI);
+      presses[k].shear_u_n = mag * std::cos(dir);
+      presses[k].shear_v_n = mag * std::sin(dir);
+    }
+    const ContactCountEstimate e =
+        physics.estimate_contacts(noisy_field(unit, presses, rng), {}, three);
+    if (e.count != 3) continue;
+    ++counted;
+    int match[3];
+    ASSERT_TRUE(match_contacts<Contact>(e.contacts, presses, match));
+    for (int k = 0; k < 3; ++k) {
+      const ContactEstimate& c = e.contacts[match[k]];
+      for (const auto& [est, truth] : {std::pair{c.shear_u_n, presses[k].shear_u_n},
+                                       std::pair{c.shear_v_n, presses[k].shear_v_n}}) {
+        if (std::fabs(truth) > 0.3) {  // N: ~4 single-contact bounds
+          ++components;
+          signs += (est > 0) == (truth > 0);
+        }
+        err2 += (est - truth) * (est - truth);
+        truth2 += truth * truth;
+      }
+    }
+  }
+  std::printf(
+      "three sheared presses 50 mm apart: %d of %d counted three; %d of %d components of the "
+      "right sign; shear RMS error %.0f %% of the shear's RMS\n",
+      counted, n, signs, components, truth2 > 0 ? 100 * std::sqrt(err2 / truth2) : 0.0);
+  EXPECT_GE(counted, n - 2);
+  EXPECT_EQ(signs, components);
+  EXPECT_GT(components, counted);
+  EXPECT_LT(std::sqrt(err2 / truth2), 0.35);
 }
 
 // Model-order choice beyond two: two presses on units whose physics the estimator's model lacks
