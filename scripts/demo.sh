@@ -78,8 +78,9 @@ awk '/^  - node:/ {n=$3} /^    link:/ {print "   node " n " on " $2}' "$out/skin
 
 # ---- Two chest patches calibrated: their units identified from a grid of presses -------------
 # (docs/guides/calibration.md does this on a real unit.) The host then refines their contacts on
-# the identified physics: node 9 looks for two presses at once (max_contacts: 2), node 10 for the
-# shear of a sliding press (refine_shear: true). The simulated daemons' units are the fabricated
+# the identified physics: node 9 looks for two presses at once (max_contacts: 2, its count started
+# from the shipped proposer network's presses), node 10 for the shear of a sliding press
+# (refine_shear: true). The simulated daemons' units are the fabricated
 # units of their UIDs, pressed here by the simulated indentation robot.
 mkdir -p "$out/units"
 for n in 9 10; do
@@ -91,10 +92,12 @@ for n in 9 10; do
 done
 wait "${pids[@]}"
 pids=()
-awk -v units="$out/units" '
+awk -v units="$out/units" -v proposer="$src/estimators/models/nominal_proposer" '
   /^  - node:/ {n = $3}
   {print}
-  /^    model:/ && n == 9 {print "    unit: \"" units "/node9.json\"\n    max_contacts: 2"}
+  /^    model:/ && n == 9 {
+    print "    unit: \"" units "/node9.json\"\n    max_contacts: 2\n    proposer: \"" proposer "\""
+  }
   /^    model:/ && n == 10 {print "    unit: \"" units "/node10.json\"\n    refine_shear: true"}
 ' "$out/skin.yaml" >"$out/skin.yaml.tmp" && mv "$out/skin.yaml.tmp" "$out/skin.yaml"
 echo "== nodes 9 and 10 calibrated: $(grep -h '^identified' "$out"/units/node{9,10}.txt | tr '\n' ' ')"

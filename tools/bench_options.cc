@@ -116,6 +116,10 @@ void add_triples_options(CLI::App* sub, estimators_bench::TriplesBenchArgs& a) {
   sub->add_option("--uid", a.uid, "hardware UID of the fabricated unit")->capture_default_str();
   sub->add_option("--seed", a.seed, "random seed of the presses and the noise")
       ->capture_default_str();
+  a.proposer = SKINBUS_SOURCE_DIR "/estimators/models/nominal_proposer";
+  sub->add_option("--proposer", a.proposer,
+                  "proposer network (model path stem) the count also starts from; \"\": none")
+      ->capture_default_str();
   sub->add_option("--csv", a.csv, "write the triples table as CSV");
 }
 

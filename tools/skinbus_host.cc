@@ -401,6 +401,7 @@ int main(int argc, char** argv) {
         estimators::RefinerOptions ro;
         ro.physics.fit_shear = r.fit_shear;
         ro.max_contacts = r.max_contacts;
+        ro.proposer = r.proposer_path;
         return estimators::make_physics_refiner(r.unit_path, r.design_path, ro);
       };
     o.refine_budget_us = static_cast<uint64_t>(a.refine_budget_us);
@@ -540,11 +541,12 @@ int main(int argc, char** argv) {
         std::fprintf(stderr,
                      "skinbus-host: refined %" PRIu64 " (%.0f us each, %" PRIu64
                      " from the previous contact, %" PRIu64 " with two or more presses, %" PRIu64
-                     " with three), unrefined %" PRIu64 " over the budget and %" PRIu64
-                     " poor fits (%" PRIu64 " of them held several presses unpublished)\n",
+                     " with three, %" PRIu64 " counted from a proposer), unrefined %" PRIu64
+                     " over the budget and %" PRIu64 " poor fits (%" PRIu64
+                     " of them held several presses unpublished)\n",
                      s.refined, s.refined > 0 ? s.refine_us / static_cast<double>(s.refined) : 0.0,
-                     s.refine_warm_starts, s.refined_pairs, s.refined_triples, s.unrefined_budget,
-                     s.unrefined_poor_fit, s.held_pairs);
+                     s.refine_warm_starts, s.refined_pairs, s.refined_triples, s.proposed,
+                     s.unrefined_budget, s.unrefined_poor_fit, s.held_pairs);
       }
       if (out.latency_us.count() > 0) {
         std::fprintf(stderr,

@@ -68,6 +68,11 @@ TEST(SkinMap, WritesWhatItReadsBack) {
     if (i % 4 == 0) {
       p.calibration = PoseUncertainty{30, 27, 0.61, {0.1, 0.2, 0.3}, {0.01, 0.02, 0.03}, 0.4};
     }
+    if (i % 7 == 0) {  // a two- or three-press entry with its proposer
+      p.unit = "units/u.json";
+      p.max_contacts = 2 + i % 2;
+      p.proposer = "models/my proposer";
+    }
     m.patches.push_back(p);
   }
   Result<SkinMap> back = load_skin_map_text(skin_map_to_yaml(m));
@@ -84,6 +89,9 @@ TEST(SkinMap, WritesWhatItReadsBack) {
     EXPECT_EQ(a.geometry.kind, b.geometry.kind);
     EXPECT_NEAR(a.geometry.radius_mm, b.geometry.radius_mm, 1e-12);
     EXPECT_EQ(a.geometry.axis, b.geometry.axis);
+    EXPECT_EQ(a.max_contacts, b.max_contacts);
+    EXPECT_EQ(a.proposer, b.proposer);
+    EXPECT_EQ(a.unit, b.unit);
     ASSERT_EQ(a.calibration.has_value(), b.calibration.has_value());
     if (a.calibration) {
       EXPECT_EQ(b.calibration->inliers, 27);
@@ -122,6 +130,7 @@ TEST(SkinMap, ErrorsNameTheKeyAndLine) {
       {head + "    uid: 0x1\n  - node: 4\n    uid: 1\n    link: l\n    position_mm: [0, 0, 0]\n",
        "hardware UID 0x0000000000000001 is already node 3"},
       {head + "    uid: -5\n", "not a 64-bit unsigned integer"},
+      {head + "    max_contacts: 4\n", "patches[0].max_contacts (line 5)"},
       {head + "    uid: \" -5\"\n", "not a 64-bit unsigned integer"},
       // A patch farther from its link than any robot spans (its contacts would be dropped as
       // absurd downstream, silently).

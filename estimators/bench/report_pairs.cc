@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "bench_time.h"
+#include "mismatched_units.h"
 #include "skinbus/common/atomic_file.h"
 #include "skinbus/common/stats.h"
 #include "skinbus/estimators/evaluation.h"
@@ -117,22 +118,16 @@ Status bench_pairs(const PairsBenchArgs& a) {
   const sim::PatchModel nominal = sim::PatchModel::nominal(design).value();
   auto nominal_physics = PhysicsEstimator::create(nominal);
   if (!nominal_physics.ok()) return nominal_physics.error();
-  sim::PatchDesign anisotropic = design, lateral = design;
-  anisotropic.anisotropy = 0.1;
-  lateral.lateral_mm = 2.6;
   struct Case {
     const char* unit;
     const char* model;
     sim::PatchModel truth;
     const PhysicsEstimator* estimator;
   };
-  const Case cases[] = {
-      {"fabricated", "its own", *unit, &*physics},
-      {"anisotropic 0.1", "nominal design", sim::PatchModel::nominal(anisotropic).value(),
-       &*nominal_physics},
-      {"lateral 2.6 mm", "nominal design", sim::PatchModel::nominal(lateral).value(),
-       &*nominal_physics},
-  };
+  std::vector<Case> cases = {{"fabricated", "its own", *unit, &*physics}};
+  for (MismatchedUnit& m : mismatched_units(design)) {
+    cases.push_back({m.name, "nominal design", std::move(m.truth), &*nominal_physics});
+  }
   for (const Case& c : cases) {
     int splits = 0, poor = 0;
     double us_single = 0, us_count = 0;

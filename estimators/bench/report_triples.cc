@@ -3,13 +3,17 @@
 // how often one or two presses are counted three, on units whose physics the model lacks.
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "bench_time.h"
+#include "mismatched_units.h"
 #include "skinbus/common/atomic_file.h"
 #include "skinbus/common/stats.h"
+#include "skinbus/estimators/contact_proposal.h"
 #include "skinbus/estimators/evaluation.h"
+#include "skinbus/estimators/network_runtime.h"
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/estimators_bench/reports.h"
 #include "skinbus/sim/crlb.h"
@@ -20,6 +24,25 @@ namespace {
 
 using namespace skinbus::estimators;
 using sim::Contact;
+
+// The proposer's answer for one sample (its network run included in the caller's timing).
+ContactProposal propose(NetworkRuntime& proposer, const std::vector<double>& f) {
+  double out[kProposerOutputCount];
+  if (!proposer.run_outputs(f, 1, out).ok()) return {};
+  return proposal_from_outputs(out);
+}
+
+// The count started from a proposal: the single fit from its deepest contact (from the start
+// table when it proposes none), then count_contacts() trying its contacts first.
+ContactCountEstimate count_from(const PhysicsEstimator& physics, const std::vector<double>& f,
+                                const ContactProposal& p, const ContactCountOptions& count) {
+  const PhysicsEstimate single =
+      p.count >= 1 ? physics.refine_lm(f, {}, p.contacts[0]) : physics.estimate(f);
+  return physics.count_contacts(
+      f, {}, single, count,
+      p.count >= 2 ? std::span<const ContactEstimate>(p.contacts, static_cast<std::size_t>(p.count))
+                   : std::span<const ContactEstimate>{});
+}
 
 }  // namespace
 
@@ -32,11 +55,25 @@ Status bench_triples(const TriplesBenchArgs& a) {
   if (!physics.ok()) return physics.error();
   ContactCountOptions three;
   three.max_contacts = 3;
+  std::optional<NetworkRuntime> proposer;
+  if (!a.proposer.empty()) {
+    auto model = read_model(a.proposer);
+    if (!model.ok()) return model.error();
+    if (!is_proposer(model->meta)) {
+      return make_error(ErrorCode::kInvalidArgument, "--proposer " + a.proposer +
+                                                         ": not a proposer (its outputs are not " +
+                                                         "the proposer's, docs/models.md)");
+    }
+    auto rt = NetworkRuntime::create(*model);
+    if (!rt.ok()) return rt.error();
+    proposer.emplace(std::move(*rt));
+  }
   const ChannelNoise noise = ChannelNoise::of(design);
   sim::Rng rng(a.seed);
   std::string csv =
       "side_mm,depth_mm,trials,count3_rate,count2_rate,count1_rate,xy_error_mm,crlb_xy_mm,"
-      "depth_error_mm,us_per_sample,us_next_sample,next_count3_rate\n";
+      "depth_error_mm,us_per_sample,us_next_sample,next_count3_rate,proposer_count3_rate,"
+      "proposed_count3_rate,us_per_sample_proposed\n";
   std::printf(
       "Three presses of the same depth (5 mm tips) at the corners of an equilateral triangle of "
       "the given side, its centre uniform within +-10 mm and turned at random, on a fabricated "
@@ -45,18 +82,23 @@ Status bench_triples(const TriplesBenchArgs& a) {
       "three (each estimate matched to its press); CRLB: the three-contact bound at the same "
       "places (mean). us / sample: the count from nothing (estimate_contacts); us / next sample: "
       "the host's path on a second sample of the same presses (refine_lm from the first contact, "
-      "then count_contacts from these three), and how often it counts three again.\n\n",
-      static_cast<unsigned long long>(a.uid), a.trials, static_cast<unsigned long long>(a.seed));
+      "then count_contacts from these three), and how often it counts three again.%s\n\n",
+      static_cast<unsigned long long>(a.uid), a.trials, static_cast<unsigned long long>(a.seed),
+      proposer ? " Proposer: the network's own count (three); proposed: the count started from "
+                 "its answer (the single fit from its deepest contact, then count_contacts from "
+                 "its contacts), counted three and its time, the network's run included."
+               : "");
   std::printf(
       "| side (mm) | depth (mm) | counted 3 | counted 2 | counted 1 | XY error (mm) | CRLB (mm) | "
-      "x CRLB | depth error (mm) | us / sample | us / next sample | next counted 3 "
-      "|\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+      "x CRLB | depth error (mm) | us / sample | us / next sample | next counted 3 | proposer: "
+      "3 | proposed: counted 3 | us / sample, proposed "
+      "|\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
   for (double side : a.sides) {
     for (double depth : a.depths) {
       int counts[kMaxContacts + 1] = {};
       std::vector<double> err, bound, derr;
-      double us = 0, us_warm = 0;
-      int warm = 0;
+      double us = 0, us_warm = 0, us_proposed = 0;
+      int warm = 0, proposer_three = 0, proposed_three = 0;
       for (int t = 0; t < a.trials; ++t) {
         const double mu = rng.uniform(-10, 10), mv = rng.uniform(-10, 10);
         const double turn = rng.uniform(0, 2 * M_PI), r = side / std::sqrt(3.0);
@@ -70,6 +112,14 @@ Status bench_triples(const TriplesBenchArgs& a) {
         const ContactCountEstimate e = physics->estimate_contacts(f, {}, three);
         us += us_since(t0);
         ++counts[e.count];
+        if (proposer) {
+          const auto p0 = Clock::now();
+          const ContactProposal prop = propose(*proposer, f);
+          const ContactCountEstimate pe = count_from(*physics, f, prop, three);
+          us_proposed += us_since(p0);
+          proposer_three += prop.count == 3;
+          proposed_three += pe.count == 3;
+        }
         if (e.count != 3) continue;
         {
           const auto f2 = noisy_field(*unit, p, rng);
@@ -93,17 +143,22 @@ Status bench_triples(const TriplesBenchArgs& a) {
       const double e_xy = err.empty() ? 0 : mean(err), b_xy = bound.empty() ? 0 : mean(bound);
       const double e_d = derr.empty() ? 0 : mean(derr);
       const int n3 = counts[3];
+      const double pr3 = proposer ? double(proposer_three) / a.trials : 0.0;
+      const double pd3 = proposer ? double(proposed_three) / a.trials : 0.0;
+      const double us_p = proposer ? us_proposed / a.trials : 0.0;
       std::printf(
           "| %.0f | %.1f | %.0f %% | %.0f %% | %.0f %% | %.3f | %.3f | %.2f | %.3f | %.0f | %.0f | "
-          "%.0f %% |\n",
+          "%.0f %% | %.0f %% | %.0f %% | %.0f |\n",
           side, depth, 100.0 * n3 / a.trials, 100.0 * counts[2] / a.trials,
           100.0 * counts[1] / a.trials, e_xy, b_xy, b_xy > 0 ? e_xy / b_xy : 0.0, e_d,
-          us / a.trials, n3 > 0 ? us_warm / n3 : 0.0, n3 > 0 ? 100.0 * warm / n3 : 0.0);
-      char row[192];
-      std::snprintf(row, sizeof row, "%g,%g,%d,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%.1f,%.1f,%.4f\n",
-                    side, depth, a.trials, double(n3) / a.trials, double(counts[2]) / a.trials,
+          us / a.trials, n3 > 0 ? us_warm / n3 : 0.0, n3 > 0 ? 100.0 * warm / n3 : 0.0, 100 * pr3,
+          100 * pd3, us_p);
+      char row[256];
+      std::snprintf(row, sizeof row,
+                    "%g,%g,%d,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%.1f,%.1f,%.4f,%.4f,%.4f,%.1f\n", side,
+                    depth, a.trials, double(n3) / a.trials, double(counts[2]) / a.trials,
                     double(counts[1]) / a.trials, e_xy, b_xy, e_d, us / a.trials,
-                    n3 > 0 ? us_warm / n3 : 0.0, n3 > 0 ? double(warm) / n3 : 0.0);
+                    n3 > 0 ? us_warm / n3 : 0.0, n3 > 0 ? double(warm) / n3 : 0.0, pr3, pd3, us_p);
       csv += row;
       std::fflush(stdout);
     }
@@ -117,35 +172,30 @@ Status bench_triples(const TriplesBenchArgs& a) {
       "\nOne or two presses (depth uniform 1-4 mm; a pair's presses 20-60 mm apart, its midpoint "
       "within +-25 mm; a single press anywhere within +-55 mm): how often they are counted three "
       "with max_contacts 3, how often right, and the run time of the count with max_contacts 2 "
-      "and 3.\n\n"
+      "and 3.%s\n\n"
       "| unit | estimator's model | presses | samples | counted 3 | counted right | three "
-      "tried | us / sample, max 2 | us / sample, max 3 |\n|---|---|---:|---:|---:|---:|---:|---:|"
-      "---:|\n");
+      "tried | us / sample, max 2 | us / sample, max 3 | proposer right | proposed: counted 3 | "
+      "proposed: counted right |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+      proposer ? " Proposer right: the network's own count; proposed: the count started from its "
+                 "answer."
+               : "");
   const sim::PatchModel nominal = sim::PatchModel::nominal(design).value();
   auto nominal_physics = PhysicsEstimator::create(nominal);
   if (!nominal_physics.ok()) return nominal_physics.error();
-  sim::PatchDesign anisotropic = design, lateral = design;
-  anisotropic.anisotropy = 0.1;
-  lateral.lateral_mm = 2.6;
   struct Case {
     const char* unit;
     const char* model;
     sim::PatchModel truth;
     const PhysicsEstimator* estimator;
   };
-  const Case cases[] = {
-      {"fabricated", "its own", *unit, &*physics},
-      {"anisotropic 0.1", "nominal design", sim::PatchModel::nominal(anisotropic).value(),
-       &*nominal_physics},
-      {"lateral 2.6 mm", "nominal design", sim::PatchModel::nominal(lateral).value(),
-       &*nominal_physics},
-      {"fabricated (UID 7)", "nominal design",
-       sim::PatchModel::fabricated(design, 7, sim::FabricationVariation{}).value(),
-       &*nominal_physics},
-  };
+  std::vector<Case> cases = {{"fabricated", "its own", *unit, &*physics}};
+  for (MismatchedUnit& m : mismatched_units(design)) {
+    cases.push_back({m.name, "nominal design", std::move(m.truth), &*nominal_physics});
+  }
   for (const Case& c : cases) {
     for (int presses = 1; presses <= 2; ++presses) {
-      int threes = 0, right = 0, tried = 0;
+      int threes = 0, right = 0, tried = 0, proposer_right = 0, proposed_threes = 0,
+          proposed_right = 0;
       double us2 = 0, us3 = 0;
       for (int t = 0; t < a.other_trials; ++t) {
         Contact p[2];
@@ -167,9 +217,17 @@ Status bench_triples(const TriplesBenchArgs& a) {
         threes += e.count == 3;
         right += e.count == presses;
         tried += e.triple_tried;
+        if (proposer) {
+          const ContactProposal prop = propose(*proposer, f);
+          const ContactCountEstimate pe = count_from(*c.estimator, f, prop, three);
+          proposer_right += prop.count == presses;
+          proposed_threes += pe.count == 3;
+          proposed_right += pe.count == presses;
+        }
       }
-      std::printf("| %s | %s | %d | %d | %d | %d | %d | %.0f | %.0f |\n", c.unit, c.model, presses,
-                  a.other_trials, threes, right, tried, us2 / a.other_trials, us3 / a.other_trials);
+      std::printf("| %s | %s | %d | %d | %d | %d | %d | %.0f | %.0f | %d | %d | %d |\n", c.unit,
+                  c.model, presses, a.other_trials, threes, right, tried, us2 / a.other_trials,
+                  us3 / a.other_trials, proposer_right, proposed_threes, proposed_right);
       std::fflush(stdout);
     }
   }

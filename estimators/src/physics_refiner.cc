@@ -1,7 +1,13 @@
 #include "skinbus/estimators/physics_refiner.h"
 
+#include <algorithm>
+#include <memory>
+#include <mutex>
+#include <optional>
 #include <string>
 
+#include "skinbus/estimators/contact_proposal.h"
+#include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/unit_parameters.h"
 
@@ -11,8 +17,9 @@ namespace {
 
 class PhysicsRefiner : public ContactRefiner {
  public:
-  PhysicsRefiner(PhysicsEstimator estimator, const RefinerOptions& options)
-      : estimator_(std::move(estimator)), options_(options) {}
+  PhysicsRefiner(PhysicsEstimator estimator, const RefinerOptions& options,
+                 std::optional<NetworkRuntime> proposer)
+      : estimator_(std::move(estimator)), options_(options), proposer_(std::move(proposer)) {}
 
   RefinedEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& start) const override {
@@ -29,24 +36,34 @@ class PhysicsRefiner : public ContactRefiner {
     out.single_reduced_chi2 = single.reduced_chi2;
     const bool known = previous.size() >= 2;  // the previous sample's contacts (2 or 3)
     if (options_.max_contacts < 2 || !single.contact.valid() ||
-        !(single.reduced_chi2 > options_.count.try_ratio) ||
-        (!known && !(single.reduced_chi2 > search_above_chi2))) {
+        !(single.reduced_chi2 > options_.count.try_ratio)) {
       return out;
     }
-    out.searched = !known;
+    // Without previous contacts, the proposer's when it proposes several.
+    ContactProposal proposal;
+    if (!known && proposer_) proposal = propose(field_ut, channel_ok);
+    const int proposed = std::min(proposal.count, options_.max_contacts);
+    if (!known && proposed >= 2) {
+      previous =
+          std::span<const ContactEstimate>(proposal.contacts, static_cast<std::size_t>(proposed));
+      out.proposed = true;
+    } else if (!known && !(single.reduced_chi2 > search_above_chi2)) {
+      return out;
+    }
+    out.searched = !known && !out.proposed;
     ContactCountOptions count = options_.count;
     count.max_contacts = options_.max_contacts;
     // A search from nothing counts from the better of this single fit and one from the start
     // table (started from a first estimate between several presses, the single fit can end in a
     // poor minimum or off the patch, and the count's starts come from it).
     PhysicsEstimate table;
-    if (!known) table = estimator_.estimate(field_ut, channel_ok);
+    if (out.searched) table = estimator_.estimate(field_ut, channel_ok);
     const bool from_table =
-        !known && table.contact.valid() && !(table.contact.flags & kEstimateNoContact) &&
+        out.searched && table.contact.valid() && !(table.contact.flags & kEstimateNoContact) &&
         (!(single.chi2 <= table.chi2) || (single.contact.flags & kEstimateNoContact) != 0);
     const ContactCountEstimate c =
         estimator_.count_contacts(field_ut, channel_ok, from_table ? table : single, count,
-                                  known ? previous : std::span<const ContactEstimate>{});
+                                  out.searched ? std::span<const ContactEstimate>{} : previous);
     if (c.count < 2) return out;
     out.count = c.count;
     const double reduced = c.count == 3 ? c.triple_reduced_chi2 : c.pair_reduced_chi2;
@@ -62,6 +79,16 @@ class PhysicsRefiner : public ContactRefiner {
   }
 
  private:
+  // The proposer's answer for a sample (none when a channel is left out: a network cannot).
+  ContactProposal propose(std::span<const double> field_ut,
+                          std::span<const uint8_t> channel_ok) const {
+    if (std::find(channel_ok.begin(), channel_ok.end(), uint8_t{0}) != channel_ok.end()) return {};
+    double y[kProposerOutputCount];
+    const std::lock_guard<std::mutex> lock(proposer_mutex_);  // one run at a time per runtime
+    if (!proposer_->run_outputs(field_ut, 1, y).ok()) return {};
+    return proposal_from_outputs(y);
+  }
+
   RefinedEstimate from(const PhysicsEstimate& p) const {
     RefinedEstimate out;
     out.contact = p.contact;
@@ -73,6 +100,8 @@ class PhysicsRefiner : public ContactRefiner {
 
   PhysicsEstimator estimator_;
   RefinerOptions options_;
+  mutable std::optional<NetworkRuntime> proposer_;
+  mutable std::mutex proposer_mutex_;
 };
 
 }  // namespace
@@ -94,7 +123,21 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const sim::PatchMod
   }
   auto e = PhysicsEstimator::create(model, po);
   if (!e.ok()) return e.error();
-  return std::unique_ptr<ContactRefiner>(new PhysicsRefiner(std::move(*e), options));
+  std::optional<NetworkRuntime> proposer;
+  if (!options.proposer.empty()) {
+    auto m = read_model(options.proposer);
+    if (!m.ok()) return m.error();
+    if (!is_proposer(m->meta) || m->meta.channels() != model.channel_count()) {
+      return make_error(ErrorCode::kInvalidArgument,
+                        "proposer " + options.proposer + ": not a proposer for this design (its " +
+                            "outputs or channel count differ; docs/models.md)");
+    }
+    auto rt = NetworkRuntime::create(*m);
+    if (!rt.ok()) return rt.error();
+    proposer.emplace(std::move(*rt));
+  }
+  return std::unique_ptr<ContactRefiner>(
+      new PhysicsRefiner(std::move(*e), options, std::move(proposer)));
 }
 
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& unit_path,

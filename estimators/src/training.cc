@@ -4,6 +4,7 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -14,6 +15,9 @@
 #include <sstream>
 
 #include "skinbus/common/stats.h"
+#include "skinbus/estimators/contact_proposal.h"
+#include "skinbus/sim/mlx90393.h"
+#include "skinbus/sim/rng.h"
 
 namespace skinbus::estimators {
 namespace {
@@ -535,6 +539,304 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
 Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& o,
                                 const ModelFile* base) {
   return guarded("training", [&] { return train_unguarded(data, o, base); });
+}
+
+namespace {
+
+// A proposer's simulated samples: fields (rows x channels, uT), the slots' targets (rows x 3 x
+// (u, v, depth), deepest first, absent slots 0) and which are present (rows x 3), the counts.
+struct ProposerData {
+  std::vector<double> field;
+  std::vector<float> slots, present, count;
+  int rows = 0;
+};
+
+ProposerData proposer_data(const std::vector<sim::PatchModel>& units, int rows, double half_u,
+                           double half_v, const ProposerTrainOptions& o, uint64_t seed) {
+  ProposerData d;
+  const int channels = units.front().channel_count();
+  d.rows = rows;
+  d.field.reserve(static_cast<std::size_t>(rows) * static_cast<std::size_t>(channels));
+  d.slots.assign(static_cast<std::size_t>(rows) * 3 * kMaxContacts, 0.f);
+  d.present.assign(static_cast<std::size_t>(rows) * kMaxContacts, 0.f);
+  d.count.assign(static_cast<std::size_t>(rows), 0.f);
+  sim::Rng rng(seed);
+  const mlx90393::Config& config = units.front().design().sensor_config;
+  const double noise[3] = {sim::mlx90393_noise_xy_ut(config), sim::mlx90393_noise_xy_ut(config),
+                           sim::mlx90393_noise_z_ut(config)};
+  for (int r = 0; r < rows; ++r) {
+    const sim::PatchModel& unit = units[rng.next() % units.size()];
+    const int k = rng.uniform() < 0.1 ? 0 : 1 + static_cast<int>(rng.next() % kMaxContacts);
+    sim::Contact c[kMaxContacts];
+    const bool sheared = rng.uniform() < 0.5;
+    for (int j = 0; j < k; ++j) {
+      // Apart from the ones before (a few tries; the last is kept if none is far enough).
+      for (int tries = 0; tries < 20; ++tries) {
+        c[j] = {rng.uniform(-half_u + o.margin_mm, half_u - o.margin_mm),
+                rng.uniform(-half_v + o.margin_mm, half_v - o.margin_mm), rng.uniform(0.3, 4.5),
+                5.0};
+        bool apart = true;
+        for (int i = 0; i < j; ++i) {
+          apart = apart &&
+                  std::hypot(c[i].u_mm - c[j].u_mm, c[i].v_mm - c[j].v_mm) >= o.min_separation_mm;
+        }
+        if (apart) break;
+      }
+      if (sheared) {
+        const double mag = rng.uniform(0, 0.3) * unit.force_n(c[j].depth_mm);
+        const double dir = rng.uniform(0, 2 * M_PI);
+        c[j].shear_u_n = mag * std::cos(dir);
+        c[j].shear_v_n = mag * std::sin(dir);
+      }
+    }
+    std::sort(c, c + k,
+              [](const sim::Contact& a, const sim::Contact& b) { return a.depth_mm > b.depth_mm; });
+    // The contacts' field with the design's sensor noise (independent per channel).
+    const std::size_t at = d.field.size();
+    d.field.resize(at + static_cast<std::size_t>(channels));
+    const std::span<double> f(d.field.data() + at, static_cast<std::size_t>(channels));
+    unit.contact_field_ut(std::span<const sim::Contact>(c, static_cast<std::size_t>(k)), f);
+    for (int i = 0; i < channels; ++i)
+      f[static_cast<std::size_t>(i)] += noise[i % 3] * rng.normal();
+    for (int j = 0; j < k; ++j) {
+      float* t = &d.slots[(static_cast<std::size_t>(r) * kMaxContacts + j) * 3];
+      t[0] = static_cast<float>(c[j].u_mm);
+      t[1] = static_cast<float>(c[j].v_mm);
+      t[2] = static_cast<float>(c[j].depth_mm);
+      d.present[static_cast<std::size_t>(r) * kMaxContacts + j] = 1.f;
+    }
+    d.count[static_cast<std::size_t>(r)] = static_cast<float>(k);
+  }
+  return d;
+}
+
+Result<TrainResult> train_proposer_unguarded(const sim::PatchDesign& design,
+                                             const ProposerTrainOptions& o) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (o.units < 0 || o.units > 1000 || o.samples < 100 || o.validation_samples < 10 ||
+      o.max_epochs < 1 || o.batch_size < 1 || o.architecture.kind != ArchitectureKind::kMlp) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "proposer: units 0-1000, at least 100 samples and 10 validation samples, "
+                      "an MLP, at least one epoch and a batch");
+  }
+  std::vector<sim::PatchModel> units;
+  auto nominal = sim::PatchModel::nominal(design);
+  if (!nominal.ok()) return nominal.error();
+  units.push_back(std::move(*nominal));
+  for (int u = 0; u < o.units; ++u) {
+    auto f = sim::PatchModel::fabricated(design, o.seed * 1000003ull + static_cast<uint64_t>(u),
+                                         sim::FabricationVariation{});
+    if (!f.ok()) return f.error();
+    units.push_back(std::move(*f));
+  }
+  const double half_u = design.size_u_mm / 2, half_v = design.size_v_mm / 2;
+  const int channels = units.front().channel_count();
+  const ProposerData train = proposer_data(units, o.samples, half_u, half_v, o, o.seed);
+  const ProposerData val =
+      proposer_data(units, o.validation_samples, half_u, half_v, o, o.seed ^ 0x9e3779b97f4a7c15ull);
+
+  ModelMeta meta;
+  meta.name = o.name;
+  meta.architecture = o.architecture;
+  for (const sim::PatchModel::Sensor& s : units.front().sensors()) {
+    meta.sensors.push_back({s.u, s.v, s.h});
+  }
+  meta.input_mean.assign(static_cast<std::size_t>(channels), 0.0);
+  meta.input_scale.assign(static_cast<std::size_t>(channels), 1.0);
+  for (int c = 0; c < channels; ++c) {
+    double s1 = 0, s2 = 0;
+    for (int r = 0; r < train.rows; ++r) {
+      const double v = train.field[static_cast<std::size_t>(r) * channels + c];
+      s1 += v;
+      s2 += v * v;
+    }
+    const double m = s1 / train.rows;
+    meta.input_mean[static_cast<std::size_t>(c)] = m;
+    meta.input_scale[static_cast<std::size_t>(c)] =
+        std::max(std::sqrt(std::max(s2 / train.rows - m * m, 0.0)), 1e-3);
+  }
+  meta.outputs.assign(kProposerOutputs.begin(), kProposerOutputs.end());
+  // Fixed scales: positions in half the patch's half-size, depth in 2 mm, the count as it is.
+  const double position_scale[3] = {half_u / 2, half_v / 2, 2.0};
+  for (int k = 0; k < kMaxContacts; ++k) {
+    for (int j = 0; j < 3; ++j) {
+      meta.output_mean.push_back(0.0);
+      meta.output_scale.push_back(position_scale[j]);
+    }
+  }
+  meta.output_mean.push_back(0.0);
+  meta.output_scale.push_back(1.0);
+  meta.half_u_mm = half_u;
+  meta.half_v_mm = half_v;
+  meta.max_depth_mm = 4.5;
+  meta.info["kind"] = "proposer";
+  meta.info["units"] = "nominal + " + std::to_string(o.units) + " fabricated";
+
+  torch::manual_seed(o.seed);
+  torch::set_num_threads(std::max(o.threads, 1));
+  const int outputs = static_cast<int>(meta.outputs.size());
+  Net net(meta.architecture, channels, outputs);
+  auto tensors = [&](const ProposerData& d, torch::Tensor& x, torch::Tensor& slots,
+                     torch::Tensor& present, torch::Tensor& count) {
+    x = normalised_inputs(meta, d.field, d.rows);
+    slots = torch::from_blob(const_cast<float*>(d.slots.data()), {d.rows, kMaxContacts, 3},
+                             torch::kFloat32)
+                .clone();
+    const torch::Tensor scale =
+        torch::tensor({static_cast<float>(position_scale[0]), static_cast<float>(position_scale[1]),
+                       static_cast<float>(position_scale[2])});
+    slots = slots / scale;
+    present = torch::from_blob(const_cast<float*>(d.present.data()), {d.rows, kMaxContacts},
+                               torch::kFloat32)
+                  .clone();
+    count = torch::from_blob(const_cast<float*>(d.count.data()), {d.rows}, torch::kFloat32).clone();
+  };
+  torch::Tensor xt, st, pt, ct, xv, sv, pv, cv;
+  tensors(train, xt, st, pt, ct);
+  tensors(val, xv, sv, pv, cv);
+  // The 6 orders of the 3 slots.
+  std::vector<torch::Tensor> orders;
+  {
+    std::array<int64_t, kMaxContacts> o3 = {0, 1, 2};
+    do {
+      orders.push_back(torch::tensor(std::vector<int64_t>(o3.begin(), o3.end()), torch::kLong));
+    } while (std::next_permutation(o3.begin(), o3.end()));
+  }
+  // Per sample: the slots' squared error in the best order ([rows]) and that order's index.
+  auto slot_error = [&](const torch::Tensor& pred, const torch::Tensor& slots,
+                        const torch::Tensor& present) {
+    const torch::Tensor p = pred.slice(1, 0, 3 * kMaxContacts).view({-1, kMaxContacts, 3});
+    std::vector<torch::Tensor> errs;
+    for (const torch::Tensor& ord : orders) {
+      const torch::Tensor t = slots.index_select(1, ord), m = present.index_select(1, ord);
+      const torch::Tensor d = (p - t).square();
+      errs.push_back(((d.slice(2, 0, 2).sum(2) * m) + d.select(2, 2)).sum(1));
+    }
+    return torch::stack(errs, 1).min(1);
+  };
+  auto loss_of = [&](const torch::Tensor& pred, const torch::Tensor& slots,
+                     const torch::Tensor& present, const torch::Tensor& count) {
+    const torch::Tensor slot = std::get<0>(slot_error(pred, slots, present)).mean();
+    return slot + (pred.select(1, 3 * kMaxContacts) - count).square().mean();
+  };
+  torch::optim::AdamW opt(net->parameters(),
+                          torch::optim::AdamWOptions(o.learning_rate).weight_decay(o.weight_decay));
+  TrainResult result;
+  result.train_samples = train.rows;
+  result.validation_samples = val.rows;
+  std::vector<Tensor> best_weights = save_weights(net);
+  double best_loss = std::numeric_limits<double>::infinity();
+  EpochReport best_report;
+  int since_best = 0;
+  std::mt19937_64 rng(o.seed);
+  const int64_t n = xt.size(0);
+  std::vector<int64_t> order(static_cast<std::size_t>(n));
+  std::iota(order.begin(), order.end(), 0);
+  auto validate = [&](int epoch, double train_loss) {
+    net->eval();
+    torch::NoGradGuard no_grad;
+    const torch::Tensor pred = net->forward(xv);
+    EpochReport rep;
+    rep.epoch = epoch;
+    rep.epochs = o.max_epochs;
+    rep.train_loss = train_loss;
+    rep.val_loss = loss_of(pred, sv, pv, cv).item<double>();
+    const torch::Tensor best_order = std::get<1>(slot_error(pred, sv, pv));
+    const float* pp = pred.data_ptr<float>();
+    const int64_t* bo = best_order.data_ptr<int64_t>();
+    std::vector<double> xy, depth;
+    int right = 0;
+    for (int r = 0; r < val.rows; ++r) {
+      const float* y = pp + static_cast<std::size_t>(r) * outputs;
+      const int k = static_cast<int>(val.count[static_cast<std::size_t>(r)]);
+      const double c = std::clamp(std::round(static_cast<double>(y[3 * kMaxContacts])), 0.0,
+                                  static_cast<double>(kMaxContacts));
+      if (static_cast<int>(c) != k) continue;
+      ++right;
+      const int64_t* ord = orders[static_cast<std::size_t>(bo[r])].data_ptr<int64_t>();
+      for (int s = 0; s < kMaxContacts; ++s) {
+        const int t = static_cast<int>(ord[s]);
+        if (val.present[static_cast<std::size_t>(r) * kMaxContacts + t] == 0.f) continue;
+        const float* truth = &val.slots[(static_cast<std::size_t>(r) * kMaxContacts + t) * 3];
+        xy.push_back(std::hypot(y[3 * s] * position_scale[0] - truth[0],
+                                y[3 * s + 1] * position_scale[1] - truth[1]));
+        depth.push_back(std::fabs(y[3 * s + 2] * position_scale[2] - truth[2]));
+      }
+    }
+    rep.val_count_accuracy = static_cast<double>(right) / val.rows;
+    rep.val_xy_mean_mm = xy.empty() ? 0.0 : mean(xy);
+    rep.val_xy_deep_mm = rep.val_xy_mean_mm;
+    rep.val_depth_mean_mm = depth.empty() ? 0.0 : mean(depth);
+    rep.score = rep.val_loss;
+    rep.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return rep;
+  };
+  for (int epoch = 1; epoch <= o.max_epochs; ++epoch) {
+    net->train();
+    std::shuffle(order.begin(), order.end(), rng);
+    const torch::Tensor perm = torch::from_blob(order.data(), {n}, torch::kLong);
+    double loss_sum = 0;
+    int64_t seen = 0;
+    for (int64_t b = 0; b < n; b += o.batch_size) {
+      const int64_t e = std::min(n, b + o.batch_size);
+      const torch::Tensor idx = perm.slice(0, b, e);
+      opt.zero_grad();
+      torch::Tensor loss = loss_of(net->forward(xt.index_select(0, idx)), st.index_select(0, idx),
+                                   pt.index_select(0, idx), ct.index_select(0, idx));
+      const double l = loss.item<double>();
+      if (!std::isfinite(l)) {
+        return make_error(
+            ErrorCode::kNotConverged,
+            "proposer: training loss became non-finite at epoch " + std::to_string(epoch));
+      }
+      loss.backward();
+      torch::nn::utils::clip_grad_norm_(net->parameters(), 1.0);
+      opt.step();
+      loss_sum += l * static_cast<double>(e - b);
+      seen += e - b;
+    }
+    EpochReport rep = validate(epoch, loss_sum / static_cast<double>(std::max<int64_t>(seen, 1)));
+    if (!std::isfinite(rep.val_loss)) {
+      return make_error(ErrorCode::kNotConverged, "proposer: validation loss became non-finite");
+    }
+    if (rep.val_loss < best_loss) {
+      best_loss = rep.val_loss;
+      best_weights = save_weights(net);
+      result.best_epoch = epoch;
+      rep.improved = true;
+      best_report = rep;
+      since_best = 0;
+    } else if (++since_best % std::max(o.plateau_epochs, 1) == 0 && o.plateau_epochs > 0) {
+      for (auto& group : opt.param_groups()) {
+        auto& go = static_cast<torch::optim::AdamWOptions&>(group.options());
+        go.lr(go.lr() * 0.5);
+      }
+    }
+    result.history.push_back(rep);
+    if (o.progress) o.progress(rep);
+    if (since_best >= o.patience) break;
+    if (o.max_seconds > 0 && rep.elapsed_s >= o.max_seconds) break;
+  }
+  result.model.meta = meta;
+  result.model.tensors = std::move(best_weights);
+  ModelMeta& m = result.model.meta;
+  m.info["seed"] = std::to_string(o.seed);
+  m.info["best_epoch"] = std::to_string(result.best_epoch);
+  m.info["epochs_run"] = std::to_string(result.history.size());
+  m.info["samples"] = std::to_string(o.samples) + " training, " +
+                      std::to_string(o.validation_samples) + " validation (simulated)";
+  m.metrics["val_count_accuracy"] = best_report.val_count_accuracy;
+  m.metrics["val_xy_mean_mm"] = best_report.val_xy_mean_mm;
+  m.metrics["val_depth_mean_mm"] = best_report.val_depth_mean_mm;
+  m.metrics["train_seconds"] = best_report.elapsed_s;
+  if (Status s = validate_model(result.model); !s.ok()) return s.error();
+  return result;
+}
+
+}  // namespace
+
+Result<TrainResult> train_proposer(const sim::PatchDesign& design, const ProposerTrainOptions& o) {
+  return guarded("proposer training", [&] { return train_proposer_unguarded(design, o); });
 }
 
 struct TorchRunner::Impl {

@@ -4,7 +4,10 @@
 
 #include <cmath>
 #include <cstdio>
+#include <vector>
 
+#include "skinbus/estimators/contact_proposal.h"
+#include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/simulated_patch.h"
 
@@ -299,6 +302,50 @@ TEST(Training, TorchForwardMatchesTheModelFileSemantics) {
     for (int k = 0; k < 3; ++k) s += wh.data[j * 3 + k] * h[k];
     EXPECT_NEAR((*y)[j], s * m->meta.output_scale[j] + m->meta.output_mean[j], 1e-4);
   }
+}
+
+}  // namespace
+}  // namespace skinbus::estimators
+
+namespace skinbus::estimators {
+namespace {
+
+// A proposer learns the count well beyond always answering the commonest one (30 %), its file
+// validates as a proposer, and the host's runtime gives LibTorch's outputs for it.
+TEST(Training, AProposerLearnsTheCountAndRunsInTheHostsRuntime) {
+  using sim::Contact;
+  ProposerTrainOptions o;
+  o.architecture = mlp({128, 128});
+  o.units = 2;
+  o.samples = 8000;
+  o.validation_samples = 1000;
+  o.max_epochs = 6;
+  o.seed = 3;
+  auto r = train_proposer(sim::PatchDesign{}, o);
+  ASSERT_TRUE(r.ok()) << r.error().to_string();
+  const double first = r->history.front().val_count_accuracy;
+  const double kept = r->model.meta.metrics.at("val_count_accuracy");
+  std::printf("proposer: validation count right %.1f %% after one epoch, %.1f %% kept\n",
+              100 * first, 100 * kept);
+  EXPECT_TRUE(is_proposer(r->model.meta));
+  EXPECT_TRUE(validate_model(r->model).ok());
+  EXPECT_GT(kept, 0.45);
+  EXPECT_LT(r->history.back().val_loss, r->history.front().val_loss);
+  // The same network through the host's runtime and through LibTorch.
+  const sim::PatchModel unit = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const Contact presses[2] = {{-20, 10, 2.5, 5}, {25, -5, 3, 5}};
+  std::vector<double> f(static_cast<std::size_t>(unit.channel_count()));
+  unit.contact_field_ut(presses, f);
+  auto rt = NetworkRuntime::create(r->model);
+  ASSERT_TRUE(rt.ok()) << rt.error().to_string();
+  double y[kProposerOutputCount];
+  ASSERT_TRUE(rt->run_outputs(f, 1, y).ok());
+  auto torch_y = torch_forward(r->model, f, 1, 1);
+  ASSERT_TRUE(torch_y.ok());
+  for (int j = 0; j < kProposerOutputCount; ++j) EXPECT_NEAR(y[j], (*torch_y)[j], 1e-3) << j;
+  // Sizes it cannot train with are refused.
+  o.samples = 10;
+  EXPECT_FALSE(train_proposer(sim::PatchDesign{}, o).ok());
 }
 
 }  // namespace

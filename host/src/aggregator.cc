@@ -320,6 +320,8 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
       request.design_path = pl.design.empty() ? std::string() : beside_map(map_dir, pl.design);
       request.fit_shear = pl.refine_shear;
       request.max_contacts = pl.max_contacts;
+      request.proposer_path =
+          pl.proposer.empty() ? std::string() : beside_map(map_dir, pl.proposer);
       auto r = options.refiner_factory(request);
       if (r.ok()) {
         impl->refiners[i] = std::move(*r);
@@ -729,6 +731,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
               std::span<const uint8_t>(m.ok.data() + row, kChannels), start,
               std::span<const ContactEstimate>(mem.previous, static_cast<std::size_t>(mem.held)),
               search_above);
+          if (rc.proposed) ++s.stats.proposed;
           if (rc.searched) {
             mem.searched = true;
             mem.searched_chi2 = rc.single_reduced_chi2;

@@ -26,7 +26,8 @@ std::string source_dir() {
   return d != nullptr ? d : ".";
 }
 
-body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false, int max_contacts = 1) {
+body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false, int max_contacts = 1,
+                                const std::string& proposer = "") {
   body_map::SkinMap map;
   body_map::PatchPlacement p;
   p.node_id = 4;
@@ -36,6 +37,7 @@ body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false, int m
   if (with_unit) p.unit = "units/unit4.json";
   p.refine_shear = refine_shear;
   p.max_contacts = max_contacts;
+  p.proposer = proposer;
   map.patches.push_back(p);
   return map;
 }
@@ -120,6 +122,7 @@ class AggregatorRefineTest : public ::testing::Test {
       estimators::RefinerOptions ro;
       ro.physics.fit_shear = r.fit_shear;
       ro.max_contacts = r.max_contacts;
+      ro.proposer = r.proposer_path;
       return estimators::make_physics_refiner(*unit_, ro);
     };
   }
@@ -143,8 +146,8 @@ const BodyContact& nearest_contact(const ContactArray& arr, const sim::Contact& 
 // unit with its noise, tares, sends and processes it. `ok` is false if the aggregator was refused.
 struct Stream {
   Stream(const sim::PatchModel& unit, const AggregatorOptions& o, bool refine_shear,
-         int max_contacts, uint64_t seed)
-      : map(one_patch_map(true, refine_shear, max_contacts)), patch(unit, seed) {
+         int max_contacts, uint64_t seed, const std::string& proposer = "")
+      : map(one_patch_map(true, refine_shear, max_contacts, proposer)), patch(unit, seed) {
     auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o);
     EXPECT_TRUE(a.ok()) << a.error().to_string();
     if (!a.ok()) return;
@@ -427,6 +430,46 @@ TEST_F(AggregatorRefineTest, ThreePressesOfAGraspAreTrackedApartAndOneLifts) {
   EXPECT_LT(err / bound, 1.3);
   EXPECT_GE(two, after - 3);
   EXPECT_GT(after, 10);
+}
+
+// The same grasp with the shipped proposer on the entry (PatchPlacement::proposer): the count
+// starts from the network's presses instead of searching from nothing, and finds the three from
+// the first sample.
+TEST_F(AggregatorRefineTest, AProposerStartsTheCountOfAGrasp) {
+  Stream stream(*unit_, options_, false, 3, 85, "estimators/models/nominal_proposer");
+  ASSERT_TRUE(stream.ok());
+  const double r = 50 / std::sqrt(3.0);
+  int samples = 0, three = 0, first_three = -1;
+  for (int i = 0; i < 20; ++i) {
+    sim::Contact p[3];
+    for (int k = 0; k < 3; ++k) {
+      const double th = 1.1 + 0.01 * i + k * 2 * M_PI / 3;
+      p[k] = {-5 + r * std::cos(th), 5 + r * std::sin(th), 2.2 + 0.3 * k, 5.0};
+    }
+    ContactArray arr;
+    if (!stream.sample(p, &arr)) continue;
+    ++samples;
+    if (arr.contacts.size() != 3) continue;
+    ++three;
+    if (first_three < 0) first_three = i;
+  }
+  const AggregatorStats st = stream.agg->stats();
+  std::printf(
+      "grasp with a proposer: %d of %d publications with three, the first at sample %d; %llu "
+      "counts from the proposer, %llu refined samples with three, %.0f us a refined sample\n",
+      three, samples, first_three, static_cast<unsigned long long>(st.proposed),
+      static_cast<unsigned long long>(st.refined_triples),
+      st.refine_us / static_cast<double>(st.refined));
+  EXPECT_GE(st.proposed, 1u);
+  EXPECT_EQ(first_three, 0);
+  EXPECT_GE(three, samples - 1);
+  // A file that is not a proposer is refused with its name: the entry's refiner is not built.
+  estimators::RefinerOptions bad;
+  bad.max_contacts = 3;
+  bad.proposer = source_dir() + "/estimators/models/nominal_seed_cnn";
+  auto refused = estimators::make_physics_refiner(*unit_, bad);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.error().message.find("nominal_seed_cnn"), std::string::npos);
 }
 
 // A refiner whose fits fail while `*failing` is set (a poor fit: the host then has only the

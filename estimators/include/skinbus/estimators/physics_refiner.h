@@ -25,10 +25,17 @@ namespace skinbus::estimators {
 // chi-square and uncertainties. Cost: the single fit, and for a sample with two presses one
 // two-contact solve from the previous pair (about 0.5 ms; three presses: one solve a count), or
 // when they first appear the full search (a few milliseconds, tens with three).
+//
+// With a proposer (`proposer`: a model path stem, contact_proposal.h), a sample whose single fit
+// leaves more than noise and that holds no previous contacts is first shown to the proposer (one
+// network run, ~20 us); when it proposes two or more presses the count starts from them (one
+// solve a count) instead of searching from nothing (RefinedContacts::proposed). Errors name the
+// proposer's file, or say it is not a proposer.
 struct RefinerOptions {
   PhysicsOptions physics;
   int max_contacts = 1;  // 1 to kMaxContacts
   ContactCountOptions count;
+  std::string proposer;  // "" none
 };
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& unit_path,
                                                              const std::string& design_path,

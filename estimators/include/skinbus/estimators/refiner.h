@@ -31,6 +31,7 @@ struct RefinedContacts {
   int count = 1;
   RefinedEstimate contacts[kMaxContacts];
   bool searched = false;  // a search for a second contact was made (whatever it found)
+  bool proposed = false;  // the count started from a proposer's presses instead (no search)
   // The single-contact fit's reduced chi-square (what decides a search), NaN if none was made.
   double single_reduced_chi2 = std::numeric_limits<double>::quiet_NaN();
 };

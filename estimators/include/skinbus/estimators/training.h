@@ -17,6 +17,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <span>
 #include <string>
@@ -25,6 +26,7 @@
 #include "skinbus/common/result.h"
 #include "skinbus/estimators/model_file.h"
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/patch_model.h"
 
 namespace skinbus::estimators {
 
@@ -37,6 +39,9 @@ struct EpochReport {
   double val_depth_mean_mm = 0;  // mean |depth error|
   double val_force_mean_n = 0;
   double score = 0;  // val_xy_deep_mm + val_depth_mean_mm: what selects the kept model
+  // A proposer's (train_proposer): the share of validation samples whose count it gets right;
+  // its XY and depth errors are then over the contacts of those samples. NaN otherwise.
+  double val_count_accuracy = std::numeric_limits<double>::quiet_NaN();
   bool improved = false;
   double elapsed_s = 0;
 };
@@ -90,6 +95,40 @@ struct TrainResult {
 // sensor count; kNotConverged if the loss becomes non-finite.
 Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& options,
                                 const ModelFile* base = nullptr);
+
+// A proposer (contact_proposal.h): a network that tells how many contacts a sample holds (0 to
+// kMaxContacts) and roughly where, trained on simulated presses of `design`: the nominal unit and
+// `units` fabricated ones (sim::PatchModel::fabricated, seeded), each sample on one of them at
+// random with the design's sensor noise; 0 presses in a tenth of the samples, else 1, 2 or 3
+// alike, each within the patch less `margin_mm`, at least `min_separation_mm` apart, 0.3-4.5 mm
+// deep (5 mm tips), half of them with a shear of friction 0-0.3 in any direction. The loss: the
+// squared error of the count plus, over the best of the 6 orders of the slots, each present
+// contact's (u, v, depth) and each absent slot's depth against 0 (normalised). The epoch with the
+// lowest validation loss (a fresh set of `validation_samples`) is kept. Costs: the samples'
+// fields (~20 us each) and the epochs (an MLP of ~0.1 MMAC: about a second an epoch of 200k on 2
+// threads). Errors: kInvalidArgument for sizes out of range or a design that cannot be
+// fabricated; kNotConverged for a non-finite loss.
+struct ProposerTrainOptions {
+  Architecture architecture = mlp({256, 256, 128});
+  std::string name = "proposer";
+  int units = 8;
+  int samples = 200000;
+  int validation_samples = 20000;
+  double margin_mm = 10;
+  double min_separation_mm = 12;
+  int max_epochs = 40;
+  int patience = 8;
+  int plateau_epochs = 4;
+  int batch_size = 256;
+  double learning_rate = 1e-3;
+  double weight_decay = 1e-4;
+  double max_seconds = 0;
+  uint64_t seed = 1;
+  int threads = 2;
+  std::function<void(const EpochReport&)> progress;
+};
+Result<TrainResult> train_proposer(const sim::PatchDesign& design,
+                                   const ProposerTrainOptions& options);
 
 // The grid cells of sensors laid out on a regular grid (rows along v, columns along u, both
 // ascending): fills grid_rows, grid_cols and sensor_cell. kInvalidArgument if they do not form

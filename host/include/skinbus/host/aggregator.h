@@ -110,6 +110,8 @@ struct RefinerRequest {
   // PatchPlacement::max_contacts: 2 or 3 to find that many presses on the patch
   // (ContactRefiner::refine_contacts; each published with its own track).
   int max_contacts = 1;
+  // PatchPlacement::proposer, resolved: the proposer network the count starts from; "" none.
+  std::string proposer_path;
 };
 
 struct AggregatorOptions {
@@ -201,6 +203,7 @@ struct AggregatorStats {
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
   uint64_t refined_pairs = 0;    // refined samples that held two or more presses (max_contacts 2-3)
   uint64_t refined_triples = 0;  // of those, the ones that held three (max_contacts 3)
+  uint64_t proposed = 0;  // counts started from a proposer's presses (PatchPlacement::proposer)
   // Samples of a patch holding several presses that went unrefined (budget, poor fit): not
   // published, since the network's single answer would be one contact between the presses; they
   // stay as last refined, at their own time, until a sample is refined or contact_hold_us runs

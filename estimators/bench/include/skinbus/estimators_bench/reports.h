@@ -112,6 +112,9 @@ struct TriplesBenchArgs {
   std::vector<double> depths = {1, 2, 3};
   int trials = 30;         // triangles per (side, depth)
   int other_trials = 100;  // one- and two-press samples per unit
+  // A proposer network (contact_proposal.h; model path stem): the count also started from its
+  // answer, and its own count measured. Empty: none.
+  std::string proposer;
   uint64_t uid = 0x5B00000000000001ull;
   uint64_t seed = 1;
   std::string csv;
