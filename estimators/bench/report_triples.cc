@@ -25,23 +25,16 @@ namespace {
 using namespace skinbus::estimators;
 using sim::Contact;
 
-// The proposer's answer for one sample (its network run included in the caller's timing).
-ContactProposal propose(NetworkRuntime& proposer, const std::vector<double>& f) {
-  double out[kProposerOutputCount];
-  if (!proposer.run_outputs(f, 1, out).ok()) return {};
-  return proposal_from_outputs(out);
-}
-
 // The count started from a proposal: the single fit from its deepest contact (from the start
 // table when it proposes none), then count_contacts() trying its contacts first.
 ContactCountEstimate count_from(const PhysicsEstimator& physics, const std::vector<double>& f,
                                 const ContactProposal& p, const ContactCountOptions& count) {
   const PhysicsEstimate single =
       p.count >= 1 ? physics.refine_lm(f, {}, p.contacts[0]) : physics.estimate(f);
+  // Fewer than two contacts given are no start for several: count_contacts() then searches.
   return physics.count_contacts(
       f, {}, single, count,
-      p.count >= 2 ? std::span<const ContactEstimate>(p.contacts, static_cast<std::size_t>(p.count))
-                   : std::span<const ContactEstimate>{});
+      std::span<const ContactEstimate>(p.contacts, static_cast<std::size_t>(p.count)));
 }
 
 }  // namespace
@@ -57,14 +50,7 @@ Status bench_triples(const TriplesBenchArgs& a) {
   three.max_contacts = 3;
   std::optional<NetworkRuntime> proposer;
   if (!a.proposer.empty()) {
-    auto model = read_model(a.proposer);
-    if (!model.ok()) return model.error();
-    if (!is_proposer(model->meta)) {
-      return make_error(ErrorCode::kInvalidArgument, "--proposer " + a.proposer +
-                                                         ": not a proposer (its outputs are not " +
-                                                         "the proposer's, docs/models.md)");
-    }
-    auto rt = NetworkRuntime::create(*model);
+    auto rt = load_proposer(a.proposer, unit->channel_count());
     if (!rt.ok()) return rt.error();
     proposer.emplace(std::move(*rt));
   }
@@ -114,7 +100,7 @@ Status bench_triples(const TriplesBenchArgs& a) {
         ++counts[e.count];
         if (proposer) {
           const auto p0 = Clock::now();
-          const ContactProposal prop = propose(*proposer, f);
+          const ContactProposal prop = propose_contacts(*proposer, f);
           const ContactCountEstimate pe = count_from(*physics, f, prop, three);
           us_proposed += us_since(p0);
           proposer_three += prop.count == 3;
@@ -218,7 +204,7 @@ Status bench_triples(const TriplesBenchArgs& a) {
         right += e.count == presses;
         tried += e.triple_tried;
         if (proposer) {
-          const ContactProposal prop = propose(*proposer, f);
+          const ContactProposal prop = propose_contacts(*proposer, f);
           const ContactCountEstimate pe = count_from(*c.estimator, f, prop, three);
           proposer_right += prop.count == presses;
           proposed_threes += pe.count == 3;

@@ -40,4 +40,21 @@ ContactProposal proposal_from_outputs(std::span<const double> outputs) {
   return p;
 }
 
+Result<NetworkRuntime> load_proposer(const std::string& path, int channels) {
+  auto m = read_model(path);
+  if (!m.ok()) return m.error();
+  if (!is_proposer(m->meta) || m->meta.channels() != channels) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "proposer " + path + ": not a proposer for this design (its " +
+                          "outputs or channel count differ; docs/models.md)");
+  }
+  return NetworkRuntime::create(*m);
+}
+
+ContactProposal propose_contacts(NetworkRuntime& proposer, std::span<const double> field_ut) {
+  double y[kProposerOutputCount];
+  if (!proposer.run_outputs(field_ut, 1, y).ok()) return {};
+  return proposal_from_outputs(y);
+}
+
 }  // namespace skinbus::estimators

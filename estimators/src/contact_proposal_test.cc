@@ -53,14 +53,11 @@ TEST(ContactProposal, TheShippedProposerCountsAndStartsThePhysicsCount) {
   const char* dir = std::getenv("SKINBUS_SOURCE_DIR");
   const std::string path =
       std::string(dir != nullptr ? dir : ".") + "/estimators/models/nominal_proposer";
-  auto model = read_model(path);
-  ASSERT_TRUE(model.ok()) << model.error().to_string();
-  ASSERT_TRUE(is_proposer(model->meta));
-  auto proposer = NetworkRuntime::create(*model);
-  ASSERT_TRUE(proposer.ok()) << proposer.error().to_string();
   const sim::PatchModel unit = sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5b0000000000002e,
                                                            sim::FabricationVariation{})
                                    .value();
+  auto proposer = load_proposer(path, unit.channel_count());  // read, checked a proposer, loaded
+  ASSERT_TRUE(proposer.ok()) << proposer.error().to_string();
   const PhysicsEstimator physics = PhysicsEstimator::create(unit).value();
   ContactCountOptions three;
   three.max_contacts = 3;
@@ -78,17 +75,13 @@ TEST(ContactProposal, TheShippedProposerCountsAndStartsThePhysicsCount) {
         p[k] = {mu + 25 * std::cos(th), mv + 25 * std::sin(th), rng.uniform(1, 4), 5};
       }
       const auto f = noisy_field(unit, std::span<const Contact>(p, presses), rng);
-      double y[kProposerOutputCount];
-      ASSERT_TRUE(proposer->run_outputs(f, 1, y).ok());
-      const ContactProposal prop = proposal_from_outputs(y);
+      const ContactProposal prop = propose_contacts(*proposer, f);
       right[presses] += prop.count == presses;
       if (presses != 3) continue;
       const ContactCountEstimate nothing = physics.estimate_contacts(f, {}, three);
       const PhysicsEstimate single = physics.refine_lm(f, {}, prop.contacts[0]);
       const ContactCountEstimate from = physics.count_contacts(
-          f, {}, single, three,
-          prop.count >= 2 ? std::span<const ContactEstimate>(prop.contacts, prop.count)
-                          : std::span<const ContactEstimate>{});
+          f, {}, single, three, std::span<const ContactEstimate>(prop.contacts, prop.count));
       counted += nothing.count == 3;
       proposed_counted += from.count == 3;
       iterations_nothing += nothing.pair_iterations + nothing.triple_iterations;

@@ -19,7 +19,9 @@ class PhysicsRefiner : public ContactRefiner {
  public:
   PhysicsRefiner(PhysicsEstimator estimator, const RefinerOptions& options,
                  std::optional<NetworkRuntime> proposer)
-      : estimator_(std::move(estimator)), options_(options), proposer_(std::move(proposer)) {}
+      : estimator_(std::move(estimator)), options_(options), proposer_(std::move(proposer)) {
+    options_.count.max_contacts = options_.max_contacts;  // the count goes as far as asked
+  }
 
   RefinedEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& start) const override {
@@ -51,8 +53,6 @@ class PhysicsRefiner : public ContactRefiner {
       return out;
     }
     out.searched = !known && !out.proposed;
-    ContactCountOptions count = options_.count;
-    count.max_contacts = options_.max_contacts;
     // A search from nothing counts from the better of this single fit and one from the start
     // table (started from a first estimate between several presses, the single fit can end in a
     // poor minimum or off the patch, and the count's starts come from it).
@@ -61,9 +61,9 @@ class PhysicsRefiner : public ContactRefiner {
     const bool from_table =
         out.searched && table.contact.valid() && !(table.contact.flags & kEstimateNoContact) &&
         (!(single.chi2 <= table.chi2) || (single.contact.flags & kEstimateNoContact) != 0);
-    const ContactCountEstimate c =
-        estimator_.count_contacts(field_ut, channel_ok, from_table ? table : single, count,
-                                  out.searched ? std::span<const ContactEstimate>{} : previous);
+    // (A search has fewer than two previous contacts: count_contacts() starts from nothing.)
+    const ContactCountEstimate c = estimator_.count_contacts(
+        field_ut, channel_ok, from_table ? table : single, options_.count, previous);
     if (c.count < 2) return out;
     out.count = c.count;
     const double reduced = c.count == 3 ? c.triple_reduced_chi2 : c.pair_reduced_chi2;
@@ -83,10 +83,8 @@ class PhysicsRefiner : public ContactRefiner {
   ContactProposal propose(std::span<const double> field_ut,
                           std::span<const uint8_t> channel_ok) const {
     if (std::find(channel_ok.begin(), channel_ok.end(), uint8_t{0}) != channel_ok.end()) return {};
-    double y[kProposerOutputCount];
     const std::lock_guard<std::mutex> lock(proposer_mutex_);  // one run at a time per runtime
-    if (!proposer_->run_outputs(field_ut, 1, y).ok()) return {};
-    return proposal_from_outputs(y);
+    return propose_contacts(*proposer_, field_ut);
   }
 
   RefinedEstimate from(const PhysicsEstimate& p) const {
@@ -125,14 +123,7 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const sim::PatchMod
   if (!e.ok()) return e.error();
   std::optional<NetworkRuntime> proposer;
   if (!options.proposer.empty()) {
-    auto m = read_model(options.proposer);
-    if (!m.ok()) return m.error();
-    if (!is_proposer(m->meta) || m->meta.channels() != model.channel_count()) {
-      return make_error(ErrorCode::kInvalidArgument,
-                        "proposer " + options.proposer + ": not a proposer for this design (its " +
-                            "outputs or channel count differ; docs/models.md)");
-    }
-    auto rt = NetworkRuntime::create(*m);
+    auto rt = load_proposer(options.proposer, model.channel_count());
     if (!rt.ok()) return rt.error();
     proposer.emplace(std::move(*rt));
   }

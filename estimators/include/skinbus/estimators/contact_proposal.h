@@ -11,9 +11,12 @@
 
 #include <array>
 #include <span>
+#include <string>
 
+#include "skinbus/common/result.h"
 #include "skinbus/estimators/estimate.h"
 #include "skinbus/estimators/model_file.h"
+#include "skinbus/estimators/network_runtime.h"
 
 namespace skinbus::estimators {
 
@@ -35,5 +38,15 @@ struct ContactProposal {
 // physical units, as NetworkRuntime::run_outputs() gives them) to a proposal. A slot with a
 // non-finite value is never proposed (the count is lowered to the finite slots). No allocation.
 ContactProposal proposal_from_outputs(std::span<const double> outputs);
+
+// The proposer in `path` (a model path stem) in the host's runtime (default options), for
+// samples of `channels` channels. Errors name the file: read_model()'s, or kInvalidArgument when
+// it is not a proposer or was made for another channel count.
+Result<NetworkRuntime> load_proposer(const std::string& path, int channels);
+
+// One tared sample's proposal (`field_ut`: the proposer's channel count, uT) from a proposer
+// loaded by load_proposer(): one network run (not concurrently on one runtime). A failed run
+// proposes nothing (count 0).
+ContactProposal propose_contacts(NetworkRuntime& proposer, std::span<const double> field_ut);
 
 }  // namespace skinbus::estimators
