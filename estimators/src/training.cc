@@ -133,6 +133,83 @@ auto guarded(const char* what, F&& f) -> decltype(f()) {
   }
 }
 
+// How the epochs of a training run go (run_epochs()).
+struct EpochPlan {
+  int max_epochs = 1, patience = 1, plateau_epochs = 0, batch_size = 1;
+  double clip_norm = 1, max_seconds = 0;
+  const char* what = "";  // prefixed to the errors ("proposer: ")
+};
+
+// The epochs both trainings share: AdamW steps over shuffled minibatches of the `n` training
+// rows (`batch_loss(rows)`: the loss tensor of those rows, a LibTorch index tensor), the gradient
+// norm clipped; after each epoch `validate(epoch, mean training loss)` gives its report. The
+// epoch with the lowest score below `best_score` (a fine-tuning base's, or infinity) is kept:
+// its weights into `best_weights`, its report into `best_report`, its number into
+// result->best_epoch. The learning rate is halved after every plan.plateau_epochs epochs without
+// a better one (0: never); the run stops after plan.patience of them or plan.max_seconds. Every
+// report goes to result->history and to `progress`. Errors: kNotConverged for a non-finite loss
+// or score.
+template <typename BatchLoss, typename Validate>
+Status run_epochs(Net& net, torch::optim::AdamW& opt, std::mt19937_64& rng, int64_t n,
+                  const EpochPlan& plan, BatchLoss&& batch_loss, Validate&& validate,
+                  const std::function<void(const EpochReport&)>& progress, double best_score,
+                  std::vector<Tensor>* best_weights, EpochReport* best_report,
+                  TrainResult* result) {
+  std::vector<int64_t> order(static_cast<std::size_t>(n));
+  std::iota(order.begin(), order.end(), 0);
+  int since_best = 0;
+  for (int epoch = 1; epoch <= plan.max_epochs; ++epoch) {
+    net->train();
+    std::shuffle(order.begin(), order.end(), rng);
+    const torch::Tensor perm = torch::from_blob(order.data(), {n}, torch::kLong);
+    double loss_sum = 0;
+    int64_t seen = 0;
+    for (int64_t b = 0; b < n; b += plan.batch_size) {
+      const int64_t e = std::min(n, b + plan.batch_size);
+      const torch::Tensor idx = perm.slice(0, b, e);
+      opt.zero_grad();
+      torch::Tensor loss = batch_loss(idx);
+      const double l = loss.item<double>();
+      if (!std::isfinite(l)) {
+        return make_error(ErrorCode::kNotConverged,
+                          std::string(plan.what) + "training loss became non-finite at epoch " +
+                              std::to_string(epoch));
+      }
+      loss.backward();
+      torch::nn::utils::clip_grad_norm_(net->parameters(), plan.clip_norm);
+      opt.step();
+      loss_sum += l * static_cast<double>(e - b);
+      seen += e - b;
+    }
+    EpochReport rep = validate(epoch, loss_sum / static_cast<double>(std::max<int64_t>(seen, 1)));
+    if (!std::isfinite(rep.score)) {
+      return make_error(ErrorCode::kNotConverged,
+                        std::string(plan.what) + "validation error became non-finite");
+    }
+    if (rep.score < best_score) {
+      best_score = rep.score;
+      *best_weights = save_weights(net);
+      result->best_epoch = epoch;
+      rep.improved = true;
+      *best_report = rep;
+      since_best = 0;
+    } else {
+      ++since_best;
+      if (plan.plateau_epochs > 0 && since_best % plan.plateau_epochs == 0) {
+        for (auto& group : opt.param_groups()) {
+          auto& go = static_cast<torch::optim::AdamWOptions&>(group.options());
+          go.lr(go.lr() * 0.5);
+        }
+      }
+    }
+    result->history.push_back(rep);
+    if (progress) progress(rep);
+    if (since_best >= plan.patience) break;
+    if (plan.max_seconds > 0 && rep.elapsed_s >= plan.max_seconds) break;
+  }
+  return Status::Ok();
+}
+
 }  // namespace
 
 Status fit_grid(std::span<const SensorPosition> sensors, Architecture& a) {
@@ -409,10 +486,6 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
   std::vector<Tensor> best_weights = save_weights(net);
   double best_score = std::numeric_limits<double>::infinity();
   EpochReport best_report;
-  int since_best = 0;
-  const int64_t n = x_train.size(0);
-  std::vector<int64_t> order(static_cast<std::size_t>(n));
-  std::iota(order.begin(), order.end(), 0);
   // Validation in physical units.
   auto validate = [&](int epoch, double train_loss) {
     net->eval();
@@ -458,54 +531,22 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
       if (o.progress) o.progress(rep);
     }
   }
-  for (int epoch = 1; epoch <= o.max_epochs; ++epoch) {
-    net->train();
-    std::shuffle(order.begin(), order.end(), rng);
-    torch::Tensor perm = torch::from_blob(order.data(), {n}, torch::kLong);
-    double loss_sum = 0;
-    int64_t seen = 0;
-    for (int64_t b = 0; b < n; b += o.batch_size) {
-      const int64_t e = std::min(n, b + o.batch_size);
-      torch::Tensor idx = perm.slice(0, b, e);
-      torch::Tensor xb = x_train.index_select(0, idx), yb = y_train.index_select(0, idx);
-      torch::Tensor wb = weighted ? w_train.index_select(0, idx) : w_train;
-      opt.zero_grad();
-      torch::Tensor loss = loss_of(net->forward(xb), yb, wb);
-      const double l = loss.item<double>();
-      if (!std::isfinite(l)) {
-        return make_error(ErrorCode::kNotConverged,
-                          "training loss became non-finite at epoch " + std::to_string(epoch));
-      }
-      loss.backward();
-      torch::nn::utils::clip_grad_norm_(net->parameters(), o.grad_clip_norm);
-      opt.step();
-      loss_sum += l * static_cast<double>(e - b);
-      seen += e - b;
-    }
-    EpochReport rep = validate(epoch, loss_sum / static_cast<double>(std::max<int64_t>(seen, 1)));
-    if (!std::isfinite(rep.score)) {
-      return make_error(ErrorCode::kNotConverged, "validation error became non-finite");
-    }
-    if (rep.score < best_score) {
-      best_score = rep.score;
-      best_weights = save_weights(net);
-      result.best_epoch = epoch;
-      rep.improved = true;
-      best_report = rep;
-      since_best = 0;
-    } else {
-      ++since_best;
-      if (o.plateau_epochs > 0 && since_best % o.plateau_epochs == 0) {
-        for (auto& group : opt.param_groups()) {
-          auto& go = static_cast<torch::optim::AdamWOptions&>(group.options());
-          go.lr(go.lr() * 0.5);
-        }
-      }
-    }
-    result.history.push_back(rep);
-    if (o.progress) o.progress(rep);
-    if (since_best >= o.patience) break;
-    if (o.max_seconds > 0 && rep.elapsed_s >= o.max_seconds) break;
+  EpochPlan plan;
+  plan.max_epochs = o.max_epochs;
+  plan.patience = o.patience;
+  plan.plateau_epochs = o.plateau_epochs;
+  plan.batch_size = o.batch_size;
+  plan.clip_norm = o.grad_clip_norm;
+  plan.max_seconds = o.max_seconds;
+  auto batch_loss = [&](const torch::Tensor& idx) {
+    torch::Tensor xb = x_train.index_select(0, idx), yb = y_train.index_select(0, idx);
+    torch::Tensor wb = weighted ? w_train.index_select(0, idx) : w_train;
+    return loss_of(net->forward(xb), yb, wb);
+  };
+  if (Status st = run_epochs(net, opt, rng, x_train.size(0), plan, batch_loss, validate, o.progress,
+                             best_score, &best_weights, &best_report, &result);
+      !st.ok()) {
+    return st.error();
   }
   result.model.meta = meta;
   result.model.tensors = std::move(best_weights);
@@ -725,13 +766,8 @@ Result<TrainResult> train_proposer_unguarded(const sim::PatchDesign& design,
   result.train_samples = train.rows;
   result.validation_samples = val.rows;
   std::vector<Tensor> best_weights = save_weights(net);
-  double best_loss = std::numeric_limits<double>::infinity();
   EpochReport best_report;
-  int since_best = 0;
   std::mt19937_64 rng(o.seed);
-  const int64_t n = xt.size(0);
-  std::vector<int64_t> order(static_cast<std::size_t>(n));
-  std::iota(order.begin(), order.end(), 0);
   auto validate = [&](int epoch, double train_loss) {
     net->eval();
     torch::NoGradGuard no_grad;
@@ -771,51 +807,22 @@ Result<TrainResult> train_proposer_unguarded(const sim::PatchDesign& design,
     rep.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return rep;
   };
-  for (int epoch = 1; epoch <= o.max_epochs; ++epoch) {
-    net->train();
-    std::shuffle(order.begin(), order.end(), rng);
-    const torch::Tensor perm = torch::from_blob(order.data(), {n}, torch::kLong);
-    double loss_sum = 0;
-    int64_t seen = 0;
-    for (int64_t b = 0; b < n; b += o.batch_size) {
-      const int64_t e = std::min(n, b + o.batch_size);
-      const torch::Tensor idx = perm.slice(0, b, e);
-      opt.zero_grad();
-      torch::Tensor loss = loss_of(net->forward(xt.index_select(0, idx)), st.index_select(0, idx),
-                                   pt.index_select(0, idx), ct.index_select(0, idx));
-      const double l = loss.item<double>();
-      if (!std::isfinite(l)) {
-        return make_error(
-            ErrorCode::kNotConverged,
-            "proposer: training loss became non-finite at epoch " + std::to_string(epoch));
-      }
-      loss.backward();
-      torch::nn::utils::clip_grad_norm_(net->parameters(), 1.0);
-      opt.step();
-      loss_sum += l * static_cast<double>(e - b);
-      seen += e - b;
-    }
-    EpochReport rep = validate(epoch, loss_sum / static_cast<double>(std::max<int64_t>(seen, 1)));
-    if (!std::isfinite(rep.val_loss)) {
-      return make_error(ErrorCode::kNotConverged, "proposer: validation loss became non-finite");
-    }
-    if (rep.val_loss < best_loss) {
-      best_loss = rep.val_loss;
-      best_weights = save_weights(net);
-      result.best_epoch = epoch;
-      rep.improved = true;
-      best_report = rep;
-      since_best = 0;
-    } else if (++since_best % std::max(o.plateau_epochs, 1) == 0 && o.plateau_epochs > 0) {
-      for (auto& group : opt.param_groups()) {
-        auto& go = static_cast<torch::optim::AdamWOptions&>(group.options());
-        go.lr(go.lr() * 0.5);
-      }
-    }
-    result.history.push_back(rep);
-    if (o.progress) o.progress(rep);
-    if (since_best >= o.patience) break;
-    if (o.max_seconds > 0 && rep.elapsed_s >= o.max_seconds) break;
+  EpochPlan plan;
+  plan.max_epochs = o.max_epochs;
+  plan.patience = o.patience;
+  plan.plateau_epochs = o.plateau_epochs;
+  plan.batch_size = o.batch_size;
+  plan.max_seconds = o.max_seconds;
+  plan.what = "proposer: ";
+  auto batch_loss = [&](const torch::Tensor& idx) {
+    return loss_of(net->forward(xt.index_select(0, idx)), st.index_select(0, idx),
+                   pt.index_select(0, idx), ct.index_select(0, idx));
+  };
+  if (Status status =
+          run_epochs(net, opt, rng, xt.size(0), plan, batch_loss, validate, o.progress,
+                     std::numeric_limits<double>::infinity(), &best_weights, &best_report, &result);
+      !status.ok()) {
+    return status.error();
   }
   result.model.meta = meta;
   result.model.tensors = std::move(best_weights);
