@@ -118,17 +118,8 @@ Status bench_pairs(const PairsBenchArgs& a) {
   const sim::PatchModel nominal = sim::PatchModel::nominal(design).value();
   auto nominal_physics = PhysicsEstimator::create(nominal);
   if (!nominal_physics.ok()) return nominal_physics.error();
-  struct Case {
-    const char* unit;
-    const char* model;
-    sim::PatchModel truth;
-    const PhysicsEstimator* estimator;
-  };
-  std::vector<Case> cases = {{"fabricated", "its own", *unit, &*physics}};
-  for (MismatchedUnit& m : mismatched_units(design)) {
-    cases.push_back({m.name, "nominal design", std::move(m.truth), &*nominal_physics});
-  }
-  for (const Case& c : cases) {
+  const std::vector<CountCase> cases = count_cases(design, *unit, &*physics, &*nominal_physics);
+  for (const CountCase& c : cases) {
     int splits = 0, poor = 0;
     double us_single = 0, us_count = 0;
     for (int t = 0; t < a.single_trials; ++t) {

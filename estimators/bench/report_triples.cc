@@ -168,17 +168,8 @@ Status bench_triples(const TriplesBenchArgs& a) {
   const sim::PatchModel nominal = sim::PatchModel::nominal(design).value();
   auto nominal_physics = PhysicsEstimator::create(nominal);
   if (!nominal_physics.ok()) return nominal_physics.error();
-  struct Case {
-    const char* unit;
-    const char* model;
-    sim::PatchModel truth;
-    const PhysicsEstimator* estimator;
-  };
-  std::vector<Case> cases = {{"fabricated", "its own", *unit, &*physics}};
-  for (MismatchedUnit& m : mismatched_units(design)) {
-    cases.push_back({m.name, "nominal design", std::move(m.truth), &*nominal_physics});
-  }
-  for (const Case& c : cases) {
+  const std::vector<CountCase> cases = count_cases(design, *unit, &*physics, &*nominal_physics);
+  for (const CountCase& c : cases) {
     for (int presses = 1; presses <= 2; ++presses) {
       int threes = 0, right = 0, tried = 0, proposer_right = 0, proposed_threes = 0,
           proposed_right = 0;
