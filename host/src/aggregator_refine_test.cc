@@ -361,6 +361,16 @@ TEST_F(AggregatorRefineTest, TwoPressesEachCarryTheirOwnShear) {
   EXPECT_LT(std::sqrt(norm2 / (2 * two)), 1.6);
 }
 
+// A grasp's three presses at the corners of a 50 mm triangle around (-5, 5) mm, turned by `turn`
+// (rad), 2.2, 2.5 and 2.8 mm deep, 5 mm tips.
+void grasp_presses(double turn, sim::Contact* p) {
+  const double r = 50 / std::sqrt(3.0);
+  for (int k = 0; k < 3; ++k) {
+    const double th = turn + k * 2 * M_PI / 3;
+    p[k] = {-5 + r * std::cos(th), 5 + r * std::sin(th), 2.2 + 0.3 * k, 5.0};
+  }
+}
+
 // Three fingers of a grasp on one patch (an entry with max_contacts 3): three presses at the
 // corners of a 50 mm triangle that turns as the hand does. Each is published with its own track,
 // the same from sample to sample, at the three-contact bound; when one finger lifts, two remain.
@@ -373,14 +383,7 @@ TEST_F(AggregatorRefineTest, ThreePressesOfAGraspAreTrackedApartAndOneLifts) {
   uint32_t ids[3] = {0, 0, 0};
   int samples = 0, three = 0, held = 0;
   double err = 0, bound = 0;
-  const double r = 50 / std::sqrt(3.0);
-  auto grasp = [&](int i, sim::Contact* p) {
-    const double turn = 0.3 + 0.01 * i;  // 0.57 degrees a sample
-    for (int k = 0; k < 3; ++k) {
-      const double th = turn + k * 2 * M_PI / 3;
-      p[k] = {-5 + r * std::cos(th), 5 + r * std::sin(th), 2.2 + 0.3 * k, 5.0};
-    }
-  };
+  auto grasp = [](int i, sim::Contact* p) { grasp_presses(0.3 + 0.01 * i, p); };  // 0.57 deg
   for (int i = 0; i < 40; ++i) {
     sim::Contact p[3];
     grasp(i, p);
@@ -438,14 +441,10 @@ TEST_F(AggregatorRefineTest, ThreePressesOfAGraspAreTrackedApartAndOneLifts) {
 TEST_F(AggregatorRefineTest, AProposerStartsTheCountOfAGrasp) {
   Stream stream(*unit_, options_, false, 3, 85, "estimators/models/nominal_proposer");
   ASSERT_TRUE(stream.ok());
-  const double r = 50 / std::sqrt(3.0);
   int samples = 0, three = 0, first_three = -1;
   for (int i = 0; i < 20; ++i) {
     sim::Contact p[3];
-    for (int k = 0; k < 3; ++k) {
-      const double th = 1.1 + 0.01 * i + k * 2 * M_PI / 3;
-      p[k] = {-5 + r * std::cos(th), 5 + r * std::sin(th), 2.2 + 0.3 * k, 5.0};
-    }
+    grasp_presses(1.1 + 0.01 * i, p);
     ContactArray arr;
     if (!stream.sample(p, &arr)) continue;
     ++samples;
