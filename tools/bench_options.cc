@@ -61,6 +61,11 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
   sub->add_option("--design", a.design_path,
                   "patch design file (docs/design_file.md; default: the built-in design)")
       ->check(CLI::ExistingFile);
+  sub->add_option("--unit-design", a.unit_design_path,
+                  "the design the units are built to, when it differs from --design (the "
+                  "design file the pipelines start from): a unit whose spread, depths or "
+                  "moments are off its drawing")
+      ->check(CLI::ExistingFile);
   sub->add_option("--units", a.units, "simulated units: nominal, fabricated, anisotropic")
       ->delimiter(',')
       ->capture_default_str();

@@ -45,7 +45,7 @@ int main(int argc, char** argv) {
       "(docs/physics_estimator.md, \"Unit files\").\n\n"
       "Input: a dataset in the project's CSV format (docs/dataset_format.md) of presses at known\n"
       "positions and depths, e.g. an indentation robot's ramp protocol: 361 presses on the\n"
-      "seed's 19 x 19 grid take ~4 s to fit; at least ~20 presses spread over the patch.\n"
+      "seed's 19 x 19 grid take ~15-30 s to fit; at least ~20 presses spread over the patch.\n"
       "The fit reports its residual in sensor-noise units, overall and per depth bin: about 1\n"
       "means the model explains the unit down to the noise; clearly above 1 (> 1.1) means the\n"
       "unit has physics the model class does not contain (e.g. an anisotropic lattice): use\n"
@@ -79,7 +79,19 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 64));
   app.add_option("--min-depth", opt.min_depth_mm, "shallower samples are not used, mm")
       ->capture_default_str();
+  bool keep_globals = false;
+  app.add_flag("--keep-globals", keep_globals,
+               "start every part from the design file as it is, without first fitting the "
+               "design's global physics (spread, lateral coupling, magnet and sensor heights, "
+               "moment scale)");
+  app.add_option("--max-residual", opt.max_residual,
+                 "refuse a fit leaving more than this residual (RMS, noise units)")
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
+  opt.fit_globals = !keep_globals;
+  opt.progress = [](const std::string& line) {
+    std::fprintf(stderr, "skinbus-identify: %s\n", line.c_str());
+  };
 
   Result<sim::PatchDesign> read = sim::read_design_or_builtin(design_path);
   if (!read.ok())
@@ -101,7 +113,7 @@ int main(int argc, char** argv) {
     }
     held_out = std::move(h).value();
   }
-  std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (a few seconds) ...\n",
+  std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (tens of seconds) ...\n",
                presses->rows(), presses_path.c_str());
   const auto t0 = std::chrono::steady_clock::now();
   Result<estimators::IdentifiedUnit> id =
@@ -114,6 +126,15 @@ int main(int argc, char** argv) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::printf("identified from %d presses (%d samples) in %.1f s, %d iterations\n", id->presses,
               id->rows_used, seconds, id->iterations);
+  if (opt.fit_globals) {
+    const estimators::GlobalPhysics& g = id->globals;
+    std::printf(
+        "globals: spread %.2f mm (design %.2f), lateral %.2f mm (design %.2f), magnet heights "
+        "%+.2f mm, sensor heights %+.2f mm, moments x%.3f; residual %.3f noise units with these "
+        "alone (%d starts)\n",
+        g.spread_mm, design.spread_mm, g.lateral_mm, design.lateral_mm, g.magnet_height_offset_mm,
+        g.sensor_height_offset_mm, g.moment_scale, g.rms, g.starts);
+  }
   if (id->masked_values > 0) {
     std::printf("%d field value(s) not finite (dead channels): left out of the fit\n",
                 id->masked_values);

@@ -4,8 +4,11 @@
 #include <ceres/rotation.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <limits>
 #include <map>
 #include <memory>
 #include <string>
@@ -227,9 +230,218 @@ class PriorResidual final : public ceres::CostFunction {
   std::vector<double> centre_, inv_sd_;
 };
 
+// ---- Stage 1: the design's global physics --------------------------------------------------
+// Five numbers that a design file may have wrong for a whole unit and that the per-magnet and
+// per-sensor parameters, held to the fabrication spread, cannot absorb: the spread length, the
+// lateral coupling, a height offset common to every magnet, a height offset common to every
+// sensor (negative: deeper) and a scale of every moment.
+constexpr int kGlobals = 5;
+using JetG = ceres::Jet<double, kGlobals>;
+
+struct GlobalContext {
+  const sim::PatchModel* shape;
+  const sim::UnitParameters* design;  // the design's nominal unit
+  double tip_mm;
+  std::vector<double> inv_sigma;  // per channel
+};
+
+// Whitened residuals of every channel of one sample under globals `g`; T is double or JetG.
+template <typename T>
+void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g, T* out) {
+  const sim::UnitParameters& d = *ctx.design;
+  const std::size_t ns = d.sensors.size();
+  Vec3<T> acc[sim::kMaxSensors];
+  Vec3<T> spos[sim::kMaxSensors];
+  for (std::size_t k = 0; k < ns; ++k) {
+    acc[k] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
+    const sim::SensorParameters& sp = d.sensors[k];
+    spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], nullptr,
+                                          nullptr, nullptr);
+  }
+  const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
+  for (const sim::MagnetParameters& mp : d.magnets) {
+    const T h = T(mp.h_mm) + g[2];
+    const Vec3<T> m_loc{g[4] * mp.moment_am2.x, g[4] * mp.moment_am2.y, g[4] * mp.moment_am2.z};
+    Vec3<T> pos, moment, rest_pos, rest_moment;
+    if (!ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
+                                std::span<const sim::ContactT<T>>(&c, 1), &pos, &moment)) {
+      continue;  // beyond the plate's reach: this magnet does not move
+    }
+    ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
+                           std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
+    for (std::size_t k = 0; k < ns; ++k) {
+      acc[k] = acc[k] + sim::dipole_field_ut(moment, spos[k] - pos) -
+               sim::dipole_field_ut(rest_moment, spos[k] - rest_pos);
+    }
+  }
+  for (std::size_t k = 0; k < ns; ++k) {
+    const sim::SensorParameters& sp = d.sensors[k];
+    Vec3<T> tu, tv, n;
+    ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &tu, &tv, &n);
+    const Vec3<double> gain = sp.gain;
+    const double gk[3] = {gain.x, gain.y, gain.z};
+    for (int row = 0; row < 3; ++row) {
+      const Vec3<double>& e = sp.mounting.r[row];
+      const Vec3<T> axis = tu * T(e.x) + tv * T(e.y) + n * T(e.z);
+      const std::size_t ch = 3 * k + static_cast<std::size_t>(row);
+      const double y = smp.field[ch];
+      out[ch] = std::isfinite(y) ? (T(gk[row]) * sim::dot(axis, acc[k]) - T(y)) * ctx.inv_sigma[ch]
+                                 : T(0.0);
+    }
+  }
+}
+
+class GlobalResidual final : public ceres::CostFunction {
+ public:
+  GlobalResidual(const GlobalContext& ctx, const Sample& smp, int channels)
+      : ctx_(ctx), smp_(smp), nc_(channels) {
+    set_num_residuals(channels);
+    mutable_parameter_block_sizes()->push_back(kGlobals);
+  }
+  bool Evaluate(double const* const* p, double* residuals, double** jacobians) const override {
+    const std::size_t nc = static_cast<std::size_t>(nc_);
+    if (jacobians == nullptr || jacobians[0] == nullptr) {
+      global_residuals<double>(ctx_, smp_, p[0], residuals);
+    } else {
+      JetG g[kGlobals];
+      for (int j = 0; j < kGlobals; ++j) g[j] = JetG(p[0][j], j);
+      JetG out[3 * sim::kMaxSensors];
+      global_residuals<JetG>(ctx_, smp_, g, out);
+      for (std::size_t i = 0; i < nc; ++i) {
+        residuals[i] = out[i].a;
+        for (int j = 0; j < kGlobals; ++j)
+          jacobians[0][i * kGlobals + static_cast<std::size_t>(j)] = out[i].v[j];
+      }
+    }
+    for (std::size_t i = 0; i < nc; ++i) {
+      if (!std::isfinite(residuals[i])) return false;
+    }
+    return true;
+  }
+
+ private:
+  const GlobalContext& ctx_;
+  const Sample& smp_;
+  int nc_;
+};
+
 double inv(double sd, double scale) {
   // A zero spread holds the parameter (a very stiff prior) rather than dividing by zero.
   return 1 / std::fmax(sd * scale, 1e-9 * std::fmax(scale, 1e-3));
+}
+
+std::string format_fixed(double x, int digits) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.*f", digits, x);
+  return buf;
+}
+
+std::string describe(const GlobalPhysics& g) {
+  return "spread " + format_fixed(g.spread_mm, 2) + " mm, lateral " +
+         format_fixed(g.lateral_mm, 2) + " mm, magnets " +
+         format_fixed(g.magnet_height_offset_mm, 2) + " mm, sensors " +
+         format_fixed(g.sensor_height_offset_mm, 2) + " mm, moments x" +
+         format_fixed(g.moment_scale, 3);
+}
+
+// Stage 1 (see the header): the five globals by Levenberg-Marquardt from each spread start,
+// under broad priors about the design; the lowest cost wins. Refuses a fit that ends at a bound.
+Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::UnitParameters& design,
+                                  const sim::Dataset& presses, std::span<const std::size_t> rows,
+                                  const ChannelNoise& noise, const IdentificationOptions& opt,
+                                  int* iterations) {
+  const int nc = nominal.channel_count();
+  GlobalContext ctx{&nominal, &design, opt.tip_radius_mm, {}};
+  for (int c = 0; c < nc; ++c) ctx.inv_sigma.push_back(1 / noise.sigma(c));
+  std::vector<Sample> samples;
+  samples.reserve(rows.size());
+  for (std::size_t r : rows) {
+    samples.push_back(
+        {presses.u_mm[r], presses.v_mm[r], presses.depth_mm[r], presses.field(r), {}, {}});
+  }
+  double top_sensor_mm = -1e9;
+  for (const sim::SensorParameters& sp : design.sensors)
+    top_sensor_mm = std::fmax(top_sensor_mm, sp.h_mm);
+  const GlobalPriors& pr = opt.global_priors;
+  const double l0 = design.spread_mm, lat0 = design.lateral_mm;
+  const double centre[kGlobals] = {l0, lat0, 0, 0, 1};
+  const double lo[kGlobals] = {pr.spread_min_rel * l0, 0, -pr.height_max_mm, -pr.height_max_mm,
+                               pr.moment_min};
+  const double hi[kGlobals] = {pr.spread_max_rel * l0, pr.lateral_max_mm, pr.height_max_mm,
+                               std::fmin(pr.height_max_mm, -top_sensor_mm - 0.5), pr.moment_max};
+  const double inv_sd[kGlobals] = {inv(pr.spread_rel_sd, l0), 1 / pr.lateral_sd_mm,
+                                   1 / pr.height_sd_mm, 1 / pr.height_sd_mm, 1 / pr.moment_rel_sd};
+  const char* names[kGlobals] = {"the spread length", "the lateral coupling", "the magnets' height",
+                                 "the sensors' height", "the moments' scale"};
+
+  ceres::Solver::Options so;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  so.max_num_iterations = opt.max_iterations;
+  so.function_tolerance = opt.function_tolerance;
+  so.parameter_tolerance = 1e-9;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+
+  GlobalPhysics best{};
+  double best_cost = std::numeric_limits<double>::infinity();
+  std::array<double, kGlobals> best_x{};
+  int starts = 0;
+  for (double f : opt.spread_starts) {
+    std::array<double, kGlobals> x = {std::clamp(f * l0, lo[0], hi[0]), lat0, 0, 0, 1};
+    ceres::Problem::Options po;
+    po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+    ceres::Problem problem(po);
+    for (const Sample& smp : samples) {
+      problem.AddResidualBlock(new GlobalResidual(ctx, smp, nc), nullptr, x.data());
+    }
+    problem.AddResidualBlock(new PriorResidual(std::vector<double>(centre, centre + kGlobals),
+                                               std::vector<double>(inv_sd, inv_sd + kGlobals)),
+                             nullptr, x.data());
+    for (int j = 0; j < kGlobals; ++j) {
+      problem.SetParameterLowerBound(x.data(), j, lo[j]);
+      problem.SetParameterUpperBound(x.data(), j, hi[j]);
+    }
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    *iterations += static_cast<int>(summary.iterations.size()) - 1;
+    ++starts;
+    const bool ok = summary.termination_type == ceres::CONVERGENCE ||
+                    summary.termination_type == ceres::NO_CONVERGENCE;
+    const double rms =
+        std::sqrt(2 * summary.final_cost /
+                  static_cast<double>(samples.size() * static_cast<std::size_t>(nc)));
+    if (opt.progress) {
+      opt.progress("globals from spread " + format_fixed(f * l0, 1) + " mm: " +
+                   (ok ? describe({x[0], x[1], x[2], x[3], x[4], rms, 0}) + ", residual " +
+                             format_fixed(rms, 2) + " noise units"
+                       : std::string("failed: ") + summary.message));
+    }
+    if (ok && summary.final_cost < best_cost) {
+      best_cost = summary.final_cost;
+      best_x = x;
+      best = {x[0], x[1], x[2], x[3], x[4], rms, 0};
+    }
+  }
+  if (!std::isfinite(best_cost)) {
+    return make_error(ErrorCode::kNotConverged,
+                      "identification: the design's global physics could not be fitted from any "
+                      "of " +
+                          std::to_string(starts) + " starts");
+  }
+  best.starts = starts;
+  for (int j = 0; j < kGlobals; ++j) {
+    const double tol = 1e-3 * std::fmax(hi[j] - lo[j], 1e-6);
+    if (j != 1 && (best_x[static_cast<std::size_t>(j)] <= lo[j] + tol ||
+                   best_x[static_cast<std::size_t>(j)] >= hi[j] - tol)) {
+      return make_error(ErrorCode::kNotConverged,
+                        std::string("identification: ") + names[j] + " ran to its bound (" +
+                            describe(best) +
+                            "): the unit is too far from its design file to start from it, or "
+                            "the presses do not deform the lattice as the design says");
+    }
+  }
+  return best;
 }
 
 }  // namespace
@@ -374,8 +586,26 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
     }
   }
 
-  // Parameters, starting at the nominal unit.
-  const sim::UnitParameters start = nominal.parameters();
+  // Stage 1: the design's global physics, from several spread lengths; the best start wins.
+  sim::UnitParameters start = nominal.parameters();
+  GlobalPhysics globals{start.spread_mm, start.lateral_mm, 0, 0, 1, 0, 0};
+  int iterations = 0;
+  if (opt.fit_globals) {
+    Result<GlobalPhysics> g = fit_globals(nominal, start, presses, rows, noise, opt, &iterations);
+    if (!g.ok()) return g.error();
+    globals = g.value();
+    start.spread_mm = globals.spread_mm;
+    start.lateral_mm = globals.lateral_mm;
+    for (sim::MagnetParameters& mp : start.magnets) {
+      mp.h_mm += globals.magnet_height_offset_mm;
+      mp.moment_am2 = mp.moment_am2 * globals.moment_scale;
+    }
+    for (sim::SensorParameters& sp : start.sensors) sp.h_mm += globals.sensor_height_offset_mm;
+  }
+  if (opt.progress) opt.progress("fitting every magnet and sensor");
+
+  // Stage 2: every parameter, starting at the design with the globals found, held to the
+  // fabrication spread about it.
   const double moment_scale = sim::cylinder_moment_am2(
       design.remanence_t, design.magnet_diameter_mm, design.magnet_height_mm);
   const std::size_t nm = start.magnets.size(), ns = start.sensors.size();
@@ -480,7 +710,6 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   so.logging_type = ceres::SILENT;
   so.minimizer_progress_to_stdout = false;
 
-  int iterations = 0;
   for (int outer = 0; outer < opt.outer_iterations; ++outer) {
     // Frozen field of the magnets beyond derivative reach, at the current parameters.
     for (Sample& s : samples) {
@@ -538,10 +767,36 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   }
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  IdentifiedUnit out{std::move(model).value(),      fitted,     {},     {}, {}, {}, n_presses,
-                     static_cast<int>(rows.size()), iterations, seconds};
-  out.masked_values = static_cast<int>(masked_values);
+  IdentifiedUnit out{std::move(model).value(),
+                     fitted,
+                     {},
+                     {},
+                     {},
+                     {},
+                     n_presses,
+                     static_cast<int>(rows.size()),
+                     iterations,
+                     seconds,
+                     static_cast<int>(masked_values),
+                     globals};
   out.fit = fit_quality(out.model, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
+  if (!(out.fit.rms <= opt.max_residual)) {
+    std::string bins;
+    for (const DepthBinResidual& b : out.fit.bins) {
+      if (b.rows == 0) continue;
+      char buf[96];
+      std::snprintf(buf, sizeof buf, "%s%g-%g mm: %.2f", bins.empty() ? "" : ", ", b.depth_lo_mm,
+                    b.depth_hi_mm, b.rms);
+      bins += buf;
+    }
+    return make_error(ErrorCode::kNotConverged,
+                      "identification: the design's model class does not explain these presses: "
+                      "residual " +
+                          format_fixed(out.fit.rms, 2) + " noise units (limit " +
+                          format_fixed(opt.max_residual, 2) + "; by depth " + bins +
+                          ") with the globals " + describe(globals) +
+                          "; check the design file's magnets, sensors and lattice");
+  }
   out.nominal_fit =
       fit_quality(nominal, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
   if (held_out != nullptr) {

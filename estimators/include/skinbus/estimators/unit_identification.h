@@ -13,10 +13,20 @@
 // anisotropy 0): the model class is the nominal one, so a unit whose lattice spreads unequally
 // along u and v is left with a residual above the noise, which fit quality reports.
 //
-// Method: maximum a posteriori least squares with Ceres (Levenberg-Marquardt, sparse normal
-// Cholesky). Data residuals are whitened by the sensor noise; a Gaussian prior per parameter,
-// centred on the nominal design with the fabrication spread (sim::FabricationVariation), fixes
-// the directions the data cannot see (e.g. all moments up and all gains down together).
+// Method, in two stages, both least squares with Ceres (Levenberg-Marquardt), residuals whitened
+// by the sensor noise:
+// 1. The globals (GlobalPhysics: spread length, lateral coupling, one height offset for every
+//    magnet, one for every sensor, one scale of every moment), 5 unknowns over every fitting row,
+//    from several spread lengths (the lowest cost wins), under broad priors about the design
+//    (GlobalPriors). A design file is a drawing, not the unit: a lattice printed softer or
+//    magnets set deeper is off by more than fabrication scatter, and the per-part parameters,
+//    held to that scatter, then settle in a poor minimum. A global that runs to its bound is
+//    refused, naming it.
+// 2. Every parameter (maximum a posteriori, sparse normal Cholesky): a Gaussian prior per
+//    parameter, centred on the design with stage 1's globals and as wide as the fabrication
+//    spread (sim::FabricationVariation), fixes the directions the data cannot see (e.g. all
+//    moments up and all gains down together). A fit that leaves more than max_residual noise
+//    units is refused with its residual per depth bin.
 // One residual block per (sample, sensor) touches that sensor, the two lattice parameters and
 // only the magnets within derivative_reach spread lengths of the press, so the Jacobian stays
 // sparse. Derivatives are exact forward-mode jets through sim's own templates
@@ -32,7 +42,9 @@
 // docs/physics_estimator.md). Single-threaded (Eigen's sparse Cholesky; no BLAS threads).
 #pragma once
 
+#include <functional>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "skinbus/common/result.h"
@@ -68,6 +80,30 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
                        const ChannelNoise& noise, std::span<const double> depth_bin_edges_mm,
                        std::span<const std::size_t> rows = {});
 
+// The design's global physics as identification's first stage finds them: what a design file
+// may have wrong for a whole unit (a lattice printed softer, magnets set deeper, sensors on a
+// thicker board, stronger magnets), applied to every magnet and sensor of the design.
+struct GlobalPhysics {
+  double spread_mm = 0;                // the lattice's spread length
+  double lateral_mm = 0;               // its lateral coupling
+  double magnet_height_offset_mm = 0;  // added to every magnet's height
+  double sensor_height_offset_mm = 0;  // added to every sensor's height (negative: deeper)
+  double moment_scale = 1;             // every magnet's moment times this
+  double rms = 0;                      // residual with these globals alone, noise units
+  int starts = 0;                      // starts tried
+};
+
+// Broad priors and hard bounds of the first stage, about the design's values: wide enough for a
+// design off by +-30 % in spread, +-1 mm in the depths and +-10 % in the moments (tested), and
+// keeping the nearly interchangeable magnet and sensor heights from drifting apart.
+struct GlobalPriors {
+  double spread_rel_sd = 0.5;
+  double spread_min_rel = 0.3, spread_max_rel = 3.0;
+  double lateral_sd_mm = 2.0, lateral_max_mm = 10.0;
+  double height_sd_mm = 2.0, height_max_mm = 5.0;  // each offset
+  double moment_rel_sd = 0.3, moment_min = 0.3, moment_max = 3.0;
+};
+
 struct IdentificationOptions {
   double tip_radius_mm = 5.0;  // the indenter's round tip (sim::RampProtocol's default)
   int depths_per_press = 4;    // samples kept per press
@@ -85,6 +121,16 @@ struct IdentificationOptions {
   int min_presses_per_magnet = 2;
   double coverage_radius_mm = 15;
   std::vector<double> depth_bin_edges_mm = {0, 1, 2, 3, 4, 9};
+  // Stage 1 (fit_globals): the globals from each of these spread starts (x the design's); the
+  // lowest cost wins. false: start stage 2 from the design as it is.
+  bool fit_globals = true;
+  std::vector<double> spread_starts = {1.0, 0.7, 1.4};
+  GlobalPriors global_priors{};
+  // A fit leaving more than this (RMS, noise units, on the fitting rows) is refused: the model
+  // class does not explain the unit (above kModelMissesResidual it is kept, with physics missed).
+  double max_residual = 4.0;
+  // Called with a line on each step (stage 1 per start, stage 2); may be empty.
+  std::function<void(const std::string&)> progress;
 };
 
 struct IdentifiedUnit {
@@ -101,6 +147,7 @@ struct IdentifiedUnit {
   // Field values left out of the fit for not being finite (a dead channel in a recording; the
   // dataset format allows NaN), counted over the rows considered. A row needs half its channels.
   int masked_values = 0;
+  GlobalPhysics globals;  // stage 1's result (the design's own values when not fitted)
 };
 
 // Fits the unit that produced `presses`. Errors: kInvalidArgument (design invalid, channel

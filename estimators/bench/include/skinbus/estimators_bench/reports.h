@@ -68,6 +68,9 @@ struct BudgetBenchArgs {
   int test_count = 2000;                 // off-grid test presses
   int grid_test_per_point = 3;           // test presses at every grid point
   std::string design_path;               // the units' patch design file; empty: built-in
+  // The design the units are built to, when it differs from the file the pipelines start from
+  // (what the drawing says vs what was printed); empty: design_path's.
+  std::string unit_design_path;
   std::string csv;
 };
 
