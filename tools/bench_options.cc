@@ -66,13 +66,21 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
                   "design file the pipelines start from): a unit whose spread, depths or "
                   "moments are off its drawing")
       ->check(CLI::ExistingFile);
-  sub->add_option("--units", a.units, "simulated units: nominal, fabricated, anisotropic")
+  sub->add_option("--units", a.units,
+                  "simulated units: nominal, fabricated, and outside the model class "
+                  "anisotropic, crushing (the top crushes under the tip), discs (finite "
+                  "magnets)")
       ->delimiter(',')
       ->capture_default_str();
   sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")
       ->capture_default_str();
   sub->add_option("--anisotropy", a.anisotropy, "lattice anisotropy of the 'anisotropic' unit")
       ->capture_default_str();
+  sub->add_option("--tip-crush", a.tip_crush_mm,
+                  "the 'crushing' unit: the plate bends d / (1 + d / this) under a press d "
+                  "deep, mm")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   sub->add_option("--seed-model", a.seed_models,
                   "unit=MODEL: the seed CNN trained on that unit's 19 x 19 grid (skinbus-train on "
                   "skinbus-dataset --plan grid); repeat per unit");

@@ -86,6 +86,10 @@ int main(int argc, char** argv) {
           ->capture_default_str();
   app.add_option("--seed", seed, "seed of random plans")->capture_default_str();
   app.add_option("--points", points_path, "list plan: file of press points");
+  bool discs = false;
+  app.add_flag("--disc-magnets", discs,
+               "every magnet a disc of the design's size (14 dipoles over its volume) instead of "
+               "a point dipole: physics outside every estimator's model class");
   std::string unit_path;
   app.add_option("--unit", unit_path,
                  "unit file (skinbus-identify): simulate that identified unit instead of the "
@@ -120,6 +124,7 @@ int main(int argc, char** argv) {
       return m;
     };
     Result<PatchModel> model = make_model();
+    if (model.ok() && discs) model = PatchModel::with_disc_magnets(model.value());
     if (!model.ok()) throw std::runtime_error(model.error().message);
     SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
     const double half = (grid - 1) / 2.0 * pitch;
@@ -152,9 +157,10 @@ int main(int argc, char** argv) {
     char uid_text[32];
     std::snprintf(uid_text, sizeof uid_text, "0x%016llx", static_cast<unsigned long long>(uid));
     d.meta["unit_uid"] = uid_text;
-    d.meta["unit"] = !unit_path.empty() ? "identified " + unit_path
-                     : fabricated       ? "fabricated"
-                                        : "nominal";
+    d.meta["unit"] = std::string(!unit_path.empty() ? "identified " + unit_path
+                                 : fabricated       ? "fabricated"
+                                                    : "nominal") +
+                     (discs ? ", disc magnets" : "");
     const auto t1 = std::chrono::steady_clock::now();
     auto s = write_dataset_csv(d, out_path);
     if (!s.ok()) throw std::runtime_error(s.error().message);

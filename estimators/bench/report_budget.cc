@@ -38,13 +38,13 @@ struct Unit {
   sim::Dataset grid_test;  // test: random depths at the grid points
 };
 
+constexpr const char* kUnitKinds = "nominal, fabricated, anisotropic, crushing, discs";
+
 Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
                        const sim::PatchDesign& base) {
   sim::PatchDesign design = base;
-  Result<sim::PatchModel> model = make_error(ErrorCode::kInvalidArgument, "unknown unit '" + name +
-                                                                              "' (nominal, "
-                                                                              "fabricated, "
-                                                                              "anisotropic)");
+  Result<sim::PatchModel> model = make_error(
+      ErrorCode::kInvalidArgument, "unknown unit '" + name + "' (" + std::string(kUnitKinds) + ")");
   if (name == "nominal") {
     model = sim::PatchModel::nominal(design);
   } else if (name == "fabricated") {
@@ -52,6 +52,12 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   } else if (name == "anisotropic") {
     design.anisotropy = a.anisotropy;
     model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+  } else if (name == "crushing") {
+    design.tip_crush_mm = a.tip_crush_mm;
+    model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+  } else if (name == "discs") {
+    model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+    if (model.ok()) model = sim::PatchModel::with_disc_magnets(model.value());
   }
   if (!model.ok()) return model.error();
   Unit u{name, model.value(), {}, {}, {}};
@@ -115,9 +121,10 @@ Status bench_budget(const BudgetBenchArgs& a) {
     seed_paths[s.substr(0, eq)] = s.substr(eq + 1);
   }
   for (const std::string& name : a.units) {
-    if (name != "nominal" && name != "fabricated" && name != "anisotropic") {
-      return errorf(ErrorCode::kInvalidArgument,
-                    "unknown unit '%s' (nominal, fabricated, anisotropic)", name.c_str());
+    if (name != "nominal" && name != "fabricated" && name != "anisotropic" && name != "crushing" &&
+        name != "discs") {
+      return errorf(ErrorCode::kInvalidArgument, "unknown unit '%s' (%s)", name.c_str(),
+                    kUnitKinds);
     }
   }
   Result<sim::PatchDesign> base = sim::read_design_or_builtin(a.design_path);
@@ -249,15 +256,31 @@ Status bench_budget(const BudgetBenchArgs& a) {
           },
           id_s + fit_s, id->held_out.rms);
       if (plan == "grid") {
-        // The pipeline as deployed: the correction is used only when the identification says
-        // the model misses something (residual above kModelMissesResidual noise units on the unit's
-        // own presses); otherwise it could only add its own noise.
-        const bool gate = id->fit.rms > kModelMissesResidual;
+        // The correction is used only when it lowers the error on the unit's own presses that
+        // it was not fitted on (five folds of press places, each among fitted ones); otherwise it
+        // could only add its own noise.
+        Result<CorrectionCheck> check = BiasCorrection::cross_validate(est, tu, tv, td, bo);
+        if (!check.ok()) return with_context(check.error(), "bias correction check");
+        BiasCorrectionOptions chosen = bo;
+        chosen.correct_position = check->helps_position();
+        chosen.correct_depth = check->helps_depth();
+        const bool gate = chosen.correct_position || chosen.correct_depth;
+        std::fprintf(stderr,
+                     "skinbus-bench:   correction on held-out presses (%d samples >= 1 mm): XY "
+                     "%.3f -> %.3f mm (explains %.0f %% of the squared error), depth %.3f -> "
+                     "%.3f mm: %s the position, %s the depth\n",
+                     check->samples, check->xy_mean_without_mm, check->xy_mean_with_mm,
+                     100 * check->explained, check->depth_mean_without_mm,
+                     check->depth_mean_with_mm, chosen.correct_position ? "corrects" : "keeps",
+                     chosen.correct_depth ? "corrects" : "keeps");
+        Result<BiasCorrection> chosen_bias = BiasCorrection::fit(est, tu, tv, td, chosen);
+        if (!chosen_bias.ok()) return with_context(chosen_bias.error(), "bias correction");
         add_row(
-            "best: identified unit (grid) + physics LM, + learned correction if residual > 1.1",
+            "best: identified unit (grid) + physics LM, + the learned correction of what "
+            "helps on held-out presses",
             [&](const double* f) {
               const ContactEstimate e = lm->estimate({f, nc}).contact;
-              return gate ? bias->apply(e) : e;
+              return gate ? chosen_bias->apply(e) : e;
             },
             id_s + (gate ? fit_s : 0.0), id->held_out.rms);
         grid_lm.emplace(std::move(lm.value()));

@@ -3,6 +3,10 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <string>
+#include <utility>
+#include <vector>
 
 namespace skinbus::estimators {
 namespace {
@@ -108,6 +112,108 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
   return c;
 }
 
+Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEstimate> estimates,
+                                                       std::span<const double> true_u_mm,
+                                                       std::span<const double> true_v_mm,
+                                                       std::span<const double> true_depth_mm,
+                                                       const BiasCorrectionOptions& options) {
+  constexpr int folds = kCheckFolds;
+  const std::size_t n = estimates.size();
+  if (true_u_mm.size() != n || true_v_mm.size() != n || true_depth_mm.size() != n) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "bias correction check: estimates and truth differ in length");
+  }
+  // The press places and their spacing: the median distance to the nearest other place.
+  std::vector<std::pair<double, double>> places;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::isfinite(true_u_mm[i]) && std::isfinite(true_v_mm[i]))
+      places.emplace_back(true_u_mm[i], true_v_mm[i]);
+  }
+  std::sort(places.begin(), places.end());
+  places.erase(std::unique(places.begin(), places.end()), places.end());
+  if (places.size() < 10 * folds) {
+    return make_error(ErrorCode::kDegenerate,
+                      "bias correction check: " + std::to_string(places.size()) +
+                          " press places, need at least " + std::to_string(10 * folds));
+  }
+  std::vector<double> nearest;
+  for (const auto& [u, v] : places) {
+    double best = std::numeric_limits<double>::infinity();
+    for (const auto& [u2, v2] : places) {
+      const double d = std::hypot(u - u2, v - v2);
+      if (d > 0) best = std::fmin(best, d);
+    }
+    nearest.push_back(best);
+  }
+  std::nth_element(nearest.begin(),
+                   nearest.begin() + static_cast<std::ptrdiff_t>(nearest.size() / 2),
+                   nearest.end());
+  const double pitch = nearest[nearest.size() / 2];
+  double lo_u = places.front().first, hi_u = places.back().first, lo_v = lo_u, hi_v = lo_u;
+  lo_v = hi_v = places.front().second;
+  for (const auto& [u, v] : places) {
+    lo_v = std::fmin(lo_v, v);
+    hi_v = std::fmax(hi_v, v);
+  }
+  // Cells of that pitch, in five folds by (i + 2 j) mod 5: no cell shares its fold with any of
+  // its 8 neighbours, so every held-out press sits among fitted ones, as a new press would. The
+  // outermost places are always fitted (fold -1): held out, they would ask the polynomial to
+  // extrapolate, which the correction fitted on every press never does.
+  auto fold_of = [&](std::size_t i) {
+    const double u = true_u_mm[i], v = true_v_mm[i];
+    if (!(u > lo_u + 0.5 * pitch && u < hi_u - 0.5 * pitch && v > lo_v + 0.5 * pitch &&
+          v < hi_v - 0.5 * pitch)) {
+      return -1;
+    }
+    const auto ci = static_cast<int64_t>(std::floor(u / pitch + 0.5));
+    const auto cj = static_cast<int64_t>(std::floor(v / pitch + 0.5));
+    const int64_t f = (ci + 2 * cj) % folds;
+    return static_cast<int>(f < 0 ? f + folds : f);
+  };
+  CorrectionCheck out;
+  double sum_without = 0, sum_with = 0, sq_without = 0, sq_with = 0, dep_without = 0, dep_with = 0;
+  for (int f = 0; f < folds; ++f) {
+    std::vector<ContactEstimate> est;
+    std::vector<double> tu, tv, td;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (fold_of(i) == f) continue;
+      est.push_back(estimates[i]);
+      tu.push_back(true_u_mm[i]);
+      tv.push_back(true_v_mm[i]);
+      td.push_back(true_depth_mm[i]);
+    }
+    BiasCorrectionOptions both = options;
+    both.correct_position = both.correct_depth = true;
+    Result<BiasCorrection> c = fit(est, tu, tv, td, both);
+    if (!c.ok()) return c.error();
+    for (std::size_t i = 0; i < n; ++i) {
+      const ContactEstimate& e = estimates[i];
+      if (fold_of(i) != f || !e.valid() || !(true_depth_mm[i] >= options.min_depth_mm) ||
+          !std::isfinite(true_u_mm[i]) || !std::isfinite(true_v_mm[i])) {
+        continue;
+      }
+      const ContactEstimate k = c->apply(e);
+      const double a = std::hypot(e.u_mm - true_u_mm[i], e.v_mm - true_v_mm[i]);
+      const double b = std::hypot(k.u_mm - true_u_mm[i], k.v_mm - true_v_mm[i]);
+      sum_without += a;
+      sum_with += b;
+      sq_without += a * a;
+      sq_with += b * b;
+      dep_without += std::fabs(e.depth_mm - true_depth_mm[i]);
+      dep_with += std::fabs(k.depth_mm - true_depth_mm[i]);
+      ++out.samples;
+    }
+  }
+  if (out.samples > 0) {
+    out.xy_mean_without_mm = sum_without / out.samples;
+    out.xy_mean_with_mm = sum_with / out.samples;
+    out.explained = sq_without > 0 ? 1 - sq_with / sq_without : 0;
+    out.depth_mean_without_mm = dep_without / out.samples;
+    out.depth_mean_with_mm = dep_with / out.samples;
+  }
+  return out;
+}
+
 ContactEstimate BiasCorrection::apply(const ContactEstimate& e) const {
   if (!e.valid() || !(e.depth_mm >= options_.min_depth_mm)) return e;
   double phi[kMaxTerms];
@@ -118,9 +224,11 @@ ContactEstimate BiasCorrection::apply(const ContactEstimate& e) const {
     for (int j = 0; j < terms_; ++j) d[k] += c[j] * phi[j];
   }
   ContactEstimate out = e;
-  out.u_mm += d[0];
-  out.v_mm += d[1];
-  out.depth_mm += d[2];
+  if (options_.correct_position) {
+    out.u_mm += d[0];
+    out.v_mm += d[1];
+  }
+  if (options_.correct_depth) out.depth_mm += d[2];
   if (!std::isfinite(out.u_mm) || !std::isfinite(out.v_mm) || !std::isfinite(out.depth_mm)) {
     return e;
   }

@@ -70,6 +70,50 @@ TEST(BiasCorrection, LearnsASmoothBiasAndRemovesItOnNewSamples) {
   EXPECT_GT(c->rms_correction_mm(), 0.2);
 }
 
+// The held-out check says a correction helps where there is a bias to learn, and does not
+// where the estimates only carry noise (a correction then fits the noise).
+TEST(BiasCorrection, TheHeldOutCheckTellsABiasFromNoise) {
+  std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
+  BiasCorrectionOptions o;
+  o.degree_uv = 8;
+  o.half_u_mm = o.half_v_mm = 65;
+  Samples biased = make(4000, kSeed, 0.2);
+  Result<CorrectionCheck> a =
+      BiasCorrection::cross_validate(biased.est, biased.u, biased.v, biased.d, o);
+  ASSERT_TRUE(a.ok()) << a.error().to_string();
+  std::printf("biased: %d held out, %.3f -> %.3f mm, explains %.0f %%\n", a->samples,
+              a->xy_mean_without_mm, a->xy_mean_with_mm, 100 * a->explained);
+  EXPECT_TRUE(a->helps_position());
+  EXPECT_TRUE(a->helps_depth());
+  EXPECT_GT(a->explained, 0.5);
+  // The same samples without their bias: nothing to learn.
+  Samples unbiased = biased;
+  for (std::size_t i = 0; i < unbiased.est.size(); ++i) {
+    double b[3];
+    bias_at(unbiased.u[i], unbiased.v[i], unbiased.d[i], b);
+    unbiased.est[i].u_mm += b[0];
+    unbiased.est[i].v_mm += b[1];
+    unbiased.est[i].depth_mm += b[2];
+  }
+  Result<CorrectionCheck> n =
+      BiasCorrection::cross_validate(unbiased.est, unbiased.u, unbiased.v, unbiased.d, o);
+  ASSERT_TRUE(n.ok()) << n.error().to_string();
+  std::printf("noise only: %.3f -> %.3f mm, explains %.1f %%\n", n->xy_mean_without_mm,
+              n->xy_mean_with_mm, 100 * n->explained);
+  EXPECT_FALSE(n->helps_position());
+  EXPECT_LT(n->explained, 0.0);
+  const std::vector<double> short_u(biased.u.begin(), biased.u.begin() + 10);
+  EXPECT_EQ(BiasCorrection::cross_validate(biased.est, short_u, biased.v, biased.d, o).error().code,
+            ErrorCode::kInvalidArgument);
+  const std::span<const ContactEstimate> few(biased.est.data(), 40);
+  EXPECT_EQ(BiasCorrection::cross_validate(few, std::span<const double>(biased.u.data(), 40),
+                                           std::span<const double>(biased.v.data(), 40),
+                                           std::span<const double>(biased.d.data(), 40), o)
+                .error()
+                .code,
+            ErrorCode::kDegenerate);
+}
+
 TEST(BiasCorrection, LeavesShallowAndRejectedEstimatesAlone) {
   const Samples train = make(4000, kSeed, 0.1);
   BiasCorrectionOptions o;

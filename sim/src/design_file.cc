@@ -142,12 +142,13 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
     }
   }
   if (const YAML::Node l = root["lattice"]; l && !r.error) {
-    r.only(
-        l, "lattice",
-        {"spread_mm", "lateral_mm", "anisotropy", "shear_stiffness_n_per_mm", "shear_spread_mm"});
+    r.only(l, "lattice",
+           {"spread_mm", "lateral_mm", "anisotropy", "tip_crush_mm", "shear_stiffness_n_per_mm",
+            "shear_spread_mm"});
     r.get_double(l, "spread_mm", "lattice.", 1e-3, kMaxLengthMm, &d.spread_mm);
     r.get_double(l, "lateral_mm", "lattice.", 0, kMaxLengthMm, &d.lateral_mm);
     r.get_double(l, "anisotropy", "lattice.", -0.499, 0.499, &d.anisotropy);
+    r.get_double(l, "tip_crush_mm", "lattice.", 0, kMaxLengthMm, &d.tip_crush_mm);
     r.get_double(l, "shear_stiffness_n_per_mm", "lattice.", 1e-6, 1e6, &d.shear_stiffness_n_per_mm);
     r.get_double(l, "shear_spread_mm", "lattice.", 1e-3, kMaxLengthMm, &d.shear_spread_mm);
   }
@@ -241,6 +242,8 @@ std::string design_to_yaml(const PatchDesign& d) {
     << "  lateral_mm: " << yaml_number(d.lateral_mm) << "   # in-plane motion = -lateral x slope\n"
     << "  anisotropy: " << yaml_number(d.anisotropy)
     << "   # spread l(1+a) along u, l(1-a) along v\n"
+    << "  tip_crush_mm: " << yaml_number(d.tip_crush_mm)
+    << "   # the plate bends d / (1 + d / this) under a press d deep (0: no crush)\n"
     << "  shear_stiffness_n_per_mm: " << yaml_number(d.shear_stiffness_n_per_mm)
     << "   # in-plane shift under a tangential force F: F / this\n"
     << "  shear_spread_mm: " << yaml_number(d.shear_spread_mm)

@@ -67,6 +67,7 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     d.spread_mm = 3 + 15 * u01(rng);
     d.lateral_mm = 4 * u01(rng);
     d.anisotropy = -0.3 + 0.6 * u01(rng);
+    d.tip_crush_mm = u01(rng) < 0.5 ? 0.0 : 5 + 30 * u01(rng);
     d.stiffness_n_per_mm = 0.5 + 3 * u01(rng);
     d.shear_stiffness_n_per_mm = 0.3 + 3 * u01(rng);
     d.shear_spread_mm = 2 + 12 * u01(rng);
@@ -80,6 +81,7 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     expect_same(back.value(), d);
     EXPECT_EQ(back->size_u_mm, d.size_u_mm) << "seed " << seed;
     EXPECT_EQ(back->anisotropy, d.anisotropy) << "seed " << seed;
+    EXPECT_EQ(back->tip_crush_mm, d.tip_crush_mm) << "seed " << seed;
   }
 }
 
@@ -186,6 +188,7 @@ TEST(DesignFile, EveryBadSettingIsNamedWithItsLine) {
       {head + "sensors:\n  chip: {gain_sel: 9}\n", "sensors.chip.gain_sel (line 4)"},
       {head + "sensors:\n  chip: {temperature: maybe}\n", "sensors.chip.temperature (line 4)"},
       {head + "lattice:\n  anisotropy: 0.7\n", "lattice.anisotropy (line 4)"},
+      {head + "lattice:\n  tip_crush_mm: -1\n", "lattice.tip_crush_mm (line 4)"},
       {head + "force_law:\n  stiffness_n_per_mm: nan\n", "force_law.stiffness_n_per_mm (line 4)"},
       {head + "sensors:\n  grid: {u: 8, v: 8, pitch_mm: 30}\n",
        "patch design: the sensor grid does not fit inside the patch"},

@@ -1,5 +1,7 @@
 #include "skinbus/sim/patch_model.h"
 
+#include <cmath>
+
 #include <string>
 
 #include "skinbus/sim/rng.h"
@@ -58,6 +60,7 @@ Status validate(const PatchDesign& d) {
   if (!std::isfinite(d.lateral_mm) || d.lateral_mm < 0) return bad("lateral_mm must be >= 0");
   if (!std::isfinite(d.anisotropy) || std::fabs(d.anisotropy) >= 0.5)
     return bad("anisotropy must be in (-0.5, 0.5)");
+  if (!std::isfinite(d.tip_crush_mm) || d.tip_crush_mm < 0) return bad("tip_crush_mm must be >= 0");
   if (!std::isfinite(d.stiffness_n_per_mm) || d.stiffness_n_per_mm <= 0)
     return bad("stiffness_n_per_mm must be > 0");
   if (!positive(d.shear_stiffness_n_per_mm)) return bad("shear_stiffness_n_per_mm must be > 0");
@@ -286,6 +289,43 @@ Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParamete
   return p;
 }
 
+Result<PatchModel> PatchModel::with_disc_magnets(const PatchModel& unit) {
+  const PatchDesign& d = unit.design_;
+  const UnitParameters p = unit.parameters();
+  const std::size_t n = p.magnets.size() * static_cast<std::size_t>(kDiscPoints);
+  if (n > 4096) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "disc magnets: " + std::to_string(n) + " cubature points, at most 4096");
+  }
+  // Degree-3 cubature of a disc (weights 1/4 at the centre, 1/8 at 6 points on sqrt(2/3) r)
+  // times 2-point Gauss over the height (+-h / (2 sqrt 3)).
+  const double ring = std::sqrt(2.0 / 3.0) * 0.5 * d.magnet_diameter_mm;
+  const double dz = d.magnet_height_mm / (2 * std::sqrt(3.0));
+  struct Point {
+    double du, dv, dh, w;
+  };
+  std::vector<Point> pts;
+  for (double z : {-dz, dz}) {
+    pts.push_back({0, 0, z, 0.25 * 0.5});
+    for (int k = 0; k < 6; ++k) {
+      const double a = k * M_PI / 3;
+      pts.push_back({ring * std::cos(a), ring * std::sin(a), z, 0.125 * 0.5});
+    }
+  }
+  PatchDesign discs = d;
+  discs.magnet_list.clear();
+  UnitParameters q = p;
+  q.magnets.clear();
+  for (const MagnetParameters& m : p.magnets) {
+    for (const Point& t : pts) {
+      discs.magnet_list.push_back(
+          {m.u_mm + t.du, m.v_mm + t.dv, m.h_mm + t.dh, m.moment_am2.z >= 0 ? 1 : -1});
+      q.magnets.push_back({m.u_mm + t.du, m.v_mm + t.dv, m.h_mm + t.dh, m.moment_am2 * t.w});
+    }
+  }
+  return from_parameters(discs, q);
+}
+
 void PatchModel::rest_field_ut(std::span<double> out) const {
   const std::size_t ns = sensors_.size();
   for (std::size_t si = 0; si < ns; ++si) {
@@ -326,14 +366,16 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
       const double s2 = du * du / (lu * lu) + dv * dv / (lv * lv);
       if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
       moved = true;
-      double a2 = 0, ac2 = 0, amp = depth;  // round tip: see ContactT
+      // Round tip: see ContactT; the crushed top: see PatchDesign::tip_crush_mm.
+      const double crush = design_.tip_crush_mm;
+      double a2 = 0, ac2 = 0, amp = crush > 0 ? depth / (1 + depth / crush) : depth;
       if (c.tip_radius_mm > 0) {
         const double r = c.tip_radius_mm;
         ac2 = depth < r ? 2 * r * depth - depth * depth : r * r;
         a2 = std::fmin(ac2 / (lu * lv), kMaxTipContact2);
         double g0, dg0;
         plate_kernel(std::sqrt(a2), &g0, &dg0);
-        amp = depth / g0;
+        amp = amp / g0;
       }
       const double s = std::sqrt(s2 + a2);
       double g, dg;

@@ -26,7 +26,23 @@ struct BiasCorrectionOptions {
   double ridge = 1e-3;        // relative to the mean diagonal of the normal equations
   double min_depth_mm = 1.0;  // estimates shallower are neither corrected nor used (nor truths)
   double outlier_mm = 3.0;    // fitting samples whose estimate is further off are left out
+  // What apply() corrects (the fit learns all three either way): a correction may pay off for
+  // the depth and not the position, or the other way round (CorrectionCheck).
+  bool correct_position = true, correct_depth = true;
   double half_u_mm = 70, half_v_mm = 70, max_depth_mm = 4.5;  // basis scaling
+};
+
+// A correction judged on presses it was not fitted on (BiasCorrection::cross_validate).
+struct CorrectionCheck {
+  int samples = 0;                // held-out estimates judged (valid, truth >= min_depth_mm)
+  double xy_mean_without_mm = 0;  // their mean XY error, uncorrected
+  double xy_mean_with_mm = 0;     // ... corrected by a correction fitted without their presses
+  // Share of the held-out squared XY error the correction removes (1 - with / without); < 0:
+  // it adds error.
+  double explained = 0;
+  double depth_mean_without_mm = 0, depth_mean_with_mm = 0;  // mean |depth error|, same samples
+  bool helps_position() const { return samples > 0 && xy_mean_with_mm < xy_mean_without_mm; }
+  bool helps_depth() const { return samples > 0 && depth_mean_with_mm < depth_mean_without_mm; }
 };
 
 class BiasCorrection {
@@ -38,6 +54,22 @@ class BiasCorrection {
                                     std::span<const double> true_v_mm,
                                     std::span<const double> true_depth_mm,
                                     const BiasCorrectionOptions& options = {});
+
+  // Whether a correction pays off on this unit, for the position and for the depth, judged on
+  // presses it was not fitted on (the correction fitted with both on, whatever `options` says):
+  // the press places (the distinct true (u, v)) fall into cells of their spacing (the median
+  // distance to the nearest other place) and the cells into kCheckFolds folds by
+  // (i + 2 j) mod 5, so that no held-out press has a held-out neighbour; the outermost places
+  // are always fitted (the correction interpolates, it is not asked to extrapolate); each fold's
+  // estimates are corrected by a correction fitted on the others. Errors: as fit() for any fold;
+  // kDegenerate for fewer than 10 x kCheckFolds places; kInvalidArgument for lengths that
+  // differ. Cost: kCheckFolds fits and places^2 distances.
+  static constexpr int kCheckFolds = 5;
+  static Result<CorrectionCheck> cross_validate(std::span<const ContactEstimate> estimates,
+                                                std::span<const double> true_u_mm,
+                                                std::span<const double> true_v_mm,
+                                                std::span<const double> true_depth_mm,
+                                                const BiasCorrectionOptions& options = {});
 
   // The corrected estimate (unchanged when rejected or shallower than min_depth_mm). Flags are
   // kept as they were: run flag_range() with the patch's extent again if the range matters.

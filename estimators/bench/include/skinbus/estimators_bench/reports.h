@@ -63,7 +63,10 @@ double fma_peak_gflops(estimators::RuntimeIsa isa);
 struct BudgetBenchArgs {
   std::vector<std::string> units = {"nominal", "fabricated", "anisotropic"};
   uint64_t uid = 0x5B00000000000001ull;  // as skinbus-dataset's default
-  double anisotropy = 0.05;              // of the "anisotropic" unit (outside the model class)
+  // Units outside the model class, each fabricated: "anisotropic" (this anisotropy),
+  // "crushing" (PatchDesign::tip_crush_mm), "discs" (PatchModel::with_disc_magnets).
+  double anisotropy = 0.05;
+  double tip_crush_mm = 20;
   std::vector<std::string> seed_models;  // "unit=path": seed CNN trained on that unit's grid
   int test_count = 2000;                 // off-grid test presses
   int grid_test_per_point = 3;           // test presses at every grid point
