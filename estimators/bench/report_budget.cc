@@ -259,19 +259,20 @@ Status bench_budget(const BudgetBenchArgs& a) {
         // The correction is used only when it lowers the error on the unit's own presses that
         // it was not fitted on (five folds of press places, each among fitted ones); otherwise it
         // could only add its own noise.
-        Result<CorrectionCheck> check = BiasCorrection::cross_validate(est, tu, tv, td, bo);
-        if (!check.ok()) return with_context(check.error(), "bias correction check");
-        BiasCorrectionOptions chosen = bo;
-        chosen.correct_position = check->helps_position();
-        chosen.correct_depth = check->helps_depth();
-        const bool gate = chosen.correct_position || chosen.correct_depth;
+        const int degrees[] = {4, 8, 12};
+        Result<BiasCorrection::Choice> choice =
+            BiasCorrection::choose(est, tu, tv, td, bo, degrees);
+        if (!choice.ok()) return with_context(choice.error(), "bias correction check");
+        const BiasCorrectionOptions& chosen = choice->options;
+        const CorrectionCheck& check = choice->check;
+        const bool gate = choice->any();
         std::fprintf(stderr,
-                     "skinbus-bench:   correction on held-out presses (%d samples >= 1 mm): XY "
-                     "%.3f -> %.3f mm (explains %.0f %% of the squared error), depth %.3f -> "
-                     "%.3f mm: %s the position, %s the depth\n",
-                     check->samples, check->xy_mean_without_mm, check->xy_mean_with_mm,
-                     100 * check->explained, check->depth_mean_without_mm,
-                     check->depth_mean_with_mm, chosen.correct_position ? "corrects" : "keeps",
+                     "skinbus-bench:   correction on held-out presses (%d samples >= 1 mm), "
+                     "degree %d of 4, 8, 12: XY %.3f -> %.3f mm (explains %.0f %% of the squared "
+                     "error), depth %.3f -> %.3f mm: %s the position, %s the depth\n",
+                     check.samples, chosen.degree_uv, check.xy_mean_without_mm,
+                     check.xy_mean_with_mm, 100 * check.explained, check.depth_mean_without_mm,
+                     check.depth_mean_with_mm, chosen.correct_position ? "corrects" : "keeps",
                      chosen.correct_depth ? "corrects" : "keeps");
         Result<BiasCorrection> chosen_bias = BiasCorrection::fit(est, tu, tv, td, chosen);
         if (!chosen_bias.ok()) return with_context(chosen_bias.error(), "bias correction");

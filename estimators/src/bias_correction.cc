@@ -214,6 +214,35 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
   return out;
 }
 
+Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEstimate> estimates,
+                                                      std::span<const double> true_u_mm,
+                                                      std::span<const double> true_v_mm,
+                                                      std::span<const double> true_depth_mm,
+                                                      const BiasCorrectionOptions& base,
+                                                      std::span<const int> degrees_uv) {
+  if (degrees_uv.empty()) {
+    return make_error(ErrorCode::kInvalidArgument, "bias correction choice: no degree to try");
+  }
+  Choice best;
+  double best_score = std::numeric_limits<double>::infinity();
+  for (int degree : degrees_uv) {
+    BiasCorrectionOptions o = base;
+    o.degree_uv = degree;
+    Result<CorrectionCheck> c = cross_validate(estimates, true_u_mm, true_v_mm, true_depth_mm, o);
+    if (!c.ok()) return c.error();
+    const double score = c->xy_mean_with_mm / std::fmax(c->xy_mean_without_mm, 1e-12) +
+                         c->depth_mean_with_mm / std::fmax(c->depth_mean_without_mm, 1e-12);
+    if (score < best_score) {
+      best_score = score;
+      best.options = o;
+      best.check = c.value();
+    }
+  }
+  best.options.correct_position = best.check.helps_position();
+  best.options.correct_depth = best.check.helps_depth();
+  return best;
+}
+
 ContactEstimate BiasCorrection::apply(const ContactEstimate& e) const {
   if (!e.valid() || !(e.depth_mm >= options_.min_depth_mm)) return e;
   double phi[kMaxTerms];

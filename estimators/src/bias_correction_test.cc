@@ -102,6 +102,20 @@ TEST(BiasCorrection, TheHeldOutCheckTellsABiasFromNoise) {
               n->xy_mean_with_mm, 100 * n->explained);
   EXPECT_FALSE(n->helps_position());
   EXPECT_LT(n->explained, 0.0);
+  // Choosing among degrees: a correction for the biased samples, none for the position of the
+  // unbiased ones.
+  const int degrees[] = {4, 8};
+  Result<BiasCorrection::Choice> ca =
+      BiasCorrection::choose(biased.est, biased.u, biased.v, biased.d, o, degrees);
+  ASSERT_TRUE(ca.ok()) << ca.error().to_string();
+  EXPECT_TRUE(ca->options.correct_position);
+  EXPECT_LT(ca->check.xy_mean_with_mm, a->xy_mean_with_mm + 0.05);
+  Result<BiasCorrection::Choice> cn =
+      BiasCorrection::choose(unbiased.est, unbiased.u, unbiased.v, unbiased.d, o, degrees);
+  ASSERT_TRUE(cn.ok()) << cn.error().to_string();
+  EXPECT_FALSE(cn->options.correct_position);
+  std::printf("chosen degrees: biased %d, noise only %d (corrects position: %d)\n",
+              ca->options.degree_uv, cn->options.degree_uv, cn->options.correct_position);
   const std::vector<double> short_u(biased.u.begin(), biased.u.begin() + 10);
   EXPECT_EQ(BiasCorrection::cross_validate(biased.est, short_u, biased.v, biased.d, o).error().code,
             ErrorCode::kInvalidArgument);

@@ -330,6 +330,24 @@ double inv(double sd, double scale) {
   return 1 / std::fmax(sd * scale, 1e-9 * std::fmax(scale, 1e-3));
 }
 
+// Levenberg-Marquardt on one thread, silent, with the options' limits. Sparse problems use
+// Eigen's sparse Cholesky: the normal matrix is small (parameters^2), and the alternative's
+// multithreaded BLAS would spin on the cores it does not need.
+ceres::Solver::Options solver_options(const IdentificationOptions& opt,
+                                      ceres::LinearSolverType linear_solver) {
+  ceres::Solver::Options so;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = linear_solver;
+  so.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
+  so.max_num_iterations = opt.max_iterations;
+  so.function_tolerance = opt.function_tolerance;
+  so.parameter_tolerance = 1e-9;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  so.minimizer_progress_to_stdout = false;
+  return so;
+}
+
 std::string format_fixed(double x, int digits) {
   char buf[48];
   std::snprintf(buf, sizeof buf, "%.*f", digits, x);
@@ -374,14 +392,7 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
   const char* names[kGlobals] = {"the spread length", "the lateral coupling", "the magnets' height",
                                  "the sensors' height", "the moments' scale"};
 
-  ceres::Solver::Options so;
-  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
-  so.max_num_iterations = opt.max_iterations;
-  so.function_tolerance = opt.function_tolerance;
-  so.parameter_tolerance = 1e-9;
-  so.num_threads = 1;
-  so.logging_type = ceres::SILENT;
+  const ceres::Solver::Options so = solver_options(opt, ceres::DENSE_NORMAL_CHOLESKY);
 
   GlobalPhysics best{};
   double best_cost = std::numeric_limits<double>::infinity();
@@ -698,18 +709,7 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   problem.SetParameterLowerBound(global.data(), 0, 0.2 * start.spread_mm);
   problem.SetParameterLowerBound(global.data(), 1, 0.0);
 
-  ceres::Solver::Options so;
-  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  // Eigen's sparse Cholesky: the normal matrix is small (parameters^2), and the alternative's
-  // multithreaded BLAS would spin on the cores it does not need.
-  so.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
-  so.max_num_iterations = opt.max_iterations;
-  so.function_tolerance = opt.function_tolerance;
-  so.parameter_tolerance = 1e-9;
-  so.num_threads = 1;
-  so.logging_type = ceres::SILENT;
-  so.minimizer_progress_to_stdout = false;
+  const ceres::Solver::Options so = solver_options(opt, ceres::SPARSE_NORMAL_CHOLESKY);
 
   for (int outer = 0; outer < opt.outer_iterations; ++outer) {
     // Frozen field of the magnets beyond derivative reach, at the current parameters.

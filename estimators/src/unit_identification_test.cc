@@ -305,12 +305,16 @@ TEST(UnitIdentificationTest, SunkenMagnetsAndLongerSpreadWithItsGlobalsOff) {
   expect_identified_despite_its_design(off_design_cases()[2], 313);
 }
 
+// A fabricated unit built to `design`, pressed on a 13 x 13 grid and at random held-out places.
+UnitData press_built(const sim::PatchDesign& design, uint64_t seed) {
+  return press_unit(sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value(),
+                    13, 11.25, seed);
+}
+
 // Without the first stage the same unit settles in a poorer fit: the stage is what converges.
 TEST(UnitIdentificationTest, WithoutTheGlobalsStageTheFitStaysPoorer) {
   const OffDesignCase c = off_design_cases()[0];
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(c.truth, 311, sim::FabricationVariation{}).value();
-  const UnitData data = press_unit(unit, 13, 11.25, 311);
+  const UnitData data = press_built(c.truth, 311);
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   opt.fit_globals = false;
@@ -356,10 +360,7 @@ TEST(UnitIdentificationTest, OutsideTheClassWithItsGlobalsOffIsFlagged) {
 // A design file of another patch altogether (the built-in 7 x 7 checkerboard for a 9 x 9 one-
 // polarity unit): refused, naming what could not be fitted, never a unit file.
 TEST(UnitIdentificationTest, TheWrongDesignIsRefusedNamingWhy) {
-  const OffDesignCase c = off_design_cases()[0];
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(c.design, 315, sim::FabricationVariation{}).value();
-  const UnitData data = press_unit(unit, 13, 11.25, 315);
+  const UnitData data = press_built(off_design_cases()[0].design, 315);
   IdentificationOptions opt;
   opt.depths_per_press = 2;
   opt.max_iterations = 15;

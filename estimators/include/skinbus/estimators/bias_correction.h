@@ -71,6 +71,20 @@ class BiasCorrection {
                                                 std::span<const double> true_depth_mm,
                                                 const BiasCorrectionOptions& options = {});
 
+  // The correction to use on this unit, chosen by held-out error: cross_validate() at each
+  // degree in `degrees_uv` (the others as `base`), the degree whose corrected errors, each over
+  // its uncorrected one, sum lowest, and of that, what helps (correct_position, correct_depth;
+  // neither: use no correction). Errors: as cross_validate(). Cost: that, per degree.
+  struct Choice {
+    BiasCorrectionOptions options;  // the degree chosen and what to correct
+    CorrectionCheck check;          // its held-out check
+    bool any() const { return options.correct_position || options.correct_depth; }
+  };
+  static Result<Choice> choose(std::span<const ContactEstimate> estimates,
+                               std::span<const double> true_u_mm, std::span<const double> true_v_mm,
+                               std::span<const double> true_depth_mm,
+                               const BiasCorrectionOptions& base, std::span<const int> degrees_uv);
+
   // The corrected estimate (unchanged when rejected or shallower than min_depth_mm). Flags are
   // kept as they were: run flag_range() with the patch's extent again if the range matters.
   ContactEstimate apply(const ContactEstimate& e) const;
