@@ -37,9 +37,11 @@
 // noise; clearly above 1: the model class misses something), overall and per depth bin, on the
 // fitting rows and on held-out rows.
 //
-// Cost: a sparse Levenberg-Marquardt over every sample's residuals, a few iterations; seconds for
-// the seed's 361 presses on one core, memory growing with the samples (figures:
-// docs/physics_estimator.md). Single-threaded (Eigen's sparse Cholesky; no BLAS threads).
+// Cost: stage 1, a dense 5-unknown fit per spread start, each evaluation moving every magnet a
+// press reaches for every row; stage 2, a sparse Levenberg-Marquardt over every sample's
+// residuals, a few iterations. Seconds to tens of seconds for the seed's 361 presses on one
+// core, memory growing with the samples (figures: docs/physics_estimator.md,
+// docs/benchmarks/designs.md). Single-threaded (Eigen's sparse Cholesky; no BLAS threads).
 #pragma once
 
 #include <functional>
