@@ -45,7 +45,7 @@ int main(int argc, char** argv) {
       "(docs/physics_estimator.md, \"Unit files\").\n\n"
       "Input: a dataset in the project's CSV format (docs/dataset_format.md) of presses at known\n"
       "positions and depths, e.g. an indentation robot's ramp protocol: 361 presses on the\n"
-      "seed's 19 x 19 grid take ~15-30 s to fit; at least ~20 presses spread over the patch.\n"
+      "seed's 19 x 19 grid take ~5-25 s to fit; at least ~20 presses spread over the patch.\n"
       "The fit reports its residual in sensor-noise units, overall and per depth bin: about 1\n"
       "means the model explains the unit down to the noise; clearly above 1 (> 1.1) means the\n"
       "unit has physics the model class does not contain (e.g. an anisotropic lattice): use\n"

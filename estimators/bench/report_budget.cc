@@ -1,5 +1,7 @@
 // `skinbus-bench budget`: the accuracy each pipeline reaches from one unit's 361 presses (the
 // seed's robot-time budget), on simulated units with known truth.
+#include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -38,13 +40,23 @@ struct Unit {
   sim::Dataset grid_test;  // test: random depths at the grid points
 };
 
-constexpr const char* kUnitKinds = "nominal, fabricated, anisotropic, crushing, discs";
+// The units `--units` names.
+constexpr std::array<const char*, 5> kUnitNames = {"nominal", "fabricated", "anisotropic",
+                                                   "crushing", "discs"};
+bool known_unit(const std::string& name) {
+  return std::find(kUnitNames.begin(), kUnitNames.end(), name) != kUnitNames.end();
+}
+std::string unit_names() {
+  std::string out;
+  for (const char* k : kUnitNames) out += (out.empty() ? "" : ", ") + std::string(k);
+  return out;
+}
 
 Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
                        const sim::PatchDesign& base) {
   sim::PatchDesign design = base;
-  Result<sim::PatchModel> model = make_error(
-      ErrorCode::kInvalidArgument, "unknown unit '" + name + "' (" + std::string(kUnitKinds) + ")");
+  Result<sim::PatchModel> model =
+      make_error(ErrorCode::kInvalidArgument, "unknown unit '" + name + "' (" + unit_names() + ")");
   if (name == "nominal") {
     model = sim::PatchModel::nominal(design);
   } else if (name == "fabricated") {
@@ -121,10 +133,9 @@ Status bench_budget(const BudgetBenchArgs& a) {
     seed_paths[s.substr(0, eq)] = s.substr(eq + 1);
   }
   for (const std::string& name : a.units) {
-    if (name != "nominal" && name != "fabricated" && name != "anisotropic" && name != "crushing" &&
-        name != "discs") {
+    if (!known_unit(name)) {
       return errorf(ErrorCode::kInvalidArgument, "unknown unit '%s' (%s)", name.c_str(),
-                    kUnitKinds);
+                    unit_names().c_str());
     }
   }
   Result<sim::PatchDesign> base = sim::read_design_or_builtin(a.design_path);

@@ -149,8 +149,9 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
                    nearest.begin() + static_cast<std::ptrdiff_t>(nearest.size() / 2),
                    nearest.end());
   const double pitch = nearest[nearest.size() / 2];
-  double lo_u = places.front().first, hi_u = places.back().first, lo_v = lo_u, hi_v = lo_u;
-  lo_v = hi_v = places.front().second;
+  // Places are sorted by u: its extent is the ends'; v's is searched.
+  const double lo_u = places.front().first, hi_u = places.back().first;
+  double lo_v = places.front().second, hi_v = lo_v;
   for (const auto& [u, v] : places) {
     lo_v = std::fmin(lo_v, v);
     hi_v = std::fmax(hi_v, v);
@@ -159,36 +160,37 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
   // its 8 neighbours, so every held-out press sits among fitted ones, as a new press would. The
   // outermost places are always fitted (fold -1): held out, they would ask the polynomial to
   // extrapolate, which the correction fitted on every press never does.
-  auto fold_of = [&](std::size_t i) {
+  std::vector<int> fold(n, -1);
+  for (std::size_t i = 0; i < n; ++i) {
     const double u = true_u_mm[i], v = true_v_mm[i];
     if (!(u > lo_u + 0.5 * pitch && u < hi_u - 0.5 * pitch && v > lo_v + 0.5 * pitch &&
           v < hi_v - 0.5 * pitch)) {
-      return -1;
+      continue;
     }
     const auto ci = static_cast<int64_t>(std::floor(u / pitch + 0.5));
     const auto cj = static_cast<int64_t>(std::floor(v / pitch + 0.5));
     const int64_t f = (ci + 2 * cj) % folds;
-    return static_cast<int>(f < 0 ? f + folds : f);
-  };
+    fold[i] = static_cast<int>(f < 0 ? f + folds : f);
+  }
+  BiasCorrectionOptions both = options;
+  both.correct_position = both.correct_depth = true;
   CorrectionCheck out;
   double sum_without = 0, sum_with = 0, sq_without = 0, sq_with = 0, dep_without = 0, dep_with = 0;
   for (int f = 0; f < folds; ++f) {
     std::vector<ContactEstimate> est;
     std::vector<double> tu, tv, td;
     for (std::size_t i = 0; i < n; ++i) {
-      if (fold_of(i) == f) continue;
+      if (fold[i] == f) continue;
       est.push_back(estimates[i]);
       tu.push_back(true_u_mm[i]);
       tv.push_back(true_v_mm[i]);
       td.push_back(true_depth_mm[i]);
     }
-    BiasCorrectionOptions both = options;
-    both.correct_position = both.correct_depth = true;
     Result<BiasCorrection> c = fit(est, tu, tv, td, both);
     if (!c.ok()) return c.error();
     for (std::size_t i = 0; i < n; ++i) {
       const ContactEstimate& e = estimates[i];
-      if (fold_of(i) != f || !e.valid() || !(true_depth_mm[i] >= options.min_depth_mm) ||
+      if (fold[i] != f || !e.valid() || !(true_depth_mm[i] >= options.min_depth_mm) ||
           !std::isfinite(true_u_mm[i]) || !std::isfinite(true_v_mm[i])) {
         continue;
       }

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "jet_traits.h"
+#include "skinbus/common/error_format.h"
 #include "skinbus/sim/dipole.h"
 
 namespace skinbus::estimators {
@@ -43,8 +44,8 @@ struct Context {
   const sim::PatchModel* shape;  // nominal model of the design: surface and depth limit only
   double moment_scale;           // nominal moment, A m^2
   double tip_mm;
-  std::vector<sim::Mat3> mounting0;  // per sensor: mounting at the start of the fit
-  std::vector<double> inv_sigma;     // per channel
+  std::vector<sim::Mat3> mounting0;   // per sensor: mounting at the start of the fit
+  std::span<const double> inv_sigma;  // per channel
 };
 
 // Field change (3D, patch frame, uT) at a sensor from one magnet, for a press. T is double or a
@@ -242,7 +243,7 @@ struct GlobalContext {
   const sim::PatchModel* shape;
   const sim::UnitParameters* design;  // the design's nominal unit
   double tip_mm;
-  std::vector<double> inv_sigma;  // per channel
+  std::span<const double> inv_sigma;  // per channel
 };
 
 // Whitened residuals of every channel of one sample under globals `g`; T is double or JetG.
@@ -251,12 +252,13 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g, T
   const sim::UnitParameters& d = *ctx.design;
   const std::size_t ns = d.sensors.size();
   Vec3<T> acc[sim::kMaxSensors];
-  Vec3<T> spos[sim::kMaxSensors];
+  Vec3<T> spos[sim::kMaxSensors], tu[sim::kMaxSensors], tv[sim::kMaxSensors],
+      n[sim::kMaxSensors];  // each sensor's position and local surface frame
   for (std::size_t k = 0; k < ns; ++k) {
     acc[k] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
     const sim::SensorParameters& sp = d.sensors[k];
-    spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], nullptr,
-                                          nullptr, nullptr);
+    spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &tu[k], &tv[k],
+                                          &n[k]);
   }
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
   for (const sim::MagnetParameters& mp : d.magnets) {
@@ -276,13 +278,10 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g, T
   }
   for (std::size_t k = 0; k < ns; ++k) {
     const sim::SensorParameters& sp = d.sensors[k];
-    Vec3<T> tu, tv, n;
-    ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &tu, &tv, &n);
-    const Vec3<double> gain = sp.gain;
-    const double gk[3] = {gain.x, gain.y, gain.z};
+    const double gk[3] = {sp.gain.x, sp.gain.y, sp.gain.z};
     for (int row = 0; row < 3; ++row) {
       const Vec3<double>& e = sp.mounting.r[row];
-      const Vec3<T> axis = tu * T(e.x) + tv * T(e.y) + n * T(e.z);
+      const Vec3<T> axis = tu[k] * T(e.x) + tv[k] * T(e.y) + n[k] * T(e.z);
       const std::size_t ch = 3 * k + static_cast<std::size_t>(row);
       const double y = smp.field[ch];
       out[ch] = std::isfinite(y) ? (T(gk[row]) * sim::dot(axis, acc[k]) - T(y)) * ctx.inv_sigma[ch]
@@ -348,35 +347,23 @@ ceres::Solver::Options solver_options(const IdentificationOptions& opt,
   return so;
 }
 
-std::string format_fixed(double x, int digits) {
-  char buf[48];
-  std::snprintf(buf, sizeof buf, "%.*f", digits, x);
-  return buf;
-}
-
 std::string describe(const GlobalPhysics& g) {
-  return "spread " + format_fixed(g.spread_mm, 2) + " mm, lateral " +
-         format_fixed(g.lateral_mm, 2) + " mm, magnets " +
-         format_fixed(g.magnet_height_offset_mm, 2) + " mm, sensors " +
-         format_fixed(g.sensor_height_offset_mm, 2) + " mm, moments x" +
-         format_fixed(g.moment_scale, 3);
+  char buf[160];
+  std::snprintf(buf, sizeof buf,
+                "spread %.2f mm, lateral %.2f mm, magnets %.2f mm, sensors %.2f mm, moments x%.3f",
+                g.spread_mm, g.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm,
+                g.moment_scale);
+  return buf;
 }
 
 // Stage 1 (see the header): the five globals by Levenberg-Marquardt from each spread start,
 // under broad priors about the design; the lowest cost wins. Refuses a fit that ends at a bound.
 Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::UnitParameters& design,
-                                  const sim::Dataset& presses, std::span<const std::size_t> rows,
-                                  const ChannelNoise& noise, const IdentificationOptions& opt,
-                                  int* iterations) {
+                                  std::span<const Sample> samples,
+                                  std::span<const double> inv_sigma,
+                                  const IdentificationOptions& opt, int* iterations) {
   const int nc = nominal.channel_count();
-  GlobalContext ctx{&nominal, &design, opt.tip_radius_mm, {}};
-  for (int c = 0; c < nc; ++c) ctx.inv_sigma.push_back(1 / noise.sigma(c));
-  std::vector<Sample> samples;
-  samples.reserve(rows.size());
-  for (std::size_t r : rows) {
-    samples.push_back(
-        {presses.u_mm[r], presses.v_mm[r], presses.depth_mm[r], presses.field(r), {}, {}});
-  }
+  const GlobalContext ctx{&nominal, &design, opt.tip_radius_mm, inv_sigma};
   double top_sensor_mm = -1e9;
   for (const sim::SensorParameters& sp : design.sensors)
     top_sensor_mm = std::fmax(top_sensor_mm, sp.h_mm);
@@ -422,34 +409,35 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
     const double rms =
         std::sqrt(2 * summary.final_cost /
                   static_cast<double>(samples.size() * static_cast<std::size_t>(nc)));
+    const GlobalPhysics found{x[0], x[1], x[2], x[3], x[4], rms, 0};
     if (opt.progress) {
-      opt.progress("globals from spread " + format_fixed(f * l0, 1) + " mm: " +
-                   (ok ? describe({x[0], x[1], x[2], x[3], x[4], rms, 0}) + ", residual " +
-                             format_fixed(rms, 2) + " noise units"
-                       : std::string("failed: ") + summary.message));
+      char head[64], tail[64];
+      std::snprintf(head, sizeof head, "globals from spread %.1f mm: ", f * l0);
+      std::snprintf(tail, sizeof tail, ", residual %.2f noise units", rms);
+      opt.progress(head + (ok ? describe(found) + tail : "failed: " + summary.message));
     }
     if (ok && summary.final_cost < best_cost) {
       best_cost = summary.final_cost;
       best_x = x;
-      best = {x[0], x[1], x[2], x[3], x[4], rms, 0};
+      best = found;
     }
   }
   if (!std::isfinite(best_cost)) {
-    return make_error(ErrorCode::kNotConverged,
-                      "identification: the design's global physics could not be fitted from any "
-                      "of " +
-                          std::to_string(starts) + " starts");
+    return errorf(ErrorCode::kNotConverged,
+                  "identification: the design's global physics could not be fitted from any of "
+                  "%d starts",
+                  starts);
   }
   best.starts = starts;
   for (int j = 0; j < kGlobals; ++j) {
     const double tol = 1e-3 * std::fmax(hi[j] - lo[j], 1e-6);
     if (j != 1 && (best_x[static_cast<std::size_t>(j)] <= lo[j] + tol ||
                    best_x[static_cast<std::size_t>(j)] >= hi[j] - tol)) {
-      return make_error(ErrorCode::kNotConverged,
-                        std::string("identification: ") + names[j] + " ran to its bound (" +
-                            describe(best) +
-                            "): the unit is too far from its design file to start from it, or "
-                            "the presses do not deform the lattice as the design says");
+      return errorf(ErrorCode::kNotConverged,
+                    "identification: %s ran to its bound (%s): the unit is too far from its "
+                    "design file to start from it, or the presses do not deform the lattice as "
+                    "the design says",
+                    names[j], describe(best).c_str());
     }
   }
   return best;
@@ -598,12 +586,22 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
     }
   }
 
+  // The fitting samples (their near magnets are found in stage 2) and the channels' weights.
+  std::vector<Sample> samples;
+  samples.reserve(rows.size());
+  for (std::size_t r : rows) {
+    samples.push_back(
+        {presses.u_mm[r], presses.v_mm[r], presses.depth_mm[r], presses.field(r), {}, {}});
+  }
+  std::vector<double> inv_sigma;
+  for (int c = 0; c < nc; ++c) inv_sigma.push_back(1 / noise.sigma(c));
+
   // Stage 1: the design's global physics, from several spread lengths; the best start wins.
   sim::UnitParameters start = nominal.parameters();
   GlobalPhysics globals{start.spread_mm, start.lateral_mm, 0, 0, 1, 0, 0};
   int iterations = 0;
   if (opt.fit_globals) {
-    Result<GlobalPhysics> g = fit_globals(nominal, start, presses, rows, noise, opt, &iterations);
+    Result<GlobalPhysics> g = fit_globals(nominal, start, samples, inv_sigma, opt, &iterations);
     if (!g.ok()) return g.error();
     globals = g.value();
     start.spread_mm = globals.spread_mm;
@@ -633,7 +631,7 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
     x[4] = mp.moment_am2.y / moment_scale;
     x[5] = mp.moment_am2.z / moment_scale;
   }
-  Context ctx{&nominal, moment_scale, opt.tip_radius_mm, {}, {}};
+  Context ctx{&nominal, moment_scale, opt.tip_radius_mm, {}, inv_sigma};
   for (std::size_t k = 0; k < ns; ++k) {
     const sim::SensorParameters& sp = start.sensors[k];
     double* x = &sens[k * kSensorBlock];
@@ -646,14 +644,10 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
     x[8] = sp.gain.z;
     ctx.mounting0.push_back(sp.mounting);
   }
-  for (int c = 0; c < nc; ++c) ctx.inv_sigma.push_back(1 / noise.sigma(c));
 
-  // Samples and their near magnets.
-  std::vector<Sample> samples;
-  samples.reserve(rows.size());
+  // Each sample's near magnets.
   const double reach = opt.derivative_reach * start.spread_mm;
-  for (std::size_t r : rows) {
-    Sample s{presses.u_mm[r], presses.v_mm[r], presses.depth_mm[r], presses.field(r), {}, {}};
+  for (Sample& s : samples) {
     for (std::size_t m = 0; m < nm; ++m) {
       if (std::hypot(mags[m * kMagnetBlock] - s.u, mags[m * kMagnetBlock + 1] - s.v) < reach)
         s.near.push_back(static_cast<int>(m));
@@ -665,7 +659,6 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
                             " are supported");
     }
     s.far.assign(ns, Vec3<double>{});
-    samples.push_back(std::move(s));
   }
 
   ceres::Problem::Options po;
@@ -790,13 +783,11 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
                     b.depth_hi_mm, b.rms);
       bins += buf;
     }
-    return make_error(ErrorCode::kNotConverged,
-                      "identification: the design's model class does not explain these presses: "
-                      "residual " +
-                          format_fixed(out.fit.rms, 2) + " noise units (limit " +
-                          format_fixed(opt.max_residual, 2) + "; by depth " + bins +
-                          ") with the globals " + describe(globals) +
-                          "; check the design file's magnets, sensors and lattice");
+    return errorf(ErrorCode::kNotConverged,
+                  "identification: the design's model class does not explain these presses: "
+                  "residual %.2f noise units (limit %.2f; by depth %s) with the globals %s; check "
+                  "the design file's magnets, sensors and lattice",
+                  out.fit.rms, opt.max_residual, bins.c_str(), describe(globals).c_str());
   }
   out.nominal_fit =
       fit_quality(nominal, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);

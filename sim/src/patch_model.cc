@@ -366,9 +366,7 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
       const double s2 = du * du / (lu * lu) + dv * dv / (lv * lv);
       if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
       moved = true;
-      // Round tip: see ContactT; the crushed top: see PatchDesign::tip_crush_mm.
-      const double crush = design_.tip_crush_mm;
-      double a2 = 0, ac2 = 0, amp = crush > 0 ? depth / (1 + depth / crush) : depth;
+      double a2 = 0, ac2 = 0, amp = plate_depth(depth);  // round tip: see ContactT
       if (c.tip_radius_mm > 0) {
         const double r = c.tip_radius_mm;
         ac2 = depth < r ? 2 * r * depth - depth * depth : r * r;

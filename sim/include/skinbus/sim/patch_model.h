@@ -223,6 +223,14 @@ class PatchModel {
   template <typename T>
   T shear_shape(const T& r2, const T& ac2) const;
 
+  // How far a press `depth_mm` deep bends the plate under the tip: the depth, less what the
+  // lattice's top crushes (PatchDesign::tip_crush_mm).
+  template <typename T>
+  T plate_depth(const T& depth_mm) const {
+    const double c = design_.tip_crush_mm;
+    return c > 0 ? depth_mm / (T(1.0) + depth_mm / c) : depth_mm;
+  }
+
   // Normal force for a press of `depth_mm` (N); 0 for depth <= 0.
   double force_n(double depth_mm) const;
   // Deepest press the lattice takes (densified beyond): 60 % of its thickness. Deeper presses
@@ -343,7 +351,7 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
     const T dgs = first_order(s, q, dq);
     // Deflection under the tip is the depth (less what the top crushes): divide by the shape
     // there.
-    T amp = design_.tip_crush_mm > 0 ? depth / (T(1.0) + depth / design_.tip_crush_mm) : depth;
+    T amp = plate_depth(depth);
     if (c.tip_radius_mm > 0) {
       const T s0 = sqrt(a2);
       double g0, dg0;
