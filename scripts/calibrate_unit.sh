@@ -19,9 +19,13 @@
 #                          simulated presses of the identified unit, each a ramp sampled at 8 Hz;
 #                          about 15 s an epoch on two cores, --epochs (30) at most)
 #   train.log            its training
+#   correction.json      the unit's learned correction of the refined estimate (skinbus-evaluate
+#                        --fit-correction on PRESSES.csv), written only if it lowers the error on
+#                        presses it was not fitted on (five folds of press places)
 #   report.md            the residuals, the network's errors per depth bin next to the design's
-#                        Cramer-Rao bound, and the network refined on the unit as the host runs
-#                        them (skinbus-evaluate) next to the unit's bound at the same presses
+#                        Cramer-Rao bound, the correction's held-out check, and the network refined
+#                        on the unit as the host runs them (skinbus-evaluate; with the correction
+#                        too, on HELD.csv) next to the unit's bound at the same presses
 #   skin_map_entry.yaml  the entry for the skin map (position and orientation: skinbus-calibrate)
 # Progress: one line per step on standard error; each tool's own progress in its log.
 # Exit status: 0 done, 1 a step failed (its log says why), 2 bad arguments.
@@ -45,7 +49,7 @@ while (($#)); do
     --epochs) epochs=${2:?}; shift 2 ;;
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; shift 2 ;;
-    -h | --help) sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -60,7 +64,7 @@ done
 mkdir -p "$out"
 design_opt=()
 [[ -n $design ]] && design_opt=(--design "$design")
-step() { echo "calibrate_unit: [$1/4] $2 ($(date +%T))" >&2; }
+step() { echo "calibrate_unit: [$1/5] $2 ($(date +%T))" >&2; }
 failed() { echo "calibrate_unit: $1 failed; see $2" >&2; exit 1; }
 
 step 1 "identifying the unit's physics from $presses"
@@ -87,14 +91,29 @@ base_opt=()
   --epochs "$epochs" "${base_opt[@]}" >"$out/train.log" 2>&1 || failed "training" "$out/train.log"
 tail -1 "$out/train.log" >&2
 
-step 4 "writing the report and the skin-map entry"
+step 4 "learning what the unit's model misses from its presses (kept if it helps held-out ones)"
+rm -f "$out/correction.json"
+"$bin/skinbus-evaluate" "$presses" --model "$out/network" --unit "$out/unit.json" \
+  "${design_opt[@]}" --fit-correction "$out/correction.json" >"$out/correction.log" 2>&1 ||
+  failed "the learned correction" "$out/correction.log"
+grep "^Learned correction" "$out/correction.log" >&2 || true
+
+step 5 "writing the report and the skin-map entry"
 "$bin/skinbus-crlb" --depths 1.5 2.5 3.5 --ambient "${design_opt[@]}" >"$out/crlb.log" 2>&1 ||
   failed "the Cramer-Rao bound" "$out/crlb.log"
 # The network refined on the unit, as the host runs them, on the same presses.
 "$bin/skinbus-evaluate" "$test_set" --model "$out/network" --unit "$out/unit.json" \
   "${design_opt[@]}" >"$out/evaluate.log" 2>&1 || failed "the evaluation" "$out/evaluate.log"
+# With held-out lab presses and a correction, the same refined on the unit and corrected (on
+# simulated presses of the identified unit a correction of what the model misses means nothing).
+rm -f "$out/evaluate_corrected.log"
+if [[ -n $held && -f $out/correction.json ]]; then
+  "$bin/skinbus-evaluate" "$test_set" --model "$out/network" --unit "$out/unit.json" \
+    "${design_opt[@]}" --correction "$out/correction.json" >"$out/evaluate_corrected.log" 2>&1 ||
+    failed "the corrected evaluation" "$out/evaluate_corrected.log"
+fi
 python3 - "$out" "$presses" "$test_set" "${held:+held-out lab presses}" <<'PY'
-import json, re, sys
+import json, os, re, sys
 out, presses, test_set, held = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4]
 meta = json.load(open(f"{out}/network.json"))
 metrics = meta.get("metrics", meta.get("meta", {}).get("metrics", {}))
@@ -125,8 +144,14 @@ with open(f"{out}/report.md", "w") as f:
             f"{metrics.get('test_depth_mean_mm', float('nan')):.3f} mm. The bound is the design's"
             " (nominal unit, ambient field estimated) averaged over the patch at 1.5, 2.5 and 3.5 mm"
             ", not at the test presses themselves.\n\n")
+    f.write(f"## The learned correction ({presses})\n\n")
+    f.write("".join(l for l in open(f"{out}/correction.log")
+                    if l.startswith(("Learned", "Written", "It helps"))) + "\n")
     f.write(f"## The network refined on the unit, as skinbus-host runs them ({test_set})\n\n")
     f.write(open(f"{out}/evaluate.log").read() + "\n")
+    if os.path.exists(f"{out}/evaluate_corrected.log"):
+        f.write(f"## The same, corrected by the learned correction ({test_set})\n\n")
+        f.write(open(f"{out}/evaluate_corrected.log").read() + "\n")
 PY
 design_line=""
 [[ -n $design ]] && design_line="    design: $(realpath "$design")"$'\n'
@@ -140,5 +165,6 @@ uid_line=""
   echo "    model: $(realpath "$out")/network"
   echo "    unit: $(realpath "$out")/unit.json"
   printf '%s' "$design_line"
+  [[ -f $out/correction.json ]] && echo "    correction: $(realpath "$out")/correction.json"
 } >"$out/skin_map_entry.yaml"
 echo "calibrate_unit: done: $out/report.md, $out/skin_map_entry.yaml" >&2

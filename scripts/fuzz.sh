@@ -15,12 +15,12 @@ build=${SKINBUS_FUZZ_BUILD_DIR:-build-fuzz}
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ missing: run scripts/setup.sh" >&2; exit 1; }
 cmake -S . -B "$build" -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DSKINBUS_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
 targets=(frame_decoder reassembler candump line_reader dataset settings body_map model_file aggregator
-  joint_trajectory unit_file design_file websocket mcap)
+  joint_trajectory unit_file design_file websocket mcap correction_file)
 cmake --build "$build" -j2 --target "${targets[@]/#/fuzz_}"
 # The longest input per target: past the readers' own bounds where a target has one (a candump
 # line: 1024 bytes; the line reader's bound is at most 256), so that the fuzzer reaches them.
 declare -A max_len=([candump]=4096 [line_reader]=4096 [dataset]=16384 [body_map]=16384
-  [model_file]=65536 [unit_file]=16384 [joint_trajectory]=8192 [websocket]=16384
+  [model_file]=65536 [unit_file]=16384 [correction_file]=16384 [joint_trajectory]=8192 [websocket]=16384
   [mcap]=65536)
 
 scratch=$(mktemp -d)

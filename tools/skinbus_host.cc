@@ -402,6 +402,7 @@ int main(int argc, char** argv) {
         ro.physics.fit_shear = r.fit_shear;
         ro.max_contacts = r.max_contacts;
         ro.proposer = r.proposer_path;
+        ro.correction = r.correction_path;
         return estimators::make_physics_refiner(r.unit_path, r.design_path, ro);
       };
     o.refine_budget_us = static_cast<uint64_t>(a.refine_budget_us);

@@ -107,9 +107,10 @@ void parse_calibration(YamlReader& r, const YAML::Node& c, const std::string& pa
 }
 
 void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, PatchPlacement* out) {
-  r.only(p, path,
-         {"node", "uid", "link", "position_mm", "rpy_deg", "quaternion_wxyz", "geometry", "model",
-          "unit", "design", "refine_shear", "max_contacts", "proposer", "calibration"});
+  r.only(
+      p, path,
+      {"node", "uid", "link", "position_mm", "rpy_deg", "quaternion_wxyz", "geometry", "model",
+       "unit", "design", "correction", "refine_shear", "max_contacts", "proposer", "calibration"});
   if (r.error) return;
   for (const char* k : {"node", "link", "position_mm"})
     if (!p[k]) r.fail(path + "." + k, p, "missing");
@@ -148,6 +149,7 @@ void parse_patch(YamlReader& r, const YAML::Node& p, const std::string& path, Pa
   r.get_string(p, "model", path + ".", &out->model);
   r.get_string(p, "unit", path + ".", &out->unit);
   r.get_string(p, "design", path + ".", &out->design);
+  r.get_string(p, "correction", path + ".", &out->correction);
   r.get_bool(p, "refine_shear", path + ".", &out->refine_shear);
   r.get_int(p, "max_contacts", path + ".", 1, 3, &out->max_contacts);
   r.get_string(p, "proposer", path + ".", &out->proposer);
@@ -373,6 +375,7 @@ std::string skin_map_to_yaml(const SkinMap& map) {
     if (!p.model.empty()) o << "    model: " << yaml_string(p.model) << "\n";
     if (!p.unit.empty()) o << "    unit: " << yaml_string(p.unit) << "\n";
     if (!p.design.empty()) o << "    design: " << yaml_string(p.design) << "\n";
+    if (!p.correction.empty()) o << "    correction: " << yaml_string(p.correction) << "\n";
     if (p.refine_shear) o << "    refine_shear: true\n";
     if (p.max_contacts != 1) o << "    max_contacts: " << p.max_contacts << "\n";
     if (!p.proposer.empty()) o << "    proposer: " << yaml_string(p.proposer) << "\n";

@@ -68,10 +68,11 @@ TEST(SkinMap, WritesWhatItReadsBack) {
     if (i % 4 == 0) {
       p.calibration = PoseUncertainty{30, 27, 0.61, {0.1, 0.2, 0.3}, {0.01, 0.02, 0.03}, 0.4};
     }
-    if (i % 7 == 0) {  // a two- or three-press entry with its proposer
+    if (i % 7 == 0) {  // a two- or three-press entry with its proposer and a correction
       p.unit = "units/u.json";
       p.max_contacts = 2 + i % 2;
       p.proposer = "models/my proposer";
+      p.correction = "cal/correction.json";
     }
     m.patches.push_back(p);
   }
@@ -91,6 +92,7 @@ TEST(SkinMap, WritesWhatItReadsBack) {
     EXPECT_EQ(a.geometry.axis, b.geometry.axis);
     EXPECT_EQ(a.max_contacts, b.max_contacts);
     EXPECT_EQ(a.proposer, b.proposer);
+    EXPECT_EQ(a.correction, b.correction);
     EXPECT_EQ(a.unit, b.unit);
     ASSERT_EQ(a.calibration.has_value(), b.calibration.has_value());
     if (a.calibration) {

@@ -4,7 +4,9 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <random>
+#include <string>
 
 namespace skinbus::estimators {
 namespace {
@@ -176,6 +178,103 @@ TEST(BiasCorrection, TooFewSamplesAreDegenerateAndBadInputIsRefused) {
   EXPECT_EQ(robust->samples_used(), deep - deep_missed);
   const Samples test = make(2000, kSeed + 3, 0.1);
   EXPECT_LT(mean_xy(test, &*robust, 1.0), 0.6 * mean_xy(test, nullptr, 1.0));
+}
+
+// A correction written to its file and read back applies bit for bit the same, with what it was
+// chosen to correct; the note comes back.
+TEST(BiasCorrection, TheFileRoundTripAppliesTheSame) {
+  std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
+  const Samples train = make(4000, kSeed, 0.2), test = make(500, kSeed + 1, 0.2);
+  BiasCorrectionOptions o;
+  o.degree_uv = 6;
+  o.degree_depth = 2;
+  o.half_u_mm = 66;
+  o.half_v_mm = 64;
+  o.correct_position = false;  // depth only: the flag must survive the trip
+  Result<BiasCorrection> c = BiasCorrection::fit(train.est, train.u, train.v, train.d, o);
+  ASSERT_TRUE(c.ok()) << c.error().to_string();
+  CorrectionCheck check;
+  check.samples = 12;
+  check.explained = 0.25;
+  const std::string text = c->to_json(&check, "made by a test");
+  EXPECT_NE(text.find("\"explained\": 0.25"), std::string::npos) << text.substr(0, 400);
+  std::string note;
+  Result<BiasCorrection> back = BiasCorrection::parse(text, &note);
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_EQ(note, "made by a test");
+  EXPECT_EQ(back->terms(), c->terms());
+  EXPECT_EQ(back->samples_used(), c->samples_used());
+  EXPECT_FALSE(back->options().correct_position);
+  EXPECT_TRUE(back->options().correct_depth);
+  EXPECT_EQ(back->options().half_v_mm, 64);
+  int changed = 0;
+  for (const ContactEstimate& e : test.est) {
+    const ContactEstimate a = c->apply(e), b = back->apply(e);
+    EXPECT_EQ(a.u_mm, e.u_mm);  // the position is not corrected
+    changed += a.depth_mm != e.depth_mm;
+    EXPECT_EQ(std::memcmp(&a.depth_mm, &b.depth_mm, sizeof(double)), 0);
+    EXPECT_EQ(std::memcmp(&a.u_mm, &b.u_mm, sizeof(double)), 0);
+  }
+  EXPECT_GT(changed, 300);
+  // Through a file: written whole, read back, and a missing one named.
+  const std::string path = ::testing::TempDir() + "bias_correction_test.json";
+  ASSERT_TRUE(c->write(path).ok());
+  Result<BiasCorrection> from_file = BiasCorrection::read(path);
+  ASSERT_TRUE(from_file.ok()) << from_file.error().to_string();
+  EXPECT_EQ(from_file->terms(), c->terms());
+  std::remove(path.c_str());
+  Result<BiasCorrection> missing = BiasCorrection::read(path);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().to_string().find(path), std::string::npos);
+}
+
+// Every bad field of a correction file is refused with its name (or the JSON's line).
+TEST(BiasCorrection, EveryBadFieldOfItsFileIsNamed) {
+  const Samples train = make(2000, kSeed, 0.2);
+  BiasCorrectionOptions o;
+  o.degree_uv = 4;
+  o.degree_depth = 1;
+  Result<BiasCorrection> c = BiasCorrection::fit(train.est, train.u, train.v, train.d, o);
+  ASSERT_TRUE(c.ok()) << c.error().to_string();
+  const std::string good = c->to_json();
+  ASSERT_TRUE(BiasCorrection::parse(good).ok());
+  // (text to replace, its replacement, what the error must say)
+  const struct {
+    const char* from;
+    const char* to;
+    const char* says;
+  } cases[] = {
+      {"\"skinbus-correction 1\"", "\"skinbus-unit 1\"", "not a correction file"},
+      {"\"skinbus-correction 1\"", "\"skinbus-correction 2\"", "this reader knows"},
+      {"\"degree_uv\": 4", "\"degree_uv\": 17", "options.degree_uv must be an integer from 0"},
+      {"\"degree_uv\": 4", "\"degree_uv\": 3", "coefficients.u_mm must be an array of 32"},
+      {"\"degree_depth\": 1", "\"degree_depth\": 1.5", "options.degree_depth must be an integer"},
+      {"\"half_u_mm\": 70", "\"half_u_mm\": 0", "options.half_u_mm must be positive"},
+      {"\"max_depth_mm\": 4.5", "\"max_depth_mm\": \"deep\"", "options.max_depth_mm is not a"},
+      {"\"correct_depth\": true", "\"correct_depth\": 1", "options.correct_depth must be true"},
+      {"\"min_depth_mm\": 1.0", "\"min_depth\": 1.0", "options.min_depth_mm is missing"},
+      {"\"depth_mm\": [", "\"depth_mm\": [\"x\", ", "coefficients.depth_mm must be an array"},
+      {"\"samples\":", "\"samples\": -1, \"x\":", "samples must be an integer"},
+      {"\"format\"", "\"format\" \"", "parse error at line "},
+  };
+  for (const auto& k : cases) {
+    std::string text = good;
+    const std::size_t at = text.find(k.from);
+    ASSERT_NE(at, std::string::npos) << k.from;
+    text.replace(at, std::strlen(k.from), k.to);
+    Result<BiasCorrection> r = BiasCorrection::parse(text);
+    ASSERT_FALSE(r.ok()) << k.to;
+    EXPECT_EQ(r.error().code, ErrorCode::kParse);
+    EXPECT_NE(r.error().message.find(k.says), std::string::npos)
+        << "'" << k.to << "' gave: " << r.error().message;
+  }
+  // A coefficient too large for a double (JSON has no literal for a non-finite one).
+  std::string text = good;
+  const std::size_t at = text.find("\"v_mm\": [") + 9;
+  text.insert(at, "1e999, ");
+  Result<BiasCorrection> r = BiasCorrection::parse(text);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("number overflow"), std::string::npos) << r.error().message;
 }
 
 }  // namespace

@@ -18,8 +18,11 @@ namespace {
 class PhysicsRefiner : public ContactRefiner {
  public:
   PhysicsRefiner(PhysicsEstimator estimator, const RefinerOptions& options,
-                 std::optional<NetworkRuntime> proposer)
-      : estimator_(std::move(estimator)), options_(options), proposer_(std::move(proposer)) {
+                 std::optional<NetworkRuntime> proposer, std::optional<BiasCorrection> correction)
+      : estimator_(std::move(estimator)),
+        options_(options),
+        proposer_(std::move(proposer)),
+        correction_(std::move(correction)) {
     options_.count.max_contacts = options_.max_contacts;  // the count goes as far as asked
   }
 
@@ -87,9 +90,10 @@ class PhysicsRefiner : public ContactRefiner {
     return propose_contacts(*proposer_, field_ut);
   }
 
+  // A single-contact fit as a refined estimate, corrected when the unit has a correction.
   RefinedEstimate from(const PhysicsEstimate& p) const {
     RefinedEstimate out;
-    out.contact = p.contact;
+    out.contact = correction_ ? correction_->apply(p.contact) : p.contact;
     out.sigma_uv_mm = p.sigma_uv_mm;
     out.reduced_chi2 = p.reduced_chi2;
     out.sigma_shear_n = p.sigma_shear_n;  // NaN unless the fit had the shear
@@ -100,6 +104,7 @@ class PhysicsRefiner : public ContactRefiner {
   RefinerOptions options_;
   mutable std::optional<NetworkRuntime> proposer_;
   mutable std::mutex proposer_mutex_;
+  std::optional<BiasCorrection> correction_;
 };
 
 }  // namespace
@@ -127,8 +132,14 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const sim::PatchMod
     if (!rt.ok()) return rt.error();
     proposer.emplace(std::move(*rt));
   }
+  std::optional<BiasCorrection> correction;
+  if (!options.correction.empty()) {
+    auto c = BiasCorrection::read(options.correction);
+    if (!c.ok()) return c.error();
+    correction.emplace(std::move(*c));
+  }
   return std::unique_ptr<ContactRefiner>(
-      new PhysicsRefiner(std::move(*e), options, std::move(proposer)));
+      new PhysicsRefiner(std::move(*e), options, std::move(proposer), std::move(correction)));
 }
 
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& unit_path,

@@ -322,6 +322,8 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
       request.max_contacts = pl.max_contacts;
       request.proposer_path =
           pl.proposer.empty() ? std::string() : beside_map(map_dir, pl.proposer);
+      request.correction_path =
+          pl.correction.empty() ? std::string() : beside_map(map_dir, pl.correction);
       auto r = options.refiner_factory(request);
       if (r.ok()) {
         impl->refiners[i] = std::move(*r);

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "aggregator_test_support.h"
+#include "skinbus/estimators/bias_correction.h"
 #include "skinbus/estimators/physics_refiner.h"
 #include "skinbus/estimators/unit_identification.h"
 #include "skinbus/host/aggregator.h"
@@ -29,7 +30,8 @@ std::string source_dir() {
 }
 
 body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false, int max_contacts = 1,
-                                const std::string& proposer = "") {
+                                const std::string& proposer = "",
+                                const std::string& correction = "") {
   body_map::SkinMap map;
   body_map::PatchPlacement p;
   p.node_id = 4;
@@ -40,6 +42,7 @@ body_map::SkinMap one_patch_map(bool with_unit, bool refine_shear = false, int m
   p.refine_shear = refine_shear;
   p.max_contacts = max_contacts;
   p.proposer = proposer;
+  p.correction = correction;
   map.patches.push_back(p);
   return map;
 }
@@ -84,9 +87,10 @@ struct RunResult {
 
 // Each press as its own sample (with a release between), through an aggregator with `o`.
 RunResult run(const std::vector<Press>& ps, bool with_unit, AggregatorOptions o,
-              bool refine_shear = false, int max_contacts = 1) {
+              bool refine_shear = false, int max_contacts = 1, const std::string& correction = "") {
   RunResult out;
-  const body_map::SkinMap map = one_patch_map(with_unit, refine_shear, max_contacts);
+  const body_map::SkinMap map =
+      one_patch_map(with_unit, refine_shear, max_contacts, "", correction);
   auto a = Aggregator::create(&map, source_dir(), nullptr, {"can0"}, o);
   EXPECT_TRUE(a.ok()) << a.error().to_string();
   if (!a.ok()) return out;
@@ -215,7 +219,9 @@ TEST_F(AggregatorRefineTest, RefinedContactsReachTheUnitsBoundWithTheFitsUncerta
 // A unit whose physics the model class lacks (its lattice's top crushes under the tip: the
 // plate bends less than the press is deep), identified from its own 13 x 13 grid of presses:
 // the host refines on the identified model and publishes contacts within 1.5x the true unit's
-// bound, better than the network's, each with a finite stated uncertainty.
+// bound, better than the network's, each with a finite stated uncertainty. The same grid
+// teaches the unit's correction (chosen by held-out error: the depth the crush biases); an
+// entry naming its file publishes contacts corrected by it: their depth nearer the truth.
 TEST_F(AggregatorRefineTest, AUnitOutsideTheModelClassIsRefinedOnItsIdentifiedModel) {
   const uint64_t seed = 91;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
@@ -263,6 +269,67 @@ TEST_F(AggregatorRefineTest, AUnitOutsideTheModelClassIsRefinedOnItsIdentifiedMo
   EXPECT_LE(unrefined, 2);
   EXPECT_LT(err_ref / bound, 1.5);
   EXPECT_LT(err_ref, err_net);
+
+  // The correction, from the grid's refined estimates (every third sample), chosen and written.
+  const Result<estimators::PhysicsEstimator> lm = estimators::PhysicsEstimator::create(identified);
+  ASSERT_TRUE(lm.ok()) << lm.error().to_string();
+  std::vector<estimators::ContactEstimate> est;
+  std::vector<double> tu, tv, td;
+  for (std::size_t r = 0; r < grid.rows(); r += 3) {
+    est.push_back(lm->estimate({grid.field(r), static_cast<std::size_t>(grid.channels())}).contact);
+    tu.push_back(grid.u_mm[r]);
+    tv.push_back(grid.v_mm[r]);
+    td.push_back(grid.depth_mm[r]);
+  }
+  estimators::BiasCorrectionOptions bo;
+  bo.half_u_mm = bo.half_v_mm = 6 * 11.25;
+  const int degrees[] = {4, 8, 12};
+  const auto choice = estimators::BiasCorrection::choose(est, tu, tv, td, bo, degrees);
+  ASSERT_TRUE(choice.ok()) << choice.error().to_string();
+  std::printf("correction held out: depth %.3f -> %.3f mm, XY %.3f -> %.3f mm (degree %d)\n",
+              choice->check.depth_mean_without_mm, choice->check.depth_mean_with_mm,
+              choice->check.xy_mean_without_mm, choice->check.xy_mean_with_mm,
+              choice->options.degree_uv);
+  ASSERT_TRUE(choice->options.correct_depth);
+  const auto correction = estimators::BiasCorrection::fit(est, tu, tv, td, choice->options);
+  ASSERT_TRUE(correction.ok()) << correction.error().to_string();
+  const std::string path = ::testing::TempDir() + "aggregator_refine_correction.json";
+  ASSERT_TRUE(correction->write(path, &choice->check).ok());
+  options_.refiner_factory = [&identified, &path](const RefinerRequest& r) {
+    EXPECT_EQ(r.correction_path, path);  // the entry's, resolved (absolute here)
+    estimators::RefinerOptions ro;
+    ro.correction = r.correction_path;
+    return estimators::make_physics_refiner(identified, ro);
+  };
+  const RunResult corrected = run(ps, true, options_, false, 1, path);
+  ASSERT_EQ(corrected.contacts.size(), ps.size());
+  double depth_ref = 0, depth_cor = 0;
+  for (std::size_t i = 0; i < ps.size(); ++i) {
+    depth_ref += std::fabs(refined.contacts[i].depth_mm - ps[i].truth.depth_mm);
+    depth_cor += std::fabs(corrected.contacts[i].depth_mm - ps[i].truth.depth_mm);
+  }
+  std::printf("published depth mean error: refined %.3f mm, refined and corrected %.3f mm\n",
+              depth_ref / k, depth_cor / k);
+  EXPECT_EQ(corrected.stats.refined, refined.stats.refined);
+  EXPECT_LT(depth_cor, 0.85 * depth_ref);
+  // A correction file that does not read leaves the patch on the network's answers, named.
+  const std::string bad = ::testing::TempDir() + "aggregator_refine_bad_correction.json";
+  std::FILE* f = std::fopen(bad.c_str(), "w");
+  ASSERT_NE(f, nullptr);
+  std::fputs("{\"format\": \"skinbus-correction 1\"}\n", f);
+  std::fclose(f);
+  options_.refiner_factory = [&identified](const RefinerRequest& r) {
+    estimators::RefinerOptions ro;
+    ro.correction = r.correction_path;
+    return estimators::make_physics_refiner(identified, ro);
+  };
+  const RunResult refused = run(ps, true, options_, false, 1, bad);
+  EXPECT_EQ(refused.stats.refined, 0u);
+  bool named = false;
+  for (const PatchEvent& e : refused.events) named |= e.detail.find(bad) != std::string::npos;
+  EXPECT_TRUE(named) << "no event names " << bad;
+  std::remove(path.c_str());
+  std::remove(bad.c_str());
 }
 
 // An entry with refine_shear publishes each contact's shear force (the patch frame is the base

@@ -4,8 +4,10 @@
 # with the board's UID), calibrated with a small synthetic set and few epochs (the check is of
 # the chain, not of the network's accuracy). Checked: every output is written, the
 # identification explains the unit near its noise, the report has the network's errors per
-# depth bin on the held-out presses next to the bound, and skinbus-host runs the skin-map entry
-# (the network refined on the unit) on a log of that patch: its contacts are refined.
+# depth bin on the held-out presses next to the bound, the learned correction was judged on
+# held-out presses (and, when written, named by the entry and read by the host), and
+# skinbus-host runs the skin-map entry (the network refined on the unit) on a log of that patch:
+# its contacts are refined.
 #   tests/e2e/calibrate_unit_e2e.sh BUILD_DIR
 set -euo pipefail
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
@@ -27,14 +29,29 @@ done
 cat cal/report.md
 grep -q "^| 2-3 | [0-9.]* | [0-9.]* | [0-9.]* |" cal/report.md || fail_with_logs "no 2-3 mm row"
 grep -q "held-out lab presses" cal/report.md || fail_with_logs "not measured on the held-out presses"
+grep -q "^Learned correction, judged on held-out presses" cal/report.md ||
+  fail_with_logs "no held-out check of the learned correction in the report"
+if [[ -f cal/correction.json ]]; then
+  grep -q "correction: .*cal/correction.json" cal/skin_map_entry.yaml ||
+    fail_with_logs "a correction was written but the entry does not name it"
+  grep -q "corrected by the learned correction" cal/report.md ||
+    fail_with_logs "no corrected evaluation in the report"
+else
+  ! grep -q "correction:" cal/skin_map_entry.yaml || fail_with_logs "the entry names no file"
+fi
 # The network refined on the unit on the same presses: below the network in every bin, near the
-# unit's bound (about 0.89 x CRLB is at it; 1.5 allows the samples that keep the network's answer).
+# unit's bound (about 0.89 x CRLB is at it; 1.5 allows the samples that keep the network's answer);
+# and so when corrected too, if a correction was written.
 python3 - <<'PY' || fail_with_logs "the refinement's errors on the held-out presses"
 import re, sys
-rows = re.findall(r"^\| (\d-\d) \| (\d+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \|",
-                  open("cal/report.md").read(), re.M)
-print("refined rows:", rows)
-ok = len(rows) == 3 and all(float(r[3]) < float(r[2]) and float(r[5]) < 1.5 for r in rows)
+row = r"^\| (\d-\d) \| (\d+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \|"
+plain, _, corrected = open("cal/report.md").read().partition("corrected by the learned correction")
+ok = True
+for name, text in (("refined", plain), ("corrected", corrected)):
+    rows = re.findall(row, text, re.M)
+    print(name, "rows:", rows)
+    if name == "refined" or corrected:
+        ok &= len(rows) == 3 and all(float(r[3]) < float(r[2]) and float(r[5]) < 1.5 for r in rows)
 sys.exit(0 if ok else 1)
 PY
 python3 - <<'PY' || fail_with_logs "the identification residual"
@@ -57,7 +74,8 @@ for e in entries[1:]:
     if re.match(r"node: 6\b", e):
         # keep the map's pose and geometry; take the model and unit of the calibration
         keep = "".join(l for l in e.splitlines(True) if not re.match(r"\s*model:", l))
-        extra = "".join(l for l in entry.splitlines(True) if re.match(r"\s+(model|unit|design):", l))
+        extra = "".join(l for l in entry.splitlines(True)
+                        if re.match(r"\s+(model|unit|design|correction):", l))
         e = keep.rstrip("\n") + "\n" + extra
     out.append(e)
 open("map.yaml", "w").write("  - ".join(out))

@@ -68,6 +68,10 @@ struct PatchPlacement {
   // empty: the built-in design). Relative paths are relative to the map file. Empty unit: none.
   std::string unit;
   std::string design;
+  // The unit's learned correction of the refined estimate (a correction file,
+  // estimators/bias_correction.h, as scripts/calibrate_unit.sh writes it when the unit's own
+  // presses show one pays off); relative to the map file. Empty: none. Used only with a unit.
+  std::string correction;
   // The refinement also fits each contact's shear force (published as its shear and in its
   // wrench). It costs the position precision (about 2.3x the bound without it:
   // docs/benchmarks/shear.md), so it is for patches where shear matters.

@@ -13,6 +13,8 @@
 #pragma once
 
 #include <span>
+#include <string>
+#include <string_view>
 #include <vector>
 
 #include "skinbus/common/result.h"
@@ -89,6 +91,24 @@ class BiasCorrection {
   // kept as they were: run flag_range() with the patch's extent again if the range matters.
   ContactEstimate apply(const ContactEstimate& e) const;
 
+  // Correction files ("skinbus-correction 1", JSON; docs/physics_estimator.md, "The learned
+  // correction"): the options (degrees, scaling, what is corrected) and the coefficients, with
+  // the held-out check the choice was made by (`check`, may be null; kept for the record, not
+  // read back) and a free-text note of where it came from (`source`). Doubles are written with
+  // 17 significant digits: a read-back correction applies bit for bit the same.
+  std::string to_json(const CorrectionCheck* check = nullptr, std::string_view source = {}) const;
+  // Writes to_json() to `path` (a temporary file renamed: never a torn one). Errors: kIo, naming
+  // the path.
+  Status write(const std::string& path, const CorrectionCheck* check = nullptr,
+               std::string_view source = {}) const;
+  // Parses a correction file's text. Errors: kParse naming the field (or the JSON's line and
+  // column) for a malformed file, degrees out of range, scales not positive, coefficients not
+  // finite or not (degree_uv+1)^2 (degree_depth+1) each.
+  static Result<BiasCorrection> parse(std::string_view text, std::string* source = nullptr);
+  // Reads and parses `path`: errors as parse() with the path in front; kNotFound for no file.
+  static Result<BiasCorrection> read(const std::string& path, std::string* source = nullptr);
+
+  const BiasCorrectionOptions& options() const { return options_; }
   int terms() const { return terms_; }
   int samples_used() const { return samples_; }
   // RMS of the correction over the fitting samples (mm): how large the learned bias is.

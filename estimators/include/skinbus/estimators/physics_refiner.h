@@ -7,6 +7,7 @@
 #include <string>
 
 #include "skinbus/common/result.h"
+#include "skinbus/estimators/bias_correction.h"
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/estimators/refiner.h"
 
@@ -31,11 +32,19 @@ namespace skinbus::estimators {
 // network run, ~20 us); when it proposes two or more presses the count starts from them (one
 // solve a count) instead of searching from nothing (RefinedContacts::proposed). Errors name the
 // proposer's file, or say it is not a proposer.
+//
+// With a correction (`correction`: a correction file, bias_correction.h, as skinbus-evaluate
+// --fit-correction writes it from the unit's own presses), every single-contact fit is corrected
+// by it (BiasCorrection::apply: what it was chosen to correct, position and/or depth, at one
+// basis evaluation a sample); its uncertainty and reduced chi-square stay the fit's. Two or three
+// contacts are not corrected (the correction was learned from single presses). Errors name the
+// file.
 struct RefinerOptions {
   PhysicsOptions physics;
   int max_contacts = 1;  // 1 to kMaxContacts
   ContactCountOptions count;
-  std::string proposer;  // "" none
+  std::string proposer;    // "" none
+  std::string correction;  // "" none
 };
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& unit_path,
                                                              const std::string& design_path,

@@ -112,6 +112,8 @@ struct RefinerRequest {
   int max_contacts = 1;
   // PatchPlacement::proposer, resolved: the proposer network the count starts from; "" none.
   std::string proposer_path;
+  // PatchPlacement::correction, resolved: the unit's learned correction file; "" none.
+  std::string correction_path;
 };
 
 struct AggregatorOptions {
