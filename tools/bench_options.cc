@@ -69,7 +69,8 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
   sub->add_option("--units", a.units,
                   "simulated units: nominal, fabricated, and outside the model class "
                   "anisotropic, crushing (the top crushes under the tip), discs (finite "
-                  "magnets)")
+                  "magnets), dragging (another in-plane motion law), creeping (the lattice "
+                  "lags the press; tested on ramps)")
       ->delimiter(',')
       ->capture_default_str();
   sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")
@@ -81,6 +82,18 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
                   "deep, mm")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  sub->add_option("--inplane-drag", a.inplane_drag,
+                  "the 'dragging' unit: magnets also move toward a press by this x their "
+                  "deflection x distance / spread")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
+  sub->add_option("--creep", a.creep_fraction,
+                  "the 'creeping' unit: this part of the plate's bend lags the press ...")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 0.99));
+  sub->add_option("--creep-time", a.creep_time_s, "... with this time constant, s")
+      ->capture_default_str()
+      ->check(CLI::Range(0.001, 3600.0));
   sub->add_option("--seed-model", a.seed_models,
                   "unit=MODEL: the seed CNN trained on that unit's 19 x 19 grid (skinbus-train on "
                   "skinbus-dataset --plan grid); repeat per unit");

@@ -149,6 +149,11 @@ int main(int argc, char** argv) {
                                                      base, degrees);
     if (!choice.ok()) return tools::report_error(kTool, choice.error());
     const estimators::CorrectionCheck& c = choice->check;
+    for (const auto& [degree, t] : choice->tried) {
+      std::fprintf(stderr, "%s: held out at degree %d: XY %.3f -> %.3f mm, depth %.3f -> %.3f mm\n",
+                   kTool, degree, t.xy_mean_without_mm, t.xy_mean_with_mm, t.depth_mean_without_mm,
+                   t.depth_mean_with_mm);
+    }
     std::printf(
         "Learned correction, judged on held-out presses (%d estimates >= %.1f mm deep), degree "
         "%d: XY mean %.3f -> %.3f mm (explains %.0f %% of the squared error), depth mean %.3f "

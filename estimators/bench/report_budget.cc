@@ -41,14 +41,26 @@ struct Unit {
 };
 
 // The units `--units` names.
-constexpr std::array<const char*, 5> kUnitNames = {"nominal", "fabricated", "anisotropic",
-                                                   "crushing", "discs"};
+constexpr std::array<const char*, 7> kUnitNames = {
+    "nominal", "fabricated", "anisotropic", "crushing", "discs", "dragging", "creeping"};
 bool known_unit(const std::string& name) {
   return std::find(kUnitNames.begin(), kUnitNames.end(), name) != kUnitNames.end();
 }
 std::string unit_names() {
   std::string out;
   for (const char* k : kUnitNames) out += (out.empty() ? "" : ", ") + std::string(k);
+  return out;
+}
+
+// About `rows` of `d`'s rows, evenly strided (all when it has no more).
+sim::Dataset every_kth(const sim::Dataset& d, int rows) {
+  const std::size_t k = std::max<std::size_t>(1, d.rows() / static_cast<std::size_t>(rows));
+  sim::Dataset out;
+  out.meta = d.meta;
+  out.sensors = d.sensors;
+  for (std::size_t r = 0; r < d.rows(); r += k) {
+    out.append(d.press[r], d.t_s[r], d.u_mm[r], d.v_mm[r], d.depth_mm[r], d.force_n[r], d.field(r));
+  }
   return out;
 }
 
@@ -70,6 +82,13 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   } else if (name == "discs") {
     model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
     if (model.ok()) model = sim::PatchModel::with_disc_magnets(model.value());
+  } else if (name == "dragging") {
+    design.inplane_drag = a.inplane_drag;
+    model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
+  } else if (name == "creeping") {
+    design.creep_fraction = a.creep_fraction;
+    design.creep_time_s = a.creep_time_s;
+    model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
   }
   if (!model.ok()) return model.error();
   Unit u{name, model.value(), {}, {}, {}};
@@ -80,6 +99,18 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   u.presses =
       sim::generate_ramp_dataset(patch, sim::plan_grid(kGrid, kPitchMm), sim::RampProtocol{});
   sim::SimulatedPatch test_patch(model.value(), sim::unit_noise_seed(a.uid, 2));
+  if (name == "creeping") {
+    // Creep shows where the press moves: ramps at random places (as many as the off-grid test's
+    // presses over 8, every few samples kept to about the same count of rows) and at the grid's.
+    u.off_grid = every_kth(
+        sim::generate_ramp_dataset(test_patch, sim::plan_random(a.test_count / 8, kHalfExtentMm, 7),
+                                   sim::RampProtocol{}),
+        a.test_count);
+    u.grid_test = every_kth(sim::generate_ramp_dataset(test_patch, sim::plan_grid(kGrid, kPitchMm),
+                                                       sim::RampProtocol{}),
+                            kGrid * kGrid * a.grid_test_per_point);
+    return u;
+  }
   u.off_grid = sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
   u.grid_test = sim::generate_static_test_set(test_patch, sim::plan_grid(kGrid, kPitchMm),
                                               a.grid_test_per_point, 4.0, 9);
@@ -276,6 +307,13 @@ Status bench_budget(const BudgetBenchArgs& a) {
         if (!choice.ok()) return with_context(choice.error(), "bias correction check");
         const BiasCorrectionOptions& chosen = choice->options;
         const CorrectionCheck& check = choice->check;
+        for (const auto& [degree, t] : choice->tried) {
+          std::fprintf(stderr,
+                       "skinbus-bench:     held out at degree %d: XY %.3f -> %.3f mm, depth "
+                       "%.3f -> %.3f mm\n",
+                       degree, t.xy_mean_without_mm, t.xy_mean_with_mm, t.depth_mean_without_mm,
+                       t.depth_mean_with_mm);
+        }
         const bool gate = choice->any();
         std::fprintf(stderr,
                      "skinbus-bench:   correction on held-out presses (%d samples >= 1 mm), "

@@ -232,8 +232,11 @@ Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEst
     o.degree_uv = degree;
     Result<CorrectionCheck> c = cross_validate(estimates, true_u_mm, true_v_mm, true_depth_mm, o);
     if (!c.ok()) return c.error();
-    const double score = c->xy_mean_with_mm / std::fmax(c->xy_mean_without_mm, 1e-12) +
-                         c->depth_mean_with_mm / std::fmax(c->depth_mean_without_mm, 1e-12);
+    best.tried.emplace_back(degree, c.value());
+    // What the gate below would keep: a part that does not help is not corrected (counts 1).
+    const double xy = c->xy_mean_with_mm / std::fmax(c->xy_mean_without_mm, 1e-12);
+    const double depth = c->depth_mean_with_mm / std::fmax(c->depth_mean_without_mm, 1e-12);
+    const double score = (c->helps_position() ? xy : 1.0) + (c->helps_depth() ? depth : 1.0);
     if (score < best_score) {
       best_score = score;
       best.options = o;

@@ -1,10 +1,10 @@
 // Correction files: a BiasCorrection as JSON ("skinbus-correction 1").
 #include <cmath>
-#include <nlohmann/json.hpp>
 #include <string>
 #include <utility>
 
 #include "skinbus/common/atomic_file.h"
+#include "skinbus/common/json_text.h"
 #include "skinbus/common/text_file.h"
 #include "skinbus/estimators/bias_correction.h"
 
@@ -128,28 +128,9 @@ Status BiasCorrection::write(const std::string& path, const CorrectionCheck* che
 }
 
 Result<BiasCorrection> BiasCorrection::parse(std::string_view text, std::string* source) {
-  json j;
-  try {
-    j = json::parse(text.begin(), text.end());
-  } catch (const json::exception& e) {
-    // "[json.exception.parse_error.101] parse error at line 3, column 7: ..." -> after the tag.
-    std::string what = e.what();
-    if (const std::size_t close = what.find("] "); close != std::string::npos) {
-      what = what.substr(close + 2);
-    }
-    return make_error(ErrorCode::kParse, "not a JSON object: " + what);
-  }
-  if (!j.is_object()) return make_error(ErrorCode::kParse, "not a JSON object");
-  const auto format = j.find("format");
-  if (format == j.end() || !format->is_string() ||
-      format->get<std::string>().rfind(std::string(kFormat) + " ", 0) != 0) {
-    return make_error(ErrorCode::kParse,
-                      "not a correction file (format is not '" + format_name() + "')");
-  }
-  if (format->get<std::string>() != format_name()) {
-    return make_error(ErrorCode::kParse, "format '" + format->get<std::string>() +
-                                             "': this reader knows '" + format_name() + "'");
-  }
+  Result<json> doc = parse_json_document(text, kFormat, kMajorVersion, "correction file");
+  if (!doc.ok()) return doc.error();
+  const json& j = *doc;
   Reader r;
   BiasCorrection c;
   BiasCorrectionOptions& o = c.options_;

@@ -1,6 +1,7 @@
 #include "skinbus/estimators/model_file.h"
 
 #include "skinbus/common/atomic_file.h"
+#include "skinbus/common/json_text.h"
 #include "skinbus/common/text_file.h"
 
 #include <algorithm>
@@ -64,16 +65,9 @@ std::size_t header_bytes(std::string_view b) {
 // Parses JSON text; a syntax error (or a number no double holds, 1e400) names the line and what
 // the parser found instead of a bare "not a JSON object".
 Result<json> parse_json(std::string_view text, const std::string& file) {
-  try {
-    return json::parse(text);
-  } catch (const json::exception& e) {
-    std::string what = e.what();
-    // "[json.exception.parse_error.101] parse error at line 1, column 9: ..." -> after the tag.
-    if (const std::size_t close = what.find("] "); close != std::string::npos) {
-      what = what.substr(close + 2);
-    }
-    return file_error(file, "not valid JSON: " + what);
-  }
+  Result<json> j = parse_json_text(text);
+  if (!j.ok()) return file_error(file, j.error().message);
+  return j;
 }
 
 }  // namespace

@@ -503,8 +503,10 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
                                      const sim::Dataset* held_out) {
   const auto t0 = std::chrono::steady_clock::now();
   sim::PatchDesign design = design_in;
-  design.anisotropy = 0;    // the identified model class: one isotropic spread,
-  design.tip_crush_mm = 0;  // the plate bent by the whole depth
+  design.anisotropy = 0;      // the identified model class: one isotropic spread,
+  design.tip_crush_mm = 0;    // the plate bent by the whole depth,
+  design.inplane_drag = 0;    // in-plane motion by the slope alone,
+  design.creep_fraction = 0;  // no lag
   if (Status s = sim::validate(design); !s.ok()) return s.error();
   const int nc = design.channel_count();
   if (presses.channels() != nc || (held_out != nullptr && held_out->channels() != nc)) {

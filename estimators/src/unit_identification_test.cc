@@ -357,6 +357,35 @@ TEST(UnitIdentificationTest, OutsideTheClassWithItsGlobalsOffIsFlagged) {
   EXPECT_NEAR(id->parameters.spread_mm, mean_spread, 0.1 * mean_spread);
 }
 
+// A unit whose lattice creeps (its plate lags the press: PatchDesign::creep_fraction), pressed
+// in ramps as a lab records it: the class has no lag, the fit's samples come from the loading
+// half of each ramp, and ramps at other places, loading and unloading, show what it misses: the
+// held-out residual is flagged, or the fit refused.
+TEST(UnitIdentificationTest, ACreepingUnitIsFlaggedOnRampsItWasNotFittedOn) {
+  const uint64_t seed = 316;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  sim::PatchDesign creeping;
+  creeping.creep_fraction = 0.25;
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(creeping, seed, sim::FabricationVariation{}).value();
+  UnitData data = press_unit(unit, 13, 11.25, seed);
+  sim::SimulatedPatch patch(unit, seed + 2);
+  sim::RampProtocol ramp;
+  ramp.speed_mm_per_s = 4.0;
+  data.test = sim::generate_ramp_dataset(patch, sim::plan_random(60, 60, seed), ramp);
+  IdentificationOptions opt;
+  opt.depths_per_press = 3;
+  const Result<IdentifiedUnit> id = identify_unit(sim::PatchDesign{}, data.train, opt, &data.test);
+  if (!id.ok()) {  // a clear refusal is allowed; a silent poor fit is not
+    std::printf("refused: %s\n", id.error().to_string().c_str());
+    EXPECT_EQ(id.error().code, ErrorCode::kNotConverged);
+    return;
+  }
+  print_quality("fit", id->fit);
+  print_quality("held out (ramps)", id->held_out);
+  EXPECT_GT(id->held_out.rms, kModelMissesResidual);
+}
+
 // A design file of another patch altogether (the built-in 7 x 7 checkerboard for a 9 x 9 one-
 // polarity unit): refused, naming what could not be fitted, never a unit file.
 TEST(UnitIdentificationTest, TheWrongDesignIsRefusedNamingWhy) {

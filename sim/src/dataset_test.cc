@@ -107,6 +107,54 @@ TEST(DatasetTest, RampDatasetKeepsContactSamplesOnly) {
   EXPECT_EQ(dataset_fingerprint(d), dataset_fingerprint(e));
 }
 
+// Creep (PatchDesign::creep_fraction): the plate lags the press, so a ramp bends it less than
+// the press is deep while loading and more while unloading: the same rows as without creep, the
+// same recorded depths, a weaker field going down and a stronger one coming up (once the lag has
+// overtaken the press: below 2.5 mm at 2 mm/s, 2.5 time constants after the turn).
+TEST(DatasetTest, CreepBendsThePlateLessLoadingThanUnloading) {
+  PatchDesign creeping;
+  creeping.creep_fraction = 0.3;
+  creeping.creep_time_s = 0.3;
+  SimulatedPatch plain = make_patch(), lagging(*PatchModel::nominal(creeping), 1);
+  RampProtocol pr;
+  const Dataset a = generate_ramp_dataset(plain, plan_grid(3, 30), pr);
+  const Dataset b = generate_ramp_dataset(lagging, plan_grid(3, 30), pr);
+  ASSERT_EQ(a.rows(), b.rows());
+  EXPECT_EQ(a.depth_mm, b.depth_mm);
+  EXPECT_EQ(a.force_n, b.force_n);
+  const auto nc = static_cast<std::size_t>(a.channels());
+  int loading = 0, loading_weaker = 0, unloading = 0, unloading_stronger = 0;
+  for (std::size_t r = 1; r + 1 < a.rows(); ++r) {
+    if (a.depth_mm[r] < 1.0 || a.press[r - 1] != a.press[r] || a.press[r + 1] != a.press[r]) {
+      continue;
+    }
+    double na = 0, nb = 0;
+    for (std::size_t c = 0; c < nc; ++c) {
+      na += a.field_ut[r * nc + c] * a.field_ut[r * nc + c];
+      nb += b.field_ut[r * nc + c] * b.field_ut[r * nc + c];
+    }
+    if (a.depth_mm[r + 1] > a.depth_mm[r] && a.depth_mm[r - 1] < a.depth_mm[r]) {
+      ++loading;
+      loading_weaker += nb < na;
+    } else if (a.depth_mm[r + 1] < a.depth_mm[r] && a.depth_mm[r - 1] > a.depth_mm[r] &&
+               a.depth_mm[r] < 2.5) {
+      ++unloading;
+      unloading_stronger += nb > na;
+    }
+  }
+  std::printf("loading: %d of %d rows weaker; unloading: %d of %d stronger\n", loading_weaker,
+              loading, unloading_stronger, unloading);
+  EXPECT_GT(loading, 300);
+  EXPECT_GT(unloading, 150);
+  EXPECT_GE(loading_weaker, loading * 95 / 100);
+  EXPECT_GE(unloading_stronger, unloading * 95 / 100);
+  // Without creep the design's time constant changes nothing.
+  PatchDesign slow;
+  slow.creep_time_s = 5;
+  SimulatedPatch still(*PatchModel::nominal(slow), 1);
+  EXPECT_EQ(generate_ramp_dataset(still, plan_grid(3, 30), pr).field_ut, a.field_ut);
+}
+
 TEST(DatasetTest, CsvRoundTrip) {
   SimulatedPatch p = make_patch();
   Dataset d = generate_random_test_set(p, 50, 65, 4, 9);

@@ -68,6 +68,9 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     d.lateral_mm = 4 * u01(rng);
     d.anisotropy = -0.3 + 0.6 * u01(rng);
     d.tip_crush_mm = u01(rng) < 0.5 ? 0.0 : 5 + 30 * u01(rng);
+    d.inplane_drag = u01(rng) < 0.5 ? 0.0 : 0.3 * u01(rng);
+    d.creep_fraction = u01(rng) < 0.5 ? 0.0 : 0.5 * u01(rng);
+    d.creep_time_s = 0.05 + u01(rng);
     d.stiffness_n_per_mm = 0.5 + 3 * u01(rng);
     d.shear_stiffness_n_per_mm = 0.3 + 3 * u01(rng);
     d.shear_spread_mm = 2 + 12 * u01(rng);
@@ -82,6 +85,9 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     EXPECT_EQ(back->size_u_mm, d.size_u_mm) << "seed " << seed;
     EXPECT_EQ(back->anisotropy, d.anisotropy) << "seed " << seed;
     EXPECT_EQ(back->tip_crush_mm, d.tip_crush_mm) << "seed " << seed;
+    EXPECT_EQ(back->inplane_drag, d.inplane_drag) << "seed " << seed;
+    EXPECT_EQ(back->creep_fraction, d.creep_fraction) << "seed " << seed;
+    EXPECT_EQ(back->creep_time_s, d.creep_time_s) << "seed " << seed;
   }
 }
 
@@ -189,6 +195,9 @@ TEST(DesignFile, EveryBadSettingIsNamedWithItsLine) {
       {head + "sensors:\n  chip: {temperature: maybe}\n", "sensors.chip.temperature (line 4)"},
       {head + "lattice:\n  anisotropy: 0.7\n", "lattice.anisotropy (line 4)"},
       {head + "lattice:\n  tip_crush_mm: -1\n", "lattice.tip_crush_mm (line 4)"},
+      {head + "lattice:\n  inplane_drag: 2\n", "lattice.inplane_drag (line 4)"},
+      {head + "lattice:\n  creep_fraction: 1\n", "lattice.creep_fraction (line 4)"},
+      {head + "lattice:\n  creep_time_s: 0\n", "lattice.creep_time_s (line 4)"},
       {head + "force_law:\n  stiffness_n_per_mm: nan\n", "force_law.stiffness_n_per_mm (line 4)"},
       {head + "sensors:\n  grid: {u: 8, v: 8, pitch_mm: 30}\n",
        "patch design: the sensor grid does not fit inside the patch"},

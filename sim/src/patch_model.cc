@@ -61,6 +61,12 @@ Status validate(const PatchDesign& d) {
   if (!std::isfinite(d.anisotropy) || std::fabs(d.anisotropy) >= 0.5)
     return bad("anisotropy must be in (-0.5, 0.5)");
   if (!std::isfinite(d.tip_crush_mm) || d.tip_crush_mm < 0) return bad("tip_crush_mm must be >= 0");
+  if (!std::isfinite(d.inplane_drag) || d.inplane_drag < 0 || d.inplane_drag > 1)
+    return bad("inplane_drag must be in [0, 1]");
+  if (!std::isfinite(d.creep_fraction) || d.creep_fraction < 0 || d.creep_fraction >= 1)
+    return bad("creep_fraction must be in [0, 1)");
+  if (!positive(d.creep_time_s) || d.creep_time_s > 3600)
+    return bad("creep_time_s must be in (0, 3600]");
   if (!std::isfinite(d.stiffness_n_per_mm) || d.stiffness_n_per_mm <= 0)
     return bad("stiffness_n_per_mm must be > 0");
   if (!positive(d.shear_stiffness_n_per_mm)) return bad("shear_stiffness_n_per_mm must be > 0");
@@ -382,6 +388,10 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
       w += amp * g;
       pu -= amp * q * du / (lu * lu);
       pv -= amp * q * dv / (lv * lv);
+      if (design_.inplane_drag != 0) {  // dragged toward the press (PatchDesign::inplane_drag)
+        su -= design_.inplane_drag * amp * g * du / lu;
+        sv -= design_.inplane_drag * amp * g * dv / lv;
+      }
       if (c.shear_u_n != 0 || c.shear_v_n != 0) {
         const double shape = shear_shape(du * du + dv * dv, ac2);
         su += c.shear_u_n * shape;

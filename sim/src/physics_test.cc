@@ -227,6 +227,29 @@ TEST_F(PatchModelTest, ACrushedTopBendsThePlateLess) {
   EXPECT_FALSE(PatchModel::nominal(design).ok());
 }
 
+// The drag law (PatchDesign::inplane_drag, physics outside the identified class): both field
+// paths agree, a magnet beside a press moves toward it (its field changes), and one on the far
+// side of the kernel's reach does not.
+TEST_F(PatchModelTest, TheDragLawMovesTheSurfaceTowardThePressOnBothPaths) {
+  const PatchModel plain = nominal();
+  design.inplane_drag = 0.15;
+  const PatchModel dragged = nominal();
+  const Contact cs[2] = {{12, -7, 3.0, 5.0}, {-30, 25, 1.5, 0}};
+  std::vector<double> fast(48), slow(48), base(48);
+  dragged.contact_field_ut(cs, fast);
+  dragged.contact_field_ut<double>(std::span<const Contact>(cs, 2), slow.data());
+  plain.contact_field_ut(cs, base);
+  double diff = 0, norm = 0;
+  for (int i = 0; i < 48; ++i) {
+    EXPECT_NEAR(fast[i], slow[i], 1e-9 * (1 + std::fabs(slow[i])));
+    diff += (fast[i] - base[i]) * (fast[i] - base[i]);
+    norm += base[i] * base[i];
+  }
+  EXPECT_GT(diff, 1e-4 * norm);  // many times the noise on a 3 mm press
+  design.inplane_drag = 1.5;
+  EXPECT_FALSE(PatchModel::nominal(design).ok());
+}
+
 // Disc magnets: the cubature's field on a magnet's axis is nearer the exact finite cylinder's
 // than the point dipole is, and a press's field differs from the dipole unit's by about a
 // percent: small, but many times the sensor noise on a deep press.

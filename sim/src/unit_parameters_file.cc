@@ -2,9 +2,8 @@
 #include <cerrno>
 #include <cstring>
 #include <fstream>
-#include <nlohmann/json.hpp>
-
 #include "skinbus/common/atomic_file.h"
+#include "skinbus/common/json_text.h"
 #include "skinbus/common/yaml_reader.h"
 #include "skinbus/sim/unit_parameters.h"
 
@@ -131,28 +130,9 @@ Status write_unit_parameters(const UnitParameters& params, const std::string& pa
 }
 
 Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string* source) {
-  json j;
-  try {
-    j = json::parse(text.begin(), text.end());
-  } catch (const json::exception& e) {
-    // "[json.exception.parse_error.101] parse error at line 3, column 7: ..." -> after the tag.
-    std::string what = e.what();
-    if (const std::size_t close = what.find("] "); close != std::string::npos) {
-      what = what.substr(close + 2);
-    }
-    return make_error(ErrorCode::kParse, "not a JSON object: " + what);
-  }
-  if (!j.is_object()) return make_error(ErrorCode::kParse, "not a JSON object");
-  const auto format = j.find("format");
-  const std::string want = std::string(kFormat) + " " + std::to_string(kMajorVersion);
-  if (format == j.end() || !format->is_string() ||
-      format->get<std::string>().rfind(std::string(kFormat) + " ", 0) != 0) {
-    return make_error(ErrorCode::kParse, "not a unit file (format is not '" + want + "')");
-  }
-  if (format->get<std::string>() != want) {
-    return make_error(ErrorCode::kParse, "format '" + format->get<std::string>() +
-                                             "': this reader knows '" + want + "'");
-  }
+  Result<json> doc = parse_json_document(text, kFormat, kMajorVersion, "unit file");
+  if (!doc.ok()) return doc.error();
+  const json& j = *doc;
   Reader r;
   UnitParameters p;
   p.spread_mm = r.number(j, "spread_mm", "");

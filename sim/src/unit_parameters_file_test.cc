@@ -82,9 +82,9 @@ TEST(UnitParametersFileTest, CorruptFilesAreRefusedWithTheField) {
     EXPECT_NE(at, std::string::npos) << from;
     return t.replace(at, from.size(), to);
   };
-  refused("", "not a JSON object");
+  refused("", "not valid JSON");
   refused("[1, 2]", "not a JSON object");
-  refused(good.substr(0, good.size() / 2), "not a JSON object");
+  refused(good.substr(0, good.size() / 2), "not valid JSON");
   refused(replaced("\"skinbus-unit 1\"", "\"skinbus-dataset 1\""), "not a unit file");
   refused(replaced("\"skinbus-unit 1\"", "\"skinbus-unit 2\""), "this reader knows");
   refused(replaced("\"spread_mm\"", "\"spread\""), "spread_mm is missing");
@@ -93,7 +93,7 @@ TEST(UnitParametersFileTest, CorruptFilesAreRefusedWithTheField) {
   refused(replaced("\"moment_am2\": [", "\"moment_am2\": [1, "), "magnets[0].moment_am2 must");
   refused(replaced("\"gain\": [", "\"gain\": [null, "), "sensors[0].gain");
   refused(replaced("\"mounting\": [", "\"mounting\": [[1, 2], "), "sensors[0].mounting");
-  // A number no double holds: said, with where, not only "not a JSON object".
+  // A number no double holds: said, with where, not only "not valid JSON".
   refused(replaced("\"spread_mm\": ", "\"spread_mm\": 1e400, \"x\": "), "1e400");
   refused(good.substr(0, good.size() / 2), "parse error at line");
 }

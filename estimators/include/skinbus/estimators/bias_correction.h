@@ -15,6 +15,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "skinbus/common/result.h"
@@ -74,12 +75,15 @@ class BiasCorrection {
                                                 const BiasCorrectionOptions& options = {});
 
   // The correction to use on this unit, chosen by held-out error: cross_validate() at each
-  // degree in `degrees_uv` (the others as `base`), the degree whose corrected errors, each over
-  // its uncorrected one, sum lowest, and of that, what helps (correct_position, correct_depth;
-  // neither: use no correction). Errors: as cross_validate(). Cost: that, per degree.
+  // degree in `degrees_uv` (the others as `base`); at each, what helps (correct_position,
+  // correct_depth; neither: use no correction), and the degree whose held-out errors with what
+  // helps corrected, the XY and the depth each over its uncorrected one, sum lowest (what does
+  // not help counts 1: it will not be corrected). Errors: as cross_validate(). Cost: that, per
+  // degree.
   struct Choice {
-    BiasCorrectionOptions options;  // the degree chosen and what to correct
-    CorrectionCheck check;          // its held-out check
+    BiasCorrectionOptions options;                       // the degree chosen and what to correct
+    CorrectionCheck check;                               // its held-out check
+    std::vector<std::pair<int, CorrectionCheck>> tried;  // every degree's check, in order
     bool any() const { return options.correct_position || options.correct_depth; }
   };
   static Result<Choice> choose(std::span<const ContactEstimate> estimates,

@@ -66,7 +66,9 @@ struct RampProtocol {
 };
 
 // Runs `plan` on `patch`: a ramp at every point, keeping contact samples, tared. Fills meta,
-// sensors and rows. Deterministic for the patch's noise seed.
+// sensors and rows. Deterministic for the patch's noise seed. A design with creep
+// (PatchDesign::creep_fraction) bends the plate by its lagged depth; the rows record the
+// indenter's depth.
 Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan,
                               const RampProtocol& protocol, const Environment& env = {});
 

@@ -86,6 +86,18 @@ struct PatchDesign {
   // anisotropy, physics outside the class identification fits (it fits 0): a stand-in for a
   // unit whose deformation law under the tip is not the model's.
   double tip_crush_mm = 0;
+  // Another in-plane motion law: the surface layer is dragged toward a press, a magnet moving by
+  // inplane_drag x its deflection by that press x its distance to it over the spread length
+  // (along u: drag w du / l_u), on top of the class's -lateral x slope (0: none). Outside the
+  // class, identification fits 0.
+  double inplane_drag = 0;
+  // Creep (viscoelastic lag): under a press d(t), the plate bends by (1 - f) d + f q, where q
+  // follows d with time constant creep_time_s (dq/dt = (d - q) / tau); f = creep_fraction, 0:
+  // none. It acts where the simulator steps time, in the ramps of sim::generate_ramp_dataset
+  // (loading bends the plate less than the press is deep, unloading more); a static press is
+  // the relaxed state. Outside the class, identification fits 0.
+  double creep_fraction = 0;
+  double creep_time_s = 0.3;
   // Shear: a tangential force F at a contact moves the surface layer in-plane, along F, by
   // (F / shear_stiffness) exp(a/l_t - sqrt(r^2 + a^2)/l_t) at distance r from the contact
   // (l_t = shear_spread_mm, a = the tip's contact radius): F / shear_stiffness under the tip,
@@ -361,6 +373,10 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
     w = w + amp * gs;                // deflection into the skin
     pu = pu - amp * dgs * du / lu2;  // slope of the surface height h = -w
     pv = pv - amp * dgs * dv / lv2;
+    if (design_.inplane_drag != 0) {  // dragged toward the press (PatchDesign::inplane_drag)
+      shift_u = shift_u - design_.inplane_drag * amp * gs * du / spread_u;
+      shift_v = shift_v - design_.inplane_drag * amp * gs * dv / spread_v;
+    }
     if (!is_zero(c.shear_u_n) || !is_zero(c.shear_v_n)) {
       const T shape = shear_shape(du * du + dv * dv, ac2);
       shift_u = shift_u + c.shear_u_n * shape;

@@ -64,9 +64,14 @@ struct BudgetBenchArgs {
   std::vector<std::string> units = {"nominal", "fabricated", "anisotropic"};
   uint64_t uid = 0x5B00000000000001ull;  // as skinbus-dataset's default
   // Units outside the model class, each fabricated: "anisotropic" (this anisotropy),
-  // "crushing" (PatchDesign::tip_crush_mm), "discs" (PatchModel::with_disc_magnets).
+  // "crushing" (PatchDesign::tip_crush_mm), "discs" (PatchModel::with_disc_magnets),
+  // "dragging" (PatchDesign::inplane_drag), "creeping" (PatchDesign::creep_fraction, with
+  // creep_time_s; its test presses are ramps, as the presses it is calibrated on: a static press
+  // is the relaxed state).
   double anisotropy = 0.05;
   double tip_crush_mm = 20;
+  double inplane_drag = 0.15;
+  double creep_fraction = 0.25, creep_time_s = 0.3;
   std::vector<std::string> seed_models;  // "unit=path": seed CNN trained on that unit's grid
   int test_count = 2000;                 // off-grid test presses
   int grid_test_per_point = 3;           // test presses at every grid point
