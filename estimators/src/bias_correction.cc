@@ -11,9 +11,8 @@
 namespace skinbus::estimators {
 namespace {
 
-constexpr int kMaxDegree = 16;
-constexpr int kMaxDepthDegree = 6;
-constexpr int kMaxTerms = (kMaxDegree + 1) * (kMaxDegree + 1) * (kMaxDepthDegree + 1);
+constexpr int kMaxTerms = (BiasCorrection::kMaxDegreeUv + 1) * (BiasCorrection::kMaxDegreeUv + 1) *
+                          (BiasCorrection::kMaxDegreeDepth + 1);
 
 // Legendre polynomials P0..Pn at x (clamped to [-1, 1]).
 void legendre(double x, int n, double* p) {
@@ -26,7 +25,7 @@ void legendre(double x, int n, double* p) {
 }  // namespace
 
 void BiasCorrection::basis(double u, double v, double d, double* out) const {
-  double pu[kMaxDegree + 1], pv[kMaxDegree + 1], pd[kMaxDepthDegree + 1];
+  double pu[kMaxDegreeUv + 1], pv[kMaxDegreeUv + 1], pd[kMaxDegreeDepth + 1];
   const BiasCorrectionOptions& o = options_;
   legendre(u / o.half_u_mm, o.degree_uv, pu);
   legendre(v / o.half_v_mm, o.degree_uv, pv);
@@ -45,8 +44,8 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
                                            std::span<const double> true_depth_mm,
                                            const BiasCorrectionOptions& options) {
   const BiasCorrectionOptions& o = options;
-  if (o.degree_uv < 0 || o.degree_uv > kMaxDegree || o.degree_depth < 0 ||
-      o.degree_depth > kMaxDepthDegree || !(o.half_u_mm > 0) || !(o.half_v_mm > 0) ||
+  if (o.degree_uv < 0 || o.degree_uv > kMaxDegreeUv || o.degree_depth < 0 ||
+      o.degree_depth > kMaxDegreeDepth || !(o.half_u_mm > 0) || !(o.half_v_mm > 0) ||
       !(o.max_depth_mm > 0) || !(o.ridge >= 0)) {
     return make_error(ErrorCode::kInvalidArgument, "bias correction: bad options");
   }

@@ -15,12 +15,6 @@ using json = nlohmann::json;
 
 constexpr const char* kFormat = "skinbus-correction";
 constexpr int kMajorVersion = 1;
-// Bounds of BiasCorrection::fit()'s options (bias_correction.cc).
-constexpr int kMaxDegree = 16, kMaxDepthDegree = 6;
-
-std::string format_name() {
-  return std::string(kFormat) + " " + std::to_string(kMajorVersion);
-}
 
 // The first problem of a document read field by field, with the field's name.
 class Reader {
@@ -93,7 +87,7 @@ class Reader {
 std::string BiasCorrection::to_json(const CorrectionCheck* check, std::string_view source) const {
   const BiasCorrectionOptions& o = options_;
   json j;
-  j["format"] = format_name();
+  j["format"] = json_format_name(kFormat, kMajorVersion);
   j["source"] = std::string(source);
   j["options"] = {{"degree_uv", o.degree_uv},
                   {"degree_depth", o.degree_depth},
@@ -137,8 +131,8 @@ Result<BiasCorrection> BiasCorrection::parse(std::string_view text, std::string*
   const auto opts = j.find("options");
   if (opts == j.end() || !opts->is_object()) return make_error(ErrorCode::kParse, "no options");
   const std::string w = "options.";
-  o.degree_uv = r.integer(*opts, "degree_uv", w, 0, kMaxDegree);
-  o.degree_depth = r.integer(*opts, "degree_depth", w, 0, kMaxDepthDegree);
+  o.degree_uv = r.integer(*opts, "degree_uv", w, 0, kMaxDegreeUv);
+  o.degree_depth = r.integer(*opts, "degree_depth", w, 0, kMaxDegreeDepth);
   o.min_depth_mm = r.number(*opts, "min_depth_mm", w);
   o.half_u_mm = r.positive(*opts, "half_u_mm", w);
   o.half_v_mm = r.positive(*opts, "half_v_mm", w);

@@ -389,8 +389,8 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
       pu -= amp * q * du / (lu * lu);
       pv -= amp * q * dv / (lv * lv);
       if (design_.inplane_drag != 0) {  // dragged toward the press (PatchDesign::inplane_drag)
-        su -= design_.inplane_drag * amp * g * du / lu;
-        sv -= design_.inplane_drag * amp * g * dv / lv;
+        su -= drag_toward(amp, g, du, lu);
+        sv -= drag_toward(amp, g, dv, lv);
       }
       if (c.shear_u_n != 0 || c.shear_v_n != 0) {
         const double shape = shear_shape(du * du + dv * dv, ac2);

@@ -98,7 +98,7 @@ class Reader {
 
 std::string unit_parameters_json(const UnitParameters& p, std::string_view source) {
   json j;
-  j["format"] = std::string(kFormat) + " " + std::to_string(kMajorVersion);
+  j["format"] = json_format_name(kFormat, kMajorVersion);
   j["source"] = std::string(source);
   j["units"] = {{"length", "mm"}, {"moment", "A m^2"}};
   j["spread_mm"] = p.spread_mm;

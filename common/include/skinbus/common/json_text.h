@@ -25,6 +25,12 @@ inline Result<nlohmann::json> parse_json_text(std::string_view text) {
   }
 }
 
+// The "format" value of a JSON document of `format`, major version `major`: "<format> <major>"
+// (e.g. "skinbus-unit 1"), as its writer puts it and parse_json_document() wants it.
+inline std::string json_format_name(std::string_view format, int major) {
+  return std::string(format) + " " + std::to_string(major);
+}
+
 // Parses `text` as a JSON object whose "format" is "<format> <major>" (e.g. "skinbus-unit 1").
 // Errors, kParse: as parse_json_text(); "not a JSON object"; "not a <what> (format is not
 // '<format> <major>')"; "format '<found>': this reader knows '<format> <major>'" (another
@@ -34,8 +40,8 @@ inline Result<nlohmann::json> parse_json_document(std::string_view text, std::st
   Result<nlohmann::json> j = parse_json_text(text);
   if (!j.ok()) return j;
   if (!j->is_object()) return make_error(ErrorCode::kParse, "not a JSON object");
+  const std::string want = json_format_name(format, major);
   const std::string family = std::string(format) + " ";
-  const std::string want = family + std::to_string(major);
   const auto it = j->find("format");
   if (it == j->end() || !it->is_string() || it->get<std::string>().rfind(family, 0) != 0) {
     return make_error(ErrorCode::kParse,

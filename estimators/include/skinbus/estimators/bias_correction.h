@@ -24,8 +24,8 @@
 namespace skinbus::estimators {
 
 struct BiasCorrectionOptions {
-  int degree_uv = 12;         // up to 16
-  int degree_depth = 3;       // up to 6
+  int degree_uv = 12;         // up to BiasCorrection::kMaxDegreeUv (16)
+  int degree_depth = 3;       // up to BiasCorrection::kMaxDegreeDepth (6)
   double ridge = 1e-3;        // relative to the mean diagonal of the normal equations
   double min_depth_mm = 1.0;  // estimates shallower are neither corrected nor used (nor truths)
   double outlier_mm = 3.0;    // fitting samples whose estimate is further off are left out
@@ -50,6 +50,8 @@ struct CorrectionCheck {
 
 class BiasCorrection {
  public:
+  static constexpr int kMaxDegreeUv = 16, kMaxDegreeDepth = 6;  // the options' bounds
+
   // Fits the correction from `estimates` and the true (u, v, depth) of the same samples.
   // kDegenerate when fewer usable samples than 4x the basis size remain.
   static Result<BiasCorrection> fit(std::span<const ContactEstimate> estimates,

@@ -242,6 +242,13 @@ class PatchModel {
     const double c = design_.tip_crush_mm;
     return c > 0 ? depth_mm / (T(1.0) + depth_mm / c) : depth_mm;
   }
+  // How far a magnet is dragged toward a press along one axis (PatchDesign::inplane_drag): its
+  // deflection by the press (amp x shape), its offset from the press and the spread along that
+  // axis. Subtract it from the magnet's position.
+  template <typename T, typename S>
+  T drag_toward(const T& amp, const S& shape, const T& offset_mm, const T& spread_mm) const {
+    return design_.inplane_drag * amp * shape * offset_mm / spread_mm;
+  }
 
   // Normal force for a press of `depth_mm` (N); 0 for depth <= 0.
   double force_n(double depth_mm) const;
@@ -374,8 +381,8 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
     pu = pu - amp * dgs * du / lu2;  // slope of the surface height h = -w
     pv = pv - amp * dgs * dv / lv2;
     if (design_.inplane_drag != 0) {  // dragged toward the press (PatchDesign::inplane_drag)
-      shift_u = shift_u - design_.inplane_drag * amp * gs * du / spread_u;
-      shift_v = shift_v - design_.inplane_drag * amp * gs * dv / spread_v;
+      shift_u = shift_u - drag_toward(amp, gs, du, spread_u);
+      shift_v = shift_v - drag_toward(amp, gs, dv, spread_v);
     }
     if (!is_zero(c.shear_u_n) || !is_zero(c.shear_v_n)) {
       const T shape = shear_shape(du * du + dv * dv, ac2);
