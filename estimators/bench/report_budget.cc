@@ -309,10 +309,10 @@ Status bench_budget(const BudgetBenchArgs& a) {
         const CorrectionCheck& check = choice->check;
         for (const auto& [degree, t] : choice->tried) {
           std::fprintf(stderr,
-                       "skinbus-bench:     held out at degree %d: XY %.3f -> %.3f mm, depth "
-                       "%.3f -> %.3f mm\n",
-                       degree, t.xy_mean_without_mm, t.xy_mean_with_mm, t.depth_mean_without_mm,
-                       t.depth_mean_with_mm);
+                       "skinbus-bench:     held out at degree %d: XY %.3f -> %.3f mm (x %.3f "
+                       "by depth bin), depth %.3f -> %.3f mm\n",
+                       degree, t.xy_mean_without_mm, t.xy_mean_with_mm, t.xy_ratio(),
+                       t.depth_mean_without_mm, t.depth_mean_with_mm);
         }
         const bool gate = choice->any();
         std::fprintf(stderr,

@@ -87,6 +87,35 @@ double seconds_since(Clock::time_point t0) {
     return best;                                                                                   \
   }
 
+// Reads `floats` (a multiple of 128) floats with `Vec` loads into 8 independent sums, again and
+// again: the fastest of 100 passes after 5 unmeasured ones, in GB/s. Sized as a network's
+// weights, it is the best rate at which batch 1 can stream them from wherever they settle (L2 if
+// they fit, else L3).
+#define SKINBUS_READ_RATE(NAME, ATTR, VEC, LANES, LOAD, ADD, ZERO, STORE)                          \
+  ATTR double NAME(const float* data, std::size_t floats) {                                        \
+    double best = 0;                                                                               \
+    VEC s[8];                                                                                      \
+    for (VEC & x : s) x = ZERO();                                                                  \
+    for (int pass = 0; pass < 105; ++pass) {                                                       \
+      const auto t0 = Clock::now();                                                                \
+      for (std::size_t i = 0; i < floats; i += 8 * LANES) {                                        \
+        for (int k = 0; k < 8; ++k) s[k] = ADD(s[k], LOAD(data + i + k * LANES));                  \
+      }                                                                                            \
+      const double gbps = static_cast<double>(floats) * sizeof(float) / seconds_since(t0) * 1e-9;  \
+      if (pass >= 5) best = std::max(best, gbps);                                                  \
+    }                                                                                              \
+    float out[LANES];                                                                              \
+    STORE(out, ADD(ADD(ADD(s[0], s[1]), ADD(s[2], s[3])), ADD(ADD(s[4], s[5]), ADD(s[6], s[7])))); \
+    if (!std::isfinite(out[0])) std::fprintf(stderr, "skinbus-bench: read probe overflowed\n");    \
+    return best;                                                                                   \
+  }
+
+SKINBUS_READ_RATE(read_rate_avx512, __attribute__((target("avx512f"))), __m512, 16, _mm512_load_ps,
+                  _mm512_add_ps, _mm512_setzero_ps, _mm512_storeu_ps)
+SKINBUS_READ_RATE(read_rate_avx2, __attribute__((target("avx2"))), __m256, 8, _mm256_load_ps,
+                  _mm256_add_ps, _mm256_setzero_ps, _mm256_storeu_ps)
+#undef SKINBUS_READ_RATE
+
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
 SKINBUS_FMA_PEAK(fma_peak_avx512, __attribute__((target("avx512f,fma"))), __m512, 16,
@@ -104,11 +133,48 @@ struct Row {
   double macs = 0, peak_gflops = 0;
   double batch1_us = 0, batch64_1t_us = 0, batch64_2t_us = 0;
   double xy_mean_mm = 0, xy_deep_mm = 0, depth_mean_mm = 0;
+  // Each layer's multiply-adds and weight bytes, and the rate this core reads that many bytes.
+  std::vector<NetworkRuntime::LayerCost> layers;
+  double read_gbps = 0;
   // The float32 floor: 2 x the multiply-adds computed / the FMA peak (0 for other precisions).
   double floor_us() const {
     return peak_gflops > 0 && precision == "float32" ? 2.0 * macs / (peak_gflops * 1e3) : 0;
   }
+  // The floor at batch 1 with the weights read too: each layer takes at least its FMA time or
+  // the time to read its weights, whichever is longer (0 where floor_us() is).
+  double read_floor_us() const {
+    if (floor_us() <= 0 || read_gbps <= 0) return 0;
+    double us = 0;
+    for (const NetworkRuntime::LayerCost& l : layers) {
+      us += std::fmax(2.0 * static_cast<double>(l.macs) / (peak_gflops * 1e3),
+                      static_cast<double>(l.weight_bytes) / (read_gbps * 1e3));
+    }
+    return us;
+  }
 };
+
+// The rate at which this core reads `bytes` over and over with `isa`'s widest loads (0 without
+// them).
+double read_rate_gbps(RuntimeIsa isa, std::size_t bytes) {
+#if defined(__x86_64__)
+  __builtin_cpu_init();
+  const std::size_t floats = (bytes / sizeof(float) + 127) / 128 * 128;
+  std::unique_ptr<float, decltype(&std::free)> data(
+      static_cast<float*>(std::aligned_alloc(64, floats * sizeof(float))), &std::free);
+  if (data == nullptr) return 0.0;
+  std::fill(data.get(), data.get() + floats, 1.0f);
+  if (isa == RuntimeIsa::kAvx512 && __builtin_cpu_supports("avx512f")) {
+    return read_rate_avx512(data.get(), floats);
+  }
+  if (isa == RuntimeIsa::kAvx2 && __builtin_cpu_supports("avx2")) {
+    return read_rate_avx2(data.get(), floats);
+  }
+#else
+  (void)isa;
+  (void)bytes;
+#endif
+  return 0.0;
+}
 
 // printf into a std::string.
 template <typename... Args>
@@ -221,6 +287,12 @@ Status bench_cpu(const CpuBenchArgs& a) {
       r.isa = isa;
       r.macs = static_cast<double>(rt1->macs());
       r.peak_gflops = peak;
+      r.layers.assign(rt1->layer_costs().begin(), rt1->layer_costs().end());
+      if (peak > 0 && p == RuntimePrecision::kFloat32) {
+        int64_t bytes = 0;
+        for (const NetworkRuntime::LayerCost& l : r.layers) bytes += l.weight_bytes;
+        r.read_gbps = read_rate_gbps(isa, static_cast<std::size_t>(bytes));
+      }
       const int reps = isa == RuntimeIsa::kPortable ? 1 : a.reps;
       auto batched = [&](NetworkRuntime& rt) {
         for (int b = 0; b < n; b += 64) {
@@ -300,19 +372,31 @@ Status bench_cpu(const CpuBenchArgs& a) {
               a.test_path.empty() ? "simulated, nominal patch, seed 7" : a.test_path.c_str());
   std::printf(
       "Floor: 2 x multiply-adds the kernels compute / the FMA peak measured here with "
-      "that vector width, one core.\n\n");
+      "that vector width, one core. Read floor: per layer the longer of its FMA time and the "
+      "time to read its weights at the rate measured here for the network's weight bytes, "
+      "summed (at batch 1 every sample reads every weight).\n\n");
   std::printf(
       "| kernels | precision | FMA peak (GFLOP/s) | floor (µs) | batch 1 (µs) | x floor | "
+      "weights (MB) | read (GB/s) | read floor (µs) | x read floor | "
       "batch 64, 1 thread (µs/sample) | batch 64, 2 threads (µs/sample) | XY mean (mm) "
-      "| XY >= 1 mm (mm) | depth mean (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|"
-      "---:|---:|\n");
+      "| XY >= 1 mm (mm) | depth mean (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+      "---:|---:|---:|---:|---:|\n");
   for (const Row& r : rows) {
-    std::printf("| %s | %s | %s | %s | %.1f | %s | %.1f | %.1f | %.3f | %.3f | %.3f |\n",
-                r.kernels.c_str(), r.precision.c_str(),
-                r.peak_gflops > 0 ? std::to_string(static_cast<int>(r.peak_gflops)).c_str() : "",
-                r.floor_us() > 0 ? format("%.1f", r.floor_us()).c_str() : "", r.batch1_us,
-                r.floor_us() > 0 ? format("%.2f", r.batch1_us / r.floor_us()).c_str() : "",
-                r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
+    int64_t bytes = 0;
+    for (const NetworkRuntime::LayerCost& l : r.layers) bytes += l.weight_bytes;
+    const double rf = r.read_floor_us();
+    std::printf(
+        "| %s | %s | %s | %s | %.1f | %s | %s | %s | %s | %s | %.1f | %.1f | %.3f | %.3f | "
+        "%.3f |\n",
+        r.kernels.c_str(), r.precision.c_str(),
+        r.peak_gflops > 0 ? std::to_string(static_cast<int>(r.peak_gflops)).c_str() : "",
+        r.floor_us() > 0 ? format("%.1f", r.floor_us()).c_str() : "", r.batch1_us,
+        r.floor_us() > 0 ? format("%.2f", r.batch1_us / r.floor_us()).c_str() : "",
+        bytes > 0 ? format("%.2f", static_cast<double>(bytes) * 1e-6).c_str() : "",
+        r.read_gbps > 0 ? format("%.0f", r.read_gbps).c_str() : "",
+        rf > 0 ? format("%.1f", rf).c_str() : "",
+        rf > 0 ? format("%.2f", r.batch1_us / rf).c_str() : "", r.batch64_1t_us, r.batch64_2t_us,
+        r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
   }
   // Goals, per instruction set.
   const Row* torch = nullptr;
@@ -327,6 +411,12 @@ Status bench_cpu(const CpuBenchArgs& a) {
       const double x = f.batch1_us / f.floor_us();
       std::printf("  - float32 batch 1 within 1.3x of the floor: %.2fx, %s\n", x,
                   x <= 1.3 ? "met" : "NOT met");
+      if (f.read_floor_us() > 0) {
+        std::printf(
+            "    (reading the weights too, batch 1 can be no faster than %.1f us = %.2fx the "
+            "floor; it runs at %.2fx that)\n",
+            f.read_floor_us(), f.read_floor_us() / f.floor_us(), f.batch1_us / f.read_floor_us());
+      }
     }
     for (const Row& q : rows) {
       if (q.isa != f.isa || q.precision != "int8") continue;
@@ -353,13 +443,17 @@ Status bench_cpu(const CpuBenchArgs& a) {
       return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     std::fprintf(f,
-                 "kernels,precision,isa,fma_peak_gflops,floor_us,batch1_us,batch64_1t_us,"
-                 "batch64_2t_us,xy_mean_mm,xy_deep_mm,depth_mean_mm\n");
+                 "kernels,precision,isa,fma_peak_gflops,floor_us,batch1_us,weight_bytes,"
+                 "read_gbps,read_floor_us,batch64_1t_us,batch64_2t_us,xy_mean_mm,xy_deep_mm,"
+                 "depth_mean_mm\n");
     for (const Row& r : rows) {
-      std::fprintf(f, "\"%s\",%s,%s,%.1f,%.2f,%.2f,%.2f,%.2f,%.4f,%.4f,%.4f\n", r.kernels.c_str(),
-                   r.precision.c_str(), r.torch ? "libtorch" : runtime_isa_name(r.isa),
-                   r.peak_gflops, r.floor_us(), r.batch1_us, r.batch64_1t_us, r.batch64_2t_us,
-                   r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
+      int64_t bytes = 0;
+      for (const NetworkRuntime::LayerCost& l : r.layers) bytes += l.weight_bytes;
+      std::fprintf(f, "\"%s\",%s,%s,%.1f,%.2f,%.2f,%lld,%.1f,%.2f,%.2f,%.2f,%.4f,%.4f,%.4f\n",
+                   r.kernels.c_str(), r.precision.c_str(),
+                   r.torch ? "libtorch" : runtime_isa_name(r.isa), r.peak_gflops, r.floor_us(),
+                   r.batch1_us, static_cast<long long>(bytes), r.read_gbps, r.read_floor_us(),
+                   r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
     }
     if (std::fclose(f) != 0) {
       return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());

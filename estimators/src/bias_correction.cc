@@ -156,16 +156,18 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
     hi_v = std::fmax(hi_v, v);
   }
   // Cells of that pitch, in five folds by (i + 2 j) mod 5: no cell shares its fold with any of
-  // its 8 neighbours, so every held-out press sits among fitted ones, as a new press would. The
-  // outermost places are always fitted (fold -1): held out, they would ask the polynomial to
-  // extrapolate, which the correction fitted on every press never does.
+  // its 8 neighbours, so every held-out press sits among fitted ones, as a new press would. A
+  // place on an edge is held out too: its neighbours along the edge are fitted, so it lies
+  // between them, and the edges are where the class's misses are largest (left out, the check
+  // was blind to them). Only the corner places, outermost both ways, are always fitted (fold
+  // -1): held out, they would ask the polynomial to extrapolate, which the correction fitted on
+  // every press never does.
   std::vector<int> fold(n, -1);
   for (std::size_t i = 0; i < n; ++i) {
     const double u = true_u_mm[i], v = true_v_mm[i];
-    if (!(u > lo_u + 0.5 * pitch && u < hi_u - 0.5 * pitch && v > lo_v + 0.5 * pitch &&
-          v < hi_v - 0.5 * pitch)) {
-      continue;
-    }
+    const bool edge_u = !(u > lo_u + 0.5 * pitch && u < hi_u - 0.5 * pitch);
+    const bool edge_v = !(v > lo_v + 0.5 * pitch && v < hi_v - 0.5 * pitch);
+    if (!std::isfinite(u) || !std::isfinite(v) || (edge_u && edge_v)) continue;
     const auto ci = static_cast<int64_t>(std::floor(u / pitch + 0.5));
     const auto cj = static_cast<int64_t>(std::floor(v / pitch + 0.5));
     const int64_t f = (ci + 2 * cj) % folds;
@@ -196,6 +198,11 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
       const ContactEstimate k = c->apply(e);
       const double a = std::hypot(e.u_mm - true_u_mm[i], e.v_mm - true_v_mm[i]);
       const double b = std::hypot(k.u_mm - true_u_mm[i], k.v_mm - true_v_mm[i]);
+      const int bin = static_cast<int>(
+          std::fmin(CorrectionCheck::kDepthBins - 1, true_depth_mm[i] - options.min_depth_mm));
+      ++out.bin_samples[bin];
+      out.xy_bin_without_mm[bin] += a;
+      out.xy_bin_with_mm[bin] += b;
       sum_without += a;
       sum_with += b;
       sq_without += a * a;
@@ -212,7 +219,23 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
     out.depth_mean_without_mm = dep_without / out.samples;
     out.depth_mean_with_mm = dep_with / out.samples;
   }
+  for (int b = 0; b < CorrectionCheck::kDepthBins; ++b) {
+    if (out.bin_samples[b] == 0) continue;
+    out.xy_bin_without_mm[b] /= out.bin_samples[b];
+    out.xy_bin_with_mm[b] /= out.bin_samples[b];
+  }
   return out;
+}
+
+double CorrectionCheck::xy_ratio() const {
+  double sum = 0;
+  int bins = 0;
+  for (int b = 0; b < kDepthBins; ++b) {
+    if (bin_samples[b] == 0 || !(xy_bin_without_mm[b] > 0)) continue;
+    sum += xy_bin_with_mm[b] / xy_bin_without_mm[b];
+    ++bins;
+  }
+  return bins > 0 ? sum / bins : 1.0;
 }
 
 Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEstimate> estimates,
@@ -233,7 +256,7 @@ Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEst
     if (!c.ok()) return c.error();
     best.tried.emplace_back(degree, c.value());
     // What the gate below would keep: a part that does not help is not corrected (counts 1).
-    const double xy = c->xy_mean_with_mm / std::fmax(c->xy_mean_without_mm, 1e-12);
+    const double xy = c->xy_ratio();
     const double depth = c->depth_mean_with_mm / std::fmax(c->depth_mean_without_mm, 1e-12);
     const double score = (c->helps_position() ? xy : 1.0) + (c->helps_depth() ? depth : 1.0);
     if (score < best_score) {

@@ -130,6 +130,75 @@ TEST(BiasCorrection, TheHeldOutCheckTellsABiasFromNoise) {
             ErrorCode::kDegenerate);
 }
 
+// A lab grid whose estimates are pulled toward the centre most at the edges (where a unit's
+// misses are largest): the check holds out the edge places too, all but the four corners, and
+// finds the correction that removes that pull.
+TEST(BiasCorrection, TheHeldOutCheckJudgesTheEdgesToo) {
+  std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
+  std::mt19937_64 rng(kSeed);
+  std::normal_distribution<double> noise(0, 0.2);
+  constexpr int kSide = 19;
+  constexpr double kPitchMm = 7.5, kEdgeMm = 67.5;
+  Samples s;
+  double sum_not_corner = 0;
+  int n_not_corner = 0;
+  for (int i = 0; i < kSide; ++i) {
+    for (int j = 0; j < kSide; ++j) {
+      const double u = -kEdgeMm + kPitchMm * i, v = -kEdgeMm + kPitchMm * j;
+      for (double d = 0.5; d <= 4.0; d += 0.25) {
+        ContactEstimate e;
+        e.u_mm = u * (1 - 0.02 * std::pow(u / kEdgeMm, 6)) + noise(rng);
+        e.v_mm = v * (1 - 0.02 * std::pow(v / kEdgeMm, 6)) + noise(rng);
+        e.depth_mm = d;
+        s.est.push_back(e);
+        s.u.push_back(u);
+        s.v.push_back(v);
+        s.d.push_back(d);
+        const bool corner = (i == 0 || i == kSide - 1) && (j == 0 || j == kSide - 1);
+        if (!corner && d >= 1.0) {
+          sum_not_corner += std::hypot(e.u_mm - u, e.v_mm - v);
+          ++n_not_corner;
+        }
+      }
+    }
+  }
+  BiasCorrectionOptions o;
+  o.degree_uv = 8;
+  o.half_u_mm = o.half_v_mm = 70;
+  Result<CorrectionCheck> c = BiasCorrection::cross_validate(s.est, s.u, s.v, s.d, o);
+  ASSERT_TRUE(c.ok()) << c.error().to_string();
+  std::printf("edge pull: %d held out of %d not at a corner, %.3f -> %.3f mm\n", c->samples,
+              n_not_corner, c->xy_mean_without_mm, c->xy_mean_with_mm);
+  EXPECT_EQ(c->samples, n_not_corner);
+  EXPECT_NEAR(c->xy_mean_without_mm, sum_not_corner / n_not_corner, 1e-9);
+  EXPECT_TRUE(c->helps_position());
+  EXPECT_LT(c->xy_mean_with_mm, 0.8 * c->xy_mean_without_mm);
+}
+
+// A part helps only when it removes at least kMinGain of its held-out error, the position's
+// averaged over depth bins.
+TEST(BiasCorrection, AGainWithinTheCheckMarginIsNotHelp) {
+  CorrectionCheck c;
+  c.samples = 1000;
+  c.depth_mean_without_mm = 0.100;
+  c.depth_mean_with_mm = 0.098;  // 2 %
+  // The position by depth bin, each counting alike: 1 mm -> 0.995, 0.5 -> 0.4975 (0.5 % each).
+  c.bin_samples[0] = 600;
+  c.bin_samples[1] = 400;
+  c.xy_bin_without_mm[0] = 1.0;
+  c.xy_bin_with_mm[0] = 0.995;
+  c.xy_bin_without_mm[1] = 0.5;
+  c.xy_bin_with_mm[1] = 0.4975;
+  EXPECT_NEAR(c.xy_ratio(), 0.995, 1e-12);
+  EXPECT_FALSE(c.helps_position());
+  EXPECT_TRUE(c.helps_depth());
+  c.xy_bin_with_mm[1] = 0.49;  // the deeper bin gains 2 %: 1.25 % on average
+  EXPECT_TRUE(c.helps_position());
+  c.samples = 0;
+  EXPECT_FALSE(c.helps_position());
+  EXPECT_FALSE(c.helps_depth());
+}
+
 TEST(BiasCorrection, LeavesShallowAndRejectedEstimatesAlone) {
   const Samples train = make(4000, kSeed, 0.1);
   BiasCorrectionOptions o;

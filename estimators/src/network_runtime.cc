@@ -257,6 +257,7 @@ struct NetworkRuntime::Impl {
   std::vector<CellTaps> cell_taps;  // per output cell
   bool winograd = false;            // some float32 convolutions run as Winograd F(2x2, 3x3)
   int64_t macs = 0;                 // multiply-adds per sample as computed
+  std::vector<NetworkRuntime::LayerCost> costs;  // per layer, as computed
   std::vector<WinogradTile> wtiles;
   Aligned<float> zeros;  // a zero row as wide as the widest layer
   int last_conv = -1;
@@ -377,8 +378,11 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     l.int8 = int8 && !layers.empty() && relu && layer_macs * kInt8MinShare >= total_macs;
     l.winograd = conv && winograd && in >= winograd_min_inputs;
     any_winograd = any_winograd || l.winograd;
-    macs += l.winograd ? int64_t{kWinogradPoints} * static_cast<int64_t>(wtiles.size()) * in * out
-                       : layer_macs;
+    NetworkRuntime::LayerCost cost;
+    cost.macs = l.winograd
+                    ? int64_t{kWinogradPoints} * static_cast<int64_t>(wtiles.size()) * in * out
+                    : layer_macs;
+    macs += cost.macs;
     l.k = in;
     l.k_pairs = (in + 1) / 2;
     l.k_quads = (in + 3) / 4;
@@ -387,6 +391,7 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
     const int ntaps = l.winograd ? kWinogradPoints : conv ? static_cast<int>(taps.size()) : 1;
     const int k_rows = l.int8 ? 4 * l.k_quads : bf16 ? 2 * l.k_pairs : l.k;
     std::size_t& at = l.int8 ? packed8 : packed;
+    const std::size_t first = at;
     for (int col0 = 0; col0 < l.n_ld; col0 += kLanes * kMaxVectors) {
       ColBlock b;
       b.col0 = col0;
@@ -396,6 +401,9 @@ Status NetworkRuntime::Impl::build_kernels(const ModelFile& model) {
       at += b.panel * static_cast<std::size_t>(ntaps);
       l.blocks.push_back(b);
     }
+    const std::size_t element = l.int8 ? sizeof(int8_t) : bf16 ? sizeof(uint16_t) : sizeof(float);
+    cost.weight_bytes = static_cast<int64_t>((at - first) * element);
+    costs.push_back(cost);
     l.bias.assign(static_cast<std::size_t>(l.n_ld));
     if (l.int8)
       l.w_scale.assign(static_cast<std::size_t>(l.n_ld) * static_cast<std::size_t>(ntaps));
@@ -1066,6 +1074,9 @@ RuntimePrecision NetworkRuntime::precision() const {
 }
 int64_t NetworkRuntime::macs() const {
   return impl_->macs;
+}
+std::span<const NetworkRuntime::LayerCost> NetworkRuntime::layer_costs() const {
+  return impl_->costs;
 }
 RuntimeConvolution NetworkRuntime::convolution() const {
   return impl_->winograd ? RuntimeConvolution::kWinograd : RuntimeConvolution::kDirect;

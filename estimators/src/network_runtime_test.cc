@@ -266,6 +266,21 @@ TEST(NetworkRuntimeTest, ChoosesWinogradWhereItComputesLess) {
   ASSERT_TRUE(direct.ok());
   EXPECT_EQ(direct->convolution(), RuntimeConvolution::kDirect);
   EXPECT_EQ(direct->macs(), cnn.macs());
+  // Per layer: the multiply-adds sum to macs(); the weights read are the packed panels, 9 taps
+  // direct (the first convolution) and 16 points Winograd, 4 bytes each in float32.
+  for (const auto* rt : {&four.value(), &every.value(), &direct.value()}) {
+    int64_t sum = 0;
+    for (const NetworkRuntime::LayerCost& c : rt->layer_costs()) sum += c.macs;
+    EXPECT_EQ(sum, rt->macs());
+  }
+  ASSERT_GE(four->layer_costs().size(), 5u);
+  EXPECT_EQ(four->layer_costs()[0].weight_bytes, 9 * 3 * 32 * 4);  // 3 inputs, 32 outputs
+  EXPECT_EQ(four->layer_costs()[3].weight_bytes, 16 * 128 * 256 * 4);
+  EXPECT_EQ(direct->layer_costs()[3].weight_bytes, 9 * 128 * 256 * 4);
+  EXPECT_EQ(four->layer_costs()[4].weight_bytes, 512 * 512 * 4);  // fc0: max and mean pooled
+  auto int8 = kernels(cnn, RuntimePrecision::kInt8, RuntimeConvolution::kAuto);
+  ASSERT_TRUE(int8.ok());
+  EXPECT_EQ(int8->layer_costs()[3].weight_bytes, 9 * 128 * 256);  // int8: one byte a weight
   // Width 0.125: every convolution has fewer than 32 inputs.
   auto narrow = random_model(seed_cnn(0.125, 4, 4), 16, 3);
   ASSERT_TRUE(narrow.ok());

@@ -44,8 +44,22 @@ struct CorrectionCheck {
   // it adds error.
   double explained = 0;
   double depth_mean_without_mm = 0, depth_mean_with_mm = 0;  // mean |depth error|, same samples
-  bool helps_position() const { return samples > 0 && xy_mean_with_mm < xy_mean_without_mm; }
-  bool helps_depth() const { return samples > 0 && depth_mean_with_mm < depth_mean_without_mm; }
+  // The same XY means per true-depth bin of 1 mm from min_depth_mm (the last open-ended):
+  // deeper presses have smaller errors, so the overall mean is mostly the shallowest bin's.
+  static constexpr int kDepthBins = 3;
+  int bin_samples[kDepthBins] = {};
+  double xy_bin_without_mm[kDepthBins] = {}, xy_bin_with_mm[kDepthBins] = {};
+  // The position's held-out error corrected over uncorrected, each depth bin with samples
+  // counting alike (as accuracy goals are per bin); 1 without samples.
+  double xy_ratio() const;
+  // A part helps when it removes at least kMinGain of its held-out error (the position: by
+  // xy_ratio(); the depth: its mean): a smaller change is within what the check's own presses
+  // can tell, and a correction switched on for it would only carry its risk.
+  static constexpr double kMinGain = 0.01;
+  bool helps_position() const { return samples > 0 && xy_ratio() < 1 - kMinGain; }
+  bool helps_depth() const {
+    return samples > 0 && depth_mean_with_mm < (1 - kMinGain) * depth_mean_without_mm;
+  }
 };
 
 class BiasCorrection {
@@ -64,8 +78,9 @@ class BiasCorrection {
   // presses it was not fitted on (the correction fitted with both on, whatever `options` says):
   // the press places (the distinct true (u, v)) fall into cells of their spacing (the median
   // distance to the nearest other place) and the cells into kCheckFolds folds by
-  // (i + 2 j) mod 5, so that no held-out press has a held-out neighbour; the outermost places
-  // are always fitted (the correction interpolates, it is not asked to extrapolate); each fold's
+  // (i + 2 j) mod 5, so that no held-out press has a held-out neighbour; places on an edge are
+  // held out like the others (they lie between fitted edge places), the corner places are always
+  // fitted (the correction interpolates, it is not asked to extrapolate); each fold's
   // estimates are corrected by a correction fitted on the others. Errors: as fit() for any fold;
   // kDegenerate for fewer than 10 x kCheckFolds places; kInvalidArgument for lengths that
   // differ. Cost: kCheckFolds fits and places^2 distances.
@@ -79,9 +94,9 @@ class BiasCorrection {
   // The correction to use on this unit, chosen by held-out error: cross_validate() at each
   // degree in `degrees_uv` (the others as `base`); at each, what helps (correct_position,
   // correct_depth; neither: use no correction), and the degree whose held-out errors with what
-  // helps corrected, the XY and the depth each over its uncorrected one, sum lowest (what does
-  // not help counts 1: it will not be corrected). Errors: as cross_validate(). Cost: that, per
-  // degree.
+  // helps corrected, the XY (CorrectionCheck::xy_ratio(), by depth bin) and the depth each over
+  // its uncorrected one, sum lowest (what does not help counts 1: it will not be corrected).
+  // Errors: as cross_validate(). Cost: that, per degree.
   struct Choice {
     BiasCorrectionOptions options;                       // the degree chosen and what to correct
     CorrectionCheck check;                               // its held-out check

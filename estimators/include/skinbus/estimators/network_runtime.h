@@ -224,6 +224,16 @@ class NetworkRuntime {
   // convolutions, 16 per 2x2 tile and channel pair for Winograd ones (the transforms' additions
   // not counted). For a float32 floor: 2 x macs() / the FMA peak.
   int64_t macs() const;
+  // One layer's work per sample as this runtime computes it (kernel backends): its
+  // multiply-adds (they sum to macs()) and the bytes of packed weights it reads (at batch 1 every
+  // sample reads them all; a network whose weights outgrow the core's cache streams them from
+  // the next level on every sample). Empty for the oneDNN backend.
+  struct LayerCost {
+    int64_t macs = 0;
+    int64_t weight_bytes = 0;
+  };
+  // In layer order; the span lives as long as this runtime.
+  std::span<const LayerCost> layer_costs() const;
   // The convolution algorithm in use: kWinograd when any convolution runs so, else kDirect (also
   // for MLPs and the oneDNN backend).
   RuntimeConvolution convolution() const;
