@@ -136,9 +136,15 @@ struct Row {
   // Each layer's multiply-adds and weight bytes, and the rate this core reads that many bytes.
   std::vector<NetworkRuntime::LayerCost> layers;
   double read_gbps = 0;
+  // Microseconds for `m` multiply-adds at the FMA peak.
+  double fma_us(double m) const { return 2.0 * m / (peak_gflops * 1e3); }
   // The float32 floor: 2 x the multiply-adds computed / the FMA peak (0 for other precisions).
-  double floor_us() const {
-    return peak_gflops > 0 && precision == "float32" ? 2.0 * macs / (peak_gflops * 1e3) : 0;
+  double floor_us() const { return peak_gflops > 0 && precision == "float32" ? fma_us(macs) : 0; }
+  // The packed weights one sample reads, all layers.
+  int64_t weight_bytes() const {
+    int64_t bytes = 0;
+    for (const NetworkRuntime::LayerCost& l : layers) bytes += l.weight_bytes;
+    return bytes;
   }
   // The floor at batch 1 with the weights read too: each layer takes at least its FMA time or
   // the time to read its weights, whichever is longer (0 where floor_us() is).
@@ -146,7 +152,7 @@ struct Row {
     if (floor_us() <= 0 || read_gbps <= 0) return 0;
     double us = 0;
     for (const NetworkRuntime::LayerCost& l : layers) {
-      us += std::fmax(2.0 * static_cast<double>(l.macs) / (peak_gflops * 1e3),
+      us += std::fmax(fma_us(static_cast<double>(l.macs)),
                       static_cast<double>(l.weight_bytes) / (read_gbps * 1e3));
     }
     return us;
@@ -289,9 +295,7 @@ Status bench_cpu(const CpuBenchArgs& a) {
       r.peak_gflops = peak;
       r.layers.assign(rt1->layer_costs().begin(), rt1->layer_costs().end());
       if (peak > 0 && p == RuntimePrecision::kFloat32) {
-        int64_t bytes = 0;
-        for (const NetworkRuntime::LayerCost& l : r.layers) bytes += l.weight_bytes;
-        r.read_gbps = read_rate_gbps(isa, static_cast<std::size_t>(bytes));
+        r.read_gbps = read_rate_gbps(isa, static_cast<std::size_t>(r.weight_bytes()));
       }
       const int reps = isa == RuntimeIsa::kPortable ? 1 : a.reps;
       auto batched = [&](NetworkRuntime& rt) {
@@ -382,8 +386,7 @@ Status bench_cpu(const CpuBenchArgs& a) {
       "| XY >= 1 mm (mm) | depth mean (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"
       "---:|---:|---:|---:|---:|\n");
   for (const Row& r : rows) {
-    int64_t bytes = 0;
-    for (const NetworkRuntime::LayerCost& l : r.layers) bytes += l.weight_bytes;
+    const int64_t bytes = r.weight_bytes();
     const double rf = r.read_floor_us();
     std::printf(
         "| %s | %s | %s | %s | %.1f | %s | %s | %s | %s | %s | %.1f | %.1f | %.3f | %.3f | "
@@ -447,13 +450,12 @@ Status bench_cpu(const CpuBenchArgs& a) {
                  "read_gbps,read_floor_us,batch64_1t_us,batch64_2t_us,xy_mean_mm,xy_deep_mm,"
                  "depth_mean_mm\n");
     for (const Row& r : rows) {
-      int64_t bytes = 0;
-      for (const NetworkRuntime::LayerCost& l : r.layers) bytes += l.weight_bytes;
       std::fprintf(f, "\"%s\",%s,%s,%.1f,%.2f,%.2f,%lld,%.1f,%.2f,%.2f,%.2f,%.4f,%.4f,%.4f\n",
                    r.kernels.c_str(), r.precision.c_str(),
                    r.torch ? "libtorch" : runtime_isa_name(r.isa), r.peak_gflops, r.floor_us(),
-                   r.batch1_us, static_cast<long long>(bytes), r.read_gbps, r.read_floor_us(),
-                   r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
+                   r.batch1_us, static_cast<long long>(r.weight_bytes()), r.read_gbps,
+                   r.read_floor_us(), r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm,
+                   r.depth_mean_mm);
     }
     if (std::fclose(f) != 0) {
       return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
