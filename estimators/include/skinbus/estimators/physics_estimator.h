@@ -171,12 +171,13 @@ class PhysicsEstimator {
   PhysicsEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& guess) const;
   // The same fit as refine() by a lean Levenberg-Marquardt of its own (no Ceres; the Jacobian by
-  // forward differences of the vectorised field, PatchModel::contact_field_ut; the ambient
+  // forward differences of the vectorised field, PatchModel::contact_field_ut, and after a step
+  // shorter than 0.5 mm updated along it instead (Broyden), with no field evaluation; the ambient
   // offset's columns are constant; with options().fit_shear the shear too, started from
-  // `start`'s), for the host's refinement of every touched sample: from a
-  // start within a few millimetres it reaches the same minimum (tested against refine()) at a
-  // fraction of the cost (docs/benchmarks/refinement.md). One start only; a fit that ends poor is
-  // flagged (kEstimatePoorFit), not retried. No allocation.
+  // `start`'s), for the host's refinement of every touched sample: from a start within a few
+  // millimetres it reaches the same minimum, to a few percent of the fit's own uncertainty (tested
+  // against refine()), at a fraction of the cost (docs/benchmarks/refinement.md). One start only;
+  // a fit that ends poor is flagged (kEstimatePoorFit), not retried. No allocation.
   PhysicsEstimate refine_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                             const ContactEstimate& start) const;
   // The number of contacts in the sample (0 to count.max_contacts) and each one
