@@ -444,7 +444,8 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
       tried[n_tried][0] = start[0];
       tried[n_tried][1] = start[1];
       ++n_tried;
-      // The lean fit (refine_lm()'s): a tenth of the Ceres fit's cost, the same minimum.
+      // The lean fit (refine_lm()'s): a tenth of the Ceres fit's cost, the same minimum to a few
+      // percent of its uncertainty.
       ContactEstimate from;
       from.u_mm = start[0];
       from.v_mm = start[1];
