@@ -136,12 +136,20 @@ ErrorSummary run_on(const sim::Dataset& d, const Estimator& est) {
   return summarize_errors(out, {d.u_mm, d.v_mm, d.depth_mm, d.force_n});
 }
 
+// The goals of the issue on any patch's best estimator, off-grid: XY mean within kGoalInClass x
+// the bound in every bin >= 1 mm for units whose physics the model class holds (nominal,
+// fabricated), kGoalOutsideClass x for the others, and depth mean within kGoalDepthMm.
+constexpr double kGoalInClass = 1.2, kGoalOutsideClass = 1.5, kGoalDepthMm = 0.07;
+bool inside_model_class(const std::string& unit) {
+  return unit == "nominal" || unit == "fabricated";
+}
 bool goal_met(const Row& r) {
+  const double ratio = inside_model_class(r.unit) ? kGoalInClass : kGoalOutsideClass;
   for (int b = 2; b < kDepthBins; ++b) {  // bins >= 1 mm
     const auto i = static_cast<std::size_t>(b);
-    if (!(r.off_grid.bins[i].xy_mean_mm <= 1.5 * r.crlb[i])) return false;  // NaN: not met
+    if (!(r.off_grid.bins[i].xy_mean_mm <= ratio * r.crlb[i])) return false;  // NaN: not met
   }
-  return r.off_grid.all.depth_mean_mm <= 0.1;
+  return r.off_grid.all.depth_mean_mm <= kGoalDepthMm;
 }
 
 std::string residual_text(double residual) {
@@ -364,8 +372,10 @@ Status bench_budget(const BudgetBenchArgs& a) {
       "off-grid presses and %d per grid point, random depths to 4 mm. x CRLB: mean XY "
       "error / mean CRLB RMS XY bound of the bin (the unit's true model); x efficient: depth "
       "mean / an efficient estimator's (sqrt(2/pi) x the depth CRLB, mean over the presses). "
-      "Goal: XY <= 1.5x CRLB in every bin >= 1 mm and depth mean <= 0.1 mm (off-grid).\n\n",
-      a.test_count, a.grid_test_per_point);
+      "Goal (off-grid): XY mean <= %.1fx CRLB in every bin >= 1 mm (%.1fx on units whose "
+      "physics are outside the model class: every unit but nominal and fabricated) and depth "
+      "mean <= %.2f mm.\n\n",
+      a.test_count, a.grid_test_per_point, kGoalInClass, kGoalOutsideClass, kGoalDepthMm);
   if (!a.unit_design_path.empty()) {
     std::printf(
         "Units built to %s; every pipeline starts from the design file %s (identification "
