@@ -631,14 +631,15 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   // to first order. Measured (docs/benchmarks/refinement.md): a fifth less time a warm
   // refinement, the same errors; differencing again only past 5 mm let one more fit end poor.
   constexpr double kReuseMm = 0.5;
-  bool differenced = false;         // jac holds a Jacobian to update
-  double last_step[kLeanMax] = {};  // the last accepted step's contact unknowns
+  // The last accepted step's contact unknowns; zero before the first iteration, which therefore
+  // differences.
+  double last_step[kLeanMax] = {};
   double last_field[kMaxChannels];
   while (fit.iterations < options.max_iterations && std::isfinite(cost) && !fit.converged) {
     ++fit.iterations;
     double dd = 0;
     for (int k = 0; k < amb; ++k) dd += last_step[k] * last_step[k];
-    if (differenced && dd > 0 && dd <= kReuseMm * kReuseMm) {
+    if (dd > 0 && dd <= kReuseMm * kReuseMm) {
       for (int i = 0; i < nc; ++i) {
         double miss = fit.field[i] - last_field[i];
         for (int k = 0; k < amb; ++k) miss -= jac[i][k] * last_step[k];
@@ -653,7 +654,6 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
         field(p, ft);
         for (int i = 0; i < nc; ++i) jac[i][k] = (ft[i] - fit.field[i]) / h;
       }
-      differenced = true;
     }
     std::fill(last_step, last_step + amb, 0.0);
     LeanMat jtj = LeanMat::Zero();
