@@ -150,11 +150,7 @@ int main(int argc, char** argv) {
     if (!choice.ok()) return tools::report_error(kTool, choice.error());
     const estimators::CorrectionCheck& c = choice->check;
     for (const auto& [degree, t] : choice->tried) {
-      std::fprintf(stderr,
-                   "%s: held out at degree %d: XY %.3f -> %.3f mm (x %.3f by depth bin), depth "
-                   "%.3f -> %.3f mm\n",
-                   kTool, degree, t.xy_mean_without_mm, t.xy_mean_with_mm, t.xy_ratio(),
-                   t.depth_mean_without_mm, t.depth_mean_with_mm);
+      std::fprintf(stderr, "%s: %s\n", kTool, t.held_out_text(degree).c_str());
     }
     std::printf(
         "Learned correction, judged on held-out presses (%d estimates >= %.1f mm deep), degree "

@@ -316,11 +316,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
         const BiasCorrectionOptions& chosen = choice->options;
         const CorrectionCheck& check = choice->check;
         for (const auto& [degree, t] : choice->tried) {
-          std::fprintf(stderr,
-                       "skinbus-bench:     held out at degree %d: XY %.3f -> %.3f mm (x %.3f "
-                       "by depth bin), depth %.3f -> %.3f mm\n",
-                       degree, t.xy_mean_without_mm, t.xy_mean_with_mm, t.xy_ratio(),
-                       t.depth_mean_without_mm, t.depth_mean_with_mm);
+          std::fprintf(stderr, "skinbus-bench:     %s\n", t.held_out_text(degree).c_str());
         }
         const bool gate = choice->any();
         std::fprintf(stderr,

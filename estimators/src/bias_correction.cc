@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <string>
 #include <utility>
@@ -236,6 +237,16 @@ double CorrectionCheck::xy_ratio() const {
     ++bins;
   }
   return bins > 0 ? sum / bins : 1.0;
+}
+
+std::string CorrectionCheck::held_out_text(int degree) const {
+  char buf[160];
+  std::snprintf(buf, sizeof buf,
+                "held out at degree %d: XY %.3f -> %.3f mm (x %.3f by depth bin), depth %.3f -> "
+                "%.3f mm",
+                degree, xy_mean_without_mm, xy_mean_with_mm, xy_ratio(), depth_mean_without_mm,
+                depth_mean_with_mm);
+  return buf;
 }
 
 Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEstimate> estimates,

@@ -60,6 +60,9 @@ struct CorrectionCheck {
   bool helps_depth() const {
     return samples > 0 && depth_mean_with_mm < (1 - kMinGain) * depth_mean_without_mm;
   }
+  // This check, made at `degree`, as one line for a tool's log: "held out at degree D: XY W -> C
+  // mm (x R by depth bin), depth W -> C mm" (W without the correction, C with it, R xy_ratio()).
+  std::string held_out_text(int degree) const;
 };
 
 class BiasCorrection {
