@@ -62,7 +62,10 @@ TEST(ContactProposal, TheShippedProposerCountsAndStartsThePhysicsCount) {
   ContactCountOptions three;
   three.max_contacts = 3;
   sim::Rng rng(test_seed("TheShippedProposerCountsAndStartsThePhysicsCount"));
-  int right[4] = {}, tries = 20, counted = 0, proposed_counted = 0;
+  // The proposer's count over `tries` samples of each count (it misses about 7 % of pairs on
+  // this unit: at least 80 % right asked of 60 samples fails about one run in 10^4; of 20, one in
+  // 50); the physics count on the first `physics_tries` samples of three.
+  int right[4] = {}, tries = 60, physics_tries = 20, counted = 0, proposed_counted = 0;
   long iterations_nothing = 0, iterations_proposed = 0;
   for (int presses = 0; presses <= 3; ++presses) {
     for (int t = 0; t < tries; ++t) {
@@ -77,7 +80,7 @@ TEST(ContactProposal, TheShippedProposerCountsAndStartsThePhysicsCount) {
       const auto f = noisy_field(unit, std::span<const Contact>(p, presses), rng);
       const ContactProposal prop = propose_contacts(*proposer, f);
       right[presses] += prop.count == presses;
-      if (presses != 3) continue;
+      if (presses != 3 || t >= physics_tries) continue;
       const ContactCountEstimate nothing = physics.estimate_contacts(f, {}, three);
       const PhysicsEstimate single = physics.refine_lm(f, {}, prop.contacts[0]);
       const ContactCountEstimate from = physics.count_contacts(
@@ -92,10 +95,10 @@ TEST(ContactProposal, TheShippedProposerCountsAndStartsThePhysicsCount) {
       "shipped proposer on a new unit: counts right %d / %d / %d / %d of %d (0-3 presses); three "
       "presses counted three %d of %d from nothing (%ld solver iterations), %d from the "
       "proposal (%ld)\n",
-      right[0], right[1], right[2], right[3], tries, counted, tries, iterations_nothing,
+      right[0], right[1], right[2], right[3], tries, counted, physics_tries, iterations_nothing,
       proposed_counted, iterations_proposed);
-  EXPECT_GE(right[0], tries - 1);
-  for (int k = 1; k <= 3; ++k) EXPECT_GE(right[k], tries - 4) << k << " presses";
+  EXPECT_GE(right[0], tries - 3);
+  for (int k = 1; k <= 3; ++k) EXPECT_GE(right[k], tries * 4 / 5) << k << " presses";
   EXPECT_GE(proposed_counted, counted - 1);
   EXPECT_LT(iterations_proposed, iterations_nothing / 2);  // the search it spares
 }
