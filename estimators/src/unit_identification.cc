@@ -527,6 +527,13 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   const sim::PatchModel& nominal = nominal_r.value();
 
   // Rows to fit: per press, the samples nearest to evenly spaced fractions of its deepest one.
+  // A ramp passes each fraction twice, pressing and releasing; a lattice that creeps or has
+  // hysteresis bends differently on the two ways, and rows all from one way would let the fit
+  // absorb that way's lag as the unit's static physics. So the fractions below the deepest are
+  // taken in turn from the samples before the deepest (its rows in dataset order) and after it,
+  // the turn alternating from press to press: each depth is fitted on both ways equally. A press
+  // whose rows have no sample on one side (a staircase of static presses) gives every fraction
+  // from all of them.
   std::map<int64_t, std::vector<std::size_t>> by_press;
   int64_t lone = -1;
   int64_t masked_values = 0;
@@ -548,13 +555,24 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   std::vector<std::size_t> rows;
   std::vector<std::pair<double, double>> press_uv;
   for (const auto& [id, rs] : by_press) {
-    double deepest = 0;
-    for (std::size_t r : rs) deepest = std::fmax(deepest, presses.depth_mm[r]);
+    std::size_t peak = 0;  // the deepest row's place in rs (the first of equals)
+    for (std::size_t i = 1; i < rs.size(); ++i) {
+      if (presses.depth_mm[rs[i]] > presses.depth_mm[rs[peak]]) peak = i;
+    }
+    const double deepest = presses.depth_mm[rs[peak]];
+    const bool both_ways = peak > 0 && peak + 1 < rs.size();
     std::vector<std::size_t> picked;
     for (int k = 1; k <= opt.depths_per_press; ++k) {
       const double target = deepest * k / opt.depths_per_press;
-      std::size_t best = rs.front();
-      for (std::size_t r : rs) {
+      std::size_t from = 0, to = rs.size();  // the rows [from, to) of rs to pick from
+      if (both_ways && k < opt.depths_per_press) {
+        const bool releasing = (k + press_uv.size()) % 2 == 0;
+        from = releasing ? peak + 1 : 0;
+        to = releasing ? rs.size() : peak;
+      }
+      std::size_t best = rs[from];
+      for (std::size_t i = from; i < to; ++i) {
+        const std::size_t r = rs[i];
         if (std::fabs(presses.depth_mm[r] - target) < std::fabs(presses.depth_mm[best] - target))
           best = r;
       }

@@ -4,7 +4,9 @@
 // Input: a dataset of presses at known (u, v, depth) with the tared field they gave (an
 // indentation robot's ramp protocol: sim::generate_ramp_dataset or a lab recording), and the
 // unit's design as the nominal start. A few samples per press are kept (depths_per_press, the
-// samples nearest to evenly spaced fractions of the press's deepest sample).
+// samples nearest to evenly spaced fractions of the press's deepest sample; those below the
+// deepest in turn from before and after it in the dataset's order, the way down and the way up
+// of a ramp, the turn alternating from press to press, so each depth is fitted on both ways).
 //
 // Unknowns (sim::UnitParameters): per magnet its rest position (u, v, h) and moment vector
 // (strength and tilt); per sensor its position, a small mounting rotation and per-axis gain;
