@@ -140,7 +140,9 @@ TEST(ContactCount, EachOfTwoPressesHasItsOwnShearAtTheBound) {
   sim::Rng rng(test_seed("EachOfTwoPressesHasItsOwnShearAtTheBound"));
   int counted = 0, signs = 0, components = 0;
   double err2 = 0, bound2 = 0, stated2 = 0;
-  const int n = 16;
+  // 48 pairs: the error's RMS over the bound then scatters by about 0.08 from seed to seed (0.14
+  // over 16 pairs, where 0.6-1.4 failed about one seed in 100).
+  const int n = 48;
   for (int i = 0; i < n; ++i) {
     const double mu = rng.uniform(-25, 25), mv = rng.uniform(-25, 25), a = rng.uniform(0, M_PI);
     Contact presses[2] = {{mu + 20 * std::cos(a), mv + 20 * std::sin(a), rng.uniform(2, 3.5), 5},
@@ -180,9 +182,8 @@ TEST(ContactCount, EachOfTwoPressesHasItsOwnShearAtTheBound) {
       "two sheared presses 40 mm apart: %d of %d counted two; shear RMS error / bound %.2f, "
       "stated / bound %.2f; %d of %d components beyond 4 bounds of the right sign\n",
       counted, n, std::sqrt(err2 / bound2), std::sqrt(stated2 / bound2), signs, components);
-  // skinbus-bench shear counts 90-96 % of such pairs two (the rest one): 11 of 16 fails one run
-  // in ~500 (random seed).
-  EXPECT_GE(counted, n - 5);
+  // skinbus-bench shear counts 90-96 % of such pairs two (the rest one).
+  EXPECT_GE(counted, n - n / 3);
   EXPECT_EQ(signs, components);
   EXPECT_GT(components, counted);  // the shear is told from none, mostly
   EXPECT_LT(std::sqrt(err2 / bound2), 1.4);
