@@ -321,9 +321,9 @@ Status bench_budget(const BudgetBenchArgs& a) {
         const bool gate = choice->any();
         std::fprintf(stderr,
                      "skinbus-bench:   correction on held-out presses (%d samples >= 1 mm), "
-                     "degree %d of 4, 8, 12: XY %.3f -> %.3f mm (explains %.0f %% of the squared "
+                     "%s of 4, 8, 12: XY %.3f -> %.3f mm (explains %.0f %% of the squared "
                      "error), depth %.3f -> %.3f mm: %s the position, %s the depth\n",
-                     check.samples, chosen.degree_uv, check.xy_mean_without_mm,
+                     check.samples, choice->degree_text().c_str(), check.xy_mean_without_mm,
                      check.xy_mean_with_mm, 100 * check.explained, check.depth_mean_without_mm,
                      check.depth_mean_with_mm, chosen.correct_position ? "corrects" : "keeps",
                      chosen.correct_depth ? "corrects" : "keeps");

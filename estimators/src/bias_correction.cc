@@ -25,15 +25,15 @@ void legendre(double x, int n, double* p) {
 
 }  // namespace
 
-void BiasCorrection::basis(double u, double v, double d, double* out) const {
+void BiasCorrection::basis(double u, double v, double d, int degree_uv, double* out) const {
   double pu[kMaxDegreeUv + 1], pv[kMaxDegreeUv + 1], pd[kMaxDegreeDepth + 1];
   const BiasCorrectionOptions& o = options_;
-  legendre(u / o.half_u_mm, o.degree_uv, pu);
-  legendre(v / o.half_v_mm, o.degree_uv, pv);
+  legendre(u / o.half_u_mm, degree_uv, pu);
+  legendre(v / o.half_v_mm, degree_uv, pv);
   legendre(2 * d / o.max_depth_mm - 1, o.degree_depth, pd);
   int k = 0;
-  for (int i = 0; i <= o.degree_uv; ++i) {
-    for (int j = 0; j <= o.degree_uv; ++j) {
+  for (int i = 0; i <= degree_uv; ++i) {
+    for (int j = 0; j <= degree_uv; ++j) {
       for (int l = 0; l <= o.degree_depth; ++l) out[k++] = pu[i] * pv[j] * pd[l];
     }
   }
@@ -45,9 +45,9 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
                                            std::span<const double> true_depth_mm,
                                            const BiasCorrectionOptions& options) {
   const BiasCorrectionOptions& o = options;
-  if (o.degree_uv < 0 || o.degree_uv > kMaxDegreeUv || o.degree_depth < 0 ||
-      o.degree_depth > kMaxDegreeDepth || !(o.half_u_mm > 0) || !(o.half_v_mm > 0) ||
-      !(o.max_depth_mm > 0) || !(o.ridge >= 0)) {
+  if (o.degree_uv < 0 || o.degree_uv > kMaxDegreeUv || o.depth_degree_uv > kMaxDegreeUv ||
+      o.degree_depth < 0 || o.degree_depth > kMaxDegreeDepth || !(o.half_u_mm > 0) ||
+      !(o.half_v_mm > 0) || !(o.max_depth_mm > 0) || !(o.ridge >= 0)) {
     return make_error(ErrorCode::kInvalidArgument, "bias correction: bad options");
   }
   const std::size_t n = estimates.size();
@@ -58,10 +58,7 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
   BiasCorrection c;
   c.options_ = o;
   c.terms_ = (o.degree_uv + 1) * (o.degree_uv + 1) * (o.degree_depth + 1);
-  const int t = c.terms_;
-  Eigen::MatrixXd ata = Eigen::MatrixXd::Zero(t, t);
-  Eigen::MatrixXd atb = Eigen::MatrixXd::Zero(t, 3);
-  std::vector<double> phi(static_cast<std::size_t>(t));
+  c.depth_terms_ = (o.depth_uv() + 1) * (o.depth_uv() + 1) * (o.degree_depth + 1);
   // The samples the fit learns from: deep enough (estimate and truth), finite, not a gross miss.
   auto fitted = [&](std::size_t i) {
     const ContactEstimate& e = estimates[i];
@@ -69,37 +66,57 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
            std::isfinite(true_u_mm[i]) && std::isfinite(true_v_mm[i]) &&
            std::hypot(true_u_mm[i] - e.u_mm, true_v_mm[i] - e.v_mm) < o.outlier_mm;
   };
-  for (std::size_t i = 0; i < n; ++i) {
-    const ContactEstimate& e = estimates[i];
-    if (!fitted(i)) continue;
-    c.basis(e.u_mm, e.v_mm, e.depth_mm, phi.data());
-    const Eigen::Map<const Eigen::VectorXd> p(phi.data(), t);
-    ata.selfadjointView<Eigen::Lower>().rankUpdate(p);
-    const Eigen::Vector3d r(true_u_mm[i] - e.u_mm, true_v_mm[i] - e.v_mm,
-                            true_depth_mm[i] - e.depth_mm);
-    atb += p * r.transpose();
-    ++c.samples_;
-  }
-  if (c.samples_ < 4 * t) {
+  for (std::size_t i = 0; i < n; ++i) c.samples_ += fitted(i) ? 1 : 0;
+  const int most = std::max(c.terms_, c.depth_terms_);
+  if (c.samples_ < 4 * most) {
     return make_error(ErrorCode::kDegenerate, "bias correction: " + std::to_string(c.samples_) +
                                                   " usable samples (deep enough, valid) for " +
-                                                  std::to_string(t) + " terms; need at least " +
-                                                  std::to_string(4 * t));
+                                                  std::to_string(most) + " terms; need at least " +
+                                                  std::to_string(4 * most));
   }
-  ata.triangularView<Eigen::Upper>() = ata.transpose();
-  const double lambda = o.ridge * ata.diagonal().mean();
-  ata.diagonal().array() += lambda;
-  Eigen::LDLT<Eigen::MatrixXd> ldlt(ata);
-  if (ldlt.info() != Eigen::Success) {
-    return make_error(ErrorCode::kDegenerate, "bias correction: normal equations are singular");
-  }
-  const Eigen::MatrixXd coef = ldlt.solve(atb);
-  if (!coef.allFinite()) {
-    return make_error(ErrorCode::kDegenerate, "bias correction: non-finite solution");
-  }
-  c.coef_.resize(static_cast<std::size_t>(3 * t));
-  for (int k = 0; k < 3; ++k) {
-    for (int j = 0; j < t; ++j) c.coef_[static_cast<std::size_t>(k * t + j)] = coef(j, k);
+  // Ridge-regularised least squares of the parts in `columns` (0 u, 1 v, 2 depth) on the basis
+  // of `degree_uv`, into `into` (t coefficients each, in order).
+  auto solve = [&](int degree_uv, std::initializer_list<int> columns, double* into) -> Status {
+    const int t = (degree_uv + 1) * (degree_uv + 1) * (o.degree_depth + 1);
+    const auto cols = static_cast<int>(columns.size());
+    Eigen::MatrixXd ata = Eigen::MatrixXd::Zero(t, t);
+    Eigen::MatrixXd atb = Eigen::MatrixXd::Zero(t, cols);
+    std::vector<double> phi(static_cast<std::size_t>(t));
+    for (std::size_t i = 0; i < n; ++i) {
+      const ContactEstimate& e = estimates[i];
+      if (!fitted(i)) continue;
+      c.basis(e.u_mm, e.v_mm, e.depth_mm, degree_uv, phi.data());
+      const Eigen::Map<const Eigen::VectorXd> p(phi.data(), t);
+      ata.selfadjointView<Eigen::Lower>().rankUpdate(p);
+      const double r[3] = {true_u_mm[i] - e.u_mm, true_v_mm[i] - e.v_mm,
+                           true_depth_mm[i] - e.depth_mm};
+      int k = 0;
+      for (int col : columns) atb.col(k++) += p * r[col];
+    }
+    ata.triangularView<Eigen::Upper>() = ata.transpose();
+    const double lambda = o.ridge * ata.diagonal().mean();
+    ata.diagonal().array() += lambda;
+    Eigen::LDLT<Eigen::MatrixXd> ldlt(ata);
+    if (ldlt.info() != Eigen::Success) {
+      return make_error(ErrorCode::kDegenerate, "bias correction: normal equations are singular");
+    }
+    const Eigen::MatrixXd coef = ldlt.solve(atb);
+    if (!coef.allFinite()) {
+      return make_error(ErrorCode::kDegenerate, "bias correction: non-finite solution");
+    }
+    for (int k = 0; k < cols; ++k) {
+      for (int j = 0; j < t; ++j) into[k * t + j] = coef(j, k);
+    }
+    return Status();
+  };
+  c.coef_.resize(static_cast<std::size_t>(2 * c.terms_ + c.depth_terms_));
+  if (o.depth_uv() == o.degree_uv) {
+    const Status s = solve(o.degree_uv, {0, 1, 2}, c.coef_.data());
+    if (!s.ok()) return s.error();
+  } else {
+    Status s = solve(o.degree_uv, {0, 1}, c.coef_.data());
+    if (s.ok()) s = solve(o.depth_uv(), {2}, c.coef_.data() + 2 * c.terms_);
+    if (!s.ok()) return s.error();
   }
   double sum2 = 0;
   for (std::size_t i = 0; i < n; ++i) {
@@ -259,37 +276,64 @@ Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEst
     return make_error(ErrorCode::kInvalidArgument, "bias correction choice: no degree to try");
   }
   Choice best;
-  double best_score = std::numeric_limits<double>::infinity();
-  for (int degree : degrees_uv) {
+  // The degree of each part where it helps most; -1 where it helps at no degree.
+  int position_at = -1, depth_at = -1;
+  for (std::size_t k = 0; k < degrees_uv.size(); ++k) {
     BiasCorrectionOptions o = base;
-    o.degree_uv = degree;
+    o.degree_uv = degrees_uv[k];
+    o.depth_degree_uv = -1;
     Result<CorrectionCheck> c = cross_validate(estimates, true_u_mm, true_v_mm, true_depth_mm, o);
     if (!c.ok()) return c.error();
-    best.tried.emplace_back(degree, c.value());
-    // What the gate below would keep: a part that does not help is not corrected (counts 1).
-    const double xy = c->xy_ratio();
-    const double depth = c->depth_mean_with_mm / std::fmax(c->depth_mean_without_mm, 1e-12);
-    const double score = (c->helps_position() ? xy : 1.0) + (c->helps_depth() ? depth : 1.0);
-    if (score < best_score) {
-      best_score = score;
-      best.options = o;
-      best.check = c.value();
+    best.tried.emplace_back(degrees_uv[k], c.value());
+    const auto at = static_cast<int>(k);
+    if (c->helps_position() &&
+        (position_at < 0 || c->xy_ratio() < best.tried[position_at].second.xy_ratio())) {
+      position_at = at;
+    }
+    if (c->helps_depth() &&
+        (depth_at < 0 || c->depth_mean_with_mm < best.tried[depth_at].second.depth_mean_with_mm)) {
+      depth_at = at;
     }
   }
-  best.options.correct_position = best.check.helps_position();
-  best.options.correct_depth = best.check.helps_depth();
+  // The position's degree leads; a depth at the same degree needs no degree of its own.
+  const int lead = position_at >= 0 ? position_at : std::max(depth_at, 0);
+  best.options = base;
+  best.options.degree_uv = degrees_uv[static_cast<std::size_t>(lead)];
+  best.options.depth_degree_uv =
+      depth_at >= 0 && depth_at != lead ? degrees_uv[static_cast<std::size_t>(depth_at)] : -1;
+  best.options.correct_position = position_at >= 0;
+  best.options.correct_depth = depth_at >= 0;
+  // The parts are fitted apart: the position's held-out errors at its degree and the depth's at
+  // its own are what the pair gives.
+  best.check = best.tried[static_cast<std::size_t>(lead)].second;
+  if (depth_at >= 0) {
+    const CorrectionCheck& d = best.tried[static_cast<std::size_t>(depth_at)].second;
+    best.check.depth_mean_with_mm = d.depth_mean_with_mm;
+  }
   return best;
+}
+
+std::string BiasCorrection::Choice::degree_text() const {
+  const BiasCorrectionOptions& o = options;
+  if (o.depth_uv() == o.degree_uv) return "degree " + std::to_string(o.degree_uv);
+  return "degree " + std::to_string(o.degree_uv) + " (position), " + std::to_string(o.depth_uv()) +
+         " (depth)";
 }
 
 ContactEstimate BiasCorrection::apply(const ContactEstimate& e) const {
   if (!e.valid() || !(e.depth_mm >= options_.min_depth_mm)) return e;
   double phi[kMaxTerms];
-  basis(e.u_mm, e.v_mm, e.depth_mm, phi);
   double d[3] = {0, 0, 0};
-  for (int k = 0; k < 3; ++k) {
+  basis(e.u_mm, e.v_mm, e.depth_mm, options_.degree_uv, phi);
+  for (int k = 0; k < 2; ++k) {
     const double* c = coef_.data() + static_cast<std::ptrdiff_t>(k) * terms_;
     for (int j = 0; j < terms_; ++j) d[k] += c[j] * phi[j];
   }
+  if (options_.depth_uv() != options_.degree_uv) {
+    basis(e.u_mm, e.v_mm, e.depth_mm, options_.depth_uv(), phi);
+  }
+  const double* cd = coef_.data() + static_cast<std::ptrdiff_t>(2) * terms_;
+  for (int j = 0; j < depth_terms_; ++j) d[2] += cd[j] * phi[j];
   ContactEstimate out = e;
   if (options_.correct_position) {
     out.u_mm += d[0];

@@ -97,13 +97,17 @@ std::string BiasCorrection::to_json(const CorrectionCheck* check, std::string_vi
                   {"max_depth_mm", o.max_depth_mm},
                   {"correct_position", o.correct_position},
                   {"correct_depth", o.correct_depth}};
+  // Written only when the depth has a degree of its own (files without it read as the same).
+  if (o.depth_uv() != o.degree_uv) j["options"]["depth_degree_uv"] = o.depth_uv();
   j["samples"] = samples_;
   j["rms_correction_mm"] = rms_correction_mm_;
   const auto t = static_cast<std::ptrdiff_t>(terms_);
   const auto part = [&](int k) {
     return std::vector<double>(coef_.begin() + k * t, coef_.begin() + (k + 1) * t);
   };
-  j["coefficients"] = {{"u_mm", part(0)}, {"v_mm", part(1)}, {"depth_mm", part(2)}};
+  j["coefficients"] = {{"u_mm", part(0)},
+                       {"v_mm", part(1)},
+                       {"depth_mm", std::vector<double>(coef_.begin() + 2 * t, coef_.end())}};
   if (check != nullptr) {
     j["held_out_check"] = {{"samples", check->samples},
                            {"xy_mean_without_mm", check->xy_mean_without_mm},
@@ -133,6 +137,9 @@ Result<BiasCorrection> BiasCorrection::parse(std::string_view text, std::string*
   const std::string w = "options.";
   o.degree_uv = r.integer(*opts, "degree_uv", w, 0, kMaxDegreeUv);
   o.degree_depth = r.integer(*opts, "degree_depth", w, 0, kMaxDegreeDepth);
+  if (opts->contains("depth_degree_uv")) {
+    o.depth_degree_uv = r.integer(*opts, "depth_degree_uv", w, 0, kMaxDegreeUv);
+  }
   o.min_depth_mm = r.number(*opts, "min_depth_mm", w);
   o.half_u_mm = r.positive(*opts, "half_u_mm", w);
   o.half_v_mm = r.positive(*opts, "half_v_mm", w);
@@ -143,15 +150,16 @@ Result<BiasCorrection> BiasCorrection::parse(std::string_view text, std::string*
   c.rms_correction_mm_ = r.number(j, "rms_correction_mm", "");
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
   c.terms_ = (o.degree_uv + 1) * (o.degree_uv + 1) * (o.degree_depth + 1);
+  c.depth_terms_ = (o.depth_uv() + 1) * (o.depth_uv() + 1) * (o.degree_depth + 1);
   const auto coef = j.find("coefficients");
   if (coef == j.end() || !coef->is_object()) {
     return make_error(ErrorCode::kParse, "coefficients must be an object (u_mm, v_mm, depth_mm)");
   }
   const auto t = static_cast<std::size_t>(c.terms_);
-  c.coef_.reserve(3 * t);
-  for (const char* key : {"u_mm", "v_mm", "depth_mm"}) {
-    r.numbers(*coef, key, "coefficients.", t, &c.coef_);
-  }
+  c.coef_.reserve(2 * t + static_cast<std::size_t>(c.depth_terms_));
+  r.numbers(*coef, "u_mm", "coefficients.", t, &c.coef_);
+  r.numbers(*coef, "v_mm", "coefficients.", t, &c.coef_);
+  r.numbers(*coef, "depth_mm", "coefficients.", static_cast<std::size_t>(c.depth_terms_), &c.coef_);
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
   if (source != nullptr) {
     const auto it = j.find("source");

@@ -286,10 +286,10 @@ TEST_F(AggregatorRefineTest, AUnitOutsideTheModelClassIsRefinedOnItsIdentifiedMo
   const int degrees[] = {4, 8, 12};
   const auto choice = estimators::BiasCorrection::choose(est, tu, tv, td, bo, degrees);
   ASSERT_TRUE(choice.ok()) << choice.error().to_string();
-  std::printf("correction held out: depth %.3f -> %.3f mm, XY %.3f -> %.3f mm (degree %d)\n",
+  std::printf("correction held out: depth %.3f -> %.3f mm, XY %.3f -> %.3f mm (%s)\n",
               choice->check.depth_mean_without_mm, choice->check.depth_mean_with_mm,
               choice->check.xy_mean_without_mm, choice->check.xy_mean_with_mm,
-              choice->options.degree_uv);
+              choice->degree_text().c_str());
   ASSERT_TRUE(choice->options.correct_depth);
   const auto correction = estimators::BiasCorrection::fit(est, tu, tv, td, choice->options);
   ASSERT_TRUE(correction.ok()) << correction.error().to_string();

@@ -42,10 +42,11 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!back.ok()) fail("what was written does not parse");
   if (source_back != source) fail("the note changed");
   const BiasCorrectionOptions &a = c->options(), &b = back->options();
-  if (a.degree_uv != b.degree_uv || a.degree_depth != b.degree_depth ||
-      !same(a.half_u_mm, b.half_u_mm) || !same(a.min_depth_mm, b.min_depth_mm) ||
-      a.correct_position != b.correct_position || a.correct_depth != b.correct_depth ||
-      back->terms() != c->terms()) {
+  if (a.degree_uv != b.degree_uv || a.depth_uv() != b.depth_uv() ||
+      a.degree_depth != b.degree_depth || !same(a.half_u_mm, b.half_u_mm) ||
+      !same(a.min_depth_mm, b.min_depth_mm) || a.correct_position != b.correct_position ||
+      a.correct_depth != b.correct_depth || back->terms() != c->terms() ||
+      back->depth_terms() != c->depth_terms()) {
     fail("the options changed");
   }
   for (double u : {-60.0, 0.0, 33.0}) {

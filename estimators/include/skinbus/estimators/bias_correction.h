@@ -3,11 +3,12 @@
 // lattice), learned from that unit's own presses where the truth is known.
 //
 // The correction is a smooth function of the estimate: for each of u, v and depth, a tensor
-// product of Legendre polynomials in u/half_u, v/half_v (degree `degree_uv`) and depth/max_depth
-// (degree `degree_depth`), fitted by ridge-regularised least squares to (truth - estimate) over
-// the presses. Applying it costs one basis evaluation ((degree_uv+1)^2 (degree_depth+1) terms) per
-// estimate and allocates nothing. Only estimates at least `min_depth_mm` deep are corrected; the
-// fit uses samples whose estimate and truth are both that deep and whose error is below
+// product of Legendre polynomials in u/half_u, v/half_v (degree `degree_uv` for u and v,
+// `depth_degree_uv` for the depth) and depth/max_depth (degree `degree_depth`), fitted by
+// ridge-regularised least squares to (truth - estimate) over the presses. Applying it costs one
+// basis evaluation ((degree_uv+1)^2 (degree_depth+1) terms), two when the depth's degree differs,
+// per estimate and allocates nothing. Only estimates at least `min_depth_mm` deep are corrected;
+// the fit uses samples whose estimate and truth are both that deep and whose error is below
 // `outlier_mm` (shallow presses carry no position information to learn from, and a few gross
 // misses would otherwise dominate a least-squares fit). The force is not corrected.
 #pragma once
@@ -24,7 +25,12 @@
 namespace skinbus::estimators {
 
 struct BiasCorrectionOptions {
-  int degree_uv = 12;         // up to BiasCorrection::kMaxDegreeUv (16)
+  int degree_uv = 12;  // up to BiasCorrection::kMaxDegreeUv (16)
+  // The depth correction's degree in u and v, when it differs from the position's (-1: the
+  // same). The position and the depth are fitted separately: each one's coefficients depend on
+  // its own degree alone, and BiasCorrection::choose() picks each by its own held-out error.
+  int depth_degree_uv = -1;
+  int depth_uv() const { return depth_degree_uv < 0 ? degree_uv : depth_degree_uv; }
   int degree_depth = 3;       // up to BiasCorrection::kMaxDegreeDepth (6)
   double ridge = 1e-3;        // relative to the mean diagonal of the normal equations
   double min_depth_mm = 1.0;  // estimates shallower are neither corrected nor used (nor truths)
@@ -95,16 +101,22 @@ class BiasCorrection {
                                                 const BiasCorrectionOptions& options = {});
 
   // The correction to use on this unit, chosen by held-out error: cross_validate() at each
-  // degree in `degrees_uv` (the others as `base`); at each, what helps (correct_position,
-  // correct_depth; neither: use no correction), and the degree whose held-out errors with what
-  // helps corrected, the XY (CorrectionCheck::xy_ratio(), by depth bin) and the depth each over
-  // its uncorrected one, sum lowest (what does not help counts 1: it will not be corrected).
+  // degree in `degrees_uv` (the others as `base`); the position corrected at the degree where it
+  // helps most (the lowest CorrectionCheck::xy_ratio(), by depth bin), the depth at the degree
+  // where it helps most (the lowest held-out mean), each only if it helps at all
+  // (CorrectionCheck::helps_position(), helps_depth()); neither: use no correction. The two are
+  // fitted apart, so each one's held-out error at its degree is what it will have together.
   // Errors: as cross_validate(). Cost: that, per degree.
   struct Choice {
-    BiasCorrectionOptions options;                       // the degree chosen and what to correct
-    CorrectionCheck check;                               // its held-out check
+    BiasCorrectionOptions options;  // the degrees chosen (degree_uv: the position's, unless only
+                                    // the depth is corrected) and what to correct
+    // The held-out check of the choice: the XY part at the position's degree, the depth part at
+    // the depth's.
+    CorrectionCheck check;
     std::vector<std::pair<int, CorrectionCheck>> tried;  // every degree's check, in order
     bool any() const { return options.correct_position || options.correct_depth; }
+    // "degree D", or "degree P (position), D (depth)" when the depth has its own, for a log.
+    std::string degree_text() const;
   };
   static Result<Choice> choose(std::span<const ContactEstimate> estimates,
                                std::span<const double> true_u_mm, std::span<const double> true_v_mm,
@@ -127,25 +139,27 @@ class BiasCorrection {
                std::string_view source = {}) const;
   // Parses a correction file's text. Errors: kParse naming the field (or the JSON's line and
   // column) for a malformed file, degrees out of range, scales not positive, coefficients not
-  // finite or not (degree_uv+1)^2 (degree_depth+1) each.
+  // finite or not (degree+1)^2 (degree_depth+1) each (the depth's: its own degree in u and v,
+  // `depth_degree_uv` when the file has it).
   static Result<BiasCorrection> parse(std::string_view text, std::string* source = nullptr);
   // Reads and parses `path`: errors as parse() with the path in front; kNotFound for no file.
   static Result<BiasCorrection> read(const std::string& path, std::string* source = nullptr);
 
   const BiasCorrectionOptions& options() const { return options_; }
-  int terms() const { return terms_; }
+  int terms() const { return terms_; }              // of the position's u and v, each
+  int depth_terms() const { return depth_terms_; }  // of the depth
   int samples_used() const { return samples_; }
   // RMS of the correction over the fitting samples (mm): how large the learned bias is.
   double rms_correction_mm() const { return rms_correction_mm_; }
 
  private:
   BiasCorrection() = default;
-  void basis(double u, double v, double d, double* out) const;
+  void basis(double u, double v, double d, int degree_uv, double* out) const;
 
   BiasCorrectionOptions options_;
-  int terms_ = 0, samples_ = 0;
+  int terms_ = 0, depth_terms_ = 0, samples_ = 0;
   double rms_correction_mm_ = 0;
-  std::vector<double> coef_;  // 3 x terms: u, v, depth
+  std::vector<double> coef_;  // u and v (terms_ each), then depth (depth_terms_)
 };
 
 }  // namespace skinbus::estimators
