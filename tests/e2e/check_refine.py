@@ -87,9 +87,20 @@ def main():
     over = runs["over"]
     if not all("unrefined" in c["flags"] for _, c in over):
         bad.append("over the budget, a contact is not flagged unrefined")
-    net_places = {(s, round(c["u_mm"], 9), round(c["v_mm"], 9)) for s, c in runs["network"]}
-    over_places = {(s, round(c["u_mm"], 9), round(c["v_mm"], 9)) for s, c in over}
-    if net_places != over_places:
+    # Compared on the samples both runs published: a replay on a loaded machine may supersede a
+    # sample in one run and not in the other (the host skips what it cannot place in time).
+    def places(cs):
+        out = {}
+        for s, c in cs:
+            out.setdefault(s, set()).add((c["node"], round(c["u_mm"], 9), round(c["v_mm"], 9)))
+        return out
+    net_places, over_places = places(runs["network"]), places(over)
+    common = net_places.keys() & over_places.keys()
+    print(f"check_refine: {len(common)} samples published by both the network and the over-budget "
+          f"run (of {len(net_places)} and {len(over_places)})")
+    if len(common) < 0.9 * max(len(net_places), len(over_places)):
+        bad.append("the network and over-budget runs published too few of the same samples")
+    if any(net_places[s] != over_places[s] for s in common):
         bad.append("over the budget, the contacts are not the network's")
     for b in bad:
         print("FAIL " + b)
