@@ -57,8 +57,7 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
   }
   BiasCorrection c;
   c.options_ = o;
-  c.terms_ = (o.degree_uv + 1) * (o.degree_uv + 1) * (o.degree_depth + 1);
-  c.depth_terms_ = (o.depth_uv() + 1) * (o.depth_uv() + 1) * (o.degree_depth + 1);
+  c.size_terms();
   // The samples the fit learns from: deep enough (estimate and truth), finite, not a gross miss.
   auto fitted = [&](std::size_t i) {
     const ContactEstimate& e = estimates[i];
@@ -77,7 +76,7 @@ Result<BiasCorrection> BiasCorrection::fit(std::span<const ContactEstimate> esti
   // Ridge-regularised least squares of the parts in `columns` (0 u, 1 v, 2 depth) on the basis
   // of `degree_uv`, into `into` (t coefficients each, in order).
   auto solve = [&](int degree_uv, std::initializer_list<int> columns, double* into) -> Status {
-    const int t = (degree_uv + 1) * (degree_uv + 1) * (o.degree_depth + 1);
+    const int t = terms_of(degree_uv, o.degree_depth);
     const auto cols = static_cast<int>(columns.size());
     Eigen::MatrixXd ata = Eigen::MatrixXd::Zero(t, t);
     Eigen::MatrixXd atb = Eigen::MatrixXd::Zero(t, cols);

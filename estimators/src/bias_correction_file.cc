@@ -149,8 +149,7 @@ Result<BiasCorrection> BiasCorrection::parse(std::string_view text, std::string*
   c.samples_ = r.integer(j, "samples", "", 0, 1 << 30);
   c.rms_correction_mm_ = r.number(j, "rms_correction_mm", "");
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
-  c.terms_ = (o.degree_uv + 1) * (o.degree_uv + 1) * (o.degree_depth + 1);
-  c.depth_terms_ = (o.depth_uv() + 1) * (o.depth_uv() + 1) * (o.degree_depth + 1);
+  c.size_terms();
   const auto coef = j.find("coefficients");
   if (coef == j.end() || !coef->is_object()) {
     return make_error(ErrorCode::kParse, "coefficients must be an object (u_mm, v_mm, depth_mm)");

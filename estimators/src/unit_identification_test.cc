@@ -110,6 +110,15 @@ void print_quality(const char* what, const FitQuality& q) {
   std::printf("\n");
 }
 
+// On a unit the class cannot explain, a clear refusal is allowed, a silent poor fit is not: true
+// (and the refusal printed and checked to be kNotConverged) when `id` was refused.
+bool refused_clearly(const Result<IdentifiedUnit>& id) {
+  if (id.ok()) return false;
+  std::printf("refused: %s\n", id.error().to_string().c_str());
+  EXPECT_EQ(id.error().code, ErrorCode::kNotConverged);
+  return true;
+}
+
 TEST(UnitIdentificationTest, FabricatedUnitIsIdentifiedDownToTheNoise) {
   const sim::PatchDesign design;
   const uint64_t seed = 4242;
@@ -346,11 +355,7 @@ TEST(UnitIdentificationTest, OutsideTheClassWithItsGlobalsOffIsFlagged) {
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   const Result<IdentifiedUnit> id = identify_unit(c.design, data.train, opt, &data.test);
-  if (!id.ok()) {  // a clear refusal is allowed; a silent poor fit is not
-    std::printf("refused: %s\n", id.error().to_string().c_str());
-    EXPECT_EQ(id.error().code, ErrorCode::kNotConverged);
-    return;
-  }
+  if (refused_clearly(id)) return;
   print_quality("held out, identified", id->held_out);
   EXPECT_GT(id->held_out.rms, kModelMissesResidual);
   const double mean_spread = 0.5 * (unit.spread_u_mm() + unit.spread_v_mm());
@@ -375,11 +380,7 @@ TEST(UnitIdentificationTest, ACreepingUnitIsFlaggedOnRampsItWasNotFittedOn) {
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   const Result<IdentifiedUnit> id = identify_unit(sim::PatchDesign{}, data.train, opt, &data.test);
-  if (!id.ok()) {  // a clear refusal is allowed; a silent poor fit is not
-    std::printf("refused: %s\n", id.error().to_string().c_str());
-    EXPECT_EQ(id.error().code, ErrorCode::kNotConverged);
-    return;
-  }
+  if (refused_clearly(id)) return;
   print_quality("fit", id->fit);
   print_quality("held out (ramps)", id->held_out);
   EXPECT_GT(id->held_out.rms, kModelMissesResidual);
@@ -415,11 +416,7 @@ TEST(UnitIdentificationTest, ALagOnTheWayUpIsNotHiddenFromTheFit) {
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   const Result<IdentifiedUnit> id = identify_unit(design, d, opt, &d);
-  if (!id.ok()) {  // a clear refusal is allowed; a silent pass is not
-    std::printf("refused: %s\n", id.error().to_string().c_str());
-    EXPECT_EQ(id.error().code, ErrorCode::kNotConverged);
-    return;
-  }
+  if (refused_clearly(id)) return;
   print_quality("fit", id->fit);
   print_quality("every row", id->held_out);
   EXPECT_GT(id->fit.rms, kModelMissesResidual);

@@ -154,6 +154,15 @@ class BiasCorrection {
 
  private:
   BiasCorrection() = default;
+  // The basis size of one part: (degree_uv + 1)^2 (degree_depth + 1).
+  static int terms_of(int degree_uv, int degree_depth) {
+    return (degree_uv + 1) * (degree_uv + 1) * (degree_depth + 1);
+  }
+  // terms_ and depth_terms_ from options_.
+  void size_terms() {
+    terms_ = terms_of(options_.degree_uv, options_.degree_depth);
+    depth_terms_ = terms_of(options_.depth_uv(), options_.degree_depth);
+  }
   void basis(double u, double v, double d, int degree_uv, double* out) const;
 
   BiasCorrectionOptions options_;
