@@ -143,7 +143,8 @@ int main(int argc, char** argv) {
     base.half_u_mm = std::fmax(1.0, base.half_u_mm);
     base.half_v_mm = std::fmax(1.0, base.half_v_mm);
     const int degrees[] = {4, 8, 12};
-    std::fprintf(stderr, "%s: judging a correction at degree 4, 8 and 12 on held-out presses\n",
+    std::fprintf(stderr,
+                 "%s: judging a correction at degree 4, 8 and 12 on held-out presses and places\n",
                  kTool);
     auto choice = estimators::BiasCorrection::choose(ref, data->u_mm, data->v_mm, data->depth_mm,
                                                      base, degrees);
@@ -155,10 +156,12 @@ int main(int argc, char** argv) {
     std::printf(
         "Learned correction, judged on held-out presses (%d estimates >= %.1f mm deep), %s: XY "
         "mean %.3f -> %.3f mm (explains %.0f %% of the squared error), depth mean %.3f -> %.3f "
-        "mm: %s the position, %s the depth.\n",
+        "mm; as new presses will meet it, XY x %.3f by depth bin, depth x %.3f: %s the "
+        "position, %s the depth.\n",
         c.samples, choice->options.min_depth_mm, choice->degree_text().c_str(),
         c.xy_mean_without_mm, c.xy_mean_with_mm, 100 * c.explained, c.depth_mean_without_mm,
-        c.depth_mean_with_mm, choice->options.correct_position ? "corrects" : "keeps",
+        c.depth_mean_with_mm, c.xy_ratio(), c.depth_ratio(),
+        choice->options.correct_position ? "corrects" : "keeps",
         choice->options.correct_depth ? "corrects" : "keeps");
     if (choice->any()) {
       auto fitted = estimators::BiasCorrection::fit(ref, data->u_mm, data->v_mm, data->depth_mm,

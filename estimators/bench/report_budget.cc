@@ -322,10 +322,12 @@ Status bench_budget(const BudgetBenchArgs& a) {
         std::fprintf(stderr,
                      "skinbus-bench:   correction on held-out presses (%d samples >= 1 mm), "
                      "%s of 4, 8, 12: XY %.3f -> %.3f mm (explains %.0f %% of the squared "
-                     "error), depth %.3f -> %.3f mm: %s the position, %s the depth\n",
+                     "error), depth %.3f -> %.3f mm; new presses: XY x %.3f, depth x %.3f: %s "
+                     "the position, %s the depth\n",
                      check.samples, choice->degree_text().c_str(), check.xy_mean_without_mm,
                      check.xy_mean_with_mm, 100 * check.explained, check.depth_mean_without_mm,
-                     check.depth_mean_with_mm, chosen.correct_position ? "corrects" : "keeps",
+                     check.depth_mean_with_mm, check.xy_ratio(), check.depth_ratio(),
+                     chosen.correct_position ? "corrects" : "keeps",
                      chosen.correct_depth ? "corrects" : "keeps");
         Result<BiasCorrection> chosen_bias = BiasCorrection::fit(est, tu, tv, td, chosen);
         if (!chosen_bias.ok()) return with_context(chosen_bias.error(), "bias correction");

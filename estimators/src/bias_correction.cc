@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -179,56 +180,124 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
   // was blind to them). Only the corner places, outermost both ways, are always fitted (fold
   // -1): held out, they would ask the polynomial to extrapolate, which the correction fitted on
   // every press never does.
-  std::vector<int> fold(n, -1);
-  for (std::size_t i = 0; i < n; ++i) {
-    const double u = true_u_mm[i], v = true_v_mm[i];
+  auto fold_of = [&](double u, double v) {
     const bool edge_u = !(u > lo_u + 0.5 * pitch && u < hi_u - 0.5 * pitch);
     const bool edge_v = !(v > lo_v + 0.5 * pitch && v < hi_v - 0.5 * pitch);
-    if (!std::isfinite(u) || !std::isfinite(v) || (edge_u && edge_v)) continue;
+    if (!std::isfinite(u) || !std::isfinite(v) || (edge_u && edge_v)) return -1;
     const auto ci = static_cast<int64_t>(std::floor(u / pitch + 0.5));
     const auto cj = static_cast<int64_t>(std::floor(v / pitch + 0.5));
     const int64_t f = (ci + 2 * cj) % folds;
-    fold[i] = static_cast<int>(f < 0 ? f + folds : f);
-  }
+    return static_cast<int>(f < 0 ? f + folds : f);
+  };
+  std::vector<int> fold(n);
+  for (std::size_t i = 0; i < n; ++i) fold[i] = fold_of(true_u_mm[i], true_v_mm[i]);
   BiasCorrectionOptions both = options;
   both.correct_position = both.correct_depth = true;
   CorrectionCheck out;
-  double sum_without = 0, sum_with = 0, sq_without = 0, sq_with = 0, dep_without = 0, dep_with = 0;
-  for (int f = 0; f < folds; ++f) {
+  // Sample i judged by correction c, into the held-out figures' sums or the places' (the
+  // depth's and each bin's XY sums; the means follow below).
+  double sum_without = 0, sum_with = 0, sq_without = 0, sq_with = 0;
+  auto judge = [&](const BiasCorrection& c, std::size_t i, int* count, double* dep_without,
+                   double* dep_with, int* bin_samples, double* bin_without, double* bin_with,
+                   bool held_out) {
+    const ContactEstimate& e = estimates[i];
+    if (!e.valid() || !(true_depth_mm[i] >= options.min_depth_mm) || !std::isfinite(true_u_mm[i]) ||
+        !std::isfinite(true_v_mm[i])) {
+      return;
+    }
+    const ContactEstimate k = c.apply(e);
+    const double a = std::hypot(e.u_mm - true_u_mm[i], e.v_mm - true_v_mm[i]);
+    const double b = std::hypot(k.u_mm - true_u_mm[i], k.v_mm - true_v_mm[i]);
+    const int bin = static_cast<int>(
+        std::fmin(CorrectionCheck::kDepthBins - 1, true_depth_mm[i] - options.min_depth_mm));
+    ++bin_samples[bin];
+    bin_without[bin] += a;
+    bin_with[bin] += b;
+    *dep_without += std::fabs(e.depth_mm - true_depth_mm[i]);
+    *dep_with += std::fabs(k.depth_mm - true_depth_mm[i]);
+    ++*count;
+    if (held_out) {
+      sum_without += a;
+      sum_with += b;
+      sq_without += a * a;
+      sq_with += b * b;
+    }
+  };
+  // Fits the correction on the samples `use` keeps; errors as fit().
+  auto fit_on = [&](auto use) -> Result<BiasCorrection> {
     std::vector<ContactEstimate> est;
     std::vector<double> tu, tv, td;
     for (std::size_t i = 0; i < n; ++i) {
-      if (fold[i] == f) continue;
+      if (!use(i)) continue;
       est.push_back(estimates[i]);
       tu.push_back(true_u_mm[i]);
       tv.push_back(true_v_mm[i]);
       td.push_back(true_depth_mm[i]);
     }
-    Result<BiasCorrection> c = fit(est, tu, tv, td, both);
+    return fit(est, tu, tv, td, both);
+  };
+  double dep_without = 0, dep_with = 0;
+  for (int f = 0; f < folds; ++f) {
+    Result<BiasCorrection> c = fit_on([&](std::size_t i) { return fold[i] != f; });
     if (!c.ok()) return c.error();
     for (std::size_t i = 0; i < n; ++i) {
-      const ContactEstimate& e = estimates[i];
-      if (fold[i] != f || !e.valid() || !(true_depth_mm[i] >= options.min_depth_mm) ||
-          !std::isfinite(true_u_mm[i]) || !std::isfinite(true_v_mm[i])) {
-        continue;
-      }
-      const ContactEstimate k = c->apply(e);
-      const double a = std::hypot(e.u_mm - true_u_mm[i], e.v_mm - true_v_mm[i]);
-      const double b = std::hypot(k.u_mm - true_u_mm[i], k.v_mm - true_v_mm[i]);
-      const int bin = static_cast<int>(
-          std::fmin(CorrectionCheck::kDepthBins - 1, true_depth_mm[i] - options.min_depth_mm));
-      ++out.bin_samples[bin];
-      out.xy_bin_without_mm[bin] += a;
-      out.xy_bin_with_mm[bin] += b;
-      sum_without += a;
-      sum_with += b;
-      sq_without += a * a;
-      sq_with += b * b;
-      dep_without += std::fabs(e.depth_mm - true_depth_mm[i]);
-      dep_with += std::fabs(k.depth_mm - true_depth_mm[i]);
-      ++out.samples;
+      if (fold[i] != f) continue;
+      judge(c.value(), i, &out.samples, &dep_without, &dep_with, out.bin_samples,
+            out.xy_bin_without_mm, out.xy_bin_with_mm, true);
     }
   }
+  // At the places: of each place's samples, in the order given, one in kCheckFolds judged (the
+  // second of each five), the others fitted: the fit has as many samples as a fold's.
+  std::vector<int> seen(places.size(), 0);
+  std::vector<char> judged(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto at =
+        std::lower_bound(places.begin(), places.end(), std::make_pair(true_u_mm[i], true_v_mm[i]));
+    if (at == places.end() || at->first != true_u_mm[i] || at->second != true_v_mm[i]) continue;
+    judged[i] =
+        static_cast<char>(seen[static_cast<std::size_t>(at - places.begin())]++ % folds == 1);
+  }
+  CorrectionCheck::AtPlaces& p = out.at_places;
+  if (std::find(judged.begin(), judged.end(), 1) != judged.end()) {  // a place pressed twice
+    Result<BiasCorrection> c = fit_on([&](std::size_t i) { return judged[i] == 0; });
+    if (!c.ok()) return c.error();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (judged[i] == 0) continue;
+      judge(c.value(), i, &p.samples, &p.depth_mean_without_mm, &p.depth_mean_with_mm,
+            p.bin_samples, p.xy_bin_without_mm, p.xy_bin_with_mm, false);
+    }
+  }
+  // How far new presses sit: the mean distance to the nearest place of a 64 x 64 lattice over
+  // the places' extent, over a held-out place's mean distance to the nearest fitted one.
+  double held_out_distance = 0, new_distance = 0;
+  int held_out_places = 0;
+  std::vector<int> place_fold;
+  for (const auto& [u, v] : places) place_fold.push_back(fold_of(u, v));
+  for (std::size_t a = 0; a < places.size(); ++a) {
+    if (place_fold[a] < 0) continue;
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t b = 0; b < places.size(); ++b) {
+      if (place_fold[b] == place_fold[a]) continue;
+      best = std::fmin(
+          best, std::hypot(places[a].first - places[b].first, places[a].second - places[b].second));
+    }
+    held_out_distance += best;
+    ++held_out_places;
+  }
+  constexpr int kLattice = 64;
+  for (int a = 0; a < kLattice; ++a) {
+    for (int b = 0; b < kLattice; ++b) {
+      const double u = lo_u + (hi_u - lo_u) * (a + 0.5) / kLattice;
+      const double v = lo_v + (hi_v - lo_v) * (b + 0.5) / kLattice;
+      double best = std::numeric_limits<double>::infinity();
+      for (const auto& [u2, v2] : places) best = std::fmin(best, std::hypot(u - u2, v - v2));
+      new_distance += best;
+    }
+  }
+  held_out_distance /= std::max(held_out_places, 1);
+  new_distance /= kLattice * kLattice;
+  out.new_press_share =
+      held_out_distance > 0 ? std::clamp(new_distance / held_out_distance, 0.0, 1.0) : 1.0;
   if (out.samples > 0) {
     out.xy_mean_without_mm = sum_without / out.samples;
     out.xy_mean_with_mm = sum_with / out.samples;
@@ -236,32 +305,81 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
     out.depth_mean_without_mm = dep_without / out.samples;
     out.depth_mean_with_mm = dep_with / out.samples;
   }
+  if (p.samples > 0) {
+    p.depth_mean_without_mm /= p.samples;
+    p.depth_mean_with_mm /= p.samples;
+  }
   for (int b = 0; b < CorrectionCheck::kDepthBins; ++b) {
-    if (out.bin_samples[b] == 0) continue;
-    out.xy_bin_without_mm[b] /= out.bin_samples[b];
-    out.xy_bin_with_mm[b] /= out.bin_samples[b];
+    if (out.bin_samples[b] > 0) {
+      out.xy_bin_without_mm[b] /= out.bin_samples[b];
+      out.xy_bin_with_mm[b] /= out.bin_samples[b];
+    }
+    if (p.bin_samples[b] > 0) {
+      p.xy_bin_without_mm[b] /= p.bin_samples[b];
+      p.xy_bin_with_mm[b] /= p.bin_samples[b];
+    }
   }
   return out;
 }
 
-double CorrectionCheck::xy_ratio() const {
+namespace {
+
+// with / without, or nothing when there is no figure to divide.
+std::optional<double> ratio_of(int samples, double without, double with) {
+  if (samples == 0 || !(without > 0)) return std::nullopt;
+  return with / without;
+}
+
+// The mean over depth bins of the XY ratio `share` of the way from the places' to the held-out
+// places' (the held-out one alone where the places have none; share 1: it alone).
+double blended_xy_ratio(const CorrectionCheck& c, double share) {
   double sum = 0;
   int bins = 0;
-  for (int b = 0; b < kDepthBins; ++b) {
-    if (bin_samples[b] == 0 || !(xy_bin_without_mm[b] > 0)) continue;
-    sum += xy_bin_with_mm[b] / xy_bin_without_mm[b];
+  for (int b = 0; b < CorrectionCheck::kDepthBins; ++b) {
+    const std::optional<double> h =
+        ratio_of(c.bin_samples[b], c.xy_bin_without_mm[b], c.xy_bin_with_mm[b]);
+    if (!h) continue;
+    const std::optional<double> p =
+        ratio_of(c.at_places.bin_samples[b], c.at_places.xy_bin_without_mm[b],
+                 c.at_places.xy_bin_with_mm[b]);
+    sum += p ? *p + share * (*h - *p) : *h;
     ++bins;
   }
   return bins > 0 ? sum / bins : 1.0;
 }
 
+}  // namespace
+
+double CorrectionCheck::xy_ratio() const {
+  return blended_xy_ratio(*this, new_press_share);
+}
+double CorrectionCheck::held_out_xy_ratio() const {
+  return blended_xy_ratio(*this, 1.0);
+}
+double CorrectionCheck::at_places_xy_ratio() const {
+  return blended_xy_ratio(*this, 0.0);
+}
+
+double CorrectionCheck::depth_ratio() const {
+  const std::optional<double> h = ratio_of(samples, depth_mean_without_mm, depth_mean_with_mm);
+  if (!h) return 1.0;
+  const std::optional<double> p =
+      ratio_of(at_places.samples, at_places.depth_mean_without_mm, at_places.depth_mean_with_mm);
+  return p ? *p + new_press_share * (*h - *p) : *h;
+}
+
 std::string CorrectionCheck::held_out_text(int degree) const {
-  char buf[160];
+  char places[96] = "no place pressed twice";
+  if (at_places.samples > 0) {
+    std::snprintf(places, sizeof places, "at the places x %.3f; new presses x %.3f",
+                  at_places_xy_ratio(), xy_ratio());
+  }
+  char buf[256];
   std::snprintf(buf, sizeof buf,
-                "held out at degree %d: XY %.3f -> %.3f mm (x %.3f by depth bin), depth %.3f -> "
-                "%.3f mm",
-                degree, xy_mean_without_mm, xy_mean_with_mm, xy_ratio(), depth_mean_without_mm,
-                depth_mean_with_mm);
+                "held out at degree %d: XY %.3f -> %.3f mm (x %.3f by depth bin; %s), depth %.3f "
+                "-> %.3f mm (new presses x %.3f)",
+                degree, xy_mean_without_mm, xy_mean_with_mm, held_out_xy_ratio(), places,
+                depth_mean_without_mm, depth_mean_with_mm, depth_ratio());
   return buf;
 }
 
@@ -290,7 +408,7 @@ Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEst
       position_at = at;
     }
     if (c->helps_depth() &&
-        (depth_at < 0 || c->depth_mean_with_mm < best.tried[depth_at].second.depth_mean_with_mm)) {
+        (depth_at < 0 || c->depth_ratio() < best.tried[depth_at].second.depth_ratio())) {
       depth_at = at;
     }
   }
@@ -308,6 +426,7 @@ Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEst
   if (depth_at >= 0) {
     const CorrectionCheck& d = best.tried[static_cast<std::size_t>(depth_at)].second;
     best.check.depth_mean_with_mm = d.depth_mean_with_mm;
+    best.check.at_places.depth_mean_with_mm = d.at_places.depth_mean_with_mm;
   }
   return best;
 }

@@ -114,7 +114,10 @@ std::string BiasCorrection::to_json(const CorrectionCheck* check, std::string_vi
                            {"xy_mean_with_mm", check->xy_mean_with_mm},
                            {"explained", check->explained},
                            {"depth_mean_without_mm", check->depth_mean_without_mm},
-                           {"depth_mean_with_mm", check->depth_mean_with_mm}};
+                           {"depth_mean_with_mm", check->depth_mean_with_mm},
+                           {"new_press_share", check->new_press_share},
+                           {"xy_ratio_new_presses", check->xy_ratio()},
+                           {"depth_ratio_new_presses", check->depth_ratio()}};
   }
   // nlohmann::json writes doubles with 17 significant digits: the round trip is exact.
   return j.dump(1) + "\n";

@@ -25,15 +25,19 @@ struct Samples {
   std::vector<double> u, v, d;
 };
 
-Samples make(int n, uint64_t seed, double noise_mm) {
+// n presses at random places within +-half_mm and depths from min_depth_mm to 4 mm, each
+// estimate off by `bias` and noise in u and v.
+template <typename Bias>
+Samples make_with(int n, uint64_t seed, double noise_mm, Bias bias, double half_mm,
+                  double min_depth_mm) {
   std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> pos(-65, 65), depth(0.2, 4.0);
+  std::uniform_real_distribution<double> pos(-half_mm, half_mm), depth(min_depth_mm, 4.0);
   std::normal_distribution<double> noise(0, noise_mm);
   Samples s;
   for (int i = 0; i < n; ++i) {
     const double u = pos(rng), v = pos(rng), d = depth(rng);
     double b[3];
-    bias_at(u, v, d, b);
+    bias(u, v, d, b);
     ContactEstimate e;
     e.u_mm = u - b[0] + noise(rng);
     e.v_mm = v - b[1] + noise(rng);
@@ -44,6 +48,10 @@ Samples make(int n, uint64_t seed, double noise_mm) {
     s.d.push_back(d);
   }
   return s;
+}
+
+Samples make(int n, uint64_t seed, double noise_mm) {
+  return make_with(n, seed, noise_mm, bias_at, 65, 0.2);
 }
 
 double mean_xy(const Samples& s, const BiasCorrection* c, double min_depth) {
@@ -328,6 +336,10 @@ TEST(BiasCorrection, EachPartIsCorrectedAtItsOwnDegree) {
   const CorrectionCheck &low = c->tried[0].second, &high = c->tried[1].second;
   ASSERT_LT(high.xy_ratio(), low.xy_ratio());                  // the position: 12
   ASSERT_LT(low.depth_mean_with_mm, high.depth_mean_with_mm);  // the depth: 4
+  // Every press at a place of its own: no check at the places, the held-out one alone judges.
+  EXPECT_EQ(low.at_places.samples, 0);
+  EXPECT_EQ(high.xy_ratio(), high.held_out_xy_ratio());
+  EXPECT_NE(high.held_out_text(12).find("no place pressed twice"), std::string::npos);
   EXPECT_TRUE(c->options.correct_position && c->options.correct_depth);
   EXPECT_EQ(c->options.degree_uv, 12);
   EXPECT_EQ(c->options.depth_uv(), 4);
@@ -414,4 +426,102 @@ TEST(BiasCorrection, EveryBadFieldOfItsFileIsNamed) {
 }
 
 }  // namespace
+
+// A unit's presses as the seed's protocol makes them: a 19 x 19 grid at 7.5 mm, each place a
+// ramp of `per_place` samples (depths 1-4 mm, in order), the estimates off by `bias` and noise.
+template <typename Bias>
+Samples make_grid(int per_place, uint64_t seed, double noise_mm, Bias bias) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0, noise_mm);
+  Samples s;
+  for (int i = 0; i < 19; ++i) {
+    for (int j = 0; j < 19; ++j) {
+      const double u = -67.5 + 7.5 * i, v = -67.5 + 7.5 * j;
+      for (int k = 0; k < per_place; ++k) {
+        const double d = 1.0 + 3.0 * k / (per_place - 1);
+        double b[3];
+        bias(u, v, d, b);
+        ContactEstimate e;
+        e.u_mm = u - b[0] + noise(rng);
+        e.v_mm = v - b[1] + noise(rng);
+        e.depth_mm = d - b[2] + 0.2 * noise(rng);
+        s.est.push_back(e);
+        s.u.push_back(u);
+        s.v.push_back(v);
+        s.d.push_back(d);
+      }
+    }
+  }
+  return s;
+}
+
+// The ratio of corrected to uncorrected XY error by depth bin (mean over the bins, as
+// CorrectionCheck::xy_ratio()) that presses `test` meet with correction `c`.
+double measured_ratio(const Samples& test, const BiasCorrection& c) {
+  double with[CorrectionCheck::kDepthBins] = {}, without[CorrectionCheck::kDepthBins] = {};
+  for (std::size_t i = 0; i < test.est.size(); ++i) {
+    if (test.d[i] < 1.0) continue;
+    const int bin = static_cast<int>(std::fmin(CorrectionCheck::kDepthBins - 1, test.d[i] - 1.0));
+    const ContactEstimate e = c.apply(test.est[i]);
+    without[bin] += std::hypot(test.est[i].u_mm - test.u[i], test.est[i].v_mm - test.v[i]);
+    with[bin] += std::hypot(e.u_mm - test.u[i], e.v_mm - test.v[i]);
+  }
+  double sum = 0;
+  for (int b = 0; b < CorrectionCheck::kDepthBins; ++b) sum += with[b] / without[b];
+  return sum / CorrectionCheck::kDepthBins;
+}
+
+// The check judges a correction as new presses between the grid places will meet it: nearer a
+// fitted place than a held-out place is (on a square grid, 0.38 of the way from the places to
+// one spacing off). Its figure for new presses is nearer what new presses measure than the
+// held-out places' alone, and its check at the places gives a correction no credit for noise.
+TEST(BiasCorrection, TheCheckJudgesAsNewPressesWillMeetIt) {
+  std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
+  // A position bias that turns over every 30 mm or so: a degree-12 correction follows it between
+  // places 7.5 mm apart, less well across a held-out place's 15 mm gap.
+  auto fine = [](double u, double v, double d, double* b) {
+    b[0] = 0.5 * std::sin(u / 5.0 + v / 9.0) * (0.6 + 0.1 * d);
+    b[1] = 0.4 * std::cos(v / 5.5 - u / 11.0);
+    b[2] = 0.03 * d * std::sin(u / 20.0);
+  };
+  const Samples grid = make_grid(24, kSeed, 0.4, fine);
+  BiasCorrectionOptions o;
+  o.degree_uv = 12;
+  o.half_u_mm = o.half_v_mm = 70;
+  Result<CorrectionCheck> c = BiasCorrection::cross_validate(grid.est, grid.u, grid.v, grid.d, o);
+  ASSERT_TRUE(c.ok()) << c.error().to_string();
+  std::printf("%s; share %.3f\n", c->held_out_text(12).c_str(), c->new_press_share);
+  EXPECT_NEAR(c->new_press_share, 0.3826, 0.02);
+  EXPECT_EQ(c->at_places.samples, 19 * 19 * 5);  // the second of every five samples of a place
+  // New presses anywhere between the places, the correction fitted on every grid press.
+  const Samples fresh = make_with(20000, kSeed + 7, 0.4, fine, 67.5, 1.0);
+  Result<BiasCorrection> all = BiasCorrection::fit(grid.est, grid.u, grid.v, grid.d, o);
+  ASSERT_TRUE(all.ok()) << all.error().to_string();
+  const double measured = measured_ratio(fresh, *all);
+  std::printf(
+      "new presses measure x %.3f; the check says x %.3f (held-out places alone x %.3f, "
+      "the places alone x %.3f)\n",
+      measured, c->xy_ratio(), c->held_out_xy_ratio(), c->at_places_xy_ratio());
+  EXPECT_LT(std::fabs(c->xy_ratio() - measured),
+            0.5 * std::fabs(c->held_out_xy_ratio() - measured));
+  EXPECT_LT(c->at_places_xy_ratio(), c->xy_ratio());
+  EXPECT_LT(c->xy_ratio(), c->held_out_xy_ratio());
+  // Noise alone: the places' check is fitted on other samples than it judges, so a degree-12
+  // correction wins nothing there (judged on its own samples, it would seem to).
+  const Samples noise = make_grid(
+      24, kSeed + 1, 0.4, [](double, double, double, double* b) { b[0] = b[1] = b[2] = 0; });
+  Result<CorrectionCheck> n =
+      BiasCorrection::cross_validate(noise.est, noise.u, noise.v, noise.d, o);
+  ASSERT_TRUE(n.ok()) << n.error().to_string();
+  Result<BiasCorrection> own = BiasCorrection::fit(noise.est, noise.u, noise.v, noise.d, o);
+  ASSERT_TRUE(own.ok()) << own.error().to_string();
+  const double on_own = measured_ratio(noise, *own);
+  std::printf("noise only: at the places x %.3f (on its own samples x %.3f), new presses x %.3f\n",
+              n->at_places_xy_ratio(), on_own, n->xy_ratio());
+  EXPECT_LT(on_own, 0.97);
+  EXPECT_GT(n->at_places_xy_ratio(), 1.0);
+  EXPECT_FALSE(n->helps_position());
+  EXPECT_FALSE(n->helps_depth());
+}
+
 }  // namespace skinbus::estimators

@@ -41,7 +41,14 @@ struct BiasCorrectionOptions {
   double half_u_mm = 70, half_v_mm = 70, max_depth_mm = 4.5;  // basis scaling
 };
 
-// A correction judged on presses it was not fitted on (BiasCorrection::cross_validate).
+// A correction judged on presses it was not fitted on (BiasCorrection::cross_validate), twice:
+// at press places left out of its fit (a held-out place sits one place spacing from the fitted
+// ones) and at the fitted places themselves (on samples left out of its fit). A new press falls
+// between the two: nearer a fitted place than a held-out one is, further than zero. How far
+// between is `new_press_share`, and the figures a choice goes by (xy_ratio(), depth_ratio())
+// are the two checks' ratios taken that far from the places' to the held-out one's: a check at
+// held-out places alone judges a flexible correction at a distance no new press has, and prefers
+// a stiffer one than the new presses do.
 struct CorrectionCheck {
   int samples = 0;                // held-out estimates judged (valid, truth >= min_depth_mm)
   double xy_mean_without_mm = 0;  // their mean XY error, uncorrected
@@ -55,19 +62,39 @@ struct CorrectionCheck {
   static constexpr int kDepthBins = 3;
   int bin_samples[kDepthBins] = {};
   double xy_bin_without_mm[kDepthBins] = {}, xy_bin_with_mm[kDepthBins] = {};
-  // The position's held-out error corrected over uncorrected, each depth bin with samples
-  // counting alike (as accuracy goals are per bin); 1 without samples.
+  // At the fitted places: a correction fitted on four in five samples of each place's presses,
+  // judged on the fifth (their noise is not in its fit; their place and nearby depths are).
+  // The same figures as above; no samples: the check at places was not made.
+  struct AtPlaces {
+    int samples = 0;
+    double depth_mean_without_mm = 0, depth_mean_with_mm = 0;
+    int bin_samples[kDepthBins] = {};
+    double xy_bin_without_mm[kDepthBins] = {}, xy_bin_with_mm[kDepthBins] = {};
+  } at_places;
+  // A new press's mean distance to the nearest press place, over a held-out place's mean
+  // distance to the nearest fitted one (new presses uniform over the places' extent): 0 judges
+  // by the places, 1 by the held-out places alone (about 0.38 on a square grid).
+  double new_press_share = 1;
+  // The position's error corrected over uncorrected as new presses will meet it: per depth bin,
+  // the ratio at the places plus new_press_share x (the ratio at held-out places - it), each bin
+  // with samples counting alike (as accuracy goals are per bin); 1 without samples.
   double xy_ratio() const;
-  // A part helps when it removes at least kMinGain of its held-out error (the position: by
-  // xy_ratio(); the depth: its mean): a smaller change is within what the check's own presses
-  // can tell, and a correction switched on for it would only carry its risk.
+  // The held-out places' ratio alone (new_press_share 1) and the places' alone (0).
+  double held_out_xy_ratio() const;
+  double at_places_xy_ratio() const;
+  // The depth's mean error corrected over uncorrected as new presses will meet it, likewise.
+  double depth_ratio() const;
+  // A part helps when it removes at least kMinGain of its error as new presses will meet it
+  // (xy_ratio(), depth_ratio()): a smaller change is within what the check's own presses can
+  // tell, and a correction switched on for it would only carry its risk.
   static constexpr double kMinGain = 0.01;
   bool helps_position() const { return samples > 0 && xy_ratio() < 1 - kMinGain; }
-  bool helps_depth() const {
-    return samples > 0 && depth_mean_with_mm < (1 - kMinGain) * depth_mean_without_mm;
-  }
+  bool helps_depth() const { return samples > 0 && depth_ratio() < 1 - kMinGain; }
   // This check, made at `degree`, as one line for a tool's log: "held out at degree D: XY W -> C
-  // mm (x R by depth bin), depth W -> C mm" (W without the correction, C with it, R xy_ratio()).
+  // mm (x R by depth bin; at the places x P; new presses x N), depth W -> C mm (new presses x
+  // Q)" (W without the correction, C with it, R held_out_xy_ratio(), P at_places_xy_ratio(), N
+  // xy_ratio(), Q depth_ratio(); "no place pressed twice" for P and N without a check at the
+  // places).
   std::string held_out_text(int degree) const;
 };
 
@@ -90,9 +117,13 @@ class BiasCorrection {
   // (i + 2 j) mod 5, so that no held-out press has a held-out neighbour; places on an edge are
   // held out like the others (they lie between fitted edge places), the corner places are always
   // fitted (the correction interpolates, it is not asked to extrapolate); each fold's
-  // estimates are corrected by a correction fitted on the others. Errors: as fit() for any fold;
-  // kDegenerate for fewer than 10 x kCheckFolds places; kInvalidArgument for lengths that
-  // differ. Cost: kCheckFolds fits and places^2 distances.
+  // estimates are corrected by a correction fitted on the others. Then once more at the places
+  // (CorrectionCheck::at_places): of each place's samples, in the order given, one in kCheckFolds
+  // judged (the second of each five) by a correction fitted on the others; and
+  // CorrectionCheck::new_press_share from the places' layout (new presses on a 64 x 64 lattice over
+  // their extent). Errors: as fit() for any fit; kDegenerate for fewer than 10 x kCheckFolds
+  // places; kInvalidArgument for lengths that differ. Cost: kCheckFolds + 1 fits, places^2 + 4096
+  // places distances.
   static constexpr int kCheckFolds = 5;
   static Result<CorrectionCheck> cross_validate(std::span<const ContactEstimate> estimates,
                                                 std::span<const double> true_u_mm,
@@ -102,16 +133,16 @@ class BiasCorrection {
 
   // The correction to use on this unit, chosen by held-out error: cross_validate() at each
   // degree in `degrees_uv` (the others as `base`); the position corrected at the degree where it
-  // helps most (the lowest CorrectionCheck::xy_ratio(), by depth bin), the depth at the degree
-  // where it helps most (the lowest held-out mean), each only if it helps at all
+  // helps new presses most (the lowest CorrectionCheck::xy_ratio(), by depth bin), the depth at
+  // the degree where it helps them most (the lowest depth_ratio()), each only if it helps at all
   // (CorrectionCheck::helps_position(), helps_depth()); neither: use no correction. The two are
   // fitted apart, so each one's held-out error at its degree is what it will have together.
   // Errors: as cross_validate(). Cost: that, per degree.
   struct Choice {
     BiasCorrectionOptions options;  // the degrees chosen (degree_uv: the position's, unless only
                                     // the depth is corrected) and what to correct
-    // The held-out check of the choice: the XY part at the position's degree, the depth part at
-    // the depth's.
+    // The check of the choice: the XY part at the position's degree, the depth part (held out
+    // and at the places) at the depth's.
     CorrectionCheck check;
     std::vector<std::pair<int, CorrectionCheck>> tried;  // every degree's check, in order
     bool any() const { return options.correct_position || options.correct_depth; }
