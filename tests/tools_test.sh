@@ -62,17 +62,10 @@ printf '0,0\n1,x\n' >"$work/badpoints.csv"
 [[ $rc != 0 ]] && grep -q "unknown --plan 'spiral'" "$work/e6.txt" && ok "unknown plan named" || bad "unknown plan"
 # Patch design files (docs/design_file.md): a patch other than the built-in one, and a bad file
 # named with its line.
-cat >"$work/design9.yaml" <<'YAML'
-format: skinbus-patch-design
-magnets:
-  grid: {u: 9, v: 9, pitch_mm: 15}
-  polarity: uniform
-  centre_height_mm: -1
-sensors:
-  depth_mm: 18
-YAML
+# The issue's 9 x 9 patch, as docs/benchmarks/ ships it.
+design9="$here/../docs/benchmarks/design_9x9_uniform.yaml"
 "$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 -o "$work/d_default.csv" 2>/dev/null
-"$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 --design "$work/design9.yaml" -o "$work/d_9x9.csv" 2>/dev/null; rc=$?
+"$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 --design "$design9" -o "$work/d_9x9.csv" 2>/dev/null; rc=$?
 [[ $rc == 0 && -s $work/d_9x9.csv ]] && ! cmp -s <(grep -v '^#' "$work/d_default.csv") <(grep -v '^#' "$work/d_9x9.csv") &&
   ok "skinbus-dataset --design simulates that design" || bad "skinbus-dataset --design (rc $rc)"
 "$bin/skinbus-dataset" --plan random-test --count 20 --seed 3 --design "$here/../sim/designs/nominal.yaml" -o "$work/d_nominal.csv" 2>/dev/null
@@ -86,7 +79,7 @@ printf 'format: skinbus-patch-design\nmagnets:\n  polarity: striped\n' >"$work/b
 "$bin/skinbus-dataset" --plan grid --design "$work/bad_design.yaml" -o "$work/x.csv" 2>"$work/e9.txt"; rc=$?
 [[ $rc == 2 ]] && grep -q "bad_design.yaml: magnets.polarity (line 3)" "$work/e9.txt" &&
   ok "skinbus-dataset: a bad design file named with its line" || { bad "bad design (rc $rc)"; cat "$work/e9.txt"; }
-"$bin/skinbus-bench" models --test "$work/d_9x9.csv" --design "$work/design9.yaml" --no-physics \
+"$bin/skinbus-bench" models --test "$work/d_9x9.csv" --design "$design9" --no-physics \
   --no-reduced --latency-samples 5 --model "$here/../estimators/models/nominal_seed_cnn" \
   >"$work/bench9.md" 2>/dev/null; rc=$?
 "$bin/skinbus-bench" models --test "$work/d_9x9.csv" --no-physics --no-reduced --latency-samples 5 \
@@ -95,7 +88,7 @@ printf 'format: skinbus-patch-design\nmagnets:\n  polarity: striped\n' >"$work/b
   ! cmp -s <(grep "^| CRLB" "$work/bench9.md") <(grep "^| CRLB" "$work/bench_default.md") &&
   ok "skinbus-bench models --design bounds that design" || bad "skinbus-bench models --design (rc $rc)"
 "$bin/skinbus-crlb" --depths 2 --step 20 >"$work/crlb_default.md" 2>/dev/null
-"$bin/skinbus-crlb" --depths 2 --step 20 --design "$work/design9.yaml" >"$work/crlb_9x9.md" 2>/dev/null; rc=$?
+"$bin/skinbus-crlb" --depths 2 --step 20 --design "$design9" >"$work/crlb_9x9.md" 2>/dev/null; rc=$?
 [[ $rc == 0 ]] && grep -q "^|" "$work/crlb_9x9.md" && ! cmp -s "$work/crlb_default.md" "$work/crlb_9x9.md" &&
   ok "skinbus-crlb --design bounds that design" || bad "skinbus-crlb --design (rc $rc)"
 "$bin/skinbus-dataset" --plan grid -o /nonexistent/dir/x.csv 2>"$work/e7.txt"; rc=$?
