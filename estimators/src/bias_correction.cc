@@ -247,7 +247,8 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
     }
   }
   // At the places: of each place's samples, in the order given, one in kCheckFolds judged (the
-  // second of each five), the others fitted: the fit has as many samples as a fold's.
+  // second of each five), the others fitted: on ramps, the fit has about as many samples as a
+  // fold's.
   std::vector<int> seen(places.size(), 0);
   std::vector<char> judged(n, 0);
   for (std::size_t i = 0; i < n; ++i) {
@@ -259,9 +260,11 @@ Result<CorrectionCheck> BiasCorrection::cross_validate(std::span<const ContactEs
   }
   CorrectionCheck::AtPlaces& p = out.at_places;
   if (std::find(judged.begin(), judged.end(), 1) != judged.end()) {  // a place pressed twice
+    // Too few samples left for the fit (places pressed only a few times each): no check at the
+    // places, the held-out one alone judges.
     Result<BiasCorrection> c = fit_on([&](std::size_t i) { return judged[i] == 0; });
-    if (!c.ok()) return c.error();
-    for (std::size_t i = 0; i < n; ++i) {
+    if (!c.ok() && c.error().code != ErrorCode::kDegenerate) return c.error();
+    for (std::size_t i = 0; c.ok() && i < n; ++i) {
       if (judged[i] == 0) continue;
       judge(c.value(), i, &p.samples, &p.depth_mean_without_mm, &p.depth_mean_with_mm,
             p.bin_samples, p.xy_bin_without_mm, p.xy_bin_with_mm, false);
@@ -369,7 +372,7 @@ double CorrectionCheck::depth_ratio() const {
 }
 
 std::string CorrectionCheck::held_out_text(int degree) const {
-  char places[96] = "no place pressed twice";
+  char places[96] = "no check at the places";
   if (at_places.samples > 0) {
     std::snprintf(places, sizeof places, "at the places x %.3f; new presses x %.3f",
                   at_places_xy_ratio(), xy_ratio());

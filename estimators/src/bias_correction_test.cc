@@ -339,7 +339,7 @@ TEST(BiasCorrection, EachPartIsCorrectedAtItsOwnDegree) {
   // Every press at a place of its own: no check at the places, the held-out one alone judges.
   EXPECT_EQ(low.at_places.samples, 0);
   EXPECT_EQ(high.xy_ratio(), high.held_out_xy_ratio());
-  EXPECT_NE(high.held_out_text(12).find("no place pressed twice"), std::string::npos);
+  EXPECT_NE(high.held_out_text(12).find("no check at the places"), std::string::npos);
   EXPECT_TRUE(c->options.correct_position && c->options.correct_depth);
   EXPECT_EQ(c->options.degree_uv, 12);
   EXPECT_EQ(c->options.depth_uv(), 4);
@@ -425,8 +425,6 @@ TEST(BiasCorrection, EveryBadFieldOfItsFileIsNamed) {
   EXPECT_NE(r.error().message.find("number overflow"), std::string::npos) << r.error().message;
 }
 
-}  // namespace
-
 // A unit's presses as the seed's protocol makes them: a 19 x 19 grid at 7.5 mm, each place a
 // ramp of `per_place` samples (depths 1-4 mm, in order), the estimates off by `bias` and noise.
 template <typename Bias>
@@ -504,8 +502,22 @@ TEST(BiasCorrection, TheCheckJudgesAsNewPressesWillMeetIt) {
       measured, c->xy_ratio(), c->held_out_xy_ratio(), c->at_places_xy_ratio());
   EXPECT_LT(std::fabs(c->xy_ratio() - measured),
             0.5 * std::fabs(c->held_out_xy_ratio() - measured));
-  EXPECT_LT(c->at_places_xy_ratio(), c->xy_ratio());
   EXPECT_LT(c->xy_ratio(), c->held_out_xy_ratio());
+  // choose() goes by the same figures and keeps the depth's check at its own degree, at the
+  // places too.
+  const int degrees[] = {4, 12};
+  Result<BiasCorrection::Choice> ch =
+      BiasCorrection::choose(grid.est, grid.u, grid.v, grid.d, o, degrees);
+  ASSERT_TRUE(ch.ok()) << ch.error().to_string();
+  ASSERT_EQ(ch->tried.size(), 2u);
+  const CorrectionCheck& at12 = ch->tried[1].second;
+  EXPECT_EQ(at12.xy_ratio(), c->xy_ratio());
+  EXPECT_LT(at12.xy_ratio(), ch->tried[0].second.xy_ratio());
+  EXPECT_EQ(ch->options.degree_uv, 12);
+  EXPECT_TRUE(ch->options.correct_position);
+  const CorrectionCheck& depth_at = ch->tried[ch->options.depth_uv() == 4 ? 0 : 1].second;
+  EXPECT_EQ(ch->check.depth_ratio(), depth_at.depth_ratio());
+  EXPECT_EQ(ch->check.at_places.depth_mean_with_mm, depth_at.at_places.depth_mean_with_mm);
   // Noise alone: the places' check is fitted on other samples than it judges, so a degree-12
   // correction wins nothing there (judged on its own samples, it would seem to).
   const Samples noise = make_grid(
@@ -524,4 +536,23 @@ TEST(BiasCorrection, TheCheckJudgesAsNewPressesWillMeetIt) {
   EXPECT_FALSE(n->helps_depth());
 }
 
+// Places pressed twice each: the fit at the places keeps half the samples, too few for the
+// basis where every fold's fit has enough; the held-out check then judges alone, it does not fail.
+TEST(BiasCorrection, TooFewSamplesAtThePlacesLeaveTheHeldOutCheckAlone) {
+  std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
+  const Samples twice = make_grid(2, kSeed, 0.2, bias_at);  // 722 samples, 361 per half
+  BiasCorrectionOptions o;
+  o.degree_uv = 4;  // 100 terms: a fit needs 400 samples
+  o.half_u_mm = o.half_v_mm = 70;
+  Result<CorrectionCheck> c =
+      BiasCorrection::cross_validate(twice.est, twice.u, twice.v, twice.d, o);
+  ASSERT_TRUE(c.ok()) << c.error().to_string();
+  std::printf("%s\n", c->held_out_text(4).c_str());
+  EXPECT_GT(c->samples, 0);
+  EXPECT_EQ(c->at_places.samples, 0);
+  EXPECT_EQ(c->xy_ratio(), c->held_out_xy_ratio());
+  EXPECT_NE(c->held_out_text(4).find("no check at the places"), std::string::npos);
+}
+
+}  // namespace
 }  // namespace skinbus::estimators

@@ -64,7 +64,10 @@ struct CorrectionCheck {
   double xy_bin_without_mm[kDepthBins] = {}, xy_bin_with_mm[kDepthBins] = {};
   // At the fitted places: a correction fitted on four in five samples of each place's presses,
   // judged on the fifth (their noise is not in its fit; their place and nearby depths are).
-  // The same figures as above; no samples: the check at places was not made.
+  // The same figures as above; no samples: the check at places was not made (no place pressed
+  // twice, or too few samples left to fit), and the held-out check alone judges. It assumes
+  // the noise of a place's samples independent: noise they share (a press's offset held
+  // along its ramp) stays in the fit through the neighbouring samples and earns credit here.
   struct AtPlaces {
     int samples = 0;
     double depth_mean_without_mm = 0, depth_mean_with_mm = 0;
@@ -79,7 +82,8 @@ struct CorrectionCheck {
   // the ratio at the places plus new_press_share x (the ratio at held-out places - it), each bin
   // with samples counting alike (as accuracy goals are per bin); 1 without samples.
   double xy_ratio() const;
-  // The held-out places' ratio alone (new_press_share 1) and the places' alone (0).
+  // The held-out places' ratio alone (new_press_share 1) and the places' alone (0; bins without
+  // samples at the places, or no check there: the held-out ratio).
   double held_out_xy_ratio() const;
   double at_places_xy_ratio() const;
   // The depth's mean error corrected over uncorrected as new presses will meet it, likewise.
@@ -93,7 +97,7 @@ struct CorrectionCheck {
   // This check, made at `degree`, as one line for a tool's log: "held out at degree D: XY W -> C
   // mm (x R by depth bin; at the places x P; new presses x N), depth W -> C mm (new presses x
   // Q)" (W without the correction, C with it, R held_out_xy_ratio(), P at_places_xy_ratio(), N
-  // xy_ratio(), Q depth_ratio(); "no place pressed twice" for P and N without a check at the
+  // xy_ratio(), Q depth_ratio(); "no check at the places" for P and N without a check at the
   // places).
   std::string held_out_text(int degree) const;
 };
@@ -119,11 +123,12 @@ class BiasCorrection {
   // fitted (the correction interpolates, it is not asked to extrapolate); each fold's
   // estimates are corrected by a correction fitted on the others. Then once more at the places
   // (CorrectionCheck::at_places): of each place's samples, in the order given, one in kCheckFolds
-  // judged (the second of each five) by a correction fitted on the others; and
+  // judged (the second of each five) by a correction fitted on the others (not made when no
+  // place is pressed twice or that fit is kDegenerate); and
   // CorrectionCheck::new_press_share from the places' layout (new presses on a 64 x 64 lattice over
   // their extent). Errors: as fit() for any fit; kDegenerate for fewer than 10 x kCheckFolds
-  // places; kInvalidArgument for lengths that differ. Cost: kCheckFolds + 1 fits, places^2 + 4096
-  // places distances.
+  // places; kInvalidArgument for lengths that differ. Cost: kCheckFolds + 1 fits, 2 places^2 +
+  // 4096 places distances.
   static constexpr int kCheckFolds = 5;
   static Result<CorrectionCheck> cross_validate(std::span<const ContactEstimate> estimates,
                                                 std::span<const double> true_u_mm,
@@ -131,7 +136,8 @@ class BiasCorrection {
                                                 std::span<const double> true_depth_mm,
                                                 const BiasCorrectionOptions& options = {});
 
-  // The correction to use on this unit, chosen by held-out error: cross_validate() at each
+  // The correction to use on this unit, chosen by its error as new presses will meet it
+  // (CorrectionCheck::xy_ratio(), depth_ratio()): cross_validate() at each
   // degree in `degrees_uv` (the others as `base`); the position corrected at the degree where it
   // helps new presses most (the lowest CorrectionCheck::xy_ratio(), by depth bin), the depth at
   // the degree where it helps them most (the lowest depth_ratio()), each only if it helps at all
