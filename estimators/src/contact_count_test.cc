@@ -31,7 +31,7 @@ TEST(ContactCount, TwoPressesThirtyMillimetresApartAreResolvedOnAFabricatedUnit)
   const PhysicsEstimator physics = PhysicsEstimator::create(unit).value();
   sim::Rng rng(test_seed("TwoPressesThirtyMillimetresApartAreResolvedOnAFabricatedUnit"));
   int resolved = 0, placed = 0;
-  const int n = 20;
+  const int n = 60;
   for (int i = 0; i < n; ++i) {
     const double mu = rng.uniform(-30, 30), mv = rng.uniform(-30, 30), a = rng.uniform(0, M_PI);
     const Contact presses[2] = {
@@ -51,9 +51,14 @@ TEST(ContactCount, TwoPressesThirtyMillimetresApartAreResolvedOnAFabricatedUnit)
   }
   std::printf("two presses 30 mm apart: %d of %d counted two, %d placed within 2 mm\n", resolved, n,
               placed);
-  // 97 % of such pairs pass the improvement the count asks (150 pairs measured): 17 of 20 here.
-  EXPECT_GE(resolved, n - 3);
-  EXPECT_GE(placed, resolved - 1);
+  // 96 % of such pairs are counted two (6000 pairs over 300 seeds). Of the 4 % missed, 70 % have
+  // one press within 8 mm of the patch's centre, where the pair explains the sample to the noise
+  // but improves the single fit's reduced chi-square by less than the 20x the count asks
+  // (ContactCountOptions::min_improvement; 8-21x there), the rest mostly pairs near the edge
+  // fitted as one. 85 % here, as at 17 of 20 before, over 60 pairs: at 20, three misses too many
+  // failed about one run in 200.
+  EXPECT_GE(resolved, n - 9);
+  EXPECT_GE(placed, resolved - 3);
 }
 
 TEST(ContactCount, OnePressIsNeverSplitOnUnitsWhosePhysicsIsOutsideTheModelClass) {
