@@ -154,15 +154,10 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "%s: %s\n", kTool, t.held_out_text(degree).c_str());
     }
     std::printf(
-        "Learned correction, judged on held-out presses (%d estimates >= %.1f mm deep), %s: XY "
-        "mean %.3f -> %.3f mm (explains %.0f %% of the squared error), depth mean %.3f -> %.3f "
-        "mm; as new presses will meet it, XY x %.3f by depth bin, depth x %.3f: %s the "
-        "position, %s the depth.\n",
+        "Learned correction, judged on held-out presses (%d estimates >= %.1f mm deep), "
+        "%s: %s.\n",
         c.samples, choice->options.min_depth_mm, choice->degree_text().c_str(),
-        c.xy_mean_without_mm, c.xy_mean_with_mm, 100 * c.explained, c.depth_mean_without_mm,
-        c.depth_mean_with_mm, c.xy_ratio(), c.depth_ratio(),
-        choice->options.correct_position ? "corrects" : "keeps",
-        choice->options.correct_depth ? "corrects" : "keeps");
+        choice->summary_text().c_str());
     if (choice->any()) {
       auto fitted = estimators::BiasCorrection::fit(ref, data->u_mm, data->v_mm, data->depth_mm,
                                                     choice->options);

@@ -314,21 +314,15 @@ Status bench_budget(const BudgetBenchArgs& a) {
             BiasCorrection::choose(est, tu, tv, td, bo, degrees);
         if (!choice.ok()) return with_context(choice.error(), "bias correction check");
         const BiasCorrectionOptions& chosen = choice->options;
-        const CorrectionCheck& check = choice->check;
         for (const auto& [degree, t] : choice->tried) {
           std::fprintf(stderr, "skinbus-bench:     %s\n", t.held_out_text(degree).c_str());
         }
         const bool gate = choice->any();
         std::fprintf(stderr,
                      "skinbus-bench:   correction on held-out presses (%d samples >= 1 mm), "
-                     "%s of 4, 8, 12: XY %.3f -> %.3f mm (explains %.0f %% of the squared "
-                     "error), depth %.3f -> %.3f mm; new presses: XY x %.3f, depth x %.3f: %s "
-                     "the position, %s the depth\n",
-                     check.samples, choice->degree_text().c_str(), check.xy_mean_without_mm,
-                     check.xy_mean_with_mm, 100 * check.explained, check.depth_mean_without_mm,
-                     check.depth_mean_with_mm, check.xy_ratio(), check.depth_ratio(),
-                     chosen.correct_position ? "corrects" : "keeps",
-                     chosen.correct_depth ? "corrects" : "keeps");
+                     "%s of 4, 8, 12: %s\n",
+                     choice->check.samples, choice->degree_text().c_str(),
+                     choice->summary_text().c_str());
         Result<BiasCorrection> chosen_bias = BiasCorrection::fit(est, tu, tv, td, chosen);
         if (!chosen_bias.ok()) return with_context(chosen_bias.error(), "bias correction");
         add_row(

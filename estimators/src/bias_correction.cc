@@ -441,6 +441,20 @@ std::string BiasCorrection::Choice::degree_text() const {
          " (depth)";
 }
 
+std::string BiasCorrection::Choice::summary_text() const {
+  const CorrectionCheck& c = check;
+  char buf[320];
+  std::snprintf(buf, sizeof buf,
+                "XY mean %.3f -> %.3f mm (explains %.0f %% of the squared error), depth mean %.3f "
+                "-> %.3f mm; as new presses will meet it, XY x %.3f by depth bin, depth x %.3f: %s "
+                "the position, %s the depth",
+                c.xy_mean_without_mm, c.xy_mean_with_mm, 100 * c.explained, c.depth_mean_without_mm,
+                c.depth_mean_with_mm, c.xy_ratio(), c.depth_ratio(),
+                options.correct_position ? "corrects" : "keeps",
+                options.correct_depth ? "corrects" : "keeps");
+  return buf;
+}
+
 ContactEstimate BiasCorrection::apply(const ContactEstimate& e) const {
   if (!e.valid() || !(e.depth_mm >= options_.min_depth_mm)) return e;
   double phi[kMaxTerms];

@@ -344,6 +344,9 @@ TEST(BiasCorrection, EachPartIsCorrectedAtItsOwnDegree) {
   EXPECT_EQ(c->options.degree_uv, 12);
   EXPECT_EQ(c->options.depth_uv(), 4);
   EXPECT_EQ(c->degree_text(), "degree 12 (position), 4 (depth)");
+  std::printf("%s\n", c->summary_text().c_str());
+  EXPECT_NE(c->summary_text().find(": corrects the position, corrects the depth"),
+            std::string::npos);
   EXPECT_EQ(c->check.xy_mean_with_mm, high.xy_mean_with_mm);
   EXPECT_EQ(c->check.depth_mean_with_mm, low.depth_mean_with_mm);
   // Fitted apart: each part is what its own degree alone gives, bit for bit.

@@ -154,6 +154,10 @@ class BiasCorrection {
     bool any() const { return options.correct_position || options.correct_depth; }
     // "degree D", or "degree P (position), D (depth)" when the depth has its own, for a log.
     std::string degree_text() const;
+    // The check and the choice, for a log: "XY mean W -> C mm (explains E % of the squared
+    // error), depth mean W -> C mm; as new presses will meet it, XY x R by depth bin, depth x Q:
+    // corrects|keeps the position, corrects|keeps the depth".
+    std::string summary_text() const;
   };
   static Result<Choice> choose(std::span<const ContactEstimate> estimates,
                                std::span<const double> true_u_mm, std::span<const double> true_v_mm,
