@@ -91,6 +91,16 @@ printf 'format: skinbus-patch-design\nmagnets:\n  polarity: striped\n' >"$work/b
 "$bin/skinbus-crlb" --depths 2 --step 20 --design "$design9" >"$work/crlb_9x9.md" 2>/dev/null; rc=$?
 [[ $rc == 0 ]] && grep -q "^|" "$work/crlb_9x9.md" && ! cmp -s "$work/crlb_default.md" "$work/crlb_9x9.md" &&
   ok "skinbus-crlb --design bounds that design" || bad "skinbus-crlb --design (rc $rc)"
+# The indenter: a design file's is the tools' default tip; a recording's protocol header says
+# how its presses were made, and identification takes that.
+{ cat "$design9"; printf 'indenter:\n  tip_radius_mm: 8\n'; } >"$work/design9_tip8.yaml"
+"$bin/skinbus-crlb" --depths 2 --step 20 --design "$work/design9_tip8.yaml" >"$work/crlb_tip8.md" 2>/dev/null
+"$bin/skinbus-crlb" --depths 2 --step 20 --design "$design9" --tip-radius 8 >"$work/crlb_9x9_tip8.md" 2>/dev/null
+cmp -s "$work/crlb_tip8.md" "$work/crlb_9x9_tip8.md" && ! cmp -s "$work/crlb_tip8.md" "$work/crlb_9x9.md" &&
+  ok "skinbus-crlb bounds with the design's indenter" || bad "skinbus-crlb and the design's indenter"
+"$bin/skinbus-dataset" --plan random-test --count 5 --design "$work/design9_tip8.yaml" -o "$work/tip8.csv" 2>/dev/null
+grep -q "^# protocol: random_static .* tip_radius_mm=8 " "$work/tip8.csv" &&
+  ok "skinbus-dataset presses with the design's indenter" || bad "skinbus-dataset and the design's indenter"
 "$bin/skinbus-dataset" --plan grid -o /nonexistent/dir/x.csv 2>"$work/e7.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "/nonexistent/dir/x.csv" "$work/e7.txt" && ok "unwritable dataset path named" || bad "unwritable dataset path"
 # Per-unit identification: a fabricated unit's presses -> a unit file -> data from that file
@@ -118,6 +128,17 @@ head -400 "$work/id/unit.csv" >"$work/id/few.csv"
 [[ $rc == 1 ]] && grep -q "degenerate" "$work/id/few.txt" && [[ ! -e $work/id/few.json ]] &&
   ok "too few presses: a clear error and no unit file" || { bad "identify with too few presses (rc $rc)"; cat "$work/id/few.txt"; }
 grep -q "noise units" <<<"$("$bin/skinbus-identify" --help)" && ok "skinbus-identify --help" || bad "skinbus-identify --help"
+# A unit pressed with a 2.5 mm tip: identification reads the tip from the recording and
+# explains the presses better than with the built-in design's 5 mm.
+"$bin/skinbus-dataset" --plan grid --grid 9 --pitch 15 --fabricated --uid 0x5B07 --tip-radius 2.5 \
+  -o "$work/id/tip.csv" 2>/dev/null
+"$bin/skinbus-identify" "$work/id/tip.csv" -o "$work/id/tip.json" >"$work/id/tip.txt" 2>"$work/id/tip.err"; rc=$?
+"$bin/skinbus-identify" "$work/id/tip.csv" -o "$work/id/tip5.json" --tip-radius 5 >"$work/id/tip5.txt" 2>/dev/null
+residual() { sed -n 's/^fit (.*): residual RMS \([0-9.]*\) .*/\1/p' "$1"; }
+[[ $rc == 0 ]] && grep -q "indenter tip radius 2.5 mm (the recording's protocol header)" "$work/id/tip.err" &&
+  awk -v a="$(residual "$work/id/tip.txt")" -v b="$(residual "$work/id/tip5.txt")" 'BEGIN { exit !(a > 0 && a < b) }' &&
+  ok "skinbus-identify takes the recording's tip ($(residual "$work/id/tip.txt") against $(residual "$work/id/tip5.txt") noise units with 5 mm)" ||
+  { bad "skinbus-identify and the recording's tip (rc $rc)"; cat "$work/id/tip.err" "$work/id/tip.txt" "$work/id/tip5.txt"; }
 # The shipped network alone and refined on the identified unit, on that unit's own presses.
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/unit.json" >"$work/id/eval.txt" 2>&1; rc=$?

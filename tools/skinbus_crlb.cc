@@ -209,9 +209,11 @@ int main(int argc, char** argv) {
   app.add_option("--noise-xy", noise_xy,
                  "noise RMS of x/y channels, uT (default: the sensor model's)");
   app.add_option("--noise-z", noise_z, "noise RMS of z channels, uT (default: the sensor model's)");
-  app.add_option("--tip-radius", tip_radius, "round indenter tip radius, mm (0: a point)")
-      ->capture_default_str()
-      ->check(CLI::Range(0.0, 50.0));
+  CLI::Option* tip_given =
+      app.add_option("--tip-radius", tip_radius,
+                     "round indenter tip radius, mm (0: a point; default: the design's indenter, "
+                     "5 mm on the built-in design)")
+          ->check(CLI::Range(0.0, skinbus::sim::kMaxIndenterTipRadiusMm));
   app.add_flag("--ambient", ambient,
                "also estimate a uniform ambient field (3 nuisance parameters)");
   app.add_option("--csv", csv, "write every map point (every pair with --pair) to this CSV file");
@@ -230,6 +232,7 @@ int main(int argc, char** argv) {
 
   const skinbus::Result<PatchDesign> design = read_design_or_builtin(design_path);
   if (!design.ok()) return skinbus::tools::fail("skinbus-crlb", design.error().to_string(), 2);
+  if (tip_given->count() == 0) tip_radius = design->indenter_tip_radius_mm;
   auto model = PatchModel::nominal(design.value());
   if (!model.ok()) {
     return skinbus::tools::fail("skinbus-crlb", model.error().message, 1);

@@ -78,6 +78,12 @@ int main(int argc, char** argv) {
                  "patch design file (docs/design_file.md; default: the built-in design, "
                  "sim/designs/nominal.yaml); --cylinder, --radius, --anisotropy change it")
       ->check(CLI::ExistingFile);
+  double tip_radius = 0;
+  CLI::Option* tip_given =
+      app.add_option("--tip-radius", tip_radius,
+                     "the indenter's round tip radius, mm (0: a point; default: the design's "
+                     "indenter, 5 mm on the built-in design); written to the protocol header")
+          ->check(CLI::Range(0.0, kMaxIndenterTipRadiusMm));
   app.add_flag("--cylinder", cylinder, "a cylinder-section patch (forearm) instead of a flat one");
   app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
   CLI::Option* anisotropy_given =
@@ -133,6 +139,7 @@ int main(int argc, char** argv) {
     pr.max_depth_mm = max_depth;
     pr.speed_mm_per_s = speed;
     pr.rate_hz = rate;
+    pr.tip_radius_mm = tip_given->count() > 0 ? tip_radius : design.indenter_tip_radius_mm;
     if (plan == "grid") {
       d = generate_ramp_dataset(patch, plan_grid(grid, pitch), pr);
     } else if (plan == "jittered") {
@@ -147,9 +154,11 @@ int main(int argc, char** argv) {
       if (!pts.ok()) throw std::runtime_error(pts.error().message);
       d = generate_ramp_dataset(patch, *pts, pr);
     } else if (plan == "random-test") {
-      d = generate_random_test_set(patch, count, half, max_depth, seed);
+      d = generate_random_test_set(patch, count, half, max_depth, seed, {}, pr.tare_samples,
+                                   pr.tip_radius_mm);
     } else if (plan == "grid-test") {
-      d = generate_static_test_set(patch, plan_grid(grid, pitch), count, max_depth, seed);
+      d = generate_static_test_set(patch, plan_grid(grid, pitch), count, max_depth, seed, {},
+                                   pr.tare_samples, pr.tip_radius_mm);
     } else {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
     }

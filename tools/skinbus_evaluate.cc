@@ -64,9 +64,11 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_option("--design", design_path, "the unit's design file (default: the built-in design)")
       ->check(CLI::ExistingFile);
-  app.add_option("--tip-radius", tip_radius_mm, "the indenter's round tip radius, mm")
-      ->capture_default_str()
-      ->check(CLI::Range(0.0, 50.0));
+  CLI::Option* tip_given =
+      app.add_option("--tip-radius", tip_radius_mm,
+                     "the indenter's round tip radius, mm (default: the recording's, its "
+                     "protocol header's tip_radius_mm=, else the design's indenter)")
+          ->check(CLI::Range(0.0, sim::kMaxIndenterTipRadiusMm));
   auto* apply_opt =
       app.add_option("--correction", correction_path,
                      "correct the refined estimates by this correction file (as the host does)")
@@ -90,6 +92,14 @@ int main(int argc, char** argv) {
   if (!params.ok()) return tools::report_error(kTool, params.error());
   auto unit = sim::PatchModel::from_parameters(*design, *params);
   if (!unit.ok()) return tools::fail(kTool, unit_path + ": " + unit.error().message, 1);
+  std::string tip_from = "--tip-radius";
+  if (tip_given->count() == 0) {
+    Result<double> tip = sim::presses_tip_radius_mm(*data, *design, &tip_from);
+    if (!tip.ok()) return tools::fail(kTool, test_path + ": " + tip.error().message, 1);
+    tip_radius_mm = *tip;
+  }
+  std::fprintf(stderr, "%s: indenter tip radius %g mm (%s)\n", kTool, tip_radius_mm,
+               tip_from.c_str());
   estimators::RefinerOptions ro;
   ro.physics.tip_radius_mm = tip_radius_mm;
   ro.correction = correction_path;

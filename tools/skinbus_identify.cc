@@ -72,8 +72,11 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_flag("--cylinder", cylinder, "the patch is wrapped on a cylinder (skin on a limb)");
   app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
-  app.add_option("--tip-radius", opt.tip_radius_mm, "the indenter's round tip radius, mm")
-      ->capture_default_str();
+  CLI::Option* tip_given =
+      app.add_option("--tip-radius", opt.tip_radius_mm,
+                     "the indenter's round tip radius, mm (default: the recording's, its "
+                     "protocol header's tip_radius_mm=, else the design's indenter)")
+          ->check(CLI::Range(0.0, sim::kMaxIndenterTipRadiusMm));
   app.add_option("--depths-per-press", opt.depths_per_press, "samples kept per press")
       ->capture_default_str()
       ->check(CLI::Range(1, 64));
@@ -105,6 +108,17 @@ int main(int argc, char** argv) {
   if (!presses.ok()) {
     return skinbus::tools::fail("skinbus-identify", presses.error().to_string(), kExitFailed);
   }
+  std::string tip_from = "--tip-radius";
+  if (tip_given->count() == 0) {
+    Result<double> tip = sim::presses_tip_radius_mm(*presses, design, &tip_from);
+    if (!tip.ok()) {
+      return skinbus::tools::fail("skinbus-identify", presses_path + ": " + tip.error().message,
+                                  kExitFailed);
+    }
+    opt.tip_radius_mm = *tip;
+  }
+  std::fprintf(stderr, "skinbus-identify: indenter tip radius %g mm (%s)\n", opt.tip_radius_mm,
+               tip_from.c_str());
   std::optional<sim::Dataset> held_out;
   if (!held_out_path.empty()) {
     Result<sim::Dataset> h = sim::read_dataset_csv(held_out_path);

@@ -156,7 +156,9 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& 
                           (design_path.empty() ? std::string("(built-in)") : design_path) + ": " +
                           model.error().message);
   }
-  return make_physics_refiner(*model, options);
+  RefinerOptions with_tip = options;
+  with_tip.physics.tip_radius_mm = design->indenter_tip_radius_mm;
+  return make_physics_refiner(*model, with_tip);
 }
 
 }  // namespace skinbus::estimators

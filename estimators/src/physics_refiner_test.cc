@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include "skinbus/sim/crlb.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/unit_parameters.h"
 
@@ -20,6 +21,17 @@ namespace skinbus::estimators {
 namespace {
 
 using sim::Contact;
+
+// The unit's field of one contact with the design's sensor noise.
+std::vector<double> noisy_field(const sim::PatchModel& unit, const Contact& c,
+                                const ChannelNoise& noise, sim::Rng& rng) {
+  std::vector<double> f(static_cast<std::size_t>(unit.channel_count()));
+  unit.contact_field_ut(std::span<const Contact>(&c, 1), f);
+  for (std::size_t k = 0; k < f.size(); ++k) {
+    f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
+  }
+  return f;
+}
 
 TEST(PhysicsRefinerTest, RefinesARoughStartWithAnHonestUncertainty) {
   const uint64_t seed = 20261124;
@@ -36,11 +48,7 @@ TEST(PhysicsRefinerTest, RefinesARoughStartWithAnHonestUncertainty) {
   int n = 0;
   for (int i = 0; i < 80; ++i) {
     const Contact c{rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(1.0, 4.0), 5};
-    std::vector<double> f(static_cast<std::size_t>(unit.channel_count()));
-    unit.contact_field_ut(std::span<const Contact>(&c, 1), f);
-    for (std::size_t k = 0; k < f.size(); ++k) {
-      f[k] += noise.sigma(static_cast<int>(k)) * rng.normal();
-    }
+    const std::vector<double> f = noisy_field(unit, c, noise, rng);
     // A network's answer: off by a couple of millimetres and a few tenths in depth.
     ContactEstimate start;
     start.u_mm = c.u_mm + rng.uniform(-3, 3);
@@ -83,6 +91,52 @@ TEST(PhysicsRefinerTest, LoadsAUnitFileAndNamesWhatItCannotRead) {
   auto missing = make_physics_refiner(path, "");
   ASSERT_FALSE(missing.ok());
   EXPECT_NE(missing.error().message.find(path), std::string::npos);
+}
+
+// The host refines with the indenter of the design a skin-map entry names: presses made with a
+// 10 mm tip are refined to their depth with a design that says so, and read too shallow or deep
+// with the built-in design's 5 mm.
+TEST(PhysicsRefinerTest, RefinesWithTheDesignsIndenter) {
+  const uint64_t seed = 20261126;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  sim::PatchDesign design;
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(design, 0x5B00000000000005ull, sim::FabricationVariation{})
+          .value();
+  const std::string stem = (std::filesystem::temp_directory_path() /
+                            ("skinbus_refiner_tip_" + std::to_string(::getpid())))
+                               .string();
+  ASSERT_TRUE(sim::write_unit_parameters(unit.parameters(), stem + ".json").ok());
+  design.indenter_tip_radius_mm = 10;
+  ASSERT_TRUE(sim::write_design_file(design, stem + ".yaml").ok());
+  auto with_tip = make_physics_refiner(stem + ".json", stem + ".yaml");
+  auto builtin = make_physics_refiner(stem + ".json", "");
+  std::filesystem::remove(stem + ".json");
+  std::filesystem::remove(stem + ".yaml");
+  ASSERT_TRUE(with_tip.ok()) << with_tip.error().message;
+  ASSERT_TRUE(builtin.ok()) << builtin.error().message;
+  const ChannelNoise noise = ChannelNoise::of(design);
+  sim::Rng rng(seed);
+  double err_tip = 0, err_builtin = 0;
+  constexpr int kPresses = 40;
+  for (int i = 0; i < kPresses; ++i) {
+    const Contact c{rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(1.5, 4.0), 10};
+    const std::vector<double> f = noisy_field(unit, c, noise, rng);
+    ContactEstimate start;
+    start.u_mm = c.u_mm;
+    start.v_mm = c.v_mm;
+    start.depth_mm = c.depth_mm;
+    const RefinedEstimate a = (*with_tip)->refine(f, {}, start);
+    const RefinedEstimate b = (*builtin)->refine(f, {}, start);
+    ASSERT_TRUE(a.contact.valid());
+    ASSERT_TRUE(b.contact.valid());
+    err_tip += std::fabs(a.contact.depth_mm - c.depth_mm) / kPresses;
+    err_builtin += std::fabs(b.contact.depth_mm - c.depth_mm) / kPresses;
+  }
+  std::printf(
+      "depth mean error, 10 mm tip: %.4f mm with the design's indenter, %.4f mm with 5 mm\n",
+      err_tip, err_builtin);
+  EXPECT_LT(err_tip, 0.5 * err_builtin);
 }
 
 }  // namespace

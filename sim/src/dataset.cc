@@ -4,6 +4,7 @@
 #include "skinbus/common/line_reader.h"
 #include "skinbus/common/text_file.h"
 
+#include <algorithm>
 #include <cerrno>
 #include <charconv>
 #include <cmath>
@@ -12,6 +13,7 @@
 #include <fstream>
 #include <optional>
 #include <sstream>
+#include <string_view>
 
 namespace skinbus::sim {
 
@@ -564,6 +566,40 @@ uint64_t dataset_fingerprint(const Dataset& d) {
   }
   for (double x : d.field_ut) mix(x);
   return h;
+}
+
+Result<std::optional<double>> recorded_tip_radius_mm(const Dataset& d) {
+  const auto it = d.meta.find("protocol");
+  if (it == d.meta.end()) return std::optional<double>{};
+  // Space-separated key=value fields; the key starts the line or follows a space.
+  const std::string& line = it->second;
+  constexpr std::string_view kKey = "tip_radius_mm=";
+  std::size_t at = 0;
+  while ((at = line.find(kKey, at)) != std::string::npos && at > 0 && line[at - 1] != ' ') {
+    at += kKey.size();
+  }
+  if (at == std::string::npos) return std::optional<double>{};
+  const std::size_t begin = at + kKey.size();
+  const std::size_t end = std::min(line.find(' ', begin), line.size());
+  const std::string text = line.substr(begin, end - begin);
+  double tip = std::nan("");
+  const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), tip);
+  if (ec != std::errc() || ptr != text.data() + text.size() || !std::isfinite(tip) || tip < 0 ||
+      tip > kMaxIndenterTipRadiusMm) {
+    return make_error(ErrorCode::kParse, "protocol header: tip_radius_mm='" + text +
+                                             "' is not a tip radius (0 to 50 mm)");
+  }
+  return std::optional<double>{tip};
+}
+
+Result<double> presses_tip_radius_mm(const Dataset& d, const PatchDesign& design,
+                                     std::string* from) {
+  Result<std::optional<double>> recorded = recorded_tip_radius_mm(d);
+  if (!recorded.ok()) return recorded.error();
+  if (from != nullptr) {
+    *from = recorded->has_value() ? "the recording's protocol header" : "the design's indenter";
+  }
+  return recorded->value_or(design.indenter_tip_radius_mm);
 }
 
 }  // namespace skinbus::sim

@@ -107,6 +107,50 @@ TEST(DatasetTest, RampDatasetKeepsContactSamplesOnly) {
   EXPECT_EQ(dataset_fingerprint(d), dataset_fingerprint(e));
 }
 
+// The tip a recording's presses were made with: its protocol header's, written by every
+// generator and read back through the CSV, else the design's indenter; a bad value is an error.
+TEST(DatasetTest, TheRecordingsTipIsReadFromItsProtocolHeader) {
+  SimulatedPatch p = make_patch();
+  RampProtocol pr;
+  pr.tip_radius_mm = 3.25;
+  const Dataset ramps = generate_ramp_dataset(p, plan_grid(2, 30), pr);
+  const Dataset statics = generate_random_test_set(p, 4, 30, 3, 7, {}, 32, 0);
+  const std::string path = temp_path("tip_header.csv");
+  ASSERT_TRUE(write_dataset_csv(ramps, path).ok());
+  Result<Dataset> back = read_dataset_csv(path);
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  std::remove(path.c_str());
+  PatchDesign design;
+  design.indenter_tip_radius_mm = 8;
+  std::string from;
+  Result<double> tip = presses_tip_radius_mm(*back, design, &from);
+  ASSERT_TRUE(tip.ok()) << tip.error().to_string();
+  EXPECT_EQ(*tip, 3.25);
+  EXPECT_EQ(from, "the recording's protocol header");
+  tip = presses_tip_radius_mm(statics, design, &from);
+  ASSERT_TRUE(tip.ok());
+  EXPECT_EQ(*tip, 0.0);  // a point tip, said so
+  // A lab recording that does not say: the design's indenter.
+  Dataset lab = ramps;
+  lab.meta.erase("protocol");
+  tip = presses_tip_radius_mm(lab, design, &from);
+  ASSERT_TRUE(tip.ok());
+  EXPECT_EQ(*tip, 8.0);
+  EXPECT_EQ(from, "the design's indenter");
+  lab.meta["protocol"] = "ramp by hand, max_tip_radius_mm=9";  // another key holds the name
+  EXPECT_EQ(*presses_tip_radius_mm(lab, design), 8.0);
+  for (const char* bad : {"ramp tip_radius_mm=", "ramp tip_radius_mm=5mm presses=3",
+                          "ramp tip_radius_mm=-1", "ramp tip_radius_mm=nan", "tip_radius_mm=51"}) {
+    lab.meta["protocol"] = bad;
+    Result<double> r = presses_tip_radius_mm(lab, design);
+    ASSERT_FALSE(r.ok()) << bad;
+    EXPECT_NE(r.error().message.find("protocol header: tip_radius_mm="), std::string::npos)
+        << r.error().message;
+  }
+  lab.meta["protocol"] = "tip_radius_mm=2.5";  // the key may start the line
+  EXPECT_EQ(*presses_tip_radius_mm(lab, design), 2.5);
+}
+
 // Creep (PatchDesign::creep_fraction): the plate lags the press, so a ramp bends it less than
 // the press is deep while loading and more while unloading: the same rows as without creep, the
 // same recorded depths, a weaker field going down and a stronger one coming up (once the lag has

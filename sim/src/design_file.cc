@@ -48,7 +48,9 @@ void read_list(YamlReader& r, const YAML::Node& list, const std::string& path, s
 Result<PatchDesign> parse_root(const YAML::Node& root) {
   YamlReader r;
   PatchDesign d;
-  r.only(root, "", {"format", "version", "surface", "magnets", "sensors", "lattice", "force_law"});
+  r.only(
+      root, "",
+      {"format", "version", "surface", "magnets", "sensors", "lattice", "force_law", "indenter"});
   std::string format;
   r.get_string(root, "format", "", &format);
   if (!r.error && format != kFormat) {
@@ -160,6 +162,11 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
     r.get_double(f, "stiffness_n_per_mm", "force_law.", 1e-6, 1e6, &d.stiffness_n_per_mm);
     r.get_double(f, "stiffening_n_per_mm3", "force_law.", 0, 1e6, &d.stiffening_n_per_mm3);
   }
+  if (const YAML::Node t = root["indenter"]; t && !r.error) {
+    r.only(t, "indenter", {"tip_radius_mm"});
+    r.get_double(t, "tip_radius_mm", "indenter.", 0, kMaxIndenterTipRadiusMm,
+                 &d.indenter_tip_radius_mm);
+  }
   if (r.error) return *r.error;
   // Consistency across settings (no one line to name): validate()'s message names them.
   if (Status s = validate(d); !s.ok()) return s.error();
@@ -258,7 +265,9 @@ std::string design_to_yaml(const PatchDesign& d) {
     << "   # ... decaying as exp(-r / this) around the contact\n"
     << "force_law:   # F = k d + k3 d^3\n"
     << "  stiffness_n_per_mm: " << yaml_number(d.stiffness_n_per_mm) << "\n"
-    << "  stiffening_n_per_mm3: " << yaml_number(d.stiffening_n_per_mm3) << "\n";
+    << "  stiffening_n_per_mm3: " << yaml_number(d.stiffening_n_per_mm3) << "\n"
+    << "indenter:   # the lab probe's round tip, and the tip the host's refinement assumes\n"
+    << "  tip_radius_mm: " << yaml_number(d.indenter_tip_radius_mm) << "   # 0: a point\n";
   return o.str();
 }
 

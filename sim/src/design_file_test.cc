@@ -74,6 +74,7 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     d.stiffness_n_per_mm = 0.5 + 3 * u01(rng);
     d.shear_stiffness_n_per_mm = 0.3 + 3 * u01(rng);
     d.shear_spread_mm = 2 + 12 * u01(rng);
+    d.indenter_tip_radius_mm = u01(rng) < 0.2 ? 0.0 : 15 * u01(rng);
     d.sensor_config.gain_sel = static_cast<uint8_t>(rng() % 8);
     d.sensor_config.osr = static_cast<uint8_t>(rng() % 4);
     d.sensor_config.temperature = rng() % 2 == 1;
@@ -88,6 +89,7 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     EXPECT_EQ(back->inplane_drag, d.inplane_drag) << "seed " << seed;
     EXPECT_EQ(back->creep_fraction, d.creep_fraction) << "seed " << seed;
     EXPECT_EQ(back->creep_time_s, d.creep_time_s) << "seed " << seed;
+    EXPECT_EQ(back->indenter_tip_radius_mm, d.indenter_tip_radius_mm) << "seed " << seed;
   }
 }
 
@@ -199,6 +201,8 @@ TEST(DesignFile, EveryBadSettingIsNamedWithItsLine) {
       {head + "lattice:\n  creep_fraction: 1\n", "lattice.creep_fraction (line 4)"},
       {head + "lattice:\n  creep_time_s: 0\n", "lattice.creep_time_s (line 4)"},
       {head + "force_law:\n  stiffness_n_per_mm: nan\n", "force_law.stiffness_n_per_mm (line 4)"},
+      {head + "indenter:\n  tip_radius_mm: 60\n", "indenter.tip_radius_mm (line 4): 60 is outside"},
+      {head + "indenter:\n  radius_mm: 4\n", "indenter.radius_mm (line 4): unknown setting"},
       {head + "sensors:\n  grid: {u: 8, v: 8, pitch_mm: 30}\n",
        "patch design: the sensor grid does not fit inside the patch"},
       {head + "sensors:\n  depth_mm: 10\n", "patch design: sensor_depth_mm must be >= thickness"},

@@ -71,6 +71,10 @@ Status validate(const PatchDesign& d) {
     return bad("stiffness_n_per_mm must be > 0");
   if (!positive(d.shear_stiffness_n_per_mm)) return bad("shear_stiffness_n_per_mm must be > 0");
   if (!positive(d.shear_spread_mm)) return bad("shear_spread_mm must be > 0");
+  if (!std::isfinite(d.indenter_tip_radius_mm) || d.indenter_tip_radius_mm < 0 ||
+      d.indenter_tip_radius_mm > kMaxIndenterTipRadiusMm) {
+    return bad("indenter_tip_radius_mm must be in [0, 50]");
+  }
   if (d.sensor_list.empty() && ((d.sensors_u - 1) * d.sensor_pitch_mm > d.size_u_mm ||
                                 (d.sensors_v - 1) * d.sensor_pitch_mm > d.size_v_mm)) {
     return bad("the sensor grid does not fit inside the patch");

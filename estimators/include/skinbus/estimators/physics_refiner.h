@@ -39,6 +39,9 @@ namespace skinbus::estimators {
 // basis evaluation a sample); its uncertainty and reduced chi-square stay the fit's. Two or three
 // contacts are not corrected (the correction was learned from single presses). Errors name the
 // file.
+//
+// The indenter the fits assume: the design file's (indenter.tip_radius_mm, the tip the unit was
+// calibrated with); `options.physics.tip_radius_mm` is replaced by it.
 struct RefinerOptions {
   PhysicsOptions physics;
   int max_contacts = 1;  // 1 to kMaxContacts

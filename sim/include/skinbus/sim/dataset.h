@@ -10,6 +10,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -101,5 +102,17 @@ Result<Dataset> read_dataset_csv(const std::string& path);
 
 // A fingerprint of the rows (FNV-1a over the numbers), for model metadata.
 uint64_t dataset_fingerprint(const Dataset& d);
+
+// The indenter tip a recording says its presses were made with: the `tip_radius_mm=` field of its
+// `protocol:` header (every generator above writes it; a lab's recording may). nullopt when the
+// header does not say; kParse naming the header when the value is not a number in
+// [0, kMaxIndenterTipRadiusMm] mm.
+Result<std::optional<double>> recorded_tip_radius_mm(const Dataset& d);
+
+// The tip the presses of `d` were made with: the recording's (above) when it says, else the
+// design's indenter (PatchDesign::indenter_tip_radius_mm). `from`, when not null, receives where
+// it came from ("the recording's protocol header" or "the design's indenter") for a tool's log.
+Result<double> presses_tip_radius_mm(const Dataset& d, const PatchDesign& design,
+                                     std::string* from = nullptr);
 
 }  // namespace skinbus::sim

@@ -8,6 +8,7 @@
 //   sensors:   {grid: {u: 4, v: 4, pitch_mm: 30}, depth_mm: 17, chip: {gain_sel: 7, ...}}
 //   lattice:   {spread_mm: 10, lateral_mm: 2, anisotropy: 0}
 //   force_law: {stiffness_n_per_mm: 2, stiffening_n_per_mm3: 0.05}
+//   indenter:  {tip_radius_mm: 5}   (the lab probe's tip, and the tip the host refines with)
 //
 // Every setting is optional and defaults to the built-in design's (PatchDesign{}); the built-in
 // design ships as sim/designs/nominal.yaml. Unknown settings, settings given twice, values that

@@ -38,6 +38,8 @@ namespace skinbus::sim {
 
 enum class SurfaceKind : uint8_t { kFlat, kCylinder };
 inline constexpr int kMaxSensors = 256;
+// The largest indenter tip radius a design or a tool takes (mm): a palm, not a fingertip.
+inline constexpr double kMaxIndenterTipRadiusMm = 50.0;
 // A tip's contact radius counts up to 2 spread lengths (beyond, a press is no longer local).
 inline constexpr double kMaxTipContact2 = 4.0;
 enum class Polarity : uint8_t { kUniform, kCheckerboard };
@@ -109,6 +111,12 @@ struct PatchDesign {
   double stiffening_n_per_mm3 = 0.05;
   // Temperature: magnet remanence coefficient (NdFeB), per degC.
   double remanence_tempco_per_c = -0.0012;
+  // The indenter: the round tip's radius (mm; 0: a point) of the probe the unit's lab presses
+  // are made with, and the tip the host's refinement assumes (a fingertip is about 8 mm). The
+  // tools use it where a recording does not say (its `protocol:` header's tip_radius_mm=,
+  // sim::recorded_tip_radius_mm) and no --tip-radius is given. Not the patch's physics: the
+  // model takes each contact's own tip (Contact::tip_radius_mm).
+  double indenter_tip_radius_mm = 5.0;
 
   int magnet_count() const {
     return magnet_list.empty() ? magnets_u * magnets_v : static_cast<int>(magnet_list.size());
