@@ -17,7 +17,9 @@
 #   network.safetensors  the unit's network (skinbus-train: fine-tuned from --base, the shipped
 #   network.json           model by default ('none': trained from scratch), on --synthetic (2000)
 #                          simulated presses of the identified unit, each a ramp sampled at 8 Hz;
-#                          about 15 s an epoch on two cores, --epochs (30) at most)
+#                          about 15 s an epoch on two cores, --epochs (30) at most; from
+#                          scratch when the patch has another sensor count than the shipped
+#                          model's 16, and an MLP when its sensors form no grid)
 #   train.log            its training
 #   correction.json      the unit's learned correction of the refined estimate (skinbus-evaluate
 #                        --fit-correction on PRESSES.csv), written only if it lowers the error on
@@ -36,7 +38,7 @@ usage() {
   sed -n '6,8p' "$0" | sed 's/^# //' >&2
   exit 2
 }
-presses="" out="" held="" design="" node=1 uid="" link="LINK" epochs=30 synthetic=2000
+presses="" out="" held="" design="" node=1 uid="" link="LINK" epochs=30 synthetic=2000 base_given=0
 base=$root/estimators/models/nominal_seed_cnn
 while (($#)); do
   case $1 in
@@ -48,8 +50,8 @@ while (($#)); do
     --link) link=${2:?}; shift 2 ;;
     --epochs) epochs=${2:?}; shift 2 ;;
     --synthetic) synthetic=${2:?}; shift 2 ;;
-    --base) base=${2:?}; shift 2 ;;
-    -h | --help) sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --base) base=${2:?}; base_given=1; shift 2 ;;
+    -h | --help) sed -n '2,33p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -82,13 +84,34 @@ step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8
   "${design_opt[@]}" -o "$out/synthetic_test.csv" >>"$out/dataset.log" 2>&1 ||
   failed "the synthetic test presses" "$out/dataset.log"
 
-step 3 "training the unit's network ($epochs epochs at most, from $(basename "$base"))"
+# The shipped network reads the built-in design's 16 sensors: a patch with another count trains
+# from scratch (a --base given by hand is used as given, and skinbus-train names a mismatch).
+if [[ $base_given == 0 ]]; then
+  base_sensors=$(python3 -c 'import json, sys; print(len(json.load(open(sys.argv[1] + ".json"))["sensors_uvh_mm"]))' "$base")
+  unit_sensors=$(sed -n 's/^# sensors: \([0-9]*\).*/\1/p' "$out/synthetic.csv" | head -1)
+  if [[ $base_sensors != "$unit_sensors" ]]; then
+    echo "calibrate_unit: the shipped network reads $base_sensors sensors, this patch has" \
+      "${unit_sensors:-?}: training from scratch (--base none)" >&2
+    base=none
+  fi
+fi
+from="from $(basename "$base")"
+[[ $base == none ]] && from="from scratch"
+step 3 "training the unit's network ($epochs epochs at most, $from)"
 test_set=${held:-$out/synthetic_test.csv}
 base_opt=()
 # Fine-tuning starts from a trained network: a smaller step than training from scratch.
 [[ -n $base && $base != none ]] && base_opt=(--base "$base" --lr 3e-4)
-"$bin/skinbus-train" "$out/synthetic.csv" -o "$out/network" --test "$test_set" \
-  --epochs "$epochs" "${base_opt[@]}" >"$out/train.log" 2>&1 || failed "training" "$out/train.log"
+train() {
+  "$bin/skinbus-train" "$out/synthetic.csv" -o "$out/network" --test "$test_set" \
+    --epochs "$epochs" "$@" >"$out/train.log" 2>&1
+}
+if ! train "${base_opt[@]}"; then
+  # The seed CNN places each sensor in a grid cell; sensors that form no grid need the MLP.
+  grep -q "use an MLP" "$out/train.log" || failed "training" "$out/train.log"
+  echo "calibrate_unit: the sensors do not form a grid: training an MLP instead (--arch mlp)" >&2
+  train --arch mlp || failed "training" "$out/train.log"
+fi
 tail -1 "$out/train.log" >&2
 
 step 4 "learning what the unit's model misses from its presses (kept if it helps held-out ones)"

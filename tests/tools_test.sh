@@ -128,6 +128,13 @@ head -400 "$work/id/unit.csv" >"$work/id/few.csv"
 [[ $rc == 1 ]] && grep -q "degenerate" "$work/id/few.txt" && [[ ! -e $work/id/few.json ]] &&
   ok "too few presses: a clear error and no unit file" || { bad "identify with too few presses (rc $rc)"; cat "$work/id/few.txt"; }
 grep -q "noise units" <<<"$("$bin/skinbus-identify" --help)" && ok "skinbus-identify --help" || bad "skinbus-identify --help"
+# A recording that lists its sensors in another order than the design: refused, the sensor named.
+sed -e 's/^# sensor 1: /# sensor X: /' -e 's/^# sensor 4: /# sensor 1: /' -e 's/^# sensor X: /# sensor 4: /' \
+  "$work/id/unit.csv" >"$work/id/swapped.csv"
+"$bin/skinbus-identify" "$work/id/swapped.csv" -o "$work/id/swapped.json" >/dev/null 2>"$work/id/swapped.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "swapped.csv: sensor 1 is at .* in another order than the design file" "$work/id/swapped.txt" &&
+  [[ ! -e $work/id/swapped.json ]] && ok "a recording's sensor order that is not the design's: refused, named" ||
+  { bad "identify with a reordered layout (rc $rc)"; cat "$work/id/swapped.txt"; }
 # A unit pressed with a 2.5 mm tip: identification reads the tip from the recording and
 # explains the presses better than with the built-in design's 5 mm.
 "$bin/skinbus-dataset" --plan grid --grid 9 --pitch 15 --fabricated --uid 0x5B07 --tip-radius 2.5 \

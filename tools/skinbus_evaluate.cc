@@ -92,6 +92,9 @@ int main(int argc, char** argv) {
   if (!params.ok()) return tools::report_error(kTool, params.error());
   auto unit = sim::PatchModel::from_parameters(*design, *params);
   if (!unit.ok()) return tools::fail(kTool, unit_path + ": " + unit.error().message, 1);
+  if (Status s = sim::check_sensor_layout(*data, *unit); !s.ok()) {
+    return tools::fail(kTool, test_path + ": " + s.error().message, 2);
+  }
   std::string tip_from = "--tip-radius";
   if (tip_given->count() == 0) {
     Result<double> tip = sim::presses_tip_radius_mm(*data, *design, &tip_from);

@@ -127,6 +127,17 @@ int main(int argc, char** argv) {
     }
     held_out = std::move(h).value();
   }
+  // A recording of another layout or order than the design's fits nothing: say so first.
+  if (Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design); nominal.ok()) {
+    for (const auto& [path, data] : {std::pair{&presses_path, &*presses},
+                                     std::pair{&held_out_path, held_out ? &*held_out : nullptr}}) {
+      if (data == nullptr) continue;
+      if (Status s = sim::check_sensor_layout(*data, *nominal); !s.ok()) {
+        return skinbus::tools::fail("skinbus-identify", *path + ": " + s.error().message,
+                                    kExitUsage);
+      }
+    }
+  }
   std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (tens of seconds) ...\n",
                presses->rows(), presses_path.c_str());
   const auto t0 = std::chrono::steady_clock::now();

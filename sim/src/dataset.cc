@@ -119,6 +119,7 @@ void fill_layout(const SimulatedPatch& patch, Dataset* d) {
   const PatchModel& m = patch.model();
   d->sensors.clear();
   for (const auto& s : m.sensors()) d->sensors.push_back({s.u, s.v, s.h});
+  d->sensor_layout_known = true;
   const PatchDesign& des = m.design();
   d->meta["format"] = "skinbus-dataset 1";
   d->meta["source"] = "sim";
@@ -504,6 +505,7 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
   }
   if (!layout.empty() && static_cast<int>(layout.size()) != nsens)
     return err("sensor layout lines missing for some sensors");
+  d.sensor_layout_known = !layout.empty();
 
   // Rows.
   std::vector<double> row_field(3 * nsens);
@@ -566,6 +568,29 @@ uint64_t dataset_fingerprint(const Dataset& d) {
   }
   for (double x : d.field_ut) mix(x);
   return h;
+}
+
+Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tolerance_mm) {
+  if (!d.sensor_layout_known) return Status::Ok();
+  const auto& sensors = model.sensors();
+  if (d.sensors.size() != sensors.size()) {
+    return make_error(ErrorCode::kInvalidArgument, std::to_string(d.sensors.size()) +
+                                                       " sensors, the design has " +
+                                                       std::to_string(sensors.size()));
+  }
+  for (std::size_t i = 0; i < sensors.size(); ++i) {
+    const DatasetSensor& r = d.sensors[i];
+    if (std::hypot(r.u_mm - sensors[i].u, r.v_mm - sensors[i].v) > tolerance_mm) {
+      char text[256];
+      std::snprintf(text, sizeof text,
+                    "sensor %zu is at u_mm=%.1f v_mm=%.1f in the recording's header, at u_mm=%.1f "
+                    "v_mm=%.1f in the design: the recording lists its sensors in another order "
+                    "than the design file, or is of another patch",
+                    i, r.u_mm, r.v_mm, sensors[i].u, sensors[i].v);
+      return make_error(ErrorCode::kInvalidArgument, text);
+    }
+  }
+  return Status::Ok();
 }
 
 Result<std::optional<double>> recorded_tip_radius_mm(const Dataset& d) {

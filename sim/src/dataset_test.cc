@@ -151,6 +151,36 @@ TEST(DatasetTest, TheRecordingsTipIsReadFromItsProtocolHeader) {
   EXPECT_EQ(*presses_tip_radius_mm(lab, design), 2.5);
 }
 
+// A recording's sensors against the design's: the same layout passes (a fabricated unit's
+// positions scatter by a tenth of a millimetre), another order or another patch is named, a
+// recording without positions is not judged.
+TEST(DatasetTest, ARecordingsSensorLayoutIsCheckedAgainstTheDesign) {
+  const PatchModel nominal = *PatchModel::nominal(PatchDesign{});
+  SimulatedPatch fabricated(*PatchModel::fabricated(PatchDesign{}, 0x5B01, {}), 1);
+  Dataset d = generate_ramp_dataset(fabricated, plan_grid(2, 30), RampProtocol{});
+  const std::string path = temp_path("layout.csv");
+  ASSERT_TRUE(write_dataset_csv(d, path).ok());
+  Result<Dataset> back = read_dataset_csv(path);
+  std::remove(path.c_str());
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_TRUE(back->sensor_layout_known);
+  EXPECT_TRUE(check_sensor_layout(*back, nominal).ok());
+  Dataset swapped = *back;
+  std::swap(swapped.sensors[1], swapped.sensors[4]);  // listed column by column, say
+  const Status s = check_sensor_layout(swapped, nominal);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("sensor 1 is at u_mm=-45.0 v_mm=-14.9"), std::string::npos)
+      << s.error().message;
+  PatchDesign wider;
+  wider.sensor_pitch_mm = 34;
+  EXPECT_FALSE(check_sensor_layout(*back, *PatchModel::nominal(wider)).ok());
+  PatchDesign more;
+  more.sensors_u = more.sensors_v = 3;
+  EXPECT_FALSE(check_sensor_layout(*back, *PatchModel::nominal(more)).ok());
+  swapped.sensor_layout_known = false;  // a lab recording without `sensor <i>:` lines
+  EXPECT_TRUE(check_sensor_layout(swapped, nominal).ok());
+}
+
 // Creep (PatchDesign::creep_fraction): the plate lags the press, so a ramp bends it less than
 // the press is deep while loading and more while unloading: the same rows as without creep, the
 // same recorded depths, a weaker field going down and a stronger one coming up (once the lag has

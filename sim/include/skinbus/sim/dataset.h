@@ -26,6 +26,7 @@ struct DatasetSensor {
 struct Dataset {
   std::map<std::string, std::string> meta;  // header block (format, source, unit, plan, ...)
   std::vector<DatasetSensor> sensors;
+  bool sensor_layout_known = false;        // the header gave the sensors' positions (`sensor <i>:`)
   std::vector<std::string> extra_columns;  // columns beyond the standard ones, in order
   // One entry per row (struct of arrays).
   std::vector<int64_t> press;  // press number (-1: not from a press)
@@ -102,6 +103,13 @@ Result<Dataset> read_dataset_csv(const std::string& path);
 
 // A fingerprint of the rows (FNV-1a over the numbers), for model metadata.
 uint64_t dataset_fingerprint(const Dataset& d);
+
+// Checks that a recording's sensors sit where `model`'s do, in the same order: each sensor's
+// position (u, v) in the recording's header within `tolerance_mm` of the model's sensor of the
+// same index. kInvalidArgument naming the first that is not (a recording whose sensors are
+// listed in another order than the design file's, or of another patch); Ok when the recording
+// gives no positions. The depths are not compared (identification fits the sensors' height).
+Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tolerance_mm = 3.0);
 
 // The indenter tip a recording says its presses were made with: the `tip_radius_mm=` field of its
 // `protocol:` header (every generator above writes it; a lab's recording may). nullopt when the
