@@ -790,6 +790,57 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
   return out;
 }
 
+PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
+                                            std::span<const uint8_t> channel_ok, int starts) const {
+  PhysicsEstimate best;
+  const int nc = model_.channel_count();
+  FitInput in;
+  if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &best)) return best;
+  double whitened[kMaxChannels];
+  for (int c = 0; c < nc; ++c) whitened[c] = in.y[c] * in.inv_sigma[c];
+  // The nearest row, then the next nearest ones at least 2 start pitches from those taken (rows
+  // next to each other lie in one basin of the field: another basin is another place).
+  constexpr int kCandidates = 32;
+  LookupNeighbour nb[kCandidates];
+  const int n = start_.nearest(std::span<const double>(whitened, static_cast<std::size_t>(nc)),
+                               std::span<const uint8_t>(in.ok, static_cast<std::size_t>(nc)),
+                               std::span<LookupNeighbour>(nb, kCandidates));
+  const double pitch = options_.start_grid.pitch_mm > 0 ? options_.start_grid.pitch_mm
+                                                        : start_pitch_mm(model_.design());
+  const int wanted = std::clamp(starts, 1, 8);
+  bool found = false;
+  int taken[8];
+  int n_taken = 0;
+  for (int i = 0; i < n && n_taken < wanted; ++i) {
+    bool apart = true;
+    for (int t = 0; t < n_taken && apart; ++t) {
+      apart =
+          std::hypot(start_.row_u_mm(nb[i].row) - start_.row_u_mm(nb[taken[t]].row),
+                     start_.row_v_mm(nb[i].row) - start_.row_v_mm(nb[taken[t]].row)) >= 2 * pitch;
+    }
+    if (apart) taken[n_taken++] = i;
+  }
+  for (int t = 0; t < n_taken; ++t) {
+    const LookupNeighbour& row = nb[taken[t]];
+    ContactEstimate start;
+    start.u_mm = start_.row_u_mm(row.row);
+    start.v_mm = start_.row_v_mm(row.row);
+    start.depth_mm = start_.row_depth_mm(row.row);
+    PhysicsEstimate e;
+    if (options_.fit_shear) {
+      refine_lean<8>(model_, options_, in, ambient_jac_.data(), start, &e);
+    } else {
+      refine_lean<6>(model_, options_, in, ambient_jac_.data(), start, &e);
+    }
+    if (e.contact.valid() && (!found || e.chi2 < best.chi2)) {
+      best = e;
+      found = true;
+    }
+  }
+  if (!found) best.contact.flags = kEstimateRejected;  // no start, or no fit from any
+  return best;
+}
+
 void PhysicsEstimator::covariance(const sim::Contact& c, const uint8_t* ok, const double* inv_sigma,
                                   PhysicsEstimate* out) const {
   const int nc = model_.channel_count();

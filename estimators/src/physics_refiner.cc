@@ -15,6 +15,9 @@ namespace skinbus::estimators {
 
 namespace {
 
+// A poor fit's search: the lean fit from this many nearest rows of the start table.
+constexpr int kSearchStarts = 3;
+
 class PhysicsRefiner : public ContactRefiner {
  public:
   PhysicsRefiner(PhysicsEstimator estimator, const RefinerOptions& options,
@@ -28,7 +31,7 @@ class PhysicsRefiner : public ContactRefiner {
 
   RefinedEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& start) const override {
-    return from(estimator_.refine_lm(field_ut, channel_ok, start));
+    return from(single_fit(field_ut, channel_ok, start));
   }
 
   RefinedContacts refine_contacts(std::span<const double> field_ut,
@@ -36,7 +39,10 @@ class PhysicsRefiner : public ContactRefiner {
                                   std::span<const ContactEstimate> previous,
                                   double search_above_chi2) const override {
     RefinedContacts out;
-    const PhysicsEstimate single = estimator_.refine_lm(field_ut, channel_ok, start);
+    // Counting contacts has its own search (below): a single fit that ends poor is its signal.
+    const PhysicsEstimate single = options_.max_contacts < 2
+                                       ? single_fit(field_ut, channel_ok, start)
+                                       : estimator_.refine_lm(field_ut, channel_ok, start);
     out.contacts[0] = from(single);
     out.single_reduced_chi2 = single.reduced_chi2;
     const bool known = previous.size() >= 2;  // the previous sample's contacts (2 or 3)
@@ -82,6 +88,26 @@ class PhysicsRefiner : public ContactRefiner {
   }
 
  private:
+  // The fit from `start`, searched again from the start table when it ends poor.
+  PhysicsEstimate single_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
+                             const ContactEstimate& start) const {
+    PhysicsEstimate fit = estimator_.refine_lm(field_ut, channel_ok, start);
+    const auto poor = [](const PhysicsEstimate& e) {
+      return !e.contact.valid() || (e.contact.flags & (kEstimatePoorFit | kEstimateNoContact)) != 0;
+    };
+    if (!options_.search_when_poor || !poor(fit) || (fit.contact.flags & kEstimateRejected) != 0) {
+      return fit;
+    }
+    PhysicsEstimate searched = estimator_.search_lm(field_ut, channel_ok, kSearchStarts);
+    const bool contact =
+        searched.contact.valid() && (searched.contact.flags & kEstimateNoContact) == 0;
+    if (contact && (!fit.contact.valid() || (fit.contact.flags & kEstimateNoContact) != 0 ||
+                    searched.chi2 < fit.chi2)) {
+      return searched;
+    }
+    return fit;
+  }
+
   // The proposer's answer for a sample (none when a channel is left out: a network cannot).
   ContactProposal propose(std::span<const double> field_ut,
                           std::span<const uint8_t> channel_ok) const {
@@ -118,11 +144,16 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const sim::PatchMod
   PhysicsOptions po = options.physics;
   po.covariance = true;
   if (options.max_contacts < 2) {
-    // A one-row start table: a refinement starts from its first estimate; the table is only the
-    // last resort of a start that ends in a poor fit. Counting contacts needs the whole table
-    // (the fit of what a first contact leaves starts from it).
-    po.start_grid.pitch_mm = std::max(model.design().size_u_mm, model.design().size_v_mm);
-    po.start_grid.depths_mm = {2.0};
+    // A coarse start table: a refinement starts from its first estimate; the table is only the
+    // search of a fit that ends poor there (or, with search_when_poor off, one row). Counting
+    // contacts needs the whole table (the fit of what a first contact leaves starts from it).
+    if (options.search_when_poor) {
+      po.start_grid.pitch_mm = 2 * start_pitch_mm(model.design());
+      po.start_grid.depths_mm = {1.0, 2.5, 4.0};
+    } else {
+      po.start_grid.pitch_mm = std::max(model.design().size_u_mm, model.design().size_v_mm);
+      po.start_grid.depths_mm = {2.0};
+    }
   }
   auto e = PhysicsEstimator::create(model, po);
   if (!e.ok()) return e.error();

@@ -22,6 +22,11 @@ namespace {
 
 using sim::Contact;
 
+// A fabricated unit of the built-in design.
+sim::PatchModel fabricated_unit(uint64_t uid) {
+  return sim::PatchModel::fabricated(sim::PatchDesign{}, uid, sim::FabricationVariation{}).value();
+}
+
 // The unit's field of one contact with the design's sensor noise.
 std::vector<double> noisy_field(const sim::PatchModel& unit, const Contact& c,
                                 const ChannelNoise& noise, sim::Rng& rng) {
@@ -37,9 +42,7 @@ TEST(PhysicsRefinerTest, RefinesARoughStartWithAnHonestUncertainty) {
   const uint64_t seed = 20261124;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
   const sim::PatchDesign design;
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(design, 0x5B00000000000007ull, sim::FabricationVariation{})
-          .value();
+  const sim::PatchModel unit = fabricated_unit(0x5B00000000000007ull);
   auto refiner = make_physics_refiner(unit);
   ASSERT_TRUE(refiner.ok()) << refiner.error().message;
   const ChannelNoise noise = ChannelNoise::of(design);
@@ -91,6 +94,54 @@ TEST(PhysicsRefinerTest, LoadsAUnitFileAndNamesWhatItCannotRead) {
   auto missing = make_physics_refiner(path, "");
   ASSERT_FALSE(missing.ok());
   EXPECT_NE(missing.error().message.find(path), std::string::npos);
+}
+
+// A first estimate far from the press (a network trained briefly, or meeting a place it was not
+// trained on) leaves the fit in another basin of the field, where it ends poor; the refiner then
+// searches its start table and reaches the press. Without the search the fit stays poor.
+TEST(PhysicsRefinerTest, AFitThatEndsPoorIsSearchedAgainFromTheStartTable) {
+  const uint64_t seed = 20261127;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchDesign design;
+  const sim::PatchModel unit = fabricated_unit(0x5B00000000000009ull);
+  RefinerOptions with, without;
+  without.search_when_poor = false;
+  auto searching = make_physics_refiner(unit, with);
+  auto plain = make_physics_refiner(unit, without);
+  ASSERT_TRUE(searching.ok() && plain.ok());
+  const ChannelNoise noise = ChannelNoise::of(design);
+  sim::Rng rng(seed);
+  int poor_plain = 0, poor_searched = 0, far_plain = 0, far_searched = 0;
+  constexpr int kPresses = 60;
+  for (int i = 0; i < kPresses; ++i) {
+    const Contact c{rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(2.0, 4.0), 5};
+    const std::vector<double> f = noisy_field(unit, c, noise, rng);
+    // Half a magnet spacing to two off, in a random direction.
+    const double off = rng.uniform(10, 40), angle = rng.uniform(0, 2 * M_PI);
+    ContactEstimate start;
+    start.u_mm = c.u_mm + off * std::cos(angle);
+    start.v_mm = c.v_mm + off * std::sin(angle);
+    start.depth_mm = 2;
+    const RefinedEstimate a = (*plain)->refine(f, {}, start);
+    const RefinedEstimate b = (*searching)->refine(f, {}, start);
+    const auto poor = [](const RefinedEstimate& r) {
+      return !r.contact.valid() || (r.contact.flags & (kEstimatePoorFit | kEstimateNoContact)) != 0;
+    };
+    const auto far = [&](const RefinedEstimate& r) {
+      return !r.contact.valid() || std::hypot(r.contact.u_mm - c.u_mm, r.contact.v_mm - c.v_mm) > 2;
+    };
+    poor_plain += poor(a);
+    poor_searched += poor(b);
+    far_plain += far(a);
+    far_searched += far(b);
+  }
+  std::printf(
+      "of %d presses started 10-40 mm off: poor fits %d without the search, %d with; more "
+      "than 2 mm off %d and %d\n",
+      kPresses, poor_plain, poor_searched, far_plain, far_searched);
+  EXPECT_GE(poor_plain, kPresses / 10);  // the case exists (9 of 60 with this seed)
+  EXPECT_LE(poor_searched, 2);
+  EXPECT_LE(far_searched, 2);
 }
 
 // The host refines with the indenter of the design a skin-map entry names: presses made with a

@@ -3,10 +3,11 @@
 # the built-in one, as a user brings it: 8 x 8 checkerboard magnets at 16 mm, 5 x 5 sensors at
 # 25 mm (75 channels, not the shipped network's 48), a thinner lattice, a shorter spread, and a
 # 4 mm indenter said only in the design file (the lab recording's protocol header is dropped).
-# Small synthetic set and few epochs: the check is of the chain, not of the network's accuracy.
+# Small synthetic set and few epochs: the network is poor, the refinement must not be.
 # Checked: the unit is identified with the design's indenter near its noise; the network is
 # trained from scratch for the 75 channels (said on standard error) and reads them; the
-# refinement on the unit improves on the network on held-out presses; the entry names the design.
+# refinement on the unit reaches its bound on held-out presses though the network is far off;
+# the entry names the design.
 #   tests/e2e/calibrate_design_e2e.sh BUILD_DIR
 set -euo pipefail
 # shellcheck source-path=SCRIPTDIR source=e2e_lib.sh
@@ -14,20 +15,7 @@ source "$(dirname "$0")/e2e_lib.sh"
 e2e_init "$@"
 [[ -x $bin/skinbus-train ]] || { echo "SKIP: no skinbus-train (LibTorch)"; exit 77; }
 
-cat >design.yaml <<'EOF'
-format: skinbus-patch-design
-version: 1
-surface: {size_u_mm: 130, size_v_mm: 130, thickness_mm: 14}
-magnets:
-  grid: {u: 8, v: 8, pitch_mm: 16}
-  polarity: checkerboard
-  centre_height_mm: 0.5
-sensors:
-  grid: {u: 5, v: 5, pitch_mm: 25}
-  depth_mm: 16
-lattice: {spread_mm: 8}
-indenter: {tip_radius_mm: 4}
-EOF
+cp "$src/docs/benchmarks/design_8x8_5x5_sensors.yaml" design.yaml # docs/benchmarks/designs.md
 uid=0x5b0000000000002a
 "$bin/skinbus-dataset" --plan grid --design design.yaml --fabricated --uid $uid -o recorded.csv
 grep -q "^# protocol: .* tip_radius_mm=4 " recorded.csv || fail_with_logs "the design's indenter not pressed with"
@@ -56,14 +44,15 @@ ok &= bool(m) and float(m.group(1)) < 1.15
 meta = json.load(open("cal/network.json"))
 print("network sensors:", len(meta["sensors_uvh_mm"]), "architecture:", meta["architecture"])
 ok &= len(meta["sensors_uvh_mm"]) == 25 and meta["architecture"]["grid_rows"] == 5
-# The refinement on the unit, on the held-out presses: below the network in every bin (a network
-# of two epochs from scratch is far from the bound, and so are fits started from it: no bound is
-# checked here; docs/benchmarks/designs.md measures a calibrated unit of this design).
+# The refinement on the unit, on the held-out presses: below the network in every bin and near
+# the unit's bound (about 0.89 x CRLB is at it). A network of two epochs from scratch is 14-20 mm
+# off; fits started there end poor and are searched again from the refiner's start table
+# (RefinerOptions::search_when_poor; without: 24-43 x the bound in the bins).
 row = r"^\| (\d-\d) \| (\d+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \|"
 plain = open("cal/report.md").read().partition("corrected by the learned correction")[0]
 rows = re.findall(row, plain, re.M)
 print("refined rows:", rows)
-ok &= len(rows) == 3 and all(float(r[3]) < float(r[2]) for r in rows)
+ok &= len(rows) == 3 and all(float(r[3]) < float(r[2]) and float(r[5]) < 1.5 for r in rows)
 sys.exit(0 if ok else 1)
 PY
 echo PASS
