@@ -64,6 +64,13 @@ sim::Dataset every_kth(const sim::Dataset& d, int rows) {
   return out;
 }
 
+// The seed's ramps, pressed with the design's indenter.
+sim::RampProtocol ramps(const sim::PatchDesign& design) {
+  sim::RampProtocol protocol;
+  protocol.tip_radius_mm = design.indenter_tip_radius_mm;
+  return protocol;
+}
+
 Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
                        const sim::PatchDesign& base) {
   sim::PatchDesign design = base;
@@ -96,24 +103,25 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   // `skinbus-dataset --plan grid [--fabricated] [--anisotropy A] --uid UID`, which the seed CNN
   // of that unit is trained on.
   sim::SimulatedPatch patch(model.value(), sim::unit_noise_seed(a.uid, 1));
-  u.presses =
-      sim::generate_ramp_dataset(patch, sim::plan_grid(kGrid, kPitchMm), sim::RampProtocol{});
+  u.presses = sim::generate_ramp_dataset(patch, sim::plan_grid(kGrid, kPitchMm), ramps(design));
   sim::SimulatedPatch test_patch(model.value(), sim::unit_noise_seed(a.uid, 2));
   if (name == "creeping") {
     // Creep shows where the press moves: ramps at random places (as many as the off-grid test's
     // presses over 8, every few samples kept to about the same count of rows) and at the grid's.
     u.off_grid = every_kth(
         sim::generate_ramp_dataset(test_patch, sim::plan_random(a.test_count / 8, kHalfExtentMm, 7),
-                                   sim::RampProtocol{}),
+                                   ramps(design)),
         a.test_count);
-    u.grid_test = every_kth(sim::generate_ramp_dataset(test_patch, sim::plan_grid(kGrid, kPitchMm),
-                                                       sim::RampProtocol{}),
-                            kGrid * kGrid * a.grid_test_per_point);
+    u.grid_test = every_kth(
+        sim::generate_ramp_dataset(test_patch, sim::plan_grid(kGrid, kPitchMm), ramps(design)),
+        kGrid * kGrid * a.grid_test_per_point);
     return u;
   }
-  u.off_grid = sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7);
+  const double tip_mm = design.indenter_tip_radius_mm;
+  u.off_grid = sim::generate_random_test_set(test_patch, a.test_count, kHalfExtentMm, 4.0, 7, {},
+                                             32, tip_mm);
   u.grid_test = sim::generate_static_test_set(test_patch, sim::plan_grid(kGrid, kPitchMm),
-                                              a.grid_test_per_point, 4.0, 9);
+                                              a.grid_test_per_point, 4.0, 9, {}, 32, tip_mm);
   return u;
 }
 
@@ -189,7 +197,12 @@ Status bench_budget(const BudgetBenchArgs& a) {
   }
   Result<sim::PatchModel> nominal_model = sim::PatchModel::nominal(base.value());
   if (!nominal_model.ok()) return nominal_model.error();
-  Result<PhysicsEstimator> nominal_lm = PhysicsEstimator::create(nominal_model.value());
+  // The presses are made, and fitted, with the design's indenter.
+  const double tip_mm = base->indenter_tip_radius_mm;
+  PhysicsOptions physics_options;
+  physics_options.tip_radius_mm = tip_mm;
+  Result<PhysicsEstimator> nominal_lm =
+      PhysicsEstimator::create(nominal_model.value(), physics_options);
   if (!nominal_lm.ok()) return nominal_lm.error();
   std::vector<Row> rows;
   for (const std::string& name : a.units) {
@@ -264,7 +277,9 @@ Status bench_budget(const BudgetBenchArgs& a) {
     double grid_id_s = 0, grid_residual = -1;
     auto physics_pipeline = [&](const std::string& plan, const sim::Dataset& presses) -> Status {
       const auto t0 = Clock::now();
-      Result<IdentifiedUnit> id = identify_unit(base.value(), presses, {}, &unit->off_grid);
+      IdentificationOptions id_options;
+      id_options.tip_radius_mm = tip_mm;
+      Result<IdentifiedUnit> id = identify_unit(base.value(), presses, id_options, &unit->off_grid);
       const double id_s = std::chrono::duration<double>(Clock::now() - t0).count();
       if (!id.ok()) {
         return with_context(id.error(), "identification of " + name);
@@ -273,7 +288,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
                    "skinbus-bench:   identified from %s in %.1f s: residual %.3f (fit) / %.3f "
                    "(held out) noise units; nominal model %.3f\n",
                    plan.c_str(), id_s, id->fit.rms, id->held_out.rms, id->nominal_held_out.rms);
-      Result<PhysicsEstimator> lm = PhysicsEstimator::create(id->model);
+      Result<PhysicsEstimator> lm = PhysicsEstimator::create(id->model, physics_options);
       if (!lm.ok()) return lm.error();
       add_row(
           "identified unit (" + plan + ") + physics LM",
@@ -343,7 +358,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
     {
       sim::SimulatedPatch patch(unit->truth, sim::unit_noise_seed(a.uid, 1));
       const sim::Dataset halton = sim::generate_ramp_dataset(
-          patch, sim::plan_halton(kGrid * kGrid, kHalfExtentMm, 1), sim::RampProtocol{});
+          patch, sim::plan_halton(kGrid * kGrid, kHalfExtentMm, 1), ramps(built.value()));
       if (Status s = physics_pipeline("Halton", halton); !s.ok()) return s;
     }
     // 5. The seed CNN's answer refined by least squares on the identified model.

@@ -157,9 +157,12 @@ std::vector<sim::CrlbPoint> crlb_points_per_row(const sim::PatchModel& model,
                                                 const sim::Dataset& data, int n) {
   const mlx90393::Config& cfg = model.design().sensor_config;
   const double nxy = sim::mlx90393_noise_xy_ut(cfg), nz = sim::mlx90393_noise_z_ut(cfg);
+  // The tip the presses were made with: the recording's, else the design's indenter.
+  const Result<double> tip = sim::presses_tip_radius_mm(data, model.design());
+  const double tip_mm = tip.ok() ? *tip : model.design().indenter_tip_radius_mm;
   std::vector<sim::CrlbPoint> out(static_cast<std::size_t>(n));
   for (int r = 0; r < n; ++r) {
-    const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], 5.0};
+    const sim::Contact c{data.u_mm[r], data.v_mm[r], data.depth_mm[r], tip_mm};
     out[static_cast<std::size_t>(r)] = sim::crlb_at(model, c, nxy, nz);
   }
   return out;

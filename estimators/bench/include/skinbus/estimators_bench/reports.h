@@ -34,7 +34,8 @@ struct ModelsBenchArgs {
 };
 
 // The Cramer-Rao bound of each of the first `n` rows of `data` for `model` (its design's sensor
-// noise, a 5 mm tip); crlb_per_row() its RMS XY bound (mm); and a value's mean per depth bin.
+// noise; the tip the recording says, else the design's indenter); crlb_per_row() its RMS XY bound
+// (mm); and a value's mean per depth bin.
 std::vector<sim::CrlbPoint> crlb_points_per_row(const sim::PatchModel& model,
                                                 const sim::Dataset& data, int n);
 std::vector<double> crlb_per_row(const sim::PatchModel& model, const sim::Dataset& data, int n);
