@@ -74,7 +74,7 @@ held_opt=()
 [[ -n $held ]] && held_opt=(--held-out "$held")
 "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "${held_opt[@]}" \
   >"$out/identify.log" 2>&1 || failed "identification" "$out/identify.log"
-grep -i "residual" "$out/identify.log" | head -3 >&2 || true
+grep -i "residual\|note:" "$out/identify.log" | head -4 >&2 || true
 
 step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8 Hz)"
 "$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 --unit "$out/unit.json" \
@@ -87,9 +87,9 @@ step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8
 # The shipped network reads the built-in design's 16 sensors: a patch with another count trains
 # from scratch (a --base given by hand is used as given, and skinbus-train names a mismatch).
 if [[ $base_given == 0 ]]; then
-  base_sensors=$(python3 -c 'import json, sys; print(len(json.load(open(sys.argv[1] + ".json"))["sensors_uvh_mm"]))' "$base")
+  base_sensors=$(python3 -c 'import json, sys; print(len(json.load(open(sys.argv[1] + ".json"))["sensors_uvh_mm"]))' "$base" 2>/dev/null || true)
   unit_sensors=$(sed -n 's/^# sensors: \([0-9]*\).*/\1/p' "$out/synthetic.csv" | head -1)
-  if [[ $base_sensors != "$unit_sensors" ]]; then
+  if [[ -n $base_sensors && $base_sensors != "$unit_sensors" ]]; then
     echo "calibrate_unit: the shipped network reads $base_sensors sensors, this patch has" \
       "${unit_sensors:-?}: training from scratch (--base none)" >&2
     base=none

@@ -94,9 +94,10 @@ printf 'format: skinbus-patch-design\nmagnets:\n  polarity: striped\n' >"$work/b
 # The indenter: a design file's is the tools' default tip; a recording's protocol header says
 # how its presses were made, and identification takes that.
 { cat "$design9"; printf 'indenter:\n  tip_radius_mm: 8\n'; } >"$work/design9_tip8.yaml"
-"$bin/skinbus-crlb" --depths 2 --step 20 --design "$work/design9_tip8.yaml" >"$work/crlb_tip8.md" 2>/dev/null
+"$bin/skinbus-crlb" --depths 2 --step 20 --design "$work/design9_tip8.yaml" >"$work/crlb_tip8.md" 2>/dev/null; rc=$?
 "$bin/skinbus-crlb" --depths 2 --step 20 --design "$design9" --tip-radius 8 >"$work/crlb_9x9_tip8.md" 2>/dev/null
-cmp -s "$work/crlb_tip8.md" "$work/crlb_9x9_tip8.md" && ! cmp -s "$work/crlb_tip8.md" "$work/crlb_9x9.md" &&
+[[ $rc == 0 ]] && grep -q "tip radius 8.0 mm" "$work/crlb_tip8.md" &&
+  cmp -s "$work/crlb_tip8.md" "$work/crlb_9x9_tip8.md" && ! cmp -s "$work/crlb_tip8.md" "$work/crlb_9x9.md" &&
   ok "skinbus-crlb bounds with the design's indenter" || bad "skinbus-crlb and the design's indenter"
 "$bin/skinbus-dataset" --plan random-test --count 5 --design "$work/design9_tip8.yaml" -o "$work/tip8.csv" 2>/dev/null
 grep -q "^# protocol: random_static .* tip_radius_mm=8 " "$work/tip8.csv" &&
@@ -143,6 +144,7 @@ sed -e 's/^# sensor 1: /# sensor X: /' -e 's/^# sensor 4: /# sensor 1: /' -e 's/
 "$bin/skinbus-identify" "$work/id/tip.csv" -o "$work/id/tip5.json" --tip-radius 5 >"$work/id/tip5.txt" 2>/dev/null
 residual() { sed -n 's/^fit (.*): residual RMS \([0-9.]*\) .*/\1/p' "$1"; }
 [[ $rc == 0 ]] && grep -q "indenter tip radius 2.5 mm (the recording's protocol header)" "$work/id/tip.err" &&
+  grep -q "note: the design's indenter is 5 mm" "$work/id/tip.err" &&
   awk -v a="$(residual "$work/id/tip.txt")" -v b="$(residual "$work/id/tip5.txt")" 'BEGIN { exit !(a > 0 && a < b) }' &&
   ok "skinbus-identify takes the recording's tip ($(residual "$work/id/tip.txt") against $(residual "$work/id/tip5.txt") noise units with 5 mm)" ||
   { bad "skinbus-identify and the recording's tip (rc $rc)"; cat "$work/id/tip.err" "$work/id/tip.txt" "$work/id/tip5.txt"; }

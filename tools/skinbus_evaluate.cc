@@ -69,6 +69,10 @@ int main(int argc, char** argv) {
                      "the indenter's round tip radius, mm (default: the recording's, its "
                      "protocol header's tip_radius_mm=, else the design's indenter)")
           ->check(CLI::Range(0.0, sim::kMaxIndenterTipRadiusMm));
+  bool no_search = false;
+  app.add_flag("--no-search", no_search,
+               "refine without searching the start table again when a fit from the network's "
+               "answer ends poor (the host searches: RefinerOptions::search_when_poor)");
   auto* apply_opt =
       app.add_option("--correction", correction_path,
                      "correct the refined estimates by this correction file (as the host does)")
@@ -106,6 +110,7 @@ int main(int argc, char** argv) {
   estimators::RefinerOptions ro;
   ro.physics.tip_radius_mm = tip_radius_mm;
   ro.correction = correction_path;
+  ro.search_when_poor = !no_search;
   auto refiner = estimators::make_physics_refiner(*unit, ro);
   if (!refiner.ok()) return tools::report_error(kTool, refiner.error());
   const int nc = unit->channel_count();

@@ -119,6 +119,12 @@ int main(int argc, char** argv) {
   }
   std::fprintf(stderr, "skinbus-identify: indenter tip radius %g mm (%s)\n", opt.tip_radius_mm,
                tip_from.c_str());
+  if (opt.tip_radius_mm != design.indenter_tip_radius_mm) {
+    std::fprintf(stderr,
+                 "skinbus-identify: note: the design's indenter is %g mm: the host refines, and "
+                 "skinbus-dataset presses, with the design's\n",
+                 design.indenter_tip_radius_mm);
+  }
   std::optional<sim::Dataset> held_out;
   if (!held_out_path.empty()) {
     Result<sim::Dataset> h = sim::read_dataset_csv(held_out_path);

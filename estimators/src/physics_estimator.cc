@@ -300,6 +300,7 @@ Result<PhysicsEstimator> PhysicsEstimator::create(const sim::PatchModel& model,
   lo.ambient_invariant = options.fit_ambient;
   LookupGrid grid = options.start_grid;
   if (grid.pitch_mm == 0) grid.pitch_mm = start_pitch_mm(model.design());
+  grid.tip_radius_mm = options.tip_radius_mm;  // the rows are presses of the fit's indenter
   Result<LookupEstimator> start = LookupEstimator::from_model(model, grid, lo);
   if (!start.ok()) return start.error();
   return PhysicsEstimator(model, options, std::move(start).value());

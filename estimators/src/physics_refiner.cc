@@ -101,11 +101,7 @@ class PhysicsRefiner : public ContactRefiner {
     PhysicsEstimate searched = estimator_.search_lm(field_ut, channel_ok, kSearchStarts);
     const bool contact =
         searched.contact.valid() && (searched.contact.flags & kEstimateNoContact) == 0;
-    if (contact && (!fit.contact.valid() || (fit.contact.flags & kEstimateNoContact) != 0 ||
-                    searched.chi2 < fit.chi2)) {
-      return searched;
-    }
-    return fit;
+    return contact && searched.chi2 < fit.chi2 ? searched : fit;
   }
 
   // The proposer's answer for a sample (none when a channel is left out: a network cannot).

@@ -5,6 +5,7 @@
 #include "skinbus/common/text_file.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <charconv>
 #include <cmath>
@@ -596,23 +597,26 @@ Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tol
 Result<std::optional<double>> recorded_tip_radius_mm(const Dataset& d) {
   const auto it = d.meta.find("protocol");
   if (it == d.meta.end()) return std::optional<double>{};
-  // Space-separated key=value fields; the key starts the line or follows a space.
+  // Key=value fields apart by white space; the key starts the line or follows white space.
   const std::string& line = it->second;
   constexpr std::string_view kKey = "tip_radius_mm=";
   std::size_t at = 0;
-  while ((at = line.find(kKey, at)) != std::string::npos && at > 0 && line[at - 1] != ' ') {
+  while ((at = line.find(kKey, at)) != std::string::npos && at > 0 &&
+         std::isspace(static_cast<unsigned char>(line[at - 1])) == 0) {
     at += kKey.size();
   }
   if (at == std::string::npos) return std::optional<double>{};
   const std::size_t begin = at + kKey.size();
-  const std::size_t end = std::min(line.find(' ', begin), line.size());
+  const std::size_t end = std::min(line.find_first_of(" \t\r", begin), line.size());
   const std::string text = line.substr(begin, end - begin);
   double tip = std::nan("");
   const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), tip);
   if (ec != std::errc() || ptr != text.data() + text.size() || !std::isfinite(tip) || tip < 0 ||
       tip > kMaxIndenterTipRadiusMm) {
-    return make_error(ErrorCode::kParse, "protocol header: tip_radius_mm='" + text +
-                                             "' is not a tip radius (0 to 50 mm)");
+    char range[48];
+    std::snprintf(range, sizeof range, "' is not a tip radius (0 to %g mm)",
+                  kMaxIndenterTipRadiusMm);
+    return make_error(ErrorCode::kParse, "protocol header: tip_radius_mm='" + text + range);
   }
   return std::optional<double>{tip};
 }

@@ -138,6 +138,7 @@ TEST(DatasetTest, TheRecordingsTipIsReadFromItsProtocolHeader) {
   EXPECT_EQ(*tip, 8.0);
   EXPECT_EQ(from, "the design's indenter");
   lab.meta["protocol"] = "ramp by hand, max_tip_radius_mm=9";  // another key holds the name
+  ASSERT_TRUE(presses_tip_radius_mm(lab, design).ok());
   EXPECT_EQ(*presses_tip_radius_mm(lab, design), 8.0);
   for (const char* bad : {"ramp tip_radius_mm=", "ramp tip_radius_mm=5mm presses=3",
                           "ramp tip_radius_mm=-1", "ramp tip_radius_mm=nan", "tip_radius_mm=51"}) {
@@ -148,7 +149,11 @@ TEST(DatasetTest, TheRecordingsTipIsReadFromItsProtocolHeader) {
         << r.error().message;
   }
   lab.meta["protocol"] = "tip_radius_mm=2.5";  // the key may start the line
+  ASSERT_TRUE(presses_tip_radius_mm(lab, design).ok());
   EXPECT_EQ(*presses_tip_radius_mm(lab, design), 2.5);
+  lab.meta["protocol"] = "ramp\ttip_radius_mm=3\tpresses=4";  // or follow a tab
+  ASSERT_TRUE(presses_tip_radius_mm(lab, design).ok());
+  EXPECT_EQ(*presses_tip_radius_mm(lab, design), 3.0);
 }
 
 // A recording's sensors against the design's: the same layout passes (a fabricated unit's

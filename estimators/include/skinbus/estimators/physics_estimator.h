@@ -53,7 +53,8 @@ struct PhysicsOptions {
   InputLimits limits;                 // saturation threshold for check_sample()
   // The start table built by create() when none is given: a coarse grid of the model. Pitch 0:
   // start_pitch_mm(design), which follows the magnets (a start must fall within the basin of
-  // the field pattern, which repeats at the magnet spacing).
+  // the field pattern, which repeats at the magnet spacing). Its rows are pressed with
+  // tip_radius_mm above (the grid's own tip is not used).
   LookupGrid start_grid{0.0, {0.5, 1.0, 2.0, 3.0, 4.0, 5.5}, 5.0};
   // Also compute the fit's covariance (PhysicsEstimate::sigma_*): one more Jacobian and a 6 x 6
   // inverse per sample.

@@ -17,19 +17,21 @@ namespace skinbus::estimators {
 // writes it) built on `design_path` (a design file, docs/design_file.md; empty: the built-in
 // design). `options.covariance` is set. A refinement starts from its first estimate; the start
 // table is for fits that end poor there (`search_when_poor`) and for counting contacts: with
-// `max_contacts` 1 it is coarse (half the magnet spacing, at most 10 mm; depths 1, 2.5 and 4 mm:
-// about 900 rows on the built-in design, ~0.2 MB), with 2 or more PhysicsOptions' full one.
-// Errors name the file: kNotFound / kParse / kInvalidArgument (a unit that does not fit the
-// design). Cost: the unit's rest field table and the start table, tens of milliseconds (0.1 s
-// with the full table).
+// `max_contacts` 1 it is coarse (twice start_pitch_mm(design): half the magnet spacing, at most
+// 10 mm; depths 1, 2.5 and 4 mm: 675 rows on the built-in design), with 2 or more
+// PhysicsOptions' full one. Errors name the file: kNotFound / kParse / kInvalidArgument (a unit
+// that does not fit the design). Cost: the unit's rest field table and the start table, tens of
+// milliseconds (0.1 s with the full table).
 //
 // search_when_poor: a single-contact fit from the first estimate that ends poor
 // (kEstimatePoorFit, or not a contact: a first estimate far from the press, e.g. a network
 // trained briefly or meeting a place it was not trained on, leaves the fit in another basin of
-// the field) is made again from the start table (PhysicsEstimator::estimate: the nearest row and
-// other basins) and the lower chi-square kept. Cost: one cold estimate, about 0.3-0.5 ms, for
-// those samples only (docs/benchmarks/designs.md, "25 sensors"). With `max_contacts` 2 or 3 the
-// contact count's own search takes its place (a poor single fit is what starts a count).
+// the field) is made again by PhysicsEstimator::search_lm from 3 rows of the start table (the
+// nearest in field, then the next nearest 2 table pitches apart) and the lower chi-square kept.
+// Cost: three lean fits (each about a refinement's) for those samples only
+// (docs/benchmarks/designs.md, "25 sensors"). refine_contacts() with `max_contacts` 2 or 3
+// leaves a poor single fit to the contact count's own search (a poor single fit is what starts
+// a count); refine() always searches.
 //
 // max_contacts 2 or 3: refine_contacts() counts the contacts of a sample whose single fit leaves
 // more than noise (PhysicsEstimator::count_contacts with `count`, its max_contacts set to this

@@ -109,12 +109,13 @@ uint64_t dataset_fingerprint(const Dataset& d);
 // same index. kInvalidArgument naming the first that is not (a recording whose sensors are
 // listed in another order than the design file's, or of another patch); Ok when the recording
 // gives no positions. The depths are not compared (identification fits the sensors' height).
+// Cost: one pass over the sensors.
 Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tolerance_mm = 3.0);
 
 // The indenter tip a recording says its presses were made with: the `tip_radius_mm=` field of its
 // `protocol:` header (every generator above writes it; a lab's recording may). nullopt when the
 // header does not say; kParse naming the header when the value is not a number in
-// [0, kMaxIndenterTipRadiusMm] mm.
+// [0, kMaxIndenterTipRadiusMm] mm. Cost: one scan of the header line.
 Result<std::optional<double>> recorded_tip_radius_mm(const Dataset& d);
 
 // The tip the presses of `d` were made with: the recording's (above) when it says, else the
