@@ -148,6 +148,11 @@ residual() { sed -n 's/^fit (.*): residual RMS \([0-9.]*\) .*/\1/p' "$1"; }
   awk -v a="$(residual "$work/id/tip.txt")" -v b="$(residual "$work/id/tip5.txt")" 'BEGIN { exit !(a > 0 && a < b) }' &&
   ok "skinbus-identify takes the recording's tip ($(residual "$work/id/tip.txt") against $(residual "$work/id/tip5.txt") noise units with 5 mm)" ||
   { bad "skinbus-identify and the recording's tip (rc $rc)"; cat "$work/id/tip.err" "$work/id/tip.txt" "$work/id/tip5.txt"; }
+"$bin/skinbus-identify" "$work/id/tip.csv" -o "$work/id/tipmix.json" --held-out "$work/id/test_unit.csv" \
+  >/dev/null 2>"$work/id/tipmix.txt"; rc=$?
+[[ $rc == 2 ]] && grep -q "test_unit.csv: pressed with a 5 mm tip, the fit with 2.5 mm" "$work/id/tipmix.txt" &&
+  [[ ! -e $work/id/tipmix.json ]] && ok "held-out presses of another indenter: refused" ||
+  { bad "identify with held-out presses of another tip (rc $rc)"; cat "$work/id/tipmix.txt"; }
 # The shipped network alone and refined on the identified unit, on that unit's own presses.
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/unit.json" >"$work/id/eval.txt" 2>&1; rc=$?

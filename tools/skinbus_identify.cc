@@ -132,6 +132,20 @@ int main(int argc, char** argv) {
       return skinbus::tools::fail("skinbus-identify", h.error().to_string(), kExitFailed);
     }
     held_out = std::move(h).value();
+    // One tip for both: held-out presses made with another indenter would be judged wrongly.
+    Result<std::optional<double>> held_tip = sim::recorded_tip_radius_mm(*held_out);
+    if (!held_tip.ok()) {
+      return skinbus::tools::fail("skinbus-identify",
+                                  held_out_path + ": " + held_tip.error().message, kExitFailed);
+    }
+    if (held_tip->has_value() && **held_tip != opt.tip_radius_mm) {
+      char text[160];
+      std::snprintf(text, sizeof text,
+                    ": pressed with a %g mm tip, the fit with %g mm: give presses of one "
+                    "indenter (or --tip-radius)",
+                    **held_tip, opt.tip_radius_mm);
+      return skinbus::tools::fail("skinbus-identify", held_out_path + text, kExitUsage);
+    }
   }
   // A recording of another layout or order than the design's fits nothing: say so first.
   if (Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design); nominal.ok()) {

@@ -159,6 +159,10 @@ std::vector<sim::CrlbPoint> crlb_points_per_row(const sim::PatchModel& model,
   const double nxy = sim::mlx90393_noise_xy_ut(cfg), nz = sim::mlx90393_noise_z_ut(cfg);
   // The tip the presses were made with: the recording's, else the design's indenter.
   const Result<double> tip = sim::presses_tip_radius_mm(data, model.design());
+  if (!tip.ok()) {
+    std::fprintf(stderr, "skinbus-bench: %s; the bound takes the design's indenter\n",
+                 tip.error().message.c_str());
+  }
   const double tip_mm = tip.ok() ? *tip : model.design().indenter_tip_radius_mm;
   std::vector<sim::CrlbPoint> out(static_cast<std::size_t>(n));
   for (int r = 0; r < n; ++r) {
