@@ -149,13 +149,15 @@ int main(int argc, char** argv) {
   }
   // A recording of another layout or order than the design's fits nothing: say so first.
   if (Result<sim::PatchModel> nominal = sim::PatchModel::nominal(design); nominal.ok()) {
-    for (const auto& [path, data] : {std::pair{&presses_path, &*presses},
-                                     std::pair{&held_out_path, held_out ? &*held_out : nullptr}}) {
-      if (data == nullptr) continue;
-      if (Status s = sim::check_sensor_layout(*data, *nominal); !s.ok()) {
-        return skinbus::tools::fail("skinbus-identify", *path + ": " + s.error().message,
-                                    kExitUsage);
-      }
+    Status layout = sim::check_sensor_layout(*presses, *nominal);
+    std::string path = presses_path;
+    if (layout.ok() && held_out) {
+      layout = sim::check_sensor_layout(*held_out, *nominal);
+      path = held_out_path;
+    }
+    if (!layout.ok()) {
+      return skinbus::tools::fail("skinbus-identify", path + ": " + layout.error().message,
+                                  kExitUsage);
     }
   }
   std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (tens of seconds) ...\n",

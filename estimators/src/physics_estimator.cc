@@ -124,6 +124,25 @@ struct FitInput {
   SampleCheck check;
 };
 
+// Up to `wanted` of the table rows `nb[0, n)` (nearest first), each at least `spacing_mm` in
+// (u, v) from `avoid_uv` (when not null) and from the rows picked before it: rows next to each
+// other lie in one basin of the field, another basin is another place. Their indices into `nb`
+// go to `picked`; returns how many.
+int pick_apart(const LookupEstimator& table, const LookupNeighbour* nb, int n, double spacing_mm,
+               const double* avoid_uv, int wanted, int* picked) {
+  int count = 0;
+  for (int i = 0; i < n && count < wanted; ++i) {
+    const double u = table.row_u_mm(nb[i].row), v = table.row_v_mm(nb[i].row);
+    bool apart = avoid_uv == nullptr || std::hypot(u - avoid_uv[0], v - avoid_uv[1]) >= spacing_mm;
+    for (int t = 0; t < count && apart; ++t) {
+      apart = std::hypot(u - table.row_u_mm(nb[picked[t]].row),
+                         v - table.row_v_mm(nb[picked[t]].row)) >= spacing_mm;
+    }
+    if (apart) picked[count++] = i;
+  }
+  return count;
+}
+
 // refine_lm()'s fit of one contact (with its shear when N is 8) on a prepared sample; below.
 template <int N>
 void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
@@ -431,26 +450,18 @@ PhysicsEstimate PhysicsEstimator::solve(std::span<const double> field_ut,
   // from each other, are fitted too (by the lean fit); the lowest chi-square is kept.
   if (options_.other_basins > 0 && std::isfinite(best_cost)) {
     if (!looked_up) look_up();
-    double tried[kCandidates][2];
-    int n_tried = 0;
-    const double first_u = best_x[0], first_v = best_x[1];
-    for (int i = 0; i < n_nb && n_tried < options_.other_basins; ++i) {
-      const double start[3] = {start_.row_u_mm(nb[i].row), start_.row_v_mm(nb[i].row),
-                               start_.row_depth_mm(nb[i].row)};
-      bool apart = std::hypot(start[0] - first_u, start[1] - first_v) >= other_basin_mm_;
-      for (int t = 0; t < n_tried && apart; ++t) {
-        apart = std::hypot(start[0] - tried[t][0], start[1] - tried[t][1]) >= other_basin_mm_;
-      }
-      if (!apart) continue;
-      tried[n_tried][0] = start[0];
-      tried[n_tried][1] = start[1];
-      ++n_tried;
+    const double first_uv[2] = {best_x[0], best_x[1]};
+    int picked[kCandidates];
+    const int n_picked =
+        pick_apart(start_, nb, n_nb, other_basin_mm_, first_uv, options_.other_basins, picked);
+    for (int k = 0; k < n_picked; ++k) {
+      const LookupNeighbour& row = nb[picked[k]];
       // The lean fit (refine_lm()'s): a tenth of the Ceres fit's cost, the same minimum to a few
       // percent of its uncertainty.
       ContactEstimate from;
-      from.u_mm = start[0];
-      from.v_mm = start[1];
-      from.depth_mm = start[2];
+      from.u_mm = start_.row_u_mm(row.row);
+      from.v_mm = start_.row_v_mm(row.row);
+      from.depth_mm = start_.row_depth_mm(row.row);
       PhysicsEstimate e;
       refine_lean<6>(model_, options_, in, ambient_jac_.data(), from, &e);
       iterations += e.iterations;
@@ -799,8 +810,7 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
   if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &best)) return best;
   double whitened[kMaxChannels];
   for (int c = 0; c < nc; ++c) whitened[c] = in.y[c] * in.inv_sigma[c];
-  // The nearest row, then the next nearest ones at least 2 start pitches from those taken (rows
-  // next to each other lie in one basin of the field: another basin is another place).
+  // The nearest row, then the next nearest ones at least 2 table pitches from those taken.
   constexpr int kCandidates = 32;
   LookupNeighbour nb[kCandidates];
   const int n = start_.nearest(std::span<const double>(whitened, static_cast<std::size_t>(nc)),
@@ -808,21 +818,12 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
                                std::span<LookupNeighbour>(nb, kCandidates));
   const double pitch = options_.start_grid.pitch_mm > 0 ? options_.start_grid.pitch_mm
                                                         : start_pitch_mm(model_.design());
-  const int wanted = std::clamp(starts, 1, 8);
+  int picked[8];
+  const int n_picked =
+      pick_apart(start_, nb, n, 2 * pitch, nullptr, std::clamp(starts, 1, 8), picked);
   bool found = false;
-  int taken[8];
-  int n_taken = 0;
-  for (int i = 0; i < n && n_taken < wanted; ++i) {
-    bool apart = true;
-    for (int t = 0; t < n_taken && apart; ++t) {
-      apart =
-          std::hypot(start_.row_u_mm(nb[i].row) - start_.row_u_mm(nb[taken[t]].row),
-                     start_.row_v_mm(nb[i].row) - start_.row_v_mm(nb[taken[t]].row)) >= 2 * pitch;
-    }
-    if (apart) taken[n_taken++] = i;
-  }
-  for (int t = 0; t < n_taken; ++t) {
-    const LookupNeighbour& row = nb[taken[t]];
+  for (int t = 0; t < n_picked; ++t) {
+    const LookupNeighbour& row = nb[picked[t]];
     ContactEstimate start;
     start.u_mm = start_.row_u_mm(row.row);
     start.v_mm = start_.row_v_mm(row.row);

@@ -92,10 +92,9 @@ class PhysicsRefiner : public ContactRefiner {
   PhysicsEstimate single_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                              const ContactEstimate& start) const {
     PhysicsEstimate fit = estimator_.refine_lm(field_ut, channel_ok, start);
-    const auto poor = [](const PhysicsEstimate& e) {
-      return !e.contact.valid() || (e.contact.flags & (kEstimatePoorFit | kEstimateNoContact)) != 0;
-    };
-    if (!options_.search_when_poor || !poor(fit) || (fit.contact.flags & kEstimateRejected) != 0) {
+    // A rejected sample (too few usable channels) is rejected from any start.
+    if (!options_.search_when_poor || !fit.contact.valid() ||
+        (fit.contact.flags & (kEstimatePoorFit | kEstimateNoContact)) == 0) {
       return fit;
     }
     PhysicsEstimate searched = estimator_.search_lm(field_ut, channel_ok, kSearchStarts);

@@ -182,10 +182,10 @@ class PhysicsEstimator {
   PhysicsEstimate refine_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                             const ContactEstimate& start) const;
   // refine_lm() from up to `starts` (1-8) rows of the start table: the nearest the sample in
-  // field, then the next nearest at least 2 start pitches from those taken (other basins of the
-  // field); the lowest chi-square kept. A search of the table at the lean fit's cost (`starts`
-  // fits), for a fit from another estimator's answer that ended poor. kEstimateRejected when no
-  // start gave a fit. No allocation.
+  // field, then the next nearest at least 2 of the table's pitches from those taken (other
+  // basins of the field); the lowest chi-square kept. A search of the table at the lean fit's cost
+  // (`starts` fits), for a fit from another estimator's answer that ended poor. kEstimateRejected
+  // when no start gave a fit. No allocation.
   PhysicsEstimate search_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                             int starts = 3) const;
   // The number of contacts in the sample (0 to count.max_contacts) and each one
