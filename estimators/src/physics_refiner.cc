@@ -29,6 +29,8 @@ class PhysicsRefiner : public ContactRefiner {
     options_.count.max_contacts = options_.max_contacts;  // the count goes as far as asked
   }
 
+  int channel_count() const override { return estimator_.model().channel_count(); }
+
   RefinedEstimate refine(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& start) const override {
     return from(single_fit(field_ut, channel_ok, start));

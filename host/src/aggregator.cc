@@ -325,6 +325,12 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
       request.correction_path =
           pl.correction.empty() ? std::string() : beside_map(map_dir, pl.correction);
       auto r = options.refiner_factory(request);
+      if (r.ok() && (*r)->channel_count() != kChannels) {
+        r = make_error(ErrorCode::kInvalidArgument,
+                       "its design has " + std::to_string((*r)->channel_count() / 3) +
+                           " sensors, a patch on the bus sends " + std::to_string(kChannels / 3) +
+                           " (docs/protocol.md)");
+      }
       if (r.ok()) {
         impl->refiners[i] = std::move(*r);
       } else {

@@ -16,6 +16,7 @@
 #include "skinbus/host/aggregator.h"
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 
@@ -599,6 +600,7 @@ class FailingRefiner : public estimators::ContactRefiner {
  public:
   FailingRefiner(std::unique_ptr<estimators::ContactRefiner> inner, const bool* failing)
       : inner_(std::move(inner)), failing_(failing) {}
+  int channel_count() const override { return inner_->channel_count(); }
   estimators::RefinedEstimate refine(std::span<const double> field_ut,
                                      std::span<const uint8_t> channel_ok,
                                      const estimators::ContactEstimate& start) const override {
@@ -706,6 +708,31 @@ TEST_F(AggregatorRefineTest, AUnitThatCannotBeLoadedIsNamedAndItsPatchStillPubli
   for (const PatchEvent& e : r.events) {
     named = named || (e.detail.find("units/unit4.json") != std::string::npos &&
                       e.detail.find("unrefined") != std::string::npos);
+  }
+  EXPECT_TRUE(named);
+}
+
+// A unit on a design with another sensor count than a patch on the bus sends (16 sensors, 48
+// channels) is refused with an event that says so; before, every fit was rejected for its
+// sample's length and the patch published the network's answers without a word.
+TEST_F(AggregatorRefineTest, AUnitWithAnotherSensorCountIsRefusedByName) {
+  options_.refiner_factory =
+      [](const RefinerRequest&) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
+    auto design =
+        sim::read_design_file(source_dir() + "/docs/benchmarks/design_8x8_5x5_sensors.yaml");
+    if (!design.ok()) return design.error();
+    auto unit = sim::PatchModel::nominal(*design);
+    if (!unit.ok()) return unit.error();
+    return estimators::make_physics_refiner(*unit);
+  };
+  const RunResult r = run(presses(*unit_, 3, 9), true, options_);
+  EXPECT_EQ(r.contacts.size(), 3u);
+  EXPECT_EQ(r.stats.refined, 0u);
+  bool named = false;
+  for (const PatchEvent& e : r.events) {
+    named = named || (e.detail.find("units/unit4.json") != std::string::npos &&
+                      e.detail.find("25 sensors") != std::string::npos &&
+                      e.detail.find("sends 16") != std::string::npos);
   }
   EXPECT_TRUE(named);
 }

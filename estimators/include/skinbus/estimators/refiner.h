@@ -39,6 +39,9 @@ struct RefinedContacts {
 class ContactRefiner {
  public:
   virtual ~ContactRefiner() = default;
+  // The channels a sample must hold (3 per sensor of the unit's design): refine() and
+  // refine_contacts() reject a sample of another length (kEstimateRejected or no contact).
+  virtual int channel_count() const = 0;
   // Refines `start` (the first estimate, patch frame) for a tared sample (`field_ut`: the model's
   // channel count in uT; `channel_ok`: 0 for channels to leave out, empty: all). Const and
   // thread-safe; cost: the refiner's (a few Levenberg-Marquardt iterations for the physics one).
