@@ -226,41 +226,6 @@ const KernelSet* kernels_for(KernelIsa isa) {
   return nullptr;
 }
 
-const char* kernel_isa_name(KernelIsa isa) {
-  switch (isa) {
-    case KernelIsa::kAvx512:
-      return "avx512";
-    case KernelIsa::kAvx2:
-      return "avx2";
-    case KernelIsa::kNeon:
-      return "neon";
-    case KernelIsa::kPortable:
-      return "portable";
-  }
-  return "unknown";
-}
-
-bool parse_kernel_isa(std::string_view name, KernelIsa* isa) {
-  for (KernelIsa i :
-       {KernelIsa::kAvx512, KernelIsa::kAvx2, KernelIsa::kNeon, KernelIsa::kPortable}) {
-    if (name == kernel_isa_name(i)) {
-      *isa = i;
-      return true;
-    }
-  }
-  return false;
-}
-
-KernelIsa env_isa_cap() {
-  static const KernelIsa cap = [] {
-    KernelIsa isa = KernelIsa::kAvx512;
-    const char* v = std::getenv("SKINBUS_MAX_ISA");
-    if (v != nullptr && *v != '\0' && !parse_kernel_isa(v, &isa)) isa = KernelIsa::kPortable;
-    return isa;
-  }();
-  return cap;
-}
-
 const KernelSet& best_kernels(KernelIsa cap) {
   // From the widest down; neon and the x86 sets never both exist.
   const KernelIsa order[] = {KernelIsa::kAvx512, KernelIsa::kAvx2, KernelIsa::kNeon};

@@ -24,6 +24,8 @@
 #include <cstdint>
 #include <string_view>
 
+#include "skinbus/common/isa.h"
+
 namespace skinbus::estimators::detail {
 
 inline constexpr int kMaxRows = 6;
@@ -77,8 +79,8 @@ struct KernelSet {
   WinogradOutput winograd_output = nullptr;
 };
 
-// The instruction sets the kernels are written for, widest first.
-enum class KernelIsa : uint8_t { kAvx512, kAvx2, kNeon, kPortable };
+// The instruction sets the kernels are written for, widest first (skinbus/common/isa.h).
+using KernelIsa = Isa;
 
 // Plain C++ kernels for any CPU (bf16 entries emulate vdpbf16ps exactly enough for tests; int8
 // entries compute the same integer sums as every vector set).
@@ -105,11 +107,6 @@ const KernelSet* neon_kernels();
 const KernelSet* neon_widening_kernels();
 // The set for `isa`, or null when this CPU or build lacks it (portable: always).
 const KernelSet* kernels_for(KernelIsa isa);
-const char* kernel_isa_name(KernelIsa isa);  // "avx512", "avx2", "neon", "portable"
-bool parse_kernel_isa(std::string_view name, KernelIsa* isa);
-// The cap named by the environment variable SKINBUS_MAX_ISA (avx512, avx2, neon, portable;
-// anything else: portable), read once; kAvx512 (no cap) when unset.
-KernelIsa env_isa_cap();
 // The widest set this CPU has, at most `cap`: the portable set when none.
 const KernelSet& best_kernels(KernelIsa cap);
 

@@ -357,13 +357,13 @@ TEST(NetworkKernelsTest, TheCapLimitsTheChoice) {
   EXPECT_EQ(neon_kernels(), nullptr);
 #endif
   KernelIsa isa = KernelIsa::kPortable;
-  EXPECT_TRUE(parse_kernel_isa("avx2", &isa));
+  EXPECT_TRUE(parse_isa("avx2", &isa));
   EXPECT_EQ(isa, KernelIsa::kAvx2);
-  EXPECT_FALSE(parse_kernel_isa("sse9", &isa));
+  EXPECT_FALSE(parse_isa("sse9", &isa));
   // What runs here, for the log.
   std::printf("kernels here: %s (int8 %s); SKINBUS_MAX_ISA cap %s\n",
               best_kernels(env_isa_cap()).name, best_kernels(env_isa_cap()).i8_name,
-              kernel_isa_name(env_isa_cap()));
+              isa_name(env_isa_cap()));
 }
 
 }  // namespace

@@ -901,8 +901,7 @@ Result<NetworkRuntime> NetworkRuntime::create(const ModelFile& model,
   if (!im.bf16 && !im.int8 && options.precision != RuntimePrecision::kFloat32) {
     return make_error(ErrorCode::kInvalidArgument, "unknown precision");
   }
-  const KernelSet& best = detail::best_kernels(
-      std::max(detail::env_isa_cap(), static_cast<detail::KernelIsa>(options.max_isa)));
+  const KernelSet& best = detail::best_kernels(std::max(env_isa_cap(), options.max_isa));
   RuntimeBackend be = options.backend;
   // kAuto: this library's kernels for the widest instruction set the CPU has, on every CPU.
   // oneDNN was slower than them everywhere it was measured, and 50x slower than the portable

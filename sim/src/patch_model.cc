@@ -4,34 +4,12 @@
 
 #include <string>
 
+#include "dipole_sum.h"
 #include "skinbus/sim/rng.h"
 
 namespace skinbus::sim {
 
 namespace {
-
-// Adds, at every sensor, the field of one displaced magnet minus its rest field. The hot loop
-// of the simulator: written so the compiler vectorises it, and built for AVX-512, AVX2 and
-// baseline x86-64 with the best chosen at run time.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-__attribute__((target_clones("avx512f", "avx2", "default")))
-#endif
-void accumulate_dipole(std::size_t ns, double px, double py, double pz, double mx, double my, double mz,
-                       const double* __restrict sx, const double* __restrict sy, const double* __restrict sz,
-                       const double* __restrict rx, const double* __restrict ry, const double* __restrict rz,
-                       double* __restrict ax, double* __restrict ay, double* __restrict az) {
-  for (std::size_t si = 0; si < ns; ++si) {
-    const double dx = sx[si] - px, dy = sy[si] - py, dz = sz[si] - pz;
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    const double inv_r = 1.0 / std::sqrt(r2);
-    const double inv_r3 = inv_r * inv_r * inv_r;
-    const double a = 3.0 * kDipoleScale * (mx * dx + my * dy + mz * dz) * inv_r3 * inv_r * inv_r;
-    const double b = kDipoleScale * inv_r3;
-    ax[si] += a * dx - b * mx - rx[si];
-    ay[si] += a * dy - b * my - ry[si];
-    az[si] += a * dz - b * mz - rz[si];
-  }
-}
 
 Error bad(const std::string& what) {
   return make_error(ErrorCode::kInvalidArgument, "patch design: " + what);
@@ -363,6 +341,7 @@ void PatchModel::contact_jacobian(const Contact& c, std::span<double> jacobian,
 
 void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const {
   const std::size_t ns = sensors_.size();
+  const detail::DipoleSum sum = detail::dipole_sum();  // AVX-512, AVX2 or baseline
   double ax[kMaxSensors] = {}, ay[kMaxSensors] = {}, az[kMaxSensors] = {};
   const double lu = spread_u_, lv = spread_v_, max_depth = max_depth_mm();
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
@@ -412,8 +391,8 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
     const double* rx = rx_.data() + mi * ns;
     const double* ry = ry_.data() + mi * ns;
     const double* rz = rz_.data() + mi * ns;
-    accumulate_dipole(ns, pos.x, pos.y, pos.z, mom.x, mom.y, mom.z, sx_.data(), sy_.data(),
-                      sz_.data(), rx, ry, rz, ax, ay, az);
+    sum(ns, pos.x, pos.y, pos.z, mom.x, mom.y, mom.z, sx_.data(), sy_.data(), sz_.data(), rx, ry,
+        rz, ax, ay, az);
   }
   for (std::size_t si = 0; si < ns; ++si) {
     const Vec3<double> local = sensors_[si].frame.apply(Vec3<double>{ax[si], ay[si], az[si]});

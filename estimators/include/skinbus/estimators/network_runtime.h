@@ -92,6 +92,7 @@
 #include <span>
 #include <string_view>
 
+#include "skinbus/common/isa.h"
 #include "skinbus/common/result.h"
 #include "skinbus/estimators/estimate.h"
 #include "skinbus/estimators/model_file.h"
@@ -101,8 +102,9 @@ namespace skinbus::estimators {
 enum class RuntimeBackend : uint8_t { kAuto, kKernels, kPortable, kOneDnn };
 enum class RuntimePrecision : uint8_t { kFloat32, kBfloat16, kInt8 };
 enum class RuntimeConvolution : uint8_t { kAuto, kDirect, kWinograd };
-// The instruction sets of the kernel backend, widest first; RuntimeOptions::max_isa caps them.
-enum class RuntimeIsa : uint8_t { kAvx512, kAvx2, kNeon, kPortable };
+// The instruction sets of the kernel backend, widest first (skinbus/common/isa.h);
+// RuntimeOptions::max_isa caps them.
+using RuntimeIsa = Isa;
 
 constexpr const char* runtime_backend_name(RuntimeBackend b) {
   switch (b) {
@@ -143,29 +145,11 @@ constexpr const char* runtime_convolution_name(RuntimeConvolution c) {
 }
 
 constexpr const char* runtime_isa_name(RuntimeIsa i) {
-  switch (i) {
-    case RuntimeIsa::kAvx512:
-      return "avx512";
-    case RuntimeIsa::kAvx2:
-      return "avx2";
-    case RuntimeIsa::kNeon:
-      return "neon";
-    case RuntimeIsa::kPortable:
-      return "portable";
-  }
-  return "unknown";
+  return isa_name(i);
 }
-
 // Reads an instruction-set name as runtime_isa_name() writes it; false for any other text.
 constexpr bool parse_runtime_isa(std::string_view name, RuntimeIsa* isa) {
-  for (RuntimeIsa i :
-       {RuntimeIsa::kAvx512, RuntimeIsa::kAvx2, RuntimeIsa::kNeon, RuntimeIsa::kPortable}) {
-    if (name == runtime_isa_name(i)) {
-      *isa = i;
-      return true;
-    }
-  }
-  return false;
+  return parse_isa(name, isa);
 }
 
 struct RuntimeOptions {

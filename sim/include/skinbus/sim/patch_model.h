@@ -26,6 +26,7 @@
 #include <span>
 #include <vector>
 
+#include "skinbus/common/isa.h"
 #include "skinbus/common/result.h"
 #include "skinbus/sim/dipole.h"
 #include "skinbus/sim/dual.h"
@@ -224,7 +225,7 @@ class PatchModel {
   template <typename T>
   void contact_field_ut(std::span<const ContactT<T>> contacts, T* out) const;
   // The same for double, with the sensor loop laid out for SIMD (patch_model.cc); equal to the
-  // template to rounding (tested).
+  // template to rounding (tested). Its inner loop runs on field_isa()'s instructions.
   void contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const;
 
   // Jacobian of the field change of one contact with respect to (u, v, depth): row-major,
@@ -443,5 +444,10 @@ void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out)
     out[3 * si + 2] = local.z * sensors_[si].gain.z;
   }
 }
+
+// The instruction set of contact_field_ut()'s inner loop: the widest of AVX-512 and AVX2 this CPU
+// has within SKINBUS_MAX_ISA (skinbus/common/isa.h), else baseline (kPortable); chosen once. The
+// sets agree to rounding (the vector ones fuse multiplies and adds).
+Isa field_isa();
 
 }  // namespace skinbus::sim

@@ -1,0 +1,75 @@
+// The field evaluation's inner loop on each instruction set this CPU has (AVX-512, AVX2,
+// baseline): equal to the baseline to rounding on random magnets and sensors, and the set used
+// is the widest the CPU has within SKINBUS_MAX_ISA. On a CPU without AVX-512 the AVX2 build is
+// the one checked here (and on the emulated AVX2-only CPU of docs/testing.md).
+#include "dipole_sum.h"
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "skinbus/common/test_seed.h"
+#include "skinbus/sim/patch_model.h"
+
+namespace skinbus::sim::detail {
+namespace {
+
+TEST(DipoleSum, EveryBuildThisCpuHasMatchesTheBaseline) {
+  std::mt19937_64 rng(test_seed("DipoleSum.EveryBuildThisCpuHasMatchesTheBaseline"));
+  std::uniform_real_distribution<double> pos(-80.0, 80.0), mom(-0.05, 0.05), field(-500.0, 500.0);
+  int checked = 0;
+  for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
+    const DipoleSum f = dipole_sum_for(isa);
+    if (f == nullptr) continue;
+    ++checked;
+    for (std::size_t ns : {1u, 3u, 7u, 8u, 16u, 17u, 25u, 64u, 81u}) {
+      std::vector<double> s(3 * ns), r(3 * ns), base(3 * ns), want, got;
+      for (double& x : s) x = pos(rng);
+      for (std::size_t i = 0; i < ns; ++i) s[2 * ns + i] = -std::abs(s[2 * ns + i]) - 2.0;
+      for (double& x : r) x = field(rng);
+      for (double& x : base) x = field(rng);
+      const double p[3] = {pos(rng), pos(rng), std::abs(pos(rng)) * 0.1};
+      const double m[3] = {mom(rng), mom(rng), mom(rng)};
+      want = got = base;
+      auto call = [&](DipoleSum fn, std::vector<double>& a) {
+        fn(ns, p[0], p[1], p[2], m[0], m[1], m[2], s.data(), s.data() + ns, s.data() + 2 * ns,
+           r.data(), r.data() + ns, r.data() + 2 * ns, a.data(), a.data() + ns, a.data() + 2 * ns);
+      };
+      call(dipole_sum_for(Isa::kPortable), want);
+      call(f, got);
+      // Each output sums its previous value, the rest field and the dipole's two terms; a
+      // fused multiply-add rounds once where the baseline rounds twice.
+      for (std::size_t i = 0; i < 3 * ns; ++i) {
+        const std::size_t k = i % ns;
+        const double dx = s[k] - p[0], dy = s[ns + k] - p[1], dz = s[2 * ns + k] - p[2];
+        const double dist = std::sqrt(dx * dx + dy * dy + dz * dz);
+        const double dipole = 4 * kDipoleScale * std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) /
+                              (dist * dist * dist);
+        const double scale = std::abs(base[i]) + std::abs(r[i]) + dipole;
+        EXPECT_NEAR(got[i], want[i], 1e-14 * scale) << isa_name(isa) << ", " << ns << " sensors";
+        if (std::abs(got[i] - want[i]) > 1e-14 * scale) break;
+      }
+    }
+  }
+  std::printf("builds checked against the baseline: %d (field here: %s)\n", checked,
+              isa_name(field_isa()));
+}
+
+TEST(DipoleSum, TheFieldRunsOnTheWidestSetWithinTheCap) {
+  Isa want = Isa::kPortable;
+  for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
+    if (isa_allowed(isa, env_isa_cap()) && dipole_sum_for(isa) != nullptr) {
+      want = isa;
+      break;
+    }
+  }
+  EXPECT_EQ(field_isa(), want) << isa_name(field_isa()) << " against " << isa_name(want);
+  EXPECT_EQ(dipole_sum(), dipole_sum_for(want));
+  EXPECT_TRUE(isa_allowed(field_isa(), env_isa_cap()));
+}
+
+}  // namespace
+}  // namespace skinbus::sim::detail
