@@ -197,6 +197,17 @@ void add_refine_options(CLI::App* sub, host_bench::RefineBenchArgs& a) {
       ->check(CLI::Range(3, 1000));
   sub->add_option("--seed", a.seed, "random seed")->capture_default_str();
   sub->add_option("--csv", a.csv, "write the error table as CSV");
+  sub->add_option("--design", a.design_path,
+                  "patch design file of the units (docs/design_file.md; 16 sensors, as a patch "
+                  "on the bus sends; default: the built-in design); presses with its indenter")
+      ->check(CLI::ExistingFile);
+  sub->add_option("--model", a.model_path,
+                  "the network the host refines from (model file stem or .json; default: the "
+                  "shipped seed CNN, estimators/models/nominal_seed_cnn)");
+  sub->add_option("--half-extent", a.half_extent_mm,
+                  "presses uniform within +-this of the patch centre, mm")
+      ->capture_default_str()
+      ->check(CLI::Range(1.0, 500.0));
 }
 
 void add_ambient_options(CLI::App* sub, host_bench::AmbientBenchArgs& a) {

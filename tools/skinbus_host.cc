@@ -541,13 +541,15 @@ int main(int argc, char** argv) {
       if (s.refined + s.unrefined_budget + s.unrefined_poor_fit > 0) {
         std::fprintf(stderr,
                      "skinbus-host: refined %" PRIu64 " (%.0f us each, %" PRIu64
-                     " from the previous contact, %" PRIu64 " with two or more presses, %" PRIu64
+                     " from the previous contact, %" PRIu64
+                     " of those made again from the "
+                     "network's answer, %" PRIu64 " with two or more presses, %" PRIu64
                      " with three, %" PRIu64 " counted from a proposer), unrefined %" PRIu64
                      " over the budget and %" PRIu64 " poor fits (%" PRIu64
                      " of them held several presses unpublished)\n",
                      s.refined, s.refined > 0 ? s.refine_us / static_cast<double>(s.refined) : 0.0,
-                     s.refine_warm_starts, s.refined_pairs, s.refined_triples, s.proposed,
-                     s.unrefined_budget, s.unrefined_poor_fit, s.held_pairs);
+                     s.refine_warm_starts, s.refine_restarts, s.refined_pairs, s.refined_triples,
+                     s.proposed, s.unrefined_budget, s.unrefined_poor_fit, s.held_pairs);
       }
       if (out.latency_us.count() > 0) {
         std::fprintf(stderr,

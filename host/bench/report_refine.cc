@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -17,6 +18,7 @@
 #include "skinbus/host/aggregator.h"
 #include "skinbus/host_bench/reports.h"
 #include "skinbus/sim/crlb.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 
@@ -27,6 +29,7 @@ namespace {
 constexpr uint64_t kPeriodUs = 23'981;  // 41.7 Hz
 constexpr int kBins = 3;                // 1-2, 2-3, 3-4 mm
 constexpr double kBinLo[kBins] = {1, 2, 3};
+constexpr const char* kShippedModel = "estimators/models/nominal_seed_cnn";
 
 struct Sample {
   sim::Contact truth;
@@ -34,13 +37,14 @@ struct Sample {
   bool release = false;  // the sample after a press: no contact
 };
 
-// Presses held for `samples` periods: a ramp to the depth over the first third, then held while
-// the point drifts (0.1 mm a sample, a slow slide), then a release.
+// Presses held for `samples` periods with the design's indenter: a ramp to the depth over the
+// first third, then held while the point drifts (0.1 mm a sample, a slow slide), then a release.
 std::vector<Sample> make_session(const sim::PatchModel& unit, const RefineBenchArgs& a,
                                  uint64_t seed) {
   sim::SimulatedPatch patch(unit, seed);
   sim::Rng rng(seed ^ 0x9E3779B97F4A7C15ull);
   sim::Environment env;
+  const double tip_mm = unit.design().indenter_tip_radius_mm;
   std::vector<double> base(static_cast<std::size_t>(patch.channel_count()));
   patch.tare(env, 32, base);
   std::vector<Sample> out;
@@ -52,7 +56,7 @@ std::vector<Sample> make_session(const sim::PatchModel& unit, const RefineBenchA
     for (int k = 0; k < a.samples_per_press; ++k) {
       Sample s;
       const double ramp = std::min(1.0, (k + 1.0) / (a.samples_per_press / 3.0));
-      s.truth = {u, v, std::max(0.3, depth * ramp), 5.0};
+      s.truth = {u, v, std::max(0.3, depth * ramp), tip_mm};
       s.tared_ut.resize(base.size());
       patch.measure(std::span<const sim::Contact>(&s.truth, 1), env, s.tared_ut);
       for (std::size_t c = 0; c < base.size(); ++c) s.tared_ut[c] -= base[c];
@@ -73,17 +77,18 @@ struct Outcome {
   std::vector<bool> have;
   host::AggregatorStats stats;
   double process_us = 0;  // time in process(), all samples
+  std::string error;      // the aggregator refused, or the model or the refiner did not load
 };
 
 Outcome run(const sim::PatchModel& unit, const std::vector<Sample>& session, uint64_t uid,
-            bool refine, double warm_start_mm) {
+            const std::string& model, bool refine, double warm_start_mm) {
   Outcome out;
   body_map::SkinMap map;
   body_map::PatchPlacement p;
   p.node_id = 1;
   p.hardware_uid = uid;
   p.link = "patch";
-  p.model = "estimators/models/nominal_seed_cnn";
+  p.model = model;
   if (refine) p.unit = "unit";  // the factory below gives the unit's model
   map.patches.push_back(p);
   host::AggregatorOptions o;
@@ -91,10 +96,21 @@ Outcome run(const sim::PatchModel& unit, const std::vector<Sample>& session, uin
   o.refine_budget_us = 1'000'000;  // the whole call: every sample refined, each timed
   o.refine_warm_start_mm = warm_start_mm;
   o.refiner_factory = [&unit](const host::RefinerRequest&) {
-    return estimators::make_physics_refiner(unit);
+    estimators::RefinerOptions ro;  // as make_physics_refiner() from files: the design's tip
+    ro.physics.tip_radius_mm = unit.design().indenter_tip_radius_mm;
+    return estimators::make_physics_refiner(unit, ro);
   };
   auto agg = host::Aggregator::create(&map, SKINBUS_SOURCE_DIR, nullptr, {"can0"}, o);
-  if (!agg.ok()) return out;
+  if (!agg.ok()) {
+    out.error = agg.error().to_string();
+    return out;
+  }
+  host::PatchStatusArray status;
+  (*agg)->status(0, &status);
+  for (const host::PatchEvent& e : status.events) {
+    if (e.kind == host::PatchEventKind::kNoModel) out.error = e.detail;
+  }
+  if (!out.error.empty()) return out;
   auto send = [&](const bus::Message& m, uint64_t rx) {
     std::array<bus::CanFrame, 4> frames;
     const bus::EncodeResult r = bus::encode(m, frames);
@@ -141,15 +157,30 @@ struct Acc {
 }  // namespace
 
 Status bench_refine(const RefineBenchArgs& a) {
-  const sim::PatchDesign design;
+  auto read = sim::read_design_or_builtin(a.design_path);
+  if (!read.ok()) return read.error();
+  const sim::PatchDesign design = *read;
+  const int channels = design.channel_count();
+  if (channels != bus::kChannelCount) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      a.design_path + ": " + std::to_string(channels / 3) +
+                          " sensors; the host refines patches that send " +
+                          std::to_string(bus::kChannelCount / 3) + " (docs/protocol.md)");
+  }
+  // The skin map's model path is taken from the source tree; one given here from where it runs.
+  const std::string model =
+      a.model_path.empty() ? kShippedModel : std::filesystem::absolute(a.model_path).string();
   const estimators::ChannelNoise noise = estimators::ChannelNoise::of(design);
   std::printf(
       "Physics refinement in the host: %d presses per unit held %d samples at 41.7 Hz (a ramp "
       "over the first third, then a 0.1 mm/sample drift), uniform within +-%.0f mm, 1-4 mm deep "
-      "(5 mm tips); the shipped network (%s) alone and refined by Levenberg-Marquardt on the "
-      "unit's model; fabricated units of the built-in design; seed %llu.\n\n",
-      a.presses, a.samples_per_press, a.half_extent_mm, "estimators/models/nominal_seed_cnn",
-      static_cast<unsigned long long>(a.seed));
+      "(%g mm tips); the network %s alone and refined by Levenberg-Marquardt on the unit's "
+      "model; fabricated units of %s; seed %llu; the field evaluation on %s (SKINBUS_MAX_ISA "
+      "caps it and the network's kernels).\n\n",
+      a.presses, a.samples_per_press, a.half_extent_mm, design.indenter_tip_radius_mm,
+      a.model_path.empty() ? kShippedModel : a.model_path.c_str(),
+      a.design_path.empty() ? "the built-in design" : a.design_path.c_str(),
+      static_cast<unsigned long long>(a.seed), isa_name(sim::field_isa()));
   std::printf(
       "| unit | depth (mm) | samples | network XY (mm) | x CRLB | refined XY (mm) | x CRLB | "
       "network depth (mm) | refined depth (mm) |\n"
@@ -163,9 +194,12 @@ Status bench_refine(const RefineBenchArgs& a) {
     auto unit = sim::PatchModel::fabricated(design, uid, sim::FabricationVariation{});
     if (!unit.ok()) return unit.error();
     const std::vector<Sample> session = make_session(*unit, a, a.seed + ui);
-    const Outcome net = run(*unit, session, uid, false, 0);
-    const Outcome cold = run(*unit, session, uid, true, 0);
-    const Outcome warm = run(*unit, session, uid, true, 3.0);
+    const Outcome net = run(*unit, session, uid, model, false, 0);
+    const Outcome cold = run(*unit, session, uid, model, true, 0);
+    const Outcome warm = run(*unit, session, uid, model, true, 3.0);
+    for (const Outcome* o : {&net, &cold, &warm}) {
+      if (!o->error.empty()) return make_error(ErrorCode::kInvalidArgument, o->error);
+    }
     if (net.published.empty() || cold.published.size() != net.published.size() ||
         warm.published.size() != net.published.size()) {
       return make_error(ErrorCode::kInternal, "refine report: the runs published differently");
@@ -223,6 +257,11 @@ Status bench_refine(const RefineBenchArgs& a) {
                   static_cast<unsigned long long>(uid),
                   static_cast<unsigned long long>(cold.stats.unrefined_poor_fit),
                   static_cast<unsigned long long>(warm.stats.unrefined_poor_fit));
+    }
+    if (warm.stats.refine_restarts > 0) {
+      std::printf("(unit 0x%llx: %llu warm fits rejected, made again from the network's answer)\n",
+                  static_cast<unsigned long long>(uid),
+                  static_cast<unsigned long long>(warm.stats.refine_restarts));
     }
   }
   std::printf(

@@ -709,13 +709,16 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         } else {
           const auto t0 = std::chrono::steady_clock::now();
           const std::size_t row = static_cast<std::size_t>(b) * kChannels;
-          // Warm start: the patch's previous refined contact, when this is the same press; a
-          // previous pair is tried again first.
-          ContactEstimate start = est;
+          // Warm start: the patch's previous refined contact (the same press, moved little in
+          // one period: a press ends with a sample without contact), whatever the network says
+          // (a network trained on another design can be centimetres off for a whole press); a
+          // previous pair is tried again first. A warm fit the host's rule rejects is made
+          // again from the network's answer when that is farther than refine_warm_start_mm.
           const PatchContact& last = prev.contacts[0];
-          const bool prev_refined = prev.used && (last.flags & kContactUnrefined) == 0;
-          if (prev_refined && std::hypot(last.u_mm - est.u_mm, last.v_mm - est.v_mm) <
-                                  s.options.refine_warm_start_mm) {
+          const bool warm = s.options.refine_warm_start_mm > 0 && prev.used &&
+                            (last.flags & kContactUnrefined) == 0;
+          ContactEstimate start = est;
+          if (warm) {
             start.u_mm = last.u_mm;
             start.v_mm = last.v_mm;
             start.depth_mm = last.depth_mm;
@@ -734,11 +737,33 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
               !mem.searched || mem.since_search >= kSearchEverySamples || last_unusable
                   ? 0.0
                   : 1.5 * mem.searched_chi2;
-          const estimators::RefinedContacts rc = refiner->refine_contacts(
-              std::span<const double>(m.fields.data() + row, kChannels),
-              std::span<const uint8_t>(m.ok.data() + row, kChannels), start,
-              std::span<const ContactEstimate>(mem.previous, static_cast<std::size_t>(mem.held)),
-              search_above);
+          auto refine_from = [&](const ContactEstimate& from) {
+            return refiner->refine_contacts(
+                std::span<const double>(m.fields.data() + row, kChannels),
+                std::span<const uint8_t>(m.ok.data() + row, kChannels), from,
+                std::span<const ContactEstimate>(mem.previous, static_cast<std::size_t>(mem.held)),
+                search_above);
+          };
+          auto accepted = [&](const estimators::RefinedContacts& r) {
+            const int n = std::clamp(r.count, 1, kMaxContacts);
+            bool all = true;
+            for (int j = 0; j < n; ++j) {
+              all = all && refinement_accepted(r.contacts[j], n == 1 ? &est : nullptr, s.options);
+            }
+            return all;
+          };
+          estimators::RefinedContacts rc = refine_from(start);
+          bool ok = accepted(rc);
+          if (!ok && warm &&
+              std::hypot(start.u_mm - est.u_mm, start.v_mm - est.v_mm) >=
+                  s.options.refine_warm_start_mm) {
+            ++s.stats.refine_restarts;
+            estimators::RefinedContacts again = refine_from(est);
+            if (accepted(again)) {
+              rc = again;
+              ok = true;
+            }
+          }
           if (rc.proposed) ++s.stats.proposed;
           if (rc.searched) {
             mem.searched = true;
@@ -753,10 +778,6 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           refine_spent_us += us;
           s.stats.refine_us += us;
           const int found = std::clamp(rc.count, 1, kMaxContacts);
-          bool ok = true;
-          for (int j = 0; j < found; ++j) {
-            ok = ok && refinement_accepted(rc.contacts[j], found == 1 ? &est : nullptr, s.options);
-          }
           if (ok) {
             count = found;
             for (int j = 0; j < found; ++j) {

@@ -154,9 +154,11 @@ struct AggregatorOptions {
   // Host time (steady clock) process() may spend refining, per call. A sample beyond it is
   // published with the network's answer, flagged kContactUnrefined (never late).
   uint64_t refine_budget_us = 8000;
-  // Start a refinement from the same patch's previous refined contact when the network's answer
-  // is within this of it (the same press, moved little in one sample period), else from the
-  // network's answer. 0: always from the network's.
+  // A refinement starts from the same patch's previous refined contact while the press lasts
+  // (it moves little in one sample period), whatever the network's answer; when the host's rule
+  // below rejects that fit and the network's answer is at least this far from its start, the
+  // sample is refined again from the network's answer (AggregatorStats::refine_restarts). 0:
+  // always from the network's answer.
   double refine_warm_start_mm = 3.0;
   // A refined contact is published when its fit converged, found a contact, explains the sample
   // to at most this reduced chi-square (noise units; its uncertainty is widened by the square root
@@ -177,7 +179,10 @@ struct AggregatorOptions {
 // (AggregatorOptions::refine_max_reduced_chi2, refine_trusted_chi2, refine_max_shift_mm): the
 // fit converged, found a contact, explains the sample well enough and lies near the network's
 // answer or fits to the noise. `network` null: no distance to it is asked (a contact of a pair,
-// which the network's single answer does not describe).
+// which the network's single answer does not describe). The distance is to the network's answer
+// even for a warm start: a warm fit near its start could stay in a wrong basin for a whole press
+// (a 9 x 9 one-polarity design refined from a network trained on another: 20 mm off at 1-3 mm
+// deep, reduced chi-square 2-3).
 bool refinement_accepted(const estimators::RefinedEstimate& refined,
                          const estimators::ContactEstimate* network, const AggregatorOptions& o);
 
@@ -203,6 +208,7 @@ struct AggregatorStats {
   // spent, or because the fit was poor (or failed); the time spent refining (us).
   uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
+  uint64_t refine_restarts = 0;     // of those, rejected and refined again from the network's
   uint64_t refined_pairs = 0;    // refined samples that held two or more presses (max_contacts 2-3)
   uint64_t refined_triples = 0;  // of those, the ones that held three (max_contacts 3)
   uint64_t proposed = 0;  // counts started from a proposer's presses (PatchPlacement::proposer)

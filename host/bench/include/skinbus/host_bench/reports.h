@@ -55,6 +55,8 @@ struct RefineBenchArgs {
   double half_extent_mm = 55;
   uint64_t seed = 1;
   std::string csv;
+  std::string design_path;  // "" the built-in design; it must have the bus's 16 sensors
+  std::string model_path;   // the network refined from; "" the shipped seed CNN
 };
 
 Status bench_refine(const RefineBenchArgs& a);
