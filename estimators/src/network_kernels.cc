@@ -228,13 +228,9 @@ const KernelSet* kernels_for(KernelIsa isa) {
 
 const KernelSet& best_kernels(KernelIsa cap) {
   // From the widest down; neon and the x86 sets never both exist.
-  const KernelIsa order[] = {KernelIsa::kAvx512, KernelIsa::kAvx2, KernelIsa::kNeon};
-  const int first = cap == KernelIsa::kAvx512 ? 0
-                    : cap == KernelIsa::kAvx2 ? 1
-                    : cap == KernelIsa::kNeon ? 2
-                                              : 3;
-  for (int i = first; i < 3; ++i) {
-    if (const KernelSet* k = kernels_for(order[i])) return *k;
+  for (KernelIsa isa : {KernelIsa::kAvx512, KernelIsa::kAvx2, KernelIsa::kNeon}) {
+    if (!isa_allowed(isa, cap)) continue;
+    if (const KernelSet* k = kernels_for(isa)) return *k;
   }
   return portable_kernels();
 }

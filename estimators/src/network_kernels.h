@@ -22,7 +22,6 @@
 #pragma once
 
 #include <cstdint>
-#include <string_view>
 
 #include "skinbus/common/isa.h"
 

@@ -34,11 +34,11 @@ std::vector<const KernelSet*> vector_sets() {
   std::vector<const KernelSet*> out;
   const KernelIsa cap = env_isa_cap();
   for (KernelIsa isa : {KernelIsa::kAvx512, KernelIsa::kAvx2, KernelIsa::kNeon}) {
-    if (static_cast<int>(isa) < static_cast<int>(cap)) continue;
+    if (!isa_allowed(isa, cap)) continue;
     if (const KernelSet* k = kernels_for(isa)) out.push_back(k);
   }
   // The AVX2 int8 kernels' dot-product form (AVX-VNNI, or its EVEX twin on AVX-512 CPUs).
-  if (static_cast<int>(cap) <= static_cast<int>(KernelIsa::kAvx2)) {
+  if (isa_allowed(KernelIsa::kAvx2, cap)) {
     if (const KernelSet* k = avx2_dot_product_kernels()) out.push_back(k);
   }
   return out;
@@ -50,7 +50,7 @@ std::vector<const KernelSet*> int8_sets() {
   std::vector<const KernelSet*> out = vector_sets();
   const KernelSet* widening = neon_widening_kernels();
   if (widening != nullptr && widening != neon_kernels() &&
-      static_cast<int>(KernelIsa::kNeon) >= static_cast<int>(env_isa_cap())) {
+      isa_allowed(KernelIsa::kNeon, env_isa_cap())) {
     out.push_back(widening);
   }
   return out;

@@ -244,13 +244,14 @@ Status bench_refine(const RefineBenchArgs& a) {
     const double samples = static_cast<double>(net.published.size());
     char row[256];
     std::snprintf(
-        row, sizeof row, "| 0x%llx | %.0f | %.1f | %.1f | %.1f | %.0f %% | %.1f | %.1f |\n",
+        row, sizeof row, "| 0x%llx | %.0f | %.1f | %.1f | %.1f | %.0f %% | %llu | %.1f | %.1f |\n",
         static_cast<unsigned long long>(uid), samples, net.process_us / samples,
         cold.stats.refine_us / static_cast<double>(std::max<uint64_t>(1, cold.stats.refined)),
         warm.stats.refine_us / static_cast<double>(std::max<uint64_t>(1, warm.stats.refined)),
         100.0 * static_cast<double>(warm.stats.refine_warm_starts) /
             static_cast<double>(std::max<uint64_t>(1, warm.stats.refined)),
-        cold.process_us / samples, warm.process_us / samples);
+        static_cast<unsigned long long>(warm.stats.refine_restarts), cold.process_us / samples,
+        warm.process_us / samples);
     cost_rows += row;
     if (warm.stats.unrefined_poor_fit + cold.stats.unrefined_poor_fit > 0) {
       std::printf("(unit 0x%llx: %llu cold and %llu warm refinements ended poor: network kept)\n",
@@ -258,17 +259,13 @@ Status bench_refine(const RefineBenchArgs& a) {
                   static_cast<unsigned long long>(cold.stats.unrefined_poor_fit),
                   static_cast<unsigned long long>(warm.stats.unrefined_poor_fit));
     }
-    if (warm.stats.refine_restarts > 0) {
-      std::printf("(unit 0x%llx: %llu warm fits rejected, made again from the network's answer)\n",
-                  static_cast<unsigned long long>(uid),
-                  static_cast<unsigned long long>(warm.stats.refine_restarts));
-    }
   }
   std::printf(
       "\nCost per touched sample (us; process(): the whole pipeline of a sample, network run and "
-      "placement included):\n\n| unit | samples | network process() | refine, cold | refine, "
-      "warm | warm starts | process(), cold | process(), warm |\n"
-      "|---|---:|---:|---:|---:|---:|---:|---:|\n%s",
+      "placement included; restarts: warm fits the host rejected, made again from the network's "
+      "answer):\n\n| unit | samples | network process() | refine, cold | refine, warm | warm "
+      "starts | restarts | process(), cold | process(), warm |\n"
+      "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n%s",
       cost_rows.c_str());
   std::printf(
       "\nXY: mean distance to the press; x CRLB: over the mean of the unit's Cramer-Rao bound "

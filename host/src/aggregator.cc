@@ -711,9 +711,11 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           const std::size_t row = static_cast<std::size_t>(b) * kChannels;
           // Warm start: the patch's previous refined contact (the same press, moved little in
           // one period: a press ends with a sample without contact), whatever the network says
-          // (a network trained on another design can be centimetres off for a whole press); a
-          // previous pair is tried again first. A warm fit the host's rule rejects is made
-          // again from the network's answer when that is farther than refine_warm_start_mm.
+          // (a network trained on another design can be centimetres off for a whole press); the
+          // network's answer on a press's first sample or after an unrefined one. A previous
+          // pair is tried again first. A single warm fit the host's rule rejects is made again
+          // from the network's answer when that is refine_warm_start_mm or more away and the
+          // budget is not spent.
           const PatchContact& last = prev.contacts[0];
           const bool warm = s.options.refine_warm_start_mm > 0 && prev.used &&
                             (last.flags & kContactUnrefined) == 0;
@@ -752,29 +754,41 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             }
             return all;
           };
+          auto elapsed_us = [&t0] {
+            return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
+                .count();
+          };
+          // The search and proposer bookkeeping of each call made.
+          bool searched = false;
+          auto note = [&](const estimators::RefinedContacts& r) {
+            if (r.proposed) ++s.stats.proposed;
+            if (r.searched) {
+              searched = true;
+              mem.searched_chi2 = r.single_reduced_chi2;
+            }
+          };
           estimators::RefinedContacts rc = refine_from(start);
+          note(rc);
           bool ok = accepted(rc);
-          if (!ok && warm &&
+          if (!ok && warm && rc.count <= 1 && mem.held < 2 &&
               std::hypot(start.u_mm - est.u_mm, start.v_mm - est.v_mm) >=
-                  s.options.refine_warm_start_mm) {
+                  s.options.refine_warm_start_mm &&
+              refine_spent_us + elapsed_us() < static_cast<double>(s.options.refine_budget_us)) {
             ++s.stats.refine_restarts;
             estimators::RefinedContacts again = refine_from(est);
+            note(again);
             if (accepted(again)) {
               rc = again;
               ok = true;
             }
           }
-          if (rc.proposed) ++s.stats.proposed;
-          if (rc.searched) {
+          if (searched) {
             mem.searched = true;
-            mem.searched_chi2 = rc.single_reduced_chi2;
             mem.since_search = 0;
           } else {
             ++mem.since_search;
           }
-          const double us =
-              std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
-                  .count();
+          const double us = elapsed_us();
           refine_spent_us += us;
           s.stats.refine_us += us;
           const int found = std::clamp(rc.count, 1, kMaxContacts);

@@ -28,8 +28,8 @@ __attribute__((always_inline)) inline void dipole_sum_body(
   }
 }
 
-#define SKINBUS_DIPOLE_SUM_PARAMS                                                              \
-  std::size_t ns, double px, double py, double pz, double mx, double my, double mz,            \
+#define SKINBUS_DIPOLE_SUM_PARAMS                                                               \
+  std::size_t ns, double px, double py, double pz, double mx, double my, double mz,             \
       const double *sx, const double *sy, const double *sz, const double *rx, const double *ry, \
       const double *rz, double *ax, double *ay, double *az
 #define SKINBUS_DIPOLE_SUM_ARGS ns, px, py, pz, mx, my, mz, sx, sy, sz, rx, ry, rz, ax, ay, az
@@ -39,9 +39,9 @@ void dipole_sum_baseline(SKINBUS_DIPOLE_SUM_PARAMS) {
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
-// x86-64-v3 (AVX2 with FMA, as every AVX2 CPU robots carry has) and AVX-512F (whose EVEX
-// encoding has FMA): the compiler may fuse a multiply and an add, so these differ from the
-// baseline in the last bits.
+// AVX2 with FMA (every AVX2 CPU robots carry has both) and AVX-512F (whose EVEX encoding has
+// FMA): the compiler may fuse a multiply and an add, so these differ from the baseline in the
+// last bits.
 __attribute__((target("avx2,fma"))) void dipole_sum_avx2(SKINBUS_DIPOLE_SUM_PARAMS) {
   dipole_sum_body(SKINBUS_DIPOLE_SUM_ARGS);
 }
@@ -72,6 +72,9 @@ const Chosen& chosen() {
 }  // namespace
 
 DipoleSum dipole_sum_for(Isa isa) {
+#if defined(__x86_64__) && defined(__GNUC__)
+  __builtin_cpu_init();  // may run before libgcc's constructor (a static initialiser's call)
+#endif
   switch (isa) {
     case Isa::kPortable:
       return &dipole_sum_baseline;
@@ -80,7 +83,7 @@ DipoleSum dipole_sum_for(Isa isa) {
       return __builtin_cpu_supports("avx512f") ? &dipole_sum_avx512 : nullptr;
     case Isa::kAvx2:
       return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") ? &dipole_sum_avx2
-                                                                              : nullptr;
+                                                                             : nullptr;
 #endif
     default:
       return nullptr;

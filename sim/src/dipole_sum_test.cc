@@ -6,8 +6,8 @@
 
 #include <gtest/gtest.h>
 
-#include <cstdio>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <vector>
 
@@ -46,7 +46,8 @@ TEST(DipoleSum, EveryBuildThisCpuHasMatchesTheBaseline) {
         const std::size_t k = i % ns;
         const double dx = s[k] - p[0], dy = s[ns + k] - p[1], dz = s[2 * ns + k] - p[2];
         const double dist = std::sqrt(dx * dx + dy * dy + dz * dz);
-        const double dipole = 4 * kDipoleScale * std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) /
+        const double dipole = 4 * kDipoleScale *
+                              std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) /
                               (dist * dist * dist);
         const double scale = std::abs(base[i]) + std::abs(r[i]) + dipole;
         EXPECT_NEAR(got[i], want[i], 1e-14 * scale) << isa_name(isa) << ", " << ns << " sensors";

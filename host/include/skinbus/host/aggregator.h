@@ -155,10 +155,12 @@ struct AggregatorOptions {
   // published with the network's answer, flagged kContactUnrefined (never late).
   uint64_t refine_budget_us = 8000;
   // A refinement starts from the same patch's previous refined contact while the press lasts
-  // (it moves little in one sample period), whatever the network's answer; when the host's rule
-  // below rejects that fit and the network's answer is at least this far from its start, the
-  // sample is refined again from the network's answer (AggregatorStats::refine_restarts). 0:
-  // always from the network's answer.
+  // (it moves little in one sample period), whatever the network's answer; from the network's
+  // answer on a press's first sample and after an unrefined one. When the host's rule below
+  // rejects a single warm fit and the network's answer is at least this far from its start, the
+  // sample is refined again from the network's answer if the budget is not spent
+  // (AggregatorStats::refine_restarts): the distance at which a restart can find another place.
+  // 0: no warm starts (always from the network's answer).
   double refine_warm_start_mm = 3.0;
   // A refined contact is published when its fit converged, found a contact, explains the sample
   // to at most this reduced chi-square (noise units; its uncertainty is widened by the square root
