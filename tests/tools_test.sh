@@ -257,6 +257,19 @@ sed 's/link: torso_link/link: chest_link/' "$work/cal/initial.yaml" >"$work/cal/
 [[ $rc == 2 ]] && grep -q "'chest_link' is not a link of robot 'skinbot'" "$work/cal/err6.txt" && ok "unknown link in the skin map" || { bad "unknown link (rc $rc)"; cat "$work/cal/err6.txt"; }
 "$bin/skinbus-bench" calibration --sessions 2 --touches 30 --noise 0.5 >"$work/bench.md" 2>/dev/null &&
   grep -q "^| 30 | 0.5 | 20 | 0 |" "$work/bench.md" && ok "skinbus-bench calibration" || { bad "skinbus-bench calibration"; cat "$work/bench.md"; }
+# The host's refinement on another design (the shipped network 17 mm off there): the field's
+# instruction set named, the refined presses within 1.5x their bound, the cost table's 27 samples; a
+# design the bus cannot carry (25 sensors) refused by name.
+SKINBUS_MAX_ISA=avx2 "$bin/skinbus-bench" refine --design "$here/../docs/benchmarks/design_turned_chips.yaml" \
+  --uids 1 --presses 3 --samples 9 >"$work/refine.md" 2>&1 &&
+  grep -q "field evaluation on avx2" "$work/refine.md" &&
+  awk -F'|' '$2 == " 0x1 " && $3 == " 1-4 " && $8 + 0 > 0 && $8 + 0 < 1.5 {found = 1} END {exit !found}' "$work/refine.md" &&
+  grep -q "^| 0x1 | 27 | " "$work/refine.md" &&
+  ok "skinbus-bench refine --design" || { bad "skinbus-bench refine --design"; cat "$work/refine.md"; }
+"$bin/skinbus-bench" refine --design "$here/../docs/benchmarks/design_8x8_5x5_sensors.yaml" \
+  2>"$work/refine_err.txt" >/dev/null; rc=$?
+[[ $rc != 0 ]] && grep -q "25 sensors; the host refines patches that send 16" "$work/refine_err.txt" &&
+  ok "skinbus-bench refine refuses a 25-sensor design" || { bad "skinbus-bench refine 25 sensors (rc $rc)"; cat "$work/refine_err.txt"; }
 "$bin/skinbus-bench" triples --sides 50 --depths 2 --trials 3 --other-trials 2 \
   --csv "$work/triples.csv" >"$work/triples.md" 2>/dev/null &&
   grep -q "^| 50 | 2.0 | " "$work/triples.md" && grep -q "^50,2,3," "$work/triples.csv" &&
