@@ -226,7 +226,7 @@ estimators::RuntimeBackend parse_backend(const std::string& s) {
 
 estimators::RuntimeIsa parse_isa(const std::string& s) {
   estimators::RuntimeIsa isa = estimators::RuntimeIsa::kAvx512;
-  if (estimators::parse_runtime_isa(s, &isa)) return isa;
+  if (parse_isa(s, &isa)) return isa;
   throw std::invalid_argument("--isa: avx512, avx2, neon or portable");
 }
 

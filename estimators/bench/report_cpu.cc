@@ -283,7 +283,7 @@ Status bench_cpu(const CpuBenchArgs& a) {
       // The kernels fall back to a narrower set when the CPU lacks this one: each set once.
       const std::string name = rt1->kernel_name();
       if (isa != RuntimeIsa::kPortable &&
-          name.find(std::string(" ") + runtime_isa_name(isa)) == std::string::npos) {
+          name.find(std::string(" ") + isa_name(isa)) == std::string::npos) {
         continue;
       }
       std::fprintf(stderr, "skinbus-bench: %s ...\n", name.c_str());
@@ -451,11 +451,10 @@ Status bench_cpu(const CpuBenchArgs& a) {
                  "depth_mean_mm\n");
     for (const Row& r : rows) {
       std::fprintf(f, "\"%s\",%s,%s,%.1f,%.2f,%.2f,%lld,%.1f,%.2f,%.2f,%.2f,%.4f,%.4f,%.4f\n",
-                   r.kernels.c_str(), r.precision.c_str(),
-                   r.torch ? "libtorch" : runtime_isa_name(r.isa), r.peak_gflops, r.floor_us(),
-                   r.batch1_us, static_cast<long long>(r.weight_bytes()), r.read_gbps,
-                   r.read_floor_us(), r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm,
-                   r.depth_mean_mm);
+                   r.kernels.c_str(), r.precision.c_str(), r.torch ? "libtorch" : isa_name(r.isa),
+                   r.peak_gflops, r.floor_us(), r.batch1_us,
+                   static_cast<long long>(r.weight_bytes()), r.read_gbps, r.read_floor_us(),
+                   r.batch64_1t_us, r.batch64_2t_us, r.xy_mean_mm, r.xy_deep_mm, r.depth_mean_mm);
     }
     if (std::fclose(f) != 0) {
       return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());

@@ -215,7 +215,7 @@ skinbus::Result<std::unique_ptr<host::Aggregator>> make_aggregator(const Setup& 
   o.runtime.precision = a.precision == "int8"       ? estimators::RuntimePrecision::kInt8
                         : a.precision == "bfloat16" ? estimators::RuntimePrecision::kBfloat16
                                                     : estimators::RuntimePrecision::kFloat32;
-  estimators::parse_runtime_isa(a.isa, &o.runtime.max_isa);
+  parse_isa(a.isa, &o.runtime.max_isa);
   o.max_lag_us = static_cast<uint64_t>(std::llround(a.max_lag_ms * 1000));
   o.model_delay_us = static_cast<uint64_t>(a.model_delay_us);
   if (paced) o.clock_us = bus::monotonic_now_us;

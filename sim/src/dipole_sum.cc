@@ -94,16 +94,12 @@ DipoleSum dipole_sum() {
   return chosen().fn;
 }
 
-Isa dipole_sum_isa() {
-  return chosen().isa;
-}
-
 }  // namespace skinbus::sim::detail
 
 namespace skinbus::sim {
 
 Isa field_isa() {
-  return detail::dipole_sum_isa();
+  return detail::chosen().isa;
 }
 
 }  // namespace skinbus::sim

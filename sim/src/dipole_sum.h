@@ -21,8 +21,7 @@ using DipoleSum = void (*)(std::size_t ns, double px, double py, double pz, doub
 
 // The build for `isa` (kPortable: baseline), or null when this CPU or build lacks it.
 DipoleSum dipole_sum_for(Isa isa);
-// The build the field evaluation uses, and its set.
+// The build the field evaluation uses (its set: sim::field_isa()).
 DipoleSum dipole_sum();
-Isa dipole_sum_isa();
 
 }  // namespace skinbus::sim::detail

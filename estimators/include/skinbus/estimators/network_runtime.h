@@ -90,7 +90,6 @@
 #include <cstdint>
 #include <memory>
 #include <span>
-#include <string_view>
 
 #include "skinbus/common/isa.h"
 #include "skinbus/common/result.h"
@@ -102,8 +101,8 @@ namespace skinbus::estimators {
 enum class RuntimeBackend : uint8_t { kAuto, kKernels, kPortable, kOneDnn };
 enum class RuntimePrecision : uint8_t { kFloat32, kBfloat16, kInt8 };
 enum class RuntimeConvolution : uint8_t { kAuto, kDirect, kWinograd };
-// The instruction sets of the kernel backend, widest first (skinbus/common/isa.h);
-// RuntimeOptions::max_isa caps them.
+// The instruction sets of the kernel backend, widest first (skinbus/common/isa.h: isa_name(),
+// parse_isa()); RuntimeOptions::max_isa caps them.
 using RuntimeIsa = Isa;
 
 constexpr const char* runtime_backend_name(RuntimeBackend b) {
@@ -142,14 +141,6 @@ constexpr const char* runtime_convolution_name(RuntimeConvolution c) {
       return "winograd";
   }
   return "unknown";
-}
-
-constexpr const char* runtime_isa_name(RuntimeIsa i) {
-  return isa_name(i);
-}
-// Reads an instruction-set name as runtime_isa_name() writes it; false for any other text.
-constexpr bool parse_runtime_isa(std::string_view name, RuntimeIsa* isa) {
-  return parse_isa(name, isa);
 }
 
 struct RuntimeOptions {
