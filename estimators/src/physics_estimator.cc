@@ -567,8 +567,9 @@ LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
 
 // Levenberg-Marquardt over the layout's unknowns from `x` (non-finite entries start mid-range,
 // the rest clamped to the bounds: each contact within contact_bounds(), each shear component
-// within +-kMaxShearN): the Jacobian by forward differences of the vectorised field
-// (PatchModel::contact_field_ut), the ambient's columns constant. No allocation.
+// within +-kMaxShearN): the Jacobian exact (PatchModel::contact_field_jacobian_ut, about two
+// field evaluations' time for one contact) or updated along short steps, the ambient's columns
+// constant. No allocation.
 template <int N>
 LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
                     const double* ambient_jac, const LeanLayout& l,
@@ -629,22 +630,21 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   double cost = residuals(fit.field, x, r);
   double lambda = 1e-3;
   fit.jtj = LeanMat::Zero();
-  // Forward-difference steps: of (u, v, depth), mm; of the shear, N (moves the surface ~1e-4 mm).
-  constexpr double kStepMm = 1e-4, kStepN = 1e-4;
   constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
   // A step that lowers the chi-square by less than this ends the fit: what is left to gain moves
   // the contact by a few percent of its uncertainty (a chi-square change of d^2 is a move of d
   // standard deviations).
   constexpr double kConvergedChi2 = 1e-3;
   // After an accepted step shorter than this (mm; a shear change in N counts as the surface shift
-  // it makes at 1 N/mm) the Jacobian is not differenced again but corrected along the step
+  // it makes at 1 N/mm) the Jacobian is not computed again but corrected along the step
   // (Broyden's rank-one update, from the field change the step made, no field evaluation): the
   // field's gradients change over millimetres, and along the step just taken the update is exact
   // to first order. Measured (docs/benchmarks/refinement.md): a fifth less time a warm
-  // refinement, the same errors; differencing again only past 5 mm let one more fit end poor.
+  // refinement when the Jacobian was differenced (three field evaluations), the same errors;
+  // differencing again only past 5 mm let one more fit end poor.
   constexpr double kReuseMm = 0.5;
   // The last accepted step's contact unknowns; zero before the first iteration, which therefore
-  // differences.
+  // computes the Jacobian.
   double last_step[kLeanMax] = {};
   double last_field[kMaxChannels];
   while (fit.iterations < options.max_iterations && std::isfinite(cost) && !fit.converged) {
@@ -658,13 +658,13 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
         for (int k = 0; k < amb; ++k) jac[i][k] += miss * last_step[k] / dd;
       }
     } else {
-      for (int k = 0; k < amb; ++k) {
-        const double step = k % pc < 3 ? kStepMm : kStepN;
-        LeanVec p = x;
-        const double h = p(k) + step <= hi[k] ? step : -step;
-        p(k) += h;
-        field(p, ft);
-        for (int i = 0; i < nc; ++i) jac[i][k] = (ft[i] - fit.field[i]) / h;
+      lean_contacts(l, x, tip, contacts);
+      double jj[kMaxChannels * (kLeanMax - 3)];
+      model.contact_field_jacobian_ut(std::span<const sim::Contact>(contacts, l.contacts), l.shear,
+                                      std::span<double>(ft, static_cast<std::size_t>(nc)),
+                                      std::span<double>(jj, static_cast<std::size_t>(nc * amb)));
+      for (int i = 0; i < nc; ++i) {
+        for (int k = 0; k < amb; ++k) jac[i][k] = jj[i * amb + k];
       }
     }
     std::fill(last_step, last_step + amb, 0.0);

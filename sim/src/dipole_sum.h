@@ -19,9 +19,31 @@ using DipoleSum = void (*)(std::size_t ns, double px, double py, double pz, doub
                            const double* rx, const double* ry, const double* rz, double* ax,
                            double* ay, double* az);
 
-// The build for `isa` (kPortable: baseline), or null when this CPU or build lacks it.
+// At most this many unknowns move a magnet in one jet (three contacts with their shear).
+inline constexpr int kMaxJetUnknowns = 15;
+
+// One displaced magnet with the derivatives of its pose with respect to `unknowns` unknowns:
+// position p (mm) and moment m (A m^2) in patch coordinates, dp[k] and dm[k] their derivatives
+// by unknown k.
+struct MagnetJet {
+  double p[3], m[3];
+  int unknowns = 0;
+  double dp[kMaxJetUnknowns][3], dm[kMaxJetUnknowns][3];
+};
+
+// Adds, like DipoleSum, the magnet's field minus its rest field at each of `ns` sensors to
+// ax/ay/az (uT), and the field's derivative by each unknown k to jx/jy/jz[k * ns + sensor]
+// (uT per unit of the unknown): the dipole's field and gradient in closed form, no allocation.
+using DipoleSumJet = void (*)(std::size_t ns, const MagnetJet& magnet, const double* sx,
+                              const double* sy, const double* sz, const double* rx,
+                              const double* ry, const double* rz, double* ax, double* ay,
+                              double* az, double* jx, double* jy, double* jz);
+
+// The builds for `isa` (kPortable: baseline), or null when this CPU or build lacks it.
 DipoleSum dipole_sum_for(Isa isa);
-// The build the field evaluation uses (its set: sim::field_isa()).
+DipoleSumJet dipole_sum_jet_for(Isa isa);
+// The builds the field evaluation uses (their set: sim::field_isa()).
 DipoleSum dipole_sum();
+DipoleSumJet dipole_sum_jet();
 
 }  // namespace skinbus::sim::detail

@@ -59,6 +59,75 @@ TEST(DipoleSum, EveryBuildThisCpuHasMatchesTheBaseline) {
               isa_name(field_isa()));
 }
 
+TEST(DipoleSum, TheJetsFieldIsTheSumsAndEveryBuildMatchesTheBaseline) {
+  std::mt19937_64 rng(test_seed("DipoleSum.TheJetsFieldIsTheSumsAndEveryBuildMatchesTheBaseline"));
+  std::uniform_real_distribution<double> pos(-80.0, 80.0), mom(-0.05, 0.05), unit(-1.0, 1.0);
+  int checked = 0;
+  for (Isa isa : {Isa::kPortable, Isa::kAvx512, Isa::kAvx2}) {
+    const DipoleSumJet f = dipole_sum_jet_for(isa);
+    if (f == nullptr) continue;
+    ++checked;
+    for (std::size_t ns : {1u, 7u, 16u, 17u, 81u}) {
+      for (int unknowns : {3, 5, 15}) {
+        std::vector<double> s(3 * ns), r(3 * ns);
+        for (double& x : s) x = pos(rng);
+        for (std::size_t i = 0; i < ns; ++i) s[2 * ns + i] = -std::abs(s[2 * ns + i]) - 2.0;
+        for (double& x : r) x = 10 * unit(rng);
+        MagnetJet g;
+        g.unknowns = unknowns;
+        for (int c = 0; c < 3; ++c) {
+          g.p[c] = c == 2 ? std::abs(pos(rng)) * 0.1 : pos(rng);
+          g.m[c] = mom(rng);
+        }
+        for (int k = 0; k < unknowns; ++k) {
+          for (int c = 0; c < 3; ++c) {
+            g.dp[k][c] = unit(rng);
+            g.dm[k][c] = 0.01 * unit(rng);
+          }
+        }
+        const std::size_t nj = static_cast<std::size_t>(unknowns) * ns;
+        std::vector<double> a(3 * ns, 0.0), j(3 * nj, 0.0), want(3 * ns, 0.0);
+        auto sum_at = [&](const double* p, const double* m, std::vector<double>& into) {
+          dipole_sum_for(Isa::kPortable)(ns, p[0], p[1], p[2], m[0], m[1], m[2], s.data(),
+                                         s.data() + ns, s.data() + 2 * ns, r.data(), r.data() + ns,
+                                         r.data() + 2 * ns, into.data(), into.data() + ns,
+                                         into.data() + 2 * ns);
+        };
+        f(ns, g, s.data(), s.data() + ns, s.data() + 2 * ns, r.data(), r.data() + ns,
+          r.data() + 2 * ns, a.data(), a.data() + ns, a.data() + 2 * ns, j.data(), j.data() + nj,
+          j.data() + 2 * nj);
+        sum_at(g.p, g.m, want);
+        for (std::size_t i = 0; i < 3 * ns; ++i) {
+          EXPECT_NEAR(a[i], want[i], 1e-12 * (1 + std::abs(want[i]))) << isa_name(isa);
+        }
+        // Each unknown's derivative against central differences of the plain sum along it.
+        for (int k = 0; k < unknowns; ++k) {
+          const double h = 1e-6;
+          double pp[3], pm[3], mp[3], mm[3];
+          for (int c = 0; c < 3; ++c) {
+            pp[c] = g.p[c] + h * g.dp[k][c];
+            pm[c] = g.p[c] - h * g.dp[k][c];
+            mp[c] = g.m[c] + h * g.dm[k][c];
+            mm[c] = g.m[c] - h * g.dm[k][c];
+          }
+          std::vector<double> up(3 * ns, 0.0), down(3 * ns, 0.0);
+          sum_at(pp, mp, up);
+          sum_at(pm, mm, down);
+          for (int c = 0; c < 3; ++c) {
+            for (std::size_t i = 0; i < ns; ++i) {
+              const double fd = (up[c * ns + i] - down[c * ns + i]) / (2 * h);
+              const double got = j[c * nj + static_cast<std::size_t>(k) * ns + i];
+              EXPECT_NEAR(got, fd, 1e-5 * (1 + std::abs(fd)))
+                  << isa_name(isa) << ", unknown " << k << ", sensor " << i << ", axis " << c;
+            }
+          }
+        }
+      }
+    }
+  }
+  std::printf("jet builds checked: %d\n", checked);
+}
+
 TEST(DipoleSum, TheFieldRunsOnTheWidestSetWithinTheCap) {
   Isa want = Isa::kPortable;
   for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
@@ -69,6 +138,7 @@ TEST(DipoleSum, TheFieldRunsOnTheWidestSetWithinTheCap) {
   }
   EXPECT_EQ(field_isa(), want) << isa_name(field_isa()) << " against " << isa_name(want);
   EXPECT_EQ(dipole_sum(), dipole_sum_for(want));
+  EXPECT_EQ(dipole_sum_jet(), dipole_sum_jet_for(want));
   EXPECT_TRUE(isa_allowed(field_isa(), env_isa_cap()));
 }
 

@@ -1,5 +1,6 @@
 #include "skinbus/sim/patch_model.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <string>
@@ -328,15 +329,104 @@ void PatchModel::rest_field_ut(std::span<double> out) const {
 
 void PatchModel::contact_jacobian(const Contact& c, std::span<double> jacobian,
                                   std::span<double> field) const {
-  using D = Dual<3>;
-  const ContactT<D> cd{D::variable(c.u_mm, 0), D::variable(c.v_mm, 1), D::variable(c.depth_mm, 2),
-                       c.tip_radius_mm};
-  std::vector<D> out(static_cast<std::size_t>(channel_count()));
-  contact_field_ut<D>(std::span<const ContactT<D>>(&cd, 1), out.data());
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    for (int k = 0; k < 3; ++k) jacobian[3 * i + k] = out[i].d[k];
-    if (!field.empty()) field[i] = out[i].v;
+  const Contact without_shear{c.u_mm, c.v_mm, c.depth_mm, c.tip_radius_mm};
+  double scratch[3 * kMaxSensors];
+  contact_field_jacobian_ut(std::span<const Contact>(&without_shear, 1), false,
+                            field.empty() ? std::span<double>(scratch) : field, jacobian);
+}
+
+template <int K>
+void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_contact, double* field,
+                                double* jacobian) const {
+  using D = Dual<K>;
+  const std::size_t ns = sensors_.size();
+  const detail::DipoleSumJet sum = detail::dipole_sum_jet();  // AVX-512, AVX2 or baseline
+  ContactT<D> cd[kMaxJetContacts];
+  for (std::size_t j = 0; j < contacts.size(); ++j) {
+    const Contact& c = contacts[j];
+    const int o = static_cast<int>(j) * per_contact;
+    cd[j].u_mm = D::variable(c.u_mm, o);
+    cd[j].v_mm = D::variable(c.v_mm, o + 1);
+    cd[j].depth_mm = D::variable(c.depth_mm, o + 2);
+    cd[j].tip_radius_mm = c.tip_radius_mm;
+    cd[j].shear_u_n = per_contact == 5 ? D::variable(c.shear_u_n, o + 3) : D(c.shear_u_n);
+    cd[j].shear_v_n = per_contact == 5 ? D::variable(c.shear_v_n, o + 4) : D(c.shear_v_n);
   }
+  const std::span<const ContactT<D>> jets(cd, contacts.size());
+  double ax[kMaxSensors] = {}, ay[kMaxSensors] = {}, az[kMaxSensors] = {};
+  double jx[K * kMaxSensors], jy[K * kMaxSensors], jz[K * kMaxSensors];
+  std::fill_n(jx, K * ns, 0.0);
+  std::fill_n(jy, K * ns, 0.0);
+  std::fill_n(jz, K * ns, 0.0);
+  const D lu(spread_u_), lv(spread_v_), lat(lateral_);
+  detail::MagnetJet g;
+  g.unknowns = K;
+  for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
+    const Magnet& m = magnets_[mi];
+    bool reached = false;  // magnet_pose() would say so, after the magnet's rest pose in jets
+    for (const Contact& c : contacts)
+      reached = reached || (c.depth_mm > 0 && magnet_in_reach(m, c.u_mm, c.v_mm));
+    if (!reached) continue;
+    Vec3<D> pos, mom;
+    if (!magnet_pose(D(m.u), D(m.v), D(m.h), lift<D>(m.m_loc), lu, lv, lat, jets, &pos, &mom)) {
+      continue;
+    }
+    g.p[0] = pos.x.v, g.p[1] = pos.y.v, g.p[2] = pos.z.v;
+    g.m[0] = mom.x.v, g.m[1] = mom.y.v, g.m[2] = mom.z.v;
+    for (int k = 0; k < K; ++k) {
+      g.dp[k][0] = pos.x.d[k], g.dp[k][1] = pos.y.d[k], g.dp[k][2] = pos.z.d[k];
+      g.dm[k][0] = mom.x.d[k], g.dm[k][1] = mom.y.d[k], g.dm[k][2] = mom.z.d[k];
+    }
+    sum(ns, g, sx_.data(), sy_.data(), sz_.data(), rx_.data() + mi * ns, ry_.data() + mi * ns,
+        rz_.data() + mi * ns, ax, ay, az, jx, jy, jz);
+  }
+  for (std::size_t si = 0; si < ns; ++si) {
+    const Sensor& s = sensors_[si];
+    const Vec3<double> local = s.frame.apply(Vec3<double>{ax[si], ay[si], az[si]});
+    field[3 * si + 0] = local.x * s.gain.x;
+    field[3 * si + 1] = local.y * s.gain.y;
+    field[3 * si + 2] = local.z * s.gain.z;
+    for (int k = 0; k < K; ++k) {
+      const std::size_t at = static_cast<std::size_t>(k) * ns + si;
+      const Vec3<double> d = s.frame.apply(Vec3<double>{jx[at], jy[at], jz[at]});
+      jacobian[(3 * si + 0) * K + static_cast<std::size_t>(k)] = d.x * s.gain.x;
+      jacobian[(3 * si + 1) * K + static_cast<std::size_t>(k)] = d.y * s.gain.y;
+      jacobian[(3 * si + 2) * K + static_cast<std::size_t>(k)] = d.z * s.gain.z;
+    }
+  }
+}
+
+bool PatchModel::contact_field_jacobian_ut(std::span<const Contact> contacts, bool shear,
+                                           std::span<double> field,
+                                           std::span<double> jacobian) const {
+  const int pc = shear ? 5 : 3;
+  const int k = static_cast<int>(contacts.size()) * pc;
+  const std::size_t nc = static_cast<std::size_t>(channel_count());
+  if (contacts.empty() || contacts.size() > static_cast<std::size_t>(kMaxJetContacts) ||
+      field.size() < nc || jacobian.size() < nc * static_cast<std::size_t>(k)) {
+    return false;
+  }
+  switch (k) {
+    case 3:
+      field_jacobian<3>(contacts, pc, field.data(), jacobian.data());
+      break;
+    case 5:
+      field_jacobian<5>(contacts, pc, field.data(), jacobian.data());
+      break;
+    case 6:
+      field_jacobian<6>(contacts, pc, field.data(), jacobian.data());
+      break;
+    case 9:
+      field_jacobian<9>(contacts, pc, field.data(), jacobian.data());
+      break;
+    case 10:
+      field_jacobian<10>(contacts, pc, field.data(), jacobian.data());
+      break;
+    default:
+      field_jacobian<15>(contacts, pc, field.data(), jacobian.data());
+      break;
+  }
+  return true;
 }
 
 void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const {

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "skinbus/sim/dipole.h"
+#include "skinbus/sim/dual.h"
 #include "skinbus/sim/mlx90393.h"
 #include "skinbus/sim/patch_model.h"
 #include "skinbus/sim/plate_kernel.h"
@@ -184,6 +185,71 @@ TEST_F(PatchModelTest, JacobianMatchesFiniteDifferences) {
       }
     }
   }
+}
+
+// contact_field_jacobian_ut() against the template's jets over the same unknowns, for each layout
+// the fits use, on both surfaces, with the design's in-plane drag, anisotropy and tip crush.
+template <int K>
+void expect_field_jacobian_equals_the_jets(const PatchModel& p, std::span<const Contact> cs,
+                                           bool shear) {
+  using D = Dual<K>;
+  const int pc = shear ? 5 : 3;
+  ASSERT_EQ(static_cast<int>(cs.size()) * pc, K);
+  std::vector<ContactT<D>> cd;
+  for (std::size_t j = 0; j < cs.size(); ++j) {
+    const int o = static_cast<int>(j) * pc;
+    ContactT<D> c{D::variable(cs[j].u_mm, o), D::variable(cs[j].v_mm, o + 1),
+                  D::variable(cs[j].depth_mm, o + 2), cs[j].tip_radius_mm};
+    c.shear_u_n = shear ? D::variable(cs[j].shear_u_n, o + 3) : D(cs[j].shear_u_n);
+    c.shear_v_n = shear ? D::variable(cs[j].shear_v_n, o + 4) : D(cs[j].shear_v_n);
+    cd.push_back(c);
+  }
+  const std::size_t nc = static_cast<std::size_t>(p.channel_count());
+  std::vector<D> want(nc);
+  p.contact_field_ut<D>(std::span<const ContactT<D>>(cd), want.data());
+  std::vector<double> field(nc), jac(nc * K), fast(nc);
+  ASSERT_TRUE(p.contact_field_jacobian_ut(cs, shear, field, jac));
+  p.contact_field_ut(cs, fast);
+  for (std::size_t i = 0; i < nc; ++i) {
+    EXPECT_NEAR(field[i], want[i].v, 1e-9 * (1 + std::fabs(want[i].v))) << "channel " << i;
+    EXPECT_NEAR(field[i], fast[i], 1e-9 * (1 + std::fabs(fast[i]))) << "channel " << i;
+    for (int k = 0; k < K; ++k) {
+      const double w = want[i].d[static_cast<std::size_t>(k)];
+      EXPECT_NEAR(jac[i * K + static_cast<std::size_t>(k)], w, 1e-9 * (1 + std::fabs(w)))
+          << "channel " << i << ", unknown " << k << ", " << cs.size() << " contacts";
+    }
+  }
+}
+
+TEST_F(PatchModelTest, FieldJacobianEqualsTheTemplatesJets) {
+  design.inplane_drag = 0.3;
+  design.anisotropy = 0.1;
+  design.tip_crush_mm = 2.0;
+  for (SurfaceKind kind : {SurfaceKind::kFlat, SurfaceKind::kCylinder}) {
+    design.surface = kind;
+    design.radius_mm = 45;
+    auto made = PatchModel::fabricated(design, 0x5EED, FabricationVariation{});
+    ASSERT_TRUE(made.ok()) << made.error().to_string();
+    const PatchModel& p = *made;
+    const Contact one[1] = {{3.3, -7.1, 1.5, 5.0, 0.4, -0.2}};
+    const Contact two[2] = {{10, -20, 2.5, 8.0, 0.5, -0.3}, {-30, 35, 1.0, 5.0}};
+    const Contact three[3] = {{0, 0, 3.0, 5.0}, {40, 10, 9.0, 4.0}, {-20, -45, 0.5, 0.0, 0.2}};
+    expect_field_jacobian_equals_the_jets<3>(p, one, false);
+    expect_field_jacobian_equals_the_jets<5>(p, one, true);
+    expect_field_jacobian_equals_the_jets<6>(p, two, false);
+    expect_field_jacobian_equals_the_jets<10>(p, two, true);
+    expect_field_jacobian_equals_the_jets<9>(p, three, false);
+    expect_field_jacobian_equals_the_jets<15>(p, three, true);
+  }
+  // More contacts than the jets take, or outputs too short: refused, untouched.
+  const PatchModel p = nominal();
+  const Contact four[4] = {{0, 0, 1}, {10, 0, 1}, {20, 0, 1}, {30, 0, 1}};
+  std::vector<double> field(48, 7.0), jac(48 * 12, 7.0);
+  EXPECT_FALSE(p.contact_field_jacobian_ut(four, false, field, jac));
+  EXPECT_FALSE(p.contact_field_jacobian_ut(std::span<const Contact>(four, 1), false, field,
+                                           std::span<double>(jac.data(), 48 * 2)));
+  EXPECT_EQ(field[0], 7.0);
+  EXPECT_EQ(jac[0], 7.0);
 }
 
 TEST_F(PatchModelTest, FastPathEqualsTheTemplate) {

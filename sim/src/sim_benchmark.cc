@@ -72,6 +72,21 @@ void BM_Jacobian(benchmark::State& state) {
 }
 BENCHMARK(BM_Jacobian);
 
+// The field and its exact Jacobian as the fits take them (contact_field_jacobian_ut): one
+// contact's (u, v, depth), then with its shear; against BM_ForwardModel's one evaluation.
+void BM_FieldJacobian(benchmark::State& state) {
+  const PatchModel m = *PatchModel::fabricated(PatchDesign{}, 1, FabricationVariation{});
+  const auto cs = random_contacts(4096);
+  const bool shear = state.range(0) != 0;
+  std::vector<double> field(48), jac(48 * 5);
+  std::size_t i = 0;
+  for (auto _ : state) {
+    m.contact_field_jacobian_ut(std::span<const Contact>(&cs[i++ & 4095], 1), shear, field, jac);
+    benchmark::DoNotOptimize(jac.data());
+  }
+}
+BENCHMARK(BM_FieldJacobian)->Arg(0)->Arg(1);
+
 void BM_SeedProtocolDataset(benchmark::State& state) {
   for (auto _ : state) {
     SimulatedPatch p(*PatchModel::nominal(PatchDesign{}), 1);

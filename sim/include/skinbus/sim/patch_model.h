@@ -229,9 +229,23 @@ class PatchModel {
   void contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const;
 
   // Jacobian of the field change of one contact with respect to (u, v, depth): row-major,
-  // channel_count() x 3. Also returns the field change itself in `field` when not empty.
+  // channel_count() x 3. Also returns the field change itself in `field` when not empty. The
+  // contact's shear is not applied (contact_field_jacobian_ut() below, which this calls).
   void contact_jacobian(const Contact& c, std::span<double> jacobian,
                         std::span<double> field = {}) const;
+
+  // contact_field_ut() into `field` (channel_count() entries) and its exact Jacobian into
+  // `jacobian`, row-major, channel_count() x unknowns: the unknowns are each contact's
+  // (u_mm, v_mm, depth_mm) in turn, each followed by its (shear_u_n, shear_v_n) when `shear`
+  // (3 or 5 a contact; at most kMaxJetContacts contacts). The deformation's derivatives by jets
+  // per moved magnet, the dipole's gradient in closed form in the vectorised loop: for one
+  // contact about three field evaluations' time (sim_benchmark's BM_FieldJacobian), a quarter of
+  // the template's jets. Equal to the template's jets to rounding (tested). No allocation, but
+  // up to 92 KB of stack with three contacts and their shear on 256 sensors. False, the outputs
+  // untouched, with more contacts than that or spans too short.
+  static constexpr int kMaxJetContacts = 3;
+  bool contact_field_jacobian_ut(std::span<const Contact> contacts, bool shear,
+                                 std::span<double> field, std::span<double> jacobian) const;
 
   // Magnets within reach of a contact at (u, v): the others do not move.
   bool magnet_in_reach(const Magnet& m, double u, double v) const {
@@ -287,6 +301,10 @@ class PatchModel {
   static Result<PatchModel> build(const PatchDesign& design, uint64_t seed,
                                   const FabricationVariation& var);
   static Result<PatchModel> assemble(const PatchDesign& design, const UnitParameters& params);
+  // contact_field_jacobian_ut() with K unknowns (contacts x per_contact).
+  template <int K>
+  void field_jacobian(std::span<const Contact> contacts, int per_contact, double* field,
+                      double* jacobian) const;
 
   PatchDesign design_;
   double spread_ = 10, spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
