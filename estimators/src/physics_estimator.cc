@@ -693,6 +693,14 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       const LeanVec step = a.ldlt().solve(-jtr);
       LeanVec xt = x + step;
       for (int k = 0; k < n; ++k) xt(k) = std::clamp(xt(k), lo[k], hi[k]);
+      // The chi-square the step would gain by the linear model, |r|^2 - |r + J h|^2: below what
+      // ends a fit, the fit ends here without evaluating it (a larger damping only shortens it).
+      const LeanVec h = xt - x;
+      const double predicted = -(2 * h.dot(jtr) + h.dot(jtj * h));
+      if (!(predicted > kConvergedChi2)) {
+        fit.converged = true;
+        break;
+      }
       field(xt, ft);
       double rt[kMaxChannels];
       const double cost_t = residuals(ft, xt, rt);
