@@ -208,6 +208,12 @@ void add_refine_options(CLI::App* sub, host_bench::RefineBenchArgs& a) {
                   "presses uniform within +-this of the patch centre, mm")
       ->capture_default_str()
       ->check(CLI::Range(1.0, 500.0));
+  sub->add_option("--basin-check", a.basin_check_mm,
+                  "search a single refined press again from the start table once it is this "
+                  "deep and at each doubling of its depth (the host's refine_basin_check_mm), "
+                  "mm; 0: never")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 100.0));
 }
 
 void add_ambient_options(CLI::App* sub, host_bench::AmbientBenchArgs& a) {

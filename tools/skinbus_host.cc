@@ -65,6 +65,7 @@ struct HostArgs {
   bool record_samples = true, record_frames = true;
   bool refine = true;
   int refine_budget_us = 8000;
+  double refine_basin_check_mm = host::AggregatorOptions{}.refine_basin_check_mm;
 };
 
 // The loop's sink: JSON lines on stdout, DDS, events and the log on stderr, latency statistics.
@@ -363,6 +364,13 @@ int main(int argc, char** argv) {
                  "period); samples beyond it publish the network's answer, flagged unrefined")
       ->capture_default_str()
       ->check(CLI::Range(0, 1'000'000));
+  app.add_option("--refine-basin-check-mm", a.refine_basin_check_mm,
+                 "search a refined press again from the unit's start table once it is this deep "
+                 "and at each doubling of its depth, publishing the search's contact when it "
+                 "explains the sample better (a warm start can keep a press in another minimum "
+                 "of the fit); 0: never")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 100.0));
   app.add_flag("--allow-no-models", a.allow_no_models,
                "run even when no patch of the map has a usable model (patch status only); "
                "without it that is an error (exit 1)");
@@ -406,6 +414,7 @@ int main(int argc, char** argv) {
         return estimators::make_physics_refiner(r.unit_path, r.design_path, ro);
       };
     o.refine_budget_us = static_cast<uint64_t>(a.refine_budget_us);
+    o.refine_basin_check_mm = a.refine_basin_check_mm;
     host::HostLoopOptions lo;
     lo.interfaces = a.interfaces;
     lo.replay = a.replay;
@@ -543,13 +552,15 @@ int main(int argc, char** argv) {
                      "skinbus-host: refined %" PRIu64 " (%.0f us each, %" PRIu64
                      " from the previous contact, %" PRIu64
                      " of those made again from the "
-                     "network's answer, %" PRIu64 " with two or more presses, %" PRIu64
+                     "network's answer, %" PRIu64 " searched again as the press deepened, %" PRIu64
+                     " of those moved, %" PRIu64 " with two or more presses, %" PRIu64
                      " with three, %" PRIu64 " counted from a proposer), unrefined %" PRIu64
                      " over the budget and %" PRIu64 " poor fits (%" PRIu64
                      " of them held several presses unpublished)\n",
                      s.refined, s.refined > 0 ? s.refine_us / static_cast<double>(s.refined) : 0.0,
-                     s.refine_warm_starts, s.refine_restarts, s.refined_pairs, s.refined_triples,
-                     s.proposed, s.unrefined_budget, s.unrefined_poor_fit, s.held_pairs);
+                     s.refine_warm_starts, s.refine_restarts, s.refine_basin_checks,
+                     s.refine_basin_moves, s.refined_pairs, s.refined_triples, s.proposed,
+                     s.unrefined_budget, s.unrefined_poor_fit, s.held_pairs);
       }
       if (out.latency_us.count() > 0) {
         std::fprintf(stderr,

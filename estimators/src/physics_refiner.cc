@@ -36,6 +36,11 @@ class PhysicsRefiner : public ContactRefiner {
     return from(single_fit(field_ut, channel_ok, start));
   }
 
+  RefinedEstimate search(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
+                         const ContactEstimate&) const override {
+    return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts));
+  }
+
   RefinedContacts refine_contacts(std::span<const double> field_ut,
                                   std::span<const uint8_t> channel_ok, const ContactEstimate& start,
                                   std::span<const ContactEstimate> previous,

@@ -81,7 +81,7 @@ struct Outcome {
 };
 
 Outcome run(const sim::PatchModel& unit, const std::vector<Sample>& session, uint64_t uid,
-            const std::string& model, bool refine, double warm_start_mm) {
+            const std::string& model, bool refine, double warm_start_mm, double basin_check_mm) {
   Outcome out;
   body_map::SkinMap map;
   body_map::PatchPlacement p;
@@ -95,6 +95,7 @@ Outcome run(const sim::PatchModel& unit, const std::vector<Sample>& session, uin
   o.max_lag_us = 0;
   o.refine_budget_us = 1'000'000;  // the whole call: every sample refined, each timed
   o.refine_warm_start_mm = warm_start_mm;
+  o.refine_basin_check_mm = basin_check_mm;
   o.refiner_factory = [&unit](const host::RefinerRequest&) {
     estimators::RefinerOptions ro;  // as make_physics_refiner() from files: the design's tip
     ro.physics.tip_radius_mm = unit.design().indenter_tip_radius_mm;
@@ -194,9 +195,9 @@ Status bench_refine(const RefineBenchArgs& a) {
     auto unit = sim::PatchModel::fabricated(design, uid, sim::FabricationVariation{});
     if (!unit.ok()) return unit.error();
     const std::vector<Sample> session = make_session(*unit, a, a.seed + ui);
-    const Outcome net = run(*unit, session, uid, model, false, 0);
-    const Outcome cold = run(*unit, session, uid, model, true, 0);
-    const Outcome warm = run(*unit, session, uid, model, true, 3.0);
+    const Outcome net = run(*unit, session, uid, model, false, 0, 0);
+    const Outcome cold = run(*unit, session, uid, model, true, 0, a.basin_check_mm);
+    const Outcome warm = run(*unit, session, uid, model, true, 3.0, a.basin_check_mm);
     for (const Outcome* o : {&net, &cold, &warm}) {
       if (!o->error.empty()) return make_error(ErrorCode::kInvalidArgument, o->error);
     }
@@ -244,13 +245,16 @@ Status bench_refine(const RefineBenchArgs& a) {
     const double samples = static_cast<double>(net.published.size());
     char row[256];
     std::snprintf(
-        row, sizeof row, "| 0x%llx | %.0f | %.1f | %.1f | %.1f | %.0f %% | %llu | %.1f | %.1f |\n",
+        row, sizeof row,
+        "| 0x%llx | %.0f | %.1f | %.1f | %.1f | %.0f %% | %llu | %llu (%llu) | %.1f | %.1f |\n",
         static_cast<unsigned long long>(uid), samples, net.process_us / samples,
         cold.stats.refine_us / static_cast<double>(std::max<uint64_t>(1, cold.stats.refined)),
         warm.stats.refine_us / static_cast<double>(std::max<uint64_t>(1, warm.stats.refined)),
         100.0 * static_cast<double>(warm.stats.refine_warm_starts) /
             static_cast<double>(std::max<uint64_t>(1, warm.stats.refined)),
-        static_cast<unsigned long long>(warm.stats.refine_restarts), cold.process_us / samples,
+        static_cast<unsigned long long>(warm.stats.refine_restarts),
+        static_cast<unsigned long long>(warm.stats.refine_basin_checks),
+        static_cast<unsigned long long>(warm.stats.refine_basin_moves), cold.process_us / samples,
         warm.process_us / samples);
     cost_rows += row;
     if (warm.stats.unrefined_poor_fit + cold.stats.unrefined_poor_fit > 0) {
@@ -263,10 +267,13 @@ Status bench_refine(const RefineBenchArgs& a) {
   std::printf(
       "\nCost per touched sample (us; process(): the whole pipeline of a sample, network run and "
       "placement included; restarts: warm fits the host rejected, made again from the network's "
-      "answer):\n\n| unit | samples | network process() | refine, cold | refine, warm | warm "
-      "starts | restarts | process(), cold | process(), warm |\n"
-      "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n%s",
-      cost_rows.c_str());
+      "answer; basin checks: deepening presses searched again from the start table, at %g mm "
+      "and each doubling of the depth (moved: the search's contact published instead, 1 mm or more "
+      "from the warm fit's), warm run):\n\n| unit | samples | network process() | refine, cold | "
+      "refine, warm | warm "
+      "starts | restarts | basin checks (moved) | process(), cold | process(), warm |\n"
+      "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n%s",
+      a.basin_check_mm, cost_rows.c_str());
   std::printf(
       "\nXY: mean distance to the press; x CRLB: over the mean of the unit's Cramer-Rao bound "
       "(RMS radial) at the same presses, with the ambient nuisance (the mean of a 2-D Gaussian "

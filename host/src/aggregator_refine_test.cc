@@ -133,6 +133,20 @@ class AggregatorRefineTest : public ::testing::Test {
       return estimators::make_physics_refiner(*unit_, ro);
     };
   }
+  // The unit becomes one of a design file of docs/benchmarks/, refined with its indenter.
+  bool use_design(const std::string& file) {
+    auto design = sim::read_design_file(source_dir() + "/docs/benchmarks/" + file);
+    EXPECT_TRUE(design.ok()) << design.error().to_string();
+    if (!design.ok()) return false;
+    unit_ = std::make_unique<sim::PatchModel>(
+        sim::PatchModel::fabricated(*design, kUid, sim::FabricationVariation{}).value());
+    options_.refiner_factory = [this](const RefinerRequest&) {
+      estimators::RefinerOptions ro;
+      ro.physics.tip_radius_mm = unit_->design().indenter_tip_radius_mm;
+      return estimators::make_physics_refiner(*unit_, ro);
+    };
+    return true;
+  }
   std::unique_ptr<sim::PatchModel> unit_;
   AggregatorOptions options_;
 };
@@ -744,15 +758,8 @@ TEST_F(AggregatorRefineTest, AUnitWithAnotherSensorCountIsRefusedByName) {
 // previous contact: every sample of such a press was refined from the network's answer (and
 // searched again when that fit ended poor), at about three times the cost.
 TEST_F(AggregatorRefineTest, AWarmStartDoesNotWaitForTheNetworkToAgree) {
-  auto design = sim::read_design_file(source_dir() + "/docs/benchmarks/design_turned_chips.yaml");
-  ASSERT_TRUE(design.ok()) << design.error().to_string();
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(*design, kUid, sim::FabricationVariation{}).value();
-  options_.refiner_factory = [&unit](const RefinerRequest&) {
-    estimators::RefinerOptions ro;
-    ro.physics.tip_radius_mm = unit.design().indenter_tip_radius_mm;
-    return estimators::make_physics_refiner(unit, ro);
-  };
+  ASSERT_TRUE(use_design("design_turned_chips.yaml"));
+  const sim::PatchModel& unit = *unit_;
   constexpr int kSamples = 24;
   const sim::Contact place{12.0, -7.0, 3.0, unit.design().indenter_tip_radius_mm};
   auto press_at = [&](int k) {  // a ramp over the first 8 samples, then held
@@ -882,6 +889,75 @@ TEST_F(AggregatorRefineTest, AWarmFitThatFailsIsMadeAgainFromTheNetworksAnswer) 
   const AggregatorStats& st = ref.agg->stats();
   EXPECT_EQ(st.refine_restarts, 2u);  // the two jumps of tens of millimetres
   EXPECT_EQ(st.refined, 20u);
+}
+
+// A press on a 9 x 9 one-polarity unit refined warm from its shallow first samples, where
+// another place 20-25 mm away looks alike, stays there until its fits fail and the network's
+// answer (trained on another design, as far off) is published, flagged: without the basin check
+// 17 mm off on average over its samples 1 mm deep or more. With it (the default), the first
+// refined sample 1 mm deep is also searched from the refiner's start table, and from there on
+// every contact is where the press is.
+TEST_F(AggregatorRefineTest, APressLockedInAnotherMinimumIsFoundOnceItIsDeep) {
+  ASSERT_TRUE(use_design("design_9x9_uniform.yaml"));
+  const sim::PatchModel& unit = *unit_;
+  const sim::Contact place{35.0, 35.0, 1.25, unit.design().indenter_tip_radius_mm};
+  const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit.design());
+  const double bound = sim::crlb_at(unit, place, noise.xy_ut, noise.z_ut, true).sd_xy_mm;
+  struct Run {
+    double deep_err_mm = 0;     // mean over the samples 1 mm deep or more
+    double checked_err_mm = 0;  // mean from the first basin check on
+    double worst_checked_mm = 0;
+    int checked_samples = 0;
+    AggregatorStats stats;
+  };
+  auto run_with = [&](double check_mm) {
+    AggregatorOptions o = options_;
+    o.refine_basin_check_mm = check_mm;
+    Stream ref(unit, o, false, 1, 5);
+    EXPECT_TRUE(ref.ok());
+    Run r;
+    int deep = 0;
+    for (int k = 0; k < 16; ++k) {  // a ramp over the first 8 samples, then held
+      sim::Contact c = place;
+      c.depth_mm = std::max(0.2, place.depth_mm * std::min(1.0, (k + 1) / 8.0));
+      ContactArray a;
+      EXPECT_TRUE(ref.sample(std::span<const sim::Contact>(&c, 1), &a));
+      if (a.contacts.size() != 1) continue;
+      const double err = std::hypot(a.contacts[0].u_mm - c.u_mm, a.contacts[0].v_mm - c.v_mm);
+      if (c.depth_mm >= 1.0) {
+        r.deep_err_mm += err;
+        ++deep;
+      }
+      if (ref.agg->stats().refine_basin_checks > 0) {
+        r.checked_err_mm += err;
+        r.worst_checked_mm = std::max(r.worst_checked_mm, err);
+        ++r.checked_samples;
+      }
+    }
+    r.deep_err_mm /= std::max(deep, 1);
+    r.checked_err_mm /= std::max(r.checked_samples, 1);
+    r.stats = ref.agg->stats();
+    return r;
+  };
+  const Run locked = run_with(0);
+  const Run checked = run_with(1.0);
+  EXPECT_EQ(AggregatorOptions{}.refine_basin_check_mm, 1.0);  // the default
+  std::printf(
+      "1 mm deep or more: %.2f mm off on average without checks, %.2f mm with them; from the "
+      "check on %.2f mm (worst %.2f; bound %.2f mm) over %d samples: %llu check(s), %llu "
+      "moved\n",
+      locked.deep_err_mm, checked.deep_err_mm, checked.checked_err_mm, checked.worst_checked_mm,
+      bound, checked.checked_samples,
+      static_cast<unsigned long long>(checked.stats.refine_basin_checks),
+      static_cast<unsigned long long>(checked.stats.refine_basin_moves));
+  ASSERT_GT(locked.deep_err_mm, 10.0);  // the premise: warm fits stay in the other minimum
+  EXPECT_EQ(locked.stats.refine_basin_checks, 0u);
+  EXPECT_EQ(checked.stats.refine_basin_checks, 1u);  // at 1 mm; never twice as deep after
+  EXPECT_EQ(checked.stats.refine_basin_moves, 1u);
+  EXPECT_GE(checked.checked_samples, 8);
+  EXPECT_LT(checked.checked_err_mm, 1.5 * bound);
+  EXPECT_LT(checked.worst_checked_mm, 4 * bound);
+  EXPECT_LT(checked.deep_err_mm, locked.deep_err_mm / 3);
 }
 
 }  // namespace

@@ -66,6 +66,16 @@ class ContactRefiner {
     out.contacts[0] = refine(field_ut, channel_ok, start);
     return out;
   }
+  // One contact searched from the refiner's own starts rather than a given one (the physics
+  // refiner: the nearest rows of its start table), for a caller that suspects the press it
+  // follows sits in another minimum of the fit (a warm start carried from a press's shallow
+  // first samples, where two places can look alike). The caller compares its reduced chi-square
+  // with its own fit's. Cost: several refine()s. By default refine() from `start`.
+  virtual RefinedEstimate search(std::span<const double> field_ut,
+                                 std::span<const uint8_t> channel_ok,
+                                 const ContactEstimate& start) const {
+    return refine(field_ut, channel_ok, start);
+  }
 };
 
 }  // namespace skinbus::estimators

@@ -162,6 +162,15 @@ struct AggregatorOptions {
   // (AggregatorStats::refine_restarts): the distance at which a restart can find another place.
   // 0: no warm starts (always from the network's answer).
   double refine_warm_start_mm = 3.0;
+  // A press refined warm from its own previous contact can stay for its whole hold in another
+  // minimum of the fit, which its shallow first samples could not tell from the press (a 9 x 9
+  // one-polarity design: 10-20 mm off at 1-1.5 mm deep). So the first time a single refined
+  // press is at least this deep, and again each time it is twice as deep as at its last check,
+  // the sample is also searched from the refiner's own starts (ContactRefiner::search) if the
+  // budget is not spent, and the search's contact published instead when the host's rule accepts
+  // it and it explains the sample better (AggregatorStats::refine_basin_checks, _moves). Cost:
+  // a search (several refinements) on about one sample in ten of a press. 0: no checks.
+  double refine_basin_check_mm = 1.0;
   // A refined contact is published when its fit converged, found a contact, explains the sample
   // to at most this reduced chi-square (noise units; its uncertainty is widened by the square root
   // above 1) and lies within `refine_max_shift_mm` of the network's answer, or explains the
@@ -211,6 +220,9 @@ struct AggregatorStats {
   uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
   uint64_t refine_restarts = 0;     // of those, rejected and refined again from the network's
+  // Searches of a deepening press for another minimum (refine_basin_check_mm), and of those the
+  // ones whose contact replaced the fit 1 mm or more away from it (or a fit the rule rejected).
+  uint64_t refine_basin_checks = 0, refine_basin_moves = 0;
   uint64_t refined_pairs = 0;    // refined samples that held two or more presses (max_contacts 2-3)
   uint64_t refined_triples = 0;  // of those, the ones that held three (max_contacts 3)
   uint64_t proposed = 0;  // counts started from a proposer's presses (PatchPlacement::proposer)

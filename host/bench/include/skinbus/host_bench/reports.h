@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "skinbus/common/result.h"
+#include "skinbus/host/aggregator.h"
 
 namespace skinbus::host_bench {
 
@@ -57,6 +58,7 @@ struct RefineBenchArgs {
   std::string csv;
   std::string design_path;  // "" the built-in design; it must have the bus's 16 sensors
   std::string model_path;   // the network refined from; "" the shipped seed CNN
+  double basin_check_mm = host::AggregatorOptions{}.refine_basin_check_mm;  // 0: no checks
 };
 
 Status bench_refine(const RefineBenchArgs& a);
