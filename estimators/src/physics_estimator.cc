@@ -63,8 +63,8 @@ class ContactsResidual final : public ceres::CostFunction {
     for (int blk = 0; jacobians != nullptr && blk < N; ++blk)
       want_jacobian |= jacobians[blk] != nullptr;
     if (want_jacobian) {
-      // Forward-mode jets through the simulator's template (as PatchModel::contact_jacobian,
-      // with Ceres' jets, which compile to tighter code than sim's own dual numbers).
+      // Forward-mode jets through the simulator's template (Ceres' jets, which compile to tighter
+      // code there than sim's own dual numbers).
       using J = ceres::Jet<double, 3 * N>;
       sim::ContactT<J> c[N];
       for (int k = 0; k < N; ++k) {
@@ -567,9 +567,10 @@ LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
 
 // Levenberg-Marquardt over the layout's unknowns from `x` (non-finite entries start mid-range,
 // the rest clamped to the bounds: each contact within contact_bounds(), each shear component
-// within +-kMaxShearN): the Jacobian exact (PatchModel::contact_field_jacobian_ut, about two
+// within +-kMaxShearN): the Jacobian exact (PatchModel::contact_field_jacobian_ut, about three
 // field evaluations' time for one contact) or updated along short steps, the ambient's columns
-// constant. No allocation.
+// constant. Ends when a step gains, or with the exact Jacobian is predicted to gain, less than
+// 1e-3 in chi-square. No allocation.
 template <int N>
 LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
                     const double* ambient_jac, const LeanLayout& l,
@@ -625,7 +626,9 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
     }
     return cost;
   };
-  double ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels][kLeanMax - 3];
+  static_assert(kMaxContacts <= sim::PatchModel::kMaxJetContacts);
+  // The contacts' Jacobian, row-major, nc x amb (contact_field_jacobian_ut's layout).
+  double ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels * (N - 3)];
   field(x, fit.field);
   double cost = residuals(fit.field, x, r);
   double lambda = 1e-3;
@@ -651,20 +654,21 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
     ++fit.iterations;
     double dd = 0;
     for (int k = 0; k < amb; ++k) dd += last_step[k] * last_step[k];
-    if (dd > 0 && dd <= kReuseMm * kReuseMm) {
+    const bool updated = dd > 0 && dd <= kReuseMm * kReuseMm;
+    if (updated) {
       for (int i = 0; i < nc; ++i) {
+        double* row = jac + i * amb;
         double miss = fit.field[i] - last_field[i];
-        for (int k = 0; k < amb; ++k) miss -= jac[i][k] * last_step[k];
-        for (int k = 0; k < amb; ++k) jac[i][k] += miss * last_step[k] / dd;
+        for (int k = 0; k < amb; ++k) miss -= row[k] * last_step[k];
+        for (int k = 0; k < amb; ++k) row[k] += miss * last_step[k] / dd;
       }
     } else {
       lean_contacts(l, x, tip, contacts);
-      double jj[kMaxChannels * (kLeanMax - 3)];
-      model.contact_field_jacobian_ut(std::span<const sim::Contact>(contacts, l.contacts), l.shear,
-                                      std::span<double>(ft, static_cast<std::size_t>(nc)),
-                                      std::span<double>(jj, static_cast<std::size_t>(nc * amb)));
-      for (int i = 0; i < nc; ++i) {
-        for (int k = 0; k < amb; ++k) jac[i][k] = jj[i * amb + k];
+      if (!model.contact_field_jacobian_ut(
+              std::span<const sim::Contact>(contacts, l.contacts), l.shear,
+              std::span<double>(ft, static_cast<std::size_t>(nc)),
+              std::span<double>(jac, static_cast<std::size_t>(nc * amb)))) {
+        break;  // not reached: the layouts are within the jets' (static_assert above)
       }
     }
     std::fill(last_step, last_step + amb, 0.0);
@@ -675,7 +679,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       const double w = in.inv_sigma[i];
       const double* a = ambient_jac + 3 * static_cast<std::size_t>(i);
       LeanVec row;
-      for (int k = 0; k < amb; ++k) row(k) = jac[i][k] * w;
+      for (int k = 0; k < amb; ++k) row(k) = jac[i * amb + k] * w;
       for (int k = 0; k < 3; ++k) row(amb + k) = a[k] * w;
       jtj.noalias() += row * row.transpose();
       jtr.noalias() += row * r[i];
@@ -686,20 +690,28 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       if (!fitted[k]) jtr(k) = 0;
     }
     // Damped steps until one lowers the cost; the damping relaxes after a success.
-    bool accepted = false;
+    bool accepted = false, last_try = false;
     for (int tries = 0; tries < 12 && !accepted; ++tries) {
       LeanMat a = jtj;
       for (int p = 0; p < n; ++p) a(p, p) += lambda * std::max(jtj(p, p), 1e-9);
       const LeanVec step = a.ldlt().solve(-jtr);
       LeanVec xt = x + step;
-      for (int k = 0; k < n; ++k) xt(k) = std::clamp(xt(k), lo[k], hi[k]);
-      // The chi-square the step would gain by the linear model, |r|^2 - |r + J h|^2: below what
-      // ends a fit, the fit ends here without evaluating it (a larger damping only shortens it).
-      const LeanVec h = xt - x;
-      const double predicted = -(2 * h.dot(jtr) + h.dot(jtj * h));
-      if (!(predicted > kConvergedChi2)) {
-        fit.converged = true;
-        break;
+      bool clamped = false;
+      for (int k = 0; k < n; ++k) {
+        xt(k) = std::clamp(xt(k), lo[k], hi[k]);
+        clamped = clamped || xt(k) != x(k) + step(k);
+      }
+      // The chi-square the step would gain by the linear model, |r|^2 - |r + J h|^2. Below what
+      // ends a fit (a more damped step only gains less, unless a bound clamped it): with the
+      // exact Jacobian the fit ends here, unevaluated; with one updated along the last step only
+      // (Broyden's, approximate elsewhere) this step is evaluated, and the fit ends if it fails.
+      const double predicted = -(2 * step.dot(jtr) + step.dot(jtj * step));
+      if (!clamped && !(predicted > kConvergedChi2)) {
+        if (!updated) {
+          fit.converged = true;
+          break;
+        }
+        last_try = true;
       }
       field(xt, ft);
       double rt[kMaxChannels];
@@ -722,6 +734,9 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
         cost = cost_t;
         lambda = std::max(lambda / 3, 1e-9);
         accepted = true;
+      } else if (last_try) {
+        fit.converged = true;  // the gain left is below what ends a fit, and this step failed
+        break;
       } else {
         lambda *= 4;
       }

@@ -346,7 +346,7 @@ namespace {
 // from the same starts, with the same flags; degenerate input is refused or flagged, never NaN.
 // "The same": within 5 % of the fit's own 1-sigma uncertainty (its convergence test stops when
 // what is left moves the contact by a few percent of it; the Jacobian it updates along its steps
-// instead of differencing again puts its end a few micrometres off), and the same chi-square.
+// instead of computing it again puts its end a few micrometres off), and the same chi-square.
 TEST(PhysicsEstimatorLeanTest, RefineLmReachesTheCeresFitsMinimum) {
   const uint64_t seed = 4242;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
@@ -414,16 +414,14 @@ TEST(PhysicsEstimatorLeanTest, DegenerateInputIsRefusedOrFlaggedNeverNaN) {
   // Non-finite channels are masked, not used.
   f[3] = std::numeric_limits<double>::infinity();
   f[7] = std::numeric_limits<double>::quiet_NaN();
-  PhysicsOptions with_sigma;
-  with_sigma.covariance = true;
-  const PhysicsEstimate m =
-      PhysicsEstimator::create(unit, with_sigma).value().refine_lm(f, {}, start);
+  const PhysicsEstimate m = est.refine_lm(f, {}, start);
   EXPECT_NE(m.contact.flags & kEstimateMasked, 0u);
-  // Noise-free: at the press, to the fit's stopping resolution (a chi-square gain of 1e-3 left,
-  // a few percent of its own uncertainty; NaN or a used infinity would be far off).
-  ASSERT_TRUE(std::isfinite(m.sigma_uv_mm) && m.sigma_uv_mm > 0);
-  EXPECT_NEAR(m.contact.u_mm, 10, 0.05 * m.sigma_uv_mm);
-  EXPECT_NEAR(m.contact.v_mm, -10, 0.05 * m.sigma_uv_mm);
+  // Noise-free: at the press, to the fit's stopping resolution (a chi-square gain of 1e-3 left:
+  // a few micrometres here), explaining the sample to far below the noise; NaN or a used
+  // infinity would be far off.
+  EXPECT_NEAR(m.contact.u_mm, 10, 0.01);
+  EXPECT_NEAR(m.contact.v_mm, -10, 0.01);
+  EXPECT_LT(m.reduced_chi2, 0.01);
 }
 
 // The shear force (PhysicsOptions::fit_shear): exact on noise-free presses, at its Cramer-Rao

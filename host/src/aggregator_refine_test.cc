@@ -892,11 +892,12 @@ TEST_F(AggregatorRefineTest, AWarmFitThatFailsIsMadeAgainFromTheNetworksAnswer) 
 }
 
 // A press on a 9 x 9 one-polarity unit refined warm from its shallow first samples, where
-// another place 20-25 mm away looks alike, stays there until its fits fail and the network's
-// answer (trained on another design, as far off) is published, flagged: without the basin check
-// 17 mm off on average over its samples 1 mm deep or more. With it (the default), the first
-// refined sample 1 mm deep is also searched from the refiner's start table, and from there on
-// every contact is where the press is.
+// another place 20-25 mm away looks alike, stays there (or, where its fits fail, the network's
+// answer, trained on another design and as far off, is published flagged): without the basin
+// checks 24 mm off on average over its samples 1 mm deep or more. With them (the default) it is
+// searched from the refiner's start table once its fit is 1 mm deep (a fit in the other minimum
+// can be that deep early; then, shallower than half that, it is checked anew), and from the
+// check that moves it on every contact is where the press is.
 TEST_F(AggregatorRefineTest, APressLockedInAnotherMinimumIsFoundOnceItIsDeep) {
   ASSERT_TRUE(use_design("design_9x9_uniform.yaml"));
   const sim::PatchModel& unit = *unit_;
@@ -905,7 +906,7 @@ TEST_F(AggregatorRefineTest, APressLockedInAnotherMinimumIsFoundOnceItIsDeep) {
   const double bound = sim::crlb_at(unit, place, noise.xy_ut, noise.z_ut, true).sd_xy_mm;
   struct Run {
     double deep_err_mm = 0;     // mean over the samples 1 mm deep or more
-    double checked_err_mm = 0;  // mean from the first basin check on
+    double checked_err_mm = 0;  // mean from the check that moved it on
     double worst_checked_mm = 0;
     int checked_samples = 0;
     AggregatorStats stats;
@@ -928,7 +929,7 @@ TEST_F(AggregatorRefineTest, APressLockedInAnotherMinimumIsFoundOnceItIsDeep) {
         r.deep_err_mm += err;
         ++deep;
       }
-      if (ref.agg->stats().refine_basin_checks > 0) {
+      if (ref.agg->stats().refine_basin_moves > 0) {
         r.checked_err_mm += err;
         r.worst_checked_mm = std::max(r.worst_checked_mm, err);
         ++r.checked_samples;
@@ -944,20 +945,53 @@ TEST_F(AggregatorRefineTest, APressLockedInAnotherMinimumIsFoundOnceItIsDeep) {
   EXPECT_EQ(AggregatorOptions{}.refine_basin_check_mm, 1.0);  // the default
   std::printf(
       "1 mm deep or more: %.2f mm off on average without checks, %.2f mm with them; from the "
-      "check on %.2f mm (worst %.2f; bound %.2f mm) over %d samples: %llu check(s), %llu "
-      "moved\n",
+      "check that moved it on %.2f mm (worst %.2f; bound %.2f mm) over %d samples: %llu "
+      "check(s), %llu moved\n",
       locked.deep_err_mm, checked.deep_err_mm, checked.checked_err_mm, checked.worst_checked_mm,
       bound, checked.checked_samples,
       static_cast<unsigned long long>(checked.stats.refine_basin_checks),
       static_cast<unsigned long long>(checked.stats.refine_basin_moves));
   ASSERT_GT(locked.deep_err_mm, 10.0);  // the premise: warm fits stay in the other minimum
   EXPECT_EQ(locked.stats.refine_basin_checks, 0u);
-  EXPECT_EQ(checked.stats.refine_basin_checks, 1u);  // at 1 mm; never twice as deep after
+  EXPECT_GE(checked.stats.refine_basin_checks, 1u);
+  EXPECT_LE(checked.stats.refine_basin_checks, 3u);
   EXPECT_EQ(checked.stats.refine_basin_moves, 1u);
   EXPECT_GE(checked.checked_samples, 8);
   EXPECT_LT(checked.checked_err_mm, 1.5 * bound);
   EXPECT_LT(checked.worst_checked_mm, 4 * bound);
   EXPECT_LT(checked.deep_err_mm, locked.deep_err_mm / 3);
+}
+
+// A press checked 2.5 mm deep, then another elsewhere that comes down within the hold (no
+// release between): the second, shallower than half the first's checked depth, is checked anew
+// once 1 mm deep (before, it would have waited until twice the first's depth: never).
+TEST_F(AggregatorRefineTest, ASecondPressWithinTheHoldIsCheckedAnew) {
+  ASSERT_TRUE(use_design("design_9x9_uniform.yaml"));
+  const double tip = unit_->design().indenter_tip_radius_mm;
+  Stream ref(*unit_, options_, false, 1, 7);
+  ASSERT_TRUE(ref.ok());
+  auto ramp = [&](const sim::Contact& place, int samples) {
+    ContactArray a;
+    for (int k = 0; k < samples; ++k) {
+      sim::Contact c = place;
+      c.depth_mm = std::max(0.2, place.depth_mm * std::min(1.0, (k + 1) / 8.0));
+      EXPECT_TRUE(ref.sample(std::span<const sim::Contact>(&c, 1), &a));
+    }
+    return a;
+  };
+  const sim::Contact first{0.0, 0.0, 2.5, tip}, second{-20.0, -10.0, 1.25, tip};
+  ramp(first, 12);
+  const uint64_t checks_first = ref.agg->stats().refine_basin_checks;
+  const ContactArray last = ramp(second, 12);
+  const uint64_t checks_second = ref.agg->stats().refine_basin_checks - checks_first;
+  std::printf("checks: %llu on the first press, %llu on the second\n",
+              static_cast<unsigned long long>(checks_first),
+              static_cast<unsigned long long>(checks_second));
+  EXPECT_EQ(checks_first, 2u);  // at 1 mm and again past twice that
+  EXPECT_EQ(checks_second, 1u);
+  ASSERT_EQ(last.contacts.size(), 1u);
+  EXPECT_LT(std::hypot(last.contacts[0].u_mm - second.u_mm, last.contacts[0].v_mm - second.v_mm),
+            3.0);
 }
 
 }  // namespace

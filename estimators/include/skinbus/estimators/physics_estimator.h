@@ -8,8 +8,8 @@
 // sigma the sensor noise of the design's configuration (sim/mlx90393.h), so the final cost is
 // in noise units: a correct model leaves a reduced chi-square near 1. Masked channels
 // (channel_ok == 0 from the caller, NaN/Inf, saturated) are left out. Solved by Ceres'
-// Levenberg-Marquardt with the exact Jacobian (sim::PatchModel::contact_jacobian: forward-mode
-// dual numbers through the deformation, the dipole's gradient in closed form), depth bounded to
+// Levenberg-Marquardt with the exact Jacobian (forward-mode jets, Ceres', through the
+// simulator's template), depth bounded to
 // [1e-3, max_depth_mm()], (u, v) to the patch extent plus a margin.
 //
 // Start: the nearest row of a lookup table (skinbus/estimators/lookup_estimator.h; a coarse grid of
@@ -173,7 +173,9 @@ class PhysicsEstimator {
                          const ContactEstimate& guess) const;
   // The same fit as refine() by a lean Levenberg-Marquardt of its own (no Ceres; the exact
   // Jacobian of the vectorised field, PatchModel::contact_field_jacobian_ut, and after a step
-  // shorter than 0.5 mm updated along it instead (Broyden), with no field evaluation; the ambient
+  // shorter than 0.5 mm updated along it instead (Broyden), with no field evaluation; it ends
+  // when a step gains less than 1e-3 in chi-square, or is predicted to by the exact Jacobian's
+  // linear model (then unevaluated); the ambient
   // offset's columns are constant; with options().fit_shear the shear too, started from
   // `start`'s), for the host's refinement of every touched sample: from a start within a few
   // millimetres it reaches the same minimum, to a few percent of the fit's own uncertainty (tested

@@ -168,8 +168,9 @@ struct AggregatorOptions {
   // press is at least this deep, and again each time it is twice as deep as at its last check,
   // the sample is also searched from the refiner's own starts (ContactRefiner::search) if the
   // budget is not spent, and the search's contact published instead when the host's rule accepts
-  // it and it explains the sample better (AggregatorStats::refine_basin_checks, _moves). Cost:
-  // a search (several refinements) on about one sample in ten of a press. 0: no checks.
+  // it and it explains the sample better (AggregatorStats::refine_basin_checks, _moves). A press
+  // less than half as deep as at its last check is checked anew. Cost: a search (several
+  // refinements) on about one sample in fifteen (docs/benchmarks/refinement.md). 0: no checks.
   double refine_basin_check_mm = 1.0;
   // A refined contact is published when its fit converged, found a contact, explains the sample
   // to at most this reduced chi-square (noise units; its uncertainty is widened by the square root
@@ -221,7 +222,8 @@ struct AggregatorStats {
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
   uint64_t refine_restarts = 0;     // of those, rejected and refined again from the network's
   // Searches of a deepening press for another minimum (refine_basin_check_mm), and of those the
-  // ones whose contact replaced the fit 1 mm or more away from it (or a fit the rule rejected).
+  // ones whose contact replaced the fit 1 mm or more away from it, or replaced a fit the host's
+  // rule rejected.
   uint64_t refine_basin_checks = 0, refine_basin_moves = 0;
   uint64_t refined_pairs = 0;    // refined samples that held two or more presses (max_contacts 2-3)
   uint64_t refined_triples = 0;  // of those, the ones that held three (max_contacts 3)
