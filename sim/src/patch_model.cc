@@ -12,6 +12,16 @@ namespace skinbus::sim {
 
 namespace {
 
+// What sensor `s` reads of the field `b` (patch frame, uT): in its own axes, times its gains,
+// into out[0], out[stride], out[2 * stride].
+void sensor_reading(const PatchModel::Sensor& s, const Vec3<double>& b, double* out,
+                    std::size_t stride = 1) {
+  const Vec3<double> local = s.frame.apply(b);
+  out[0] = local.x * s.gain.x;
+  out[stride] = local.y * s.gain.y;
+  out[2 * stride] = local.z * s.gain.z;
+}
+
 Error bad(const std::string& what) {
   return make_error(ErrorCode::kInvalidArgument, "patch design: " + what);
 }
@@ -320,10 +330,7 @@ void PatchModel::rest_field_ut(std::span<double> out) const {
   for (std::size_t si = 0; si < ns; ++si) {
     Vec3<double> b{};
     for (std::size_t mi = 0; mi < magnets_.size(); ++mi) b = b + rest_[mi * ns + si];
-    const Vec3<double> local = sensors_[si].frame.apply(b);
-    out[3 * si + 0] = local.x * sensors_[si].gain.x;
-    out[3 * si + 1] = local.y * sensors_[si].gain.y;
-    out[3 * si + 2] = local.z * sensors_[si].gain.z;
+    sensor_reading(sensors_[si], b, &out[3 * si]);
   }
 }
 
@@ -381,17 +388,11 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
         rz_.data() + mi * ns, ax, ay, az, jx, jy, jz);
   }
   for (std::size_t si = 0; si < ns; ++si) {
-    const Sensor& s = sensors_[si];
-    const Vec3<double> local = s.frame.apply(Vec3<double>{ax[si], ay[si], az[si]});
-    field[3 * si + 0] = local.x * s.gain.x;
-    field[3 * si + 1] = local.y * s.gain.y;
-    field[3 * si + 2] = local.z * s.gain.z;
-    for (int k = 0; k < K; ++k) {
+    sensor_reading(sensors_[si], Vec3<double>{ax[si], ay[si], az[si]}, &field[3 * si]);
+    for (int k = 0; k < K; ++k) {  // column k of rows 3 si .. 3 si + 2
       const std::size_t at = static_cast<std::size_t>(k) * ns + si;
-      const Vec3<double> d = s.frame.apply(Vec3<double>{jx[at], jy[at], jz[at]});
-      jacobian[(3 * si + 0) * K + static_cast<std::size_t>(k)] = d.x * s.gain.x;
-      jacobian[(3 * si + 1) * K + static_cast<std::size_t>(k)] = d.y * s.gain.y;
-      jacobian[(3 * si + 2) * K + static_cast<std::size_t>(k)] = d.z * s.gain.z;
+      sensor_reading(sensors_[si], Vec3<double>{jx[at], jy[at], jz[at]},
+                     &jacobian[3 * si * K + static_cast<std::size_t>(k)], K);
     }
   }
 }
@@ -485,10 +486,7 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
         rz, ax, ay, az);
   }
   for (std::size_t si = 0; si < ns; ++si) {
-    const Vec3<double> local = sensors_[si].frame.apply(Vec3<double>{ax[si], ay[si], az[si]});
-    out[3 * si + 0] = local.x * sensors_[si].gain.x;
-    out[3 * si + 1] = local.y * sensors_[si].gain.y;
-    out[3 * si + 2] = local.z * sensors_[si].gain.z;
+    sensor_reading(sensors_[si], Vec3<double>{ax[si], ay[si], az[si]}, &out[3 * si]);
   }
 }
 
