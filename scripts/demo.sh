@@ -9,6 +9,7 @@
 # in 3D to a web browser (http://localhost:8080/ while the demo runs; docs/view.md).
 #
 #   scripts/demo.sh [--duration SECONDS] [--headless] [--out DIR] [--no-setup] [--view-port P]
+#                   [--no-calibrate]
 #
 # On a kernel with vcan (and the right to create it) the patches send on real SocketCAN; elsewhere
 # they send the same frames, in candump -L form, through a pipe to the host, and the demo says so.
@@ -16,6 +17,8 @@
 #   --headless   no live view: a plain frame every 4 s (logs, tests)
 #   --no-setup   skip scripts/setup.sh and the build (they are quick when done, not instant)
 #   --view-port  the web view's port (default 8080; 0: any free port; off: no web view)
+#   --no-calibrate  skip identifying the two chest patches' units (tens of seconds here, far
+#                longer on an emulated CPU): every patch runs the shipped network alone
 set -euo pipefail
 cd "$(dirname "$0")/.."
 src=$PWD
@@ -24,6 +27,7 @@ headless=0
 setup=1
 out=out/demo
 view_port=${SKINBUS_VIEW_PORT:-8080}
+calibrate=1
 while (($#)); do
   case $1 in
     --duration) duration=$2; shift 2 ;;
@@ -31,7 +35,8 @@ while (($#)); do
     --out) out=$2; shift 2 ;;
     --no-setup) setup=0; shift ;;
     --view-port) view_port=$2; shift 2 ;;
-    -h|--help) sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --no-calibrate) calibrate=0; shift ;;
+    -h|--help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -82,26 +87,30 @@ awk '/^  - node:/ {n=$3} /^    link:/ {print "   node " n " on " $2}' "$out/skin
 # from the shipped proposer network's presses), node 10 for the shear of a sliding press
 # (refine_shear: true). The simulated daemons' units are the fabricated
 # units of their UIDs, pressed here by the simulated indentation robot.
-mkdir -p "$out/units"
-for n in 9 10; do
-  uid=$(printf '0x5b%014x' "$n")
-  "$bin/skinbus-dataset" --plan grid --fabricated --uid "$uid" -o "$out/units/node$n.csv" 2>/dev/null
-  "$bin/skinbus-identify" "$out/units/node$n.csv" -o "$out/units/node$n.json" \
-    >"$out/units/node$n.txt" 2>&1 &
-  pids+=($!)
-done
-wait "${pids[@]}"
-pids=()
-awk -v units="$out/units" -v proposer="$src/estimators/models/nominal_proposer" '
-  /^  - node:/ {n = $3}
-  {print}
-  /^    model:/ && n == 9 {
-    print "    unit: \"" units "/node9.json\"\n    max_contacts: 2\n    proposer: \"" proposer "\""
-  }
-  /^    model:/ && n == 10 {print "    unit: \"" units "/node10.json\"\n    refine_shear: true"}
-' "$out/skin.yaml" >"$out/skin.yaml.tmp" && mv "$out/skin.yaml.tmp" "$out/skin.yaml"
-echo "== nodes 9 and 10 calibrated: $(grep -h '^identified' "$out"/units/node{9,10}.txt | tr '\n' ' ')"
-echo "   node 9 finds two fingers at once, node 10 the shear of a sliding press"
+if ((calibrate)); then
+  mkdir -p "$out/units"
+  for n in 9 10; do
+    uid=$(printf '0x5b%014x' "$n")
+    "$bin/skinbus-dataset" --plan grid --fabricated --uid "$uid" -o "$out/units/node$n.csv" 2>/dev/null
+    "$bin/skinbus-identify" "$out/units/node$n.csv" -o "$out/units/node$n.json" \
+      >"$out/units/node$n.txt" 2>&1 &
+    pids+=($!)
+  done
+  wait "${pids[@]}"
+  pids=()
+  awk -v units="$out/units" -v proposer="$src/estimators/models/nominal_proposer" '
+    /^  - node:/ {n = $3}
+    {print}
+    /^    model:/ && n == 9 {
+      print "    unit: \"" units "/node9.json\"\n    max_contacts: 2\n    proposer: \"" proposer "\""
+    }
+    /^    model:/ && n == 10 {print "    unit: \"" units "/node10.json\"\n    refine_shear: true"}
+  ' "$out/skin.yaml" >"$out/skin.yaml.tmp" && mv "$out/skin.yaml.tmp" "$out/skin.yaml"
+  echo "== nodes 9 and 10 calibrated: $(grep -h '^identified' "$out"/units/node{9,10}.txt | tr '\n' ' ')"
+  echo "   node 9 finds two fingers at once, node 10 the shear of a sliding press"
+else
+  echo "== no patch calibrated (--no-calibrate): every patch runs the shipped network"
+fi
 
 # ---- DDS: loopback only unless the caller configured Cyclone DDS ------------------------------
 export CYCLONEDDS_URI=${CYCLONEDDS_URI:-file://$src/tools/dds/loopback.xml}

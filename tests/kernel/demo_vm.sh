@@ -10,7 +10,10 @@ source "$(dirname "$0")/e2e_lib.sh"
 src=$(cd "$(dirname "$0")/../.." && pwd)
 e2e_begin demo_vm "${1:-}"
 ip link set lo up 2>/dev/null || true
-"$src/scripts/demo.sh" --headless --no-setup --duration 10 --out "$work/out" >demo.txt 2>&1 ||
+# --no-calibrate: identifying the two chest units under the emulated CPU took over 15 minutes on
+# a Zen 3 host (the VM's whole budget); the calibrated demo is tests/e2e/demo_e2e.sh's on the host.
+"$src/scripts/demo.sh" --headless --no-setup --no-calibrate --duration 10 --out "$work/out" \
+  >demo.txt 2>&1 ||
   bad "demo.sh failed: $(tail -3 demo.txt)"
 if grep -q "patch daemons on SocketCAN vcan0" demo.txt; then ok "the demo chose SocketCAN (vcan0)"; else bad "the demo did not use vcan0"; fi
 nodes=$(awk '{print $3}' "$work/out/bus.log" | cut -c2-3 | sort -u | wc -l)
