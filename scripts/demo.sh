@@ -17,8 +17,8 @@
 #   --headless   no live view: a plain frame every 4 s (logs, tests)
 #   --no-setup   skip scripts/setup.sh and the build (they are quick when done, not instant)
 #   --view-port  the web view's port (default 8080; 0: any free port; off: no web view)
-#   --no-calibrate  skip identifying the two chest patches' units (tens of seconds on a host core, far
-#                longer on an emulated CPU): every patch runs the shipped network alone
+#   --no-calibrate  skip identifying the two chest patches' units (tens of seconds on a host
+#                core, far longer on an emulated CPU): every patch runs the shipped network alone
 set -euo pipefail
 cd "$(dirname "$0")/.."
 src=$PWD
