@@ -42,10 +42,12 @@ while (($#)); do
 done
 if ((setup)); then
   scripts/setup.sh
-  # Only the programs the demo runs (scripts/build.sh alone builds everything, tests too).
-  scripts/build.sh --target skinbus-touchsim --target skinbus-patchd --target skinbus-host \
-    --target skinbus-listen --target skinbus-joints --target skinbus-top --target skinbus-view \
-    --target skinbus-dataset --target skinbus-identify
+  # Only the programs the demo runs (scripts/build.sh alone builds everything, tests too); the
+  # calibration's two only when it calibrates.
+  targets=(--target skinbus-touchsim --target skinbus-patchd --target skinbus-host
+    --target skinbus-listen --target skinbus-joints --target skinbus-top --target skinbus-view)
+  if ((calibrate)); then targets+=(--target skinbus-dataset --target skinbus-identify); fi
+  scripts/build.sh "${targets[@]}"
 fi
 bin=$src/build/tools
 scene=$src/sim/scenes/whole_body
