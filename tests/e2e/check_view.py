@@ -123,7 +123,7 @@ def main():
             if not hostile_done and time.monotonic() - start > 4:
                 hostile_clients(port)
                 hostile_done = True
-            time.sleep(0.2)
+            time.sleep(0.05)  # often enough to catch a two-finger instant under load
         if not shot:
             browser.screenshot(f"{artefacts}/view.png")
         final = browser.evaluate("window.skinbusView.summary()")
