@@ -366,6 +366,8 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
   std::fill_n(jy, K * ns, 0.0);
   std::fill_n(jz, K * ns, 0.0);
   const D lu(spread_u_), lv(spread_v_), lat(lateral_);
+  PressTerms<D> terms[kMaxJetContacts];  // each press's terms once for every magnet
+  for (std::size_t j = 0; j < contacts.size(); ++j) terms[j] = press_terms(cd[j], lu, lv);
   detail::MagnetJet g;
   g.unknowns = K;
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
@@ -375,7 +377,8 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
       reached = reached || (c.depth_mm > 0 && magnet_in_reach(m, c.u_mm, c.v_mm));
     if (!reached) continue;
     Vec3<D> pos, mom;
-    if (!magnet_pose(D(m.u), D(m.v), D(m.h), lift<D>(m.m_loc), lu, lv, lat, jets, &pos, &mom)) {
+    if (!magnet_pose(D(m.u), D(m.v), D(m.h), lift<D>(m.m_loc), lu, lv, lat, jets, terms, &pos,
+                     &mom)) {
       continue;
     }
     g.p[0] = pos.x.v, g.p[1] = pos.y.v, g.p[2] = pos.z.v;
@@ -434,34 +437,34 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
   const std::size_t ns = sensors_.size();
   const detail::DipoleSum sum = detail::dipole_sum();  // AVX-512, AVX2 or baseline
   double ax[kMaxSensors] = {}, ay[kMaxSensors] = {}, az[kMaxSensors] = {};
-  const double lu = spread_u_, lv = spread_v_, max_depth = max_depth_mm();
+  const double lu = spread_u_, lv = spread_v_;
+  const double inv_lu2 = 1 / (lu * lu), inv_lv2 = 1 / (lv * lv);
+  // Each press's terms once for every magnet, for as many contacts as fit here.
+  constexpr std::size_t kTermsHeld = 16;
+  PressTerms<double> terms[kTermsHeld];
+  const bool held = contacts.size() <= kTermsHeld;
+  for (std::size_t j = 0; held && j < contacts.size(); ++j)
+    terms[j] = press_terms(contacts[j], lu, lv);
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
     double w = 0, pu = 0, pv = 0, su = 0, sv = 0;
     bool moved = false;
-    for (const Contact& c : contacts) {
+    for (std::size_t j = 0; j < contacts.size(); ++j) {
+      const Contact& c = contacts[j];
       if (!(c.depth_mm > 0)) continue;
-      const double depth = c.depth_mm > max_depth ? max_depth : c.depth_mm;
       const double du = m.u - c.u_mm, dv = m.v - c.v_mm;
-      const double s2 = du * du / (lu * lu) + dv * dv / (lv * lv);
+      const double s2 = du * du * inv_lu2 + dv * dv * inv_lv2;
       if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
       moved = true;
-      double a2 = 0, ac2 = 0, amp = plate_depth(depth);  // round tip: see ContactT
-      if (c.tip_radius_mm > 0) {
-        const double r = c.tip_radius_mm;
-        ac2 = depth < r ? 2 * r * depth - depth * depth : r * r;
-        a2 = std::fmin(ac2 / (lu * lv), kMaxTipContact2);
-        double g0, dg0;
-        plate_kernel(std::sqrt(a2), &g0, &dg0);
-        amp = amp / g0;
-      }
+      const PressTerms<double> t = held ? terms[j] : press_terms(c, lu, lv);  // round tip: ContactT
+      const double a2 = t.a2, ac2 = t.ac2_mm2, amp = t.amp_mm;
       const double s = std::sqrt(s2 + a2);
       double g, dg;
       plate_kernel(s, &g, &dg);
       const double q = s > 1e-6 ? dg / s : 0.0;
       w += amp * g;
-      pu -= amp * q * du / (lu * lu);
-      pv -= amp * q * dv / (lv * lv);
+      pu -= amp * q * du * inv_lu2;
+      pv -= amp * q * dv * inv_lv2;
       if (design_.inplane_drag != 0) {  // dragged toward the press (PatchDesign::inplane_drag)
         su -= drag_toward(amp, g, du, lu);
         sv -= drag_toward(amp, g, dv, lv);

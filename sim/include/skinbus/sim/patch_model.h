@@ -294,7 +294,29 @@ class PatchModel {
   template <typename T>
   bool magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& m_loc, const T& spread_u,
                    const T& spread_v, const T& lateral, std::span<const ContactT<T>> contacts,
-                   Vec3<T>* pos, Vec3<T>* moment) const;
+                   Vec3<T>* pos, Vec3<T>* moment) const {
+    return magnet_pose(u, v, h, m_loc, spread_u, spread_v, lateral, contacts,
+                       static_cast<const PressTerms<T>*>(nullptr), pos, moment);
+  }
+
+  // What of one press is the same at every magnet: its depth held to [0, max_depth_mm()], the
+  // tip's squared contact radius (mm^2), that over spread_u x spread_v (capped at
+  // kMaxTipContact2) and the deflection's amplitude under the tip (mm: the plate depth over the
+  // kernel's value at the tip's edge). `pressing` false (the rest unset) for depth <= 0 or NaN.
+  template <typename T>
+  struct PressTerms {
+    bool pressing = false;
+    T depth_mm, ac2_mm2, a2, amp_mm;
+  };
+  template <typename T>
+  PressTerms<T> press_terms(const ContactT<T>& c, const T& spread_u, const T& spread_v) const;
+  // magnet_pose() with `terms[j]` the press_terms() of contacts[j] at these spreads, computed
+  // once for every magnet of an evaluation (nullptr: computed here, per magnet). A plate
+  // kernel lookup, a square root and a division less per magnet and contact.
+  template <typename T>
+  bool magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& m_loc, const T& spread_u,
+                   const T& spread_v, const T& lateral, std::span<const ContactT<T>> contacts,
+                   const PressTerms<T>* terms, Vec3<T>* pos, Vec3<T>* moment) const;
 
  private:
   PatchModel() = default;
@@ -354,34 +376,61 @@ T PatchModel::shear_shape(const T& r2, const T& ac2) const {
 }
 
 template <typename T>
+PatchModel::PressTerms<T> PatchModel::press_terms(const ContactT<T>& c, const T& spread_u,
+                                                  const T& spread_v) const {
+  using std::sqrt;
+  PressTerms<T> t;
+  // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
+  t.depth_mm = c.depth_mm;
+  if (!(value_of(t.depth_mm) > 0)) return t;  // no press (or NaN): nothing moves
+  t.pressing = true;
+  if (value_of(t.depth_mm) > max_depth_mm()) t.depth_mm = T(max_depth_mm());
+  const T& depth = t.depth_mm;
+  t.ac2_mm2 = T(0.0);  // squared contact radius of the tip, mm^2
+  if (c.tip_radius_mm > 0) {
+    const double r = c.tip_radius_mm;
+    t.ac2_mm2 = value_of(depth) < r ? T(2 * r) * depth - depth * depth : T(r * r);
+  }
+  t.a2 = t.ac2_mm2 / (spread_u * spread_v);  // over l_u l_v
+  if (value_of(t.a2) > kMaxTipContact2) t.a2 = T(kMaxTipContact2);
+  // Deflection under the tip is the depth (less what the top crushes): divide by the shape
+  // there.
+  t.amp_mm = plate_depth(depth);
+  if (c.tip_radius_mm > 0) {
+    const T s0 = sqrt(t.a2);
+    double g0, dg0;
+    plate_kernel(value_of(s0), &g0, &dg0);
+    t.amp_mm = t.amp_mm / first_order(s0, g0, dg0);
+  }
+  return t;
+}
+
+template <typename T>
 bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& m_loc,
                              const T& spread_u, const T& spread_v, const T& lateral,
-                             std::span<const ContactT<T>> contacts, Vec3<T>* pos,
-                             Vec3<T>* moment) const {
+                             std::span<const ContactT<T>> contacts, const PressTerms<T>* terms,
+                             Vec3<T>* pos, Vec3<T>* moment) const {
   using std::sqrt;
   const double lu = value_of(spread_u), lv = value_of(spread_v);
-  const T lu2 = spread_u * spread_u, lv2 = spread_v * spread_v, luv = spread_u * spread_v;
+  const T lu2 = spread_u * spread_u, lv2 = spread_v * spread_v;
   // Surface deflection and slope at the magnet, summed over contacts (the plate is linear), and
   // its in-plane shift by shear.
   T w(0.0), pu(0.0), pv(0.0), shift_u(0.0), shift_v(0.0);
   bool moved = false;
-  for (const ContactT<T>& c : contacts) {
-    // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
-    T depth = c.depth_mm;
-    if (!(value_of(depth) > 0)) continue;  // no press (or NaN): nothing moves
-    if (value_of(depth) > max_depth_mm()) depth = T(max_depth_mm());
+  PressTerms<T> here;
+  for (std::size_t j = 0; j < contacts.size(); ++j) {
+    const ContactT<T>& c = contacts[j];
+    // Pressing or not is the contact's depth alone: test it before computing the terms.
+    if (!(value_of(c.depth_mm) > 0)) continue;
     const T du = u - c.u_mm, dv = v - c.v_mm;
     const double sdu = value_of(du) / lu, sdv = value_of(dv) / lv;
     const double s2 = sdu * sdu + sdv * sdv;
     if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
     moved = true;
-    T ac2(0.0);  // squared contact radius of the tip, mm^2
-    if (c.tip_radius_mm > 0) {
-      const double r = c.tip_radius_mm;
-      ac2 = value_of(depth) < r ? T(2 * r) * depth - depth * depth : T(r * r);
-    }
-    T a2 = ac2 / luv;  // over l_u l_v
-    if (value_of(a2) > kMaxTipContact2) a2 = T(kMaxTipContact2);
+    if (terms == nullptr) here = press_terms(c, spread_u, spread_v);
+    const PressTerms<T>& t = terms != nullptr ? terms[j] : here;
+    const T& a2 = t.a2;
+    const T& ac2 = t.ac2_mm2;
     // At the very point of a point load (s = 0) the kernel is flat (g'(0) = 0): no derivative
     // through the square root there, which would be 0/0 for jets.
     const T s_sq = du * du / lu2 + dv * dv / lv2 + a2;
@@ -395,15 +444,7 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
     const double q = sv > 1e-6 ? dg / sv : 0.0;
     const double dq = sv > 1e-6 ? (d2g * sv - dg) / (sv * sv) : 0.0;
     const T dgs = first_order(s, q, dq);
-    // Deflection under the tip is the depth (less what the top crushes): divide by the shape
-    // there.
-    T amp = plate_depth(depth);
-    if (c.tip_radius_mm > 0) {
-      const T s0 = sqrt(a2);
-      double g0, dg0;
-      plate_kernel(value_of(s0), &g0, &dg0);
-      amp = amp / first_order(s0, g0, dg0);
-    }
+    const T& amp = t.amp_mm;
     w = w + amp * gs;                // deflection into the skin
     pu = pu - amp * dgs * du / lu2;  // slope of the surface height h = -w
     pv = pv - amp * dgs * dv / lv2;
@@ -442,11 +483,17 @@ void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out)
   Vec3<T> acc[kMaxSensors];  // on the stack: no allocation per call
   for (std::size_t si = 0; si < ns; ++si) acc[si] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
   const T lu(spread_u_), lv(spread_v_), lat(lateral_);
+  // Each press's terms once for every magnet, for as many contacts as fit here.
+  constexpr std::size_t kTermsHeld = 4;
+  PressTerms<T> terms[kTermsHeld];
+  const bool held = contacts.size() <= kTermsHeld;
+  for (std::size_t j = 0; held && j < contacts.size(); ++j)
+    terms[j] = press_terms(contacts[j], lu, lv);
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
     Vec3<T> pos, moment;
-    if (!magnet_pose(T(m.u), T(m.v), T(m.h), lift<T>(m.m_loc), lu, lv, lat, contacts, &pos,
-                     &moment)) {
+    if (!magnet_pose(T(m.u), T(m.v), T(m.h), lift<T>(m.m_loc), lu, lv, lat, contacts,
+                     held ? terms : static_cast<const PressTerms<T>*>(nullptr), &pos, &moment)) {
       continue;
     }
     for (std::size_t si = 0; si < ns; ++si) {
