@@ -826,7 +826,8 @@ PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
 }
 
 PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
-                                            std::span<const uint8_t> channel_ok, int starts) const {
+                                            std::span<const uint8_t> channel_ok, int starts,
+                                            const ContactEstimate* apart_from) const {
   PhysicsEstimate best;
   const int nc = model_.channel_count();
   FitInput in;
@@ -842,8 +843,11 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
   const double pitch = options_.start_grid.pitch_mm > 0 ? options_.start_grid.pitch_mm
                                                         : start_pitch_mm(model_.design());
   int picked[8];
-  const int n_picked =
-      pick_apart(start_, nb, n, 2 * pitch, nullptr, std::clamp(starts, 1, 8), picked);
+  const double held_uv[2] = {apart_from != nullptr ? apart_from->u_mm : 0.0,
+                             apart_from != nullptr ? apart_from->v_mm : 0.0};
+  const bool avoid = apart_from != nullptr && std::isfinite(held_uv[0]) && std::isfinite(held_uv[1]);
+  const int n_picked = pick_apart(start_, nb, n, 2 * pitch, avoid ? held_uv : nullptr,
+                                  std::clamp(starts, 1, 8), picked);
   bool found = false;
   for (int t = 0; t < n_picked; ++t) {
     const LookupNeighbour& row = nb[picked[t]];

@@ -381,6 +381,47 @@ TEST(PhysicsEstimatorLeanTest, RefineLmReachesTheCeresFitsMinimum) {
   }
 }
 
+// search_lm() finds a press from the start table alone; a held fit far from the press leaves
+// the search as it was; one at the press leaves out the rows beside it (the caller's basin):
+// the search starts elsewhere, never yields a lower chi-square than the search with them, and
+// never NaN.
+TEST(PhysicsEstimatorLeanTest, SearchLmFindsThePressAndLeavesOutAHeldFitsBasin) {
+  const uint64_t seed = 7171;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const PhysicsEstimator est = PhysicsEstimator::create(unit).value();
+  sim::Rng rng(seed);
+  int differs = 0;  // presses whose search with the held fit at the press started elsewhere
+  for (int i = 0; i < 12; ++i) {
+    const sim::Contact c{rng.uniform(-45, 45), rng.uniform(-45, 45), rng.uniform(1.5, 4.0), 5};
+    const std::vector<double> f = noisy_field(unit, std::span<const sim::Contact>(&c, 1), rng);
+    SCOPED_TRACE(testing::Message() << "press " << c.u_mm << ", " << c.v_mm << ", " << c.depth_mm);
+    const PhysicsEstimate all = est.search_lm(f, {}, 2);
+    ASSERT_TRUE(all.contact.valid());
+    EXPECT_LT(std::hypot(all.contact.u_mm - c.u_mm, all.contact.v_mm - c.v_mm), 1.0);
+    ContactEstimate far;  // a held fit across the patch: no row near the press is left out
+    far.u_mm = c.u_mm > 0 ? -60 : 60;
+    far.v_mm = c.v_mm > 0 ? -60 : 60;
+    const PhysicsEstimate apart = est.search_lm(f, {}, 2, &far);
+    ASSERT_TRUE(apart.contact.valid());
+    EXPECT_EQ(apart.contact.u_mm, all.contact.u_mm);
+    EXPECT_EQ(apart.contact.v_mm, all.contact.v_mm);
+    EXPECT_EQ(apart.chi2, all.chi2);
+    ContactEstimate held;  // a held fit at the press: the search looks elsewhere
+    held.u_mm = c.u_mm;
+    held.v_mm = c.v_mm;
+    const PhysicsEstimate elsewhere = est.search_lm(f, {}, 2, &held);
+    EXPECT_TRUE(std::isfinite(elsewhere.contact.u_mm) && std::isfinite(elsewhere.chi2));
+    differs += elsewhere.contact.u_mm != all.contact.u_mm || elsewhere.chi2 != all.chi2;
+    if (elsewhere.contact.valid()) {
+      EXPECT_GE(elsewhere.chi2, all.chi2 * (1 - 1e-3));
+    }
+  }
+  // This design has one basin a press: the fits from farther rows mostly reach the press too,
+  // by other steps, to other last digits.
+  EXPECT_GE(differs, 6);
+}
+
 TEST(PhysicsEstimatorLeanTest, DegenerateInputIsRefusedOrFlaggedNeverNaN) {
   const sim::PatchModel unit = sim::PatchModel::nominal(sim::PatchDesign{}).value();
   const PhysicsEstimator est = PhysicsEstimator::create(unit).value();

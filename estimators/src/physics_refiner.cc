@@ -37,7 +37,9 @@ class PhysicsRefiner : public ContactRefiner {
   }
 
   RefinedEstimate search(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
-                         const ContactEstimate&) const override {
+                         const ContactEstimate& held) const override {
+    // The held fit stands for its own basin: one start fewer, none beside it.
+    if (held.valid()) return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts - 1, &held));
     return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts));
   }
 

@@ -799,9 +799,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
               single.contact.depth_mm >= 2 * mem.checked_depth_mm &&
               refine_spent_us + elapsed_us() < static_cast<double>(s.options.refine_budget_us)) {
             ++s.stats.refine_basin_checks;
+            // An accepted warm fit stands for its basin: the search looks elsewhere.
+            estimators::ContactEstimate held = single.contact;
+            if (!ok) held.flags |= estimators::kEstimateRejected;
             const estimators::RefinedEstimate other =
                 refiner->search(std::span<const double>(m.fields.data() + row, kChannels),
-                                std::span<const uint8_t>(m.ok.data() + row, kChannels), est);
+                                std::span<const uint8_t>(m.ok.data() + row, kChannels), held);
             if (refinement_accepted(other, &est, s.options) &&
                 (!ok || other.reduced_chi2 < single.reduced_chi2)) {
               const double moved_mm = std::hypot(other.contact.u_mm - single.contact.u_mm,

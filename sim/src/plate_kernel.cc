@@ -1,8 +1,6 @@
 #include "skinbus/sim/plate_kernel.h"
 
-#include <array>
 #include <cmath>
-#include <vector>
 
 namespace skinbus::sim {
 
@@ -47,66 +45,29 @@ void kelvin_kei(double x, double* kei, double* dkei_dx) {
   *dkei_dx = -bei / x - lnz * dbei - (M_PI / 4) * dber + dextra;
 }
 
-namespace {
+namespace detail {
 
-constexpr int kTableSize = 6501;  // step 0.001 over [0, 6.5]
-constexpr double kStep = kPlateKernelCutoff / (kTableSize - 1);
-
-struct Table {
-  std::vector<double> g, dg;
-  Table() : g(kTableSize), dg(kTableSize) {
-    for (int i = 0; i < kTableSize; ++i) {
-      const double s = i * kStep;
-      double kei, dkei;
-      kelvin_kei(s, &kei, &dkei);
-      double gs = -(4 / M_PI) * kei, dgs = -(4 / M_PI) * dkei;
-      // C1 fade to zero over [fade start, cutoff]: w(t) = 1 - 3t^2 + 2t^3.
-      if (s > kPlateKernelFadeStart) {
-        const double t = (s - kPlateKernelFadeStart) / (kPlateKernelCutoff - kPlateKernelFadeStart);
-        const double w = 1 - 3 * t * t + 2 * t * t * t;
-        const double dw = (-6 * t + 6 * t * t) / (kPlateKernelCutoff - kPlateKernelFadeStart);
-        dgs = dgs * w + gs * dw;
-        gs *= w;
-      }
-      g[i] = gs;
-      dg[i] = dgs;
+PlateTable::PlateTable() {
+  for (int i = 0; i < kPlateTableSize; ++i) {
+    const double s = i * kPlateTableStep;
+    double kei, dkei;
+    kelvin_kei(s, &kei, &dkei);
+    double gs = -(4 / M_PI) * kei, dgs = -(4 / M_PI) * dkei;
+    // C1 fade to zero over [fade start, cutoff]: w(t) = 1 - 3t^2 + 2t^3.
+    if (s > kPlateKernelFadeStart) {
+      const double t = (s - kPlateKernelFadeStart) / (kPlateKernelCutoff - kPlateKernelFadeStart);
+      const double w = 1 - 3 * t * t + 2 * t * t * t;
+      const double dw = (-6 * t + 6 * t * t) / (kPlateKernelCutoff - kPlateKernelFadeStart);
+      dgs = dgs * w + gs * dw;
+      gs *= w;
     }
-    g.back() = 0;
-    dg.back() = 0;
+    gd[2 * i] = gs;
+    gd[2 * i + 1] = dgs;
   }
-};
-
-const Table& table() {
-  static const Table t;
-  return t;
+  gd[2 * (kPlateTableSize - 1)] = 0;
+  gd[2 * (kPlateTableSize - 1) + 1] = 0;
 }
 
-}  // namespace
-
-void plate_kernel(double s, double* g, double* dg_ds, double* d2g_ds2) {
-  s = std::fabs(s);
-  if (!(s < kPlateKernelCutoff)) {  // also catches NaN
-    *g = 0;
-    *dg_ds = 0;
-    if (d2g_ds2) *d2g_ds2 = 0;
-    return;
-  }
-  const Table& t = table();
-  const double u = s / kStep;
-  const int i = static_cast<int>(u);
-  const double f = u - i;
-  // Cubic Hermite on (g, dg) at the two table points.
-  const double h00 = (1 + 2 * f) * (1 - f) * (1 - f), h10 = f * (1 - f) * (1 - f);
-  const double h01 = f * f * (3 - 2 * f), h11 = f * f * (f - 1);
-  const double g0 = t.g[i], g1 = t.g[i + 1], d0 = t.dg[i] * kStep, d1 = t.dg[i + 1] * kStep;
-  *g = h00 * g0 + h10 * d0 + h01 * g1 + h11 * d1;
-  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00,
-               dh11 = 3 * f * f - 2 * f;
-  *dg_ds = (dh00 * g0 + dh10 * d0 + dh01 * g1 + dh11 * d1) / kStep;
-  if (d2g_ds2) {
-    const double e00 = 12 * f - 6, e10 = 6 * f - 4, e11 = 6 * f - 2;
-    *d2g_ds2 = (e00 * g0 + e10 * d0 - e00 * g1 + e11 * d1) / (kStep * kStep);
-  }
-}
+}  // namespace detail
 
 }  // namespace skinbus::sim

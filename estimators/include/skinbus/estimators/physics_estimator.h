@@ -185,11 +185,12 @@ class PhysicsEstimator {
                             const ContactEstimate& start) const;
   // refine_lm() from up to `starts` (1-8) rows of the start table: the nearest the sample in
   // field, then the next nearest at least 2 of the table's pitches from those taken (other
-  // basins of the field); the lowest chi-square kept. A search of the table at the lean fit's cost
-  // (`starts` fits), for a fit from another estimator's answer that ended poor. kEstimateRejected
-  // when no start gave a fit. No allocation.
+  // basins of the field); the lowest chi-square kept. With `apart_from` (a fit the caller holds),
+  // no row within 2 pitches of it either: that basin is the caller's already. A search of the
+  // table at the lean fit's cost (`starts` fits), for a fit from another estimator's answer that
+  // ended poor. kEstimateRejected when no start gave a fit. No allocation.
   PhysicsEstimate search_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
-                            int starts = 3) const;
+                            int starts = 3, const ContactEstimate* apart_from = nullptr) const;
   // The number of contacts in the sample (0 to count.max_contacts) and each one
   // (ContactCountOptions). Cost: estimate(), and when the single fit leaves more than noise, a
   // single fit of what it leaves and up to 5 two-contact solves (the lean Levenberg-Marquardt of

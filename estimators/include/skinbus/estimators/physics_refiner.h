@@ -31,9 +31,9 @@ namespace skinbus::estimators {
 // Cost: three lean fits (each about a refinement's) for those samples only
 // (docs/benchmarks/designs.md, "25 sensors"). refine_contacts() with `max_contacts` 2 or 3
 // leaves a poor single fit to the contact count's own search (a poor single fit is what starts
-// a count); refine() always searches. search() is that search alone (the start ignored; with
-// search_when_poor off the start table is one row, the patch centre, and it is one fit from
-// there).
+// a count); refine() always searches. search() is that search alone (with search_when_poor off
+// the start table is one row, the patch centre, and it is one fit from there); given a valid
+// held fit, from 2 rows at least 2 table pitches from it (the held fit is its basin's answer).
 //
 // max_contacts 2 or 3: refine_contacts() counts the contacts of a sample whose single fit leaves
 // more than noise (PhysicsEstimator::count_contacts with `count`, its max_contacts set to this

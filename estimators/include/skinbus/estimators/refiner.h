@@ -70,11 +70,13 @@ class ContactRefiner {
   // refiner: the nearest rows of its start table), for a caller that suspects the press it
   // follows sits in another minimum of the fit (a warm start carried from a press's shallow
   // first samples, where two places can look alike). The caller compares its reduced chi-square
-  // with its own fit's. Cost: several refine()s. By default refine() from `start`.
+  // with its own fit's. `held`: the fit the caller holds, when valid(); the search may leave out
+  // its basin (the physics refiner: start rows within two table pitches of it, and one start
+  // fewer). Cost: several refine()s. By default refine() from `held`.
   virtual RefinedEstimate search(std::span<const double> field_ut,
                                  std::span<const uint8_t> channel_ok,
-                                 const ContactEstimate& start) const {
-    return refine(field_ut, channel_ok, start);
+                                 const ContactEstimate& held) const {
+    return refine(field_ut, channel_ok, held);
   }
 };
 

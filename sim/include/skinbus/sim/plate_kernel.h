@@ -11,18 +11,70 @@
 // exactly 0 at s = 6.5 by a smooth (C1) window, so presses touch only nearby magnets.
 #pragma once
 
+#include <cmath>
+
 namespace skinbus::sim {
 
 inline constexpr double kPlateKernelFadeStart = 5.0;
 inline constexpr double kPlateKernelCutoff = 6.5;  // g(s) = g'(s) = 0 for s >= this
 
 // g(s), dg/ds and d2g/ds2 for s >= 0 (negative s is treated as |s|). Tabulated from the
-// Kelvin-function series at start-up (step 0.001), then cubic Hermite: |g error| < 1e-9;
-// the second derivative is that of the interpolant (piecewise, for first-order jets).
-void plate_kernel(double s, double* g, double* dg_ds, double* d2g_ds2 = nullptr);
+// Kelvin-function series at first use (step 0.001), then cubic Hermite: |g error| < 1e-9;
+// the second derivative is that of the interpolant (piecewise, for first-order jets). Inline:
+// every field evaluation calls it once a moved magnet; about 20 floating-point operations.
+inline void plate_kernel(double s, double* g, double* dg_ds, double* d2g_ds2 = nullptr);
 
 // The Kelvin function kei(x) and its derivative by their power series (Abramowitz & Stegun
 // 9.9.12), accurate for 0 <= x <= 10. Used to build the table and by tests.
 void kelvin_kei(double x, double* kei, double* dkei_dx);
+
+namespace detail {
+
+inline constexpr int kPlateTableSize = 6501;  // points 0, 0.001, ..., 6.5
+inline constexpr double kPlateTableStep = kPlateKernelCutoff / (kPlateTableSize - 1);
+inline constexpr double kPlateTablePerUnit = (kPlateTableSize - 1) / kPlateKernelCutoff;  // 1000
+
+// g and dg/ds at the table's points, interleaved (g, dg) a point: a lookup reads one or two
+// cache lines. Built once, at first use (thread-safe), from kelvin_kei().
+struct PlateTable {
+  PlateTable();
+  double gd[2 * kPlateTableSize];
+};
+inline const PlateTable& plate_table() {
+  static const PlateTable table;
+  return table;
+}
+
+}  // namespace detail
+
+inline void plate_kernel(double s, double* g, double* dg_ds, double* d2g_ds2) {
+  s = std::fabs(s);
+  if (!(s < kPlateKernelCutoff)) {  // also catches NaN
+    *g = 0;
+    *dg_ds = 0;
+    if (d2g_ds2) *d2g_ds2 = 0;
+    return;
+  }
+  const double* t = detail::plate_table().gd;
+  const double u = s * detail::kPlateTablePerUnit;
+  // The last interval also takes a u rounded up to its end.
+  constexpr int kLast = detail::kPlateTableSize - 2;
+  const int i = u < kLast ? static_cast<int>(u) : kLast;
+  const double f = u - i;
+  constexpr double h = detail::kPlateTableStep;
+  // Cubic Hermite on (g, dg) at the two table points.
+  const double g0 = t[2 * i], d0 = t[2 * i + 1] * h, g1 = t[2 * i + 2], d1 = t[2 * i + 3] * h;
+  const double h00 = (1 + 2 * f) * (1 - f) * (1 - f), h10 = f * (1 - f) * (1 - f);
+  const double h01 = f * f * (3 - 2 * f), h11 = f * f * (f - 1);
+  *g = h00 * g0 + h10 * d0 + h01 * g1 + h11 * d1;
+  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00,
+               dh11 = 3 * f * f - 2 * f;
+  *dg_ds = (dh00 * g0 + dh10 * d0 + dh01 * g1 + dh11 * d1) * detail::kPlateTablePerUnit;
+  if (d2g_ds2) {
+    const double e00 = 12 * f - 6, e10 = 6 * f - 4, e11 = 6 * f - 2;
+    *d2g_ds2 = (e00 * g0 + e10 * d0 - e00 * g1 + e11 * d1) *
+               (detail::kPlateTablePerUnit * detail::kPlateTablePerUnit);
+  }
+}
 
 }  // namespace skinbus::sim
