@@ -146,7 +146,8 @@ int pick_apart(const LookupEstimator& table, const LookupNeighbour* nb, int n, d
 // refine_lm()'s fit of one contact (with its shear when N is 8) on a prepared sample; below.
 template <int N>
 void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
-                 const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result);
+                 const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result,
+                 WarmJacobian* warm = nullptr);
 
 void prepare_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok, int nc,
                  const PhysicsOptions& options, FitInput* in) {
@@ -574,7 +575,7 @@ LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
 template <int N>
 LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
                     const double* ambient_jac, const LeanLayout& l,
-                    typename LeanFit<N>::LeanVec x) {
+                    typename LeanFit<N>::LeanVec x, WarmJacobian* warm = nullptr) {
   using LeanVec = typename LeanFit<N>::LeanVec;
   using LeanMat = typename LeanFit<N>::LeanMat;
   const int nc = model.channel_count();
@@ -650,18 +651,37 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   // computes the Jacobian.
   double last_step[kLeanMax] = {};
   double last_field[kMaxChannels];
+  // A Jacobian the same press's last fit left near this start: this fit begins from it, updated
+  // along the move (the first iteration's, below).
+  bool from_warm = false;
+  if (warm != nullptr && warm->valid && warm->unknowns == amb && l.contacts == 1 &&
+      warm->uses < WarmJacobian::kMaxUses) {
+    double d2 = 0;
+    for (int k = 0; k < amb; ++k) d2 += (x(k) - warm->at[k]) * (x(k) - warm->at[k]);
+    if (d2 <= kReuseMm * kReuseMm) {
+      from_warm = true;
+      for (int k = 0; k < amb; ++k) last_step[k] = x(k) - warm->at[k];
+      std::copy(warm->field_ut, warm->field_ut + nc, last_field);
+      std::copy(warm->jacobian, warm->jacobian + nc * amb, jac);
+    }
+  }
+  auto broyden = [&](double dd) {  // the Jacobian along last_step (squared length dd > 0)
+    for (int i = 0; i < nc; ++i) {
+      double* row = jac + i * amb;
+      double miss = fit.field[i] - last_field[i];
+      for (int k = 0; k < amb; ++k) miss -= row[k] * last_step[k];
+      for (int k = 0; k < amb; ++k) row[k] += miss * last_step[k] / dd;
+    }
+  };
+  bool computed = false;  // whether this fit computed the Jacobian
   while (fit.iterations < options.max_iterations && std::isfinite(cost) && !fit.converged) {
     ++fit.iterations;
     double dd = 0;
     for (int k = 0; k < amb; ++k) dd += last_step[k] * last_step[k];
-    const bool updated = dd > 0 && dd <= kReuseMm * kReuseMm;
+    const bool updated =
+        (dd > 0 && dd <= kReuseMm * kReuseMm) || (from_warm && fit.iterations == 1);
     if (updated) {
-      for (int i = 0; i < nc; ++i) {
-        double* row = jac + i * amb;
-        double miss = fit.field[i] - last_field[i];
-        for (int k = 0; k < amb; ++k) miss -= row[k] * last_step[k];
-        for (int k = 0; k < amb; ++k) row[k] += miss * last_step[k] / dd;
-      }
+      if (dd > 0) broyden(dd);
     } else {
       lean_contacts(l, x, tip, contacts);
       if (!model.contact_field_jacobian_ut(
@@ -670,6 +690,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
               std::span<double>(jac, static_cast<std::size_t>(nc * amb)))) {
         break;  // not reached: the layouts are within the jets' (static_assert above)
       }
+      computed = true;
     }
     std::fill(last_step, last_step + amb, 0.0);
     LeanMat jtj = LeanMat::Zero();
@@ -745,6 +766,22 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       fit.converged = true;  // no step lowers the cost: a minimum to the damping's resolution
     }
   }
+  // What the next sample of the press begins from: the Jacobian at this fit's end (updated
+  // along its last step), unless that step was long or nothing was computed.
+  if (warm != nullptr) {
+    double dd = 0;
+    for (int k = 0; k < amb; ++k) dd += last_step[k] * last_step[k];
+    warm->valid = l.contacts == 1 && (computed || from_warm) && dd <= kReuseMm * kReuseMm &&
+                  std::isfinite(cost);
+    if (warm->valid) {
+      if (dd > 0) broyden(dd);
+      warm->unknowns = amb;
+      warm->uses = computed ? 0 : warm->uses + 1;
+      for (int k = 0; k < amb; ++k) warm->at[k] = x(k);
+      std::copy(fit.field, fit.field + nc, warm->field_ut);
+      std::copy(jac, jac + nc * amb, warm->jacobian);
+    }
+  }
   fit.x = x;
   fit.cost = cost;
   return fit;
@@ -782,7 +819,8 @@ bool lean_sigmas(const LeanMat& jtj, const LeanLayout& l, bool fit_ambient, doub
 // refine_lm()'s fit: one contact, with its shear when N is 8.
 template <int N>
 void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
-                 const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result) {
+                 const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result,
+                 WarmJacobian* warm) {
   PhysicsEstimate& out = *result;
   const LeanLayout l{1, N == 8};
   typename LeanFit<N>::LeanVec x0 = LeanFit<N>::LeanVec::Zero();
@@ -793,7 +831,7 @@ void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, co
     x0(3) = start.shear_u_n;
     x0(4) = start.shear_v_n;
   }
-  const LeanFit<N> fit = lean_fit<N>(model, options, in, ambient_jac, l, x0);
+  const LeanFit<N> fit = lean_fit<N>(model, options, in, ambient_jac, l, x0, warm);
   const int amb = l.ambient_at();
   const double xc[3] = {fit.x(0), fit.x(1), fit.x(2)};
   const double xb[3] = {fit.x(amb), fit.x(amb + 1), fit.x(amb + 2)};
@@ -812,15 +850,16 @@ void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, co
 
 PhysicsEstimate PhysicsEstimator::refine_lm(std::span<const double> field_ut,
                                             std::span<const uint8_t> channel_ok,
-                                            const ContactEstimate& start) const {
+                                            const ContactEstimate& start,
+                                            WarmJacobian* warm) const {
   PhysicsEstimate out;
   const int nc = model_.channel_count();
   FitInput in;
   if (!begin_fit(field_ut, channel_ok, nc, options_, &in, &out)) return out;
   if (options_.fit_shear) {
-    refine_lean<8>(model_, options_, in, ambient_jac_.data(), start, &out);
+    refine_lean<8>(model_, options_, in, ambient_jac_.data(), start, &out, warm);
   } else {
-    refine_lean<6>(model_, options_, in, ambient_jac_.data(), start, &out);
+    refine_lean<6>(model_, options_, in, ambient_jac_.data(), start, &out, warm);
   }
   return out;
 }

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -420,6 +421,62 @@ TEST(PhysicsEstimatorLeanTest, SearchLmFindsThePressAndLeavesOutAHeldFitsBasin) 
   // This design has one basin a press: the fits from farther rows mostly reach the press too,
   // by other steps, to other last digits.
   EXPECT_GE(differs, 6);
+}
+
+// A press held and sliding 0.1 mm a sample, each sample refined from the last one's answer: with
+// the press's WarmJacobian the fits begin from the last fit's Jacobian (at most kMaxUses in a
+// row, then one computed) and reach the minimum the fits without it reach, within 5 % of the
+// fit's own uncertainty, with the same flags. A start beyond 0.5 mm of it computes its own.
+TEST(PhysicsEstimatorLeanTest, RefineLmFromTheLastFitsJacobianReachesTheSameMinimum) {
+  const uint64_t seed = 5150;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5B0000000000000Bull,
+                                  sim::FabricationVariation{})
+          .value();
+  PhysicsOptions options;
+  options.covariance = true;
+  const PhysicsEstimator est = PhysicsEstimator::create(unit, options).value();
+  sim::Rng rng(seed);
+  int began_warm = 0, max_uses = 0;
+  for (int press = 0; press < 6; ++press) {
+    sim::Contact c{rng.uniform(-45, 45), rng.uniform(-45, 45), rng.uniform(1.2, 4.0), 5};
+    auto warm = std::make_unique<WarmJacobian>();
+    ContactEstimate start;
+    start.u_mm = c.u_mm + 0.5;
+    start.v_mm = c.v_mm - 0.5;
+    start.depth_mm = c.depth_mm;
+    for (int k = 0; k < 16; ++k) {
+      c.u_mm += 0.1;
+      const std::vector<double> f = noisy_field(unit, std::span<const sim::Contact>(&c, 1), rng);
+      const PhysicsEstimate a = est.refine_lm(f, {}, start);
+      const int uses_before = warm->valid ? warm->uses : -1;
+      const PhysicsEstimate b = est.refine_lm(f, {}, start, warm.get());
+      SCOPED_TRACE(testing::Message() << "press " << press << " sample " << k);
+      ASSERT_TRUE(a.contact.valid() && b.contact.valid());
+      EXPECT_LE(std::hypot(b.contact.u_mm - a.contact.u_mm, b.contact.v_mm - a.contact.v_mm),
+                0.05 * a.sigma_uv_mm);
+      EXPECT_LE(std::fabs(b.contact.depth_mm - a.contact.depth_mm), 0.05 * a.sigma_depth_mm);
+      EXPECT_EQ(b.contact.flags, a.contact.flags);
+      ASSERT_TRUE(warm->valid);
+      EXPECT_LE(warm->uses, WarmJacobian::kMaxUses);
+      if (warm->uses > 0) {
+        ++began_warm;
+        EXPECT_EQ(warm->uses, uses_before + 1);
+      }
+      max_uses = std::max(max_uses, warm->uses);
+      start = b.contact;
+    }
+    // A start 3 mm away: the fit computes its own Jacobian (uses back to 0).
+    ContactEstimate away = start;
+    away.u_mm += 3;
+    const std::vector<double> f = noisy_field(unit, std::span<const sim::Contact>(&c, 1), rng);
+    est.refine_lm(f, {}, away, warm.get());
+    EXPECT_EQ(warm->uses, 0);
+  }
+  std::printf("%d of 96 fits began from the last fit's Jacobian\n", began_warm);
+  EXPECT_GE(began_warm, 48);
+  EXPECT_EQ(max_uses, WarmJacobian::kMaxUses);
 }
 
 TEST(PhysicsEstimatorLeanTest, DegenerateInputIsRefusedOrFlaggedNeverNaN) {

@@ -43,15 +43,21 @@ class PhysicsRefiner : public ContactRefiner {
     return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts));
   }
 
+  std::unique_ptr<Memory> make_memory() const override {
+    return std::make_unique<WarmMemory>();
+  }
+
   RefinedContacts refine_contacts(std::span<const double> field_ut,
                                   std::span<const uint8_t> channel_ok, const ContactEstimate& start,
                                   std::span<const ContactEstimate> previous,
-                                  double search_above_chi2) const override {
+                                  double search_above_chi2, Memory* memory) const override {
     RefinedContacts out;
+    auto* kept = dynamic_cast<WarmMemory*>(memory);  // another refiner's: not used
+    WarmJacobian* warm = kept != nullptr ? &kept->warm : nullptr;
     // Counting contacts has its own search (below): a single fit that ends poor is its signal.
     const PhysicsEstimate single = options_.max_contacts < 2
-                                       ? single_fit(field_ut, channel_ok, start)
-                                       : estimator_.refine_lm(field_ut, channel_ok, start);
+                                       ? single_fit(field_ut, channel_ok, start, warm)
+                                       : estimator_.refine_lm(field_ut, channel_ok, start, warm);
     out.contacts[0] = from(single);
     out.single_reduced_chi2 = single.reduced_chi2;
     const bool known = previous.size() >= 2;  // the previous sample's contacts (2 or 3)
@@ -97,10 +103,15 @@ class PhysicsRefiner : public ContactRefiner {
   }
 
  private:
-  // The fit from `start`, searched again from the start table when it ends poor.
+  struct WarmMemory : Memory {
+    WarmJacobian warm;
+  };
+
+  // The fit from `start` (from `warm`'s Jacobian when near), searched again from the start table
+  // when it ends poor.
   PhysicsEstimate single_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
-                             const ContactEstimate& start) const {
-    PhysicsEstimate fit = estimator_.refine_lm(field_ut, channel_ok, start);
+                             const ContactEstimate& start, WarmJacobian* warm = nullptr) const {
+    PhysicsEstimate fit = estimator_.refine_lm(field_ut, channel_ok, start, warm);
     // A rejected sample (too few usable channels) is rejected from any start.
     if (!options_.search_when_poor || !fit.contact.valid() ||
         (fit.contact.flags & (kEstimatePoorFit | kEstimateNoContact)) == 0) {

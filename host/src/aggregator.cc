@@ -96,6 +96,8 @@ struct Aggregator::Impl {
   std::vector<Model> models;
   // The physics refiner of each skin-map entry (index of map->patches), null: none.
   std::vector<std::unique_ptr<estimators::ContactRefiner>> refiners;
+  // What each refiner carries between its patch's samples (ContactRefiner::Memory), null: none.
+  std::vector<std::unique_ptr<estimators::ContactRefiner::Memory>> refiner_memories;
 
   // Queued samples, newest per patch: slot per registry index, and the list of used slots.
   struct Pending {
@@ -312,6 +314,7 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
   }
   // The physics refiners of the entries that name a unit.
   impl->refiners.resize(map->patches.size());
+  impl->refiner_memories.resize(map->patches.size());
   if (options.refiner_factory) {
     for (std::size_t i = 0; i < map->patches.size(); ++i) {
       const body_map::PatchPlacement& pl = map->patches[i];
@@ -334,6 +337,7 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
       }
       if (r.ok()) {
         impl->refiners[i] = std::move(*r);
+        impl->refiner_memories[i] = impl->refiners[i]->make_memory();
       } else {
         impl->registry.add_event(PatchEventKind::kNoModel, 0,
                                  "node " + std::to_string(pl.node_id) + ": unit " + pl.unit + ": " +
@@ -697,10 +701,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       double refined_sigma_mm[kMaxContacts], refined_sigma_shear_n[kMaxContacts];
       std::fill_n(refined_sigma_mm, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
       std::fill_n(refined_sigma_shear_n, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
+      const std::size_t entry =
+          p.placement != nullptr ? static_cast<std::size_t>(p.placement - s.map->patches.data()) : 0;
       const estimators::ContactRefiner* refiner =
-          p.placement != nullptr
-              ? s.refiners[static_cast<std::size_t>(p.placement - s.map->patches.data())].get()
-              : nullptr;
+          p.placement != nullptr ? s.refiners[entry].get() : nullptr;
+      estimators::ContactRefiner::Memory* refiner_memory =
+          p.placement != nullptr ? s.refiner_memories[entry].get() : nullptr;
       Impl::Current& prev = s.current[k];
       Impl::RefineMemory& mem = prev.refine;
       if (refiner != nullptr) {
@@ -745,7 +751,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
                 std::span<const double>(m.fields.data() + row, kChannels),
                 std::span<const uint8_t>(m.ok.data() + row, kChannels), from,
                 std::span<const ContactEstimate>(mem.previous, static_cast<std::size_t>(mem.held)),
-                search_above);
+                search_above, refiner_memory);
           };
           auto accepted = [&](const estimators::RefinedContacts& r) {
             const int n = std::clamp(r.count, 1, kMaxContacts);

@@ -615,6 +615,7 @@ class FailingRefiner : public estimators::ContactRefiner {
   FailingRefiner(std::unique_ptr<estimators::ContactRefiner> inner, const bool* failing)
       : inner_(std::move(inner)), failing_(failing) {}
   int channel_count() const override { return inner_->channel_count(); }
+  std::unique_ptr<Memory> make_memory() const override { return inner_->make_memory(); }
   estimators::RefinedEstimate refine(std::span<const double> field_ut,
                                      std::span<const uint8_t> channel_ok,
                                      const estimators::ContactEstimate& start) const override {
@@ -624,9 +625,11 @@ class FailingRefiner : public estimators::ContactRefiner {
                                               std::span<const uint8_t> channel_ok,
                                               const estimators::ContactEstimate& start,
                                               std::span<const estimators::ContactEstimate> previous,
-                                              double search_above_chi2) const override {
+                                              double search_above_chi2,
+                                              Memory* memory) const override {
     if (!*failing_) {
-      return inner_->refine_contacts(field_ut, channel_ok, start, previous, search_above_chi2);
+      return inner_->refine_contacts(field_ut, channel_ok, start, previous, search_above_chi2,
+                                     memory);
     }
     estimators::RefinedContacts out;
     out.contacts[0] = failed(start);
@@ -847,6 +850,7 @@ class FarStartsFail : public estimators::ContactRefiner {
   explicit FarStartsFail(std::unique_ptr<estimators::ContactRefiner> inner)
       : inner_(std::move(inner)) {}
   int channel_count() const override { return inner_->channel_count(); }
+  std::unique_ptr<Memory> make_memory() const override { return inner_->make_memory(); }
   estimators::RefinedEstimate refine(std::span<const double> field_ut,
                                      std::span<const uint8_t> channel_ok,
                                      const estimators::ContactEstimate& start) const override {
@@ -856,9 +860,10 @@ class FarStartsFail : public estimators::ContactRefiner {
                                               std::span<const uint8_t> channel_ok,
                                               const estimators::ContactEstimate& start,
                                               std::span<const estimators::ContactEstimate> previous,
-                                              double search_above_chi2) const override {
+                                              double search_above_chi2,
+                                              Memory* memory) const override {
     estimators::RefinedContacts out =
-        inner_->refine_contacts(field_ut, channel_ok, start, previous, search_above_chi2);
+        inner_->refine_contacts(field_ut, channel_ok, start, previous, search_above_chi2, memory);
     out.contacts[0] = check(out.contacts[0], start);
     return out;
   }

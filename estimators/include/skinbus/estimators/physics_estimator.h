@@ -149,6 +149,23 @@ struct ContactCountEstimate {
   int triple_iterations = 0;
 };
 
+// The model's Jacobian where a single-contact fit ended, kept for the next sample of the same
+// press (presses move a fraction of a millimetre between samples): refine_lm() given one that
+// holds a Jacobian within 0.5 mm of its start begins from it, corrected along the way (Broyden's
+// rank-one update, from the field change the move made), instead of computing it
+// (sim::PatchModel::contact_field_jacobian_ut, about three field evaluations' time), and leaves
+// its own in it. At most kMaxUses fits in a row reuse it; the next computes it again, so updates
+// do not drift. One a press, owned by the caller, one fit at a time; about 37 KB. No allocation.
+struct WarmJacobian {
+  static constexpr int kMaxUses = 4;
+  bool valid = false;
+  int unknowns = 0;  // the contact's: 3 (u, v, depth), 5 with the shear
+  int uses = 0;      // fits in a row that began from it since it was last computed
+  double at[5] = {};
+  double field_ut[kMaxChannels] = {};         // the contact's field change at `at`
+  double jacobian[kMaxChannels * 5] = {};  // row-major, channels x unknowns
+};
+
 class PhysicsEstimator {
  public:
   // An estimator over `model` (copied), with its own start table from options.start_grid
@@ -180,9 +197,11 @@ class PhysicsEstimator {
   // `start`'s), for the host's refinement of every touched sample: from a start within a few
   // millimetres it reaches the same minimum, to a few percent of the fit's own uncertainty (tested
   // against refine()), at a fraction of the cost (docs/benchmarks/refinement.md). One start only;
-  // a fit that ends poor is flagged (kEstimatePoorFit), not retried. No allocation.
+  // a fit that ends poor is flagged (kEstimatePoorFit), not retried. With `warm` (the same
+  // press's previous fit's; WarmJacobian) it begins from that Jacobian when it lies near `start`
+  // and leaves its own there. No allocation.
   PhysicsEstimate refine_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
-                            const ContactEstimate& start) const;
+                            const ContactEstimate& start, WarmJacobian* warm = nullptr) const;
   // refine_lm() from up to `starts` (1-8) rows of the start table: the nearest the sample in
   // field, then the next nearest at least 2 of the table's pitches from those taken (other
   // basins of the field); the lowest chi-square kept. With `apart_from` (a fit the caller holds),

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <limits>
+#include <memory>
 #include <span>
 
 #include "skinbus/estimators/estimate.h"
@@ -39,6 +40,17 @@ struct RefinedContacts {
 class ContactRefiner {
  public:
   virtual ~ContactRefiner() = default;
+  // What a refiner carries from one sample of a patch to the next (the physics refiner: the
+  // model's Jacobian where its last single fit ended, PhysicsEstimator's WarmJacobian, which
+  // spares the next sample's fit computing it). The caller makes one a patch with this refiner's
+  // make_memory() (null: the refiner keeps nothing; it allocates) and passes it with that
+  // patch's samples only, one refine_contacts() call at a time; every other call stays const
+  // and thread-safe.
+  class Memory {
+   public:
+    virtual ~Memory() = default;
+  };
+  virtual std::unique_ptr<Memory> make_memory() const { return nullptr; }
   // The channels a sample must hold (3 per sensor of the unit's design): refine() and
   // refine_contacts() reject a sample of another length (kEstimateRejected or no contact).
   virtual int channel_count() const = 0;
@@ -54,14 +66,16 @@ class ContactRefiner {
   // contact from nothing is made only when the single fit's reduced chi-square is above
   // `search_above_chi2` as well as the refiner's own threshold (the caller rate-limits searches:
   // a unit whose physics the model lacks leaves more than noise on every sample; infinity: no
-  // search). By default the one contact of refine().
+  // search). `memory`: the patch's (make_memory()), or null. By default the one contact of
+  // refine().
   virtual RefinedContacts refine_contacts(std::span<const double> field_ut,
                                           std::span<const uint8_t> channel_ok,
                                           const ContactEstimate& start,
                                           std::span<const ContactEstimate> previous,
-                                          double search_above_chi2) const {
+                                          double search_above_chi2, Memory* memory) const {
     (void)previous;
     (void)search_above_chi2;
+    (void)memory;
     RefinedContacts out;
     out.contacts[0] = refine(field_ut, channel_ok, start);
     return out;
