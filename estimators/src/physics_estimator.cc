@@ -574,8 +574,8 @@ LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
 // 1e-3 in chi-square. No allocation.
 template <int N>
 LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
-                    const double* ambient_jac, const LeanLayout& l,
-                    typename LeanFit<N>::LeanVec x, WarmJacobian* warm = nullptr) {
+                    const double* ambient_jac, const LeanLayout& l, typename LeanFit<N>::LeanVec x,
+                    WarmJacobian* warm = nullptr) {
   using LeanVec = typename LeanFit<N>::LeanVec;
   using LeanMat = typename LeanFit<N>::LeanMat;
   const int nc = model.channel_count();
@@ -884,7 +884,8 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
   int picked[8];
   const double held_uv[2] = {apart_from != nullptr ? apart_from->u_mm : 0.0,
                              apart_from != nullptr ? apart_from->v_mm : 0.0};
-  const bool avoid = apart_from != nullptr && std::isfinite(held_uv[0]) && std::isfinite(held_uv[1]);
+  const bool avoid =
+      apart_from != nullptr && std::isfinite(held_uv[0]) && std::isfinite(held_uv[1]);
   const int n_picked = pick_apart(start_, nb, n, 2 * pitch, avoid ? held_uv : nullptr,
                                   std::clamp(starts, 1, 8), picked);
   bool found = false;

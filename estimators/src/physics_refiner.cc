@@ -39,13 +39,12 @@ class PhysicsRefiner : public ContactRefiner {
   RefinedEstimate search(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                          const ContactEstimate& held) const override {
     // The held fit stands for its own basin: one start fewer, none beside it.
-    if (held.valid()) return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts - 1, &held));
+    if (held.valid())
+      return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts - 1, &held));
     return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts));
   }
 
-  std::unique_ptr<Memory> make_memory() const override {
-    return std::make_unique<WarmMemory>();
-  }
+  std::unique_ptr<Memory> make_memory() const override { return std::make_unique<WarmMemory>(); }
 
   RefinedContacts refine_contacts(std::span<const double> field_ut,
                                   std::span<const uint8_t> channel_ok, const ContactEstimate& start,

@@ -701,8 +701,9 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       double refined_sigma_mm[kMaxContacts], refined_sigma_shear_n[kMaxContacts];
       std::fill_n(refined_sigma_mm, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
       std::fill_n(refined_sigma_shear_n, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
-      const std::size_t entry =
-          p.placement != nullptr ? static_cast<std::size_t>(p.placement - s.map->patches.data()) : 0;
+      const std::size_t entry = p.placement != nullptr
+                                    ? static_cast<std::size_t>(p.placement - s.map->patches.data())
+                                    : 0;
       const estimators::ContactRefiner* refiner =
           p.placement != nullptr ? s.refiners[entry].get() : nullptr;
       estimators::ContactRefiner::Memory* refiner_memory =

@@ -162,7 +162,7 @@ struct WarmJacobian {
   int unknowns = 0;  // the contact's: 3 (u, v, depth), 5 with the shear
   int uses = 0;      // fits in a row that began from it since it was last computed
   double at[5] = {};
-  double field_ut[kMaxChannels] = {};         // the contact's field change at `at`
+  double field_ut[kMaxChannels] = {};      // the contact's field change at `at`
   double jacobian[kMaxChannels * 5] = {};  // row-major, channels x unknowns
 };
 
