@@ -673,11 +673,15 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       for (int k = 0; k < amb; ++k) row[k] += miss * last_step[k] / dd;
     }
   };
+  auto step2 = [&] {  // the squared length of last_step over the contact's unknowns
+    double dd = 0;
+    for (int k = 0; k < amb; ++k) dd += last_step[k] * last_step[k];
+    return dd;
+  };
   bool computed = false;  // whether this fit computed the Jacobian
   while (fit.iterations < options.max_iterations && std::isfinite(cost) && !fit.converged) {
     ++fit.iterations;
-    double dd = 0;
-    for (int k = 0; k < amb; ++k) dd += last_step[k] * last_step[k];
+    const double dd = step2();
     const bool updated =
         (dd > 0 && dd <= kReuseMm * kReuseMm) || (from_warm && fit.iterations == 1);
     if (updated) {
@@ -769,8 +773,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   // What the next sample of the press begins from: the Jacobian at this fit's end (updated
   // along its last step), unless that step was long or nothing was computed.
   if (warm != nullptr) {
-    double dd = 0;
-    for (int k = 0; k < amb; ++k) dd += last_step[k] * last_step[k];
+    const double dd = step2();
     warm->valid = l.contacts == 1 && (computed || from_warm) && dd <= kReuseMm * kReuseMm &&
                   std::isfinite(cost);
     if (warm->valid) {

@@ -343,6 +343,16 @@ TEST(PhysicsStartPitch, FollowsTheMagnetSpacingAtMostFiveMillimetres) {
 namespace skinbus::estimators {
 namespace {
 
+// An estimator with covariances over a fabricated unit of the built-in design.
+PhysicsEstimator covariance_estimator(uint64_t hardware_uid) {
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(sim::PatchDesign{}, hardware_uid, sim::FabricationVariation{})
+          .value();
+  PhysicsOptions options;
+  options.covariance = true;
+  return PhysicsEstimator::create(unit, options).value();
+}
+
 // The lean Levenberg-Marquardt (refine_lm) reaches the minimum the Ceres fit (refine) reaches,
 // from the same starts, with the same flags; degenerate input is refused or flagged, never NaN.
 // "The same": within 5 % of the fit's own 1-sigma uncertainty (its convergence test stops when
@@ -351,13 +361,8 @@ namespace {
 TEST(PhysicsEstimatorLeanTest, RefineLmReachesTheCeresFitsMinimum) {
   const uint64_t seed = 4242;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5B0000000000000Aull,
-                                  sim::FabricationVariation{})
-          .value();
-  PhysicsOptions options;
-  options.covariance = true;
-  const PhysicsEstimator est = PhysicsEstimator::create(unit, options).value();
+  const PhysicsEstimator est = covariance_estimator(0x5B0000000000000Aull);
+  const sim::PatchModel& unit = est.model();
   sim::Rng rng(seed);
   for (int i = 0; i < 40; ++i) {
     const sim::Contact c{rng.uniform(-55, 55), rng.uniform(-55, 55), rng.uniform(0.8, 4.5), 5};
@@ -430,13 +435,8 @@ TEST(PhysicsEstimatorLeanTest, SearchLmFindsThePressAndLeavesOutAHeldFitsBasin) 
 TEST(PhysicsEstimatorLeanTest, RefineLmFromTheLastFitsJacobianReachesTheSameMinimum) {
   const uint64_t seed = 5150;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(sim::PatchDesign{}, 0x5B0000000000000Bull,
-                                  sim::FabricationVariation{})
-          .value();
-  PhysicsOptions options;
-  options.covariance = true;
-  const PhysicsEstimator est = PhysicsEstimator::create(unit, options).value();
+  const PhysicsEstimator est = covariance_estimator(0x5B0000000000000Bull);
+  const sim::PatchModel& unit = est.model();
   sim::Rng rng(seed);
   int began_warm = 0, max_uses = 0;
   for (int press = 0; press < 6; ++press) {

@@ -302,10 +302,9 @@ class PatchModel {
   // What of one press is the same at every magnet: its depth held to [0, max_depth_mm()], the
   // tip's squared contact radius (mm^2), that over spread_u x spread_v (capped at
   // kMaxTipContact2) and the deflection's amplitude under the tip (mm: the plate depth over the
-  // kernel's value at the tip's edge). `pressing` false (the rest unset) for depth <= 0 or NaN.
+  // kernel's value at the tip's edge). For depth <= 0 or NaN (no press) only depth_mm is set.
   template <typename T>
   struct PressTerms {
-    bool pressing = false;
     T depth_mm, ac2_mm2, a2, amp_mm;
   };
   template <typename T>
@@ -383,7 +382,6 @@ PatchModel::PressTerms<T> PatchModel::press_terms(const ContactT<T>& c, const T&
   // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
   t.depth_mm = c.depth_mm;
   if (!(value_of(t.depth_mm) > 0)) return t;  // no press (or NaN): nothing moves
-  t.pressing = true;
   if (value_of(t.depth_mm) > max_depth_mm()) t.depth_mm = T(max_depth_mm());
   const T& depth = t.depth_mm;
   t.ac2_mm2 = T(0.0);  // squared contact radius of the tip, mm^2
