@@ -536,6 +536,7 @@ struct LeanFit {
   LeanVec x;
   double cost = std::numeric_limits<double>::infinity();  // chi-square, noise units
   int iterations = 0;
+  int field_evaluations = 0, jacobians = 0;  // computed by this fit
   bool converged = false;
   LeanMat jtj;                 // J^T J (whitened) at the start of the last iteration, every unknown
   double field[kMaxChannels];  // the contacts' field change at x
@@ -608,6 +609,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   const double tip = options.tip_radius_mm;
   sim::Contact contacts[kMaxContacts];
   auto field = [&](const LeanVec& p, double* into) {
+    ++fit.field_evaluations;
     lean_contacts(l, p, tip, contacts);
     model.contact_field_ut(std::span<const sim::Contact>(contacts, l.contacts),
                            std::span<double>(into, static_cast<std::size_t>(nc)));
@@ -630,9 +632,6 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   static_assert(kMaxContacts <= sim::PatchModel::kMaxJetContacts);
   // The contacts' Jacobian, row-major, nc x amb (contact_field_jacobian_ut's layout).
   double ft[kMaxChannels], r[kMaxChannels], jac[kMaxChannels * (N - 3)];
-  field(x, fit.field);
-  double cost = residuals(fit.field, x, r);
-  double lambda = 1e-3;
   fit.jtj = LeanMat::Zero();
   constexpr double kConvergedMm = 1e-5;  // a step this small ends the fit (bounds: ~0.1 mm)
   // A step that lowers the chi-square by less than this ends the fit: what is left to gain moves
@@ -653,9 +652,10 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
   double last_field[kMaxChannels];
   // A Jacobian the same press's last fit left near this start: this fit begins from it, updated
   // along the move (the first iteration's, below).
-  bool from_warm = false;
-  if (warm != nullptr && warm->valid && warm->unknowns == amb && l.contacts == 1 &&
-      warm->uses < WarmJacobian::kMaxUses) {
+  const bool kept = warm != nullptr && warm->valid && warm->unknowns == amb && l.contacts == 1;
+  bool from_warm = false, at_warm = kept;
+  for (int k = 0; at_warm && k < amb; ++k) at_warm = x(k) == warm->at[k];
+  if (kept && warm->uses < WarmJacobian::kMaxUses) {
     double d2 = 0;
     for (int k = 0; k < amb; ++k) d2 += (x(k) - warm->at[k]) * (x(k) - warm->at[k]);
     if (d2 <= kReuseMm * kReuseMm) {
@@ -665,6 +665,15 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
       std::copy(warm->jacobian, warm->jacobian + nc * amb, jac);
     }
   }
+  // The contacts' field at the start: the last fit's own when it begins where that one ended
+  // (the model's field depends on the contacts alone, not on the sample), else evaluated.
+  if (at_warm) {
+    std::copy(warm->field_ut, warm->field_ut + nc, fit.field);
+  } else {
+    field(x, fit.field);
+  }
+  double cost = residuals(fit.field, x, r);
+  double lambda = 1e-3;
   auto broyden = [&](double dd) {  // the Jacobian along last_step (squared length dd > 0)
     for (int i = 0; i < nc; ++i) {
       double* row = jac + i * amb;
@@ -695,6 +704,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
         break;  // not reached: the layouts are within the jets' (static_assert above)
       }
       computed = true;
+      ++fit.jacobians;
     }
     std::fill(last_step, last_step + amb, 0.0);
     LeanMat jtj = LeanMat::Zero();
@@ -841,6 +851,8 @@ void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, co
   const double xs[2] = {l.shear ? fit.x(3) : 0.0, l.shear ? fit.x(4) : 0.0};
   finish_fit(model, options, in, xc, xb, l.shear ? xs : nullptr, fit.cost, fit.iterations,
              fit.converged, fit.field, &out);
+  out.field_evaluations = fit.field_evaluations;
+  out.jacobians = fit.jacobians;
   // From the last iteration's J^T J (at the point before its step: within the tolerance of the
   // minimum).
   if (options.covariance && fit.iterations > 0 && out.contact.valid()) {
@@ -892,6 +904,7 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
   const int n_picked = pick_apart(start_, nb, n, 2 * pitch, avoid ? held_uv : nullptr,
                                   std::clamp(starts, 1, 8), picked);
   bool found = false;
+  int evaluations = 0, jacobians = 0;
   for (int t = 0; t < n_picked; ++t) {
     const LookupNeighbour& row = nb[picked[t]];
     ContactEstimate start;
@@ -904,12 +917,16 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
     } else {
       refine_lean<6>(model_, options_, in, ambient_jac_.data(), start, &e);
     }
+    evaluations += e.field_evaluations;
+    jacobians += e.jacobians;
     if (e.contact.valid() && (!found || e.chi2 < best.chi2)) {
       best = e;
       found = true;
     }
   }
   if (!found) best.contact.flags = kEstimateRejected;  // no start, or no fit from any
+  best.field_evaluations = evaluations;
+  best.jacobians = jacobians;
   return best;
 }
 

@@ -479,6 +479,57 @@ TEST(PhysicsEstimatorLeanTest, RefineLmFromTheLastFitsJacobianReachesTheSameMini
   EXPECT_EQ(max_uses, WarmJacobian::kMaxUses);
 }
 
+// A fit that begins where the press's last fit ended takes that fit's field from the memory
+// instead of evaluating it (the model's field depends on the contact, not on the sample): the
+// memory holds the model's field at its point to the bit, and a fit from there is the same to
+// the bit as one that evaluates it, at one evaluation fewer.
+TEST(PhysicsEstimatorLeanTest, AFitFromTheLastFitsEndReusesItsField) {
+  const uint64_t seed = 6160;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const PhysicsEstimator est = covariance_estimator(0x5B0000000000000Cull);
+  const sim::PatchModel& unit = est.model();
+  const std::size_t nc = static_cast<std::size_t>(unit.channel_count());
+  sim::Rng rng(seed);
+  for (int press = 0; press < 8; ++press) {
+    SCOPED_TRACE(testing::Message() << "press " << press);
+    sim::Contact c{rng.uniform(-45, 45), rng.uniform(-45, 45), rng.uniform(1.2, 4.0), 5};
+    ContactEstimate start;
+    start.u_mm = c.u_mm + 0.4;
+    start.v_mm = c.v_mm - 0.3;
+    start.depth_mm = c.depth_mm;
+    WarmJacobian memory;
+    const PhysicsEstimate first = est.refine_lm(
+        noisy_field(unit, std::span<const sim::Contact>(&c, 1), rng), {}, start, &memory);
+    ASSERT_TRUE(first.contact.valid() && memory.valid);
+    // The memory's field is the model's at its point.
+    const sim::Contact at{memory.at[0], memory.at[1], memory.at[2], est.options().tip_radius_mm};
+    std::vector<double> model_field(nc);
+    unit.contact_field_ut(std::span<const sim::Contact>(&at, 1), model_field);
+    for (std::size_t i = 0; i < nc; ++i) ASSERT_EQ(memory.field_ut[i], model_field[i]) << i;
+    // The next sample from that point. Both memories have spent their Jacobian's uses, so both
+    // fits compute it afresh at the start; the one whose memory lies 1 mm away evaluates the
+    // start's field too.
+    c.u_mm += 0.1;
+    const std::vector<double> f = noisy_field(unit, std::span<const sim::Contact>(&c, 1), rng);
+    ContactEstimate from = first.contact;
+    from.u_mm = memory.at[0];
+    from.v_mm = memory.at[1];
+    from.depth_mm = memory.at[2];
+    WarmJacobian here = memory, apart = memory;
+    here.uses = apart.uses = WarmJacobian::kMaxUses;
+    apart.at[0] += 1.0;
+    const PhysicsEstimate reused = est.refine_lm(f, {}, from, &here);
+    const PhysicsEstimate evaluated = est.refine_lm(f, {}, from, &apart);
+    EXPECT_EQ(reused.contact.u_mm, evaluated.contact.u_mm);
+    EXPECT_EQ(reused.contact.v_mm, evaluated.contact.v_mm);
+    EXPECT_EQ(reused.contact.depth_mm, evaluated.contact.depth_mm);
+    EXPECT_EQ(reused.chi2, evaluated.chi2);
+    EXPECT_EQ(reused.jacobians, evaluated.jacobians);
+    EXPECT_EQ(reused.field_evaluations + 1, evaluated.field_evaluations);
+    EXPECT_GE(reused.jacobians, 1);
+  }
+}
+
 TEST(PhysicsEstimatorLeanTest, DegenerateInputIsRefusedOrFlaggedNeverNaN) {
   const sim::PatchModel unit = sim::PatchModel::nominal(sim::PatchDesign{}).value();
   const PhysicsEstimator est = PhysicsEstimator::create(unit).value();

@@ -22,6 +22,116 @@ void sensor_reading(const PatchModel::Sensor& s, const Vec3<double>& b, double* 
   out[2 * stride] = local.z * s.gain.z;
 }
 
+// One shear-free press's terms with their derivatives by its depth (PatchModel::press_terms()
+// in jets, read once an evaluation).
+struct PressSlope {
+  double amp_mm = 0, damp = 0;  // the deflection's amplitude under the tip, and d/d depth
+  double a2 = 0, da2 = 0;       // the tip's squared contact radius over l_u l_v, and d/d depth
+};
+
+// The lattice's constants a pose reads (PatchModel's spreads, lateral coupling, design).
+struct Lattice {
+  double lu, lv, lateral, drag;
+  bool cylinder;
+  double radius_mm;
+};
+
+// PatchModel::magnet_pose() for one press `c` without shear, with the derivatives of the
+// magnet's position and moment by (c.u_mm, c.v_mm, c.depth_mm) by hand, into g (p, m, dp[0..2],
+// dm[0..2]): the same formulas as the jets, term by term, at about a quarter of their
+// instructions (the jets carry zero derivatives through every constant). False when the press
+// does not reach the magnet (as magnet_pose()). Equal to the jets to rounding (physics_test's
+// FieldJacobianEqualsTheTemplatesJets).
+bool single_press_pose(const PatchModel::Magnet& m, const Contact& c, const PressSlope& t,
+                       const Lattice& l, detail::MagnetJet* g) {
+  if (!(c.depth_mm > 0)) return false;
+  const double du = m.u - c.u_mm, dv = m.v - c.v_mm;
+  const double sdu = du / l.lu, sdv = dv / l.lv;
+  if (!(sdu * sdu + sdv * sdv < kPlateKernelCutoff * kPlateKernelCutoff)) return false;
+  const double lu2 = l.lu * l.lu, lv2 = l.lv * l.lv;
+  // The unknowns' index: 0 the press's u, 1 its v, 2 its depth. d(du)/du_c = -1, d(dv)/dv_c = -1.
+  const double s_sq = du * du / lu2 + dv * dv / lv2 + t.a2;
+  const double s = s_sq > 0 ? std::sqrt(s_sq) : 0.0;
+  const double ks = s > 0 ? 0.5 / s : 0.0;  // d s / d s_sq (none at the point of a point load)
+  const double ds[3] = {-2 * du / lu2 * ks, -2 * dv / lv2 * ks, t.da2 * ks};
+  double gk, dg, d2g;
+  plate_kernel(s, &gk, &dg, &d2g);
+  const double q = s > 1e-6 ? dg / s : 0.0;  // g'(s) / s, and its derivative by s
+  const double dq = s > 1e-6 ? (d2g * s - dg) / (s * s) : 0.0;
+  const double amp = t.amp_mm;
+  const double damp[3] = {0, 0, t.damp};
+  const double ddu[3] = {-1, 0, 0}, ddv[3] = {0, -1, 0};
+  const double w = amp * gk;
+  const double pu = -(amp * q * du / lu2), pv = -(amp * q * dv / lv2);
+  double dw[3], dpu[3], dpv[3];
+  for (int k = 0; k < 3; ++k) {
+    const double dgk = dg * ds[k], dqk = dq * ds[k];
+    dw[k] = damp[k] * gk + amp * dgk;
+    dpu[k] = -((damp[k] * q + amp * dqk) * du + amp * q * ddu[k]) / lu2;
+    dpv[k] = -((damp[k] * q + amp * dqk) * dv + amp * q * ddv[k]) / lv2;
+  }
+  // Surface coordinates of the moved magnet: in-plane by the slope (and the drag toward the
+  // press, PatchDesign::inplane_drag), down by the deflection.
+  double uu = m.u - l.lateral * pu, vv = m.v - l.lateral * pv;
+  double du_s[3], dv_s[3];
+  for (int k = 0; k < 3; ++k) {
+    du_s[k] = -l.lateral * dpu[k];
+    dv_s[k] = -l.lateral * dpv[k];
+  }
+  if (l.drag != 0) {
+    uu -= l.drag * amp * gk * du / l.lu;
+    vv -= l.drag * amp * gk * dv / l.lv;
+    for (int k = 0; k < 3; ++k) {
+      const double dagk = damp[k] * gk + amp * dg * ds[k];  // d(amp g)
+      du_s[k] -= l.drag * (dagk * du + amp * gk * ddu[k]) / l.lu;
+      dv_s[k] -= l.drag * (dagk * dv + amp * gk * ddv[k]) / l.lv;
+    }
+  }
+  const double hh = m.h - w;
+  // The moment follows the surface normal, its magnitude kept.
+  const Vec3<double>& ml = m.m_loc;
+  const double mu = ml.x - pu * ml.z, mv = ml.y - pv * ml.z, mz = ml.z;
+  const double n2 = mu * mu + mv * mv + mz * mz;
+  const double ratio = dot(ml, ml) / n2;
+  const double kk = std::sqrt(ratio);
+  const double big_u = mu * kk, big_v = mv * kk, big_z = mz * kk;
+  double dbu[3], dbv[3], dbz[3];
+  for (int k = 0; k < 3; ++k) {
+    const double dmu = -dpu[k] * ml.z, dmv = -dpv[k] * ml.z;
+    const double dn2 = 2 * (mu * dmu + mv * dmv);
+    const double dkk = kk > 0 ? -0.5 * kk * dn2 / n2 : 0.0;
+    dbu[k] = dmu * kk + mu * dkk;
+    dbv[k] = dmv * kk + mv * dkk;
+    dbz[k] = mz * dkk;
+  }
+  if (!l.cylinder) {
+    g->p[0] = uu, g->p[1] = vv, g->p[2] = hh;
+    g->m[0] = big_u, g->m[1] = big_v, g->m[2] = big_z;
+    for (int k = 0; k < 3; ++k) {
+      g->dp[k][0] = du_s[k], g->dp[k][1] = dv_s[k], g->dp[k][2] = -dw[k];
+      g->dm[k][0] = dbu[k], g->dm[k][1] = dbv[k], g->dm[k][2] = dbz[k];
+    }
+    return true;
+  }
+  // A cylinder about y at z = -radius: u is arc length at the skin surface.
+  const double r = l.radius_mm;
+  const double theta = uu / r;
+  const double sn = std::sin(theta), cs = std::cos(theta);
+  const double rr = r + hh;
+  g->p[0] = rr * sn, g->p[1] = vv, g->p[2] = rr * cs - r;
+  g->m[0] = cs * big_u + sn * big_z, g->m[1] = big_v, g->m[2] = -sn * big_u + cs * big_z;
+  for (int k = 0; k < 3; ++k) {
+    const double dth = du_s[k] / r, dh = -dw[k];
+    g->dp[k][0] = dh * sn + rr * cs * dth;
+    g->dp[k][1] = dv_s[k];
+    g->dp[k][2] = dh * cs - rr * sn * dth;
+    g->dm[k][0] = -sn * dth * big_u + cs * dbu[k] + cs * dth * big_z + sn * dbz[k];
+    g->dm[k][1] = dbv[k];
+    g->dm[k][2] = -cs * dth * big_u - sn * dbu[k] - sn * dth * big_z + cs * dbz[k];
+  }
+  return true;
+}
+
 Error bad(const std::string& what) {
   return make_error(ErrorCode::kInvalidArgument, "patch design: " + what);
 }
@@ -370,22 +480,41 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
   for (std::size_t j = 0; j < contacts.size(); ++j) terms[j] = press_terms(cd[j], lu, lv);
   detail::MagnetJet g;
   g.unknowns = K;
+  // One press without shear (a single-contact fit's every Jacobian): the deformation's
+  // derivatives by hand (single_press_pose()); otherwise by the jets of magnet_pose().
+  const bool single =
+      K == 3 && contacts.size() == 1 && contacts[0].shear_u_n == 0 && contacts[0].shear_v_n == 0;
+  PressSlope slope;
+  if (single) {
+    slope.amp_mm = terms[0].amp_mm.v, slope.damp = terms[0].amp_mm.d[2];
+    slope.a2 = terms[0].a2.v, slope.da2 = terms[0].a2.d[2];
+  }
+  const Lattice lattice{spread_u_,
+                        spread_v_,
+                        lateral_,
+                        design_.inplane_drag,
+                        design_.surface == SurfaceKind::kCylinder,
+                        design_.radius_mm};
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
-    bool reached = false;  // magnet_pose() would say so, after the magnet's rest pose in jets
-    for (const Contact& c : contacts)
-      reached = reached || (c.depth_mm > 0 && magnet_in_reach(m, c.u_mm, c.v_mm));
-    if (!reached) continue;
-    Vec3<D> pos, mom;
-    if (!magnet_pose(D(m.u), D(m.v), D(m.h), lift<D>(m.m_loc), lu, lv, lat, jets, terms, &pos,
-                     &mom)) {
-      continue;
-    }
-    g.p[0] = pos.x.v, g.p[1] = pos.y.v, g.p[2] = pos.z.v;
-    g.m[0] = mom.x.v, g.m[1] = mom.y.v, g.m[2] = mom.z.v;
-    for (int k = 0; k < K; ++k) {
-      g.dp[k][0] = pos.x.d[k], g.dp[k][1] = pos.y.d[k], g.dp[k][2] = pos.z.d[k];
-      g.dm[k][0] = mom.x.d[k], g.dm[k][1] = mom.y.d[k], g.dm[k][2] = mom.z.d[k];
+    if (single) {
+      if (!single_press_pose(m, contacts[0], slope, lattice, &g)) continue;
+    } else {
+      bool reached = false;  // magnet_pose() would say so, after the magnet's rest pose in jets
+      for (const Contact& c : contacts)
+        reached = reached || (c.depth_mm > 0 && magnet_in_reach(m, c.u_mm, c.v_mm));
+      if (!reached) continue;
+      Vec3<D> pos, mom;
+      if (!magnet_pose(D(m.u), D(m.v), D(m.h), lift<D>(m.m_loc), lu, lv, lat, jets, terms, &pos,
+                       &mom)) {
+        continue;
+      }
+      g.p[0] = pos.x.v, g.p[1] = pos.y.v, g.p[2] = pos.z.v;
+      g.m[0] = mom.x.v, g.m[1] = mom.y.v, g.m[2] = mom.z.v;
+      for (int k = 0; k < K; ++k) {
+        g.dp[k][0] = pos.x.d[k], g.dp[k][1] = pos.y.d[k], g.dp[k][2] = pos.z.d[k];
+        g.dm[k][0] = mom.x.d[k], g.dm[k][1] = mom.y.d[k], g.dm[k][2] = mom.z.d[k];
+      }
     }
     sum(ns, g, sx_.data(), sy_.data(), sz_.data(), rx_.data() + mi * ns, ry_.data() + mi * ns,
         rz_.data() + mi * ns, ax, ay, az, jx, jy, jz);

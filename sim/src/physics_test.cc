@@ -235,6 +235,14 @@ TEST_F(PatchModelTest, FieldJacobianEqualsTheTemplatesJets) {
     const Contact two[2] = {{10, -20, 2.5, 8.0, 0.5, -0.3}, {-30, 35, 1.0, 5.0}};
     const Contact three[3] = {{0, 0, 3.0, 5.0}, {40, 10, 9.0, 4.0}, {-20, -45, 0.5, 0.0, 0.2}};
     expect_field_jacobian_equals_the_jets<3>(p, one, false);
+    // One press without shear: the deformation's derivatives by hand (a single-contact fit's
+    // path), a point tip on a magnet, a press deeper than the lattice takes, one at the edge of
+    // its reach.
+    for (const Contact c : {Contact{3.3, -7.1, 1.5, 5.0}, Contact{-40, 22, 3.5, 8.0},
+                            Contact{p.magnets()[24].u, p.magnets()[24].v, 2.0},
+                            Contact{10, 5, 12.0, 6.0}, Contact{61, 60, 0.7, 5.0}}) {
+      expect_field_jacobian_equals_the_jets<3>(p, std::span<const Contact>(&c, 1), false);
+    }
     expect_field_jacobian_equals_the_jets<5>(p, one, true);
     expect_field_jacobian_equals_the_jets<6>(p, two, false);
     expect_field_jacobian_equals_the_jets<10>(p, two, true);

@@ -87,6 +87,11 @@ struct PhysicsEstimate {
   double chi2 = 0;                   // final sum of squared whitened residuals (noise units)
   double reduced_chi2 = 0;           // chi2 / (channels used - unknowns); ~1 for a good fit
   int channels_used = 0;
+  // The lean fit's costs (refine_lm(), search_lm(): summed over its starts): field evaluations
+  // (sim::PatchModel::contact_field_ut) and exact Jacobians computed (contact_field_jacobian_ut,
+  // about two evaluations' time each). 0 from the Ceres fits.
+  int field_evaluations = 0;
+  int jacobians = 0;
   // With PhysicsOptions::covariance: 1-sigma uncertainties from the fit's covariance (the inverse
   // of J^T J of the whitened residuals over the contact and the ambient offset, scaled by the
   // reduced chi-square when it is above 1: a fit worse than the noise widens them): the
@@ -155,7 +160,10 @@ struct ContactCountEstimate {
 // rank-one update, from the field change the move made), instead of computing it
 // (sim::PatchModel::contact_field_jacobian_ut, about three field evaluations' time), and leaves
 // its own in it. At most kMaxUses fits in a row reuse it; the next computes it again, so updates
-// do not drift. One a press, owned by the caller, one fit at a time; about 37 KB. No allocation.
+// do not drift. A fit that begins exactly where the last one ended (the host's warm start, the
+// last published contact) takes that fit's field at its start from it too: the model's field
+// depends on the contact alone, so one evaluation fewer, the same fit to the bit. One a press,
+// owned by the caller, one fit at a time; about 37 KB. No allocation.
 struct WarmJacobian {
   static constexpr int kMaxUses = 4;
   bool valid = false;
@@ -199,7 +207,8 @@ class PhysicsEstimator {
   // against refine()), at a fraction of the cost (docs/benchmarks/refinement.md). One start only;
   // a fit that ends poor is flagged (kEstimatePoorFit), not retried. With `warm` (the same
   // press's previous fit's; WarmJacobian) it begins from that Jacobian when it lies near `start`
-  // and leaves its own there. No allocation.
+  // (and from that fit's field when `start` is where it ended) and leaves its own there. No
+  // allocation.
   PhysicsEstimate refine_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                             const ContactEstimate& start, WarmJacobian* warm = nullptr) const;
   // refine_lm() from up to `starts` (1-8) rows of the start table: the nearest the sample in

@@ -237,10 +237,11 @@ class PatchModel {
   // contact_field_ut() into `field` (channel_count() entries) and its exact Jacobian into
   // `jacobian`, row-major, channel_count() x unknowns: the unknowns are each contact's
   // (u_mm, v_mm, depth_mm) in turn, each followed by its (shear_u_n, shear_v_n) when `shear`
-  // (3 or 5 a contact; at most kMaxJetContacts contacts). The deformation's derivatives by jets
-  // per moved magnet, the dipole's gradient in closed form in the vectorised loop: for one
-  // contact about three field evaluations' time (sim_benchmark's BM_FieldJacobian), a quarter of
-  // the template's jets. Equal to the template's jets to rounding (tested). No allocation, but
+  // (3 or 5 a contact; at most kMaxJetContacts contacts). The deformation's derivatives per
+  // moved magnet by hand for one press without shear (a single-contact fit's Jacobian), by jets
+  // otherwise; the dipole's gradient in closed form in the vectorised loop: for one press about
+  // two field evaluations' time (sim_benchmark's BM_FieldJacobian/0), a sixth of the template's
+  // jets. Equal to the template's jets to rounding (tested). No allocation, but
   // up to 92 KB of stack with three contacts and their shear on 256 sensors. False, the outputs
   // untouched, with more contacts than that or spans too short.
   static constexpr int kMaxJetContacts = 3;
