@@ -158,7 +158,7 @@ struct ContactCountEstimate {
 // press (presses move a fraction of a millimetre between samples): refine_lm() given one that
 // holds a Jacobian within 0.5 mm of its start begins from it, corrected along the way (Broyden's
 // rank-one update, from the field change the move made), instead of computing it
-// (sim::PatchModel::contact_field_jacobian_ut, about three field evaluations' time), and leaves
+// (sim::PatchModel::contact_field_jacobian_ut, about two field evaluations' time), and leaves
 // its own in it. At most kMaxUses fits in a row reuse it; the next computes it again, so updates
 // do not drift. A fit that begins exactly where the last one ended (the host's warm start, the
 // last published contact) takes that fit's field at its start from it too: the model's field
