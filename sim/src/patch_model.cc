@@ -22,112 +22,97 @@ void sensor_reading(const PatchModel::Sensor& s, const Vec3<double>& b, double* 
   out[2 * stride] = local.z * s.gain.z;
 }
 
-// One shear-free press's terms with their derivatives by its depth (PatchModel::press_terms()
-// in jets, read once an evaluation).
-struct PressSlope {
-  double amp_mm = 0, damp = 0;  // the deflection's amplitude under the tip, and d/d depth
-  double a2 = 0, da2 = 0;       // the tip's squared contact radius over l_u l_v, and d/d depth
-};
-
-// The lattice's constants a pose reads (PatchModel's spreads, lateral coupling, design).
-struct Lattice {
-  double lu, lv, lateral, drag;
-  bool cylinder;
-  double radius_mm;
-};
-
 // PatchModel::magnet_pose() for one press `c` without shear, with the derivatives of the
 // magnet's position and moment by (c.u_mm, c.v_mm, c.depth_mm) by hand, into g (p, m, dp[0..2],
 // dm[0..2]): the same formulas as the jets, term by term, at about a quarter of their
-// instructions (the jets carry zero derivatives through every constant). False when the press
-// does not reach the magnet (as magnet_pose()). Equal to the jets to rounding (physics_test's
+// instructions (the jets carry zero derivatives through every constant). `t`: the press's
+// press_terms() in jets (their derivatives by the depth). False when the press does not reach
+// the magnet (as magnet_pose()). Equal to the jets to rounding (physics_test's
 // FieldJacobianEqualsTheTemplatesJets).
-bool single_press_pose(const PatchModel::Magnet& m, const Contact& c, const PressSlope& t,
-                       const Lattice& l, detail::MagnetJet* g) {
-  if (!(c.depth_mm > 0)) return false;
+bool single_press_pose(const PatchModel& model, const PatchModel::Magnet& m, const Contact& c,
+                       const PatchModel::PressTerms<Dual<3>>& t, detail::MagnetJet* g) {
+  if (!(c.depth_mm > 0) || !model.magnet_in_reach(m, c.u_mm, c.v_mm)) return false;
+  const double lu = model.spread_u_mm(), lv = model.spread_v_mm();
+  const double lateral = model.lateral_mm(), drag = model.design().inplane_drag;
   const double du = m.u - c.u_mm, dv = m.v - c.v_mm;
-  const double sdu = du / l.lu, sdv = dv / l.lv;
-  if (!(sdu * sdu + sdv * sdv < kPlateKernelCutoff * kPlateKernelCutoff)) return false;
-  const double lu2 = l.lu * l.lu, lv2 = l.lv * l.lv;
+  const double lu2 = lu * lu, lv2 = lv * lv;
   // The unknowns' index: 0 the press's u, 1 its v, 2 its depth. d(du)/du_c = -1, d(dv)/dv_c = -1.
-  const double s_sq = du * du / lu2 + dv * dv / lv2 + t.a2;
+  const double s_sq = du * du / lu2 + dv * dv / lv2 + t.a2.v;
   const double s = s_sq > 0 ? std::sqrt(s_sq) : 0.0;
   const double ks = s > 0 ? 0.5 / s : 0.0;  // d s / d s_sq (none at the point of a point load)
-  const double ds[3] = {-2 * du / lu2 * ks, -2 * dv / lv2 * ks, t.da2 * ks};
+  const double ds[3] = {-2 * du / lu2 * ks, -2 * dv / lv2 * ks, t.a2.d[2] * ks};
   double gk, dg, d2g;
   plate_kernel(s, &gk, &dg, &d2g);
   const double q = s > 1e-6 ? dg / s : 0.0;  // g'(s) / s, and its derivative by s
   const double dq = s > 1e-6 ? (d2g * s - dg) / (s * s) : 0.0;
-  const double amp = t.amp_mm;
-  const double damp[3] = {0, 0, t.damp};
+  const double amp = t.amp_mm.v;
+  const double damp[3] = {0, 0, t.amp_mm.d[2]};
   const double ddu[3] = {-1, 0, 0}, ddv[3] = {0, -1, 0};
   const double w = amp * gk;
   const double pu = -(amp * q * du / lu2), pv = -(amp * q * dv / lv2);
-  double dw[3], dpu[3], dpv[3];
-  for (int k = 0; k < 3; ++k) {
-    const double dgk = dg * ds[k], dqk = dq * ds[k];
-    dw[k] = damp[k] * gk + amp * dgk;
-    dpu[k] = -((damp[k] * q + amp * dqk) * du + amp * q * ddu[k]) / lu2;
-    dpv[k] = -((damp[k] * q + amp * dqk) * dv + amp * q * ddv[k]) / lv2;
-  }
-  // Surface coordinates of the moved magnet: in-plane by the slope (and the drag toward the
-  // press, PatchDesign::inplane_drag), down by the deflection.
-  double uu = m.u - l.lateral * pu, vv = m.v - l.lateral * pv;
-  double du_s[3], dv_s[3];
-  for (int k = 0; k < 3; ++k) {
-    du_s[k] = -l.lateral * dpu[k];
-    dv_s[k] = -l.lateral * dpv[k];
-  }
-  if (l.drag != 0) {
-    uu -= l.drag * amp * gk * du / l.lu;
-    vv -= l.drag * amp * gk * dv / l.lv;
-    for (int k = 0; k < 3; ++k) {
-      const double dagk = damp[k] * gk + amp * dg * ds[k];  // d(amp g)
-      du_s[k] -= l.drag * (dagk * du + amp * gk * ddu[k]) / l.lu;
-      dv_s[k] -= l.drag * (dagk * dv + amp * gk * ddv[k]) / l.lv;
-    }
+  // Surface coordinates of the moved magnet (uu, vv, hh) and their derivatives: in-plane by the
+  // slope (and the drag toward the press, PatchDesign::inplane_drag), down by the deflection.
+  double uu = m.u - lateral * pu, vv = m.v - lateral * pv;
+  if (drag != 0) {
+    uu -= model.drag_toward(amp, gk, du, lu);
+    vv -= model.drag_toward(amp, gk, dv, lv);
   }
   const double hh = m.h - w;
-  // The moment follows the surface normal, its magnitude kept.
+  double duu[3], dvv[3], dhh[3], dpu[3], dpv[3];
+  for (int k = 0; k < 3; ++k) {
+    const double dgk = dg * ds[k], dqk = dq * ds[k];
+    dhh[k] = -(damp[k] * gk + amp * dgk);
+    dpu[k] = -((damp[k] * q + amp * dqk) * du + amp * q * ddu[k]) / lu2;
+    dpv[k] = -((damp[k] * q + amp * dqk) * dv + amp * q * ddv[k]) / lv2;
+    duu[k] = -lateral * dpu[k];
+    dvv[k] = -lateral * dpv[k];
+  }
+  if (drag != 0) {
+    for (int k = 0; k < 3; ++k) {
+      const double dagk = -dhh[k];  // d(amp g)
+      duu[k] -= drag * (dagk * du + amp * gk * ddu[k]) / lu;
+      dvv[k] -= drag * (dagk * dv + amp * gk * ddv[k]) / lv;
+    }
+  }
+  // The moment follows the surface normal, its magnitude kept: (bu, bv, bz) in the local frame.
   const Vec3<double>& ml = m.m_loc;
   const double mu = ml.x - pu * ml.z, mv = ml.y - pv * ml.z, mz = ml.z;
   const double n2 = mu * mu + mv * mv + mz * mz;
-  const double ratio = dot(ml, ml) / n2;
-  const double kk = std::sqrt(ratio);
-  const double big_u = mu * kk, big_v = mv * kk, big_z = mz * kk;
+  const double kk = std::sqrt(dot(ml, ml) / n2);
+  const double bu = mu * kk, bv = mv * kk, bz = mz * kk;
+  // The derivatives of the local moment (bu, bv, bz).
   double dbu[3], dbv[3], dbz[3];
   for (int k = 0; k < 3; ++k) {
     const double dmu = -dpu[k] * ml.z, dmv = -dpv[k] * ml.z;
-    const double dn2 = 2 * (mu * dmu + mv * dmv);
-    const double dkk = kk > 0 ? -0.5 * kk * dn2 / n2 : 0.0;
+    const double dkk = kk > 0 ? -kk * (mu * dmu + mv * dmv) / n2 : 0.0;
     dbu[k] = dmu * kk + mu * dkk;
     dbv[k] = dmv * kk + mv * dkk;
     dbz[k] = mz * dkk;
   }
-  if (!l.cylinder) {
+  if (model.design().surface == SurfaceKind::kFlat) {  // surface coordinates are 3D ones
     g->p[0] = uu, g->p[1] = vv, g->p[2] = hh;
-    g->m[0] = big_u, g->m[1] = big_v, g->m[2] = big_z;
+    g->m[0] = bu, g->m[1] = bv, g->m[2] = bz;
     for (int k = 0; k < 3; ++k) {
-      g->dp[k][0] = du_s[k], g->dp[k][1] = dv_s[k], g->dp[k][2] = -dw[k];
+      g->dp[k][0] = duu[k], g->dp[k][1] = dvv[k], g->dp[k][2] = dhh[k];
       g->dm[k][0] = dbu[k], g->dm[k][1] = dbv[k], g->dm[k][2] = dbz[k];
     }
     return true;
   }
-  // A cylinder about y at z = -radius: u is arc length at the skin surface.
-  const double r = l.radius_mm;
-  const double theta = uu / r;
-  const double sn = std::sin(theta), cs = std::cos(theta);
-  const double rr = r + hh;
-  g->p[0] = rr * sn, g->p[1] = vv, g->p[2] = rr * cs - r;
-  g->m[0] = cs * big_u + sn * big_z, g->m[1] = big_v, g->m[2] = -sn * big_u + cs * big_z;
+  // A cylinder: the 3D pose by the surface's frame at (uu, vv, hh). Moving along u turns the
+  // frame about the axis by du / radius (d t_u = -n, d n = t_u) and moves the point by
+  // (radius + h) / radius along t_u.
+  Vec3<double> tu, tv, nn;
+  const Vec3<double> pos = model.surface_point(uu, vv, hh, &tu, &tv, &nn);
+  const Vec3<double> mom = tu * bu + tv * bv + nn * bz;
+  const double r = model.design().radius_mm;
+  g->p[0] = pos.x, g->p[1] = pos.y, g->p[2] = pos.z;
+  g->m[0] = mom.x, g->m[1] = mom.y, g->m[2] = mom.z;
   for (int k = 0; k < 3; ++k) {
-    const double dth = du_s[k] / r, dh = -dw[k];
-    g->dp[k][0] = dh * sn + rr * cs * dth;
-    g->dp[k][1] = dv_s[k];
-    g->dp[k][2] = dh * cs - rr * sn * dth;
-    g->dm[k][0] = -sn * dth * big_u + cs * dbu[k] + cs * dth * big_z + sn * dbz[k];
-    g->dm[k][1] = dbv[k];
-    g->dm[k][2] = -cs * dth * big_u - sn * dbu[k] - sn * dth * big_z + cs * dbz[k];
+    const double dth = duu[k] / r;
+    const Vec3<double> dp = tu * (duu[k] * (r + hh) / r) + tv * dvv[k] + nn * dhh[k];
+    const Vec3<double> dm = tu * (dbu[k] + dth * bz) + tv * dbv[k] + nn * (dbz[k] - dth * bu);
+    g->dp[k][0] = dp.x, g->dp[k][1] = dp.y, g->dp[k][2] = dp.z;
+    g->dm[k][0] = dm.x, g->dm[k][1] = dm.y, g->dm[k][2] = dm.z;
   }
   return true;
 }
@@ -484,21 +469,12 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
   // derivatives by hand (single_press_pose()); otherwise by the jets of magnet_pose().
   const bool single =
       K == 3 && contacts.size() == 1 && contacts[0].shear_u_n == 0 && contacts[0].shear_v_n == 0;
-  PressSlope slope;
-  if (single) {
-    slope.amp_mm = terms[0].amp_mm.v, slope.damp = terms[0].amp_mm.d[2];
-    slope.a2 = terms[0].a2.v, slope.da2 = terms[0].a2.d[2];
-  }
-  const Lattice lattice{spread_u_,
-                        spread_v_,
-                        lateral_,
-                        design_.inplane_drag,
-                        design_.surface == SurfaceKind::kCylinder,
-                        design_.radius_mm};
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
     if (single) {
-      if (!single_press_pose(m, contacts[0], slope, lattice, &g)) continue;
+      if constexpr (K == 3) {
+        if (!single_press_pose(*this, m, contacts[0], terms[0], &g)) continue;
+      }
     } else {
       bool reached = false;  // magnet_pose() would say so, after the magnet's rest pose in jets
       for (const Contact& c : contacts)
