@@ -28,6 +28,25 @@ __attribute__((always_inline)) inline void dipole_sum_body(
   }
 }
 
+// A jet's terms at a sensor (sx, sy, sz) of a magnet at p with moment m: the sensor's offset
+// d = (x, y, z) from it, 1 / r^2, q = 3 K / r^5, a = q (m.d) and b = K / r^3 (B = a d - b m).
+struct JetTerms {
+  double x, y, z, ir2, q, a, b;
+};
+__attribute__((always_inline)) inline JetTerms jet_terms(double sx, double sy, double sz,
+                                                         const double p[3], const double m[3]) {
+  JetTerms t;
+  t.x = sx - p[0], t.y = sy - p[1], t.z = sz - p[2];
+  const double r2 = t.x * t.x + t.y * t.y + t.z * t.z;
+  const double inv_r = 1.0 / std::sqrt(r2);
+  const double inv_r3 = inv_r * inv_r * inv_r;
+  t.ir2 = inv_r * inv_r;
+  t.q = 3.0 * kDipoleScale * inv_r3 * inv_r * inv_r;
+  t.a = t.q * (m[0] * t.x + m[1] * t.y + m[2] * t.z);
+  t.b = kDipoleScale * inv_r3;
+  return t;
+}
+
 // The jet: the field as above, each sensor's offset and powers of its distance kept, then per
 // unknown k (offset derivative e = -dp[k], moment derivative dm[k]), with B = a d - b m,
 // a = 3 K (m.d) / r^5, b = K / r^3:
@@ -39,30 +58,24 @@ __attribute__((always_inline)) inline void dipole_sum_jet_body(
     const double* __restrict rz, double* __restrict ax, double* __restrict ay,
     double* __restrict az, double* __restrict jx, double* __restrict jy, double* __restrict jz) {
   constexpr std::size_t kBlock = 64;  // sensors a pass: the kept terms stay on the stack
-  const double px = g.p[0], py = g.p[1], pz = g.p[2];
+  const double p[3] = {g.p[0], g.p[1], g.p[2]};
   const double mx = g.m[0], my = g.m[1], mz = g.m[2];
   for (std::size_t s0 = 0; s0 < ns; s0 += kBlock) {
     const std::size_t n = ns - s0 < kBlock ? ns - s0 : kBlock;
     double dx[kBlock], dy[kBlock], dz[kBlock], a[kBlock], b[kBlock], inv_r2[kBlock], k5[kBlock];
     for (std::size_t i = 0; i < n; ++i) {
       const std::size_t si = s0 + i;
-      const double x = sx[si] - px, y = sy[si] - py, z = sz[si] - pz;
-      const double r2 = x * x + y * y + z * z;
-      const double inv_r = 1.0 / std::sqrt(r2);
-      const double inv_r3 = inv_r * inv_r * inv_r;
-      const double q = 3.0 * kDipoleScale * inv_r3 * inv_r * inv_r;  // 3 K / r^5
-      const double ai = q * (mx * x + my * y + mz * z);
-      const double bi = kDipoleScale * inv_r3;
-      ax[si] += ai * x - bi * mx - rx[si];
-      ay[si] += ai * y - bi * my - ry[si];
-      az[si] += ai * z - bi * mz - rz[si];
-      dx[i] = x;
-      dy[i] = y;
-      dz[i] = z;
-      a[i] = ai;
-      b[i] = bi;
-      inv_r2[i] = inv_r * inv_r;
-      k5[i] = q;
+      const JetTerms t = jet_terms(sx[si], sy[si], sz[si], p, g.m);
+      ax[si] += t.a * t.x - t.b * mx - rx[si];
+      ay[si] += t.a * t.y - t.b * my - ry[si];
+      az[si] += t.a * t.z - t.b * mz - rz[si];
+      dx[i] = t.x;
+      dy[i] = t.y;
+      dz[i] = t.z;
+      a[i] = t.a;
+      b[i] = t.b;
+      inv_r2[i] = t.ir2;
+      k5[i] = t.q;
     }
     for (int k = 0; k < g.unknowns; ++k) {
       const double ex = -g.dp[k][0], ey = -g.dp[k][1], ez = -g.dp[k][2];
@@ -84,6 +97,63 @@ __attribute__((always_inline)) inline void dipole_sum_jet_body(
   }
 }
 
+// The jet for exactly three unknowns (one press's u, v and depth: every Jacobian of a
+// single-contact fit), the same formulas fused into one pass a sensor: the three derivatives are
+// made while the sensor's offset and distance are in registers, not kept and read back per
+// unknown.
+__attribute__((always_inline)) inline void dipole_sum_jet3_body(
+    std::size_t ns, const MagnetJet& g, const double* __restrict sx, const double* __restrict sy,
+    const double* __restrict sz, const double* __restrict rx, const double* __restrict ry,
+    const double* __restrict rz, double* __restrict ax, double* __restrict ay,
+    double* __restrict az, double* __restrict jx, double* __restrict jy, double* __restrict jz) {
+  const double p[3] = {g.p[0], g.p[1], g.p[2]};
+  const double mx = g.m[0], my = g.m[1], mz = g.m[2];
+  double ex[3], ey[3], ez[3], fx[3], fy[3], fz[3], me[3];
+  double* __restrict ox[3];
+  double* __restrict oy[3];
+  double* __restrict oz[3];
+  for (int k = 0; k < 3; ++k) {
+    ex[k] = -g.dp[k][0], ey[k] = -g.dp[k][1], ez[k] = -g.dp[k][2];
+    fx[k] = g.dm[k][0], fy[k] = g.dm[k][1], fz[k] = g.dm[k][2];
+    me[k] = mx * ex[k] + my * ey[k] + mz * ez[k];
+    ox[k] = jx + static_cast<std::size_t>(k) * ns;
+    oy[k] = jy + static_cast<std::size_t>(k) * ns;
+    oz[k] = jz + static_cast<std::size_t>(k) * ns;
+  }
+  for (std::size_t si = 0; si < ns; ++si) {
+    const JetTerms t = jet_terms(sx[si], sy[si], sz[si], p, g.m);
+    const double x = t.x, y = t.y, z = t.z, q = t.q, a = t.a, b = t.b;
+    ax[si] += a * x - b * mx - rx[si];
+    ay[si] += a * y - b * my - ry[si];
+    az[si] += a * z - b * mz - rz[si];
+    const double a5 = 5.0 * a * t.ir2, b3 = 3.0 * b * t.ir2;  // a' = q (dm.d + m.e) - a5 (d.e)
+#pragma GCC unroll 3
+    for (int k = 0; k < 3; ++k) {
+      const double de = x * ex[k] + y * ey[k] + z * ez[k];
+      const double fd = fx[k] * x + fy[k] * y + fz[k] * z;
+      const double da = q * (fd + me[k]) - a5 * de;
+      const double ndb = b3 * de;  // -b'
+      ox[k][si] += da * x + a * ex[k] + ndb * mx - b * fx[k];
+      oy[k][si] += da * y + a * ey[k] + ndb * my - b * fy[k];
+      oz[k][si] += da * z + a * ez[k] + ndb * mz - b * fz[k];
+    }
+  }
+}
+
+// Three unknowns take the fused pass, any other count the kept-terms one.
+__attribute__((always_inline)) inline void dipole_sum_jet_any(std::size_t ns, const MagnetJet& g,
+                                                              const double* sx, const double* sy,
+                                                              const double* sz, const double* rx,
+                                                              const double* ry, const double* rz,
+                                                              double* ax, double* ay, double* az,
+                                                              double* jx, double* jy, double* jz) {
+  if (g.unknowns == 3) {
+    dipole_sum_jet3_body(ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz);
+  } else {
+    dipole_sum_jet_body(ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz);
+  }
+}
+
 #define SKINBUS_DIPOLE_SUM_PARAMS                                                               \
   std::size_t ns, double px, double py, double pz, double mx, double my, double mz,             \
       const double *sx, const double *sy, const double *sz, const double *rx, const double *ry, \
@@ -99,7 +169,7 @@ void dipole_sum_baseline(SKINBUS_DIPOLE_SUM_PARAMS) {
   dipole_sum_body(SKINBUS_DIPOLE_SUM_ARGS);
 }
 void dipole_sum_jet_baseline(SKINBUS_DIPOLE_SUM_JET_PARAMS) {
-  dipole_sum_jet_body(SKINBUS_DIPOLE_SUM_JET_ARGS);
+  dipole_sum_jet_any(SKINBUS_DIPOLE_SUM_JET_ARGS);
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -113,10 +183,10 @@ __attribute__((target("avx512f"))) void dipole_sum_avx512(SKINBUS_DIPOLE_SUM_PAR
   dipole_sum_body(SKINBUS_DIPOLE_SUM_ARGS);
 }
 __attribute__((target("avx2,fma"))) void dipole_sum_jet_avx2(SKINBUS_DIPOLE_SUM_JET_PARAMS) {
-  dipole_sum_jet_body(SKINBUS_DIPOLE_SUM_JET_ARGS);
+  dipole_sum_jet_any(SKINBUS_DIPOLE_SUM_JET_ARGS);
 }
 __attribute__((target("avx512f"))) void dipole_sum_jet_avx512(SKINBUS_DIPOLE_SUM_JET_PARAMS) {
-  dipole_sum_jet_body(SKINBUS_DIPOLE_SUM_JET_ARGS);
+  dipole_sum_jet_any(SKINBUS_DIPOLE_SUM_JET_ARGS);
 }
 #endif
 

@@ -140,6 +140,58 @@ TEST(DipoleSum, TheJetsFieldIsTheSumsAndEveryBuildMatchesTheBaseline) {
   std::printf("jet builds checked: %d\n", checked);
 }
 
+// Three unknowns (a single press's u, v, depth) take a fused pass; any other count the pass that
+// keeps each sensor's terms. The same magnet with two more unknowns: its first three columns and
+// its field are the fused pass's, to rounding, on every build.
+TEST(DipoleSum, TheFusedThreeUnknownPassEqualsTheGeneralOne) {
+  std::mt19937_64 rng(test_seed("DipoleSum.TheFusedThreeUnknownPassEqualsTheGeneralOne"));
+  std::uniform_real_distribution<double> pos(-80.0, 80.0), mom(-0.05, 0.05), unit(-1.0, 1.0);
+  for (Isa isa : {Isa::kPortable, Isa::kAvx512, Isa::kAvx2}) {
+    const DipoleSumJet f = dipole_sum_jet_for(isa);
+    if (f == nullptr) continue;
+    for (std::size_t ns : {1u, 5u, 16u, 33u}) {
+      std::vector<double> s(3 * ns), r(3 * ns);
+      for (double& x : s) x = pos(rng);
+      for (std::size_t i = 0; i < ns; ++i) s[2 * ns + i] = -std::abs(s[2 * ns + i]) - 2.0;
+      for (double& x : r) x = 10 * unit(rng);
+      MagnetJet g;
+      for (int c = 0; c < 3; ++c) {
+        g.p[c] = c == 2 ? std::abs(pos(rng)) * 0.1 : pos(rng);
+        g.m[c] = mom(rng);
+      }
+      for (int k = 0; k < 5; ++k) {
+        for (int c = 0; c < 3; ++c) {
+          g.dp[k][c] = unit(rng);
+          g.dm[k][c] = 0.01 * unit(rng);
+        }
+      }
+      auto run = [&](int unknowns, std::vector<double>& a, std::vector<double>& j) {
+        g.unknowns = unknowns;
+        const std::size_t nj = static_cast<std::size_t>(unknowns) * ns;
+        a.assign(3 * ns, 0.0);
+        j.assign(3 * nj, 0.0);
+        f(ns, g, s.data(), s.data() + ns, s.data() + 2 * ns, r.data(), r.data() + ns,
+          r.data() + 2 * ns, a.data(), a.data() + ns, a.data() + 2 * ns, j.data(), j.data() + nj,
+          j.data() + 2 * nj);
+      };
+      std::vector<double> a3, j3, a5, j5;
+      run(3, a3, j3);
+      run(5, a5, j5);
+      double jmax = 0;
+      for (double x : j5) jmax = std::max(jmax, std::abs(x));
+      for (std::size_t i = 0; i < 3 * ns; ++i) {
+        EXPECT_NEAR(a3[i], a5[i], 1e-12 * (1 + std::abs(a5[i]))) << isa_name(isa);
+      }
+      for (int c = 0; c < 3; ++c) {  // axis c: 3 ns entries of the fused, 5 ns of the general
+        for (std::size_t e = 0; e < 3 * ns; ++e) {
+          EXPECT_NEAR(j3[c * 3 * ns + e], j5[c * 5 * ns + e], 1e-12 * (1 + jmax))
+              << isa_name(isa) << ", " << ns << " sensors, axis " << c << ", entry " << e;
+        }
+      }
+    }
+  }
+}
+
 TEST(DipoleSum, TheFieldRunsOnTheWidestSetWithinTheCap) {
   Isa want = Isa::kPortable;
   for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {

@@ -1,7 +1,9 @@
 #include "skinbus/sim/patch_model.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <optional>
 
 #include <string>
 
@@ -22,74 +24,101 @@ void sensor_reading(const PatchModel::Sensor& s, const Vec3<double>& b, double* 
   out[2 * stride] = local.z * s.gain.z;
 }
 
-// PatchModel::magnet_pose() for one press `c` without shear, with the derivatives of the
+// What of the model and of one press without shear is the same at every magnet, for
+// single_press_pose(): the spreads' inverses (a magnet's pose then takes two divisions, not
+// twenty), the press's place and its terms with their derivatives by its depth.
+struct SinglePress {
+  SinglePress(const PatchModel& model, const Contact& c, const PatchModel::PressTerms<Dual<3>>& t)
+      : u(c.u_mm),
+        v(c.v_mm),
+        pressing(c.depth_mm > 0),
+        inv_lu(1 / model.spread_u_mm()),
+        inv_lv(1 / model.spread_v_mm()),
+        inv_lu2(inv_lu * inv_lu),
+        inv_lv2(inv_lv * inv_lv),
+        lateral(model.lateral_mm()),
+        drag(model.design().inplane_drag),
+        a2(pressing ? t.a2.v : 0),
+        da2(pressing ? t.a2.d[2] : 0),
+        amp(pressing ? t.amp_mm.v : 0),
+        damp(pressing ? t.amp_mm.d[2] : 0),
+        flat(model.design().surface == SurfaceKind::kFlat) {}
+  double u, v;
+  bool pressing;
+  double inv_lu, inv_lv, inv_lu2, inv_lv2, lateral, drag;
+  double a2, da2, amp, damp;  // PressTerms' a2 and amp_mm, and their derivatives by the depth
+  bool flat;
+};
+
+// PatchModel::magnet_pose() for one press `p` without shear, with the derivatives of the
 // magnet's position and moment by (c.u_mm, c.v_mm, c.depth_mm) by hand, into g (p, m, dp[0..2],
 // dm[0..2]): the same formulas as the jets, term by term, at about a quarter of their
-// instructions (the jets carry zero derivatives through every constant). `t`: the press's
-// press_terms() in jets (their derivatives by the depth). False when the press does not reach
-// the magnet (as magnet_pose()). Equal to the jets to rounding (physics_test's
-// FieldJacobianEqualsTheTemplatesJets).
-bool single_press_pose(const PatchModel& model, const PatchModel::Magnet& m, const Contact& c,
-                       const PatchModel::PressTerms<Dual<3>>& t, detail::MagnetJet* g) {
-  if (!(c.depth_mm > 0) || !model.magnet_in_reach(m, c.u_mm, c.v_mm)) return false;
-  const double lu = model.spread_u_mm(), lv = model.spread_v_mm();
-  const double lateral = model.lateral_mm(), drag = model.design().inplane_drag;
-  const double du = m.u - c.u_mm, dv = m.v - c.v_mm;
-  const double lu2 = lu * lu, lv2 = lv * lv;
+// instructions (the jets carry zero derivatives through every constant). False when the press
+// does not reach the magnet (as magnet_pose(), by the reach test of contact_field_ut()). Equal
+// to the jets to rounding (physics_test's FieldJacobianEqualsTheTemplatesJets).
+bool single_press_pose(const PatchModel& model, const PatchModel::Magnet& m, const SinglePress& p,
+                       detail::MagnetJet* g) {
+  if (!p.pressing) return false;
+  const double du = m.u - p.u, dv = m.v - p.v;
+  const double s2 = du * du * p.inv_lu2 + dv * dv * p.inv_lv2;
+  if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) return false;
   // The unknowns' index: 0 the press's u, 1 its v, 2 its depth. d(du)/du_c = -1, d(dv)/dv_c = -1.
-  const double s_sq = du * du / lu2 + dv * dv / lv2 + t.a2.v;
+  const double s_sq = s2 + p.a2;
   const double s = s_sq > 0 ? std::sqrt(s_sq) : 0.0;
-  const double ks = s > 0 ? 0.5 / s : 0.0;  // d s / d s_sq (none at the point of a point load)
-  const double ds[3] = {-2 * du / lu2 * ks, -2 * dv / lv2 * ks, t.a2.d[2] * ks};
+  const double inv_s = s > 0 ? 1 / s : 0.0;
+  const double ks = 0.5 * inv_s;  // d s / d s_sq (none at the point of a point load)
+  const double ds[3] = {-2 * du * p.inv_lu2 * ks, -2 * dv * p.inv_lv2 * ks, p.da2 * ks};
   double gk, dg, d2g;
   plate_kernel(s, &gk, &dg, &d2g);
-  const double q = s > 1e-6 ? dg / s : 0.0;  // g'(s) / s, and its derivative by s
-  const double dq = s > 1e-6 ? (d2g * s - dg) / (s * s) : 0.0;
-  const double amp = t.amp_mm.v;
-  const double damp[3] = {0, 0, t.amp_mm.d[2]};
+  const bool off_centre = s > 1e-6;
+  const double q = off_centre ? dg * inv_s : 0.0;  // g'(s) / s, and its derivative by s
+  const double dq = off_centre ? (d2g * s - dg) * (inv_s * inv_s) : 0.0;
+  const double amp = p.amp;
+  const double damp[3] = {0, 0, p.damp};
   const double ddu[3] = {-1, 0, 0}, ddv[3] = {0, -1, 0};
   const double w = amp * gk;
-  const double pu = -(amp * q * du / lu2), pv = -(amp * q * dv / lv2);
+  const double pu = -(amp * q * du * p.inv_lu2), pv = -(amp * q * dv * p.inv_lv2);
   // Surface coordinates of the moved magnet (uu, vv, hh) and their derivatives: in-plane by the
   // slope (and the drag toward the press, PatchDesign::inplane_drag), down by the deflection.
+  const double lateral = p.lateral, drag = p.drag;
   double uu = m.u - lateral * pu, vv = m.v - lateral * pv;
   if (drag != 0) {
-    uu -= model.drag_toward(amp, gk, du, lu);
-    vv -= model.drag_toward(amp, gk, dv, lv);
+    uu -= model.drag_toward(amp, gk, du, model.spread_u_mm());
+    vv -= model.drag_toward(amp, gk, dv, model.spread_v_mm());
   }
   const double hh = m.h - w;
   double duu[3], dvv[3], dhh[3], dpu[3], dpv[3];
   for (int k = 0; k < 3; ++k) {
     const double dgk = dg * ds[k], dqk = dq * ds[k];
     dhh[k] = -(damp[k] * gk + amp * dgk);
-    dpu[k] = -((damp[k] * q + amp * dqk) * du + amp * q * ddu[k]) / lu2;
-    dpv[k] = -((damp[k] * q + amp * dqk) * dv + amp * q * ddv[k]) / lv2;
+    dpu[k] = -((damp[k] * q + amp * dqk) * du + amp * q * ddu[k]) * p.inv_lu2;
+    dpv[k] = -((damp[k] * q + amp * dqk) * dv + amp * q * ddv[k]) * p.inv_lv2;
     duu[k] = -lateral * dpu[k];
     dvv[k] = -lateral * dpv[k];
   }
   if (drag != 0) {
     for (int k = 0; k < 3; ++k) {
       const double dagk = -dhh[k];  // d(amp g)
-      duu[k] -= drag * (dagk * du + amp * gk * ddu[k]) / lu;
-      dvv[k] -= drag * (dagk * dv + amp * gk * ddv[k]) / lv;
+      duu[k] -= drag * (dagk * du + amp * gk * ddu[k]) * p.inv_lu;
+      dvv[k] -= drag * (dagk * dv + amp * gk * ddv[k]) * p.inv_lv;
     }
   }
   // The moment follows the surface normal, its magnitude kept: (bu, bv, bz) in the local frame.
   const Vec3<double>& ml = m.m_loc;
   const double mu = ml.x - pu * ml.z, mv = ml.y - pv * ml.z, mz = ml.z;
-  const double n2 = mu * mu + mv * mv + mz * mz;
-  const double kk = std::sqrt(dot(ml, ml) / n2);
+  const double inv_n2 = 1 / (mu * mu + mv * mv + mz * mz);
+  const double kk = std::sqrt(dot(ml, ml) * inv_n2);
   const double bu = mu * kk, bv = mv * kk, bz = mz * kk;
   // The derivatives of the local moment (bu, bv, bz).
   double dbu[3], dbv[3], dbz[3];
   for (int k = 0; k < 3; ++k) {
     const double dmu = -dpu[k] * ml.z, dmv = -dpv[k] * ml.z;
-    const double dkk = kk > 0 ? -kk * (mu * dmu + mv * dmv) / n2 : 0.0;
+    const double dkk = kk > 0 ? -kk * (mu * dmu + mv * dmv) * inv_n2 : 0.0;
     dbu[k] = dmu * kk + mu * dkk;
     dbv[k] = dmv * kk + mv * dkk;
     dbz[k] = mz * dkk;
   }
-  if (model.design().surface == SurfaceKind::kFlat) {  // surface coordinates are 3D ones
+  if (p.flat) {  // surface coordinates are 3D ones
     g->p[0] = uu, g->p[1] = vv, g->p[2] = hh;
     g->m[0] = bu, g->m[1] = bv, g->m[2] = bz;
     for (int k = 0; k < 3; ++k) {
@@ -455,7 +484,10 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
     cd[j].shear_v_n = per_contact == 5 ? D::variable(c.shear_v_n, o + 4) : D(c.shear_v_n);
   }
   const std::span<const ContactT<D>> jets(cd, contacts.size());
-  double ax[kMaxSensors] = {}, ay[kMaxSensors] = {}, az[kMaxSensors] = {};
+  double ax[kMaxSensors], ay[kMaxSensors], az[kMaxSensors];  // the first ns are read
+  std::fill_n(ax, ns, 0.0);
+  std::fill_n(ay, ns, 0.0);
+  std::fill_n(az, ns, 0.0);
   double jx[K * kMaxSensors], jy[K * kMaxSensors], jz[K * kMaxSensors];
   std::fill_n(jx, K * ns, 0.0);
   std::fill_n(jy, K * ns, 0.0);
@@ -463,18 +495,34 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
   const D lu(spread_u_), lv(spread_v_), lat(lateral_);
   PressTerms<D> terms[kMaxJetContacts];  // each press's terms once for every magnet
   for (std::size_t j = 0; j < contacts.size(); ++j) terms[j] = press_terms(cd[j], lu, lv);
-  detail::MagnetJet g;
-  g.unknowns = K;
   // One press without shear (a single-contact fit's every Jacobian): the deformation's
   // derivatives by hand (single_press_pose()); otherwise by the jets of magnet_pose().
   const bool single =
       K == 3 && contacts.size() == 1 && contacts[0].shear_u_n == 0 && contacts[0].shear_v_n == 0;
+  std::optional<SinglePress> press;
+  if constexpr (K == 3) {
+    if (single) press.emplace(*this, contacts[0], terms[0]);
+  }
+  // The moved magnets' poses a few at a time, then their sums: poses of successive magnets
+  // overlap in the CPU, which a sum between them would keep apart.
+  constexpr int kPosesHeld = 8;
+  detail::MagnetJet poses[kPosesHeld];
+  std::size_t posed[kPosesHeld];
+  int held = 0;
+  auto flush = [&] {
+    for (int i = 0; i < held; ++i) {
+      const std::size_t at = posed[i] * ns;
+      sum(ns, poses[i], sx_.data(), sy_.data(), sz_.data(), rx_.data() + at, ry_.data() + at,
+          rz_.data() + at, ax, ay, az, jx, jy, jz);
+    }
+    held = 0;
+  };
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
+    detail::MagnetJet& g = poses[held];
+    g.unknowns = K;
     if (single) {
-      if constexpr (K == 3) {
-        if (!single_press_pose(*this, m, contacts[0], terms[0], &g)) continue;
-      }
+      if (!single_press_pose(*this, m, *press, &g)) continue;
     } else {
       bool reached = false;  // magnet_pose() would say so, after the magnet's rest pose in jets
       for (const Contact& c : contacts)
@@ -492,9 +540,10 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
         g.dm[k][0] = mom.x.d[k], g.dm[k][1] = mom.y.d[k], g.dm[k][2] = mom.z.d[k];
       }
     }
-    sum(ns, g, sx_.data(), sy_.data(), sz_.data(), rx_.data() + mi * ns, ry_.data() + mi * ns,
-        rz_.data() + mi * ns, ax, ay, az, jx, jy, jz);
+    posed[held] = mi;
+    if (++held == kPosesHeld) flush();
   }
+  flush();
   for (std::size_t si = 0; si < ns; ++si) {
     sensor_reading(sensors_[si], Vec3<double>{ax[si], ay[si], az[si]}, &field[3 * si]);
     for (int k = 0; k < K; ++k) {  // column k of rows 3 si .. 3 si + 2
@@ -540,59 +589,102 @@ bool PatchModel::contact_field_jacobian_ut(std::span<const Contact> contacts, bo
 
 void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const {
   const std::size_t ns = sensors_.size();
-  const detail::DipoleSum sum = detail::dipole_sum();  // AVX-512, AVX2 or baseline
-  double ax[kMaxSensors] = {}, ay[kMaxSensors] = {}, az[kMaxSensors] = {};
+  const detail::DipoleSum sum = detail::dipole_sum();        // AVX-512, AVX2 or baseline
+  double ax[kMaxSensors], ay[kMaxSensors], az[kMaxSensors];  // the first ns are read
+  std::fill_n(ax, ns, 0.0);
+  std::fill_n(ay, ns, 0.0);
+  std::fill_n(az, ns, 0.0);
   const double lu = spread_u_, lv = spread_v_;
   const double inv_lu2 = 1 / (lu * lu), inv_lv2 = 1 / (lv * lv);
-  // Each press's terms once for every magnet, for as many contacts as fit here.
+  const bool drag = design_.inplane_drag != 0, flat = design_.surface == SurfaceKind::kFlat;
+  // The contacts that press, each with its terms once for every magnet, as many as fit here
+  // (the rest, if any, take theirs at each magnet they reach).
   constexpr std::size_t kTermsHeld = 16;
-  PressTerms<double> terms[kTermsHeld];
-  const bool held = contacts.size() <= kTermsHeld;
-  for (std::size_t j = 0; held && j < contacts.size(); ++j)
-    terms[j] = press_terms(contacts[j], lu, lv);
+  struct Press {
+    const Contact* c;
+    PressTerms<double> t;
+    bool shear;
+  };
+  Press held[kTermsHeld];
+  std::size_t n_held = 0, first_unheld = contacts.size();
+  for (std::size_t j = 0; j < contacts.size(); ++j) {
+    const Contact& c = contacts[j];
+    if (!(c.depth_mm > 0)) continue;
+    if (n_held == kTermsHeld) {
+      first_unheld = j;
+      break;
+    }
+    held[n_held++] = {&c, press_terms(c, lu, lv), c.shear_u_n != 0 || c.shear_v_n != 0};
+  }
+  if (n_held == 0) {  // nothing presses: the rest field, which the sums leave out
+    for (std::size_t si = 0; si < ns; ++si) {
+      sensor_reading(sensors_[si], Vec3<double>{0, 0, 0}, &out[3 * si]);
+    }
+    return;
+  }
+  // The moved magnets' poses a few at a time, then their sums (as field_jacobian()).
+  constexpr int kPosesHeld = 16;
+  std::array<double, 6> pose[kPosesHeld];  // position (mm), moment (A m^2)
+  std::size_t posed[kPosesHeld];
+  int n_posed = 0;
+  auto flush = [&] {
+    for (int i = 0; i < n_posed; ++i) {
+      const std::size_t at = posed[i] * ns;
+      const std::array<double, 6>& q = pose[i];
+      sum(ns, q[0], q[1], q[2], q[3], q[4], q[5], sx_.data(), sy_.data(), sz_.data(),
+          rx_.data() + at, ry_.data() + at, rz_.data() + at, ax, ay, az);
+    }
+    n_posed = 0;
+  };
   for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
     const Magnet& m = magnets_[mi];
     double w = 0, pu = 0, pv = 0, su = 0, sv = 0;
     bool moved = false;
-    for (std::size_t j = 0; j < contacts.size(); ++j) {
-      const Contact& c = contacts[j];
-      if (!(c.depth_mm > 0)) continue;
+    // One press's deflection, slope and in-plane shift at this magnet, if it reaches it.
+    auto add = [&](const Contact& c, const PressTerms<double>* terms, bool shear) {
       const double du = m.u - c.u_mm, dv = m.v - c.v_mm;
       const double s2 = du * du * inv_lu2 + dv * dv * inv_lv2;
-      if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) continue;
+      if (!(s2 < kPlateKernelCutoff * kPlateKernelCutoff)) return;
       moved = true;
-      const PressTerms<double> t = held ? terms[j] : press_terms(c, lu, lv);  // round tip: ContactT
-      const double a2 = t.a2, ac2 = t.ac2_mm2, amp = t.amp_mm;
-      const double s = std::sqrt(s2 + a2);
+      const PressTerms<double> t = terms != nullptr ? *terms : press_terms(c, lu, lv);
+      const double amp = t.amp_mm;
+      const double s = std::sqrt(s2 + t.a2);
       double g, dg;
       plate_kernel(s, &g, &dg);
       const double q = s > 1e-6 ? dg / s : 0.0;
       w += amp * g;
       pu -= amp * q * du * inv_lu2;
       pv -= amp * q * dv * inv_lv2;
-      if (design_.inplane_drag != 0) {  // dragged toward the press (PatchDesign::inplane_drag)
+      if (drag) {  // dragged toward the press (PatchDesign::inplane_drag)
         su -= drag_toward(amp, g, du, lu);
         sv -= drag_toward(amp, g, dv, lv);
       }
-      if (c.shear_u_n != 0 || c.shear_v_n != 0) {
-        const double shape = shear_shape(du * du + dv * dv, ac2);
+      if (shear) {
+        const double shape = shear_shape(du * du + dv * dv, t.ac2_mm2);
         su += c.shear_u_n * shape;
         sv += c.shear_v_n * shape;
       }
+    };
+    for (std::size_t j = 0; j < n_held; ++j) add(*held[j].c, &held[j].t, held[j].shear);
+    for (std::size_t j = first_unheld; j < contacts.size(); ++j) {
+      const Contact& c = contacts[j];
+      if (c.depth_mm > 0) add(c, nullptr, c.shear_u_n != 0 || c.shear_v_n != 0);
     }
     if (!moved) continue;
-    Vec3<double> tu, tv, nn;
-    const Vec3<double> pos =
-        surface_point(m.u - lateral_ * pu + su, m.v - lateral_ * pv + sv, m.h - w, &tu, &tv, &nn);
     const double mu = m.m_loc.x - pu * m.m_loc.z, mv = m.m_loc.y - pv * m.m_loc.z, mz = m.m_loc.z;
     const double k = std::sqrt(dot(m.m_loc, m.m_loc) / (mu * mu + mv * mv + mz * mz));
-    const Vec3<double> mom = tu * (mu * k) + tv * (mv * k) + nn * (mz * k);
-    const double* rx = rx_.data() + mi * ns;
-    const double* ry = ry_.data() + mi * ns;
-    const double* rz = rz_.data() + mi * ns;
-    sum(ns, pos.x, pos.y, pos.z, mom.x, mom.y, mom.z, sx_.data(), sy_.data(), sz_.data(), rx, ry,
-        rz, ax, ay, az);
+    const double uu = m.u - lateral_ * pu + su, vv = m.v - lateral_ * pv + sv, hh = m.h - w;
+    Vec3<double> pos{uu, vv, hh}, mom{mu * k, mv * k, mz * k};  // a flat surface's frame
+    if (!flat) {
+      Vec3<double> tu, tv, nn;
+      pos = surface_point(uu, vv, hh, &tu, &tv, &nn);
+      mom = tu * mom.x + tv * mom.y + nn * mom.z;
+    }
+    pose[n_posed] = {pos.x, pos.y, pos.z, mom.x, mom.y, mom.z};
+    posed[n_posed] = mi;
+    if (++n_posed == kPosesHeld) flush();
   }
+  flush();
   for (std::size_t si = 0; si < ns; ++si) {
     sensor_reading(sensors_[si], Vec3<double>{ax[si], ay[si], az[si]}, &out[3 * si]);
   }

@@ -1,29 +1,42 @@
 // Simulator throughput on one core: the forward model, a full measurement, an idle patch, the
-// Jacobian, and generating the seed protocol's dataset.
+// Jacobian, and generating the seed protocol's dataset. The field model's benchmarks
+// (BM_ForwardModel, BM_FieldJacobian) take the patch of `--design FILE` (docs/design_file.md;
+// default: the built-in design), every other the built-in design.
 //
 //   build/sim/sim_benchmark --benchmark_min_time=0.5
+//   build/sim/sim_benchmark --benchmark_filter='BM_ForwardModel|BM_FieldJacobian'
+//       --design docs/benchmarks/design_9x9_uniform.yaml       (one command line)
 #include <benchmark/benchmark.h>
 
+#include <cstdio>
+#include <cstring>
 #include <vector>
 
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/design_file.h"
 
 namespace skinbus::sim {
 namespace {
 
-std::vector<Contact> random_contacts(int n) {
+PatchDesign& field_design() {  // the field model benchmarks' design (--design)
+  static PatchDesign design;
+  return design;
+}
+
+// Presses with a 5 mm tip, uniform over the patch less 2.5 mm at each edge, 0.05-4 mm deep.
+std::vector<Contact> random_contacts(int n, const PatchDesign& d = PatchDesign{}) {
   Rng rng(3);
+  const double hu = d.size_u_mm / 2 - 2.5, hv = d.size_v_mm / 2 - 2.5;
   std::vector<Contact> c;
   for (int i = 0; i < n; ++i)
-    c.push_back({rng.uniform(-67.5, 67.5), rng.uniform(-67.5, 67.5), rng.uniform(0.05, 4.0),
-                 5.0});  // 5 mm tip
+    c.push_back({rng.uniform(-hu, hu), rng.uniform(-hv, hv), rng.uniform(0.05, 4.0), 5.0});
   return c;
 }
 
 void BM_ForwardModel(benchmark::State& state) {
-  const PatchModel m = *PatchModel::fabricated(PatchDesign{}, 1, FabricationVariation{});
-  const auto cs = random_contacts(4096);
-  std::vector<double> out(48);
+  const PatchModel m = *PatchModel::fabricated(field_design(), 1, FabricationVariation{});
+  const auto cs = random_contacts(4096, field_design());
+  std::vector<double> out(static_cast<std::size_t>(m.channel_count()));
   std::size_t i = 0;
   for (auto _ : state) {
     m.contact_field_ut(std::span<const Contact>(&cs[i++ & 4095], 1), out);
@@ -75,10 +88,11 @@ BENCHMARK(BM_Jacobian);
 // The field and its exact Jacobian as the fits take them (contact_field_jacobian_ut): one
 // contact's (u, v, depth), then with its shear; against BM_ForwardModel's one evaluation.
 void BM_FieldJacobian(benchmark::State& state) {
-  const PatchModel m = *PatchModel::fabricated(PatchDesign{}, 1, FabricationVariation{});
-  const auto cs = random_contacts(4096);
+  const PatchModel m = *PatchModel::fabricated(field_design(), 1, FabricationVariation{});
+  const auto cs = random_contacts(4096, field_design());
   const bool shear = state.range(0) != 0;
-  std::vector<double> field(48), jac(48 * 5);
+  const std::size_t nc = static_cast<std::size_t>(m.channel_count());
+  std::vector<double> field(nc), jac(nc * 5);
   std::size_t i = 0;
   for (auto _ : state) {
     m.contact_field_jacobian_ut(std::span<const Contact>(&cs[i++ & 4095], 1), shear, field, jac);
@@ -101,4 +115,25 @@ BENCHMARK(BM_SeedProtocolDataset)->Unit(benchmark::kMillisecond);
 }  // namespace
 }  // namespace skinbus::sim
 
-BENCHMARK_MAIN();
+// google-benchmark's main, after taking `--design FILE` out of the arguments.
+int main(int argc, char** argv) {
+  std::vector<char*> args;
+  for (int i = 0; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--design") == 0 && i + 1 < argc) {
+      auto d = skinbus::sim::read_design_file(argv[++i]);
+      if (!d.ok()) {
+        std::fprintf(stderr, "sim_benchmark: %s\n", d.error().to_string().c_str());
+        return 2;
+      }
+      skinbus::sim::field_design() = *d;
+      continue;
+    }
+    args.push_back(argv[i]);
+  }
+  int n = static_cast<int>(args.size());
+  benchmark::Initialize(&n, args.data());
+  if (benchmark::ReportUnrecognizedArguments(n, args.data())) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}
