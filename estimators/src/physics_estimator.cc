@@ -143,11 +143,36 @@ int pick_apart(const LookupEstimator& table, const LookupNeighbour* nb, int n, d
   return count;
 }
 
+// A search's fit that comes this close (mm, in u and v) to a fit the search already has (an
+// earlier start's, or the one its caller holds, search_lm()'s `apart_from`) has entered that fit's
+// basin, whose minimum is known: it stops there. The host's basin check counts a search 1 mm or
+// more from its warm fit as a move.
+constexpr double kJoinMm = 1.0;
+
+// The places (u, v, mm) of the basins a search has: the held fit's and each start's fit.
+struct KnownBasins {
+  static constexpr int kMax = 9;  // the held fit and search_lm()'s 8 starts
+  double uv[kMax][2];
+  int count = 0;
+  void add(double u, double v) {
+    if (count == kMax || !std::isfinite(u) || !std::isfinite(v)) return;
+    uv[count][0] = u;
+    uv[count][1] = v;
+    ++count;
+  }
+  bool near(double u, double v) const {
+    for (int k = 0; k < count; ++k) {
+      if (std::hypot(u - uv[k][0], v - uv[k][1]) < kJoinMm) return true;
+    }
+    return false;
+  }
+};
+
 // refine_lm()'s fit of one contact (with its shear when N is 8) on a prepared sample; below.
 template <int N>
 void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
                  const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result,
-                 WarmJacobian* warm = nullptr);
+                 WarmJacobian* warm = nullptr, const KnownBasins* known = nullptr);
 
 void prepare_fit(std::span<const double> field_ut, std::span<const uint8_t> channel_ok, int nc,
                  const PhysicsOptions& options, FitInput* in) {
@@ -538,6 +563,7 @@ struct LeanFit {
   int iterations = 0;
   int field_evaluations = 0, jacobians = 0;  // computed by this fit
   bool converged = false;
+  bool joined = false;         // stopped within kJoinMm of a basin its caller knows
   LeanMat jtj;                 // J^T J (whitened) at the start of the last iteration, every unknown
   double field[kMaxChannels];  // the contacts' field change at x
 };
@@ -576,7 +602,7 @@ LeanMat hold_unfitted(LeanMat m, const bool* fitted) {
 template <int N>
 LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
                     const double* ambient_jac, const LeanLayout& l, typename LeanFit<N>::LeanVec x,
-                    WarmJacobian* warm = nullptr) {
+                    WarmJacobian* warm = nullptr, const KnownBasins* known = nullptr) {
   using LeanVec = typename LeanFit<N>::LeanVec;
   using LeanMat = typename LeanFit<N>::LeanMat;
   const int nc = model.channel_count();
@@ -769,6 +795,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
         cost = cost_t;
         lambda = std::max(lambda / 3, 1e-9);
         accepted = true;
+        fit.joined = l.contacts == 1 && known != nullptr && known->near(x(0), x(1));
       } else if (last_try) {
         fit.converged = true;  // the gain left is below what ends a fit, and this step failed
         break;
@@ -779,6 +806,7 @@ LeanFit<N> lean_fit(const sim::PatchModel& model, const PhysicsOptions& options,
     if (!accepted) {
       fit.converged = true;  // no step lowers the cost: a minimum to the damping's resolution
     }
+    if (fit.joined) break;
   }
   // What the next sample of the press begins from: the Jacobian at this fit's end (updated
   // along its last step), unless that step was long or nothing was computed.
@@ -833,7 +861,7 @@ bool lean_sigmas(const LeanMat& jtj, const LeanLayout& l, bool fit_ambient, doub
 template <int N>
 void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, const FitInput& in,
                  const double* ambient_jac, const ContactEstimate& start, PhysicsEstimate* result,
-                 WarmJacobian* warm) {
+                 WarmJacobian* warm, const KnownBasins* known) {
   PhysicsEstimate& out = *result;
   const LeanLayout l{1, N == 8};
   typename LeanFit<N>::LeanVec x0 = LeanFit<N>::LeanVec::Zero();
@@ -844,7 +872,15 @@ void refine_lean(const sim::PatchModel& model, const PhysicsOptions& options, co
     x0(3) = start.shear_u_n;
     x0(4) = start.shear_v_n;
   }
-  const LeanFit<N> fit = lean_fit<N>(model, options, in, ambient_jac, l, x0, warm);
+  const LeanFit<N> fit = lean_fit<N>(model, options, in, ambient_jac, l, x0, warm, known);
+  if (fit.joined) {  // in a basin the caller has: no fit of its own
+    out = PhysicsEstimate{};
+    out.contact.flags = kEstimateRejected;
+    out.iterations = fit.iterations;
+    out.field_evaluations = fit.field_evaluations;
+    out.jacobians = fit.jacobians;
+    return;
+  }
   const int amb = l.ambient_at();
   const double xc[3] = {fit.x(0), fit.x(1), fit.x(2)};
   const double xb[3] = {fit.x(amb), fit.x(amb + 1), fit.x(amb + 2)};
@@ -905,6 +941,8 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
                                   std::clamp(starts, 1, 8), picked);
   bool found = false;
   int evaluations = 0, jacobians = 0;
+  KnownBasins known;
+  if (avoid) known.add(held_uv[0], held_uv[1]);
   for (int t = 0; t < n_picked; ++t) {
     const LookupNeighbour& row = nb[picked[t]];
     ContactEstimate start;
@@ -912,10 +950,16 @@ PhysicsEstimate PhysicsEstimator::search_lm(std::span<const double> field_ut,
     start.v_mm = start_.row_v_mm(row.row);
     start.depth_mm = start_.row_depth_mm(row.row);
     PhysicsEstimate e;
+    // A fit that enters the held fit's basin or an earlier start's stops there, rejected
+    // (kJoinMm).
     if (options_.fit_shear) {
-      refine_lean<8>(model_, options_, in, ambient_jac_.data(), start, &e);
+      refine_lean<8>(model_, options_, in, ambient_jac_.data(), start, &e, nullptr, &known);
     } else {
-      refine_lean<6>(model_, options_, in, ambient_jac_.data(), start, &e);
+      refine_lean<6>(model_, options_, in, ambient_jac_.data(), start, &e, nullptr, &known);
+    }
+    if (e.contact.valid() &&
+        (e.contact.flags & (kEstimateNoContact | kEstimateNotConverged)) == 0) {
+      known.add(e.contact.u_mm, e.contact.v_mm);  // a minimum: its basin is known
     }
     evaluations += e.field_evaluations;
     jacobians += e.jacobians;

@@ -214,9 +214,11 @@ class PhysicsEstimator {
   // refine_lm() from up to `starts` (1-8) rows of the start table: the nearest the sample in
   // field, then the next nearest at least 2 of the table's pitches from those taken (other
   // basins of the field); the lowest chi-square kept. With `apart_from` (a fit the caller holds),
-  // no row within 2 pitches of it either: that basin is the caller's already. A search of the
-  // table at the lean fit's cost (`starts` fits), for a fit from another estimator's answer that
-  // ended poor. kEstimateRejected when no start gave a fit. No allocation.
+  // no row within 2 pitches of it either: that basin is the caller's already. A row's fit that
+  // comes within 1 mm (in u, v) of `apart_from` or of an earlier row's converged fit stops there
+  // without a fit of its own (that basin's minimum is known). A search of the table at the lean
+  // fit's cost (`starts` fits at most), for a fit from another estimator's answer that ended
+  // poor. kEstimateRejected when no start gave a fit of its own. No allocation.
   PhysicsEstimate search_lm(std::span<const double> field_ut, std::span<const uint8_t> channel_ok,
                             int starts = 3, const ContactEstimate* apart_from = nullptr) const;
   // The number of contacts in the sample (0 to count.max_contacts) and each one
