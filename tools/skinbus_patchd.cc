@@ -305,6 +305,20 @@ int main(int argc, char** argv) {
         settings.node.max_rate_chz / 100.0, settings.can_fd ? "CAN FD" : "classic CAN",
         settings.can_interface.c_str(), settings.node.hardware_uid);
     info(start);
+    // A baseline capture that a changing field stopped or restarted: said once a capture.
+    bool capture_change_said = false;
+    patch.on_sample = [&](const bus::Sample&, const patch_fw::GateOutput& g, bool) {
+      if (g.tare_changed_ut > 0 && !capture_change_said) {
+        char msg[200];
+        std::snprintf(msg, sizeof msg,
+                      "tare: the field changed by %.1f uT during the baseline capture (a touch?): "
+                      "%s",
+                      g.tare_changed_ut,
+                      g.tare_active ? "capturing again" : "the baseline is the field before it");
+        info(msg);
+      }
+      capture_change_said = g.tare_active && (capture_change_said || g.tare_changed_ut > 0);
+    };
 
     // ---- Loop: sample on schedule, answer frames and SYNC edges as they come.
     const uint64_t t0 = clock.now_us();

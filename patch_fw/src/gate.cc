@@ -9,6 +9,20 @@ namespace skinbus::patch_fw {
 
 namespace {
 constexpr int kN = bus::kSensorCount;
+
+// The deviation common to the sensors of `mask` (n of them), per axis: the median, or 0 with
+// fewer than 3 sensors.
+void common_mode(const double* dev, uint16_t mask, int n, double common[3]) {
+  double axis_vals[kN];
+  for (int a = 0; a < 3; ++a) {
+    common[a] = 0;
+    if (n < 3) continue;
+    int k = 0;
+    for (int i = 0; i < kN; ++i)
+      if (mask & (1u << i)) axis_vals[k++] = dev[3 * i + a];
+    common[a] = median_in_place(axis_vals, k);
+  }
+}
 }  // namespace
 
 ContactGate::ContactGate(GateConfig config) : config_(config) {
@@ -16,13 +30,44 @@ ContactGate::ContactGate(GateConfig config) : config_(config) {
 }
 
 void ContactGate::start_tare() {
-  tare_left_ = std::max(config_.tare_samples, 1);
-  tare_sum_.fill(0);
-  tare_count_.fill(0);
+  restart_capture();
   based_ = 0;
   smooth_.fill(0);
   contact_ = false;
   below_ = 0;
+}
+
+void ContactGate::restart_capture() {
+  tare_left_ = std::max(config_.tare_samples, 1);
+  tare_taken_ = 0;
+  tare_sum_.fill(0);
+  tare_count_.fill(0);
+}
+
+double ContactGate::capture_change_ut(const ArraySample& s, uint16_t healthy) const {
+  // Each sensor's reading against its capture mean so far, the change common to all sensors (the
+  // per-axis median) removed: the gate's score, with the capture as the baseline.
+  double dev[3 * kN];
+  uint16_t seen = 0;
+  int n = 0;
+  for (int i = 0; i < kN; ++i) {
+    if (!(healthy & (1u << i)) || tare_count_[i] == 0) continue;
+    seen = static_cast<uint16_t>(seen | 1u << i);
+    ++n;
+    for (int a = 0; a < 3; ++a) {
+      dev[3 * i + a] = s.field_ut[3 * i + a] - tare_sum_[3 * i + a] / tare_count_[i];
+    }
+  }
+  double common[3];
+  common_mode(dev, seen, n, common);
+  double largest = 0;
+  for (int i = 0; i < kN; ++i) {
+    if (!(seen & (1u << i))) continue;
+    double sq = 0;
+    for (int a = 0; a < 3; ++a) sq += (dev[3 * i + a] - common[a]) * (dev[3 * i + a] - common[a]);
+    largest = std::max(largest, std::sqrt(sq));
+  }
+  return largest;
 }
 
 void ContactGate::update(const ArraySample& s, GateOutput* out) {
@@ -40,48 +85,59 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
   out->drift_tracking = false;
   out->tared_ut.fill(0);
 
+  out->tare_changed_ut = 0;
   if (tare_left_ > 0) {
-    for (int i = 0; i < kN; ++i) {
-      if (!(healthy & (1u << i))) continue;
-      for (int a = 0; a < 3; ++a) tare_sum_[3 * i + a] += s.field_ut[3 * i + a];
-      ++tare_count_[i];
+    // A capture takes only a steady field: a reading the gate would call a touch against the
+    // capture so far stops it. With kTareMinSamples or more behind it, what came before is the
+    // baseline and this reading is gated below (a press that landed during the capture); with
+    // fewer, the capture starts again from this reading.
+    const double change = tare_taken_ > 0 ? capture_change_ut(s, healthy) : 0.0;
+    bool ended_early = false;
+    if (change > config_.on_threshold_ut) {
+      out->tare_changed_ut = change;
+      ended_early = tare_taken_ >= std::min(kTareMinSamples, std::max(config_.tare_samples, 1));
+      if (!ended_early) restart_capture();
     }
-    if (--tare_left_ == 0) {
+    if (!ended_early) {
+      ++tare_taken_;
+      for (int i = 0; i < kN; ++i) {
+        if (!(healthy & (1u << i))) continue;
+        for (int a = 0; a < 3; ++a) tare_sum_[3 * i + a] += s.field_ut[3 * i + a];
+        ++tare_count_[i];
+      }
+      --tare_left_;
+    }
+    if (ended_early || tare_left_ == 0) {
+      tare_left_ = 0;
       for (int i = 0; i < kN; ++i) {
         if (tare_count_[i] == 0) continue;
         for (int a = 0; a < 3; ++a) baseline_[3 * i + a] = tare_sum_[3 * i + a] / tare_count_[i];
         based_ = static_cast<uint16_t>(based_ | 1u << i);
       }
     }
-    out->tare_active = tare_left_ > 0;
-    out->contact = false;
-    out->tared = tare_left_ == 0 && based_ != 0;
-    out->score_ut = 0;
-    out->rms_ut = 0;
-    out->unbased_mask = static_cast<uint16_t>(~based_);
-    return;
+    if (!ended_early) {
+      out->tare_active = tare_left_ > 0;
+      out->contact = false;
+      out->tared = tare_left_ == 0 && based_ != 0;
+      out->score_ut = 0;
+      out->rms_ut = 0;
+      out->unbased_mask = static_cast<uint16_t>(~based_);
+      return;
+    }
   }
   out->tare_active = false;
 
   // Deviation of every healthy, based sensor; common mode removed for the score.
   const uint16_t usable = healthy & based_;
   double dev[3 * kN];
-  double axis_vals[kN];
   int n_usable = 0;
   for (int i = 0; i < kN; ++i) {
     if (!(usable & (1u << i))) continue;
     ++n_usable;
     for (int a = 0; a < 3; ++a) dev[3 * i + a] = s.field_ut[3 * i + a] - baseline_[3 * i + a];
   }
-  double common[3] = {0, 0, 0};
-  if (n_usable >= 3) {
-    for (int a = 0; a < 3; ++a) {
-      int k = 0;
-      for (int i = 0; i < kN; ++i)
-        if (usable & (1u << i)) axis_vals[k++] = dev[3 * i + a];
-      common[a] = median_in_place(axis_vals, k);
-    }
-  }
+  double common[3];
+  common_mode(dev, usable, n_usable, common);
   const double smooth_alpha = 1.0 / std::max(config_.rms_smoothing_samples, 1);
   double score = 0, total_sq = 0;
   for (int i = 0; i < kN; ++i) {

@@ -4,7 +4,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <string>
+#include <vector>
 
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/patch_model.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
@@ -174,6 +178,67 @@ TEST(GateTest, TareCommandTakesANewBaseline) {
   EXPECT_NEAR(out.tared_ut[12], 0, 3);
 }
 
+// A press that lands during a capture: with kTareMinSamples readings or more before it, those are
+// the baseline and the press is gated at once; with fewer, the capture starts again. A change
+// common to every sensor (the Earth's field as the limb turns) does not stop a capture.
+TEST(GateTest, ACaptureTakesOnlyASteadyField) {
+  for (int before : {ContactGate::kTareMinSamples + 4, ContactGate::kTareMinSamples}) {
+    SCOPED_TRACE(before);
+    ContactGate gate;
+    Synthetic syn;
+    GateOutput out;
+    for (int k = 0; k < before; ++k) {
+      gate.update(syn.next(), &out);
+      ASSERT_TRUE(out.tare_active);
+      ASSERT_EQ(out.tare_changed_ut, 0.0);
+    }
+    syn.press_ut = 40;
+    gate.update(syn.next(), &out);
+    EXPECT_GT(out.tare_changed_ut, gate.config().on_threshold_ut);
+    EXPECT_FALSE(out.tare_active);
+    EXPECT_TRUE(out.tared);
+    EXPECT_TRUE(out.contact) << "the press that stopped the capture is gated";
+    EXPECT_NEAR(out.tared_ut[3 * 5 + 2], 40, 5) << "the baseline is the field before the press";
+    for (int k = 0; k < 50; ++k) gate.update(syn.next(), &out);
+    EXPECT_TRUE(out.contact);
+    EXPECT_NEAR(out.tared_ut[3 * 6 + 2], 40, 5);
+    syn.press_ut = 0;
+    for (int k = 0; k < 10; ++k) gate.update(syn.next(), &out);
+    EXPECT_FALSE(out.contact) << "released: the rest field again";
+    EXPECT_NEAR(out.tared_ut[3 * 6 + 2], 0, 5);
+  }
+  {  // Too few readings before the press: the capture starts again, from the pressed field.
+    ContactGate gate;
+    Synthetic syn;
+    GateOutput out;
+    for (int k = 0; k < ContactGate::kTareMinSamples - 1; ++k) gate.update(syn.next(), &out);
+    syn.press_ut = 40;
+    gate.update(syn.next(), &out);
+    EXPECT_GT(out.tare_changed_ut, 0.0);
+    EXPECT_TRUE(out.tare_active);
+    EXPECT_FALSE(out.contact);
+    for (int k = 1; k < gate.config().tare_samples; ++k) {
+      ASSERT_TRUE(out.tare_active) << k;
+      gate.update(syn.next(), &out);
+      ASSERT_EQ(out.tare_changed_ut, 0.0) << k;
+    }
+    EXPECT_FALSE(out.tare_active) << "a whole capture after the restart";
+    EXPECT_TRUE(out.tared);
+  }
+  {  // An ambient step common to all sensors leaves the capture alone.
+    ContactGate gate;
+    Synthetic syn;
+    GateOutput out;
+    for (int k = 0; k < gate.config().tare_samples; ++k) {
+      if (k == 6) syn.ambient[0] = syn.ambient[2] = 40;
+      gate.update(syn.next(), &out);
+      ASSERT_EQ(out.tare_changed_ut, 0.0) << k;
+    }
+    EXPECT_FALSE(out.tare_active);
+    EXPECT_TRUE(out.tared);
+  }
+}
+
 // A gate fed by the simulated patch with its sensor noise model, one sample per kPeriodUs.
 struct PhysicsGate {
   PhysicsGate(sim::PatchModel model, uint64_t noise_seed) : patch(std::move(model), noise_seed) {}
@@ -322,6 +387,72 @@ TEST(GateTest, APressEndsOnceAtItsRelease) {
     }
     EXPECT_EQ(starts, 1) << "press at " << u << ", " << v;
     EXPECT_FALSE(g.out.contact) << "press at " << u << ", " << v;
+  }
+}
+
+// On the patch physics with the sensor noise model: captures of idle noise are never stopped
+// (2000 of them); a press ramping in (0.15 s, as the simulated patch daemon's) during a capture on
+// the built-in design and the 9 x 9 one is gated with the rest field as baseline: its tared field
+// is the press's own field to within the noise.
+TEST(GateTest, APressLandingDuringACaptureIsGatedAgainstTheRestField) {
+  const char* src = std::getenv("SKINBUS_SOURCE_DIR");
+  ASSERT_NE(src, nullptr) << "run through ctest (sets SKINBUS_SOURCE_DIR)";
+  for (const char* design_path : {"", "docs/benchmarks/design_9x9_uniform.yaml"}) {
+    SCOPED_TRACE(design_path);
+    auto design =
+        sim::read_design_or_builtin(design_path[0] ? std::string(src) + "/" + design_path : "");
+    ASSERT_TRUE(design.ok()) << design.error().message;
+    auto model = sim::PatchModel::fabricated(*design, 78, sim::FabricationVariation{});
+    ASSERT_TRUE(model.ok());
+    const sim::PatchModel unit = *model;
+    PhysicsGate g(std::move(model).value(), 5);
+    double worst_idle = 0;
+    for (int capture = 0; capture < 2000; ++capture) {
+      g.gate.start_tare();
+      for (int k = 0; k < g.gate.config().tare_samples; ++k) {
+        g.feed({});
+        worst_idle = std::max(worst_idle, g.out.tare_changed_ut);
+      }
+    }
+    EXPECT_EQ(worst_idle, 0.0) << "an idle capture was stopped";
+    sim::Rng rng(12);
+    const int ramp_samples = 6;  // 0.15 s at 41.7 Hz
+    int gated = 0, presses = 0;
+    double worst_error_ut = 0;
+    std::vector<double> truth(static_cast<std::size_t>(unit.channel_count()));
+    for (int p = 0; p < 40; ++p) {
+      sim::Contact c;
+      c.u_mm = rng.uniform(-40, 40);
+      c.v_mm = rng.uniform(-40, 40);
+      c.depth_mm = rng.uniform(1.0, 3.0);
+      c.tip_radius_mm = 5;
+      const int land = ContactGate::kTareMinSamples + static_cast<int>(rng.uniform(0, 10));
+      g.gate.start_tare();
+      for (int k = 0; k < land; ++k) g.feed({});
+      ++presses;
+      bool on = false;
+      for (int k = 1; k <= ramp_samples + 10; ++k) {
+        sim::Contact now = c;
+        now.depth_mm = c.depth_mm * std::min(1.0, static_cast<double>(k) / ramp_samples);
+        g.feed({now});
+        on = on || g.out.contact;
+      }
+      ASSERT_FALSE(g.out.tare_active) << "press " << p;
+      gated += on;
+      unit.contact_field_ut(std::span<const sim::Contact>(&c, 1), truth);
+      for (std::size_t i = 0; i < truth.size(); ++i) {
+        worst_error_ut = std::max(worst_error_ut, std::fabs(g.out.tared_ut[i] - truth[i]));
+      }
+      for (int k = 0; k < 20; ++k) g.feed({});
+      ASSERT_FALSE(g.out.contact) << "released, press " << p;
+    }
+    std::printf(
+        "%s: idle captures: none stopped; presses landing in a capture: %d of %d gated, "
+        "tared field within %.1f uT of the press's own\n",
+        design_path[0] ? design_path : "built-in", gated, presses, worst_error_ut);
+    EXPECT_EQ(gated, presses);
+    // A ramp's first reading below the stop level can enter the capture; the rest is noise.
+    EXPECT_LT(worst_error_ut, g.gate.config().on_threshold_ut + 6.0);
   }
 }
 

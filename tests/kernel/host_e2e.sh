@@ -17,11 +17,16 @@ e2e_begin host_e2e "${1:-}"
 ip link set lo up 2>/dev/null || true
 
 make_skin_map map.yaml
+# The presses begin 2 s after each daemon starts. With presses at 0.8-1 s, two runs on a loaded
+# machine placed node 2's contacts 42 mm from its press: what a press held through the whole
+# baseline capture gives (its release reads as a touch; 39-43 mm in a native replay whose press
+# lands with the daemon's first reading), which no patch can tell from its rest field
+# (patch_fw/gate.h). A guest starved of CPU can begin sampling that late.
 cat >presses.csv <<'CSV'
 # t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
-0.8,6.0,10,-20,2.0,5,1
-1.0,6.0,-30,35,2.5,5,2
-1.0,6.0,25,10,1.8,5,5
+2.0,6.0,10,-20,2.0,5,1
+2.0,6.0,-30,35,2.5,5,2
+2.0,6.0,25,10,1.8,5,5
 CSV
 cat >joints.csv <<'CSV'
 time_s,left_shoulder_pitch_joint,left_elbow_joint

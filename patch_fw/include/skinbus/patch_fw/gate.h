@@ -1,7 +1,15 @@
 // skinbus/patch_fw/gate.h: baseline, slow drift tracking and contact gating of one patch.
 //
 // The baseline is the untouched field of every channel: captured as the mean of `tare_samples`
-// samples at start and on the tare command. While the patch is untouched it follows slow drift
+// samples at start and on the tare command. A capture takes only a steady field: a reading that
+// moved against the capture's mean so far as much as the gate would call a touch (the score
+// below over `on_threshold_ut`, common mode removed) stops it. After kTareMinSamples or more
+// readings, those readings are the baseline and the moved reading is gated as usual (a press that
+// landed during the capture is a contact, not part of the rest field); after fewer, the capture
+// starts again from the moved reading. What a patch cannot tell from its field alone: a press held
+// still through a whole capture is taken as the rest field (its release then reads as a touch),
+// and a press lifting during a capture's first readings is taken as the rest field too. Tare an
+// untouched patch (docs/patch_node.md). While the patch is untouched it follows slow drift
 // (temperature, a slowly turning limb) with a first-order filter of time constant
 // `drift_tau_s`, each step clamped to `drift_max_ut_per_s`, and only after `drift_holdoff_s`
 // without contact, so a held press is never absorbed: during contact the baseline is frozen.
@@ -58,12 +66,18 @@ struct GateOutput {
   uint16_t unbased_mask = 0;    // sensors without a baseline yet (report them faulty)
   // Field minus baseline, uT (0 for faulty or unbased sensors).
   std::array<double, bus::kChannelCount> tared_ut{};
+  // > 0 on a sample that a baseline capture did not take: the reading moved this much (uT,
+  // largest sensor, common mode removed) against the capture so far (see ContactGate).
+  double tare_changed_ut = 0;
 };
 
 class ContactGate {
  public:
   explicit ContactGate(GateConfig config = {});
   const GateConfig& config() const { return config_; }
+  // A capture whose steady part before a change is at least this long keeps that part.
+  static constexpr int kTareMinSamples = 4;
+
   // Starts a baseline capture over the next tare_samples samples (contact state is cleared).
   void start_tare();
   // Feeds one sample taken at `time_us`.
@@ -79,6 +93,11 @@ class ContactGate {
   std::array<int, bus::kSensorCount> tare_count_{};
   uint16_t based_ = 0;  // bit i: sensor i has a baseline
   int tare_left_ = 0;
+  int tare_taken_ = 0;  // samples in the capture so far
+
+  void restart_capture();
+  // The largest sensor change of `s` against the capture's mean so far (uT, common mode removed).
+  double capture_change_ut(const ArraySample& s, uint16_t healthy) const;
   bool contact_ = false;
   bool score_seen_ = false;  // the score crossed its on threshold during this contact
   int below_ = 0;
