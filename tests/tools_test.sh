@@ -257,6 +257,20 @@ sed 's/link: torso_link/link: chest_link/' "$work/cal/initial.yaml" >"$work/cal/
 [[ $rc == 2 ]] && grep -q "'chest_link' is not a link of robot 'skinbot'" "$work/cal/err6.txt" && ok "unknown link in the skin map" || { bad "unknown link (rc $rc)"; cat "$work/cal/err6.txt"; }
 "$bin/skinbus-bench" calibration --sessions 2 --touches 30 --noise 0.5 >"$work/bench.md" 2>/dev/null &&
   grep -q "^| 30 | 0.5 | 20 | 0 |" "$work/bench.md" && ok "skinbus-bench calibration" || { bad "skinbus-bench calibration"; cat "$work/bench.md"; }
+# skinbus-bench cpu in interleaved rounds: every row timed (a positive, finite time in each of the
+# three columns), the errors of float32 and int8 rows alike within 2 %.
+"$bin/skinbus-bench" cpu --samples 128 --latency-samples 10 --reps 2 --csv "$work/cpu.csv" \
+  >"$work/cpu.md" 2>"$work/cpu.err" && python3 - "$work/cpu.csv" <<'PY' && ok "skinbus-bench cpu" || { bad "skinbus-bench cpu"; cat "$work/cpu.err" "$work/cpu.md"; }
+import csv, math, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+assert len(rows) >= 3, rows
+for r in rows:
+    for f in ("batch1_us", "batch64_1t_us", "batch64_2t_us"):
+        v = float(r[f])
+        assert math.isfinite(v) and v > 0, (r["kernels"], f, v)
+xy = [float(r["xy_mean_mm"]) for r in rows]
+assert max(xy) <= 1.02 * min(xy), xy
+PY
 # The host's refinement on another design (the shipped network 17 mm off there): the field's
 # instruction set named, the refined presses within 1.5x their bound, the cost table's 27 samples; a
 # design the bus cannot carry (25 sensors) refused by name.

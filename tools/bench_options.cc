@@ -50,7 +50,9 @@ void add_cpu_options(CLI::App* sub, estimators_bench::CpuBenchArgs& a) {
       ->check(CLI::Range(64, 100000));
   sub->add_option("--latency-samples", a.latency_samples, "samples timed one at a time")
       ->check(CLI::Range(10, 100000));
-  sub->add_option("--reps", a.reps, "repetitions of each timing; the median is reported")
+  sub->add_option("--reps", a.reps,
+                  "rounds: each round times every row once, the rows in turn (the portable rows "
+                  "in the first round only); the median over the rounds is reported")
       ->check(CLI::Range(1, 50));
   sub->add_option("--csv", a.csv, "write the table as CSV");
   sub->add_option("--plot", a.plot,

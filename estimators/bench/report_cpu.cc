@@ -5,8 +5,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <deque>
+#include <functional>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #if defined(__x86_64__)
@@ -190,17 +193,36 @@ std::string format(const char* fmt, Args... args) {
   return buf;
 }
 
-// Median of `reps` timings of `fn` (seconds), divided by `per`: microseconds per unit.
-template <typename Fn>
-double median_us(int reps, int per, Fn fn) {
-  std::vector<double> t;
-  for (int r = 0; r < reps; ++r) {
-    const auto t0 = Clock::now();
-    fn();
-    t.push_back(seconds_since(t0) * 1e6 / per);
+// One timing of a row: `fn` does `per` units (samples); each round times it once.
+struct Timing {
+  Timing(std::function<void()> f, int units) : fn(std::move(f)), per(units) {}
+  std::function<void()> fn;
+  int per = 1;
+  double* out_us = nullptr;  // the median over the rounds, microseconds per unit
+  std::vector<double> us;
+};
+
+// The timings of every row in rounds, each round every row's timings in turn (rows with fewer
+// `reps` drop out after those), so that rows are measured under the same conditions on a machine
+// whose speed moves; each result is its median.
+void time_interleaved(std::vector<std::vector<Timing>>& rows, const std::vector<int>& reps) {
+  const int rounds = *std::max_element(reps.begin(), reps.end());
+  for (int round = 0; round < rounds; ++round) {
+    for (std::size_t r = 0; r < rows.size(); ++r) {
+      if (round >= reps[r]) continue;
+      for (Timing& t : rows[r]) {
+        const auto t0 = Clock::now();
+        t.fn();
+        t.us.push_back(seconds_since(t0) * 1e6 / t.per);
+      }
+    }
   }
-  std::sort(t.begin(), t.end());
-  return t[t.size() / 2];
+  for (auto& row : rows) {
+    for (Timing& t : row) {
+      std::sort(t.us.begin(), t.us.end());
+      *t.out_us = t.us[t.us.size() / 2];
+    }
+  }
 }
 
 }  // namespace
@@ -266,7 +288,12 @@ Status bench_cpu(const CpuBenchArgs& a) {
     r.depth_mean_mm = s.all.depth_mean_mm;
   };
 
+  // Every row is set up and its errors taken first; then all are timed in interleaved rounds.
+  // The runtimes stay where they are (a deque) for the timings' references.
   std::vector<Row> rows;
+  std::deque<NetworkRuntime> runtimes;
+  std::vector<std::vector<Timing>> timings;
+  std::vector<int> row_reps;
   for (RuntimeIsa isa :
        {RuntimeIsa::kAvx512, RuntimeIsa::kAvx2, RuntimeIsa::kNeon, RuntimeIsa::kPortable}) {
     const double peak = fma_peak_gflops(isa);
@@ -297,8 +324,7 @@ Status bench_cpu(const CpuBenchArgs& a) {
       if (peak > 0 && p == RuntimePrecision::kFloat32) {
         r.read_gbps = read_rate_gbps(isa, static_cast<std::size_t>(r.weight_bytes()));
       }
-      const int reps = isa == RuntimeIsa::kPortable ? 1 : a.reps;
-      auto batched = [&](NetworkRuntime& rt) {
+      auto batched = [&field, &est, n, channels](NetworkRuntime& rt) {
         for (int b = 0; b < n; b += 64) {
           const int k = std::min(64, n - b);
           (void)rt.run(field.subspan(static_cast<std::size_t>(b) * channels,
@@ -306,19 +332,27 @@ Status bench_cpu(const CpuBenchArgs& a) {
                        k, {est.data() + b, static_cast<std::size_t>(k)});
         }
       };
-      r.batch1_us = median_us(reps, lat_n, [&] {
-        for (int i = 0; i < lat_n; ++i) {
-          (void)rt1->run(field.subspan(static_cast<std::size_t>(i) * channels, channels), 1,
-                         {est.data() + i, 1});
-        }
-      });
-      r.batch64_1t_us = median_us(reps, n, [&] { batched(*rt1); });
-      r.batch64_2t_us = median_us(reps, n, [&] { batched(*rt2); });
+      NetworkRuntime& one = runtimes.emplace_back(std::move(rt1).value());
+      NetworkRuntime& two = runtimes.emplace_back(std::move(rt2).value());
+      batched(one);  // the errors (and a first run)
       errors(r);
       rows.push_back(r);
+      timings.push_back(
+          {Timing{[&one, &field, &est, lat_n, channels] {
+                    for (int i = 0; i < lat_n; ++i) {
+                      (void)one.run(field.subspan(static_cast<std::size_t>(i) * channels, channels),
+                                    1, {est.data() + i, 1});
+                    }
+                  },
+                  lat_n},
+           Timing{[&one, batched] { batched(one); }, n},
+           Timing{[&two, batched] { batched(two); }, n}});
+      row_reps.push_back(isa == RuntimeIsa::kPortable ? 1 : a.reps);
     }
   }
 #ifdef SKINBUS_HAVE_TORCH
+  std::unique_ptr<TorchRunner> torch_one, torch_64_1, torch_64_2;
+  double torch_sink = 0;
   {
     std::fprintf(stderr, "skinbus-bench: LibTorch ...\n");
     Row r;
@@ -330,22 +364,6 @@ Status bench_cpu(const CpuBenchArgs& a) {
     if (!t1.ok() || !t2.ok()) {
       return with_context((t1.ok() ? t2.error() : t1.error()), "LibTorch");
     }
-    double sink = 0;
-    // Batch 1: one prepared sample, run lat_n times (LibTorch at its best: no conversion).
-    (void)t1->prepare(field.subspan(0, channels), 1);
-    r.batch1_us = median_us(a.reps, lat_n, [&] {
-      for (int i = 0; i < lat_n; ++i) sink += t1->forward_prepared();
-    });
-    for (int t = 1; t <= 2; ++t) {
-      TorchRunner& tr = t == 1 ? *t1 : *t2;
-      (void)tr.prepare(field.subspan(0, static_cast<std::size_t>(64) * channels), 64);
-      const int calls = n / 64;
-      const double us = median_us(a.reps, calls * 64, [&] {
-        for (int i = 0; i < calls; ++i) sink += tr.forward_prepared();
-      });
-      (t == 1 ? r.batch64_1t_us : r.batch64_2t_us) = us;
-    }
-    if (!std::isfinite(sink)) std::fprintf(stderr, "skinbus-bench: LibTorch returned NaN\n");
     // Its errors, through the ordinary path (untimed).
     const ModelMeta& meta = model->meta;
     std::vector<double> y(static_cast<std::size_t>(n) * meta.outputs.size());
@@ -367,7 +385,38 @@ Status bench_cpu(const CpuBenchArgs& a) {
       errors(r);
     }
     rows.push_back(r);
+    // Batch 1: one prepared sample, run lat_n times; batch 64: 64 prepared samples, n / 64 runs
+    // (LibTorch at its best: no conversion). A runner holds one prepared input, so the batch-1
+    // timings use a runner of their own.
+    Result<TorchRunner> t1_batch1 = TorchRunner::create(*model, 1);
+    if (!t1_batch1.ok()) return with_context(t1_batch1.error(), "LibTorch");
+    torch_one = std::make_unique<TorchRunner>(std::move(t1_batch1).value());
+    torch_64_1 = std::make_unique<TorchRunner>(std::move(t1).value());
+    torch_64_2 = std::make_unique<TorchRunner>(std::move(t2).value());
+    (void)torch_one->prepare(field.subspan(0, channels), 1);
+    (void)torch_64_1->prepare(field.subspan(0, static_cast<std::size_t>(64) * channels), 64);
+    (void)torch_64_2->prepare(field.subspan(0, static_cast<std::size_t>(64) * channels), 64);
+    const int calls = n / 64;
+    auto forward = [&torch_sink](TorchRunner& tr, int times) {
+      for (int i = 0; i < times; ++i) torch_sink += tr.forward_prepared();
+    };
+    timings.push_back(
+        {Timing{[forward, &torch_one, lat_n] { forward(*torch_one, lat_n); }, lat_n},
+         Timing{[forward, &torch_64_1, calls] { forward(*torch_64_1, calls); }, calls * 64},
+         Timing{[forward, &torch_64_2, calls] { forward(*torch_64_2, calls); }, calls * 64}});
+    row_reps.push_back(a.reps);
   }
+#endif
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    timings[i][0].out_us = &rows[i].batch1_us;
+    timings[i][1].out_us = &rows[i].batch64_1t_us;
+    timings[i][2].out_us = &rows[i].batch64_2t_us;
+  }
+  std::fprintf(stderr, "skinbus-bench: timing %zu rows in %d interleaved rounds ...\n", rows.size(),
+               *std::max_element(row_reps.begin(), row_reps.end()));
+  time_interleaved(timings, row_reps);
+#ifdef SKINBUS_HAVE_TORCH
+  if (!std::isfinite(torch_sink)) std::fprintf(stderr, "skinbus-bench: LibTorch returned NaN\n");
 #endif
 
   // The table.

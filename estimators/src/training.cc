@@ -899,20 +899,28 @@ Status TorchRunner::run(std::span<const double> field_ut, int batch, std::span<d
   return Status::Ok();
 }
 
+namespace {
+
+// LibTorch's intra-op threads, and OpenBLAS's, which LibTorch's linear layers run in: its own
+// thread pool (one thread per core by default) set_num_threads does not reach, and at batch 1 on
+// a busy machine its hand-offs cost more than the layers.
+void use_threads(int threads) {
+  if (torch::get_num_threads() != threads) torch::set_num_threads(threads);
+  using SetThreads = void (*)(int);
+  if (auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) {
+    set(threads);
+  }
+}
+
+}  // namespace
+
 Status TorchRunner::prepare(std::span<const double> field_ut, int batch) {
   const ModelMeta& m = impl_->meta;
   if (batch <= 0 || field_ut.size() != static_cast<std::size_t>(batch) * m.channels()) {
     return make_error(ErrorCode::kInvalidArgument, "field_ut must hold batch x channels values");
   }
   Result<bool> done = guarded("LibTorch", [&]() -> Result<bool> {
-    if (torch::get_num_threads() != impl_->threads) torch::set_num_threads(impl_->threads);
-    // LibTorch's linear layers run in OpenBLAS, whose own thread pool (one thread per core by
-    // default) set_num_threads does not reach: at batch 1 on a busy machine its hand-offs cost
-    // more than the layers.
-    using SetThreads = void (*)(int);
-    if (auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) {
-      set(impl_->threads);
-    }
+    use_threads(impl_->threads);
     c10::InferenceMode inference;
     impl_->prepared = impl_->net->grid_input(normalised_inputs(m, field_ut, batch));
     return true;
@@ -924,6 +932,8 @@ Status TorchRunner::prepare(std::span<const double> field_ut, int batch) {
 double TorchRunner::forward_prepared() {
   if (!impl_->prepared.defined()) return std::nan("");
   Result<double> y = guarded("LibTorch", [&]() -> Result<double> {
+    // Runners of other thread counts may have run since prepare() (interleaved timings).
+    if (torch::get_num_threads() != impl_->threads) use_threads(impl_->threads);
     c10::InferenceMode inference;
     return impl_->net->layers(impl_->prepared).data_ptr<float>()[0];
   });
