@@ -29,6 +29,11 @@
 #                        on the unit as the host runs them (skinbus-evaluate; with the correction
 #                        too, on HELD.csv) next to the unit's bound at the same presses
 #   skin_map_entry.yaml  the entry for the skin map (position and orientation: skinbus-calibrate)
+# A unit the design's model class cannot explain (skinbus-identify refuses it, naming why: the
+# design file is not the patch, or its physics lie too far outside the class) takes the network
+# route instead: no unit.json and no correction; the network is trained (fine-tuned) on the
+# unit's own presses, measured on HELD.csv when given, and the entry names the network alone
+# (skinbus-host then publishes the network's contacts, unrefined). The report says so.
 # Progress: one line per step on standard error; each tool's own progress in its log.
 # Exit status: 0 done, 1 a step failed (its log says why), 2 bad arguments.
 set -euo pipefail
@@ -51,7 +56,7 @@ while (($#)); do
     --epochs) epochs=${2:?}; shift 2 ;;
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
-    -h | --help) sed -n '2,33p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,38p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -72,23 +77,42 @@ failed() { echo "calibrate_unit: $1 failed; see $2" >&2; exit 1; }
 step 1 "identifying the unit's physics from $presses"
 held_opt=()
 [[ -n $held ]] && held_opt=(--held-out "$held")
-"$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "${held_opt[@]}" \
-  >"$out/identify.log" 2>&1 || failed "identification" "$out/identify.log"
+rm -f "$out/unit.json" "$out/correction.json" "$out/evaluate.log" "$out/evaluate_corrected.log"
+# A unit the design's model class cannot explain (identification refuses it, naming why) is
+# calibrated by the network route instead: the unit's network trained on its own presses, no
+# unit file, and so no physics refinement in the host.
+network_route=0
+if ! "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "${held_opt[@]}" \
+  >"$out/identify.log" 2>&1; then
+  grep -q "not_converged" "$out/identify.log" || failed "identification" "$out/identify.log"
+  network_route=1
+  grep -o "not_converged: .*" "$out/identify.log" | cut -c1-400 >&2 || true
+  echo "calibrate_unit: identification refused this unit: the network route instead (the" \
+    "unit's network trained on its own presses; no unit file, no physics refinement)" >&2
+fi
 grep -i "residual\|note:" "$out/identify.log" | head -4 >&2 || true
 
-step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8 Hz)"
-"$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 --unit "$out/unit.json" \
-  "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
-  failed "the synthetic presses" "$out/dataset.log"
-"$bin/skinbus-dataset" --plan random-test --count 500 --seed 7 --unit "$out/unit.json" \
-  "${design_opt[@]}" -o "$out/synthetic_test.csv" >>"$out/dataset.log" 2>&1 ||
-  failed "the synthetic test presses" "$out/dataset.log"
+if ((network_route)); then
+  step 2 "no presses simulated: no identified unit to simulate"
+  train_set=$presses
+  test_set=$held
+else
+  step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8 Hz)"
+  "$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 --unit "$out/unit.json" \
+    "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
+    failed "the synthetic presses" "$out/dataset.log"
+  "$bin/skinbus-dataset" --plan random-test --count 500 --seed 7 --unit "$out/unit.json" \
+    "${design_opt[@]}" -o "$out/synthetic_test.csv" >>"$out/dataset.log" 2>&1 ||
+    failed "the synthetic test presses" "$out/dataset.log"
+  train_set=$out/synthetic.csv
+  test_set=${held:-$out/synthetic_test.csv}
+fi
 
 # The shipped network reads the built-in design's 16 sensors: a patch with another count trains
 # from scratch (a --base given by hand is used as given, and skinbus-train names a mismatch).
 if [[ $base_given == 0 ]]; then
   base_sensors=$(python3 -c 'import json, sys; print(len(json.load(open(sys.argv[1] + ".json"))["sensors_uvh_mm"]))' "$base" 2>/dev/null || true)
-  unit_sensors=$(sed -n 's/^# sensors: \([0-9]*\).*/\1/p' "$out/synthetic.csv" | head -1)
+  unit_sensors=$(sed -n 's/^# sensors: \([0-9]*\).*/\1/p' "$train_set" | head -1)
   if [[ -n $base_sensors && $base_sensors != "$unit_sensors" ]]; then
     echo "calibrate_unit: the shipped network reads $base_sensors sensors, this patch has" \
       "${unit_sensors:-?}: training from scratch (--base none)" >&2
@@ -97,13 +121,16 @@ if [[ $base_given == 0 ]]; then
 fi
 from="from $(basename "$base")"
 [[ $base == none ]] && from="from scratch"
-step 3 "training the unit's network ($epochs epochs at most, $from)"
-test_set=${held:-$out/synthetic_test.csv}
+on="simulated presses of the identified unit"
+((network_route)) && on="the unit's own presses"
+step 3 "training the unit's network on $on ($epochs epochs at most, $from)"
 base_opt=()
 # Fine-tuning starts from a trained network: a smaller step than training from scratch.
 [[ -n $base && $base != none ]] && base_opt=(--base "$base" --lr 3e-4)
+test_opt=()
+[[ -n $test_set ]] && test_opt=(--test "$test_set")
 train() {
-  "$bin/skinbus-train" "$out/synthetic.csv" -o "$out/network" --test "$test_set" \
+  "$bin/skinbus-train" "$train_set" -o "$out/network" "${test_opt[@]}" \
     --epochs "$epochs" "$@" >"$out/train.log" 2>&1
 }
 if ! train "${base_opt[@]}"; then
@@ -114,30 +141,37 @@ if ! train "${base_opt[@]}"; then
 fi
 tail -1 "$out/train.log" >&2
 
-step 4 "learning what the unit's model misses from its presses (kept if it helps held-out ones)"
-rm -f "$out/correction.json"
-"$bin/skinbus-evaluate" "$presses" --model "$out/network" --unit "$out/unit.json" \
-  "${design_opt[@]}" --fit-correction "$out/correction.json" >"$out/correction.log" 2>&1 ||
-  failed "the learned correction" "$out/correction.log"
-grep "^Learned correction" "$out/correction.log" >&2 || true
+if ((network_route)); then
+  step 4 "no learned correction: it corrects an identified unit's refined estimates"
+  echo "The network route: no identified unit, so no correction of its refined estimates." \
+    >"$out/correction.log"
+else
+  step 4 "learning what the unit's model misses from its presses (kept if it helps held-out ones)"
+  "$bin/skinbus-evaluate" "$presses" --model "$out/network" --unit "$out/unit.json" \
+    "${design_opt[@]}" --fit-correction "$out/correction.json" >"$out/correction.log" 2>&1 ||
+    failed "the learned correction" "$out/correction.log"
+  grep "^Learned correction" "$out/correction.log" >&2 || true
+fi
 
 step 5 "writing the report and the skin-map entry"
 "$bin/skinbus-crlb" --depths 1.5 2.5 3.5 --ambient "${design_opt[@]}" >"$out/crlb.log" 2>&1 ||
   failed "the Cramer-Rao bound" "$out/crlb.log"
 # The network refined on the unit, as the host runs them, on the same presses.
-"$bin/skinbus-evaluate" "$test_set" --model "$out/network" --unit "$out/unit.json" \
-  "${design_opt[@]}" >"$out/evaluate.log" 2>&1 || failed "the evaluation" "$out/evaluate.log"
+if ((!network_route)); then
+  "$bin/skinbus-evaluate" "$test_set" --model "$out/network" --unit "$out/unit.json" \
+    "${design_opt[@]}" >"$out/evaluate.log" 2>&1 || failed "the evaluation" "$out/evaluate.log"
+fi
 # With held-out lab presses and a correction, the same refined on the unit and corrected (on
 # simulated presses of the identified unit a correction of what the model misses means nothing).
-rm -f "$out/evaluate_corrected.log"
 if [[ -n $held && -f $out/correction.json ]]; then
   "$bin/skinbus-evaluate" "$test_set" --model "$out/network" --unit "$out/unit.json" \
     "${design_opt[@]}" --correction "$out/correction.json" >"$out/evaluate_corrected.log" 2>&1 ||
     failed "the corrected evaluation" "$out/evaluate_corrected.log"
 fi
-python3 - "$out" "$presses" "$test_set" "${held:+held-out lab presses}" <<'PY'
+python3 - "$out" "$presses" "$test_set" "${held:+held-out lab presses}" "$network_route" <<'PY'
 import json, os, re, sys
-out, presses, test_set, held = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4]
+out, presses, test_set, held, network_route = sys.argv[1:6]
+network_route = network_route == "1"
 meta = json.load(open(f"{out}/network.json"))
 metrics = meta.get("metrics", meta.get("meta", {}).get("metrics", {}))
 bound = {}
@@ -159,8 +193,17 @@ with open(f"{out}/report.md", "w") as f:
     f.write("## Identification (skinbus-identify)\n\n```\n" + "\n".join(ident[-12:]) + "\n```\n\n")
     f.write("A residual near 1 noise unit: the model explains the unit to its noise; clearly above"
             " (> 1.1): the unit has physics the model class lacks.\n\n")
-    f.write(f"## The unit's network on {held or 'simulated test presses of the identified unit'}"
-            f" ({test_set})\n\n")
+    if network_route:
+        f.write("**Identification refused this unit** (above): the design's model class does not "
+                "explain its presses, so there is no unit file and skinbus-host will not refine "
+                "its contacts. The network route instead: the unit's network, trained on the "
+                f"unit's own presses ({presses}). Check the design file against the patch; a "
+                "unit the class explains is calibrated better (refined on the identified "
+                "unit).\n\n")
+    tested_on = held or ("simulated test presses of the identified unit" if not network_route
+                         else "no presses it was not trained on: give --held-out to measure it")
+    f.write(f"## The unit's network on {tested_on}" + (f" ({test_set})" if test_set else "")
+            + "\n\n")
     f.write("| depth (mm) | XY mean (mm) | design's CRLB, map mean (mm) | x CRLB | depth mean (mm) |\n")
     f.write("|---|---:|---:|---:|---:|\n" + "\n".join(rows) + "\n\n")
     f.write(f"Overall: XY mean {metrics.get('test_xy_mean_mm', float('nan')):.3f} mm, depth mean "
@@ -169,9 +212,11 @@ with open(f"{out}/report.md", "w") as f:
             ", not at the test presses themselves.\n\n")
     f.write(f"## The learned correction ({presses})\n\n")
     f.write("".join(l for l in open(f"{out}/correction.log")
-                    if l.startswith(("Learned", "Written", "It helps"))) + "\n")
-    f.write(f"## The network refined on the unit, as skinbus-host runs them ({test_set})\n\n")
-    f.write(open(f"{out}/evaluate.log").read() + "\n")
+                    if l.startswith(("Learned", "Written", "It helps", "The network route")))
+            + "\n")
+    if os.path.exists(f"{out}/evaluate.log"):
+        f.write(f"## The network refined on the unit, as skinbus-host runs them ({test_set})\n\n")
+        f.write(open(f"{out}/evaluate.log").read() + "\n")
     if os.path.exists(f"{out}/evaluate_corrected.log"):
         f.write(f"## The same, corrected by the learned correction ({test_set})\n\n")
         f.write(open(f"{out}/evaluate_corrected.log").read() + "\n")
@@ -186,8 +231,10 @@ uid_line=""
   echo "    link: $link"
   echo "    position_mm: [0, 0, 0]     # where the patch sits on its link: skinbus-calibrate"
   echo "    model: $(realpath "$out")/network"
-  echo "    unit: $(realpath "$out")/unit.json"
-  printf '%s' "$design_line"
+  if ((!network_route)); then
+    echo "    unit: $(realpath "$out")/unit.json"
+    printf '%s' "$design_line"
+  fi
   [[ -f $out/correction.json ]] && echo "    correction: $(realpath "$out")/correction.json"
 } >"$out/skin_map_entry.yaml"
 echo "calibrate_unit: done: $out/report.md, $out/skin_map_entry.yaml" >&2
