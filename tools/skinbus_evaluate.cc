@@ -171,6 +171,9 @@ int main(int argc, char** argv) {
     for (const auto& [degree, t] : choice->tried) {
       std::fprintf(stderr, "%s: %s\n", kTool, t.held_out_text(degree).c_str());
     }
+    for (const auto& [degree, why] : choice->skipped) {
+      std::fprintf(stderr, "%s: degree %d not judged: %s\n", kTool, degree, why.c_str());
+    }
     std::printf(
         "Learned correction, judged on held-out presses (%d estimates >= %.1f mm deep), "
         "%s: %s.\n",

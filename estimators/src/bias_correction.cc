@@ -398,14 +398,20 @@ Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEst
   Choice best;
   // The degree of each part where it helps most; -1 where it helps at no degree.
   int position_at = -1, depth_at = -1;
+  std::optional<Error> too_few;  // the first degree the samples could not fit
   for (std::size_t k = 0; k < degrees_uv.size(); ++k) {
     BiasCorrectionOptions o = base;
     o.degree_uv = degrees_uv[k];
     o.depth_degree_uv = -1;
     Result<CorrectionCheck> c = cross_validate(estimates, true_u_mm, true_v_mm, true_depth_mm, o);
+    if (!c.ok() && c.error().code == ErrorCode::kDegenerate) {
+      best.skipped.emplace_back(degrees_uv[k], c.error().message);
+      if (!too_few) too_few = c.error();
+      continue;
+    }
     if (!c.ok()) return c.error();
     best.tried.emplace_back(degrees_uv[k], c.value());
-    const auto at = static_cast<int>(k);
+    const auto at = static_cast<int>(best.tried.size()) - 1;
     if (c->helps_position() &&
         (position_at < 0 || c->xy_ratio() < best.tried[position_at].second.xy_ratio())) {
       position_at = at;
@@ -415,12 +421,13 @@ Result<BiasCorrection::Choice> BiasCorrection::choose(std::span<const ContactEst
       depth_at = at;
     }
   }
+  if (best.tried.empty()) return *too_few;
   // The position's degree leads; a depth at the same degree needs no degree of its own.
   const int lead = position_at >= 0 ? position_at : std::max(depth_at, 0);
   best.options = base;
-  best.options.degree_uv = degrees_uv[static_cast<std::size_t>(lead)];
+  best.options.degree_uv = best.tried[static_cast<std::size_t>(lead)].first;
   best.options.depth_degree_uv =
-      depth_at >= 0 && depth_at != lead ? degrees_uv[static_cast<std::size_t>(depth_at)] : -1;
+      depth_at >= 0 && depth_at != lead ? best.tried[static_cast<std::size_t>(depth_at)].first : -1;
   best.options.correct_position = position_at >= 0;
   best.options.correct_depth = depth_at >= 0;
   // The parts are fitted apart: the position's held-out errors at its degree and the depth's at

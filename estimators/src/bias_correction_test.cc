@@ -66,6 +66,30 @@ double mean_xy(const Samples& s, const BiasCorrection* c, double min_depth) {
   return sum / n;
 }
 
+// Samples enough for a low degree but not for a high one: the high degree is left out, named, and
+// the choice made among the others; with too few for any degree, the lowest's error.
+TEST(BiasCorrection, ADegreeTheSamplesCannotFitIsLeftOut) {
+  BiasCorrectionOptions o;
+  o.half_u_mm = o.half_v_mm = 65;
+  const Samples s = make(1500, kSeed, 0.2);
+  o.degree_uv = 12;
+  ASSERT_EQ(BiasCorrection::cross_validate(s.est, s.u, s.v, s.d, o).error().code,
+            ErrorCode::kDegenerate);
+  const int degrees[] = {4, 12};
+  Result<BiasCorrection::Choice> c = BiasCorrection::choose(s.est, s.u, s.v, s.d, o, degrees);
+  ASSERT_TRUE(c.ok()) << c.error().to_string();
+  ASSERT_EQ(c->tried.size(), 1u);
+  EXPECT_EQ(c->tried[0].first, 4);
+  ASSERT_EQ(c->skipped.size(), 1u);
+  EXPECT_EQ(c->skipped[0].first, 12);
+  EXPECT_NE(c->skipped[0].second.find("usable samples"), std::string::npos);
+  EXPECT_EQ(c->options.degree_uv, 4);
+  EXPECT_TRUE(c->options.correct_position) << "the bias is there to learn at degree 4";
+  const Samples few = make(30, kSeed, 0.2);
+  EXPECT_EQ(BiasCorrection::choose(few.est, few.u, few.v, few.d, o, degrees).error().code,
+            ErrorCode::kDegenerate);
+}
+
 TEST(BiasCorrection, LearnsASmoothBiasAndRemovesItOnNewSamples) {
   std::printf("seed %llu\n", static_cast<unsigned long long>(kSeed));
   const Samples train = make(8000, kSeed, 0.2), test = make(2000, kSeed + 1, 0.2);

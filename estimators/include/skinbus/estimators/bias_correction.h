@@ -143,7 +143,9 @@ class BiasCorrection {
   // the degree where it helps them most (the lowest depth_ratio()), each only if it helps at all
   // (CorrectionCheck::helps_position(), helps_depth()); neither: use no correction. The two are
   // fitted apart, so each one's held-out error at its degree is what it will have together.
-  // Errors: as cross_validate(). Cost: that, per degree.
+  // A degree with more terms than the samples can fit (cross_validate()'s kDegenerate) is left
+  // out and listed in `skipped`; the others are chosen from. Errors: as cross_validate(), and its
+  // kDegenerate when no degree can be fitted. Cost: that, per degree.
   struct Choice {
     BiasCorrectionOptions options;  // the degrees chosen (degree_uv: the position's, unless only
                                     // the depth is corrected) and what to correct
@@ -151,6 +153,7 @@ class BiasCorrection {
     // and at the places) at the depth's.
     CorrectionCheck check;
     std::vector<std::pair<int, CorrectionCheck>> tried;  // every degree's check, in order
+    std::vector<std::pair<int, std::string>> skipped;    // degrees too many terms for, and why
     bool any() const { return options.correct_position || options.correct_depth; }
     // "degree D", or "degree P (position), D (depth)" when the depth has its own, for a log.
     std::string degree_text() const;
