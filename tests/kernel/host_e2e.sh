@@ -17,11 +17,11 @@ e2e_begin host_e2e "${1:-}"
 ip link set lo up 2>/dev/null || true
 
 make_skin_map map.yaml
-# The presses begin 2 s after each daemon starts. With presses at 0.8-1 s, two runs on a loaded
-# machine placed node 2's contacts 42 mm from its press: what a press held through the whole
-# baseline capture gives (its release reads as a touch; 39-43 mm in a native replay whose press
-# lands with the daemon's first reading), which no patch can tell from its rest field
-# (patch_fw/gate.h). A guest starved of CPU can begin sampling that late.
+# The presses begin 2 s after each daemon starts. With presses at 0.8-1 s, two full VM runs
+# placed node 2's contacts 42 mm from its press: what a press held through the whole baseline
+# capture gives (its release reads as a touch; 39-43 mm in a native replay whose press lands with
+# the daemon's first reading), which no patch can tell from its rest field (patch_fw/gate.h). That
+# a starved guest began sampling that late is the likely cause, not one observed directly.
 cat >presses.csv <<'CSV'
 # t_start_s,t_end_s,u_mm,v_mm,depth_mm,tip_radius_mm,node
 2.0,6.0,10,-20,2.0,5,1
