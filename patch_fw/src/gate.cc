@@ -44,6 +44,15 @@ void ContactGate::restart_capture() {
   tare_count_.fill(0);
 }
 
+void ContactGate::finish_capture() {
+  tare_left_ = 0;
+  for (int i = 0; i < kN; ++i) {
+    if (tare_count_[i] == 0) continue;
+    for (int a = 0; a < 3; ++a) baseline_[3 * i + a] = tare_sum_[3 * i + a] / tare_count_[i];
+    based_ = static_cast<uint16_t>(based_ | 1u << i);
+  }
+}
+
 double ContactGate::capture_change_ut(const ArraySample& s, uint16_t healthy) const {
   // Each sensor's reading against its capture mean so far, the change common to all sensors (the
   // per-axis median) removed: the gate's score, with the capture as the baseline.
@@ -86,44 +95,36 @@ void ContactGate::update(const ArraySample& s, GateOutput* out) {
   out->tared_ut.fill(0);
 
   out->tare_changed_ut = 0;
-  if (tare_left_ > 0) {
+  if (tare_left_ > 0 && tare_taken_ > 0) {
     // A capture takes only a steady field: a reading the gate would call a touch against the
     // capture so far stops it. With kTareMinSamples or more behind it, what came before is the
     // baseline and this reading is gated below (a press that landed during the capture); with
     // fewer, the capture starts again from this reading.
-    const double change = tare_taken_ > 0 ? capture_change_ut(s, healthy) : 0.0;
-    bool ended_early = false;
+    const double change = capture_change_ut(s, healthy);
     if (change > config_.on_threshold_ut) {
       out->tare_changed_ut = change;
-      ended_early = tare_taken_ >= std::min(kTareMinSamples, std::max(config_.tare_samples, 1));
-      if (!ended_early) restart_capture();
-    }
-    if (!ended_early) {
-      ++tare_taken_;
-      for (int i = 0; i < kN; ++i) {
-        if (!(healthy & (1u << i))) continue;
-        for (int a = 0; a < 3; ++a) tare_sum_[3 * i + a] += s.field_ut[3 * i + a];
-        ++tare_count_[i];
-      }
-      --tare_left_;
-    }
-    if (ended_early || tare_left_ == 0) {
-      tare_left_ = 0;
-      for (int i = 0; i < kN; ++i) {
-        if (tare_count_[i] == 0) continue;
-        for (int a = 0; a < 3; ++a) baseline_[3 * i + a] = tare_sum_[3 * i + a] / tare_count_[i];
-        based_ = static_cast<uint16_t>(based_ | 1u << i);
+      if (tare_taken_ >= std::min(kTareMinSamples, std::max(config_.tare_samples, 1))) {
+        finish_capture();
+      } else {
+        restart_capture();
       }
     }
-    if (!ended_early) {
-      out->tare_active = tare_left_ > 0;
-      out->contact = false;
-      out->tared = tare_left_ == 0 && based_ != 0;
-      out->score_ut = 0;
-      out->rms_ut = 0;
-      out->unbased_mask = static_cast<uint16_t>(~based_);
-      return;
+  }
+  if (tare_left_ > 0) {
+    ++tare_taken_;
+    for (int i = 0; i < kN; ++i) {
+      if (!(healthy & (1u << i))) continue;
+      for (int a = 0; a < 3; ++a) tare_sum_[3 * i + a] += s.field_ut[3 * i + a];
+      ++tare_count_[i];
     }
+    if (--tare_left_ == 0) finish_capture();
+    out->tare_active = tare_left_ > 0;
+    out->contact = false;
+    out->tared = tare_left_ == 0 && based_ != 0;
+    out->score_ut = 0;
+    out->rms_ut = 0;
+    out->unbased_mask = static_cast<uint16_t>(~based_);
+    return;
   }
   out->tare_active = false;
 

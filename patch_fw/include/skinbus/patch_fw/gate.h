@@ -96,6 +96,8 @@ class ContactGate {
   int tare_taken_ = 0;  // samples in the capture so far
 
   void restart_capture();
+  // Ends the capture: the mean of its readings is the baseline of every sensor it has.
+  void finish_capture();
   // The largest sensor change of `s` against the capture's mean so far (uT, common mode removed).
   double capture_change_ut(const ArraySample& s, uint16_t healthy) const;
   bool contact_ = false;
