@@ -9,7 +9,7 @@
 # in 3D to a web browser (http://localhost:8080/ while the demo runs; docs/view.md).
 #
 #   scripts/demo.sh [--duration SECONDS] [--headless] [--out DIR] [--no-setup] [--view-port P]
-#                   [--no-calibrate]
+#                   [--no-calibrate] [--start-when FILE]
 #
 # On a kernel with vcan (and the right to create it) the patches send on real SocketCAN; elsewhere
 # they send the same frames, in candump -L form, through a pipe to the host, and the demo says so.
@@ -19,6 +19,9 @@
 #   --view-port  the web view's port (default 8080; 0: any free port; off: no web view)
 #   --no-calibrate  skip identifying the two chest patches' units (tens of seconds on a host
 #                core, far longer on an emulated CPU): every patch runs the shipped network alone
+#   --start-when FILE  start the host and the touches only once FILE exists, so that a program
+#                driving the web view sees the scene from its first press (it creates FILE when
+#                its page is up); the web view then serves until the demo ends
 set -euo pipefail
 cd "$(dirname "$0")/.."
 src=$PWD
@@ -28,6 +31,7 @@ setup=1
 out=out/demo
 view_port=${SKINBUS_VIEW_PORT:-8080}
 calibrate=1
+start_when=
 while (($#)); do
   case $1 in
     --duration) duration=$2; shift 2 ;;
@@ -36,7 +40,8 @@ while (($#)); do
     --no-setup) setup=0; shift ;;
     --view-port) view_port=$2; shift 2 ;;
     --no-calibrate) calibrate=0; shift ;;
-    -h|--help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --start-when) start_when=$2; shift 2 ;;
+    -h|--help) sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -140,8 +145,11 @@ if [[ $view_port != off ]]; then
     mkfifo "$view_fifo"
     view_bus=(--candump "$view_fifo")
   fi
+  # (Until the demo ends when the touches wait for FILE: how long that takes is not known here.)
+  view_s=$((duration + 4))
+  [[ -n $start_when ]] && view_s=0
   "$bin/skinbus-view" --map "$out/skin.yaml" --domain "$domain" --port "$view_port" \
-    "${view_bus[@]}" --duration $((duration + 4)) >"$out/view.log" 2>&1 &
+    "${view_bus[@]}" --duration $view_s >"$out/view.log" 2>&1 &
   pids+=($!)
   wait_for_line 'http://' "$out/view.log" "${pids[-1]}" 50
   view_url=$(grep -o 'http://[^ ]*' "$out/view.log" 2>/dev/null | head -1) || true
@@ -153,6 +161,15 @@ if [[ $view_port != off ]]; then
   else
     echo "== no web view: $(tail -1 "$out/view.log" 2>/dev/null) (see $out/view.log)"
   fi
+fi
+
+if [[ -n $start_when ]]; then
+  echo "== the host and the touches start once $start_when exists"
+  for ((n = 0; n < 1200; n++)); do
+    [[ -e $start_when ]] && break
+    sleep 0.1
+  done
+  [[ -e $start_when ]] || { echo "demo: $start_when did not appear within 120 s" >&2; exit 1; }
 fi
 
 # Subscribers first: a separate process records every contact array (JSON lines) for the record.

@@ -455,6 +455,37 @@ function updateContacts(msg) {
     if (selection?.contact === view) selectionMarker.removeFromParent();
   }
   if (selection?.contact) markDetailsDirty();
+  if (contactRecording) recordContacts();
+}
+
+// For tests (window.skinbusView.record()): the contacts the scene holds after each contacts
+// message, so that a reader polling the page under load still sees every instant.
+let contactRecording = null;   // { snapshots: [[contact summary]], max, dropped } or null
+
+function contactSummaries() {
+  const round = (v) => v.map((x) => Math.round(x * 1000) / 1000);
+  return [...contactViews.values()].map((v) => ({
+    track_id: v.data.track_id,
+    node: v.data.node,
+    stamp_us: v.stampUs,
+    depth_mm: v.data.depth_mm,
+    u_mm: v.data.u_mm,
+    v_mm: v.data.v_mm,
+    position_base_mm: round(v.positionBaseMm()),
+    shear_n: v.data.shear_n ?? null,
+    flags: v.data.flags ?? [],
+    shear_arrow_base: v.shearArrowBase(),
+  }));
+}
+
+function recordContacts() {
+  const r = contactRecording;
+  contactsGroup.updateWorldMatrix(true, true);  // the spheres and arrows as the next frame draws them
+  if (r.snapshots.length >= r.max) {
+    r.snapshots.shift();
+    r.dropped++;
+  }
+  r.snapshots.push(contactSummaries());
 }
 
 function fadeTrails(now) {
@@ -966,6 +997,20 @@ window.skinbusView = {
     const grid = document.getElementById('sensor-grid');
     return grid ? Number(grid.dataset.maxUt) : null;
   },
+  // Starts keeping what the scene holds after every contacts message (at most maxSnapshots, the
+  // oldest dropped first): takeRecorded() returns them.
+  record(maxSnapshots) {
+    contactRecording = { snapshots: [], max: Math.max(1, maxSnapshots), dropped: 0 };
+  },
+  // The contacts of every contacts message since the last call, each as summary().contacts reads
+  // them, and how many were dropped to the bound; null when not recording.
+  takeRecorded() {
+    if (!contactRecording) return null;
+    const { snapshots, dropped } = contactRecording;
+    contactRecording.snapshots = [];
+    contactRecording.dropped = 0;
+    return { snapshots, dropped };
+  },
   // What the page shows, read back from its scene graph: patch centres through the page's own
   // link transforms and contact positions from the spheres' world positions, both in the base
   // frame in mm.
@@ -983,21 +1028,10 @@ window.skinbusView = {
         drawn: v.mesh !== null,
         centre_base_mm: v.mesh ? round(v.centreBaseMm()) : null,
       })),
-      contacts: [...contactViews.values()].map((v) => ({
-        track_id: v.data.track_id,
-        node: v.data.node,
-        stamp_us: v.stampUs,
-        depth_mm: v.data.depth_mm,
-        u_mm: v.data.u_mm,
-        v_mm: v.data.v_mm,
-        position_base_mm: round(v.positionBaseMm()),
-        shear_n: v.data.shear_n ?? null,
-        flags: v.data.flags ?? [],
-        shear_arrow_base: v.shearArrowBase(),
-      })),
-      // node -> the largest field change (uT) of its latest `fields` message
+      contacts: contactSummaries(),
       read_only: stream.readOnly !== false,
       command_results: commandResults.map((r) => ({ ...r })),
+      // node -> the largest field change (uT) of its latest `fields` message
       fields: Object.fromEntries([...fieldsByNode].map(([node, f]) => [node, f.max_ut])),
       messages: { ...messageCounts },
       handling_ms: { ...handlingMs },
