@@ -6,12 +6,14 @@
 #
 #   scripts/calibrate_unit.sh PRESSES.csv -o OUT [--held-out HELD.csv] [--design DESIGN.yaml]
 #       [--node N] [--uid UID] [--link LINK] [--epochs N] [--synthetic N] [--base MODEL]
+#       [--max-residual R]
 #
 # PRESSES.csv: the unit's presses at known places and depths (docs/dataset_format.md), e.g. the
 # seed's 19 x 19 grid of ramps by an indentation robot (361 presses). HELD.csv: other presses of
 # the same unit, not fitted, on which both are measured (default: none; the network is then
 # measured on simulated presses of the identified unit). DESIGN.yaml: the patch's design file
-# (docs/design_file.md; default: the built-in design). Writes into OUT:
+# (docs/design_file.md; default: the built-in design). R: identification refuses a fit leaving
+# more than this residual, noise units (skinbus-identify's --max-residual, 4). Writes into OUT:
 #   unit.json            the identified unit (skinbus-identify)
 #   identify.log         its fit: residuals in noise units, overall and per depth bin
 #   network.safetensors  the unit's network (skinbus-train: fine-tuned from --base, the shipped
@@ -31,19 +33,23 @@
 #   skin_map_entry.yaml  the entry for the skin map (position and orientation: skinbus-calibrate)
 # A unit the design's model class cannot explain (skinbus-identify refuses it, naming why: the
 # design file is not the patch, or its physics lie too far outside the class) takes the network
-# route instead: no unit.json and no correction; the network is trained (fine-tuned) on the
-# unit's own presses, measured on HELD.csv when given, and the entry names the network alone
-# (skinbus-host then publishes the network's contacts, unrefined). The report says so.
+# route instead: no unit.json and no correction; the network is trained on --synthetic
+# simulated presses of the refused fit when identification made one (refused_fit.json: the
+# class's nearest model of the unit, never refined on; none when a global ran to its bound),
+# then fine-tuned on the unit's own presses, measured on HELD.csv when given,
+# and the entry names the network alone (skinbus-host then publishes the network's contacts,
+# unrefined). The report says so.
 # Progress: one line per step on standard error; each tool's own progress in its log.
 # Exit status: 0 done, 1 a step failed (its log says why), 2 bad arguments.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 bin=${SKINBUS_BIN:-$root/build/tools}
 usage() {
-  sed -n '6,8p' "$0" | sed 's/^# //' >&2
+  sed -n '6,9p' "$0" | sed 's/^# //' >&2
   exit 2
 }
 presses="" out="" held="" design="" node=1 uid="" link="LINK" epochs=30 synthetic=2000 base_given=0
+max_residual=()
 base=$root/estimators/models/nominal_seed_cnn
 while (($#)); do
   case $1 in
@@ -56,7 +62,8 @@ while (($#)); do
     --epochs) epochs=${2:?}; shift 2 ;;
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
-    -h | --help) sed -n '2,38p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
+    -h | --help) sed -n '2,43p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -77,25 +84,34 @@ failed() { echo "calibrate_unit: $1 failed; see $2" >&2; exit 1; }
 step 1 "identifying the unit's physics from $presses"
 held_opt=()
 [[ -n $held ]] && held_opt=(--held-out "$held")
-rm -f "$out/unit.json" "$out/correction.json" "$out/evaluate.log" "$out/evaluate_corrected.log"
+rm -f "$out/unit.json" "$out/refused_fit.json" "$out/correction.json" "$out/evaluate.log" \
+  "$out/evaluate_corrected.log" "$out/network_refused_fit".*
 # A unit the design's model class cannot explain (identification refuses it, naming why) is
-# calibrated by the network route instead: the unit's network trained on its own presses, no
-# unit file, and so no physics refinement in the host.
+# calibrated by the network route instead: the unit's network trained on its own presses (after
+# the refused fit's simulated ones), no unit file, and so no physics refinement in the host.
 network_route=0
 if ! "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "${held_opt[@]}" \
-  >"$out/identify.log" 2>&1; then
+  "${max_residual[@]}" --refused-out "$out/refused_fit.json" >"$out/identify.log" 2>&1; then
   grep -q "not_converged" "$out/identify.log" || failed "identification" "$out/identify.log"
   network_route=1
   grep -o "not_converged: .*" "$out/identify.log" | cut -c1-400 >&2 || true
   echo "calibrate_unit: identification refused this unit: the network route instead (the" \
-    "unit's network trained on its own presses; no unit file, no physics refinement)" >&2
+    "unit's network trained on its own presses$([[ -f $out/refused_fit.json ]] &&
+      echo ", after the refused fit's simulated ones"); no unit file, no physics refinement)" >&2
 fi
 grep -i "residual\|note:" "$out/identify.log" | head -4 >&2 || true
 
 if ((network_route)); then
-  step 2 "no presses simulated: no identified unit to simulate"
   train_set=$presses
   test_set=$held
+  if [[ -f $out/refused_fit.json ]]; then
+    step 2 "simulating $synthetic presses of the refused fit (the class's nearest model of the unit, to start its network from; never refined on)"
+    "$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 \
+      --unit "$out/refused_fit.json" "${design_opt[@]}" -o "$out/synthetic.csv" \
+      >"$out/dataset.log" 2>&1 || failed "the synthetic presses" "$out/dataset.log"
+  else
+    step 2 "no presses simulated: identification kept no fit to simulate"
+  fi
 else
   step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8 Hz)"
   "$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 --unit "$out/unit.json" \
@@ -123,23 +139,41 @@ from="from $(basename "$base")"
 [[ $base == none ]] && from="from scratch"
 on="simulated presses of the identified unit"
 ((network_route)) && on="the unit's own presses"
+((network_route)) && [[ -f $out/synthetic.csv ]] && on="the refused fit's simulated presses"
 step 3 "training the unit's network on $on ($epochs epochs at most, $from)"
 base_opt=()
 # Fine-tuning starts from a trained network: a smaller step than training from scratch.
 [[ -n $base && $base != none ]] && base_opt=(--base "$base" --lr 3e-4)
 test_opt=()
 [[ -n $test_set ]] && test_opt=(--test "$test_set")
-train() {
-  "$bin/skinbus-train" "$train_set" -o "$out/network" "${test_opt[@]}" \
-    --epochs "$epochs" "$@" >"$out/train.log" 2>&1
+train() {  # DATASET OUTPUT LOG [skinbus-train options...]
+  local data=$1 output=$2 log=$3
+  shift 3
+  "$bin/skinbus-train" "$data" -o "$output" "${test_opt[@]}" --epochs "$epochs" "$@" \
+    >"$log" 2>&1
 }
-if ! train "${base_opt[@]}"; then
-  # The seed CNN places each sensor in a grid cell; sensors that form no grid need the MLP.
-  grep -q "use an MLP" "$out/train.log" || failed "training" "$out/train.log"
-  echo "calibrate_unit: the sensors do not form a grid: training an MLP instead (--arch mlp)" >&2
-  train --arch mlp || failed "training" "$out/train.log"
+train_or_mlp() {  # DATASET OUTPUT LOG [skinbus-train options...]
+  if ! train "$@"; then
+    # The seed CNN places each sensor in a grid cell; sensors that form no grid need the MLP.
+    grep -q "use an MLP" "$3" || failed "training" "$3"
+    echo "calibrate_unit: the sensors do not form a grid: training an MLP instead (--arch mlp)" >&2
+    train "$1" "$2" "$3" --arch mlp || failed "training" "$3"
+  fi
+  tail -1 "$3" >&2
+}
+if ((network_route)) && [[ -f $out/synthetic.csv ]]; then
+  # First the refused fit's presses (what the class gets right of the unit), then the unit's own
+  # from that network (what it gets wrong): each keeps its best epoch on its validation split.
+  train_or_mlp "$out/synthetic.csv" "$out/network_refused_fit" "$out/train_refused_fit.log" \
+    "${base_opt[@]}"
+  echo "calibrate_unit: [3/5] ... then on the unit's own presses, from that network" \
+    "($epochs epochs at most)" >&2
+  train "$train_set" "$out/network" "$out/train.log" --base "$out/network_refused_fit" \
+    --lr 3e-4 || failed "training" "$out/train.log"
+  tail -1 "$out/train.log" >&2
+else
+  train_or_mlp "$train_set" "$out/network" "$out/train.log" "${base_opt[@]}"
 fi
-tail -1 "$out/train.log" >&2
 
 if ((network_route)); then
   step 4 "no learned correction: it corrects an identified unit's refined estimates"
@@ -197,7 +231,10 @@ with open(f"{out}/report.md", "w") as f:
         f.write("**Identification refused this unit** (above): the design's model class does not "
                 "explain its presses, so there is no unit file and skinbus-host will not refine "
                 "its contacts. The network route instead: the unit's network, trained on the "
-                f"unit's own presses ({presses}). Check the design file against the patch; a "
+                + ("simulated presses of the refused fit (refused_fit.json, the class's nearest "
+                   "model of the unit: never refined on), then on the "
+                   if os.path.exists(f"{out}/refused_fit.json") else "")
+                + f"unit's own presses ({presses}). Check the design file against the patch; a "
                 "unit the class explains is calibrated better (refined on the identified "
                 "unit).\n\n")
     tested_on = held or ("simulated test presses of the identified unit" if not network_route

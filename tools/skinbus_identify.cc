@@ -90,6 +90,11 @@ int main(int argc, char** argv) {
   app.add_option("--max-residual", opt.max_residual,
                  "refuse a fit leaving more than this residual (RMS, noise units)")
       ->capture_default_str();
+  std::string refused_path;
+  app.add_option("--refused-out", refused_path,
+                 "when the fit is refused for its residual, write it here anyway (exit status "
+                 "still 1): the model class's nearest model of the unit, to simulate training "
+                 "presses from (scripts/calibrate_unit.sh's network route), never to refine on");
   CLI11_PARSE(app, argc, argv);
   opt.fit_globals = !keep_globals;
   opt.progress = [](const std::string& line) {
@@ -163,10 +168,19 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (tens of seconds) ...\n",
                presses->rows(), presses_path.c_str());
   const auto t0 = std::chrono::steady_clock::now();
+  sim::UnitParameters refused;
   Result<estimators::IdentifiedUnit> id =
-      estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr);
+      estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr, &refused);
   if (!id.ok()) {
     std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
+    if (!refused_path.empty() && !refused.magnets.empty()) {
+      const std::string source = "skinbus-identify " + presses_path +
+                                 ": REFUSED, not for refinement: " + id.error().message;
+      if (Status st = sim::write_unit_parameters(refused, refused_path, source); !st.ok()) {
+        return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);
+      }
+      std::fprintf(stderr, "skinbus-identify: wrote the refused fit to %s\n", refused_path.c_str());
+    }
     return id.error().code == ErrorCode::kInvalidArgument ? kExitUsage : kExitFailed;
   }
   const double seconds =

@@ -499,8 +499,8 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
 }
 
 Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const sim::Dataset& presses,
-                                     const IdentificationOptions& opt,
-                                     const sim::Dataset* held_out) {
+                                     const IdentificationOptions& opt, const sim::Dataset* held_out,
+                                     sim::UnitParameters* refused) {
   const auto t0 = std::chrono::steady_clock::now();
   sim::PatchDesign design = design_in;
   design.anisotropy = 0;      // the identified model class: one isotropic spread,
@@ -795,6 +795,7 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
                      globals};
   out.fit = fit_quality(out.model, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
   if (!(out.fit.rms <= opt.max_residual)) {
+    if (refused != nullptr) *refused = out.parameters;
     std::string bins;
     for (const DepthBinResidual& b : out.fit.bins) {
       if (b.rows == 0) continue;

@@ -191,6 +191,24 @@ TEST(UnitIdentificationTest, AnisotropicUnitIsOutsideTheModelClass) {
   EXPECT_GT(id->held_out.rms, 1.15);
   EXPECT_GT(id->fit.rms, 1.15);
   EXPECT_GT(id->held_out.bins[3].rms, 1.3);
+
+  // Held to a residual it exceeds, the same fit is refused, and kept apart when asked: the
+  // same parameters, bit for bit (the class's nearest model, for simulating training presses).
+  opt.max_residual = 1.1;
+  sim::UnitParameters refused;
+  const Result<IdentifiedUnit> held = identify_unit(design, data.train, opt, nullptr, &refused);
+  ASSERT_FALSE(held.ok());
+  EXPECT_EQ(held.error().code, ErrorCode::kNotConverged);
+  EXPECT_NE(held.error().message.find("residual"), std::string::npos) << held.error().message;
+  EXPECT_EQ(refused.spread_mm, id->parameters.spread_mm);
+  EXPECT_EQ(refused.lateral_mm, id->parameters.lateral_mm);
+  ASSERT_EQ(refused.magnets.size(), id->parameters.magnets.size());
+  for (std::size_t m = 0; m < refused.magnets.size(); ++m) {
+    EXPECT_EQ(refused.magnets[m].u_mm, id->parameters.magnets[m].u_mm) << m;
+    EXPECT_EQ(refused.magnets[m].h_mm, id->parameters.magnets[m].h_mm) << m;
+    EXPECT_EQ(refused.magnets[m].moment_am2.z, id->parameters.magnets[m].moment_am2.z) << m;
+  }
+  EXPECT_TRUE(sim::PatchModel::from_parameters(design, refused).ok());
 }
 
 // A dead channel in a recording (NaN in every row, which the dataset format allows) is left out
@@ -436,7 +454,9 @@ TEST(UnitIdentificationTest, TheWrongDesignIsRefusedNamingWhy) {
   opt.spread_starts = {1.0};
   std::vector<std::string> progress;
   opt.progress = [&](const std::string& line) { progress.push_back(line); };
-  const Result<IdentifiedUnit> id = identify_unit(sim::PatchDesign{}, data.train, opt);
+  sim::UnitParameters refused;
+  const Result<IdentifiedUnit> id =
+      identify_unit(sim::PatchDesign{}, data.train, opt, nullptr, &refused);
   ASSERT_FALSE(id.ok());
   std::printf("%s\n", id.error().to_string().c_str());
   EXPECT_EQ(id.error().code, ErrorCode::kNotConverged);
@@ -444,6 +464,10 @@ TEST(UnitIdentificationTest, TheWrongDesignIsRefusedNamingWhy) {
   EXPECT_TRUE(m.find("ran to its bound") != std::string::npos ||
               m.find("does not explain") != std::string::npos)
       << m;
+  // A global at its bound ends before any full fit: nothing to keep.
+  if (m.find("ran to its bound") != std::string::npos) {
+    EXPECT_TRUE(refused.magnets.empty());
+  }
   ASSERT_FALSE(progress.empty());  // the start was reported as it ran
   EXPECT_NE(progress.front().find("globals from spread"), std::string::npos) << progress.front();
 }

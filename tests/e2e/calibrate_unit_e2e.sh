@@ -89,28 +89,30 @@ refined=$(sed -n 's/.*refined \([0-9]*\) (.*/\1/p' host.err)
 ((refined > 20)) || fail_with_logs "only $refined samples refined"
 
 # The network route: a unit the design's model class cannot explain (the presses of a 9 x 9
-# one-polarity unit, given the built-in design file). Identification refuses it, naming why; the
-# unit's network is trained on its own presses and measured on its held-out ones; the report says
-# so; the entry names the network alone (no unit, no design, no correction), and skinbus-host
-# runs it: contacts, none refined.
+# one-polarity unit, given the built-in design file). Identification refuses it, naming why (a
+# global ran to its bound: no fit to keep); the unit's network is trained on its own presses and
+# measured on its held-out ones; the report says so; the entry names the network alone (no unit,
+# no design, no correction), and skinbus-host runs it: contacts, none refined.
 d9=$src/docs/benchmarks/design_9x9_uniform.yaml
 "$bin/skinbus-dataset" --plan grid --grid 10 --pitch 13.5 --design "$d9" --fabricated --uid "$uid" \
   -o lab9.csv
 "$bin/skinbus-dataset" --plan random-test --count 200 --seed 3 --design "$d9" --fabricated \
   --uid "$uid" -o held9.csv
 SKINBUS_BIN=$bin "$src/scripts/calibrate_unit.sh" lab9.csv -o cal9 --held-out held9.csv \
-  --node $node --uid "$uid" --link torso_link --epochs 2 2>cal9.err ||
+  --node $node --uid "$uid" --link torso_link --synthetic 200 --epochs 2 2>cal9.err ||
   fail_with_logs "calibrate_unit.sh (network route) failed"
 cat cal9.err
 grep -q "identification refused this unit" cal9.err || fail_with_logs "no refusal said"
 grep -q "not_converged: identification" cal9.err || fail_with_logs "the refusal's reason not shown"
 [[ ! -e cal9/unit.json && ! -e cal9/correction.json ]] || fail_with_logs "a unit file was written"
+[[ ! -e cal9/refused_fit.json ]] || fail_with_logs "a fit kept where none was made"
+grep -q "fine-tuning nominal_seed_cnn" cal9/train.log || fail_with_logs "not trained on its presses"
 [[ -s cal9/network.safetensors ]] || fail_with_logs "no network"
 grep -q "Identification refused this unit" cal9/report.md || fail_with_logs "the report hides it"
 grep -q "^| 2-3 | [0-9.]* | [0-9.]* | [0-9.]* |" cal9/report.md ||
   fail_with_logs "the network was not measured on the held-out presses"
 grep -q "model: .*cal9/network" cal9/skin_map_entry.yaml || fail_with_logs "the entry lacks the model"
-! grep -qE "^\s+(unit|design|correction):" cal9/skin_map_entry.yaml ||
+! grep -qE "^\s+(unit|design|correction):|refused" cal9/skin_map_entry.yaml ||
   fail_with_logs "the entry names a unit, design or correction"
 sed "s#model: .*cal/network#model: $(realpath cal9)/network#; /unit: .*cal\/unit.json/d; /design:/d; /correction:/d" \
   map.yaml >map9.yaml
@@ -121,4 +123,27 @@ sys.exit(0 if any(j["type"] == "contacts" and any(c["node"] == 6 for c in j["con
                   for j in map(json.loads, open("host9.jsonl"))) else 1)' ||
   fail_with_logs "no contacts with the network route's entry"
 ! grep -q "refined [1-9]" host9.err || fail_with_logs "refined without a unit"
+
+# A unit refused for the residual its fit leaves (here the first unit, held to 0.5 noise units,
+# which its noise alone exceeds): the refused fit is kept apart (refused_fit.json, marked so, never
+# named by the entry); the unit's network is trained on that fit's simulated presses, then on the
+# unit's own, and the report says so.
+SKINBUS_BIN=$bin "$src/scripts/calibrate_unit.sh" lab.csv -o calr --held-out held.csv \
+  --node $node --uid "$uid" --link torso_link --max-residual 0.5 --synthetic 200 --epochs 2 \
+  2>calr.err || fail_with_logs "calibrate_unit.sh (refused for its residual) failed"
+cat calr.err
+grep -q "not_converged: .*does not explain these presses: residual" calr.err ||
+  fail_with_logs "no refusal for the residual said"
+[[ ! -e calr/unit.json && ! -e calr/correction.json ]] || fail_with_logs "a unit file was written"
+grep -q '"source": ".*REFUSED, not for refinement' calr/refused_fit.json ||
+  fail_with_logs "the refused fit was not kept apart, marked"
+grep -q "fine-tuning nominal_seed_cnn" calr/train_refused_fit.log ||
+  fail_with_logs "no network trained on the refused fit's presses"
+grep -q "fine-tuning network_refused_fit" calr/train.log ||
+  fail_with_logs "the unit's presses did not fine-tune the refused fit's network"
+grep -q "simulated presses of the refused fit" calr/report.md || fail_with_logs "the report hides it"
+grep -q "^| 2-3 | [0-9.]* | [0-9.]* | [0-9.]* |" calr/report.md ||
+  fail_with_logs "the network was not measured on the held-out presses"
+! grep -qE "^\s+(unit|design|correction):|refused" calr/skin_map_entry.yaml ||
+  fail_with_logs "the entry names a unit, design, correction or the refused fit"
 echo PASS

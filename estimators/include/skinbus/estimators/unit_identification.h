@@ -157,9 +157,13 @@ struct IdentifiedUnit {
 // Fits the unit that produced `presses`. Errors: kInvalidArgument (design invalid, channel
 // count differs), kDegenerate (too few presses, a magnet without presses near it; the message
 // says which), kNotConverged (the solver failed or hit its iteration limit without
-// converging). Single-threaded; allocates.
+// converging, or the fit leaves more than options.max_residual: refused). When the fit is
+// refused for its residual and `refused` is not null, the refused fit is stored there: the
+// class's nearest model of the unit, for simulating training presses (never to refine on).
+// Single-threaded; allocates.
 Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::Dataset& presses,
                                      const IdentificationOptions& options = {},
-                                     const sim::Dataset* held_out = nullptr);
+                                     const sim::Dataset* held_out = nullptr,
+                                     sim::UnitParameters* refused = nullptr);
 
 }  // namespace skinbus::estimators
