@@ -101,10 +101,12 @@ if ! "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "
 fi
 grep -i "residual\|note:" "$out/identify.log" | head -4 >&2 || true
 
+from_refused=0  # the network route, started from the refused fit's simulated presses
 if ((network_route)); then
   train_set=$presses
   test_set=$held
   if [[ -f $out/refused_fit.json ]]; then
+    from_refused=1
     step 2 "simulating $synthetic presses of the refused fit (the class's nearest model of the unit, to start its network from; never refined on)"
     "$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 \
       --unit "$out/refused_fit.json" "${design_opt[@]}" -o "$out/synthetic.csv" \
@@ -139,7 +141,7 @@ from="from $(basename "$base")"
 [[ $base == none ]] && from="from scratch"
 on="simulated presses of the identified unit"
 ((network_route)) && on="the unit's own presses"
-((network_route)) && [[ -f $out/synthetic.csv ]] && on="the refused fit's simulated presses"
+((from_refused)) && on="the refused fit's simulated presses"
 step 3 "training the unit's network on $on ($epochs epochs at most, $from)"
 base_opt=()
 # Fine-tuning starts from a trained network: a smaller step than training from scratch.
@@ -161,7 +163,7 @@ train_or_mlp() {  # DATASET OUTPUT LOG [skinbus-train options...]
   fi
   tail -1 "$3" >&2
 }
-if ((network_route)) && [[ -f $out/synthetic.csv ]]; then
+if ((from_refused)); then
   # First the refused fit's presses (what the class gets right of the unit), then the unit's own
   # from that network (what it gets wrong): each keeps its best epoch on its validation split.
   train_or_mlp "$out/synthetic.csv" "$out/network_refused_fit" "$out/train_refused_fit.log" \
