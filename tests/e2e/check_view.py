@@ -119,7 +119,7 @@ def main():
         browser.evaluate("window.skinbusView.record(20000)")
         snapshots, dropped = [], 0
         open(ready_file, "w").close()  # the demo's host and touches start now
-        first_read_us = int(time.time() * 1e6)  # CLOCK_REALTIME, as the scene's time zero
+        page_up_us = int(time.time() * 1e6)  # CLOCK_REALTIME, as the scene's time zero
         deadline = time.monotonic() + seconds + 180  # the host's start and the scene's, bounded
         t_zero_us = None
         hostile_done = False
@@ -137,7 +137,8 @@ def main():
             recorded = browser.evaluate("window.skinbusView.takeRecorded()")
             snapshots += recorded["snapshots"]
             dropped += recorded["dropped"]
-            for c in [c for shot in recorded["snapshots"] for c in shot] + s["contacts"]:
+            # (The summary's contacts are the last snapshot's.)
+            for c in (c for shot in recorded["snapshots"] for c in shot):
                 contacts[(c["track_id"], c["stamp_us"])] = c
             for p in s["patches"]:
                 states.setdefault(p["node"], set()).add(p["state"])
@@ -186,7 +187,7 @@ def main():
     if t_zero_us is None:
         check("the scene started", False, f"no time zero in {demo}/joints.log")
         return 1
-    print(f"  the page was up {(t_zero_us - first_read_us) / 1e6:.1f} s before the scene's time zero")
+    print(f"  the page was up {(t_zero_us - page_up_us) / 1e6:.1f} s before the scene's time zero")
     shown = [c for c in contacts.values() if c["node"] in presses]
     check("contacts shown by the page", len(shown) > 50 and dropped == 0,
           f"{len(shown)} distinct contacts read back from {len(snapshots)} contact messages "

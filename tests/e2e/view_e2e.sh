@@ -22,10 +22,7 @@ echo "the demo serves its web view at $url"
 # Node 11 is pressed from 4.0 to 6.5 s of the scene; its daemon stops at 8.5 s (stale 3 s later,
 # offline at 10 s).
 (
-  for ((n = 0; n < 1800; n++)); do
-    grep -qs "time zero" "$out/joints.log" && break
-    sleep 0.1
-  done
+  wait_for "time zero" 180 "$out/joints.log" $demo
   sleep 8.5
   pkill -f -- "skinbus-patchd .*--node 11 " || echo "could not stop node 11"
 ) &

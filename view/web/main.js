@@ -462,8 +462,10 @@ function updateContacts(msg) {
 // message, so that a reader polling the page under load still sees every instant.
 let contactRecording = null;   // { snapshots: [[contact summary]], max, dropped } or null
 
+// A vector's components rounded to 0.001 (mm) for summaries.
+const round = (v) => v.map((x) => Math.round(x * 1000) / 1000);
+
 function contactSummaries() {
-  const round = (v) => v.map((x) => Math.round(x * 1000) / 1000);
   return [...contactViews.values()].map((v) => ({
     track_id: v.data.track_id,
     node: v.data.node,
@@ -1016,7 +1018,6 @@ window.skinbusView = {
   // frame in mm.
   summary() {
     zUp.updateMatrixWorld(true);
-    const round = (v) => v.map((x) => Math.round(x * 1000) / 1000);
     return {
       robot_loaded: robot !== null,
       links: robot ? Object.keys(robot.links).length : 0,
