@@ -92,8 +92,15 @@ int main(int argc, char** argv) {
   // The unit once: the refiner fits it, the bound is its.
   auto design = sim::read_design_or_builtin(design_path);
   if (!design.ok()) return tools::report_error(kTool, design.error());
-  auto params = sim::read_unit_parameters(unit_path);
+  sim::UnitFileNote note;
+  auto params = sim::read_unit_parameters(unit_path, &note);
   if (!params.ok()) return tools::report_error(kTool, params.error());
+  if (!note.refused.empty()) {  // measured as asked; the host refuses to refine on it
+    std::fprintf(stderr,
+                 "%s: %s is a fit identification refused (%s): skinbus-host will not "
+                 "refine on it\n",
+                 kTool, unit_path.c_str(), note.refused.c_str());
+  }
   auto unit = sim::PatchModel::from_parameters(*design, *params);
   if (!unit.ok()) return tools::fail(kTool, unit_path + ": " + unit.error().message, 1);
   if (Status s = sim::check_sensor_layout(*data, *unit); !s.ok()) {

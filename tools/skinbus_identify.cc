@@ -174,9 +174,10 @@ int main(int argc, char** argv) {
   if (!id.ok()) {
     std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
     if (!refused_path.empty() && !refused.magnets.empty()) {
-      const std::string source = "skinbus-identify " + presses_path +
-                                 ": REFUSED, not for refinement: " + id.error().message;
-      if (Status st = sim::write_unit_parameters(refused, refused_path, source); !st.ok()) {
+      const sim::UnitFileNote note{"skinbus-identify " + presses_path +
+                                       ": REFUSED, not for refinement: " + id.error().message,
+                                   id.error().message};
+      if (Status st = sim::write_unit_parameters(refused, refused_path, note); !st.ok()) {
         return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);
       }
       std::fprintf(stderr, "skinbus-identify: wrote the refused fit to %s\n", refused_path.c_str());
@@ -217,7 +218,7 @@ int main(int argc, char** argv) {
     std::snprintf(residuals, sizeof residuals, ", %.3f (held out)", id->held_out.rms);
     source += residuals;
   }
-  if (Status st = sim::write_unit_parameters(id->parameters, out_path, source); !st.ok()) {
+  if (Status st = sim::write_unit_parameters(id->parameters, out_path, {source, {}}); !st.ok()) {
     return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);
   }
   std::fprintf(stderr, "skinbus-identify: wrote %s\n", out_path.c_str());

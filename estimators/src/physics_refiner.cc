@@ -192,8 +192,15 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& 
                                                              const RefinerOptions& options) {
   auto design = sim::read_design_or_builtin(design_path);
   if (!design.ok()) return design.error();
-  auto params = sim::read_unit_parameters(unit_path);
+  sim::UnitFileNote note;
+  auto params = sim::read_unit_parameters(unit_path, &note);
   if (!params.ok()) return params.error();
+  if (!note.refused.empty()) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "unit file " + unit_path +
+                          " is a fit identification refused, not for refinement (" + note.refused +
+                          ")");
+  }
   auto model = sim::PatchModel::from_parameters(*design, *params);
   if (!model.ok()) {
     return make_error(model.error().code,

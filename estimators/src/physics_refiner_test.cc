@@ -90,6 +90,18 @@ TEST(PhysicsRefinerTest, LoadsAUnitFileAndNamesWhatItCannotRead) {
   ASSERT_TRUE(sim::write_unit_parameters(unit.parameters(), path).ok());
   auto r = make_physics_refiner(path, "");
   ASSERT_TRUE(r.ok()) << r.error().message;
+  // The same parameters kept as a fit identification refused: read by the simulator, never
+  // refined on; the error names the file and why it was refused.
+  ASSERT_TRUE(sim::write_unit_parameters(unit.parameters(), path,
+                                         {"identify rec.csv", "residual 5.80 noise units"})
+                  .ok());
+  auto refused = make_physics_refiner(path, "");
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code, ErrorCode::kInvalidArgument);
+  EXPECT_NE(refused.error().message.find(path), std::string::npos);
+  EXPECT_NE(refused.error().message.find("not for refinement (residual 5.80"), std::string::npos)
+      << refused.error().message;
+  EXPECT_TRUE(sim::read_unit_parameters(path).ok());
   std::filesystem::remove(path);
   auto missing = make_physics_refiner(path, "");
   ASSERT_FALSE(missing.ok());

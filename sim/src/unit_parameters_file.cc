@@ -96,10 +96,11 @@ class Reader {
 
 }  // namespace
 
-std::string unit_parameters_json(const UnitParameters& p, std::string_view source) {
+std::string unit_parameters_json(const UnitParameters& p, const UnitFileNote& note) {
   json j;
   j["format"] = json_format_name(kFormat, kMajorVersion);
-  j["source"] = std::string(source);
+  j["source"] = note.source;
+  if (!note.refused.empty()) j["refused"] = note.refused;
   j["units"] = {{"length", "mm"}, {"moment", "A m^2"}};
   j["spread_mm"] = p.spread_mm;
   j["lateral_mm"] = p.lateral_mm;
@@ -124,12 +125,12 @@ std::string unit_parameters_json(const UnitParameters& p, std::string_view sourc
 }
 
 Status write_unit_parameters(const UnitParameters& params, const std::string& path,
-                             std::string_view source) {
+                             const UnitFileNote& note) {
   // A temporary file, checked, synced and renamed: never a torn or empty unit file.
-  return write_file_atomic(path, unit_parameters_json(params, source), "unit file");
+  return write_file_atomic(path, unit_parameters_json(params, note), "unit file");
 }
 
-Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string* source) {
+Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote* note) {
   Result<json> doc = parse_json_document(text, kFormat, kMajorVersion, "unit file");
   if (!doc.ok()) return doc.error();
   const json& j = *doc;
@@ -158,18 +159,22 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string*
     }
     p.sensors.push_back(sp);
   });
+  const auto text_of = [&](const char* key) {
+    const auto it = j.find(key);
+    if (it == j.end()) return std::string();
+    if (!it->is_string()) r.fail(std::string(key) + " is not a string");
+    return it->is_string() ? it->get<std::string>() : std::string();
+  };
+  UnitFileNote read_note{text_of("source"), text_of("refused")};
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
-  if (source != nullptr) {
-    const auto it = j.find("source");
-    *source = it != j.end() && it->is_string() ? it->get<std::string>() : std::string();
-  }
+  if (note != nullptr) *note = std::move(read_note);
   return p;
 }
 
-Result<UnitParameters> read_unit_parameters(const std::string& path, std::string* source) {
+Result<UnitParameters> read_unit_parameters(const std::string& path, UnitFileNote* note) {
   Result<std::string> text = read_text_file(path, "unit file", 16u << 20);
   if (!text.ok()) return text.error();
-  Result<UnitParameters> p = parse_unit_parameters(*text, source);
+  Result<UnitParameters> p = parse_unit_parameters(*text, note);
   if (!p.ok()) return make_error(p.error().code, "unit file " + path + ": " + p.error().message);
   return p;
 }

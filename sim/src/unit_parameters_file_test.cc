@@ -24,10 +24,12 @@ bool same_bits(double a, double b) {
 
 TEST(UnitParametersFileTest, RoundTripIsExactAndRebuildsTheSameUnit) {
   const UnitParameters p = fabricated_unit();
-  std::string source;
-  auto back = parse_unit_parameters(unit_parameters_json(p, "fit of unit 7"), &source);
+  UnitFileNote note;
+  auto back = parse_unit_parameters(unit_parameters_json(p, {"fit of unit 7", {}}), &note);
   ASSERT_TRUE(back.ok()) << back.error().to_string();
-  EXPECT_EQ(source, "fit of unit 7");
+  EXPECT_EQ(note.source, "fit of unit 7");
+  EXPECT_EQ(note.refused, "");  // a kept fit: the field is absent
+  EXPECT_EQ(unit_parameters_json(p).find("\"refused\""), std::string::npos);
   ASSERT_EQ(back->magnets.size(), p.magnets.size());
   ASSERT_EQ(back->sensors.size(), p.sensors.size());
   EXPECT_TRUE(same_bits(back->spread_mm, p.spread_mm));
@@ -55,7 +57,7 @@ TEST(UnitParametersFileTest, RoundTripIsExactAndRebuildsTheSameUnit) {
 TEST(UnitParametersFileTest, WritesAndReadsAFile) {
   const UnitParameters p = fabricated_unit();
   const std::string path = ::testing::TempDir() + "/unit_parameters_file_test.json";
-  ASSERT_TRUE(write_unit_parameters(p, path, "test").ok());
+  ASSERT_TRUE(write_unit_parameters(p, path, {"test", {}}).ok());
   auto back = read_unit_parameters(path);
   ASSERT_TRUE(back.ok()) << back.error().to_string();
   EXPECT_EQ(back->magnets.size(), p.magnets.size());
@@ -96,6 +98,19 @@ TEST(UnitParametersFileTest, CorruptFilesAreRefusedWithTheField) {
   // A number no double holds: said, with where, not only "not valid JSON".
   refused(replaced("\"spread_mm\": ", "\"spread_mm\": 1e400, \"x\": "), "1e400");
   refused(good.substr(0, good.size() / 2), "parse error at line");
+  refused(replaced("\"source\": \"\"", "\"source\": 7"), "source is not a string");
+  refused(replaced("\"source\": \"\"", "\"source\": \"\", \"refused\": true"),
+          "refused is not a string");
+}
+
+// A fit identification refused keeps why in the file, read back apart from the free note.
+TEST(UnitParametersFileTest, ARefusedFitSaysSoAndWhy) {
+  const UnitFileNote note{"identify rec.csv: REFUSED", "residual 5.80 noise units (limit 4.00)"};
+  UnitFileNote back;
+  auto p = parse_unit_parameters(unit_parameters_json(fabricated_unit(), note), &back);
+  ASSERT_TRUE(p.ok()) << p.error().to_string();
+  EXPECT_EQ(back.source, note.source);
+  EXPECT_EQ(back.refused, note.refused);
 }
 
 TEST(UnitParametersFileTest, APlausibleFileWithTheWrongCountsIsRefusedByTheModel) {

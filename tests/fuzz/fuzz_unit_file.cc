@@ -37,17 +37,18 @@ bool same(const Vec3<double>& a, const Vec3<double>& b) {
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string_view text(reinterpret_cast<const char*>(data), size);
-  std::string source;
-  Result<UnitParameters> p = parse_unit_parameters(text, &source);
+  UnitFileNote note;
+  Result<UnitParameters> p = parse_unit_parameters(text, &note);
   if (!p.ok()) {
     if (p.error().message.empty()) fail("an error without a message");
     return 0;
   }
-  std::string source_back;
-  Result<UnitParameters> back =
-      parse_unit_parameters(unit_parameters_json(*p, source), &source_back);
+  UnitFileNote note_back;
+  Result<UnitParameters> back = parse_unit_parameters(unit_parameters_json(*p, note), &note_back);
   if (!back.ok()) fail("what was written does not parse");
-  if (source_back != source) fail("the note changed");
+  if (note_back.source != note.source || note_back.refused != note.refused) {
+    fail("the note changed");
+  }
   if (!same(back->spread_mm, p->spread_mm) || !same(back->lateral_mm, p->lateral_mm)) {
     fail("lattice numbers changed");
   }

@@ -20,8 +20,8 @@ namespace skinbus::estimators {
 // `max_contacts` 1 it is coarse (twice start_pitch_mm(design): half the magnet spacing, at most
 // 10 mm; depths 1, 2.5 and 4 mm: 675 rows on the built-in design), with 2 or more
 // PhysicsOptions' full one. Errors name the file: kNotFound / kParse / kInvalidArgument (a unit
-// that does not fit the design). Cost: the unit's rest field table and the start table, tens of
-// milliseconds (0.1 s with the full table).
+// that does not fit the design, or a fit identification refused: sim::UnitFileNote). Cost: the
+// unit's rest field table and the start table, tens of milliseconds (0.1 s with the full table).
 //
 // search_when_poor: a single-contact fit from the first estimate that ends poor
 // (kEstimatePoorFit, or not a contact: a first estimate far from the press, e.g. a network

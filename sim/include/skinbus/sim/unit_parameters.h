@@ -50,21 +50,31 @@ struct UnitParameters {
 
 // ---- Unit files ------------------------------------------------------------------------------
 // A unit's parameters as JSON (format "skinbus-unit 1", docs/physics_estimator.md "Unit files"):
-// lengths in mm, moments in A m^2, `source` a free note (where the numbers came from). Numbers
-// carry 17 significant digits: reading back what was written gives the same bits.
+// lengths in mm, moments in A m^2, and a note of what the file is. Numbers carry 17 significant
+// digits: reading back what was written gives the same bits.
+
+// What a unit file says of itself besides the parameters.
+struct UnitFileNote {
+  std::string source;  // where the numbers came from: a free note
+  // Non-empty: identification refused this fit, and why (skinbus-identify --refused-out). Such a
+  // file is the class's nearest model of a unit it does not explain: it may be simulated (to
+  // train a network from), never refined on (estimators::make_physics_refiner refuses it).
+  std::string refused;
+};
 
 // The file's text. Allocates.
-std::string unit_parameters_json(const UnitParameters& params, std::string_view source = {});
+std::string unit_parameters_json(const UnitParameters& params, const UnitFileNote& note = {});
 // Writes unit_parameters_json() to `path`. Errors: kIo (cannot write, the message names the path).
 Status write_unit_parameters(const UnitParameters& params, const std::string& path,
-                             std::string_view source = {});
+                             const UnitFileNote& note = {});
 // Parses a unit file's text. Errors: kParse (not JSON, another format or major version, a field
 // missing or of the wrong type or size: the message names it). Counts against a design and
 // physical sanity (finite, spread > 0, rotations) are checked by PatchModel::from_parameters().
-// `source`, when not null, receives the file's note. Allocates.
-Result<UnitParameters> parse_unit_parameters(std::string_view text, std::string* source = nullptr);
+// `note`, when not null, receives the file's note (an absent `source` or `refused`: empty).
+// Allocates.
+Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote* note = nullptr);
 // Reads and parses `path`. Errors: kNotFound (no file), else as parse_unit_parameters() with the
 // path in the message.
-Result<UnitParameters> read_unit_parameters(const std::string& path, std::string* source = nullptr);
+Result<UnitParameters> read_unit_parameters(const std::string& path, UnitFileNote* note = nullptr);
 
 }  // namespace skinbus::sim
