@@ -33,12 +33,14 @@
 #   skin_map_entry.yaml  the entry for the skin map (position and orientation: skinbus-calibrate)
 # A unit the design's model class cannot explain (skinbus-identify refuses it, naming why: the
 # design file is not the patch, or its physics lie too far outside the class) takes the network
-# route instead: no unit.json and no correction; the network is trained on --synthetic
-# simulated presses of the refused fit when identification made one (refused_fit.json: the
-# class's nearest model of the unit, never refined on; none when a global ran to its bound),
-# then fine-tuned on the unit's own presses, measured on HELD.csv when given,
-# and the entry names the network alone (skinbus-host then publishes the network's contacts,
-# unrefined). The report says so.
+# route instead: no unit.json and no correction; the network is trained on the unit's own
+# presses, measured on HELD.csv when given, and the entry names the network alone (skinbus-host
+# then publishes the network's contacts, unrefined). When identification made a fit it refused
+# (refused_fit.json: the class's nearest model of the unit, never refined on; none when a global
+# ran to its bound), two ways are trained and the one with the lower error on the unit's presses
+# held out of training is kept (choice.log): --synthetic simulated presses of the refused fit,
+# then the unit's own from that network (network_from_refused); the unit's own alone
+# (network_own). The report says which, and why.
 # Progress: one line per step on standard error; each tool's own progress in its log.
 # Exit status: 0 done, 1 a step failed (its log says why), 2 bad arguments.
 set -euo pipefail
@@ -63,7 +65,7 @@ while (($#)); do
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
     --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
-    -h | --help) sed -n '2,43p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,45p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -85,10 +87,12 @@ step 1 "identifying the unit's physics from $presses"
 held_opt=()
 [[ -n $held ]] && held_opt=(--held-out "$held")
 rm -f "$out/unit.json" "$out/refused_fit.json" "$out/correction.json" "$out/evaluate.log" \
-  "$out/evaluate_corrected.log" "$out/network_refused_fit".*
+  "$out/evaluate_corrected.log" "$out/choice.log" "$out"/network_{refused_fit,from_refused,own}.* \
+  "$out"/train_{refused_fit,from_refused,own}.log
 # A unit the design's model class cannot explain (identification refuses it, naming why) is
-# calibrated by the network route instead: the unit's network trained on its own presses (after
-# the refused fit's simulated ones), no unit file, and so no physics refinement in the host.
+# calibrated by the network route instead: the unit's network trained on its own presses (alone,
+# and after the refused fit's simulated ones when there is one: the better kept), no unit file,
+# and so no physics refinement in the host.
 network_route=0
 if ! "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "${held_opt[@]}" \
   "${max_residual[@]}" --refused-out "$out/refused_fit.json" >"$out/identify.log" 2>&1; then
@@ -97,7 +101,8 @@ if ! "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "
   grep -o "not_converged: .*" "$out/identify.log" | cut -c1-400 >&2 || true
   echo "calibrate_unit: identification refused this unit: the network route instead (the" \
     "unit's network trained on its own presses$([[ -f $out/refused_fit.json ]] &&
-      echo ", after the refused fit's simulated ones"); no unit file, no physics refinement)" >&2
+      echo ", alone and after the refused fit's simulated ones, the better kept"); no unit" \
+    "file, no physics refinement)" >&2
 fi
 grep -i "residual\|note:" "$out/identify.log" | head -4 >&2 || true
 
@@ -164,15 +169,50 @@ train_or_mlp() {  # DATASET OUTPUT LOG [skinbus-train options...]
   tail -1 "$3" >&2
 }
 if ((from_refused)); then
-  # First the refused fit's presses (what the class gets right of the unit), then the unit's own
-  # from that network (what it gets wrong): each keeps its best epoch on its validation split.
+  # Two ways, chosen by held-out error. First the refused fit's presses (what the class gets
+  # right of the unit), then the unit's own from that network (what it gets wrong); and the
+  # unit's own presses alone. Each keeps its best epoch on its validation split of the unit's
+  # press places; both trainings split the same presses with the same seed, so the two scores
+  # are on the same held-out places, and the lower one is kept.
   train_or_mlp "$out/synthetic.csv" "$out/network_refused_fit" "$out/train_refused_fit.log" \
     "${base_opt[@]}"
   echo "calibrate_unit: [3/5] ... then on the unit's own presses, from that network" \
     "($epochs epochs at most)" >&2
-  train "$train_set" "$out/network" "$out/train.log" --base "$out/network_refused_fit" \
-    --lr 3e-4 || failed "training" "$out/train.log"
-  tail -1 "$out/train.log" >&2
+  train "$train_set" "$out/network_from_refused" "$out/train_from_refused.log" \
+    --base "$out/network_refused_fit" --lr 3e-4 || failed "training" "$out/train_from_refused.log"
+  tail -1 "$out/train_from_refused.log" >&2
+  echo "calibrate_unit: [3/5] ... and on the unit's own presses alone ($epochs epochs at most," \
+    "$from), to choose between the two by held-out error" >&2
+  train_or_mlp "$train_set" "$out/network_own" "$out/train_own.log" "${base_opt[@]}"
+  # The score each training kept its epoch by: XY of the held-out presses at least 1 mm deep plus
+  # their depth error (skinbus-train, estimators/include/skinbus/estimators/training.h).
+  kept=$(python3 - "$out" <<'PY'
+import json, sys
+out = sys.argv[1]
+ways = (("network_from_refused", "the refused fit's simulated presses, then the unit's own"),
+        ("network_own", "the unit's own presses alone"))
+rows, scores = [], {}
+for name, what in ways:
+    m = json.load(open(f"{out}/{name}.json"))
+    m = m.get("metrics", m.get("meta", {}).get("metrics", {}))
+    xy, depth = m["val_xy_deep_mean_mm"], m["val_depth_mean_mm"]
+    scores[name] = xy + depth
+    rows.append(f"| {what} ({name}) | {xy:.3f} | {depth:.3f} | {xy + depth:.3f} |")
+best = min(scores, key=scores.get)
+with open(f"{out}/choice.log", "w") as f:
+    f.write("| way | held-out XY, >= 1 mm deep (mm) | held-out depth (mm) | score |\n"
+            "|---|---:|---:|---:|\n" + "\n".join(rows) + "\n\n")
+    f.write(f"Kept: {best} (the lower score), as network.\n")
+meta = json.load(open(f"{out}/{best}.json"))
+meta.update(name="network", weights="network.safetensors")
+json.dump(meta, open(f"{out}/network.json", "w"), indent=2)
+print(best, "(held-out scores: " + ", ".join(f"{n} {s:.3f}" for n, s in scores.items()) + ")")
+PY
+  ) || failed "the choice between the two ways" "$out/choice.log"
+  echo "calibrate_unit: [3/5] kept $kept" >&2
+  kept=${kept%% *}
+  cp "$out/$kept.safetensors" "$out/network.safetensors"
+  cp "$out/train_${kept#network_}.log" "$out/train.log"
 else
   train_or_mlp "$train_set" "$out/network" "$out/train.log" "${base_opt[@]}"
 fi
@@ -229,16 +269,23 @@ with open(f"{out}/report.md", "w") as f:
     f.write("## Identification (skinbus-identify)\n\n```\n" + "\n".join(ident[-12:]) + "\n```\n\n")
     f.write("A residual near 1 noise unit: the model explains the unit to its noise; clearly above"
             " (> 1.1): the unit has physics the model class lacks.\n\n")
+    choice = f"{out}/choice.log"
+    from_refused = os.path.exists(choice) and "Kept: network_from_refused" in open(choice).read()
     if network_route:
         f.write("**Identification refused this unit** (above): the design's model class does not "
                 "explain its presses, so there is no unit file and skinbus-host will not refine "
                 "its contacts. The network route instead: the unit's network, trained on the "
                 + ("simulated presses of the refused fit (refused_fit.json, the class's nearest "
                    "model of the unit: never refined on), then on the "
-                   if os.path.exists(f"{out}/refused_fit.json") else "")
+                   if from_refused else "")
                 + f"unit's own presses ({presses}). Check the design file against the patch; a "
                 "unit the class explains is calibrated better (refined on the identified "
                 "unit).\n\n")
+    if os.path.exists(choice):
+        f.write("## The way kept, by held-out error\n\nEach way's network on the unit's presses "
+                "it was not trained on (the same held-out press places for both: skinbus-train's "
+                "validation split), scored as training keeps its epochs:\n\n"
+                + open(choice).read() + "\n")
     tested_on = held or ("simulated test presses of the identified unit" if not network_route
                          else "no presses it was not trained on: give --held-out to measure it")
     f.write(f"## The unit's network on {tested_on}" + (f" ({test_set})" if test_set else "")
