@@ -47,7 +47,11 @@ class DaemonSink final : public FrameSink {
   std::FILE* log = nullptr;
   std::string log_iface = "can0";
   std::FILE* expect = nullptr;
-  bus::Reassembler own;
+  // The daemon's own frames, complete and in order: never dropped as stale. A daemon stopped or
+  // descheduled between two frames of a message (a SIGSTOP, a loaded machine) would otherwise
+  // leave that message out of --expect, while a reader of the log on its own clock
+  // (skinbus-host --replay --live) gets the frames together and counts it.
+  bus::Reassembler own{bus::Reassembler::Config{.timeout_us = UINT32_MAX}};
   int write_errno = 0;  // a write to the log or the expect file failed (the loop ends on it)
 
   Status send(const bus::CanFrame& frame) override {

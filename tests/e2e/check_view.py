@@ -132,9 +132,10 @@ def main():
             scene_s = -1.0 if t_zero_us is None else time.time() - t_zero_us / 1e6
             if scene_s >= seconds:
                 break
-            s = browser.evaluate("window.skinbusView.summary()")
+            # One evaluation a poll: the summary and what the page recorded since the last.
+            s, recorded = browser.evaluate(
+                "[window.skinbusView.summary(), window.skinbusView.takeRecorded()]")
             reads += scene_s >= 0
-            recorded = browser.evaluate("window.skinbusView.takeRecorded()")
             snapshots += recorded["snapshots"]
             dropped += recorded["dropped"]
             # (The summary's contacts are the last snapshot's.)
