@@ -43,6 +43,17 @@ class Reader {
     }
     return triple_of(*it, where + key);
   }
+  // An optional string: empty when absent.
+  std::string text(const json& j, const char* key, const std::string& where) {
+    if (!ok()) return {};
+    const auto it = j.find(key);
+    if (it == j.end()) return {};
+    if (!it->is_string()) {
+      fail(where + key + " is not a string");
+      return {};
+    }
+    return it->get<std::string>();
+  }
   // A magnet's or sensor's surface position: u_mm, v_mm, h_mm.
   template <typename Part>
   void position(const json& j, const std::string& where, Part* part) {
@@ -159,13 +170,7 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote
     }
     p.sensors.push_back(sp);
   });
-  const auto text_of = [&](const char* key) {
-    const auto it = j.find(key);
-    if (it == j.end()) return std::string();
-    if (!it->is_string()) r.fail(std::string(key) + " is not a string");
-    return it->is_string() ? it->get<std::string>() : std::string();
-  };
-  UnitFileNote read_note{text_of("source"), text_of("refused")};
+  UnitFileNote read_note{r.text(j, "source", ""), r.text(j, "refused", "")};
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
   if (note != nullptr) *note = std::move(read_note);
   return p;
