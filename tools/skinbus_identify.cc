@@ -45,7 +45,8 @@ int main(int argc, char** argv) {
       "(docs/physics_estimator.md, \"Unit files\").\n\n"
       "Input: a dataset in the project's CSV format (docs/dataset_format.md) of presses at known\n"
       "positions and depths, e.g. an indentation robot's ramp protocol: 361 presses on the\n"
-      "seed's 19 x 19 grid take ~5-25 s to fit; at least ~20 presses spread over the patch.\n"
+      "seed's 19 x 19 grid take ~5-15 s to fit (about a minute for a unit the model class\n"
+      "cannot explain); at least ~20 presses spread over the patch.\n"
       "The fit reports its residual in sensor-noise units, overall and per depth bin: about 1\n"
       "means the model explains the unit down to the noise; clearly above 1 (> 1.1) means the\n"
       "unit has physics the model class does not contain (e.g. an anisotropic lattice): use\n"
@@ -165,7 +166,7 @@ int main(int argc, char** argv) {
                                   kExitUsage);
     }
   }
-  std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (tens of seconds) ...\n",
+  std::fprintf(stderr, "skinbus-identify: fitting %zu samples of %s (seconds to a minute) ...\n",
                presses->rows(), presses_path.c_str());
   const auto t0 = std::chrono::steady_clock::now();
   sim::UnitParameters refused;

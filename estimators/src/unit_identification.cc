@@ -11,7 +11,9 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <type_traits>
 
 #include "jet_traits.h"
 #include "skinbus/common/error_format.h"
@@ -48,23 +50,115 @@ struct Context {
   std::span<const double> inv_sigma;  // per channel
 };
 
-// Field change (3D, patch frame, uT) at a sensor from one magnet, for a press. T is double or a
-// jet whose variables are set by the caller.
+// One magnet's pose under a press and at rest. T is double or a jet whose variables are set by
+// the caller.
 template <typename T>
-Vec3<T> magnet_term(const Context& ctx, const Sample& smp, const T* mag, const T& spread,
-                    const T& lateral, const Vec3<T>& sensor_pos) {
+struct MagnetPose {
+  bool moved = false;  // within the plate's reach of the press (else its field does not change)
+  Vec3<T> pos, moment, rest_pos, rest_moment;
+};
+
+template <typename T>
+MagnetPose<T> magnet_pose(const Context& ctx, const Sample& smp, const T* mag, const T& spread,
+                          const T& lateral) {
+  MagnetPose<T> out;
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
   const Vec3<T> m_loc{mag[3] * ctx.moment_scale, mag[4] * ctx.moment_scale,
                       mag[5] * ctx.moment_scale};
-  Vec3<T> pos, moment, rest_pos, rest_moment;
-  if (!ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
-                              std::span<const sim::ContactT<T>>(&c, 1), &pos, &moment)) {
-    return Vec3<T>{T(0.0), T(0.0), T(0.0)};
+  out.moved =
+      ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
+                             std::span<const sim::ContactT<T>>(&c, 1), &out.pos, &out.moment);
+  if (out.moved) {
+    ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
+                           std::span<const sim::ContactT<T>>(), &out.rest_pos, &out.rest_moment);
   }
-  ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
-                         std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
-  return sim::dipole_field_ut(moment, sensor_pos - pos) -
-         sim::dipole_field_ut(rest_moment, sensor_pos - rest_pos);
+  return out;
+}
+
+// Field change (3D, patch frame, uT) at a sensor from one posed magnet.
+template <typename T>
+Vec3<T> magnet_term(const MagnetPose<T>& pose, const Vec3<T>& sensor_pos) {
+  if (!pose.moved) return Vec3<T>{T(0.0), T(0.0), T(0.0)};
+  return sim::dipole_field_ut(pose.moment, sensor_pos - pose.pos) -
+         sim::dipole_field_ut(pose.rest_moment, sensor_pos - pose.rest_pos);
+}
+
+// What residual blocks share between evaluations, made anew when the parameters it depends on
+// change (compared by value). Ceres runs one thread here (solver_options); the owners' locks keep
+// it right if not.
+template <typename T>
+struct Kept {
+  std::vector<double> at, asked;  // the parameters it was made at; those asked for now
+  T made{};
+  // With `asked` filled: true when `made` is for them; else `at` takes them (remake `made`).
+  bool current() {
+    if (asked == at) return true;
+    at.swap(asked);
+    return false;
+  }
+};
+
+// The poses of one sample's near magnets. A pose depends on the lattice and its magnet, not on
+// the sensor, so the sample's sensors (a residual block each) share one pose a magnet, made once
+// an evaluation rather than once a sensor. Values and jets apart: Ceres evaluates a step's cost,
+// then its Jacobian.
+struct NearPoses {
+  std::mutex mutex;
+  Kept<std::vector<MagnetPose<double>>> values;
+  Kept<std::vector<MagnetPose<JetM>>> jets;
+};
+
+// The rest field of every magnet at one sensor: it depends on the sensor's position, the magnet
+// and the lattice, not on the sample, so the sensor's blocks (one a sample) share it.
+struct RestFields {
+  std::mutex mutex;
+  std::vector<Kept<Vec3<double>>> values;  // by magnet
+  std::vector<Kept<Vec3<JetM>>> jets;
+};
+
+// Parameter `x` as the SensorResidual's variable `j` (double: the value alone).
+template <typename T>
+T variable(double x, int j) {
+  if constexpr (std::is_same_v<T, double>) {
+    (void)j;
+    return x;
+  } else {
+    return T(x, j);
+  }
+}
+
+// The sample's near magnets posed at lattice `g` and magnet blocks `mags` (jets: variables 0-5
+// the magnet's block, 6-7 the lattice).
+template <typename T>
+const std::vector<MagnetPose<T>>& near_poses(const Context& ctx, const Sample& smp, const double* g,
+                                             double const* const* mags,
+                                             Kept<std::vector<MagnetPose<T>>>* kept) {
+  const std::size_t nm = smp.near.size();
+  kept->asked.assign(g, g + kGlobalBlock);
+  for (std::size_t i = 0; i < nm; ++i)
+    kept->asked.insert(kept->asked.end(), mags[i], mags[i] + kMagnetBlock);
+  if (kept->current()) return kept->made;
+  kept->made.resize(nm);
+  const T spread = variable<T>(g[0], kMagnetBlock), lateral = variable<T>(g[1], kMagnetBlock + 1);
+  for (std::size_t i = 0; i < nm; ++i) {
+    T mag[kMagnetBlock];
+    for (int j = 0; j < kMagnetBlock; ++j) mag[j] = variable<T>(mags[i][j], j);
+    kept->made[i] = magnet_pose<T>(ctx, smp, mag, spread, lateral);
+  }
+  return kept->made;
+}
+
+// magnet_term() of a near magnet at sensor position `spos` (the sensor's block `s`), its rest
+// field taken from `rest` when made at the same sensor position, magnet block `mag` and lattice.
+template <typename T>
+Vec3<T> near_term(const MagnetPose<T>& pose, const Vec3<T>& spos, const double* s,
+                  const double* mag, const double* g, Kept<Vec3<T>>* rest) {
+  if (!pose.moved) return Vec3<T>{T(0.0), T(0.0), T(0.0)};
+  rest->asked.assign(s, s + 3);
+  rest->asked.insert(rest->asked.end(), mag, mag + kMagnetBlock);
+  rest->asked.insert(rest->asked.end(), g, g + kGlobalBlock);
+  if (!rest->current()) rest->made = sim::dipole_field_ut(pose.rest_moment, spos - pose.rest_pos);
+  return sim::dipole_field_ut(pose.moment, spos - pose.pos) - rest->made;
 }
 
 // The sensor's reading of a 3D field: gain * (R(rotation) mounting0 surface-frame) field.
@@ -103,8 +197,9 @@ Vec3<T> sensor_reading(const Context& ctx, int k, const T* rot, const T* gain, c
 // the sensor (9), the sample's near magnets (6 each).
 class SensorResidual final : public ceres::CostFunction {
  public:
-  SensorResidual(const Context& ctx, const Sample& smp, int sensor)
-      : ctx_(ctx), smp_(smp), k_(sensor) {
+  SensorResidual(const Context& ctx, const Sample& smp, int sensor, NearPoses* poses,
+                 RestFields* rest)
+      : ctx_(ctx), smp_(smp), k_(sensor), poses_(poses), rest_(rest) {
     set_num_residuals(3);
     mutable_parameter_block_sizes()->push_back(kGlobalBlock);
     mutable_parameter_block_sizes()->push_back(kSensorBlock);
@@ -126,12 +221,15 @@ class SensorResidual final : public ceres::CostFunction {
       y[i] = known ? yraw[i] : 0.0;
       w[i] = known ? sigma[i] : 0.0;
     }
+    const std::scoped_lock lock(poses_->mutex, rest_->mutex);
     if (jacobians == nullptr) {
       const Vec3<double> pos3 =
           ctx_.shape->surface_point<double>(s[0], s[1], s[2], nullptr, nullptr, nullptr);
+      const std::vector<MagnetPose<double>>& poses =
+          near_poses(ctx_, smp_, g, p + 2, &poses_->values);
       Vec3<double> b = far;
       for (std::size_t i = 0; i < nm; ++i)
-        b = b + magnet_term<double>(ctx_, smp_, p[2 + i], g[0], g[1], pos3);
+        b = b + near_term(poses[i], pos3, s, p[2 + i], g, &rest_->values[near(i)]);
       const Vec3<double> out = sensor_reading<double>(ctx_, k_, s + 3, s + 6, b, s);
       residuals[0] = (out.x - y[0]) * w[0];
       residuals[1] = (out.y - y[1]) * w[1];
@@ -147,11 +245,9 @@ class SensorResidual final : public ceres::CostFunction {
     for (int j = 0; j < 3; ++j) spos_in[j] = JetM(s[j], kMagnetBlock + kGlobalBlock + j);
     const Vec3<JetM> spos = ctx_.shape->surface_point<JetM>(spos_in[0], spos_in[1], spos_in[2],
                                                             nullptr, nullptr, nullptr);
-    const JetM spread(g[0], kMagnetBlock), lateral(g[1], kMagnetBlock + 1);
+    const std::vector<MagnetPose<JetM>>& poses = near_poses(ctx_, smp_, g, p + 2, &poses_->jets);
     for (std::size_t i = 0; i < nm; ++i) {
-      JetM mag[kMagnetBlock];
-      for (int j = 0; j < kMagnetBlock; ++j) mag[j] = JetM(p[2 + i][j], j);
-      const Vec3<JetM> b = magnet_term<JetM>(ctx_, smp_, mag, spread, lateral, spos);
+      const Vec3<JetM> b = near_term(poses[i], spos, s, p[2 + i], g, &rest_->jets[near(i)]);
       const JetM* comp[3] = {&b.x, &b.y, &b.z};
       for (int a = 0; a < 3; ++a) {
         const JetM& c = *comp[a];
@@ -204,9 +300,14 @@ class SensorResidual final : public ceres::CostFunction {
   }
 
  private:
+  // The sample's `i`th near magnet's index.
+  std::size_t near(std::size_t i) const { return static_cast<std::size_t>(smp_.near[i]); }
+
   const Context& ctx_;
   const Sample& smp_;
   int k_;
+  NearPoses* poses_;  // the sample's, shared by its sensors' blocks
+  RestFields* rest_;  // the sensor's, shared by its samples' blocks
 };
 
 // A Gaussian prior on one parameter block: (x - centre) / sd per entry.
@@ -239,42 +340,89 @@ class PriorResidual final : public ceres::CostFunction {
 constexpr int kGlobals = 5;
 using JetG = ceres::Jet<double, kGlobals>;
 
+// The rest field of every magnet at every sensor (magnet-major): the same for every sample, so
+// the samples' blocks share it, made once an evaluation rather than once a sample.
+struct GlobalRest {
+  std::mutex mutex;
+  Kept<std::vector<Vec3<double>>> values;
+  Kept<std::vector<Vec3<JetG>>> jets;
+};
+
 struct GlobalContext {
   const sim::PatchModel* shape;
   const sim::UnitParameters* design;  // the design's nominal unit
   double tip_mm;
   std::span<const double> inv_sigma;  // per channel
+  GlobalRest* rest;
 };
 
-// Whitened residuals of every channel of one sample under globals `g`; T is double or JetG.
+// Each sensor's position and local surface frame under globals `g`.
 template <typename T>
-void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g, T* out) {
+void sensor_frames(const GlobalContext& ctx, const T* g, Vec3<T>* spos, Vec3<T>* tu, Vec3<T>* tv,
+                   Vec3<T>* n) {
+  const sim::UnitParameters& d = *ctx.design;
+  for (std::size_t k = 0; k < d.sensors.size(); ++k) {
+    const sim::SensorParameters& sp = d.sensors[k];
+    spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &tu[k], &tv[k],
+                                          &n[k]);
+  }
+}
+
+// Magnet `mp`'s height and moment under globals `g`.
+template <typename T>
+void magnet_globals(const sim::MagnetParameters& mp, const T* g, T* h, Vec3<T>* m_loc) {
+  *h = T(mp.h_mm) + g[2];
+  *m_loc = Vec3<T>{g[4] * mp.moment_am2.x, g[4] * mp.moment_am2.y, g[4] * mp.moment_am2.z};
+}
+
+// The rest fields under globals `g` (values `gv`), from `kept` when made at the same.
+template <typename T>
+const std::vector<Vec3<T>>& global_rest(const GlobalContext& ctx, const double* gv, const T* g,
+                                        Kept<std::vector<Vec3<T>>>* kept) {
+  kept->asked.assign(gv, gv + kGlobals);
+  if (kept->current()) return kept->made;
+  const sim::UnitParameters& d = *ctx.design;
+  const std::size_t ns = d.sensors.size();
+  Vec3<T> spos[sim::kMaxSensors], tu[sim::kMaxSensors], tv[sim::kMaxSensors], n[sim::kMaxSensors];
+  sensor_frames(ctx, g, spos, tu, tv, n);
+  kept->made.resize(d.magnets.size() * ns);
+  for (std::size_t m = 0; m < d.magnets.size(); ++m) {
+    const sim::MagnetParameters& mp = d.magnets[m];
+    T h;
+    Vec3<T> m_loc, rest_pos, rest_moment;
+    magnet_globals(mp, g, &h, &m_loc);
+    ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
+                           std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
+    for (std::size_t k = 0; k < ns; ++k)
+      kept->made[m * ns + k] = sim::dipole_field_ut(rest_moment, spos[k] - rest_pos);
+  }
+  return kept->made;
+}
+
+// Whitened residuals of every channel of one sample under globals `g`, with the rest fields
+// `rest` (global_rest()); T is double or JetG.
+template <typename T>
+void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
+                      const std::vector<Vec3<T>>& rest, T* out) {
   const sim::UnitParameters& d = *ctx.design;
   const std::size_t ns = d.sensors.size();
   Vec3<T> acc[sim::kMaxSensors];
   Vec3<T> spos[sim::kMaxSensors], tu[sim::kMaxSensors], tv[sim::kMaxSensors],
       n[sim::kMaxSensors];  // each sensor's position and local surface frame
-  for (std::size_t k = 0; k < ns; ++k) {
-    acc[k] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
-    const sim::SensorParameters& sp = d.sensors[k];
-    spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &tu[k], &tv[k],
-                                          &n[k]);
-  }
+  sensor_frames(ctx, g, spos, tu, tv, n);
+  for (std::size_t k = 0; k < ns; ++k) acc[k] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
-  for (const sim::MagnetParameters& mp : d.magnets) {
-    const T h = T(mp.h_mm) + g[2];
-    const Vec3<T> m_loc{g[4] * mp.moment_am2.x, g[4] * mp.moment_am2.y, g[4] * mp.moment_am2.z};
-    Vec3<T> pos, moment, rest_pos, rest_moment;
+  for (std::size_t m = 0; m < d.magnets.size(); ++m) {
+    const sim::MagnetParameters& mp = d.magnets[m];
+    T h;
+    Vec3<T> m_loc, pos, moment;
+    magnet_globals(mp, g, &h, &m_loc);
     if (!ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
                                 std::span<const sim::ContactT<T>>(&c, 1), &pos, &moment)) {
       continue;  // beyond the plate's reach: this magnet does not move
     }
-    ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
-                           std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
-    for (std::size_t k = 0; k < ns; ++k) {
-      acc[k] = acc[k] + sim::dipole_field_ut(moment, spos[k] - pos) -
-               sim::dipole_field_ut(rest_moment, spos[k] - rest_pos);
-    }
+    for (std::size_t k = 0; k < ns; ++k)
+      acc[k] = acc[k] + sim::dipole_field_ut(moment, spos[k] - pos) - rest[m * ns + k];
   }
   for (std::size_t k = 0; k < ns; ++k) {
     const sim::SensorParameters& sp = d.sensors[k];
@@ -299,13 +447,15 @@ class GlobalResidual final : public ceres::CostFunction {
   }
   bool Evaluate(double const* const* p, double* residuals, double** jacobians) const override {
     const std::size_t nc = static_cast<std::size_t>(nc_);
+    const std::lock_guard<std::mutex> lock(ctx_.rest->mutex);
     if (jacobians == nullptr || jacobians[0] == nullptr) {
-      global_residuals<double>(ctx_, smp_, p[0], residuals);
+      global_residuals<double>(ctx_, smp_, p[0], global_rest(ctx_, p[0], p[0], &ctx_.rest->values),
+                               residuals);
     } else {
       JetG g[kGlobals];
       for (int j = 0; j < kGlobals; ++j) g[j] = JetG(p[0][j], j);
       JetG out[3 * sim::kMaxSensors];
-      global_residuals<JetG>(ctx_, smp_, g, out);
+      global_residuals<JetG>(ctx_, smp_, g, global_rest(ctx_, p[0], g, &ctx_.rest->jets), out);
       for (std::size_t i = 0; i < nc; ++i) {
         residuals[i] = out[i].a;
         for (int j = 0; j < kGlobals; ++j)
@@ -363,7 +513,8 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
                                   std::span<const double> inv_sigma,
                                   const IdentificationOptions& opt, int* iterations) {
   const int nc = nominal.channel_count();
-  const GlobalContext ctx{&nominal, &design, opt.tip_radius_mm, inv_sigma};
+  GlobalRest rest;
+  const GlobalContext ctx{&nominal, &design, opt.tip_radius_mm, inv_sigma, &rest};
   double top_sensor_mm = -1e9;
   for (const sim::SensorParameters& sp : design.sensors)
     top_sensor_mm = std::fmax(top_sensor_mm, sp.h_mm);
@@ -685,7 +836,14 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
   ceres::Problem problem(po);
   std::vector<double*> blocks;
-  for (const Sample& s : samples) {
+  std::vector<NearPoses> sample_poses(samples.size());
+  std::vector<RestFields> rest_fields(ns);
+  for (RestFields& r : rest_fields) {
+    r.values.resize(nm);
+    r.jets.resize(nm);
+  }
+  for (std::size_t si = 0; si < samples.size(); ++si) {
+    const Sample& s = samples[si];
     for (std::size_t k = 0; k < ns; ++k) {
       if (!std::isfinite(s.field[3 * k]) && !std::isfinite(s.field[3 * k + 1]) &&
           !std::isfinite(s.field[3 * k + 2])) {
@@ -693,7 +851,9 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
       }
       blocks.assign({global.data(), &sens[k * kSensorBlock]});
       for (int m : s.near) blocks.push_back(&mags[static_cast<std::size_t>(m) * kMagnetBlock]);
-      problem.AddResidualBlock(new SensorResidual(ctx, s, static_cast<int>(k)), nullptr, blocks);
+      problem.AddResidualBlock(
+          new SensorResidual(ctx, s, static_cast<int>(k), &sample_poses[si], &rest_fields[k]),
+          nullptr, blocks);
     }
   }
   // Priors: the fabrication spread about nominal.
@@ -725,22 +885,25 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   const ceres::Solver::Options so = solver_options(opt, ceres::SPARSE_NORMAL_CHOLESKY);
 
   for (int outer = 0; outer < opt.outer_iterations; ++outer) {
-    // Frozen field of the magnets beyond derivative reach, at the current parameters.
+    // Frozen field of the magnets beyond derivative reach, at the current parameters: each far
+    // magnet posed once a sample, its field summed at every sensor in magnet order.
+    Vec3<double> sensor_pos[sim::kMaxSensors];
+    for (std::size_t k = 0; k < ns; ++k) {
+      const double* sp = &sens[k * kSensorBlock];
+      sensor_pos[k] = nominal.surface_point<double>(sp[0], sp[1], sp[2], nullptr, nullptr, nullptr);
+    }
     for (Sample& s : samples) {
-      for (std::size_t k = 0; k < ns; ++k) {
-        const double* sp = &sens[k * kSensorBlock];
-        const Vec3<double> pos =
-            nominal.surface_point<double>(sp[0], sp[1], sp[2], nullptr, nullptr, nullptr);
-        Vec3<double> b{};
-        std::size_t ni = 0;
-        for (std::size_t m = 0; m < nm; ++m) {
-          if (ni < s.near.size() && static_cast<std::size_t>(s.near[ni]) == m) {
-            ++ni;
-            continue;
-          }
-          b = b + magnet_term<double>(ctx, s, &mags[m * kMagnetBlock], global[0], global[1], pos);
+      s.far.assign(ns, Vec3<double>{});
+      std::size_t ni = 0;
+      for (std::size_t m = 0; m < nm; ++m) {
+        if (ni < s.near.size() && static_cast<std::size_t>(s.near[ni]) == m) {
+          ++ni;
+          continue;
         }
-        s.far[k] = b;
+        const MagnetPose<double> pose =
+            magnet_pose<double>(ctx, s, &mags[m * kMagnetBlock], global[0], global[1]);
+        if (!pose.moved) continue;
+        for (std::size_t k = 0; k < ns; ++k) s.far[k] = s.far[k] + magnet_term(pose, sensor_pos[k]);
       }
     }
     ceres::Solver::Summary summary;

@@ -33,7 +33,9 @@
 // only the magnets within derivative_reach spread lengths of the press, so the Jacobian stays
 // sparse. Derivatives are exact forward-mode jets through sim's own templates
 // (PatchModel::magnet_pose, sim::dipole_field_ut); magnets beyond derivative_reach (moved by at
-// most ~1 % of the depth) enter with their value, refreshed between outer iterations.
+// most ~1 % of the depth) enter with their value, refreshed between outer iterations. What does
+// not depend on a block's own sensor or sample is made once an evaluation and shared: a sample's
+// magnet poses by its sensors' blocks, the magnets' rest fields by every sample's.
 //
 // Quality: residual RMS in noise units (1.0: the model explains the data down to the sensor
 // noise; clearly above 1: the model class misses something), overall and per depth bin, on the
@@ -41,8 +43,9 @@
 //
 // Cost: stage 1, a dense 5-unknown fit per spread start, each evaluation moving every magnet a
 // press reaches for every row; stage 2, a sparse Levenberg-Marquardt over every sample's
-// residuals, a few iterations. Seconds to tens of seconds for the seed's 361 presses on one
-// core, memory growing with the samples (figures: docs/physics_estimator.md,
+// residuals, a few iterations. For the seed's 361 presses on one core: 5-11 s on units of the
+// model class (16 sensors, 49-81 magnets), about a minute where 57 iterations cannot explain a
+// unit outside it; memory growing with the samples (figures: docs/physics_estimator.md,
 // docs/benchmarks/designs.md). Single-threaded (Eigen's sparse Cholesky; no BLAS threads).
 #pragma once
 
