@@ -150,15 +150,50 @@ const std::vector<MagnetPose<T>>& near_poses(const Context& ctx, const Sample& s
 
 // magnet_term() of a near magnet at sensor position `spos` (the sensor's block `s`), its rest
 // field taken from `rest` when made at the same sensor position, magnet block `mag` and lattice.
-template <typename T>
-Vec3<T> near_term(const MagnetPose<T>& pose, const Vec3<T>& spos, const double* s,
-                  const double* mag, const double* g, Kept<Vec3<T>>* rest) {
-  if (!pose.moved) return Vec3<T>{T(0.0), T(0.0), T(0.0)};
+Vec3<double> near_term(const MagnetPose<double>& pose, const Vec3<double>& spos, const double* s,
+                       const double* mag, const double* g, Kept<Vec3<double>>* rest) {
+  if (!pose.moved) return Vec3<double>{};
   rest->asked.assign(s, s + 3);
   rest->asked.insert(rest->asked.end(), mag, mag + kMagnetBlock);
   rest->asked.insert(rest->asked.end(), g, g + kGlobalBlock);
   if (!rest->current()) rest->made = sim::dipole_field_ut(pose.rest_moment, spos - pose.rest_pos);
   return sim::dipole_field_ut(pose.moment, spos - pose.pos) - rest->made;
+}
+
+// near_term() with derivatives: its rest field as jets (made once a sensor and magnet), its
+// field under the press in closed form (sim::dipole_field_gradient_ut, made once a block) and
+// chained by hand. The pose's jets have their derivatives in variables 0-7 alone, the sensor
+// position's in 8-10 alone (SensorResidual's variables).
+Vec3<JetM> near_term(const MagnetPose<JetM>& pose, const Vec3<JetM>& spos, const double* s,
+                     const double* mag, const double* g, Kept<Vec3<JetM>>* rest) {
+  if (!pose.moved) return Vec3<JetM>{JetM(0.0), JetM(0.0), JetM(0.0)};
+  rest->asked.assign(s, s + 3);
+  rest->asked.insert(rest->asked.end(), mag, mag + kMagnetBlock);
+  rest->asked.insert(rest->asked.end(), g, g + kGlobalBlock);
+  if (!rest->current()) rest->made = sim::dipole_field_ut(pose.rest_moment, spos - pose.rest_pos);
+  constexpr int kPose = kMagnetBlock + kGlobalBlock;
+  const JetM* sp[3] = {&spos.x, &spos.y, &spos.z};
+  const JetM* pp[3] = {&pose.pos.x, &pose.pos.y, &pose.pos.z};
+  const JetM* mp[3] = {&pose.moment.x, &pose.moment.y, &pose.moment.z};
+  const Vec3<double> r{sp[0]->a - pp[0]->a, sp[1]->a - pp[1]->a, sp[2]->a - pp[2]->a};
+  double d_dr[3][3], d_dm[3][3];
+  const Vec3<double> b =
+      sim::dipole_field_gradient_ut(Vec3<double>{mp[0]->a, mp[1]->a, mp[2]->a}, r, d_dr, d_dm);
+  const double bv[3] = {b.x, b.y, b.z};
+  Vec3<JetM> out;
+  JetM* o[3] = {&out.x, &out.y, &out.z};
+  for (int i = 0; i < 3; ++i) {
+    JetM& oi = *o[i];
+    oi.a = bv[i];
+    oi.v.setZero();
+    for (int j = 0; j < 3; ++j) {
+      // r = sensor position - magnet position.
+      oi.v.head<kPose>() +=
+          d_dm[i][j] * mp[j]->v.head<kPose>() - d_dr[i][j] * pp[j]->v.head<kPose>();
+      oi.v.tail<3>() += d_dr[i][j] * sp[j]->v.tail<3>();
+    }
+  }
+  return out - rest->made;
 }
 
 // The sensor's reading of a 3D field: gain * (R(rotation) mounting0 surface-frame) field.
@@ -239,7 +274,9 @@ class SensorResidual final : public ceres::CostFunction {
     }
     // Field in 3D with its derivatives: lattice (2), sensor position (3), magnets (6 each).
     if (nm > kMaxNear) return false;
-    double dacc[3][kGlobalBlock + 3 + kMagnetBlock * kMaxNear] = {};
+    // Summed: the lattice's and the sensor position's; set below: each near magnet's.
+    double dacc[3][kGlobalBlock + 3 + kMagnetBlock * kMaxNear];
+    for (auto& row : dacc) std::fill(row, row + kGlobalBlock + 3, 0.0);
     Vec3<double> acc = far;
     JetM spos_in[3];
     for (int j = 0; j < 3; ++j) spos_in[j] = JetM(s[j], kMagnetBlock + kGlobalBlock + j);
