@@ -184,8 +184,9 @@ if ((from_refused)); then
   echo "calibrate_unit: [3/5] ... and on the unit's own presses alone ($epochs epochs at most," \
     "$from), to choose between the two by held-out error" >&2
   train_or_mlp "$train_set" "$out/network_own" "$out/train_own.log" "${base_opt[@]}"
-  # The score each training kept its epoch by: XY of the held-out presses at least 1 mm deep plus
-  # their depth error (skinbus-train, estimators/include/skinbus/estimators/training.h).
+  # The score each training kept its epoch by (its metadata's val_score: XY of the held-out
+  # presses at least 1 mm deep plus their depth error, estimators/include/skinbus/estimators/
+  # training.h).
   kept=$(python3 - "$out" <<'PY'
 import json, sys
 out = sys.argv[1]
@@ -195,9 +196,8 @@ rows, scores = [], {}
 for name, what in ways:
     m = json.load(open(f"{out}/{name}.json"))
     m = m.get("metrics", m.get("meta", {}).get("metrics", {}))
-    xy, depth = m["val_xy_deep_mean_mm"], m["val_depth_mean_mm"]
-    scores[name] = xy + depth
-    rows.append(f"| {what} ({name}) | {xy:.3f} | {depth:.3f} | {xy + depth:.3f} |")
+    xy, depth, scores[name] = m["val_xy_deep_mean_mm"], m["val_depth_mean_mm"], m["val_score"]
+    rows.append(f"| {what} ({name}) | {xy:.3f} | {depth:.3f} | {scores[name]:.3f} |")
 best = min(scores, key=scores.get)
 with open(f"{out}/choice.log", "w") as f:
     f.write("| way | held-out XY, >= 1 mm deep (mm) | held-out depth (mm) | score |\n"
@@ -269,8 +269,9 @@ with open(f"{out}/report.md", "w") as f:
     f.write("## Identification (skinbus-identify)\n\n```\n" + "\n".join(ident[-12:]) + "\n```\n\n")
     f.write("A residual near 1 noise unit: the model explains the unit to its noise; clearly above"
             " (> 1.1): the unit has physics the model class lacks.\n\n")
-    choice = f"{out}/choice.log"
-    from_refused = os.path.exists(choice) and "Kept: network_from_refused" in open(choice).read()
+    choice_log = f"{out}/choice.log"
+    choice = open(choice_log).read() if os.path.exists(choice_log) else ""
+    from_refused = "Kept: network_from_refused" in choice
     if network_route:
         f.write("**Identification refused this unit** (above): the design's model class does not "
                 "explain its presses, so there is no unit file and skinbus-host will not refine "
@@ -281,11 +282,10 @@ with open(f"{out}/report.md", "w") as f:
                 + f"unit's own presses ({presses}). Check the design file against the patch; a "
                 "unit the class explains is calibrated better (refined on the identified "
                 "unit).\n\n")
-    if os.path.exists(choice):
+    if choice:
         f.write("## The way kept, by held-out error\n\nEach way's network on the unit's presses "
                 "it was not trained on (the same held-out press places for both: skinbus-train's "
-                "validation split), scored as training keeps its epochs:\n\n"
-                + open(choice).read() + "\n")
+                "validation split), scored as training keeps its epochs:\n\n" + choice + "\n")
     tested_on = held or ("simulated test presses of the identified unit" if not network_route
                          else "no presses it was not trained on: give --held-out to measure it")
     f.write(f"## The unit's network on {tested_on}" + (f" ({test_set})" if test_set else "")

@@ -559,6 +559,7 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
   m.metrics["val_xy_mean_mm"] = best_report.val_xy_mean_mm;
   m.metrics["val_xy_deep_mean_mm"] = best_report.val_xy_deep_mm;
   m.metrics["val_depth_mean_mm"] = best_report.val_depth_mean_mm;
+  m.metrics["val_score"] = best_report.score;  // what kept this epoch (EpochReport::score)
   m.metrics["val_force_mean_n"] = best_report.val_force_mean_n;
   m.metrics["select_min_depth_mm"] = o.select_min_depth_mm;
   if (masked_rows > 0) {

@@ -2,8 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <vector>
 
 #include "skinbus/estimators/contact_proposal.h"
@@ -92,6 +94,14 @@ TEST(Training, SmallSimulatedSetBeatsTheMeanByAClearMargin) {
   EXPECT_GT(r->validation_locations, 0);
   EXPECT_EQ(r->train_locations + r->validation_locations, 200);
   EXPECT_GT(r->model.meta.metrics.at("val_xy_deep_mean_mm"), 0);
+  // The score that kept the epoch is in the metadata (what a choice between trainings reads),
+  // and it is the kept epoch's.
+  const std::map<std::string, double>& m = r->model.meta.metrics;
+  EXPECT_DOUBLE_EQ(m.at("val_score"), m.at("val_xy_deep_mean_mm") + m.at("val_depth_mean_mm"));
+  const auto kept = std::find_if(r->history.begin(), r->history.end(),
+                                 [&](const EpochReport& rep) { return rep.epoch == r->best_epoch; });
+  ASSERT_NE(kept, r->history.end());
+  EXPECT_EQ(m.at("val_score"), kept->score);
   for (const EpochReport& rep : r->history) ASSERT_TRUE(std::isfinite(rep.train_loss));
 }
 
