@@ -98,8 +98,9 @@ TEST(Training, SmallSimulatedSetBeatsTheMeanByAClearMargin) {
   // and it is the kept epoch's.
   const std::map<std::string, double>& m = r->model.meta.metrics;
   EXPECT_DOUBLE_EQ(m.at("val_score"), m.at("val_xy_deep_mean_mm") + m.at("val_depth_mean_mm"));
-  const auto kept = std::find_if(r->history.begin(), r->history.end(),
-                                 [&](const EpochReport& rep) { return rep.epoch == r->best_epoch; });
+  const auto kept = std::find_if(r->history.begin(), r->history.end(), [&](const EpochReport& rep) {
+    return rep.epoch == r->best_epoch;
+  });
   ASSERT_NE(kept, r->history.end());
   EXPECT_EQ(m.at("val_score"), kept->score);
   for (const EpochReport& rep : r->history) ASSERT_TRUE(std::isfinite(rep.train_loss));

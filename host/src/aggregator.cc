@@ -339,9 +339,14 @@ Result<std::unique_ptr<Aggregator>> Aggregator::create(const body_map::SkinMap* 
         impl->refiners[i] = std::move(*r);
         impl->refiner_memories[i] = impl->refiners[i]->make_memory();
       } else {
+        // The unit is named once: by the factory's message when it names the file (as
+        // make_physics_refiner's do), else here.
+        const std::string& why = r.error().message;
+        const std::string unit = why.find(request.unit_path) == std::string::npos
+                                     ? "unit " + pl.unit + ": "
+                                     : std::string();
         impl->registry.add_event(PatchEventKind::kNoModel, 0,
-                                 "node " + std::to_string(pl.node_id) + ": unit " + pl.unit + ": " +
-                                     r.error().message +
+                                 "node " + std::to_string(pl.node_id) + ": " + unit + why +
                                      " (its contacts are the network's, unrefined)");
       }
     }
