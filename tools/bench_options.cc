@@ -52,7 +52,8 @@ void add_cpu_options(CLI::App* sub, estimators_bench::CpuBenchArgs& a) {
       ->check(CLI::Range(10, 100000));
   sub->add_option("--reps", a.reps,
                   "rounds: each round times every row once, the rows in turn (the portable rows "
-                  "in the first round only); the median over the rounds is reported")
+                  "in the first round only); the median over the rounds is reported. The FMA "
+                  "peak and the read rate are measured again before each round, the best kept")
       ->check(CLI::Range(1, 50));
   sub->add_option("--csv", a.csv, "write the table as CSV");
   sub->add_option("--plot", a.plot,
