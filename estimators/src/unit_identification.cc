@@ -369,6 +369,31 @@ class PriorResidual final : public ceres::CostFunction {
   std::vector<double> centre_, inv_sd_;
 };
 
+// Stage 2's progress: a line at the start of each pass and every kEvery iterations, with the
+// RMS of every whitened residual (the priors' included), in noise units.
+class StageProgress final : public ceres::IterationCallback {
+ public:
+  static constexpr int kEvery = 5;
+  StageProgress(const std::function<void(const std::string&)>& progress, int residuals, int passes)
+      : progress_(progress), residuals_(residuals), passes_(passes) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& it) override {
+    if (it.iteration % kEvery == 0) {
+      char line[160];
+      std::snprintf(line, sizeof line,
+                    "fitting every magnet and sensor: pass %d of %d, iteration %d, residual "
+                    "%.2f noise units (priors included)",
+                    pass, passes_, it.iteration, std::sqrt(2 * it.cost / std::max(residuals_, 1)));
+      progress_(line);
+    }
+    return ceres::SOLVER_CONTINUE;
+  }
+  int pass = 1;
+
+ private:
+  const std::function<void(const std::string&)>& progress_;
+  int residuals_, passes_;
+};
+
 // ---- Stage 1: the design's global physics --------------------------------------------------
 // Five numbers that a design file may have wrong for a whole unit and that the per-magnet and
 // per-sensor parameters, held to the fabrication spread, cannot absorb: the spread length, the
@@ -919,9 +944,12 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
   problem.SetParameterLowerBound(global.data(), 0, 0.2 * start.spread_mm);
   problem.SetParameterLowerBound(global.data(), 1, 0.0);
 
-  const ceres::Solver::Options so = solver_options(opt, ceres::SPARSE_NORMAL_CHOLESKY);
+  ceres::Solver::Options so = solver_options(opt, ceres::SPARSE_NORMAL_CHOLESKY);
+  StageProgress shown(opt.progress, problem.NumResiduals(), opt.outer_iterations);
+  if (opt.progress) so.callbacks.push_back(&shown);
 
   for (int outer = 0; outer < opt.outer_iterations; ++outer) {
+    shown.pass = outer + 1;
     // Frozen field of the magnets beyond derivative reach, at the current parameters: each far
     // magnet posed once a sample, its field summed at every sensor in magnet order.
     Vec3<double> sensor_pos[sim::kMaxSensors];

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -225,8 +226,16 @@ TEST(UnitIdentificationTest, ADeadChannelIsLeftOutOfTheFit) {
   }
   IdentificationOptions opt;
   opt.depths_per_press = 2;
+  std::vector<std::string> progress;
+  opt.progress = [&](const std::string& line) { progress.push_back(line); };
   const Result<IdentifiedUnit> id = identify_unit(design, data.train, opt, &data.test);
   ASSERT_TRUE(id.ok()) << id.error().to_string();
+  // The fit of every part reported its passes as it ran.
+  for (const char* pass : {"pass 1 of 2, iteration 0, residual", "pass 2 of 2, iteration 0"}) {
+    EXPECT_TRUE(std::any_of(progress.begin(), progress.end(), [&](const std::string& line) {
+      return line.find(pass) != std::string::npos;
+    })) << pass;
+  }
   EXPECT_EQ(id->presses, 81);
   EXPECT_GT(id->masked_values, 0);
   print_quality("fit, channel 22 dead", id->fit);

@@ -137,7 +137,8 @@ struct IdentificationOptions {
   // A fit leaving more than this (RMS, noise units, on the fitting rows) is refused: the model
   // class does not explain the unit (above kModelMissesResidual it is kept, with physics missed).
   double max_residual = 4.0;
-  // Called with a line on each step (stage 1 per start, stage 2); may be empty.
+  // Called with a line on each step (stage 1 per start, stage 2 at the start of each outer
+  // iteration and every 5 of its iterations); may be empty.
   std::function<void(const std::string&)> progress;
 };
 
