@@ -148,16 +148,24 @@ const std::vector<MagnetPose<T>>& near_poses(const Context& ctx, const Sample& s
   return kept->made;
 }
 
-// magnet_term() of a near magnet at sensor position `spos` (the sensor's block `s`), its rest
-// field taken from `rest` when made at the same sensor position, magnet block `mag` and lattice.
-Vec3<double> near_term(const MagnetPose<double>& pose, const Vec3<double>& spos, const double* s,
-                       const double* mag, const double* g, Kept<Vec3<double>>* rest) {
-  if (!pose.moved) return Vec3<double>{};
+// A near magnet's rest field at sensor position `spos` (the sensor's block `s`), from `rest`
+// when made at the same sensor position, magnet block `mag` and lattice `g`.
+template <typename T>
+const Vec3<T>& rest_field(const MagnetPose<T>& pose, const Vec3<T>& spos, const double* s,
+                          const double* mag, const double* g, Kept<Vec3<T>>* rest) {
   rest->asked.assign(s, s + 3);
   rest->asked.insert(rest->asked.end(), mag, mag + kMagnetBlock);
   rest->asked.insert(rest->asked.end(), g, g + kGlobalBlock);
   if (!rest->current()) rest->made = sim::dipole_field_ut(pose.rest_moment, spos - pose.rest_pos);
-  return sim::dipole_field_ut(pose.moment, spos - pose.pos) - rest->made;
+  return rest->made;
+}
+
+// magnet_term() of a near magnet, its rest field from `rest` (rest_field()).
+Vec3<double> near_term(const MagnetPose<double>& pose, const Vec3<double>& spos, const double* s,
+                       const double* mag, const double* g, Kept<Vec3<double>>* rest) {
+  if (!pose.moved) return Vec3<double>{};
+  return sim::dipole_field_ut(pose.moment, spos - pose.pos) -
+         rest_field(pose, spos, s, mag, g, rest);
 }
 
 // near_term() with derivatives: its rest field as jets (made once a sensor and magnet), its
@@ -167,10 +175,6 @@ Vec3<double> near_term(const MagnetPose<double>& pose, const Vec3<double>& spos,
 Vec3<JetM> near_term(const MagnetPose<JetM>& pose, const Vec3<JetM>& spos, const double* s,
                      const double* mag, const double* g, Kept<Vec3<JetM>>* rest) {
   if (!pose.moved) return Vec3<JetM>{JetM(0.0), JetM(0.0), JetM(0.0)};
-  rest->asked.assign(s, s + 3);
-  rest->asked.insert(rest->asked.end(), mag, mag + kMagnetBlock);
-  rest->asked.insert(rest->asked.end(), g, g + kGlobalBlock);
-  if (!rest->current()) rest->made = sim::dipole_field_ut(pose.rest_moment, spos - pose.rest_pos);
   constexpr int kPose = kMagnetBlock + kGlobalBlock;
   const JetM* sp[3] = {&spos.x, &spos.y, &spos.z};
   const JetM* pp[3] = {&pose.pos.x, &pose.pos.y, &pose.pos.z};
@@ -193,7 +197,7 @@ Vec3<JetM> near_term(const MagnetPose<JetM>& pose, const Vec3<JetM>& spos, const
       oi.v.tail<3>() += d_dr[i][j] * sp[j]->v.tail<3>();
     }
   }
-  return out - rest->made;
+  return out - rest_field(pose, spos, s, mag, g, rest);
 }
 
 // The sensor's reading of a 3D field: gain * (R(rotation) mounting0 surface-frame) field.
