@@ -64,8 +64,12 @@ TEST(ContactProposal, TheShippedProposerCountsAndStartsThePhysicsCount) {
   sim::Rng rng(test_seed("TheShippedProposerCountsAndStartsThePhysicsCount"));
   // The proposer's count over `tries` samples of each count (it misses about 7 % of pairs on
   // this unit: at least 80 % right asked of 60 samples fails about one run in 10^4; of 20, one in
-  // 50); the physics count on the first `physics_tries` samples of three.
-  int right[4] = {}, tries = 60, physics_tries = 20, counted = 0, proposed_counted = 0;
+  // 50); the physics count on the first `physics_tries` samples of three. Started from the
+  // proposal, the physics count misses a triple the count from nothing finds in about 0.7 % of
+  // samples (20 of 3000 over 150 seeds); asking it to miss at most one more of 20 failed about
+  // one run in 150 (a CI run, seed 18247047663620060379: 18 against 20). Of 60 (100 seeds: 0, 1 or
+  // 2 more, mean 0.3), at most 4 more: rarer than one run in 10^4 (Poisson).
+  int right[4] = {}, tries = 60, physics_tries = 60, counted = 0, proposed_counted = 0;
   long iterations_nothing = 0, iterations_proposed = 0;
   for (int presses = 0; presses <= 3; ++presses) {
     for (int t = 0; t < tries; ++t) {
@@ -99,7 +103,7 @@ TEST(ContactProposal, TheShippedProposerCountsAndStartsThePhysicsCount) {
       proposed_counted, iterations_proposed);
   EXPECT_GE(right[0], tries - 3);
   for (int k = 1; k <= 3; ++k) EXPECT_GE(right[k], tries * 4 / 5) << k << " presses";
-  EXPECT_GE(proposed_counted, counted - 1);
+  EXPECT_GE(proposed_counted, counted - 4);
   EXPECT_LT(iterations_proposed, iterations_nothing / 2);  // the search it spares
 }
 
