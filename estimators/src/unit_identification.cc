@@ -406,12 +406,19 @@ class StageProgress final : public ceres::IterationCallback {
 constexpr int kGlobals = 5;
 using JetG = ceres::Jet<double, kGlobals>;
 
-// The rest field of every magnet at every sensor (magnet-major): the same for every sample, so
-// the samples' blocks share it, made once an evaluation rather than once a sample.
-struct GlobalRest {
+// What every sample's residuals share under the globals: each sensor's position and local
+// surface frame, and the rest field of every magnet at every sensor (magnet-major). The samples'
+// blocks share it (GlobalShared), made once an evaluation rather than once a sample.
+template <typename T>
+struct GlobalTerms {
+  std::vector<Vec3<T>> spos, tu, tv, n;  // by sensor
+  std::vector<Vec3<T>> rest;             // magnet m at sensor k: [m * sensors + k]
+};
+
+struct GlobalShared {
   std::mutex mutex;
-  Kept<std::vector<Vec3<double>>> values;
-  Kept<std::vector<Vec3<JetG>>> jets;
+  Kept<GlobalTerms<double>> values;
+  Kept<GlobalTerms<JetG>> jets;
 };
 
 struct GlobalContext {
@@ -419,20 +426,8 @@ struct GlobalContext {
   const sim::UnitParameters* design;  // the design's nominal unit
   double tip_mm;
   std::span<const double> inv_sigma;  // per channel
-  GlobalRest* rest;
+  GlobalShared* shared;
 };
-
-// Each sensor's position and local surface frame under globals `g`.
-template <typename T>
-void sensor_frames(const GlobalContext& ctx, const T* g, Vec3<T>* spos, Vec3<T>* tu, Vec3<T>* tv,
-                   Vec3<T>* n) {
-  const sim::UnitParameters& d = *ctx.design;
-  for (std::size_t k = 0; k < d.sensors.size(); ++k) {
-    const sim::SensorParameters& sp = d.sensors[k];
-    spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &tu[k], &tv[k],
-                                          &n[k]);
-  }
-}
 
 // Magnet `mp`'s height and moment under globals `g`.
 template <typename T>
@@ -441,17 +436,22 @@ void magnet_globals(const sim::MagnetParameters& mp, const T* g, T* h, Vec3<T>* 
   *m_loc = Vec3<T>{g[4] * mp.moment_am2.x, g[4] * mp.moment_am2.y, g[4] * mp.moment_am2.z};
 }
 
-// The rest fields under globals `g` (values `gv`), from `kept` when made at the same.
+// The shared terms under globals `g` (values `gv`), from `kept` when made at the same.
 template <typename T>
-const std::vector<Vec3<T>>& global_rest(const GlobalContext& ctx, const double* gv, const T* g,
-                                        Kept<std::vector<Vec3<T>>>* kept) {
+const GlobalTerms<T>& global_terms(const GlobalContext& ctx, const double* gv, const T* g,
+                                   Kept<GlobalTerms<T>>* kept) {
   kept->asked.assign(gv, gv + kGlobals);
   if (kept->current()) return kept->made;
   const sim::UnitParameters& d = *ctx.design;
   const std::size_t ns = d.sensors.size();
-  Vec3<T> spos[sim::kMaxSensors], tu[sim::kMaxSensors], tv[sim::kMaxSensors], n[sim::kMaxSensors];
-  sensor_frames(ctx, g, spos, tu, tv, n);
-  kept->made.resize(d.magnets.size() * ns);
+  GlobalTerms<T>& t = kept->made;
+  for (auto* v : {&t.spos, &t.tu, &t.tv, &t.n}) v->resize(ns);
+  for (std::size_t k = 0; k < ns; ++k) {
+    const sim::SensorParameters& sp = d.sensors[k];
+    t.spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &t.tu[k],
+                                            &t.tv[k], &t.n[k]);
+  }
+  t.rest.resize(d.magnets.size() * ns);
   for (std::size_t m = 0; m < d.magnets.size(); ++m) {
     const sim::MagnetParameters& mp = d.magnets[m];
     T h;
@@ -460,22 +460,19 @@ const std::vector<Vec3<T>>& global_rest(const GlobalContext& ctx, const double* 
     ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
                            std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
     for (std::size_t k = 0; k < ns; ++k)
-      kept->made[m * ns + k] = sim::dipole_field_ut(rest_moment, spos[k] - rest_pos);
+      t.rest[m * ns + k] = sim::dipole_field_ut(rest_moment, t.spos[k] - rest_pos);
   }
-  return kept->made;
+  return t;
 }
 
-// Whitened residuals of every channel of one sample under globals `g`, with the rest fields
-// `rest` (global_rest()); T is double or JetG.
+// Whitened residuals of every channel of one sample under globals `g`, with the shared terms
+// `t` (global_terms()); T is double or JetG.
 template <typename T>
 void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
-                      const std::vector<Vec3<T>>& rest, T* out) {
+                      const GlobalTerms<T>& t, T* out) {
   const sim::UnitParameters& d = *ctx.design;
   const std::size_t ns = d.sensors.size();
   Vec3<T> acc[sim::kMaxSensors];
-  Vec3<T> spos[sim::kMaxSensors], tu[sim::kMaxSensors], tv[sim::kMaxSensors],
-      n[sim::kMaxSensors];  // each sensor's position and local surface frame
-  sensor_frames(ctx, g, spos, tu, tv, n);
   for (std::size_t k = 0; k < ns; ++k) acc[k] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
   for (std::size_t m = 0; m < d.magnets.size(); ++m) {
@@ -488,14 +485,14 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
       continue;  // beyond the plate's reach: this magnet does not move
     }
     for (std::size_t k = 0; k < ns; ++k)
-      acc[k] = acc[k] + sim::dipole_field_ut(moment, spos[k] - pos) - rest[m * ns + k];
+      acc[k] = acc[k] + sim::dipole_field_ut(moment, t.spos[k] - pos) - t.rest[m * ns + k];
   }
   for (std::size_t k = 0; k < ns; ++k) {
     const sim::SensorParameters& sp = d.sensors[k];
     const double gk[3] = {sp.gain.x, sp.gain.y, sp.gain.z};
     for (int row = 0; row < 3; ++row) {
       const Vec3<double>& e = sp.mounting.r[row];
-      const Vec3<T> axis = tu[k] * T(e.x) + tv[k] * T(e.y) + n[k] * T(e.z);
+      const Vec3<T> axis = t.tu[k] * T(e.x) + t.tv[k] * T(e.y) + t.n[k] * T(e.z);
       const std::size_t ch = 3 * k + static_cast<std::size_t>(row);
       const double y = smp.field[ch];
       out[ch] = std::isfinite(y) ? (T(gk[row]) * sim::dot(axis, acc[k]) - T(y)) * ctx.inv_sigma[ch]
@@ -513,15 +510,15 @@ class GlobalResidual final : public ceres::CostFunction {
   }
   bool Evaluate(double const* const* p, double* residuals, double** jacobians) const override {
     const std::size_t nc = static_cast<std::size_t>(nc_);
-    const std::lock_guard<std::mutex> lock(ctx_.rest->mutex);
+    const std::lock_guard<std::mutex> lock(ctx_.shared->mutex);
     if (jacobians == nullptr || jacobians[0] == nullptr) {
-      global_residuals<double>(ctx_, smp_, p[0], global_rest(ctx_, p[0], p[0], &ctx_.rest->values),
-                               residuals);
+      global_residuals<double>(ctx_, smp_, p[0],
+                               global_terms(ctx_, p[0], p[0], &ctx_.shared->values), residuals);
     } else {
       JetG g[kGlobals];
       for (int j = 0; j < kGlobals; ++j) g[j] = JetG(p[0][j], j);
       JetG out[3 * sim::kMaxSensors];
-      global_residuals<JetG>(ctx_, smp_, g, global_rest(ctx_, p[0], g, &ctx_.rest->jets), out);
+      global_residuals<JetG>(ctx_, smp_, g, global_terms(ctx_, p[0], g, &ctx_.shared->jets), out);
       for (std::size_t i = 0; i < nc; ++i) {
         residuals[i] = out[i].a;
         for (int j = 0; j < kGlobals; ++j)
@@ -579,8 +576,8 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
                                   std::span<const double> inv_sigma,
                                   const IdentificationOptions& opt, int* iterations) {
   const int nc = nominal.channel_count();
-  GlobalRest rest;
-  const GlobalContext ctx{&nominal, &design, opt.tip_radius_mm, inv_sigma, &rest};
+  GlobalShared shared;
+  const GlobalContext ctx{&nominal, &design, opt.tip_radius_mm, inv_sigma, &shared};
   double top_sensor_mm = -1e9;
   for (const sim::SensorParameters& sp : design.sensors)
     top_sensor_mm = std::fmax(top_sensor_mm, sp.h_mm);
