@@ -154,6 +154,83 @@ __attribute__((always_inline)) inline void dipole_sum_jet_any(std::size_t ns, co
   }
 }
 
+// plate_kernel(s) for s >= 0 without a branch, so that magnets fill the vector lanes: the table
+// interval of s (its index held to the last, also for NaN or s past the cutoff) and the offset in
+// it (PlateAt), then the table's four values there read by the caller (through its restrict
+// pointer: read here, the compiler would no longer know they are not the outputs), then the
+// cubic Hermite, every term computed, then chosen (zero past the cutoff).
+struct PlateAt {
+  int j;     // g and dg at points j and j + 1: table[2 j .. 2 j + 3]
+  double f;  // offset in the interval, in steps
+};
+__attribute__((always_inline)) inline PlateAt plate_at(double s) {
+  constexpr double kLast = kPlateTableSize - 2;
+  const double x = s * kPlateTablePerUnit;
+  const int j = static_cast<int>(x < kLast ? x : kLast);  // NaN: kLast
+  return {j, x - j};
+}
+struct PlateLanes {
+  double g, dg;
+};
+__attribute__((always_inline)) inline PlateLanes plate_hermite(double s, double f, double g0,
+                                                               double dg0, double g1, double dg1) {
+  constexpr double kStep = kPlateTableStep, kPerUnit = kPlateTablePerUnit;
+  const double d0 = dg0 * kStep, d1 = dg1 * kStep;
+  const double h00 = (1 + 2 * f) * (1 - f) * (1 - f), h10 = f * (1 - f) * (1 - f);
+  const double h01 = f * f * (3 - 2 * f), h11 = f * f * (f - 1);
+  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00,
+               dh11 = 3 * f * f - 2 * f;
+  const bool inside = s < kPlateKernelCutoff;
+  const double g_in = h00 * g0 + h10 * d0 + h01 * g1 + h11 * d1;
+  const double dg_in = (dh00 * g0 + dh10 * d0 + dh01 * g1 + dh11 * d1) * kPerUnit;
+  return {inside ? g_in : 0.0, inside ? dg_in : 0.0};
+}
+
+// The poses of a press's magnets (PressPoses): PatchModel::contact_field_ut()'s formulas for one
+// press term by term, without a branch (every term computed, then chosen), so that the compiler
+// puts magnets in the vector lanes.
+__attribute__((always_inline)) inline void press_poses_body(
+    const PressPose& p, std::size_t n, const MagnetArrays& m, const double* __restrict gd,
+    double* __restrict s2_out, double* __restrict uu_out, double* __restrict vv_out,
+    double* __restrict hh_out, double* __restrict bu_out, double* __restrict bv_out,
+    double* __restrict bz_out) {
+  const double* __restrict mu = m.u;
+  const double* __restrict mv = m.v;
+  const double* __restrict mh = m.h;
+  const double* __restrict mx = m.mx;
+  const double* __restrict my = m.my;
+  const double* __restrict mz = m.mz;
+  const double pu0 = p.u_mm, pv0 = p.v_mm, inv_lu2 = p.inv_lu2, inv_lv2 = p.inv_lv2;
+  const double a2 = p.a2, amp = p.amp_mm, lateral = p.lateral_mm, drag = p.drag;
+  const double lu = p.spread_u_mm, lv = p.spread_v_mm;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double du = mu[i] - pu0, dv = mv[i] - pv0;
+    const double s2 = du * du * inv_lu2 + dv * dv * inv_lv2;
+    const double s = std::sqrt(s2 + a2);
+    const PlateAt t = plate_at(s);
+    const PlateLanes kernel =
+        plate_hermite(s, t.f, gd[2 * t.j], gd[2 * t.j + 1], gd[2 * t.j + 2], gd[2 * t.j + 3]);
+    const double g = kernel.g, dg = kernel.dg;
+    const bool off_centre = s > 1e-6;
+    const double q_off = dg / (off_centre ? s : 1.0);
+    const double q = off_centre ? q_off : 0.0;
+    const double w = 0.0 + amp * g;
+    const double pu = 0.0 - amp * q * du * inv_lu2, pv = 0.0 - amp * q * dv * inv_lv2;
+    // PatchModel::drag_toward() (zero when there is no drag: the sum's bits as without it).
+    const double su = 0.0 - drag * amp * g * du / lu, sv = 0.0 - drag * amp * g * dv / lv;
+    const double ml2 = mx[i] * mx[i] + my[i] * my[i] + mz[i] * mz[i];
+    const double bu = mx[i] - pu * mz[i], bv = my[i] - pv * mz[i], bz = mz[i];
+    const double k = std::sqrt(ml2 / (bu * bu + bv * bv + bz * bz));
+    s2_out[i] = s2;
+    uu_out[i] = mu[i] - lateral * pu + su;
+    vv_out[i] = mv[i] - lateral * pv + sv;
+    hh_out[i] = mh[i] - w;
+    bu_out[i] = bu * k;
+    bv_out[i] = bv * k;
+    bz_out[i] = bz * k;
+  }
+}
+
 #define SKINBUS_DIPOLE_SUM_PARAMS                                                               \
   std::size_t ns, double px, double py, double pz, double mx, double my, double mz,             \
       const double *sx, const double *sy, const double *sz, const double *rx, const double *ry, \
@@ -164,12 +241,20 @@ __attribute__((always_inline)) inline void dipole_sum_jet_any(std::size_t ns, co
       const double *rx, const double *ry, const double *rz, double *ax, double *ay, double *az, \
       double *jx, double *jy, double *jz
 #define SKINBUS_DIPOLE_SUM_JET_ARGS ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz
+#define SKINBUS_PRESS_POSES_PARAMS                                                                \
+  const PressPose &p, std::size_t n, const MagnetArrays &m, const double *__restrict gd,          \
+      double *__restrict s2, double *__restrict uu, double *__restrict vv, double *__restrict hh, \
+      double *__restrict bu, double *__restrict bv, double *__restrict bz
+#define SKINBUS_PRESS_POSES_ARGS p, n, m, gd, s2, uu, vv, hh, bu, bv, bz
 
 void dipole_sum_baseline(SKINBUS_DIPOLE_SUM_PARAMS) {
   dipole_sum_body(SKINBUS_DIPOLE_SUM_ARGS);
 }
 void dipole_sum_jet_baseline(SKINBUS_DIPOLE_SUM_JET_PARAMS) {
   dipole_sum_jet_any(SKINBUS_DIPOLE_SUM_JET_ARGS);
+}
+void press_poses_baseline(SKINBUS_PRESS_POSES_PARAMS) {
+  press_poses_body(SKINBUS_PRESS_POSES_ARGS);
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -188,16 +273,25 @@ __attribute__((target("avx2,fma"))) void dipole_sum_jet_avx2(SKINBUS_DIPOLE_SUM_
 __attribute__((target("avx512f"))) void dipole_sum_jet_avx512(SKINBUS_DIPOLE_SUM_JET_PARAMS) {
   dipole_sum_jet_any(SKINBUS_DIPOLE_SUM_JET_ARGS);
 }
+__attribute__((target("avx2,fma"))) void press_poses_avx2(SKINBUS_PRESS_POSES_PARAMS) {
+  press_poses_body(SKINBUS_PRESS_POSES_ARGS);
+}
+__attribute__((target("avx512f"))) void press_poses_avx512(SKINBUS_PRESS_POSES_PARAMS) {
+  press_poses_body(SKINBUS_PRESS_POSES_ARGS);
+}
 #endif
 
 #undef SKINBUS_DIPOLE_SUM_PARAMS
 #undef SKINBUS_DIPOLE_SUM_ARGS
 #undef SKINBUS_DIPOLE_SUM_JET_PARAMS
 #undef SKINBUS_DIPOLE_SUM_JET_ARGS
+#undef SKINBUS_PRESS_POSES_PARAMS
+#undef SKINBUS_PRESS_POSES_ARGS
 
 struct Chosen {
   DipoleSum fn;
   DipoleSumJet jet;
+  PressPoses poses;
   Isa isa;
 };
 
@@ -224,10 +318,11 @@ const Chosen& chosen() {
   static const Chosen c = [] {
     for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
       if (isa_allowed(isa, env_isa_cap()) && have(isa)) {
-        return Chosen{dipole_sum_for(isa), dipole_sum_jet_for(isa), isa};
+        return Chosen{dipole_sum_for(isa), dipole_sum_jet_for(isa), press_poses_for(isa), isa};
       }
     }
-    return Chosen{&dipole_sum_baseline, &dipole_sum_jet_baseline, Isa::kPortable};
+    return Chosen{&dipole_sum_baseline, &dipole_sum_jet_baseline, &press_poses_baseline,
+                  Isa::kPortable};
   }();
   return c;
 }
@@ -266,12 +361,32 @@ DipoleSumJet dipole_sum_jet_for(Isa isa) {
   }
 }
 
+PressPoses press_poses_for(Isa isa) {
+  if (!have(isa)) return nullptr;
+  switch (isa) {
+    case Isa::kPortable:
+      return &press_poses_baseline;
+#if defined(__x86_64__) && defined(__GNUC__)
+    case Isa::kAvx512:
+      return &press_poses_avx512;
+    case Isa::kAvx2:
+      return &press_poses_avx2;
+#endif
+    default:
+      return nullptr;
+  }
+}
+
 DipoleSum dipole_sum() {
   return chosen().fn;
 }
 
 DipoleSumJet dipole_sum_jet() {
   return chosen().jet;
+}
+
+PressPoses press_poses() {
+  return chosen().poses;
 }
 
 }  // namespace skinbus::sim::detail

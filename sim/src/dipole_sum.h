@@ -1,4 +1,4 @@
-// sim/src/dipole_sum.h (internal): the hot loop of the field evaluation, built for AVX-512, AVX2
+// sim/src/dipole_sum.h (internal): the hot loops of the field evaluation, built for AVX-512, AVX2
 // with FMA and baseline x86-64 (elsewhere: baseline only), the widest the CPU has within
 // SKINBUS_MAX_ISA chosen once. The builds compute the same element-wise operations, but the
 // vector ones may fuse multiplies and adds: they agree with the baseline to a few units in the
@@ -39,11 +39,38 @@ using DipoleSumJet = void (*)(std::size_t ns, const MagnetJet& magnet, const dou
                               const double* ry, const double* rz, double* ax, double* ay,
                               double* az, double* jx, double* jy, double* jz);
 
+// One press without shear as every magnet's pose under it reads it (PatchModel::contact_field_ut()
+// of a single press): its place, its PatchModel::PressTerms, the model's spreads and lateral
+// coupling, PatchDesign::inplane_drag.
+struct PressPose {
+  double u_mm = 0, v_mm = 0;
+  double a2 = 0, amp_mm = 0;                                          // PressTerms' a2 and amp_mm
+  double spread_u_mm = 1, spread_v_mm = 1, inv_lu2 = 1, inv_lv2 = 1;  // inv_l*2: 1 / spread^2
+  double lateral_mm = 0, drag = 0;
+};
+
+// Magnets [0, n) as structure-of-arrays: rest position in surface coordinates (u, v, h; mm) and
+// moment in the local surface frame (mx, my, mz; A m^2).
+struct MagnetArrays {
+  const double *u, *v, *h, *mx, *my, *mz;
+};
+
+// The poses of magnets [0, n) under `press`, by the formulas of PatchModel::magnet_pose() (the
+// plate kernel by plate_kernel()'s table, `plate_gd`: detail::plate_table().gd), the magnets in
+// the vector lanes: each one's squared scaled distance from the press into s2[i] (it moves when
+// s2[i] < kPlateKernelCutoff^2), its moved position in surface coordinates into uu/vv/hh[i] and
+// its moment in the local frame into bu/bv/bz[i] (meaningful where it moves). No allocation.
+using PressPoses = void (*)(const PressPose& press, std::size_t n, const MagnetArrays& magnets,
+                            const double* plate_gd, double* s2, double* uu, double* vv, double* hh,
+                            double* bu, double* bv, double* bz);
+
 // The builds for `isa` (kPortable: baseline), or null when this CPU or build lacks it.
 DipoleSum dipole_sum_for(Isa isa);
 DipoleSumJet dipole_sum_jet_for(Isa isa);
+PressPoses press_poses_for(Isa isa);
 // The builds the field evaluation uses (their set: sim::field_isa()).
 DipoleSum dipole_sum();
 DipoleSumJet dipole_sum_jet();
+PressPoses press_poses();
 
 }  // namespace skinbus::sim::detail

@@ -1,5 +1,6 @@
-// The field evaluation's inner loop on each instruction set this CPU has (AVX-512, AVX2,
-// baseline): equal to the baseline to rounding on random magnets and sensors, and the set used
+// The field evaluation's inner loops on each instruction set this CPU has (AVX-512, AVX2,
+// baseline): equal to the baseline (the poses: to the model's magnet_pose()) to rounding on
+// random magnets, presses and sensors, and the set used
 // is the widest the CPU has within SKINBUS_MAX_ISA. On a CPU without AVX-512 the AVX2 build is
 // the one checked here (and on the emulated AVX2-only CPU of docs/testing.md).
 #include "dipole_sum.h"
@@ -192,6 +193,75 @@ TEST(DipoleSum, TheFusedThreeUnknownPassEqualsTheGeneralOne) {
   }
 }
 
+// A press's magnet poses (one press without shear, the magnets in the vector lanes) on every
+// build: each magnet the press reaches posed as PatchModel::magnet_pose() poses it (a model with
+// the drag law and anisotropic spreads, random presses and tips, a point press on a magnet, one
+// deeper than the lattice takes), the others said unmoved; a press at NaN moves none.
+TEST(PressPoses, EveryBuildPosesAsTheModel) {
+  const uint64_t seed = test_seed("PressPoses.EveryBuildPosesAsTheModel");
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> place(-90.0, 90.0), depth(0.05, 6.0), tip(0.0, 8.0);
+  PatchDesign design;
+  design.magnets_u = design.magnets_v = 9;  // 81 magnets: two blocks of a build's 64
+  design.magnet_pitch_mm = 15;
+  design.inplane_drag = 0.2;
+  design.anisotropy = 0.1;
+  auto made = PatchModel::fabricated(design, seed, FabricationVariation{});
+  ASSERT_TRUE(made.ok()) << made.error().to_string();
+  const PatchModel& model = *made;
+  const std::size_t nm = model.magnets().size();
+  std::vector<double> mu, mv, mh, mx, my, mz;
+  for (const PatchModel::Magnet& m : model.magnets()) {
+    mu.push_back(m.u), mv.push_back(m.v), mh.push_back(m.h);
+    mx.push_back(m.m_loc.x), my.push_back(m.m_loc.y), mz.push_back(m.m_loc.z);
+  }
+  const MagnetArrays magnets{mu.data(), mv.data(), mh.data(), mx.data(), my.data(), mz.data()};
+  const double lu = model.spread_u_mm(), lv = model.spread_v_mm();
+  std::vector<Contact> presses{{mu[40], mv[40], 2.0, 0.0}, {5, -8, 2.0 * model.max_depth_mm(), 5}};
+  for (int i = 0; i < 40; ++i) presses.push_back({place(rng), place(rng), depth(rng), tip(rng)});
+  int checked = 0;
+  for (Isa isa : {Isa::kPortable, Isa::kAvx512, Isa::kAvx2}) {
+    const PressPoses poses = press_poses_for(isa);
+    if (poses == nullptr) continue;
+    ++checked;
+    for (const Contact& c : presses) {
+      const PatchModel::PressTerms<double> t = model.press_terms(c, lu, lv);
+      PressPose p;
+      p.u_mm = c.u_mm, p.v_mm = c.v_mm, p.a2 = t.a2, p.amp_mm = t.amp_mm;
+      p.spread_u_mm = lu, p.spread_v_mm = lv, p.inv_lu2 = 1 / (lu * lu), p.inv_lv2 = 1 / (lv * lv);
+      p.lateral_mm = model.lateral_mm(), p.drag = design.inplane_drag;
+      std::vector<double> s2(nm), uu(nm), vv(nm), hh(nm), bu(nm), bv(nm), bz(nm);
+      poses(p, nm, magnets, plate_table().gd, s2.data(), uu.data(), vv.data(), hh.data(), bu.data(),
+            bv.data(), bz.data());
+      for (std::size_t i = 0; i < nm; ++i) {
+        const PatchModel::Magnet& m = model.magnets()[i];
+        Vec3<double> pos, mom;
+        const bool moved = model.magnet_pose<double>(m.u, m.v, m.h, m.m_loc, lu, lv,
+                                                     model.lateral_mm(), {&c, 1}, &t, &pos, &mom);
+        ASSERT_EQ(s2[i] < kPlateKernelCutoff * kPlateKernelCutoff, moved)
+            << isa_name(isa) << ", magnet " << i << ", seed " << seed;
+        if (!moved) continue;
+        const double got[6] = {uu[i], vv[i], hh[i], bu[i], bv[i], bz[i]};
+        const double want[6] = {pos.x, pos.y, pos.z, mom.x, mom.y, mom.z};
+        for (int k = 0; k < 6; ++k) {
+          const double scale = k < 3 ? 100.0 : std::sqrt(dot(m.m_loc, m.m_loc));
+          ASSERT_NEAR(got[k], want[k], 1e-11 * scale)
+              << isa_name(isa) << ", magnet " << i << ", term " << k << ", press (" << c.u_mm
+              << ", " << c.v_mm << ", " << c.depth_mm << "), seed " << seed;
+        }
+      }
+    }
+    PressPose nan_press;
+    nan_press.u_mm = std::nan("");
+    std::vector<double> s2(nm), out(6 * nm);
+    poses(nan_press, nm, magnets, plate_table().gd, s2.data(), out.data(), out.data() + nm,
+          out.data() + 2 * nm, out.data() + 3 * nm, out.data() + 4 * nm, out.data() + 5 * nm);
+    for (double x : s2) EXPECT_FALSE(x < kPlateKernelCutoff * kPlateKernelCutoff);
+  }
+  std::printf("pose builds checked: %d (seed %llu)\n", checked,
+              static_cast<unsigned long long>(seed));
+}
+
 TEST(DipoleSum, TheFieldRunsOnTheWidestSetWithinTheCap) {
   Isa want = Isa::kPortable;
   for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
@@ -203,6 +273,7 @@ TEST(DipoleSum, TheFieldRunsOnTheWidestSetWithinTheCap) {
   EXPECT_EQ(field_isa(), want) << isa_name(field_isa()) << " against " << isa_name(want);
   EXPECT_EQ(dipole_sum(), dipole_sum_for(want));
   EXPECT_EQ(dipole_sum_jet(), dipole_sum_jet_for(want));
+  EXPECT_EQ(press_poses(), press_poses_for(want));
   EXPECT_TRUE(isa_allowed(field_isa(), env_isa_cap()));
 }
 

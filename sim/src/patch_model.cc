@@ -146,6 +146,14 @@ bool single_press_pose(const PatchModel& model, const PatchModel::Magnet& m, con
   return true;
 }
 
+// Magnets [first, ...) of the model's rows (PatchModel::magnet_rows_, `nm` magnets) as the pose
+// kernels read them.
+detail::MagnetArrays magnets_from(const std::vector<double>& rows, std::size_t first) {
+  const std::size_t nm = rows.size() / 6;
+  const double* r = rows.data() + first;
+  return {r, r + nm, r + 2 * nm, r + 3 * nm, r + 4 * nm, r + 5 * nm};
+}
+
 Error bad(const std::string& what) {
   return make_error(ErrorCode::kInvalidArgument, "patch design: " + what);
 }
@@ -370,6 +378,13 @@ Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParamete
     mg.h = m.h_mm;
     mg.m_loc = m.moment_am2;
     p.magnets_.push_back(mg);
+  }
+  const std::size_t nm = p.magnets_.size();
+  p.magnet_rows_.resize(6 * nm);
+  for (std::size_t mi = 0; mi < nm; ++mi) {
+    const Magnet& m = p.magnets_[mi];
+    const double row[6] = {m.u, m.v, m.h, m.m_loc.x, m.m_loc.y, m.m_loc.z};
+    for (std::size_t r = 0; r < 6; ++r) p.magnet_rows_[r * nm + mi] = row[r];
   }
   for (const SensorParameters& sp : u.sensors) {
     Sensor s;
@@ -636,7 +651,50 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
     }
     n_posed = 0;
   };
-  for (std::size_t mi = 0; mi < magnets_.size(); ++mi) {
+  // Magnet `mi` moved to (uu, vv, hh) on the surface with local moment `mom`, into the poses.
+  auto place = [&](std::size_t mi, double uu, double vv, double hh, Vec3<double> mom) {
+    Vec3<double> pos{uu, vv, hh};  // a flat surface's frame
+    if (!flat) {
+      Vec3<double> tu, tv, nn;
+      pos = surface_point(uu, vv, hh, &tu, &tv, &nn);
+      mom = tu * mom.x + tv * mom.y + nn * mom.z;
+    }
+    pose[n_posed] = {pos.x, pos.y, pos.z, mom.x, mom.y, mom.z};
+    posed[n_posed] = mi;
+    if (++n_posed == kPosesHeld) flush();
+  };
+  const std::size_t nm = magnets_.size();
+  const bool single = n_held == 1 && first_unheld == contacts.size() && !held[0].shear;
+  if (single) {
+    // One press without shear (every evaluation of a single-contact fit): the magnets posed in
+    // the vector lanes a block at a time (detail::press_poses(), the formulas below), then
+    // summed where they move.
+    const detail::PressPoses poses = detail::press_poses();
+    detail::PressPose p;
+    p.u_mm = held[0].c->u_mm;
+    p.v_mm = held[0].c->v_mm;
+    p.a2 = held[0].t.a2;
+    p.amp_mm = held[0].t.amp_mm;
+    p.spread_u_mm = lu;
+    p.spread_v_mm = lv;
+    p.inv_lu2 = inv_lu2;
+    p.inv_lv2 = inv_lv2;
+    p.lateral_mm = lateral_;
+    p.drag = design_.inplane_drag;
+    constexpr std::size_t kBlock = 64;
+    double s2[kBlock], uu[kBlock], vv[kBlock], hh[kBlock], bu[kBlock], bv[kBlock], bz[kBlock];
+    const double* gd = detail::plate_table().gd;
+    for (std::size_t m0 = 0; m0 < nm; m0 += kBlock) {
+      const std::size_t n = std::min(kBlock, nm - m0);
+      poses(p, n, magnets_from(magnet_rows_, m0), gd, s2, uu, vv, hh, bu, bv, bz);
+      for (std::size_t i = 0; i < n; ++i) {
+        if (s2[i] < kPlateKernelCutoff * kPlateKernelCutoff) {
+          place(m0 + i, uu[i], vv[i], hh[i], Vec3<double>{bu[i], bv[i], bz[i]});
+        }
+      }
+    }
+  }
+  for (std::size_t mi = 0; mi < nm && !single; ++mi) {
     const Magnet& m = magnets_[mi];
     double w = 0, pu = 0, pv = 0, su = 0, sv = 0;
     bool moved = false;
@@ -673,16 +731,8 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
     if (!moved) continue;
     const double mu = m.m_loc.x - pu * m.m_loc.z, mv = m.m_loc.y - pv * m.m_loc.z, mz = m.m_loc.z;
     const double k = std::sqrt(dot(m.m_loc, m.m_loc) / (mu * mu + mv * mv + mz * mz));
-    const double uu = m.u - lateral_ * pu + su, vv = m.v - lateral_ * pv + sv, hh = m.h - w;
-    Vec3<double> pos{uu, vv, hh}, mom{mu * k, mv * k, mz * k};  // a flat surface's frame
-    if (!flat) {
-      Vec3<double> tu, tv, nn;
-      pos = surface_point(uu, vv, hh, &tu, &tv, &nn);
-      mom = tu * mom.x + tv * mom.y + nn * mom.z;
-    }
-    pose[n_posed] = {pos.x, pos.y, pos.z, mom.x, mom.y, mom.z};
-    posed[n_posed] = mi;
-    if (++n_posed == kPosesHeld) flush();
+    place(mi, m.u - lateral_ * pu + su, m.v - lateral_ * pv + sv, m.h - w,
+          Vec3<double>{mu * k, mv * k, mz * k});
   }
   flush();
   for (std::size_t si = 0; si < ns; ++si) {

@@ -224,8 +224,9 @@ class PatchModel {
   // T = double, or a jet type for derivatives with respect to contact parameters.
   template <typename T>
   void contact_field_ut(std::span<const ContactT<T>> contacts, T* out) const;
-  // The same for double, with the sensor loop laid out for SIMD (patch_model.cc); equal to the
-  // template to rounding (tested). Its inner loop runs on field_isa()'s instructions.
+  // The same for double, with the sensor loop laid out for SIMD (patch_model.cc) and, for one
+  // press without shear (a single-contact fit's every evaluation), the magnets' poses too; equal
+  // to the template to rounding (tested). Its inner loops run on field_isa()'s instructions.
   void contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const;
 
   // Jacobian of the field change of one contact with respect to (u, v, depth): row-major,
@@ -335,6 +336,8 @@ class PatchModel {
   std::vector<Vec3<double>> rest_;  // [magnet * sensors + sensor]: rest field in 3D, uT
   // The same data as structure-of-arrays for the double path.
   std::vector<double> sx_, sy_, sz_, rx_, ry_, rz_;
+  // magnets_ likewise, one row of magnets_.size() each: u, v, h, then the local moment's x, y, z.
+  std::vector<double> magnet_rows_;
 };
 
 // ---- implementation of the templates ---------------------------------------------------------
