@@ -176,7 +176,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
     if (!refused_path.empty() && !refused.magnets.empty()) {
       const sim::UnitFileNote note{"skinbus-identify " + presses_path +
-                                       ": REFUSED, not for refinement: " + id.error().message,
+                                       std::string(sim::kRefusedInSource) + id.error().message,
                                    id.error().message};
       if (Status st = sim::write_unit_parameters(refused, refused_path, note); !st.ok()) {
         return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);

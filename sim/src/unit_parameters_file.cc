@@ -172,6 +172,11 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote
   });
   UnitFileNote read_note{r.text(j, "source", ""), r.text(j, "refused", "")};
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
+  if (const std::size_t at = read_note.source.find(kRefusedInSource);
+      read_note.refused.empty() && at != std::string::npos) {  // written before the field
+    read_note.refused = read_note.source.substr(at + kRefusedInSource.size());
+    if (read_note.refused.empty()) read_note.refused = "no reason given";
+  }
   if (note != nullptr) *note = std::move(read_note);
   return p;
 }

@@ -54,6 +54,26 @@ TEST(UnitParametersFileTest, RoundTripIsExactAndRebuildsTheSameUnit) {
   for (std::size_t c = 0; c < a.size(); ++c) EXPECT_TRUE(same_bits(a[c], b[c])) << c;
 }
 
+// A refused fit written before the `refused` field (its source alone says so) reads as refused,
+// with the source's reason; a kept fit's source that merely mentions the word does not.
+TEST(UnitParametersFileTest, ARefusedFitFromBeforeTheFieldStaysRefused) {
+  const UnitParameters p = fabricated_unit();
+  const std::string source = "skinbus-identify lab.csv" + std::string(kRefusedInSource) +
+                             "not_converged: residual 2.00 noise units";
+  UnitFileNote note;
+  ASSERT_TRUE(parse_unit_parameters(unit_parameters_json(p, {source, {}}), &note).ok());
+  EXPECT_EQ(note.refused, "not_converged: residual 2.00 noise units");
+  ASSERT_TRUE(
+      parse_unit_parameters(
+          unit_parameters_json(p, {"skinbus-identify lab.csv" + std::string(kRefusedInSource), {}}),
+          &note)
+          .ok());
+  EXPECT_EQ(note.refused, "no reason given");
+  ASSERT_TRUE(
+      parse_unit_parameters(unit_parameters_json(p, {"REFUSED twice, then kept", {}}), &note).ok());
+  EXPECT_EQ(note.refused, "");
+}
+
 TEST(UnitParametersFileTest, WritesAndReadsAFile) {
   const UnitParameters p = fabricated_unit();
   const std::string path = ::testing::TempDir() + "/unit_parameters_file_test.json";

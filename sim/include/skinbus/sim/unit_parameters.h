@@ -62,6 +62,11 @@ struct UnitFileNote {
   std::string refused;
 };
 
+// What a refused fit's source says before the reason, for readers that know no `refused` field.
+// A file whose source says it but that has no `refused` field (written before the field existed)
+// reads as refused all the same, the source's text after it the reason.
+inline constexpr std::string_view kRefusedInSource = ": REFUSED, not for refinement: ";
+
 // The file's text. Allocates.
 std::string unit_parameters_json(const UnitParameters& params, const UnitFileNote& note = {});
 // Writes unit_parameters_json() to `path`. Errors: kIo (cannot write, the message names the path).
