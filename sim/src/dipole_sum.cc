@@ -154,38 +154,6 @@ __attribute__((always_inline)) inline void dipole_sum_jet_any(std::size_t ns, co
   }
 }
 
-// plate_kernel(s) for s >= 0 without a branch, so that magnets fill the vector lanes: the table
-// interval of s (its index held to the last, also for NaN or s past the cutoff) and the offset in
-// it (PlateAt), then the table's four values there read by the caller (through its restrict
-// pointer: read here, the compiler would no longer know they are not the outputs), then the
-// cubic Hermite, every term computed, then chosen (zero past the cutoff).
-struct PlateAt {
-  int j;     // g and dg at points j and j + 1: table[2 j .. 2 j + 3]
-  double f;  // offset in the interval, in steps
-};
-__attribute__((always_inline)) inline PlateAt plate_at(double s) {
-  constexpr double kLast = kPlateTableSize - 2;
-  const double x = s * kPlateTablePerUnit;
-  const int j = static_cast<int>(x < kLast ? x : kLast);  // NaN: kLast
-  return {j, x - j};
-}
-struct PlateLanes {
-  double g, dg;
-};
-__attribute__((always_inline)) inline PlateLanes plate_hermite(double s, double f, double g0,
-                                                               double dg0, double g1, double dg1) {
-  constexpr double kStep = kPlateTableStep, kPerUnit = kPlateTablePerUnit;
-  const double d0 = dg0 * kStep, d1 = dg1 * kStep;
-  const double h00 = (1 + 2 * f) * (1 - f) * (1 - f), h10 = f * (1 - f) * (1 - f);
-  const double h01 = f * f * (3 - 2 * f), h11 = f * f * (f - 1);
-  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00,
-               dh11 = 3 * f * f - 2 * f;
-  const bool inside = s < kPlateKernelCutoff;
-  const double g_in = h00 * g0 + h10 * d0 + h01 * g1 + h11 * d1;
-  const double dg_in = (dh00 * g0 + dh10 * d0 + dh01 * g1 + dh11 * d1) * kPerUnit;
-  return {inside ? g_in : 0.0, inside ? dg_in : 0.0};
-}
-
 // The poses of a press's magnets (PressPoses): PatchModel::contact_field_ut()'s formulas for one
 // press term by term, without a branch (every term computed, then chosen), so that the compiler
 // puts magnets in the vector lanes.
@@ -207,10 +175,14 @@ __attribute__((always_inline)) inline void press_poses_body(
     const double du = mu[i] - pu0, dv = mv[i] - pv0;
     const double s2 = du * du * inv_lu2 + dv * dv * inv_lv2;
     const double s = std::sqrt(s2 + a2);
-    const PlateAt t = plate_at(s);
-    const PlateLanes kernel =
-        plate_hermite(s, t.f, gd[2 * t.j], gd[2 * t.j + 1], gd[2 * t.j + 2], gd[2 * t.j + 3]);
-    const double g = kernel.g, dg = kernel.dg;
+    // plate_kernel(s) without its branch: the table's values read here, through the restrict
+    // pointer (read in a helper, the compiler would no longer know they are not the outputs),
+    // the interpolant zeroed past the cutoff.
+    const PlateInterval at = plate_interval(s);
+    const PlateValue v =
+        plate_hermite(at.f, gd[2 * at.j], gd[2 * at.j + 1], gd[2 * at.j + 2], gd[2 * at.j + 3]);
+    const bool inside = s < kPlateKernelCutoff;
+    const double g = inside ? v.g : 0.0, dg = inside ? v.dg : 0.0;
     const bool off_centre = s > 1e-6;
     const double q_off = dg / (off_centre ? s : 1.0);
     const double q = off_centre ? q_off : 0.0;

@@ -45,6 +45,36 @@ inline const PlateTable& plate_table() {
   return table;
 }
 
+// The table interval of s >= 0 (g and dg at points j and j + 1: gd[2 j .. 2 j + 3]), its index
+// held to the last (also for NaN and s past the cutoff), and the offset f in it, in steps.
+struct PlateInterval {
+  int j;
+  double f;
+};
+[[gnu::always_inline]] inline PlateInterval plate_interval(double s) {
+  constexpr int kLast = kPlateTableSize - 2;
+  const double u = s * kPlateTablePerUnit;
+  const int j = u < kLast ? static_cast<int>(u) : kLast;
+  return {j, u - j};
+}
+
+// The cubic Hermite between the interval's two points (g0, dg0 and g1, dg1 as the table holds
+// them): g and dg/ds at offset f. No branch: the vectorised poses inline it too.
+struct PlateValue {
+  double g, dg;
+};
+[[gnu::always_inline]] inline PlateValue plate_hermite(double f, double g0, double dg0, double g1,
+                                                       double dg1) {
+  constexpr double h = kPlateTableStep;
+  const double d0 = dg0 * h, d1 = dg1 * h;
+  const double h00 = (1 + 2 * f) * (1 - f) * (1 - f), h10 = f * (1 - f) * (1 - f);
+  const double h01 = f * f * (3 - 2 * f), h11 = f * f * (f - 1);
+  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00,
+               dh11 = 3 * f * f - 2 * f;
+  return {h00 * g0 + h10 * d0 + h01 * g1 + h11 * d1,
+          (dh00 * g0 + dh10 * d0 + dh01 * g1 + dh11 * d1) * kPlateTablePerUnit};
+}
+
 }  // namespace detail
 
 inline void plate_kernel(double s, double* g, double* dg_ds, double* d2g_ds2) {
@@ -56,20 +86,15 @@ inline void plate_kernel(double s, double* g, double* dg_ds, double* d2g_ds2) {
     return;
   }
   const double* t = detail::plate_table().gd;
-  const double u = s * detail::kPlateTablePerUnit;
-  // The last interval also takes a u rounded up to its end.
-  constexpr int kLast = detail::kPlateTableSize - 2;
-  const int i = u < kLast ? static_cast<int>(u) : kLast;
-  const double f = u - i;
-  constexpr double h = detail::kPlateTableStep;
-  // Cubic Hermite on (g, dg) at the two table points.
-  const double g0 = t[2 * i], d0 = t[2 * i + 1] * h, g1 = t[2 * i + 2], d1 = t[2 * i + 3] * h;
-  const double h00 = (1 + 2 * f) * (1 - f) * (1 - f), h10 = f * (1 - f) * (1 - f);
-  const double h01 = f * f * (3 - 2 * f), h11 = f * f * (f - 1);
-  *g = h00 * g0 + h10 * d0 + h01 * g1 + h11 * d1;
-  const double dh00 = 6 * f * f - 6 * f, dh10 = 3 * f * f - 4 * f + 1, dh01 = -dh00,
-               dh11 = 3 * f * f - 2 * f;
-  *dg_ds = (dh00 * g0 + dh10 * d0 + dh01 * g1 + dh11 * d1) * detail::kPlateTablePerUnit;
+  const detail::PlateInterval at = detail::plate_interval(s);
+  const int i = at.j;
+  const double f = at.f;
+  const double g0 = t[2 * i], g1 = t[2 * i + 2];
+  const double d0 = t[2 * i + 1] * detail::kPlateTableStep,
+               d1 = t[2 * i + 3] * detail::kPlateTableStep;
+  const detail::PlateValue v = detail::plate_hermite(f, g0, t[2 * i + 1], g1, t[2 * i + 3]);
+  *g = v.g;
+  *dg_ds = v.dg;
   if (d2g_ds2) {
     const double e00 = 12 * f - 6, e10 = 6 * f - 4, e11 = 6 * f - 2;
     *d2g_ds2 = (e00 * g0 + e10 * d0 - e00 * g1 + e11 * d1) *
