@@ -260,12 +260,18 @@ __attribute__((target("avx512f"))) void press_poses_avx512(SKINBUS_PRESS_POSES_P
 #undef SKINBUS_PRESS_POSES_PARAMS
 #undef SKINBUS_PRESS_POSES_ARGS
 
-struct Chosen {
+// One instruction set's builds of the loops.
+struct Builds {
   DipoleSum fn;
   DipoleSumJet jet;
   PressPoses poses;
-  Isa isa;
 };
+constexpr Builds kBaselineBuilds{&dipole_sum_baseline, &dipole_sum_jet_baseline,
+                                 &press_poses_baseline};
+#if defined(__x86_64__) && defined(__GNUC__)
+constexpr Builds kAvx2Builds{&dipole_sum_avx2, &dipole_sum_jet_avx2, &press_poses_avx2};
+constexpr Builds kAvx512Builds{&dipole_sum_avx512, &dipole_sum_jet_avx512, &press_poses_avx512};
+#endif
 
 // Whether this CPU and build have `isa`'s builds.
 bool have(Isa isa) {
@@ -286,15 +292,34 @@ bool have(Isa isa) {
 #endif
 }
 
+// `isa`'s builds, or null when this CPU or build lacks them.
+const Builds* builds_for(Isa isa) {
+  if (!have(isa)) return nullptr;
+  switch (isa) {
+    case Isa::kPortable:
+      return &kBaselineBuilds;
+#if defined(__x86_64__) && defined(__GNUC__)
+    case Isa::kAvx512:
+      return &kAvx512Builds;
+    case Isa::kAvx2:
+      return &kAvx2Builds;
+#endif
+    default:
+      return nullptr;
+  }
+}
+
+struct Chosen {
+  Builds builds;
+  Isa isa;
+};
+
 const Chosen& chosen() {
   static const Chosen c = [] {
     for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
-      if (isa_allowed(isa, env_isa_cap()) && have(isa)) {
-        return Chosen{dipole_sum_for(isa), dipole_sum_jet_for(isa), press_poses_for(isa), isa};
-      }
+      if (isa_allowed(isa, env_isa_cap()) && have(isa)) return Chosen{*builds_for(isa), isa};
     }
-    return Chosen{&dipole_sum_baseline, &dipole_sum_jet_baseline, &press_poses_baseline,
-                  Isa::kPortable};
+    return Chosen{kBaselineBuilds, Isa::kPortable};
   }();
   return c;
 }
@@ -302,63 +327,30 @@ const Chosen& chosen() {
 }  // namespace
 
 DipoleSum dipole_sum_for(Isa isa) {
-  if (!have(isa)) return nullptr;
-  switch (isa) {
-    case Isa::kPortable:
-      return &dipole_sum_baseline;
-#if defined(__x86_64__) && defined(__GNUC__)
-    case Isa::kAvx512:
-      return &dipole_sum_avx512;
-    case Isa::kAvx2:
-      return &dipole_sum_avx2;
-#endif
-    default:
-      return nullptr;
-  }
+  const Builds* b = builds_for(isa);
+  return b != nullptr ? b->fn : nullptr;
 }
 
 DipoleSumJet dipole_sum_jet_for(Isa isa) {
-  if (!have(isa)) return nullptr;
-  switch (isa) {
-    case Isa::kPortable:
-      return &dipole_sum_jet_baseline;
-#if defined(__x86_64__) && defined(__GNUC__)
-    case Isa::kAvx512:
-      return &dipole_sum_jet_avx512;
-    case Isa::kAvx2:
-      return &dipole_sum_jet_avx2;
-#endif
-    default:
-      return nullptr;
-  }
+  const Builds* b = builds_for(isa);
+  return b != nullptr ? b->jet : nullptr;
 }
 
 PressPoses press_poses_for(Isa isa) {
-  if (!have(isa)) return nullptr;
-  switch (isa) {
-    case Isa::kPortable:
-      return &press_poses_baseline;
-#if defined(__x86_64__) && defined(__GNUC__)
-    case Isa::kAvx512:
-      return &press_poses_avx512;
-    case Isa::kAvx2:
-      return &press_poses_avx2;
-#endif
-    default:
-      return nullptr;
-  }
+  const Builds* b = builds_for(isa);
+  return b != nullptr ? b->poses : nullptr;
 }
 
 DipoleSum dipole_sum() {
-  return chosen().fn;
+  return chosen().builds.fn;
 }
 
 DipoleSumJet dipole_sum_jet() {
-  return chosen().jet;
+  return chosen().builds.jet;
 }
 
 PressPoses press_poses() {
-  return chosen().poses;
+  return chosen().builds.poses;
 }
 
 }  // namespace skinbus::sim::detail
