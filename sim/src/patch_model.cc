@@ -352,6 +352,10 @@ Result<PatchModel> PatchModel::from_parameters(const PatchDesign& d, const UnitP
                   ": non-finite position, zero gain or a mounting that is not a rotation");
     }
   }
+  if (u.field_correction != nullptr && u.field_correction->channels() != d.channel_count()) {
+    return fail("the field correction has " + std::to_string(u.field_correction->channels()) +
+                " channels, the design " + std::to_string(d.channel_count()));
+  }
   return assemble(d, u);
 }
 
@@ -359,6 +363,7 @@ UnitParameters PatchModel::parameters() const {
   UnitParameters u;
   u.spread_mm = spread_;
   u.lateral_mm = lateral_;
+  u.field_correction = correction_;
   for (const Magnet& m : magnets_) u.magnets.push_back({m.u, m.v, m.h, m.m_loc});
   for (const Sensor& s : sensors_) u.sensors.push_back({s.u, s.v, s.h, s.mounting, s.gain});
   return u;
@@ -371,6 +376,7 @@ Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParamete
   p.spread_u_ = u.spread_mm * (1 + d.anisotropy);
   p.spread_v_ = u.spread_mm * (1 - d.anisotropy);
   p.lateral_ = u.lateral_mm;
+  p.correction_ = u.field_correction;
   for (const MagnetParameters& m : u.magnets) {
     Magnet mg;
     mg.u = m.u_mm;
@@ -567,6 +573,13 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
                      &jacobian[3 * si * K + static_cast<std::size_t>(k)], K);
     }
   }
+  if (correction_ != nullptr) {
+    for (std::size_t j = 0; j < contacts.size(); ++j) {
+      const Contact& c = contacts[j];
+      correction_->add_with_jacobian(c.u_mm, c.v_mm, c.depth_mm, field, jacobian, K,
+                                     static_cast<int>(j) * per_contact);
+    }
+  }
 }
 
 bool PatchModel::contact_field_jacobian_ut(std::span<const Contact> contacts, bool shear,
@@ -737,6 +750,9 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
   flush();
   for (std::size_t si = 0; si < ns; ++si) {
     sensor_reading(sensors_[si], Vec3<double>{ax[si], ay[si], az[si]}, &out[3 * si]);
+  }
+  if (correction_ != nullptr) {
+    for (const Contact& c : contacts) correction_->add_ut(c.u_mm, c.v_mm, c.depth_mm, out.data());
   }
 }
 

@@ -1,5 +1,6 @@
 // Unit files: UnitParameters as JSON ("skinbus-unit 1").
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include "skinbus/common/atomic_file.h"
@@ -100,6 +101,51 @@ class Reader {
   void fail(const std::string& what) {
     if (ok()) error_ = what;
   }
+  // A whole integer field; `where` + key names it in the error.
+  int integer(const json& j, const char* key, const std::string& where) {
+    const double x = number(j, key, where);
+    if (ok() && (x != std::floor(x) || std::fabs(x) > 1e6))
+      fail(where + key + " is not an integer");
+    return ok() ? static_cast<int>(x) : 0;
+  }
+  // The optional `field_correction` object (FieldCorrection::make() checks its sizes).
+  std::shared_ptr<const FieldCorrection> field_correction(const json& f) {
+    const std::string where = "field_correction.";
+    if (!f.is_object()) {
+      fail("field_correction is not an object");
+      return nullptr;
+    }
+    FieldCorrection::Grid g;
+    g.u0_mm = number(f, "u0_mm", where);
+    g.v0_mm = number(f, "v0_mm", where);
+    g.step_mm = number(f, "step_mm", where);
+    g.nu = integer(f, "nu", where);
+    g.nv = integer(f, "nv", where);
+    g.max_depth_mm = number(f, "max_depth_mm", where);
+    const int terms = integer(f, "depth_terms", where);
+    const int channels = integer(f, "channels", where);
+    if (ok() && terms != FieldCorrection::kDepthTerms) {
+      fail(where + "depth_terms must be " + std::to_string(FieldCorrection::kDepthTerms));
+    }
+    const auto c = f.find("coefficients_ut");
+    if (ok() && (c == f.end() || !c->is_array())) fail(where + "coefficients_ut must be an array");
+    if (!ok()) return nullptr;
+    std::vector<double> coef;
+    coef.reserve(c->size());
+    for (std::size_t i = 0; i < c->size(); ++i) {
+      if (!(*c)[i].is_number()) {
+        fail(where + "coefficients_ut[" + std::to_string(i) + "] is not a number");
+        return nullptr;
+      }
+      coef.push_back((*c)[i].get<double>());
+    }
+    Result<FieldCorrection> made = FieldCorrection::make(g, channels, std::move(coef));
+    if (!made.ok()) {
+      fail(made.error().message);
+      return nullptr;
+    }
+    return std::make_shared<const FieldCorrection>(std::move(*made));
+  }
 
  private:
   std::string error_;
@@ -131,6 +177,18 @@ std::string unit_parameters_json(const UnitParameters& p, const UnitFileNote& no
          {"gain", vec(s.gain)}});
   }
   j["sensors"] = std::move(sensors);
+  if (const FieldCorrection* f = p.field_correction.get(); f != nullptr) {
+    const FieldCorrection::Grid& g = f->grid();
+    j["field_correction"] = {{"u0_mm", g.u0_mm},
+                             {"v0_mm", g.v0_mm},
+                             {"step_mm", g.step_mm},
+                             {"nu", g.nu},
+                             {"nv", g.nv},
+                             {"max_depth_mm", g.max_depth_mm},
+                             {"depth_terms", FieldCorrection::kDepthTerms},
+                             {"channels", f->channels()},
+                             {"coefficients_ut", f->coefficients()}};
+  }
   // nlohmann::json writes doubles with 17 significant digits: the round trip is exact.
   return j.dump(1) + "\n";
 }
@@ -170,6 +228,9 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote
     }
     p.sensors.push_back(sp);
   });
+  if (const auto fc = j.find("field_correction"); r.ok() && fc != j.end()) {
+    p.field_correction = r.field_correction(*fc);
+  }
   UnitFileNote read_note{r.text(j, "source", ""), r.text(j, "refused", "")};
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
   if (const std::size_t at = read_note.source.find(kRefusedInSource);

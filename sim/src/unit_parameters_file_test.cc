@@ -1,8 +1,10 @@
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -52,6 +54,59 @@ TEST(UnitParametersFileTest, RoundTripIsExactAndRebuildsTheSameUnit) {
   original->contact_field_ut(press, a);
   rebuilt->contact_field_ut(press, b);
   for (std::size_t c = 0; c < a.size(); ++c) EXPECT_TRUE(same_bits(a[c], b[c])) << c;
+}
+
+// A unit's field correction travels in its file, bit for bit; a malformed one is named.
+TEST(UnitParametersFileTest, TheFieldCorrectionRoundTripsAndBadOnesAreNamed) {
+  UnitParameters p = fabricated_unit();
+  FieldCorrection::Grid g;
+  g.u0_mm = -66;
+  g.v0_mm = -61.5;
+  g.step_mm = 7.25;
+  g.nu = 6;
+  g.nv = 5;
+  g.max_depth_mm = 4.125;
+  std::vector<double> coef(g.terms() * 48);
+  for (std::size_t i = 0; i < coef.size(); ++i)
+    coef[i] = std::sin(0.37 * static_cast<double>(i)) / 3;
+  auto made = FieldCorrection::make(g, 48, coef);
+  ASSERT_TRUE(made.ok());
+  p.field_correction = std::make_shared<const FieldCorrection>(std::move(*made));
+  const std::string text = unit_parameters_json(p);
+  auto back = parse_unit_parameters(text);
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  ASSERT_NE(back->field_correction, nullptr);
+  const FieldCorrection& f = *back->field_correction;
+  EXPECT_TRUE(same_bits(f.grid().u0_mm, g.u0_mm) && same_bits(f.grid().step_mm, g.step_mm));
+  EXPECT_EQ(f.grid().nu, 6);
+  EXPECT_EQ(f.grid().nv, 5);
+  ASSERT_EQ(f.coefficients().size(), coef.size());
+  for (std::size_t i = 0; i < coef.size(); ++i)
+    EXPECT_TRUE(same_bits(f.coefficients()[i], coef[i]));
+  // Without one, the file has none and reads back none.
+  EXPECT_EQ(unit_parameters_json(fabricated_unit()).find("field_correction"), std::string::npos);
+  EXPECT_EQ(parse_unit_parameters(unit_parameters_json(fabricated_unit()))->field_correction,
+            nullptr);
+  auto error_of = [&](const std::string& from, const std::string& to) {
+    std::string t = text;
+    const std::size_t at = t.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    t.replace(at, from.size(), to);
+    auto r = parse_unit_parameters(t);
+    EXPECT_FALSE(r.ok()) << from;
+    return r.ok() ? std::string() : r.error().message;
+  };
+  EXPECT_NE(error_of("\"nu\": 6", "\"nu\": 7").find("4320 coefficients, 5040 expected"),
+            std::string::npos);
+  EXPECT_NE(error_of("\"nv\": 5", "\"nv\": 5.5").find("field_correction.nv is not an integer"),
+            std::string::npos);
+  EXPECT_NE(error_of("\"depth_terms\": 3", "\"depth_terms\": 2").find("depth_terms"),
+            std::string::npos);
+  EXPECT_NE(error_of("\"step_mm\": 7.25", "\"step_mm\": -1").find("step_mm must be > 0"),
+            std::string::npos);
+  EXPECT_NE(error_of("\"coefficients_ut\": [", "\"coefficients_ut\": [\"x\",")
+                .find("field_correction.coefficients_ut[0] is not a number"),
+            std::string::npos);
 }
 
 // A refused fit written before the `refused` field (its source alone says so) reads as refused,

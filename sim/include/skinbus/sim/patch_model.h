@@ -23,6 +23,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <vector>
 
@@ -215,6 +216,10 @@ class PatchModel {
   double spread_u_mm() const { return spread_u_; }
   double spread_v_mm() const { return spread_v_; }
   double lateral_mm() const { return lateral_; }
+  // The unit's learned field correction (UnitParameters::field_correction), added to every
+  // pressing contact's field change by contact_field_ut() and contact_field_jacobian_ut(); null:
+  // none.
+  const FieldCorrection* field_correction() const { return correction_.get(); }
 
   // Field at every channel with nothing touching, uT (what a tare removes).
   void rest_field_ut(std::span<double> out) const;
@@ -338,6 +343,7 @@ class PatchModel {
   std::vector<double> sx_, sy_, sz_, rx_, ry_, rz_;
   // magnets_ likewise, one row of magnets_.size() each: u, v, h, then the local moment's x, y, z.
   std::vector<double> magnet_rows_;
+  std::shared_ptr<const FieldCorrection> correction_;  // UnitParameters::field_correction
 };
 
 // ---- implementation of the templates ---------------------------------------------------------
@@ -509,6 +515,9 @@ void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out)
     out[3 * si + 0] = local.x * sensors_[si].gain.x;
     out[3 * si + 1] = local.y * sensors_[si].gain.y;
     out[3 * si + 2] = local.z * sensors_[si].gain.z;
+  }
+  if (correction_ != nullptr) {
+    for (const ContactT<T>& c : contacts) correction_->add_ut(c.u_mm, c.v_mm, c.depth_mm, out);
   }
 }
 

@@ -15,11 +15,13 @@
 // Plain data; copying costs (magnets + sensors) small structs.
 #pragma once
 
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
 
 #include "skinbus/common/result.h"
+#include "skinbus/sim/field_correction.h"
 #include "skinbus/sim/vec3.h"
 
 namespace skinbus::sim {
@@ -46,6 +48,9 @@ struct UnitParameters {
   double lateral_mm = 2;  // in-plane motion of a magnet = -lateral * surface slope (mm), >= 0
   std::vector<MagnetParameters> magnets;  // design order: u index fastest
   std::vector<SensorParameters> sensors;  // design order: u index fastest
+  // What the unit's field does beyond the class (skinbus/sim/field_correction.h), learned from its
+  // own presses; null: none. Its channels are the design's. Shared, never changed once made.
+  std::shared_ptr<const FieldCorrection> field_correction;
 };
 
 // ---- Unit files ------------------------------------------------------------------------------
