@@ -14,7 +14,13 @@
 # measured on simulated presses of the identified unit). DESIGN.yaml: the patch's design file
 # (docs/design_file.md; default: the built-in design). R: identification refuses a fit leaving
 # more than this residual, noise units (skinbus-identify's --max-residual, 4). Writes into OUT:
-#   unit.json            the identified unit (skinbus-identify)
+#   unit.json            the identified unit (skinbus-identify), with its learned field
+#                          correction when that lowers the residual at press places held out of
+#                          its fit (skinbus-identify --field-correction; docs/physics_estimator.md,
+#                          "The field correction"): what the unit's field does beyond the model
+#                          class, used by every later step (the simulated presses, the bound, the
+#                          refinement). A fit the class alone leaves above R is kept when the
+#                          correction brings that held-out residual within R.
 #   identify.log         its fit: residuals in noise units, overall and per depth bin
 #   network.safetensors  the unit's network (skinbus-train: fine-tuned from --base, the shipped
 #   network.json           model by default ('none': trained from scratch), on --synthetic (2000)
@@ -65,7 +71,7 @@ while (($#)); do
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
     --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
-    -h | --help) sed -n '2,45p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,50p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -95,7 +101,8 @@ rm -f "$out/unit.json" "$out/refused_fit.json" "$out/correction.json" "$out/eval
 # and so no physics refinement in the host.
 network_route=0
 if ! "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "${held_opt[@]}" \
-  "${max_residual[@]}" --refused-out "$out/refused_fit.json" >"$out/identify.log" 2>&1; then
+  "${max_residual[@]}" --field-correction --refused-out "$out/refused_fit.json" \
+  >"$out/identify.log" 2>&1; then
   grep -q "not_converged" "$out/identify.log" || failed "identification" "$out/identify.log"
   network_route=1
   grep -o "not_converged: .*" "$out/identify.log" | cut -c1-400 >&2 || true
@@ -266,7 +273,7 @@ for name, mid in (("1-2", 1.5), ("2-3", 2.5), ("3-4", 3.5)):
     rows.append(f"| {name} | {fmt(xy)} | {fmt(b)} | {ratio} | {fmt(d)} |")
 with open(f"{out}/report.md", "w") as f:
     f.write(f"# Unit calibration: {presses}\n\n")
-    f.write("## Identification (skinbus-identify)\n\n```\n" + "\n".join(ident[-12:]) + "\n```\n\n")
+    f.write("## Identification (skinbus-identify)\n\n```\n" + "\n".join(ident[-24:]) + "\n```\n\n")
     f.write("A residual near 1 noise unit: the model explains the unit to its noise; clearly above"
             " (> 1.1): the unit has physics the model class lacks.\n\n")
     choice_log = f"{out}/choice.log"

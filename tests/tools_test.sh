@@ -153,6 +153,37 @@ residual() { sed -n 's/^fit (.*): residual RMS \([0-9.]*\) .*/\1/p' "$1"; }
 [[ $rc == 2 ]] && grep -q "test_unit.csv: pressed with a 5 mm tip, the fit with 2.5 mm" "$work/id/tipmix.txt" &&
   [[ ! -e $work/id/tipmix.json ]] && ok "held-out presses of another indenter: refused" ||
   { bad "identify with held-out presses of another tip (rc $rc)"; cat "$work/id/tipmix.txt"; }
+# The field correction: a unit whose physics the class does not contain (a crushing top, an
+# anisotropic lattice, in-plane drag: none of them fitted) identified with --field-correction
+# carries a correction that brings its simulated fields nearer the unit's; one the class
+# explains gets none; a fit refused for its residual is kept when the correction explains it.
+sed -e 's/^  anisotropy: 0 /  anisotropy: 0.1 /' -e 's/^  tip_crush_mm: 0 /  tip_crush_mm: 12 /' \
+  -e 's/^  inplane_drag: 0 /  inplane_drag: 0.1 /' "$here/../sim/designs/nominal.yaml" >"$work/id/odd.yaml"
+odd=(--design "$work/id/odd.yaml" --uid 0x5B07)
+"$bin/skinbus-dataset" --plan grid --grid 13 --pitch 10 --fabricated "${odd[@]}" -o "$work/id/odd.csv" 2>/dev/null
+"$bin/skinbus-identify" "$work/id/odd.csv" -o "$work/id/odd_fc.json" --field-correction \
+  >"$work/id/odd_fc.txt" 2>&1; rc=$?
+"$bin/skinbus-identify" "$work/id/odd.csv" -o "$work/id/odd.json" >/dev/null 2>&1
+odd_test=(--plan random-test --count 150 --uid 0x5B07)
+"$bin/skinbus-dataset" "${odd_test[@]}" --fabricated --design "$work/id/odd.yaml" -o "$work/id/odd_unit.csv" 2>/dev/null
+"$bin/skinbus-dataset" "${odd_test[@]}" --unit "$work/id/odd_fc.json" -o "$work/id/odd_with.csv" 2>/dev/null
+"$bin/skinbus-dataset" "${odd_test[@]}" --unit "$work/id/odd.json" -o "$work/id/odd_without.csv" 2>/dev/null
+[[ $rc == 0 ]] && grep -q '"field_correction"' "$work/id/odd_fc.json" && ! grep -q '"field_correction"' "$work/id/odd.json" &&
+  grep -q "^field correction: residual .* helps$" "$work/id/odd_fc.txt" &&
+  "$here/e2e/check_unit_fields.py" "$work/id/odd_unit.csv" "$work/id/odd_with.csv" "$work/id/odd_without.csv" \
+    --max-ratio 0.7 >"$work/id/odd_cmp.txt" &&
+  ok "a unit outside the class carries its field correction: $(sed 's/identified/corrected/; s/nominal/uncorrected/' "$work/id/odd_cmp.txt" | cut -c6-)" ||
+  { bad "the field correction of a unit outside the class (rc $rc)"; cat "$work/id/odd_fc.txt" "$work/id/odd_cmp.txt"; }
+"$bin/skinbus-identify" "$work/id/unit.csv" -o "$work/id/unit_fc.json" --field-correction >"$work/id/unit_fc.txt" 2>&1; rc=$?
+[[ $rc == 0 ]] && grep -q "does not help" "$work/id/unit_fc.txt" && ! grep -q '"field_correction"' "$work/id/unit_fc.json" &&
+  ok "a unit the class explains gets no field correction" || { bad "field correction on a unit in the class (rc $rc)"; cat "$work/id/unit_fc.txt"; }
+"$bin/skinbus-identify" "$work/id/odd.csv" -o "$work/id/odd_held.json" --max-residual 1.5 >/dev/null 2>&1; rc_alone=$?
+"$bin/skinbus-identify" "$work/id/odd.csv" -o "$work/id/odd_rescued.json" --max-residual 1.5 --field-correction \
+  >"$work/id/odd_rescued.txt" 2>&1; rc=$?
+[[ $rc_alone == 1 && ! -e $work/id/odd_held.json && $rc == 0 ]] && grep -q "kept with the field correction" "$work/id/odd_rescued.txt" &&
+  grep -q '"source": ".*the class alone refused' "$work/id/odd_rescued.json" && ! grep -q '"refused"' "$work/id/odd_rescued.json" &&
+  ok "a fit refused for its residual, kept when its field correction explains the unit" ||
+  { bad "refused fit and field correction (rc $rc_alone, $rc)"; cat "$work/id/odd_rescued.txt"; }
 # The shipped network alone and refined on the identified unit, on that unit's own presses.
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/unit.json" >"$work/id/eval.txt" 2>&1; rc=$?

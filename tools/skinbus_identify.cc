@@ -7,9 +7,11 @@
 
 #include <chrono>
 #include <cstdio>
+#include <memory>
 #include <optional>
 #include <string>
 
+#include "skinbus/estimators/field_correction_fit.h"
 #include "skinbus/estimators/unit_identification.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/design_file.h"
@@ -49,11 +51,14 @@ int main(int argc, char** argv) {
       "cannot explain); at least ~20 presses spread over the patch.\n"
       "The fit reports its residual in sensor-noise units, overall and per depth bin: about 1\n"
       "means the model explains the unit down to the noise; clearly above 1 (> 1.1) means the\n"
-      "unit has physics the model class does not contain (e.g. an anisotropic lattice): use\n"
-      "the learned correction on top (docs/models.md).\n\n"
+      "unit has physics the model class does not contain (e.g. an anisotropic lattice): learn\n"
+      "its field correction too (--field-correction: a smooth correction of the modelled\n"
+      "field, from the same presses; a few seconds) and the learned correction on top\n"
+      "(docs/physics_estimator.md, docs/models.md).\n\n"
       "Examples:\n"
       "  skinbus-dataset --plan grid --fabricated --uid 0x5B07 -o unit7.csv\n"
       "  skinbus-identify unit7.csv -o unit7.json\n"
+      "  skinbus-identify lab.csv -o unit.json --design my_patch.yaml --field-correction\n"
       "  skinbus-dataset --plan halton --count 12000 --unit unit7.json -o unit7_train.csv\n"};
   std::string presses_path, out_path, held_out_path;
   bool cylinder = false;
@@ -96,6 +101,14 @@ int main(int argc, char** argv) {
                  "when the fit is refused for its residual, write it here anyway (exit status "
                  "still 1): the model class's nearest model of the unit, to simulate training "
                  "presses from (scripts/calibrate_unit.sh's network route), never to refine on");
+  bool field_correction = false;
+  app.add_flag("--field-correction", field_correction,
+               "then learn what the unit's field does beyond the fitted class from the same "
+               "presses (a smooth correction of the modelled field, chosen on press places held "
+               "out of its fit; docs/physics_estimator.md, \"The field correction\") and put it "
+               "in the unit file when it lowers the held-out residual. A fit refused for its "
+               "residual is kept when the correction brings the held-out residual within "
+               "--max-residual");
   CLI11_PARSE(app, argc, argv);
   opt.fit_globals = !keep_globals;
   opt.progress = [](const std::string& line) {
@@ -172,8 +185,41 @@ int main(int argc, char** argv) {
   sim::UnitParameters refused;
   Result<estimators::IdentifiedUnit> id =
       estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr, &refused);
-  if (!id.ok()) {
-    std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
+  // What the fit leaves, learned from the same presses (--field-correction).
+  auto learn = [&](const sim::UnitParameters& unit) -> std::optional<sim::UnitParameters> {
+    Result<sim::PatchModel> model =
+        sim::PatchModel::from_parameters(estimators::class_design(design), unit);
+    if (!model.ok()) return std::nullopt;
+    std::fprintf(stderr, "skinbus-identify: learning the field correction (seconds) ...\n");
+    estimators::FieldCorrectionOptions fo;
+    fo.noise = opt.noise;
+    fo.min_depth_mm = opt.min_depth_mm;
+    fo.depth_bin_edges_mm = opt.depth_bin_edges_mm;
+    estimators::FieldCorrectionReport report;
+    Result<sim::FieldCorrection> fc =
+        estimators::fit_field_correction(*model, *presses, opt.tip_radius_mm, fo, &report);
+    if (!fc.ok()) {
+      std::printf("field correction not learned: %s\n", fc.error().message.c_str());
+      return std::nullopt;
+    }
+    std::printf("%s\n", report.summary_text().c_str());
+    if (!report.helps || report.rms_held_out > opt.max_residual) return std::nullopt;
+    sim::UnitParameters corrected = unit;
+    corrected.field_correction = std::make_shared<const sim::FieldCorrection>(std::move(*fc));
+    return corrected;
+  };
+  if (!id.ok()) std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
+  std::optional<sim::UnitParameters> rescued;
+  if (!id.ok() && field_correction && !refused.magnets.empty()) {
+    rescued = learn(refused);
+    if (rescued) {
+      std::printf(
+          "the refused fit is kept with the field correction: its residual at held-out places "
+          "is within %.1f noise units\n",
+          opt.max_residual);
+    }
+  }
+  if (!id.ok() && !rescued) {
     if (!refused_path.empty() && !refused.magnets.empty()) {
       const sim::UnitFileNote note{"skinbus-identify " + presses_path +
                                        std::string(sim::kRefusedInSource) + id.error().message,
@@ -185,41 +231,76 @@ int main(int argc, char** argv) {
     }
     return id.error().code == ErrorCode::kInvalidArgument ? kExitUsage : kExitFailed;
   }
-  const double seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  std::printf("identified from %d presses (%d samples) in %.1f s, %d iterations\n", id->presses,
-              id->rows_used, seconds, id->iterations);
-  if (opt.fit_globals) {
-    const estimators::GlobalPhysics& g = id->globals;
-    std::printf(
-        "globals: spread %.2f mm (design %.2f), lateral %.2f mm (design %.2f), magnet heights "
-        "%+.2f mm, sensor heights %+.2f mm, moments x%.3f; residual %.3f noise units with these "
-        "alone (%d starts)\n",
-        g.spread_mm, design.spread_mm, g.lateral_mm, design.lateral_mm, g.magnet_height_offset_mm,
-        g.sensor_height_offset_mm, g.moment_scale, g.rms, g.starts);
+  sim::UnitParameters unit;
+  std::string source = "skinbus-identify " + presses_path + ": ";
+  if (rescued) {
+    unit = *rescued;
+    source +=
+        "the class alone refused (" + id.error().message + "); kept with the field correction";
+  } else {
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    std::printf("identified from %d presses (%d samples) in %.1f s, %d iterations\n", id->presses,
+                id->rows_used, seconds, id->iterations);
+    if (opt.fit_globals) {
+      const estimators::GlobalPhysics& g = id->globals;
+      std::printf(
+          "globals: spread %.2f mm (design %.2f), lateral %.2f mm (design %.2f), magnet heights "
+          "%+.2f mm, sensor heights %+.2f mm, moments x%.3f; residual %.3f noise units with these "
+          "alone (%d starts)\n",
+          g.spread_mm, design.spread_mm, g.lateral_mm, design.lateral_mm, g.magnet_height_offset_mm,
+          g.sensor_height_offset_mm, g.moment_scale, g.rms, g.starts);
+    }
+    if (id->masked_values > 0) {
+      std::printf("%d field value(s) not finite (dead channels): left out of the fit\n",
+                  id->masked_values);
+    }
+    print_quality("fit", id->nominal_fit, id->fit);
+    if (held_out) print_quality("held out", id->nominal_held_out, id->held_out);
+    const double judged = held_out ? id->held_out.rms : id->fit.rms;
+    if (judged > estimators::kModelMissesResidual) {
+      std::printf(
+          "warning: residual %.2f > %.1f noise units: this unit has physics the model does not "
+          "contain; learn its field correction (--field-correction) and the learned correction "
+          "on top (docs/physics_estimator.md, docs/models.md)\n",
+          judged, estimators::kModelMissesResidual);
+    }
+    char residuals[96];
+    std::snprintf(residuals, sizeof residuals, "residual %.3f noise units (fit)", id->fit.rms);
+    source += std::to_string(id->presses) + " presses, " + residuals;
+    if (held_out) {
+      std::snprintf(residuals, sizeof residuals, ", %.3f (held out)", id->held_out.rms);
+      source += residuals;
+    }
+    unit = id->parameters;
+    if (field_correction) {
+      if (std::optional<sim::UnitParameters> corrected = learn(unit)) {
+        unit = std::move(*corrected);
+        source += "; with the field correction";
+      } else {
+        std::printf("the unit file has no field correction\n");
+      }
+    }
   }
-  if (id->masked_values > 0) {
-    std::printf("%d field value(s) not finite (dead channels): left out of the fit\n",
-                id->masked_values);
+  if (held_out && unit.field_correction != nullptr) {
+    Result<sim::PatchModel> corrected =
+        sim::PatchModel::from_parameters(estimators::class_design(design), unit);
+    if (corrected.ok()) {
+      const estimators::FitQuality q =
+          estimators::fit_quality(*corrected, *held_out, opt.tip_radius_mm,
+                                  estimators::ChannelNoise::of(design), opt.depth_bin_edges_mm);
+      std::printf(
+          "held out, with the field correction (%d samples): residual RMS %.3f noise units\n",
+          q.rows, q.rms);
+      for (const estimators::DepthBinResidual& b : q.bins) {
+        if (b.rows > 0) {
+          std::printf("  depth %.0f-%.0f mm  n=%-5d corrected %.3f\n", b.depth_lo_mm, b.depth_hi_mm,
+                      b.rows, b.rms);
+        }
+      }
+    }
   }
-  print_quality("fit", id->nominal_fit, id->fit);
-  if (held_out) print_quality("held out", id->nominal_held_out, id->held_out);
-  const double judged = held_out ? id->held_out.rms : id->fit.rms;
-  if (judged > estimators::kModelMissesResidual) {
-    std::printf(
-        "warning: residual %.2f > %.1f noise units: this unit has physics the model does not "
-        "contain; add the learned correction (docs/models.md)\n",
-        judged, estimators::kModelMissesResidual);
-  }
-  char residuals[96];
-  std::snprintf(residuals, sizeof residuals, "residual %.3f noise units (fit)", id->fit.rms);
-  std::string source = "skinbus-identify " + presses_path + ": " + std::to_string(id->presses) +
-                       " presses, " + residuals;
-  if (held_out) {
-    std::snprintf(residuals, sizeof residuals, ", %.3f (held out)", id->held_out.rms);
-    source += residuals;
-  }
-  if (Status st = sim::write_unit_parameters(id->parameters, out_path, {source, {}}); !st.ok()) {
+  if (Status st = sim::write_unit_parameters(unit, out_path, {source, {}}); !st.ok()) {
     return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);
   }
   std::fprintf(stderr, "skinbus-identify: wrote %s\n", out_path.c_str());
