@@ -203,6 +203,34 @@ __attribute__((always_inline)) inline void press_poses_body(
   }
 }
 
+__attribute__((always_inline)) inline void row_sums_body(std::size_t n, const int* index,
+                                                         const double* weight, int outs,
+                                                         const double* __restrict rows,
+                                                         std::size_t nc, double* __restrict out) {
+  if (outs == 1) {
+    for (std::size_t t = 0; t < n; ++t) {
+      const double w = weight[t];
+      const double* __restrict r = rows + static_cast<std::size_t>(index[t]) * nc;
+      for (std::size_t ch = 0; ch < nc; ++ch) out[ch] += w * r[ch];
+    }
+    return;
+  }
+  double* __restrict o1 = out + nc;
+  double* __restrict o2 = out + 2 * nc;
+  double* __restrict o3 = out + 3 * nc;
+  for (std::size_t t = 0; t < n; ++t) {
+    const double* w = weight + 4 * t;
+    const double w0 = w[0], w1 = w[1], w2 = w[2], w3 = w[3];
+    const double* __restrict r = rows + static_cast<std::size_t>(index[t]) * nc;
+    for (std::size_t ch = 0; ch < nc; ++ch) {
+      out[ch] += w0 * r[ch];
+      o1[ch] += w1 * r[ch];
+      o2[ch] += w2 * r[ch];
+      o3[ch] += w3 * r[ch];
+    }
+  }
+}
+
 #define SKINBUS_DIPOLE_SUM_PARAMS                                                               \
   std::size_t ns, double px, double py, double pz, double mx, double my, double mz,             \
       const double *sx, const double *sy, const double *sz, const double *rx, const double *ry, \
@@ -218,6 +246,10 @@ __attribute__((always_inline)) inline void press_poses_body(
       double *__restrict s2, double *__restrict uu, double *__restrict vv, double *__restrict hh, \
       double *__restrict bu, double *__restrict bv, double *__restrict bz
 #define SKINBUS_PRESS_POSES_ARGS p, n, m, gd, s2, uu, vv, hh, bu, bv, bz
+#define SKINBUS_ROW_SUMS_PARAMS                                                        \
+  std::size_t n, const int *index, const double *weight, int outs, const double *rows, \
+      std::size_t nc, double *out
+#define SKINBUS_ROW_SUMS_ARGS n, index, weight, outs, rows, nc, out
 
 void dipole_sum_baseline(SKINBUS_DIPOLE_SUM_PARAMS) {
   dipole_sum_body(SKINBUS_DIPOLE_SUM_ARGS);
@@ -227,6 +259,9 @@ void dipole_sum_jet_baseline(SKINBUS_DIPOLE_SUM_JET_PARAMS) {
 }
 void press_poses_baseline(SKINBUS_PRESS_POSES_PARAMS) {
   press_poses_body(SKINBUS_PRESS_POSES_ARGS);
+}
+void row_sums_baseline(SKINBUS_ROW_SUMS_PARAMS) {
+  row_sums_body(SKINBUS_ROW_SUMS_ARGS);
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -251,6 +286,12 @@ __attribute__((target("avx2,fma"))) void press_poses_avx2(SKINBUS_PRESS_POSES_PA
 __attribute__((target("avx512f"))) void press_poses_avx512(SKINBUS_PRESS_POSES_PARAMS) {
   press_poses_body(SKINBUS_PRESS_POSES_ARGS);
 }
+__attribute__((target("avx2,fma"))) void row_sums_avx2(SKINBUS_ROW_SUMS_PARAMS) {
+  row_sums_body(SKINBUS_ROW_SUMS_ARGS);
+}
+__attribute__((target("avx512f"))) void row_sums_avx512(SKINBUS_ROW_SUMS_PARAMS) {
+  row_sums_body(SKINBUS_ROW_SUMS_ARGS);
+}
 #endif
 
 #undef SKINBUS_DIPOLE_SUM_PARAMS
@@ -259,18 +300,23 @@ __attribute__((target("avx512f"))) void press_poses_avx512(SKINBUS_PRESS_POSES_P
 #undef SKINBUS_DIPOLE_SUM_JET_ARGS
 #undef SKINBUS_PRESS_POSES_PARAMS
 #undef SKINBUS_PRESS_POSES_ARGS
+#undef SKINBUS_ROW_SUMS_PARAMS
+#undef SKINBUS_ROW_SUMS_ARGS
 
 // One instruction set's builds of the loops.
 struct Builds {
   DipoleSum fn;
   DipoleSumJet jet;
   PressPoses poses;
+  RowSums rows;
 };
 constexpr Builds kBaselineBuilds{&dipole_sum_baseline, &dipole_sum_jet_baseline,
-                                 &press_poses_baseline};
+                                 &press_poses_baseline, &row_sums_baseline};
 #if defined(__x86_64__) && defined(__GNUC__)
-constexpr Builds kAvx2Builds{&dipole_sum_avx2, &dipole_sum_jet_avx2, &press_poses_avx2};
-constexpr Builds kAvx512Builds{&dipole_sum_avx512, &dipole_sum_jet_avx512, &press_poses_avx512};
+constexpr Builds kAvx2Builds{&dipole_sum_avx2, &dipole_sum_jet_avx2, &press_poses_avx2,
+                             &row_sums_avx2};
+constexpr Builds kAvx512Builds{&dipole_sum_avx512, &dipole_sum_jet_avx512, &press_poses_avx512,
+                               &row_sums_avx512};
 #endif
 
 // Whether this CPU and build have `isa`'s builds.
@@ -341,6 +387,11 @@ PressPoses press_poses_for(Isa isa) {
   return b != nullptr ? b->poses : nullptr;
 }
 
+RowSums row_sums_for(Isa isa) {
+  const Builds* b = builds_for(isa);
+  return b != nullptr ? b->rows : nullptr;
+}
+
 DipoleSum dipole_sum() {
   return chosen().builds.fn;
 }
@@ -351,6 +402,10 @@ DipoleSumJet dipole_sum_jet() {
 
 PressPoses press_poses() {
   return chosen().builds.poses;
+}
+
+RowSums row_sums() {
+  return chosen().builds.rows;
 }
 
 }  // namespace skinbus::sim::detail

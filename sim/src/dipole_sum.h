@@ -64,13 +64,22 @@ using PressPoses = void (*)(const PressPose& press, std::size_t n, const MagnetA
                             const double* plate_gd, double* s2, double* uu, double* vv, double* hh,
                             double* bu, double* bv, double* bz);
 
+// Adds, for each of `outs` outputs k (1 or 4), the sum over terms t < n of weight[t outs + k] x
+// rows[index[t] nc + ch] to out[k nc + ch], for every ch < nc: a field correction's terms at its
+// channels (sim::FieldCorrection; 4 outputs: the value and its derivatives by u, v and depth).
+// No allocation.
+using RowSums = void (*)(std::size_t n, const int* index, const double* weight, int outs,
+                         const double* rows, std::size_t nc, double* out);
+
 // The builds for `isa` (kPortable: baseline), or null when this CPU or build lacks it.
 DipoleSum dipole_sum_for(Isa isa);
 DipoleSumJet dipole_sum_jet_for(Isa isa);
 PressPoses press_poses_for(Isa isa);
+RowSums row_sums_for(Isa isa);
 // The builds the field evaluation uses (their set: sim::field_isa()).
 DipoleSum dipole_sum();
 DipoleSumJet dipole_sum_jet();
 PressPoses press_poses();
+RowSums row_sums();
 
 }  // namespace skinbus::sim::detail

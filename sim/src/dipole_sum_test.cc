@@ -262,6 +262,47 @@ TEST(PressPoses, EveryBuildPosesAsTheModel) {
               static_cast<unsigned long long>(seed));
 }
 
+// A field correction's weighted sums of coefficient rows (one output, and four: the value and
+// its three derivatives) against the plain sums, on every build this CPU has, the baseline too.
+TEST(RowSums, EveryBuildSumsAsThePlainLoop) {
+  std::mt19937_64 rng(test_seed("RowSums.EveryBuildSumsAsThePlainLoop"));
+  std::uniform_real_distribution<double> value(-5.0, 5.0);
+  int checked = 0;
+  for (Isa isa : {Isa::kPortable, Isa::kAvx512, Isa::kAvx2}) {
+    const RowSums f = row_sums_for(isa);
+    if (f == nullptr) continue;
+    ++checked;
+    for (std::size_t nc : {1u, 3u, 47u, 48u, 243u}) {
+      for (int outs : {1, 4}) {
+        const std::size_t rows = 60, n = 48;
+        std::vector<double> coef(rows * nc), w(n * static_cast<std::size_t>(outs));
+        std::vector<int> index(n);
+        for (double& x : coef) x = value(rng);
+        for (double& x : w) x = value(rng);
+        for (int& i : index) i = static_cast<int>(rng() % rows);
+        std::vector<double> got(static_cast<std::size_t>(outs) * nc), want;
+        for (double& x : got) x = value(rng);
+        want = got;
+        f(n, index.data(), w.data(), outs, coef.data(), nc, got.data());
+        for (std::size_t t = 0; t < n; ++t) {
+          for (int k = 0; k < outs; ++k) {
+            for (std::size_t ch = 0; ch < nc; ++ch) {
+              want[static_cast<std::size_t>(k) * nc + ch] +=
+                  w[t * static_cast<std::size_t>(outs) + static_cast<std::size_t>(k)] *
+                  coef[static_cast<std::size_t>(index[t]) * nc + ch];
+            }
+          }
+        }
+        for (std::size_t i = 0; i < got.size(); ++i) {
+          ASSERT_NEAR(got[i], want[i], 1e-12)
+              << isa_name(isa) << ", " << nc << " channels, " << outs << " outputs, entry " << i;
+        }
+      }
+    }
+  }
+  EXPECT_GE(checked, 1);
+}
+
 TEST(DipoleSum, TheFieldRunsOnTheWidestSetWithinTheCap) {
   Isa want = Isa::kPortable;
   for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {

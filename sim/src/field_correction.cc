@@ -1,6 +1,8 @@
 // FieldCorrection: a unit's learned field correction, evaluated (skinbus/sim/field_correction.h).
 #include "skinbus/sim/field_correction.h"
 
+#include "dipole_sum.h"
+
 namespace skinbus::sim {
 
 Result<FieldCorrection> FieldCorrection::make(const Grid& grid, int channels,
@@ -105,32 +107,37 @@ int FieldCorrection::basis(double u_mm, double v_mm, double depth_mm, int* index
   return n;
 }
 
+void FieldCorrection::add_ut(double u_mm, double v_mm, double depth_mm, double* out) const {
+  int index[kSupport];
+  double w[kSupport];
+  const int n = basis(u_mm, v_mm, depth_mm, index, w);
+  if (n == 0) return;
+  detail::row_sums()(static_cast<std::size_t>(n), index, w, 1, coef_.data(),
+                     static_cast<std::size_t>(channels_), out);
+}
+
 void FieldCorrection::add_with_jacobian(double u_mm, double v_mm, double depth_mm, double* field,
                                         double* jacobian, int stride, int col) const {
   int index[kSupport];
-  double w[kSupport], dw[3 * kSupport];
+  double w[kSupport], dw[3 * kSupport], w4[4 * kSupport];
   const int n = basis(u_mm, v_mm, depth_mm, index, w, dw);
-  const std::size_t nc = static_cast<std::size_t>(channels_);
-  double ju[kMaxChannels], jv[kMaxChannels], jd[kMaxChannels];
-  std::fill_n(ju, nc, 0.0);
-  std::fill_n(jv, nc, 0.0);
-  std::fill_n(jd, nc, 0.0);
-  for (int i = 0; i < n; ++i) {
-    const double* c = coef_.data() + static_cast<std::size_t>(index[i]) * nc;
-    const double a = w[i], bu = dw[3 * i], bv = dw[3 * i + 1], bd = dw[3 * i + 2];
-    for (std::size_t ch = 0; ch < nc; ++ch) {
-      field[ch] += a * c[ch];
-      ju[ch] += bu * c[ch];
-      jv[ch] += bv * c[ch];
-      jd[ch] += bd * c[ch];
-    }
-  }
   if (n == 0) return;
+  for (int i = 0; i < n; ++i) {
+    w4[4 * i] = w[i];
+    w4[4 * i + 1] = dw[3 * i];
+    w4[4 * i + 2] = dw[3 * i + 1];
+    w4[4 * i + 3] = dw[3 * i + 2];
+  }
+  const std::size_t nc = static_cast<std::size_t>(channels_);
+  double sums[4 * kMaxChannels];  // value, d/du, d/dv, d/d depth; the first 4 nc are used
+  std::fill_n(sums, 4 * nc, 0.0);
+  detail::row_sums()(static_cast<std::size_t>(n), index, w4, 4, coef_.data(), nc, sums);
   const std::size_t s = static_cast<std::size_t>(stride), o = static_cast<std::size_t>(col);
   for (std::size_t ch = 0; ch < nc; ++ch) {
-    jacobian[ch * s + o] += ju[ch];
-    jacobian[ch * s + o + 1] += jv[ch];
-    jacobian[ch * s + o + 2] += jd[ch];
+    field[ch] += sums[ch];
+    jacobian[ch * s + o] += sums[nc + ch];
+    jacobian[ch * s + o + 1] += sums[2 * nc + ch];
+    jacobian[ch * s + o + 2] += sums[3 * nc + ch];
   }
 }
 

@@ -74,10 +74,13 @@ class FieldCorrection {
   // a jet type: derivatives by u, v and depth follow the jets.
   template <typename T>
   void add_ut(const T& u_mm, const T& v_mm, const T& depth_mm, T* out) const;
+  // The same for double, its channel loop on field_isa()'s instructions (equal to the template
+  // to rounding: the vector builds fuse multiplies and adds).
+  void add_ut(double u_mm, double v_mm, double depth_mm, double* out) const;
 
   // Adds the correction to `field` (channels() entries) and its derivatives by the contact's u, v
   // and depth to columns col, col + 1, col + 2 of `jacobian` (row-major, `stride` columns a
-  // channel).
+  // channel). Its channel loop on field_isa()'s instructions.
   void add_with_jacobian(double u_mm, double v_mm, double depth_mm, double* field, double* jacobian,
                          int stride, int col) const;
 
