@@ -30,8 +30,8 @@ Result<FieldCorrection> FieldCorrection::make(const Grid& grid, int channels,
                std::to_string(kDepthTerms) + " terms x " + std::to_string(channels) + " channels)");
   }
   for (std::size_t i = 0; i < coefficients.size(); ++i) {
-    if (!std::isfinite(coefficients[i])) {
-      return bad("coefficient " + std::to_string(i) + " is not finite");
+    if (!(std::fabs(coefficients[i]) <= kMaxCoefficientUt)) {
+      return bad("coefficient " + std::to_string(i) + " is not finite or beyond 1e6 uT");
     }
   }
   FieldCorrection f;

@@ -129,6 +129,9 @@ TEST(FieldCorrectionTest, BadGridsAndCoefficientsAreNamed) {
   std::vector<double> nan(n, 0.0);
   nan[7] = std::numeric_limits<double>::quiet_NaN();
   EXPECT_NE(message(g, 3, nan).find("coefficient 7"), std::string::npos);
+  std::vector<double> huge(n, 0.0);
+  huge[3] = 2e6;
+  EXPECT_NE(message(g, 3, huge).find("coefficient 3 is not finite or beyond"), std::string::npos);
 }
 
 // A model with a correction adds it, per pressing contact, on the fast path, the template and the

@@ -2,8 +2,10 @@
 // Invariants beyond "does not crash", for a file that parses:
 // - writing the parameters and reading them back gives the same bits (spread, lateral and every
 //   magnet's and sensor's numbers), and the same note;
+//   and of its field correction, when it has one (grid and coefficients);
 // - PatchModel::from_parameters() on the default design either refuses them with a message or
-//   builds a unit whose rest field is finite.
+//   builds a unit whose rest field, and field change and Jacobian under a press, are finite (a
+//   field correction included).
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -70,6 +72,21 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       fail("a sensor changed");
     }
   }
+  if ((p->field_correction == nullptr) != (back->field_correction == nullptr)) {
+    fail("the field correction came or went");
+  }
+  if (p->field_correction != nullptr) {
+    const FieldCorrection &a = *p->field_correction, &b = *back->field_correction;
+    const FieldCorrection::Grid &ga = a.grid(), &gb = b.grid();
+    if (!same(ga.u0_mm, gb.u0_mm) || !same(ga.v0_mm, gb.v0_mm) || !same(ga.step_mm, gb.step_mm) ||
+        !same(ga.max_depth_mm, gb.max_depth_mm) || ga.nu != gb.nu || ga.nv != gb.nv ||
+        a.channels() != b.channels() || a.coefficients().size() != b.coefficients().size()) {
+      fail("the field correction's grid changed");
+    }
+    for (std::size_t i = 0; i < a.coefficients().size(); ++i) {
+      if (!same(a.coefficients()[i], b.coefficients()[i])) fail("a correction coefficient changed");
+    }
+  }
   Result<PatchModel> model = PatchModel::from_parameters(PatchDesign{}, *p);
   if (!model.ok()) {
     if (model.error().message.empty()) fail("a refusal without a message");
@@ -79,6 +96,19 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   model->rest_field_ut(rest);
   for (double v : rest) {
     if (!std::isfinite(v)) fail("a unit that builds has a non-finite rest field");
+  }
+  if (p->field_correction == nullptr) return 0;
+  // The correction at presses inside and outside its grid.
+  std::vector<double> field(rest.size()), jac(3 * rest.size());
+  for (const Contact c : {Contact{3.0, -7.5, 2.0, 5.0}, Contact{500.0, -900.0, 30.0, 5.0}}) {
+    model->contact_field_ut(std::span<const Contact>(&c, 1), field);
+    for (double v : field) {
+      if (!std::isfinite(v)) fail("a unit with a field correction has a non-finite field");
+    }
+    model->contact_jacobian(c, jac, field);
+    for (double v : jac) {
+      if (!std::isfinite(v)) fail("a unit with a field correction has a non-finite Jacobian");
+    }
   }
   return 0;
 }

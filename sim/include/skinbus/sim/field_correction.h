@@ -39,6 +39,9 @@ class FieldCorrection {
   static constexpr int kDepthTerms = 3;
   static constexpr int kMaxKnots = 256;     // nu, nv at most (and at least 4)
   static constexpr int kMaxChannels = 768;  // 256 sensors (PatchModel's kMaxSensors)
+  // Largest coefficient taken (uT): a tesla. Bounds every value and derivative it adds, so no
+  // correction can overflow a field.
+  static constexpr double kMaxCoefficientUt = 1e6;
 
   struct Grid {
     double u0_mm = 0, v0_mm = 0, step_mm = 0;
@@ -53,9 +56,9 @@ class FieldCorrection {
   // A correction from its grid and coefficients: `coefficients` has grid.terms() x channels
   // entries, term-major (the term's channels contiguous; term (i, j, k) is (j nu + i)
   // kDepthTerms + k). Errors (kInvalidArgument, naming what): channels outside 1 ..
-  // kMaxChannels, nu or nv outside
-  // 4 .. kMaxKnots, step or max depth not positive, a grid origin or coefficient not finite, the
-  // wrong number of coefficients.
+  // kMaxChannels, nu or nv outside 4 .. kMaxKnots, step or max depth not positive, a grid origin
+  // not finite, a coefficient not finite or beyond +-kMaxCoefficientUt, the wrong number of
+  // coefficients.
   static Result<FieldCorrection> make(const Grid& grid, int channels,
                                       std::vector<double> coefficients);
 
