@@ -196,13 +196,16 @@ int main(int argc, char** argv) {
     fo.min_depth_mm = opt.min_depth_mm;
     fo.depth_bin_edges_mm = opt.depth_bin_edges_mm;
     estimators::FieldCorrectionReport report;
+    const auto t_fit = std::chrono::steady_clock::now();
     Result<sim::FieldCorrection> fc =
         estimators::fit_field_correction(*model, *presses, opt.tip_radius_mm, fo, &report);
     if (!fc.ok()) {
       std::printf("field correction not learned: %s\n", fc.error().message.c_str());
       return std::nullopt;
     }
-    std::printf("%s\n", report.summary_text().c_str());
+    std::printf("%s\nfield correction learned and checked in %.1f s\n",
+                report.summary_text().c_str(),
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count());
     if (!report.helps || report.rms_held_out > opt.max_residual) return std::nullopt;
     sim::UnitParameters corrected = unit;
     corrected.field_correction = std::make_shared<const sim::FieldCorrection>(std::move(*fc));
