@@ -1,6 +1,7 @@
 #include "dipole_sum.h"
 
 #include <cmath>
+#include <cstring>
 
 #include "skinbus/sim/patch_model.h"
 
@@ -203,31 +204,50 @@ __attribute__((always_inline)) inline void press_poses_body(
   }
 }
 
+// Channels a pass of the row sums: their sums stay in registers over every term (one 512-bit
+// or two 256-bit vectors an output), each term's row read once.
+constexpr std::size_t kRowBlock = 8;
+typedef double RowBlock __attribute__((vector_size(kRowBlock * sizeof(double))));
+
+template <int kOuts>
+__attribute__((always_inline)) inline void row_sums_outs(std::size_t n, const int* index,
+                                                         const double* weight,
+                                                         const double* __restrict rows,
+                                                         std::size_t nc, double* __restrict out) {
+  std::size_t c0 = 0;
+  for (; c0 + kRowBlock <= nc; c0 += kRowBlock) {
+    RowBlock acc[kOuts] = {};
+    for (std::size_t t = 0; t < n; ++t) {
+      RowBlock r;
+      std::memcpy(&r, rows + static_cast<std::size_t>(index[t]) * nc + c0, sizeof r);
+      for (int k = 0; k < kOuts; ++k) acc[k] += weight[t * kOuts + static_cast<std::size_t>(k)] * r;
+    }
+    for (int k = 0; k < kOuts; ++k) {
+      RowBlock o;
+      double* at = out + static_cast<std::size_t>(k) * nc + c0;
+      std::memcpy(&o, at, sizeof o);
+      o += acc[k];
+      std::memcpy(at, &o, sizeof o);
+    }
+  }
+  for (std::size_t t = 0; c0 < nc && t < n; ++t) {  // the last channels, fewer than a block
+    const double* __restrict r = rows + static_cast<std::size_t>(index[t]) * nc;
+    for (int k = 0; k < kOuts; ++k) {
+      const double w = weight[t * kOuts + static_cast<std::size_t>(k)];
+      for (std::size_t ch = c0; ch < nc; ++ch)
+        out[static_cast<std::size_t>(k) * nc + ch] += w * r[ch];
+    }
+  }
+}
+
 __attribute__((always_inline)) inline void row_sums_body(std::size_t n, const int* index,
                                                          const double* weight, int outs,
                                                          const double* __restrict rows,
                                                          std::size_t nc, double* __restrict out) {
   if (outs == 1) {
-    for (std::size_t t = 0; t < n; ++t) {
-      const double w = weight[t];
-      const double* __restrict r = rows + static_cast<std::size_t>(index[t]) * nc;
-      for (std::size_t ch = 0; ch < nc; ++ch) out[ch] += w * r[ch];
-    }
-    return;
-  }
-  double* __restrict o1 = out + nc;
-  double* __restrict o2 = out + 2 * nc;
-  double* __restrict o3 = out + 3 * nc;
-  for (std::size_t t = 0; t < n; ++t) {
-    const double* w = weight + 4 * t;
-    const double w0 = w[0], w1 = w[1], w2 = w[2], w3 = w[3];
-    const double* __restrict r = rows + static_cast<std::size_t>(index[t]) * nc;
-    for (std::size_t ch = 0; ch < nc; ++ch) {
-      out[ch] += w0 * r[ch];
-      o1[ch] += w1 * r[ch];
-      o2[ch] += w2 * r[ch];
-      o3[ch] += w3 * r[ch];
-    }
+    row_sums_outs<1>(n, index, weight, rows, nc, out);
+  } else {
+    row_sums_outs<4>(n, index, weight, rows, nc, out);
   }
 }
 
