@@ -184,6 +184,18 @@ odd_test=(--plan random-test --count 150 --uid 0x5B07)
   grep -q '"source": ".*the class alone refused' "$work/id/odd_rescued.json" && ! grep -q '"refused"' "$work/id/odd_rescued.json" &&
   ok "a fit refused for its residual, kept when its field correction explains the unit" ||
   { bad "refused fit and field correction (rc $rc_alone, $rc)"; cat "$work/id/odd_rescued.txt"; }
+# Refined as the host refines (skinbus-evaluate: make_physics_refiner reads the unit file), the
+# corrected unit places that unit's presses nearer, in position and depth, than the uncorrected.
+for f in odd_fc odd; do
+  "$bin/skinbus-evaluate" "$work/id/odd_unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+    --unit "$work/id/$f.json" >"$work/id/eval_$f.txt" 2>&1 || true
+done
+sums() { awk -F'|' '/^\| [123]-[234] \|/ { xy += $5; d += $9 } END { printf "%.3f %.3f", xy, d }' "$1"; }
+read -r xy_fc d_fc <<<"$(sums "$work/id/eval_odd_fc.txt")"
+read -r xy_plain d_plain <<<"$(sums "$work/id/eval_odd.txt")"
+awk -v a="$xy_fc" -v b="$xy_plain" -v c="$d_fc" -v d="$d_plain" 'BEGIN { exit !(a > 0 && a < 0.8 * b && c < 0.8 * d) }' &&
+  ok "refined on the corrected unit: XY $xy_fc mm and depth $d_fc mm summed over 1-4 mm, against $xy_plain and $d_plain uncorrected" ||
+  { bad "refinement on the corrected unit"; cat "$work/id/eval_odd_fc.txt" "$work/id/eval_odd.txt"; }
 # The shipped network alone and refined on the identified unit, on that unit's own presses.
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/unit.json" >"$work/id/eval.txt" 2>&1; rc=$?
