@@ -90,13 +90,19 @@ Eigen::MatrixXd smoothing_penalty(const FieldCorrection::Grid& g) {
 
 }  // namespace
 
+double FieldCorrectionReport::explained() const {
+  const double excess = rms_model * rms_model - 1;
+  return excess > 0 ? (excess - std::max(rms_held_out * rms_held_out - 1, 0.0)) / excess : 0.0;
+}
+
 std::string FieldCorrectionReport::summary_text() const {
   char buf[512];
   std::snprintf(
       buf, sizeof buf,
-      "field correction: residual %.3f -> %.3f noise units at held-out places (%.3f fitted), "
-      "knots %.1f mm, smoothing %g, %d samples at %d places: %s",
-      rms_model, rms_held_out, rms_fitted, step_mm, smoothing, samples, places,
+      "field correction: residual %.3f -> %.3f noise units at held-out places (%.3f fitted; "
+      "%.0f %% of the residual's excess over the noise explained), knots %.1f mm, smoothing %g, "
+      "%d samples at %d places: %s",
+      rms_model, rms_held_out, rms_fitted, 100 * explained(), step_mm, smoothing, samples, places,
       helps ? "helps" : "does not help");
   std::string s = buf;
   for (const Bin& b : bins) {

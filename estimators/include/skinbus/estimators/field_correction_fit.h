@@ -66,9 +66,13 @@ struct FieldCorrectionReport {
   };
   std::vector<Bin> bins;
   bool helps = false;
+  // How much of what the model leaves above the noise the correction explains at held-out
+  // places: 1 - (rms_held_out^2 - 1) / (rms_model^2 - 1), each excess at least 0 (0 when the
+  // model leaves none; below 0 when the correction adds error).
+  double explained() const;
   // One line for a tool's log: "field correction: residual M -> H noise units at held-out places
-  // (F fitted), knots S mm, smoothing L, N samples at P places: helps|does not help", then the
-  // bins.
+  // (F fitted; E % of the residual's excess over the noise explained), knots S mm, smoothing L,
+  // N samples at P places: helps|does not help", then the bins.
   std::string summary_text() const;
 };
 
