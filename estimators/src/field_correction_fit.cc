@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <map>
 #include <optional>
@@ -22,10 +23,13 @@ using sim::FieldCorrection;
 constexpr std::size_t kMaxUnknowns = 3000;
 
 struct Sample {
-  std::size_t row = 0;
   double u = 0, v = 0, d = 0;
   int fold = 0, bin = -1;
+  long known = 0;  // channels with a finite value
 };
+
+// Knot spacings finer than this are not tried, however close the press places lie.
+constexpr double kMinSpacingMm = 1.0;
 
 // Squared whitened residual sums, overall and per depth bin.
 struct Sums {
@@ -144,7 +148,8 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
   // without, and the sums below read them directly) and their press places.
   const std::size_t ncu = static_cast<std::size_t>(nc);
   std::vector<Sample> samples;
-  std::vector<double> resid;  // samples x nc, noise units
+  std::vector<double> resid;   // samples x nc, noise units (0 where the value is not finite)
+  std::vector<uint8_t> known;  // samples x nc: the value is finite
   std::vector<double> f(ncu);
   std::map<std::pair<long, long>, int> place_of;  // (u, v) to 1 um
   std::vector<std::pair<double, double>> places;
@@ -152,17 +157,21 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
   for (std::size_t r = 0; r < presses.rows(); ++r) {
     const double u = presses.u_mm[r], v = presses.v_mm[r], d = presses.depth_mm[r];
     if (!std::isfinite(u) || !std::isfinite(v) || !(d >= opt.min_depth_mm)) continue;
+    // A dead channel (not finite) adds nothing to its own fit and is left out of the sums; a
+    // row needs half its channels.
     const double* x = presses.field(r);
-    bool finite = true;
-    for (std::size_t c = 0; c < ncu && finite; ++c) finite = std::isfinite(x[c]);
-    if (!finite) continue;
+    long finite = 0;
+    for (std::size_t c = 0; c < ncu; ++c) finite += std::isfinite(x[c]) ? 1 : 0;
+    if (2 * finite < nc) continue;
     const sim::Contact contact{u, v, d, tip_radius_mm};
     model.contact_field_ut(std::span<const sim::Contact>(&contact, 1), f);
     for (std::size_t c = 0; c < ncu; ++c) {
-      resid.push_back((x[c] - f[c]) / noise.sigma(static_cast<int>(c)));
+      const bool ok = std::isfinite(x[c]);
+      resid.push_back(ok ? (x[c] - f[c]) / noise.sigma(static_cast<int>(c)) : 0.0);
+      known.push_back(ok ? 1 : 0);
     }
     Sample s;
-    s.row = r;
+    s.known = finite;
     s.u = u;
     s.v = v;
     s.d = d;
@@ -191,7 +200,7 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
   }
   std::nth_element(nearest.begin(), nearest.begin() + static_cast<long>(nearest.size() / 2),
                    nearest.end());
-  const double spacing = nearest[nearest.size() / 2];
+  const double spacing = std::max(nearest[nearest.size() / 2], kMinSpacingMm);
   double u_lo = 1e300, u_hi = -1e300, v_lo = 1e300, v_hi = -1e300;
   for (const auto& [u, v] : places) {
     u_lo = std::min(u_lo, u), u_hi = std::max(u_hi, u);
@@ -208,7 +217,7 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
   for (std::size_t i = 0; i < ns; ++i) {
     double sq = 0;
     for (std::size_t c = 0; c < ncu; ++c) sq += resid[i * ncu + c] * resid[i * ncu + c];
-    model_sums.add(samples[i].bin, sq, static_cast<long>(ncu));
+    model_sums.add(samples[i].bin, sq, samples[i].known);
   }
 
   const int folds = opt.folds;
@@ -274,7 +283,7 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
       double p = 0;
       for (int a = 0; a < count[i]; ++a) p += w[a] * coef(ix[a], static_cast<Eigen::Index>(c));
       const double e = resid[i * ncu + c] - p;
-      sq += e * e;
+      sq += known[i * ncu + c] ? e * e : 0.0;
     }
     return sq;
   };
@@ -304,7 +313,7 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
             solve(e->n_all - e->n_f[fold], e->b_all - e->b_f[fold], pen, e->scale, lambda);
         ok = coef.has_value();
         for (std::size_t i = 0; ok && i < ns; ++i) {
-          if (samples[i].fold == q) held.add(samples[i].bin, left(i, *coef), static_cast<long>(nc));
+          if (samples[i].fold == q) held.add(samples[i].bin, left(i, *coef), samples[i].known);
         }
       }
       if (!ok) continue;
@@ -336,7 +345,7 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
   }
   Sums fitted(nb);
   for (std::size_t i = 0; i < ns; ++i) {
-    fitted.add(samples[i].bin, left(i, *coef), static_cast<long>(nc));
+    fitted.add(samples[i].bin, left(i, *coef), samples[i].known);
   }
   // Back to uT, term-major.
   std::vector<double> out(g.terms() * ncu);
@@ -355,7 +364,10 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
     FieldCorrectionReport::Bin bin;
     bin.depth_lo_mm = edges[b];
     bin.depth_hi_mm = edges[b + 1];
-    bin.samples = static_cast<int>(model_sums.bin_values[b] / static_cast<long>(nc));
+    bin.samples =
+        static_cast<int>(std::count_if(samples.begin(), samples.end(), [&](const Sample& x) {
+          return x.bin == static_cast<int>(b);
+        }));
     bin.rms_model = model_sums.rms(b);
     bin.rms_held_out = best.held.rms(b);
     bin.rms_fitted = fitted.rms(b);

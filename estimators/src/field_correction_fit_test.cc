@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -67,6 +68,17 @@ TEST(FieldCorrectionFitTest, LearnsASmoothFieldTheClassMisses) {
   EXPECT_LT(report.rms_held_out, 1.1);
   EXPECT_TRUE(report.helps);
   EXPECT_EQ(f->channels(), 48);
+
+  // A dead channel (NaN in every row): the others are learned as before, it is left out.
+  sim::Dataset dead = presses;
+  for (std::size_t r = 0; r < dead.rows(); ++r) {
+    dead.field_ut[r * 48 + 7] = std::numeric_limits<double>::quiet_NaN();
+  }
+  FieldCorrectionReport dead_report;
+  ASSERT_TRUE(fit_field_correction(unit, dead, 5.0, {}, &dead_report).ok());
+  EXPECT_EQ(dead_report.samples, report.samples);
+  EXPECT_LT(dead_report.rms_held_out, 1.1);
+  EXPECT_TRUE(dead_report.helps);
 }
 
 TEST(FieldCorrectionFitTest, AUnitTheClassExplainsIsNotHelped) {

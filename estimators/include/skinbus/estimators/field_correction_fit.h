@@ -77,10 +77,13 @@ struct FieldCorrectionReport {
 };
 
 // Learns the correction of `model` (its own correction, if any, is not used: the residual is
-// taken against the class) from `presses` (rows with depth >= options.min_depth_mm and finite
-// fields) pressed with a round tip of `tip_radius_mm`. Errors: kInvalidArgument for a channel
-// count other than the model's or empty option lists; kDegenerate for fewer than 10 x folds
-// press places or fewer samples than twice the unknowns at the finest spacing tried.
+// taken against the class) from `presses` (rows with depth >= options.min_depth_mm and at least
+// half their channels finite: a value that is not, a dead channel's, adds nothing to its
+// channel's fit, which it pulls toward 0, and is left out of every residual) pressed with a round
+// tip of `tip_radius_mm`. Press places closer than 1 mm count as 1 mm apart for the knots. Errors:
+// kInvalidArgument for a channel count other than the model's or empty option lists; kDegenerate
+// for fewer than 10 x folds press places or fewer samples than twice the unknowns at the finest
+// spacing tried.
 Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model,
                                                   const sim::Dataset& presses, double tip_radius_mm,
                                                   const FieldCorrectionOptions& options,
