@@ -37,16 +37,16 @@
 #                        on the unit as the host runs them (skinbus-evaluate; with the correction
 #                        too, on HELD.csv) next to the unit's bound at the same presses
 #   skin_map_entry.yaml  the entry for the skin map (position and orientation: skinbus-calibrate)
-# A unit the design's model class cannot explain (skinbus-identify refuses it, naming why: the
-# design file is not the patch, or its physics lie too far outside the class) takes the network
-# route instead: no unit.json and no correction; the network is trained on the unit's own
-# presses, measured on HELD.csv when given, and the entry names the network alone (skinbus-host
-# then publishes the network's contacts, unrefined). When identification made a fit it refused
-# (refused_fit.json: the class's nearest model of the unit, never refined on; none when a global
-# ran to its bound), two ways are trained and the one with the lower error on the unit's presses
-# held out of training is kept (choice.log): --synthetic simulated presses of the refused fit,
-# then the unit's own from that network (network_from_refused); the unit's own alone
-# (network_own). The report says which, and why.
+# A unit the design's model class cannot explain, even with its field correction (skinbus-identify
+# refuses it, naming why: the design file is not the patch, or its physics lie too far outside the
+# class) takes the network route instead: no unit.json and no correction; the network is trained
+# on the unit's own presses, measured on HELD.csv when given, and the entry names the network
+# alone (skinbus-host then publishes the network's contacts, unrefined). When identification
+# made a fit it refused (refused_fit.json: the class's nearest model of the unit, never refined
+# on; none when a global ran to its bound), two ways are trained and the one with the lower
+# error on the unit's presses held out of training is kept (choice.log): --synthetic simulated
+# presses of the refused fit, then the unit's own from that network (network_from_refused); the
+# unit's own alone (network_own). The report says which, and why.
 # Progress: one line per step on standard error; each tool's own progress in its log.
 # Exit status: 0 done, 1 a step failed (its log says why), 2 bad arguments.
 set -euo pipefail
@@ -71,7 +71,7 @@ while (($#)); do
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
     --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
-    -h | --help) sed -n '2,50p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,51p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
