@@ -21,7 +21,7 @@
 // Cost: per spacing, one pass over the samples (16 x kDepthTerms basis weights each, their outer
 // products into a dense normal matrix of nu nv kDepthTerms unknowns) and folds x smoothings + 1
 // dense Cholesky factorisations of it; for the seed's 361 presses (19 x 19 at 6 mm) a few
-// seconds on one core, memory (folds + 2) x that matrix (about 14 MB each at 6 mm knots).
+// seconds on one core, memory (folds + 3) x that matrix (about 14 MB each at 6 mm knots).
 #pragma once
 
 #include <string>
