@@ -1,6 +1,9 @@
 // FieldCorrection: a unit's learned field correction, evaluated (skinbus/sim/field_correction.h).
 #include "skinbus/sim/field_correction.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include "dipole_sum.h"
 
 namespace skinbus::sim {
@@ -41,7 +44,11 @@ Result<FieldCorrection> FieldCorrection::make(const Grid& grid, int channels,
   return f;
 }
 
-bool FieldCorrection::interval(double x, int n, int* s, double* t) {
+namespace {
+
+// The interval index along an axis of n basis functions and the fraction in it; false (index and
+// fraction at the nearest edge) when x lies outside the grid.
+bool interval(double x, int n, int* s, double* t) {
   const double top = n - 3;  // the grid spans x in [0, n - 3]
   if (!(x > 0)) {            // below, or NaN: the lower edge
     *s = 0;
@@ -58,7 +65,15 @@ bool FieldCorrection::interval(double x, int n, int* s, double* t) {
   return true;
 }
 
-void FieldCorrection::cubic_slope(double t, double* dw) {
+// The four cubic B-spline weights at fraction t of an interval, and their slopes by t.
+void cubic(double t, double* w) {
+  const double t2 = t * t, t3 = t2 * t, s = 1 - t;
+  w[0] = s * s * s / 6;
+  w[1] = (3 * t3 - 6 * t2 + 4) / 6;
+  w[2] = (-3 * t3 + 3 * t2 + 3 * t + 1) / 6;
+  w[3] = t3 / 6;
+}
+void cubic_slope(double t, double* dw) {
   const double s = 1 - t;
   dw[0] = -0.5 * s * s;
   dw[1] = 1.5 * t * t - 2 * t;
@@ -66,8 +81,10 @@ void FieldCorrection::cubic_slope(double t, double* dw) {
   dw[3] = 0.5 * t * t;
 }
 
+}  // namespace
+
 int FieldCorrection::basis(double u_mm, double v_mm, double depth_mm, int* index, double* weight,
-                           double* d_weight) const {
+                           bool derivatives) const {
   if (!(depth_mm > 0)) return 0;
   const double h = grid_.step_mm;
   int su = 0, sv = 0;
@@ -94,11 +111,14 @@ int FieldCorrection::basis(double u_mm, double v_mm, double depth_mm, int* index
       const int cell = (sv + b) * grid_.nu + su + a;
       for (int k = 0; k < kDepthTerms; ++k) {
         index[n] = cell * kDepthTerms + k;
-        weight[n] = wu[a] * wv[b] * g[k];
-        if (d_weight != nullptr) {
-          d_weight[3 * n + 0] = du[a] / h * wv[b] * g[k];
-          d_weight[3 * n + 1] = wu[a] * dv[b] / h * g[k];
-          d_weight[3 * n + 2] = wu[a] * wv[b] * dg[k];
+        if (derivatives) {
+          double* w = weight + 4 * n;
+          w[0] = wu[a] * wv[b] * g[k];
+          w[1] = du[a] / h * wv[b] * g[k];
+          w[2] = wu[a] * dv[b] / h * g[k];
+          w[3] = wu[a] * wv[b] * dg[k];
+        } else {
+          weight[n] = wu[a] * wv[b] * g[k];
         }
         ++n;
       }
@@ -116,22 +136,23 @@ void FieldCorrection::add_ut(double u_mm, double v_mm, double depth_mm, double* 
                      static_cast<std::size_t>(channels_), out);
 }
 
+bool FieldCorrection::sums_with_derivatives(double u_mm, double v_mm, double depth_mm,
+                                            double* sums) const {
+  int index[kSupport];
+  double w[4 * kSupport];
+  const int n = basis(u_mm, v_mm, depth_mm, index, w, true);
+  if (n == 0) return false;
+  const std::size_t nc = static_cast<std::size_t>(channels_);
+  std::fill_n(sums, 4 * nc, 0.0);
+  detail::row_sums()(static_cast<std::size_t>(n), index, w, 4, coef_.data(), nc, sums);
+  return true;
+}
+
 void FieldCorrection::add_with_jacobian(double u_mm, double v_mm, double depth_mm, double* field,
                                         double* jacobian, int stride, int col) const {
-  int index[kSupport];
-  double w[kSupport], dw[3 * kSupport], w4[4 * kSupport];
-  const int n = basis(u_mm, v_mm, depth_mm, index, w, dw);
-  if (n == 0) return;
-  for (int i = 0; i < n; ++i) {
-    w4[4 * i] = w[i];
-    w4[4 * i + 1] = dw[3 * i];
-    w4[4 * i + 2] = dw[3 * i + 1];
-    w4[4 * i + 3] = dw[3 * i + 2];
-  }
+  double sums[4 * kMaxChannels];  // value, d/du, d/dv, d/d depth; the first 4 channels() are used
+  if (!sums_with_derivatives(u_mm, v_mm, depth_mm, sums)) return;
   const std::size_t nc = static_cast<std::size_t>(channels_);
-  double sums[4 * kMaxChannels];  // value, d/du, d/dv, d/d depth; the first 4 nc are used
-  std::fill_n(sums, 4 * nc, 0.0);
-  detail::row_sums()(static_cast<std::size_t>(n), index, w4, 4, coef_.data(), nc, sums);
   const std::size_t s = static_cast<std::size_t>(stride), o = static_cast<std::size_t>(col);
   for (std::size_t ch = 0; ch < nc; ++ch) {
     field[ch] += sums[ch];

@@ -23,8 +23,6 @@
 // (48 x 48 for 16 sensors); with the derivatives, four times the multiply-adds. No allocation.
 #pragma once
 
-#include <algorithm>
-#include <cmath>
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -66,20 +64,20 @@ class FieldCorrection {
   int channels() const { return channels_; }
   const std::vector<double>& coefficients() const { return coef_; }
 
-  // The basis weights of a contact at (u, v, depth): `index[n]` the term, `weight[n]` its value,
-  // n < the returned count (0 for depth <= 0; at most kSupport). With `d_weight` not null, also
-  // each weight's derivatives by u, v and depth (mm^-1), three a term.
+  // The basis weights of a contact at (u, v, depth): `index[n]` the term and, n < the returned
+  // count (0 for depth <= 0 or NaN; at most kSupport), its weight: weight[n] alone, or with
+  // `derivatives` weight[4 n .. 4 n + 3], its value and its derivatives by u, v and depth (mm^-1).
   static constexpr int kSupport = 16 * kDepthTerms;
   int basis(double u_mm, double v_mm, double depth_mm, int* index, double* weight,
-            double* d_weight = nullptr) const;
+            bool derivatives = false) const;
 
-  // Adds the correction of a contact at (u, v, depth) to out[0 .. channels()) (uT). T = double or
-  // a jet type: derivatives by u, v and depth follow the jets.
+  // Adds the correction of a contact at (u, v, depth) to out[0 .. channels()) (uT), its channel
+  // loop on field_isa()'s instructions.
+  void add_ut(double u_mm, double v_mm, double depth_mm, double* out) const;
+  // The same for a jet type: the value at the jets' values and its derivatives by u, v and depth
+  // chained to theirs (first order, all a jet carries).
   template <typename T>
   void add_ut(const T& u_mm, const T& v_mm, const T& depth_mm, T* out) const;
-  // The same for double, its channel loop on field_isa()'s instructions (equal to the template
-  // to rounding: the vector builds fuse multiplies and adds).
-  void add_ut(double u_mm, double v_mm, double depth_mm, double* out) const;
 
   // Adds the correction to `field` (channels() entries) and its derivatives by the contact's u, v
   // and depth to columns col, col + 1, col + 2 of `jacobian` (row-major, `stride` columns a
@@ -89,13 +87,10 @@ class FieldCorrection {
 
  private:
   FieldCorrection() = default;
-  // The four cubic B-spline weights at fraction t of an interval, and their slopes by t.
-  template <typename T>
-  static void cubic(const T& t, T* w);
-  static void cubic_slope(double t, double* dw);
-  // The interval index along an axis of n basis functions and the fraction in it; false (index
-  // and fraction at the nearest edge) when x lies outside the grid.
-  static bool interval(double x, int n, int* s, double* t);
+  // The correction at (u, v, depth) into sums[0 .. channels()) and its derivatives by u, v and
+  // depth into the next three runs of channels() each; false (sums untouched) for depth <= 0 or
+  // NaN.
+  bool sums_with_derivatives(double u_mm, double v_mm, double depth_mm, double* sums) const;
 
   Grid grid_;
   int channels_ = 0;
@@ -105,43 +100,14 @@ class FieldCorrection {
 // ---- implementation of the templates ---------------------------------------------------------
 
 template <typename T>
-void FieldCorrection::cubic(const T& t, T* w) {
-  const T t2 = t * t, t3 = t2 * t, s = T(1.0) - t;
-  w[0] = s * s * s * (1.0 / 6);
-  w[1] = (t3 * 3.0 - t2 * 6.0 + 4.0) * (1.0 / 6);
-  w[2] = (t3 * -3.0 + t2 * 3.0 + t * 3.0 + 1.0) * (1.0 / 6);
-  w[3] = t3 * (1.0 / 6);
-}
-
-template <typename T>
 void FieldCorrection::add_ut(const T& u_mm, const T& v_mm, const T& depth_mm, T* out) const {
-  const double d0 = value_of(depth_mm);
-  if (!(d0 > 0)) return;
-  int su = 0, sv = 0;
-  double tu0 = 0, tv0 = 0;
-  const bool in_u = interval((value_of(u_mm) - grid_.u0_mm) / grid_.step_mm, grid_.nu, &su, &tu0);
-  const bool in_v = interval((value_of(v_mm) - grid_.v0_mm) / grid_.step_mm, grid_.nv, &sv, &tv0);
-  // Inside the grid the fraction carries the jets' derivatives; outside, the edge's value.
-  const T tu = in_u ? (u_mm - grid_.u0_mm) / grid_.step_mm - double(su) : T(tu0);
-  const T tv = in_v ? (v_mm - grid_.v0_mm) / grid_.step_mm - double(sv) : T(tv0);
-  T wu[4], wv[4];
-  cubic(tu, wu);
-  cubic(tv, wv);
-  const T x = d0 < grid_.max_depth_mm ? depth_mm / grid_.max_depth_mm : T(1.0);
-  T g[kDepthTerms];
-  g[0] = x;
-  for (int k = 1; k < kDepthTerms; ++k) g[k] = g[k - 1] * x;
+  const double u = value_of(u_mm), v = value_of(v_mm), d = value_of(depth_mm);
+  double s[4 * kMaxChannels];  // value, d/du, d/dv, d/d depth; the first 4 channels() are used
+  if (!sums_with_derivatives(u, v, d, s)) return;
+  const T du = u_mm - u, dv = v_mm - v, dd = depth_mm - d;  // the jets' derivative parts alone
   const std::size_t nc = static_cast<std::size_t>(channels_);
-  for (int b = 0; b < 4; ++b) {
-    for (int a = 0; a < 4; ++a) {
-      const T wab = wu[a] * wv[b];
-      const std::size_t cell = static_cast<std::size_t>((sv + b) * grid_.nu + su + a);
-      for (int k = 0; k < kDepthTerms; ++k) {
-        const T w = wab * g[k];
-        const double* c = coef_.data() + (cell * kDepthTerms + static_cast<std::size_t>(k)) * nc;
-        for (std::size_t ch = 0; ch < nc; ++ch) out[ch] = out[ch] + w * c[ch];
-      }
-    }
+  for (std::size_t ch = 0; ch < nc; ++ch) {
+    out[ch] = out[ch] + (du * s[nc + ch] + dv * s[2 * nc + ch] + dd * s[3 * nc + ch] + s[ch]);
   }
 }
 
