@@ -133,12 +133,17 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
     return make_error(ErrorCode::kInvalidArgument,
                       "field correction: steps, smoothings and >= 2 folds required");
   }
-  // The class's own model: the residual is taken against it.
-  sim::UnitParameters bare = model_in.parameters();
-  bare.field_correction = nullptr;
-  Result<sim::PatchModel> model_r = sim::PatchModel::from_parameters(model_in.design(), bare);
-  if (!model_r.ok()) return model_r.error();
-  const sim::PatchModel& model = *model_r;
+  // The class's own model: the residual is taken against it (rebuilt only when `model_in` carries
+  // a correction).
+  std::optional<sim::PatchModel> bare_model;
+  if (model_in.field_correction() != nullptr) {
+    sim::UnitParameters bare = model_in.parameters();
+    bare.field_correction = nullptr;
+    Result<sim::PatchModel> m = sim::PatchModel::from_parameters(model_in.design(), bare);
+    if (!m.ok()) return m.error();
+    bare_model.emplace(std::move(*m));
+  }
+  const sim::PatchModel& model = bare_model ? *bare_model : model_in;
   const ChannelNoise noise =
       opt.noise.xy_ut > 0 && opt.noise.z_ut > 0 ? opt.noise : ChannelNoise::of(model.design());
   const std::vector<double>& edges = opt.depth_bin_edges_mm;

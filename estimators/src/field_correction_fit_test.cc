@@ -56,7 +56,8 @@ TEST(FieldCorrectionFitTest, LearnsASmoothFieldTheClassMisses) {
   const sim::PatchDesign design;
   const sim::PatchModel unit =
       sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value();
-  const sim::Dataset presses = grid_presses(with_correction(unit, smooth_field(48, seed)), seed);
+  const sim::PatchModel truth = with_correction(unit, smooth_field(48, seed));
+  const sim::Dataset presses = grid_presses(truth, seed);
   FieldCorrectionReport report;
   const Result<sim::FieldCorrection> f =
       fit_field_correction(unit, presses, 5.0, FieldCorrectionOptions{}, &report);
@@ -68,6 +69,11 @@ TEST(FieldCorrectionFitTest, LearnsASmoothFieldTheClassMisses) {
   EXPECT_LT(report.rms_held_out, 1.1);
   EXPECT_TRUE(report.helps);
   EXPECT_EQ(f->channels(), 48);
+  // A model's own correction is not used: the residual is the class's.
+  FieldCorrectionReport again;
+  ASSERT_TRUE(fit_field_correction(truth, presses, 5.0, {}, &again).ok());
+  EXPECT_EQ(again.rms_model, report.rms_model);
+  EXPECT_EQ(again.rms_held_out, report.rms_held_out);
 
   // A dead channel (NaN in every row): the others are learned as before, it is left out.
   sim::Dataset dead = presses;
