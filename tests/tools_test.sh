@@ -202,6 +202,16 @@ awk -v a="$xy_fc" -v b="$xy_plain" -v c="$d_fc" -v d="$d_plain" 'BEGIN { exit !(
 row=$(grep "^| 2-3 |" "$work/id/eval.txt" || true)
 [[ $rc == 0 ]] && awk -F'|' '{exit !($5 + 0 < $4 + 0)}' <<<"$row" &&
   ok "skinbus-evaluate: refined below the network ($row)" || { bad "skinbus-evaluate (rc $rc)"; cat "$work/id/eval.txt"; }
+# The unit file says where the unit was pressed (its 9 x 9 grid at 15 mm: +-60 mm); presses
+# beyond it (the random ones reach +-67.5 mm) are shown apart, those on the grid are not.
+area=$(python3 -c 'import json,sys; a=json.load(open(sys.argv[1]))["pressed_area_mm"]; print(a["u"] + a["v"])' "$work/id/unit.json" 2>&1)
+"$bin/skinbus-evaluate" "$work/id/test_unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+  --unit "$work/id/unit.json" >"$work/id/eval_area.txt" 2>&1; rc=$?
+outside=$(sed -n 's/^\([0-9]*\) of the 150 presses lie outside the area the unit was pressed on (u -60.0 .. 60.0, v -60.0 .. 60.0 mm.*/\1/p' "$work/id/eval_area.txt")
+[[ $rc == 0 && $area == "[-60.0, 60.0, -60.0, 60.0]" && -n $outside ]] && (( outside > 0 && outside < 150 )) &&
+  [[ $(grep -c '^| 2-3 |' "$work/id/eval_area.txt") == 3 ]] && ! grep -q "lie outside" "$work/id/eval.txt" &&
+  ok "skinbus-evaluate shows the $outside of 150 presses outside the pressed area ($area) apart" ||
+  { bad "skinbus-evaluate and the pressed area (rc $rc, area $area)"; cat "$work/id/eval_area.txt"; }
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/bad.json" >/dev/null 2>"$work/id/eval_bad.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "bad.json: magnets\[0\].v_mm is missing" "$work/id/eval_bad.txt" &&

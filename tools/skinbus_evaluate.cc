@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -39,7 +40,10 @@ int main(int argc, char** argv) {
       "the host's rule for keeping a refined contact, docs/aggregator.md), per depth bin, next to\n"
       "the Cramer-Rao bound of the identified unit at the same presses (ambient field estimated).\n"
       "Prints a Markdown table. The samples go to the network as they are in the file (tared; no\n"
-      "common-mode removal) and are refined cold (no warm start from a previous sample).\n\n"
+      "common-mode removal) and are refined cold (no warm start from a previous sample).\n"
+      "When the unit file says where the unit was pressed (pressed_area_mm: skinbus-identify\n"
+      "writes it) and some presses lie more than 1 mm outside it, the table is given again for\n"
+      "the presses inside and for those outside: out there the fit is extrapolated.\n\n"
       "The learned correction (docs/physics_estimator.md, 'The learned correction'): with\n"
       "--fit-correction, the refined estimates of these presses teach a correction of what the\n"
       "unit's model misses; it is judged on presses it was not fitted on (five folds of press\n"
@@ -202,9 +206,6 @@ int main(int argc, char** argv) {
       std::printf("It helps neither on held-out presses: no correction written.\n\n");
     }
   }
-  const estimators::Truth truth{data->u_mm, data->v_mm, data->depth_mm, data->force_n};
-  const estimators::ErrorSummary sn = estimators::summarize_errors(net, truth);
-  const estimators::ErrorSummary sr = estimators::summarize_errors(ref, truth);
   std::printf(
       "%zu presses of %s; network %s (%s); unit %s%s%s; %zu refined, %zu kept the network's "
       "answer (the host's rule), %zu without a network contact; %.0f us a refinement on "
@@ -213,24 +214,67 @@ int main(int argc, char** argv) {
       correction_path.empty() ? "" : ", refined estimates corrected by ", correction_path.c_str(),
       attempted - kept_network, kept_network, n - attempted,
       attempted > 0 ? refine_us / static_cast<double>(attempted) : 0.0);
-  std::printf(
-      "| depth (mm) | presses | network XY mean (mm) | refined XY mean (mm) | CRLB (mm) | "
-      "refined x CRLB | network depth mean (mm) | refined depth mean (mm) |\n"
-      "|---|---:|---:|---:|---:|---:|---:|---:|\n");
-  for (int bin = 2; bin < estimators::kDepthBins; ++bin) {
-    double sum = 0;
-    int count = 0;
+  // The table over the rows `keep` marks (all: every row).
+  auto table = [&](const std::vector<char>* keep) {
+    std::vector<estimators::ContactEstimate> a, b;
+    std::vector<double> u, v, depth, force, bounds;
     for (std::size_t r = 0; r < n; ++r) {
-      if (estimators::depth_bin(data->depth_mm[r]) != bin || !std::isfinite(bound[r])) continue;
-      sum += bound[r];
-      ++count;
+      if (keep != nullptr && (*keep)[r] == 0) continue;
+      a.push_back(net[r]);
+      b.push_back(ref[r]);
+      u.push_back(data->u_mm[r]);
+      v.push_back(data->v_mm[r]);
+      depth.push_back(data->depth_mm[r]);
+      force.push_back(data->force_n[r]);
+      bounds.push_back(bound[r]);
     }
-    const double mean_bound = count > 0 ? sum / count : std::nan("");
-    const estimators::ErrorStats& a = sn.bins[static_cast<std::size_t>(bin)];
-    const estimators::ErrorStats& b = sr.bins[static_cast<std::size_t>(bin)];
-    std::printf("| %s | %d | %.3f | %.3f | %.3f | %.2f | %.3f | %.3f |\n",
-                estimators::depth_bin_name(bin).c_str(), b.count, a.xy_mean_mm, b.xy_mean_mm,
-                mean_bound, b.xy_mean_mm / mean_bound, a.depth_mean_mm, b.depth_mean_mm);
+    const estimators::Truth truth{u, v, depth, force};
+    const estimators::ErrorSummary sn = estimators::summarize_errors(a, truth);
+    const estimators::ErrorSummary sr = estimators::summarize_errors(b, truth);
+    std::printf(
+        "| depth (mm) | presses | network XY mean (mm) | refined XY mean (mm) | CRLB (mm) | "
+        "refined x CRLB | network depth mean (mm) | refined depth mean (mm) |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    for (int bin = 2; bin < estimators::kDepthBins; ++bin) {
+      double sum = 0;
+      int count = 0;
+      for (std::size_t r = 0; r < depth.size(); ++r) {
+        if (estimators::depth_bin(depth[r]) != bin || !std::isfinite(bounds[r])) continue;
+        sum += bounds[r];
+        ++count;
+      }
+      const double mean_bound = count > 0 ? sum / count : std::nan("");
+      const estimators::ErrorStats& x = sn.bins[static_cast<std::size_t>(bin)];
+      const estimators::ErrorStats& y = sr.bins[static_cast<std::size_t>(bin)];
+      std::printf("| %s | %d | %.3f | %.3f | %.3f | %.2f | %.3f | %.3f |\n",
+                  estimators::depth_bin_name(bin).c_str(), y.count, x.xy_mean_mm, y.xy_mean_mm,
+                  mean_bound, y.xy_mean_mm / mean_bound, x.depth_mean_mm, y.depth_mean_mm);
+    }
+  };
+  table(nullptr);
+  // Presses beyond the area the unit was pressed on (more than a millimetre): there the fit is
+  // extrapolated, so they are shown apart as well.
+  constexpr double kAreaMarginMm = 1.0;
+  if (const std::optional<sim::PressedArea>& area = note.pressed_area; area) {
+    std::vector<char> inside(n);
+    std::size_t outside = 0;
+    for (std::size_t r = 0; r < n; ++r) {
+      inside[r] = area->contains(data->u_mm[r], data->v_mm[r], kAreaMarginMm) ? 1 : 0;
+      outside += inside[r] == 0 ? 1 : 0;
+    }
+    if (outside > 0) {
+      std::printf(
+          "\n%zu of the %zu presses lie outside the area the unit was pressed on (u %.1f .. %.1f, "
+          "v %.1f .. %.1f mm, the unit file's pressed_area_mm, widened by %.0f mm), where its fit "
+          "is extrapolated (a field correction only as its edge's value). The presses inside "
+          "it:\n\n",
+          outside, n, area->u_min_mm, area->u_max_mm, area->v_min_mm, area->v_max_mm,
+          kAreaMarginMm);
+      table(&inside);
+      for (char& k : inside) k = k != 0 ? 0 : 1;
+      std::printf("\nThe presses outside it:\n\n");
+      table(&inside);
+    }
   }
   std::printf(
       "\nCRLB: the mean over the bin's presses of the identified unit's bound (RMS radial; the "

@@ -226,7 +226,7 @@ int main(int argc, char** argv) {
     if (!refused_path.empty() && !refused.magnets.empty()) {
       const sim::UnitFileNote note{"skinbus-identify " + presses_path +
                                        std::string(sim::kRefusedInSource) + id.error().message,
-                                   id.error().message};
+                                   id.error().message, sim::pressed_area(*presses)};
       if (Status st = sim::write_unit_parameters(refused, refused_path, note); !st.ok()) {
         return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);
       }
@@ -303,7 +303,9 @@ int main(int argc, char** argv) {
       }
     }
   }
-  if (Status st = sim::write_unit_parameters(unit, out_path, {source, {}}); !st.ok()) {
+  if (Status st =
+          sim::write_unit_parameters(unit, out_path, {source, {}, sim::pressed_area(*presses)});
+      !st.ok()) {
     return skinbus::tools::fail("skinbus-identify", st.error().to_string(), kExitFailed);
   }
   std::fprintf(stderr, "skinbus-identify: wrote %s\n", out_path.c_str());

@@ -93,7 +93,7 @@ TEST(PhysicsRefinerTest, LoadsAUnitFileAndNamesWhatItCannotRead) {
   // The same parameters kept as a fit identification refused: read by the simulator, never
   // refined on; the error names the file and why it was refused.
   ASSERT_TRUE(sim::write_unit_parameters(unit.parameters(), path,
-                                         {"identify rec.csv", "residual 5.80 noise units"})
+                                         {"identify rec.csv", "residual 5.80 noise units", {}})
                   .ok());
   auto refused = make_physics_refiner(path, "");
   ASSERT_FALSE(refused.ok());

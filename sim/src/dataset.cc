@@ -29,6 +29,23 @@ void Dataset::append(int64_t press_id, double t, double u, double v, double dept
   field_ut.insert(field_ut.end(), f, f + channels());
 }
 
+std::optional<PressedArea> pressed_area(const Dataset& d) {
+  std::optional<PressedArea> a;
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    const double u = d.u_mm[r], v = d.v_mm[r];
+    if (!std::isfinite(u) || !std::isfinite(v)) continue;
+    if (!a) {
+      a = PressedArea{u, u, v, v};
+      continue;
+    }
+    a->u_min_mm = std::min(a->u_min_mm, u);
+    a->u_max_mm = std::max(a->u_max_mm, u);
+    a->v_min_mm = std::min(a->v_min_mm, v);
+    a->v_max_mm = std::max(a->v_max_mm, v);
+  }
+  return a;
+}
+
 std::vector<PressPoint> plan_grid(int n, double pitch_mm) {
   std::vector<PressPoint> p;
   for (int j = 0; j < n; ++j) {

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
+#include <optional>
 
 #include "skinbus/sim/crlb.h"
 
@@ -85,6 +87,27 @@ TEST(DatasetTest, PressPlans) {
     }
   }
   EXPECT_EQ(empty, 0);
+}
+
+// The area of a dataset's presses: every finite row's (u, v), and none without one.
+TEST(DatasetTest, ThePressedAreaHoldsEveryFiniteRow) {
+  Dataset d;
+  EXPECT_FALSE(pressed_area(d).has_value());
+  const double field[1] = {0};
+  d.append(0, 0, std::nan(""), 3, 1, 0, field);
+  EXPECT_FALSE(pressed_area(d).has_value());
+  d.append(0, 0, 2, -1, 1, 0, field);
+  d.append(1, 0, -5, 4, 1, 0, field);
+  d.append(2, 0, 1, std::numeric_limits<double>::infinity(), 1, 0, field);
+  const std::optional<PressedArea> a = pressed_area(d);
+  ASSERT_TRUE(a.has_value());
+  EXPECT_EQ(a->u_min_mm, -5);
+  EXPECT_EQ(a->u_max_mm, 2);
+  EXPECT_EQ(a->v_min_mm, -1);
+  EXPECT_EQ(a->v_max_mm, 4);
+  EXPECT_TRUE(a->contains(-5.5, 4.5, 1.0));
+  EXPECT_FALSE(a->contains(-6.5, 0, 1.0));
+  EXPECT_FALSE(a->contains(0, -1.5, 0.0));
 }
 
 TEST(DatasetTest, RampDatasetKeepsContactSamplesOnly) {

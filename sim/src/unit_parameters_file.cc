@@ -146,6 +146,32 @@ class Reader {
     }
     return std::make_shared<const FieldCorrection>(std::move(*made));
   }
+  // The optional `pressed_area_mm` object: {"u": [min, max], "v": [min, max]}, finite, min <= max.
+  PressedArea pressed_area(const json& a) {
+    const std::string where = "pressed_area_mm";
+    if (!a.is_object()) {
+      fail(where + " is not an object");
+      return {};
+    }
+    double range[2][2] = {};
+    const char* const keys[2] = {"u", "v"};
+    for (int k = 0; k < 2 && ok(); ++k) {
+      const std::string name = where + "." + keys[k];
+      const auto it = a.find(keys[k]);
+      if (it == a.end() || !it->is_array() || it->size() != 2 || !(*it)[0].is_number() ||
+          !(*it)[1].is_number()) {
+        fail(name + " must be an array of 2 numbers, [min, max]");
+        return {};
+      }
+      range[k][0] = (*it)[0].get<double>();
+      range[k][1] = (*it)[1].get<double>();
+      if (!std::isfinite(range[k][0]) || !std::isfinite(range[k][1]) ||
+          !(range[k][0] <= range[k][1])) {
+        fail(name + " must be finite with min <= max");
+      }
+    }
+    return {range[0][0], range[0][1], range[1][0], range[1][1]};
+  }
 
  private:
   std::string error_;
@@ -158,6 +184,9 @@ std::string unit_parameters_json(const UnitParameters& p, const UnitFileNote& no
   j["format"] = json_format_name(kFormat, kMajorVersion);
   j["source"] = note.source;
   if (!note.refused.empty()) j["refused"] = note.refused;
+  if (const std::optional<PressedArea>& a = note.pressed_area; a) {
+    j["pressed_area_mm"] = {{"u", {a->u_min_mm, a->u_max_mm}}, {"v", {a->v_min_mm, a->v_max_mm}}};
+  }
   j["units"] = {{"length", "mm"}, {"moment", "A m^2"}};
   j["spread_mm"] = p.spread_mm;
   j["lateral_mm"] = p.lateral_mm;
@@ -231,7 +260,10 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote
   if (const auto fc = j.find("field_correction"); r.ok() && fc != j.end()) {
     p.field_correction = r.field_correction(*fc);
   }
-  UnitFileNote read_note{r.text(j, "source", ""), r.text(j, "refused", "")};
+  UnitFileNote read_note{r.text(j, "source", ""), r.text(j, "refused", ""), std::nullopt};
+  if (const auto a = j.find("pressed_area_mm"); r.ok() && a != j.end()) {
+    read_note.pressed_area = r.pressed_area(*a);
+  }
   if (!r.ok()) return make_error(ErrorCode::kParse, r.error());
   if (const std::size_t at = read_note.source.find(kRefusedInSource);
       read_note.refused.empty() && at != std::string::npos) {  // written before the field

@@ -5,7 +5,9 @@
 #include <cstring>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "skinbus/sim/patch_model.h"
@@ -27,7 +29,7 @@ bool same_bits(double a, double b) {
 TEST(UnitParametersFileTest, RoundTripIsExactAndRebuildsTheSameUnit) {
   const UnitParameters p = fabricated_unit();
   UnitFileNote note;
-  auto back = parse_unit_parameters(unit_parameters_json(p, {"fit of unit 7", {}}), &note);
+  auto back = parse_unit_parameters(unit_parameters_json(p, {"fit of unit 7", {}, {}}), &note);
   ASSERT_TRUE(back.ok()) << back.error().to_string();
   EXPECT_EQ(note.source, "fit of unit 7");
   EXPECT_EQ(note.refused, "");  // a kept fit: the field is absent
@@ -116,23 +118,24 @@ TEST(UnitParametersFileTest, ARefusedFitFromBeforeTheFieldStaysRefused) {
   const std::string source = "skinbus-identify lab.csv" + std::string(kRefusedInSource) +
                              "not_converged: residual 2.00 noise units";
   UnitFileNote note;
-  ASSERT_TRUE(parse_unit_parameters(unit_parameters_json(p, {source, {}}), &note).ok());
+  ASSERT_TRUE(parse_unit_parameters(unit_parameters_json(p, {source, {}, {}}), &note).ok());
   EXPECT_EQ(note.refused, "not_converged: residual 2.00 noise units");
-  ASSERT_TRUE(
-      parse_unit_parameters(
-          unit_parameters_json(p, {"skinbus-identify lab.csv" + std::string(kRefusedInSource), {}}),
-          &note)
-          .ok());
+  ASSERT_TRUE(parse_unit_parameters(
+                  unit_parameters_json(
+                      p, {"skinbus-identify lab.csv" + std::string(kRefusedInSource), {}, {}}),
+                  &note)
+                  .ok());
   EXPECT_EQ(note.refused, "no reason given");
   ASSERT_TRUE(
-      parse_unit_parameters(unit_parameters_json(p, {"REFUSED twice, then kept", {}}), &note).ok());
+      parse_unit_parameters(unit_parameters_json(p, {"REFUSED twice, then kept", {}, {}}), &note)
+          .ok());
   EXPECT_EQ(note.refused, "");
 }
 
 TEST(UnitParametersFileTest, WritesAndReadsAFile) {
   const UnitParameters p = fabricated_unit();
   const std::string path = ::testing::TempDir() + "/unit_parameters_file_test.json";
-  ASSERT_TRUE(write_unit_parameters(p, path, {"test", {}}).ok());
+  ASSERT_TRUE(write_unit_parameters(p, path, {"test", {}, {}}).ok());
   auto back = read_unit_parameters(path);
   ASSERT_TRUE(back.ok()) << back.error().to_string();
   EXPECT_EQ(back->magnets.size(), p.magnets.size());
@@ -180,12 +183,51 @@ TEST(UnitParametersFileTest, CorruptFilesAreRefusedWithTheField) {
 
 // A fit identification refused keeps why in the file, read back apart from the free note.
 TEST(UnitParametersFileTest, ARefusedFitSaysSoAndWhy) {
-  const UnitFileNote note{"identify rec.csv: REFUSED", "residual 5.80 noise units (limit 4.00)"};
+  const UnitFileNote note{
+      "identify rec.csv: REFUSED", "residual 5.80 noise units (limit 4.00)", {}};
   UnitFileNote back;
   auto p = parse_unit_parameters(unit_parameters_json(fabricated_unit(), note), &back);
   ASSERT_TRUE(p.ok()) << p.error().to_string();
   EXPECT_EQ(back.source, note.source);
   EXPECT_EQ(back.refused, note.refused);
+}
+
+// Where the unit was pressed travels in the note, bit for bit; absent, it is not known; a
+// malformed one is named.
+TEST(UnitParametersFileTest, ThePressedAreaRoundTripsAndBadOnesAreNamed) {
+  const UnitParameters p = fabricated_unit();
+  UnitFileNote note{"identify rec.csv", {}, PressedArea{-54.0, 54.0, -53.25, 0.1}};
+  UnitFileNote back;
+  auto r = parse_unit_parameters(unit_parameters_json(p, note), &back);
+  ASSERT_TRUE(r.ok()) << r.error().to_string();
+  ASSERT_TRUE(back.pressed_area.has_value());
+  EXPECT_TRUE(same_bits(back.pressed_area->u_min_mm, -54.0));
+  EXPECT_TRUE(same_bits(back.pressed_area->u_max_mm, 54.0));
+  EXPECT_TRUE(same_bits(back.pressed_area->v_min_mm, -53.25));
+  EXPECT_TRUE(same_bits(back.pressed_area->v_max_mm, 0.1));
+  ASSERT_TRUE(parse_unit_parameters(unit_parameters_json(p), &back).ok());
+  EXPECT_FALSE(back.pressed_area.has_value());
+
+  // Each bad object in place of the whole pressed_area_mm field (arrays only: its first '}'
+  // closes it).
+  const std::string good = unit_parameters_json(p, note);
+  const std::size_t from = good.find("\"pressed_area_mm\"");
+  ASSERT_NE(from, std::string::npos);
+  const std::size_t to = good.find('}', from) + 1;
+  for (const auto& [bad, want] : std::vector<std::pair<std::string, std::string>>{
+           {"\"pressed_area_mm\": 3", "pressed_area_mm is not an object"},
+           {"\"pressed_area_mm\": {\"u\": [1]}", "pressed_area_mm.u must be"},
+           {"\"pressed_area_mm\": {\"u\": [1, 2], \"v\": [1, \"2\"]}", "pressed_area_mm.v must be"},
+           {"\"pressed_area_mm\": {\"u\": [2, 1], \"v\": [1, 2]}",
+            "pressed_area_mm.u must be finite"},
+       }) {
+    std::string t = good;
+    t.replace(from, to - from, bad);
+    auto e = parse_unit_parameters(t);
+    ASSERT_FALSE(e.ok()) << want;
+    EXPECT_EQ(e.error().code, ErrorCode::kParse);
+    EXPECT_NE(e.error().message.find(want), std::string::npos) << e.error().message;
+  }
 }
 
 TEST(UnitParametersFileTest, APlausibleFileWithTheWrongCountsIsRefusedByTheModel) {

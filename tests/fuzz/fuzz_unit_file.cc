@@ -48,8 +48,18 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   UnitFileNote note_back;
   Result<UnitParameters> back = parse_unit_parameters(unit_parameters_json(*p, note), &note_back);
   if (!back.ok()) fail("what was written does not parse");
-  if (note_back.source != note.source || note_back.refused != note.refused) {
+  if (note_back.source != note.source || note_back.refused != note.refused ||
+      note_back.pressed_area.has_value() != note.pressed_area.has_value()) {
     fail("the note changed");
+  }
+  if (const auto& a = note.pressed_area, &b = note_back.pressed_area; a && b) {
+    if (!same(a->u_min_mm, b->u_min_mm) || !same(a->u_max_mm, b->u_max_mm) ||
+        !same(a->v_min_mm, b->v_min_mm) || !same(a->v_max_mm, b->v_max_mm)) {
+      fail("the pressed area changed");
+    }
+    if (!(a->u_min_mm <= a->u_max_mm) || !(a->v_min_mm <= a->v_max_mm)) {
+      fail("an empty pressed area was taken");
+    }
   }
   if (!same(back->spread_mm, p->spread_mm) || !same(back->lateral_mm, p->lateral_mm)) {
     fail("lattice numbers changed");

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "skinbus/common/result.h"
+#include "skinbus/sim/pressed_area.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::sim {
@@ -40,6 +41,9 @@ struct Dataset {
   void append(int64_t press_id, double t, double u, double v, double depth, double force,
               const double* field);
 };
+
+// The area of `d`'s rows whose u and v are finite; none when no row has both.
+std::optional<PressedArea> pressed_area(const Dataset& d);
 
 // Where a robot presses. Positions in the patch frame, mm.
 struct PressPoint {

@@ -16,12 +16,14 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
 #include "skinbus/common/result.h"
 #include "skinbus/sim/field_correction.h"
+#include "skinbus/sim/pressed_area.h"
 #include "skinbus/sim/vec3.h"
 
 namespace skinbus::sim {
@@ -65,6 +67,12 @@ struct UnitFileNote {
   // file is the class's nearest model of a unit it does not explain: it may be simulated (to
   // train a network from), never refined on (estimators::make_physics_refiner refuses it).
   std::string refused;
+  // The area the presses it was fitted on covered (sim::pressed_area, skinbus-identify writes
+  // it): its parameters and field correction were fitted there; a press outside it is placed by
+  // what the fit extrapolates (the class's physics carry over, a field correction only as its
+  // edge's value), so errors there may be far larger. None: not known (a file written before the
+  // field, or by hand).
+  std::optional<PressedArea> pressed_area;
 };
 
 // What a refused fit's source says before the reason, for readers that know no `refused` field.
