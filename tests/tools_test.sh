@@ -196,6 +196,19 @@ read -r xy_plain d_plain <<<"$(sums "$work/id/eval_odd.txt")"
 awk -v a="$xy_fc" -v b="$xy_plain" -v c="$d_fc" -v d="$d_plain" 'BEGIN { exit !(a > 0 && a < 0.8 * b && c < 0.8 * d) }' &&
   ok "refined on the corrected unit: XY $xy_fc mm and depth $d_fc mm summed over 1-4 mm, against $xy_plain and $d_plain uncorrected" ||
   { bad "refinement on the corrected unit"; cat "$work/id/eval_odd_fc.txt" "$work/id/eval_odd.txt"; }
+# A unit file belongs to the model class it was identified in: given the design file that names
+# the unit's physics outside it (odd.yaml), skinbus-evaluate and skinbus-dataset --unit model the
+# same unit as with the built-in design, not the class's parameters with those physics on top.
+"$bin/skinbus-evaluate" "$work/id/odd_unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+  --unit "$work/id/odd_fc.json" --design "$work/id/odd.yaml" >"$work/id/eval_odd_design.txt" 2>&1 || true
+"$bin/skinbus-dataset" "${odd_test[@]}" --unit "$work/id/odd_fc.json" --design "$work/id/odd.yaml" \
+  -o "$work/id/odd_with_design.csv" 2>/dev/null
+rows() { grep -v '^#' "$1"; }
+[[ -n $(grep '^| [123]-[234] |' "$work/id/eval_odd_fc.txt") ]] &&
+  cmp -s <(grep '^| [123]-[234] |' "$work/id/eval_odd_fc.txt") <(grep '^| [123]-[234] |' "$work/id/eval_odd_design.txt") &&
+  cmp -s <(rows "$work/id/odd_with.csv") <(rows "$work/id/odd_with_design.csv") &&
+  ok "a unit file is modelled in its class whatever the design file adds (skinbus-evaluate, skinbus-dataset --unit)" ||
+  { bad "a unit file with a design outside the class"; cat "$work/id/eval_odd_fc.txt" "$work/id/eval_odd_design.txt"; }
 # The shipped network alone and refined on the identified unit, on that unit's own presses.
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/unit.json" >"$work/id/eval.txt" 2>&1; rc=$?

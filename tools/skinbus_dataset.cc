@@ -99,7 +99,9 @@ int main(int argc, char** argv) {
   std::string unit_path;
   app.add_option("--unit", unit_path,
                  "unit file (skinbus-identify): simulate that identified unit instead of the "
-                 "nominal or a --fabricated one")
+                 "nominal or a --fabricated one, in the model class it was identified in (the "
+                 "design's anisotropy, crushing top, in-plane drag and creep are not added; an "
+                 "--anisotropy given is)")
       ->check(CLI::ExistingFile);
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
@@ -125,7 +127,10 @@ int main(int argc, char** argv) {
       }
       Result<UnitParameters> params = read_unit_parameters(unit_path);  // names the file
       if (!params.ok()) return params.error();
-      Result<PatchModel> m = PatchModel::from_parameters(design, *params);
+      // The unit file's model class; an --anisotropy given is put on top of it.
+      PatchDesign unit_design = class_design(design);
+      if (anisotropy_given->count() > 0) unit_design.anisotropy = anisotropy;
+      Result<PatchModel> m = PatchModel::from_parameters(unit_design, *params);
       if (!m.ok()) return make_error(m.error().code, unit_path + ": " + m.error().message);
       return m;
     };

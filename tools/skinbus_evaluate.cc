@@ -66,7 +66,11 @@ int main(int argc, char** argv) {
   app.add_option("--unit", unit_path, "the unit file (skinbus-identify)")
       ->required()
       ->check(CLI::ExistingFile);
-  app.add_option("--design", design_path, "the unit's design file (default: the built-in design)")
+  app.add_option(
+         "--design", design_path,
+         "the unit's design file (default: the built-in design); the unit's model is its class "
+         "(the design's anisotropy, crushing top, in-plane drag and creep are not added to an "
+         "identified unit)")
       ->check(CLI::ExistingFile);
   CLI::Option* tip_given =
       app.add_option("--tip-radius", tip_radius_mm,
@@ -105,7 +109,7 @@ int main(int argc, char** argv) {
                  "refine on it\n",
                  kTool, unit_path.c_str(), note.refused.c_str());
   }
-  auto unit = sim::PatchModel::from_parameters(*design, *params);
+  auto unit = sim::PatchModel::of_unit_file(*design, *params);
   if (!unit.ok()) return tools::fail(kTool, unit_path + ": " + unit.error().message, 1);
   if (Status s = sim::check_sensor_layout(*data, *unit); !s.ok()) {
     return tools::fail(kTool, test_path + ": " + s.error().message, 2);

@@ -187,8 +187,7 @@ int main(int argc, char** argv) {
       estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr, &refused);
   // What the fit leaves, learned from the same presses (--field-correction).
   auto learn = [&](const sim::UnitParameters& unit) -> std::optional<sim::UnitParameters> {
-    Result<sim::PatchModel> model =
-        sim::PatchModel::from_parameters(estimators::class_design(design), unit);
+    Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, unit);
     if (!model.ok()) return std::nullopt;
     std::fprintf(stderr, "skinbus-identify: learning the field correction (seconds) ...\n");
     estimators::FieldCorrectionOptions fo;
@@ -286,8 +285,7 @@ int main(int argc, char** argv) {
     }
   }
   if (held_out && unit.field_correction != nullptr) {
-    Result<sim::PatchModel> corrected =
-        sim::PatchModel::from_parameters(estimators::class_design(design), unit);
+    Result<sim::PatchModel> corrected = sim::PatchModel::of_unit_file(design, unit);
     if (corrected.ok()) {
       const estimators::FitQuality q =
           estimators::fit_quality(*corrected, *held_out, opt.tip_radius_mm,

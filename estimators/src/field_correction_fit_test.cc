@@ -112,7 +112,7 @@ TEST(FieldCorrectionFitTest, ExplainsPhysicsOutsideTheClassAndPlacesPressesNeare
   const sim::PatchModel truth =
       sim::PatchModel::fabricated(truth_design, seed, sim::FabricationVariation{}).value();
   const sim::PatchModel model =
-      sim::PatchModel::from_parameters(class_design(truth_design), truth.parameters()).value();
+      sim::PatchModel::of_unit_file(truth_design, truth.parameters()).value();
   FieldCorrectionReport report;
   const Result<sim::FieldCorrection> f =
       fit_field_correction(model, grid_presses(truth, seed), 5.0, {}, &report);

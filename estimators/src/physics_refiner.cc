@@ -201,7 +201,7 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& 
                           " is a fit identification refused, not for refinement (" + note.refused +
                           ")");
   }
-  auto model = sim::PatchModel::from_parameters(*design, *params);
+  auto model = sim::PatchModel::of_unit_file(*design, *params);
   if (!model.ok()) {
     return make_error(model.error().code,
                       "unit " + unit_path + " on design " +

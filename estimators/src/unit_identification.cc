@@ -712,20 +712,11 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
   return q;
 }
 
-sim::PatchDesign class_design(const sim::PatchDesign& design) {
-  sim::PatchDesign d = design;
-  d.anisotropy = 0;      // one isotropic spread,
-  d.tip_crush_mm = 0;    // the plate bent by the whole depth,
-  d.inplane_drag = 0;    // in-plane motion by the slope alone,
-  d.creep_fraction = 0;  // no lag
-  return d;
-}
-
 Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const sim::Dataset& presses,
                                      const IdentificationOptions& opt, const sim::Dataset* held_out,
                                      sim::UnitParameters* refused) {
   const auto t0 = std::chrono::steady_clock::now();
-  const sim::PatchDesign design = class_design(design_in);
+  const sim::PatchDesign design = sim::class_design(design_in);
   if (Status s = sim::validate(design); !s.ok()) return s.error();
   const int nc = design.channel_count();
   if (presses.channels() != nc || (held_out != nullptr && held_out->channels() != nc)) {

@@ -314,6 +314,15 @@ Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed,
   return assemble(d, p);
 }
 
+PatchDesign class_design(const PatchDesign& design) {
+  PatchDesign d = design;
+  d.anisotropy = 0;      // one isotropic spread,
+  d.tip_crush_mm = 0;    // the plate bent by the whole depth,
+  d.inplane_drag = 0;    // in-plane motion by the slope alone,
+  d.creep_fraction = 0;  // no lag
+  return d;
+}
+
 Result<PatchModel> PatchModel::from_parameters(const PatchDesign& d, const UnitParameters& u) {
   if (Status s = validate(d); !s.ok()) return s.error();
   auto fail = [](const std::string& what) {

@@ -159,11 +159,6 @@ struct IdentifiedUnit {
   GlobalPhysics globals;  // stage 1's result (the design's own values when not fitted)
 };
 
-// The identified model class's design: `design` without the physics identification does not fit
-// (anisotropy, a crushing top, in-plane drag, creep: all 0). IdentifiedUnit::model is built on it,
-// and so is any model of a unit file identification wrote.
-sim::PatchDesign class_design(const sim::PatchDesign& design);
-
 // Fits the unit that produced `presses`. Errors: kInvalidArgument (design invalid, channel
 // count differs), kDegenerate (too few presses, a magnet without presses near it; the message
 // says which), kNotConverged (the solver failed or hit its iteration limit without

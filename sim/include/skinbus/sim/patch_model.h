@@ -129,6 +129,12 @@ struct PatchDesign {
   int channel_count() const { return 3 * sensor_count(); }
 };
 
+// The model class identification fits (estimators/unit_identification.h) and unit files belong
+// to: `design` without the physics no fit takes up (anisotropy, a crushing top, in-plane drag,
+// creep: all 0). A simulated unit may have them (the design's values, applied by
+// PatchModel::from_parameters()); the model of an identified unit does not.
+PatchDesign class_design(const PatchDesign& design);
+
 // Checks a design: positive sizes, sensors inside the patch, a cylinder radius larger than the
 // sensor depth, a valid sensor configuration. The error names the parameter.
 Status validate(const PatchDesign& design);
@@ -192,6 +198,12 @@ class PatchModel {
   // field table, magnets x sensors dipole evaluations.
   static Result<PatchModel> from_parameters(const PatchDesign& design,
                                             const UnitParameters& params);
+  // A unit file's model: from_parameters() on class_design(design), the model class identification
+  // fits, which a unit file's parameters belong to (a design's physics outside the class are not
+  // added to them). Errors: as from_parameters().
+  static Result<PatchModel> of_unit_file(const PatchDesign& design, const UnitParameters& params) {
+    return from_parameters(class_design(design), params);
+  }
 
   // The same unit with every magnet a uniformly magnetised disc of the design's diameter and
   // height instead of a point dipole: each magnet becomes kDiscPoints dipoles at a degree-3
