@@ -24,10 +24,12 @@ using host::DiagnosticLevel;
 using host::DiagnosticValue;
 using host::kContactAmbientLarge;
 using host::kContactDepthRange;
+using host::kContactExtrapolated;
 using host::kContactMaskedChannels;
 using host::kContactMerged;
 using host::kContactNoKinematics;
 using host::kContactOutsidePatch;
+using host::kContactShear;
 using host::kContactStaleKinematics;
 using host::kContactUnmapped;
 using host::kContactUnrefined;
@@ -66,6 +68,8 @@ SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_AMBIENT_LARGE,
                       kContactAmbientLarge);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_UNMAPPED, kContactUnmapped);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_UNREFINED, kContactUnrefined);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_SHEAR, kContactShear);
+SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__Contact_Constants_FLAG_EXTRAPOLATED, kContactExtrapolated);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchStatus_Constants_STATE_DISCOVERING,
                       PatchLinkState::kDiscovering);
 SKINBUS_SAME_CONSTANT(skin_msgs_msg_dds__PatchStatus_Constants_STATE_ONLINE,

@@ -94,6 +94,7 @@ class PhysicsRefiner : public ContactRefiner {
       RefinedEstimate& r = out.contacts[k];
       r = RefinedEstimate{};
       r.contact = c.contacts[k];
+      mark_extrapolated(&r.contact);
       r.sigma_uv_mm = c.sigma_uv_mm[k];
       r.sigma_shear_n = c.sigma_shear_n[k];  // NaN unless the fit had the shear
       r.reduced_chi2 = reduced;
@@ -134,10 +135,19 @@ class PhysicsRefiner : public ContactRefiner {
   RefinedEstimate from(const PhysicsEstimate& p) const {
     RefinedEstimate out;
     out.contact = correction_ ? correction_->apply(p.contact) : p.contact;
+    mark_extrapolated(&out.contact);
     out.sigma_uv_mm = p.sigma_uv_mm;
     out.reduced_chi2 = p.reduced_chi2;
     out.sigma_shear_n = p.sigma_shear_n;  // NaN unless the fit had the shear
     return out;
+  }
+
+  // kEstimateExtrapolated on a contact placed outside the unit's pressed area.
+  void mark_extrapolated(ContactEstimate* c) const {
+    if (options_.pressed_area && c->valid() &&
+        !options_.pressed_area->contains(c->u_mm, c->v_mm, sim::kPressedAreaMarginMm)) {
+      c->flags |= kEstimateExtrapolated;
+    }
   }
 
   PhysicsEstimator estimator_;
@@ -210,6 +220,7 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& 
   }
   RefinerOptions with_tip = options;
   with_tip.physics.tip_radius_mm = design->indenter_tip_radius_mm;
+  with_tip.pressed_area = note.pressed_area;
   return make_physics_refiner(*model, with_tip);
 }
 

@@ -108,6 +108,47 @@ TEST(PhysicsRefinerTest, LoadsAUnitFileAndNamesWhatItCannotRead) {
   EXPECT_NE(missing.error().message.find(path), std::string::npos);
 }
 
+// A unit file that says where its unit was pressed: refined contacts placed outside that area
+// (by more than the margin) are flagged extrapolated, those inside are not; a file without the
+// area flags nothing.
+TEST(PhysicsRefinerTest, ContactsOutsideThePressedAreaAreFlaggedExtrapolated) {
+  const uint64_t seed = 20261128;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit = fabricated_unit(0x5B00000000000005ull);
+  const std::string path = (std::filesystem::temp_directory_path() /
+                            ("skinbus_area_" + std::to_string(::getpid()) + ".json"))
+                               .string();
+  const sim::PressedArea area{-20, 30, -25, 20};
+  ASSERT_TRUE(sim::write_unit_parameters(unit.parameters(), path, {"test", {}, area}).ok());
+  auto flagging = make_physics_refiner(path, "");
+  ASSERT_TRUE(sim::write_unit_parameters(unit.parameters(), path).ok());
+  auto plain = make_physics_refiner(path, "");
+  std::filesystem::remove(path);
+  ASSERT_TRUE(flagging.ok() && plain.ok());
+  const ChannelNoise noise = ChannelNoise::of(sim::PatchDesign{});
+  sim::Rng rng(seed);
+  int inside = 0, outside = 0;
+  for (int i = 0; i < 40; ++i) {
+    const Contact c{rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(2.0, 4.0), 5};
+    const std::vector<double> f = noisy_field(unit, c, noise, rng);
+    ContactEstimate start;
+    start.u_mm = c.u_mm + 1;
+    start.v_mm = c.v_mm - 1;
+    start.depth_mm = c.depth_mm;
+    const RefinedEstimate a = (*flagging)->refine(f, {}, start);
+    const RefinedEstimate b = (*plain)->refine(f, {}, start);
+    ASSERT_TRUE(a.contact.valid());
+    const bool in = area.contains(a.contact.u_mm, a.contact.v_mm, sim::kPressedAreaMarginMm);
+    EXPECT_EQ((a.contact.flags & kEstimateExtrapolated) != 0, !in)
+        << a.contact.u_mm << " " << a.contact.v_mm;
+    EXPECT_EQ(b.contact.flags & kEstimateExtrapolated, 0u);
+    EXPECT_EQ(a.contact.u_mm, b.contact.u_mm);  // the flag alone differs
+    (in ? inside : outside) += 1;
+  }
+  EXPECT_GT(inside, 5);
+  EXPECT_GT(outside, 5);
+}
+
 // A first estimate far from the press (a network trained briefly, or meeting a place it was not
 // trained on) leaves the fit in another basin of the field, where it ends poor; the refiner then
 // searches its start table and reaches the press. Without the search the fit stays poor.

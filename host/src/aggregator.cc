@@ -882,6 +882,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
         if (e.flags & kEstimateOutsidePatch) f |= kContactOutsidePatch;
         if (e.flags & kEstimateDepthRange) f |= kContactDepthRange;
         if (e.flags & kEstimateMasked) f |= kContactMaskedChannels;
+        if (e.flags & estimators::kEstimateExtrapolated) f |= kContactExtrapolated;
         PatchContact& placed = s.placed[j];
         s.place(*p.entry, e, m, f, &placed, &link);
         if (std::isfinite(refined_sigma_mm[j])) placed.uncertainty_mm = refined_sigma_mm[j];

@@ -237,6 +237,34 @@ TEST_F(AggregatorRefineTest, RefinedContactsReachTheUnitsBoundWithTheFitsUncerta
 // bound, better than the network's, each with a finite stated uncertainty. The same grid
 // teaches the unit's correction (chosen by held-out error: the depth the crush biases); an
 // entry naming its file publishes contacts corrected by it: their depth nearer the truth.
+// A unit calibrated on part of the patch: the contacts refined outside that area are published
+// flagged extrapolated, those inside are not; without refinement nothing is.
+TEST_F(AggregatorRefineTest, ContactsRefinedOutsideThePressedAreaAreFlagged) {
+  const uint64_t seed = 78;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PressedArea area{-25, 25, -25, 25};
+  options_.refiner_factory = [this, area](const RefinerRequest&) {
+    estimators::RefinerOptions ro;
+    ro.pressed_area = area;
+    return estimators::make_physics_refiner(*unit_, ro);
+  };
+  const std::vector<Press> ps = presses(*unit_, 40, seed);
+  const RunResult refined = run(ps, true, options_);
+  const RunResult network = run(ps, false, options_);
+  ASSERT_EQ(refined.contacts.size(), ps.size());
+  ASSERT_EQ(network.contacts.size(), ps.size());
+  int flagged = 0;
+  for (std::size_t i = 0; i < ps.size(); ++i) {
+    const BodyContact& r = refined.contacts[i];
+    const bool out = !area.contains(r.u_mm, r.v_mm, sim::kPressedAreaMarginMm);
+    EXPECT_EQ((r.flags & kContactExtrapolated) != 0, out) << r.u_mm << " " << r.v_mm;
+    EXPECT_EQ(network.contacts[i].flags & kContactExtrapolated, 0u);
+    flagged += out ? 1 : 0;
+  }
+  EXPECT_GT(flagged, 5);
+  EXPECT_LT(flagged, 40);
+}
+
 TEST_F(AggregatorRefineTest, AUnitOutsideTheModelClassIsRefinedOnItsIdentifiedModel) {
   const uint64_t seed = 91;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));

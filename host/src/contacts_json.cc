@@ -28,6 +28,7 @@ std::vector<std::string> contact_flag_names(uint32_t flags) {
       {kContactUnmapped, "unmapped"},
       {kContactUnrefined, "unrefined"},
       {kContactShear, "shear"},
+      {kContactExtrapolated, "extrapolated"},
   };
   std::vector<std::string> out;
   for (const auto& n : kNames) {

@@ -29,6 +29,9 @@ enum EstimateFlag : uint32_t {
   kEstimateNotConverged = 1u << 4,  // an iterative estimator stopped without converging
   kEstimatePoorFit = 1u << 5,       // the residual is large for the sensor noise
   kEstimateNoContact = 1u << 6,     // the signal is at noise level: nothing pressed
+  // (u, v) outside the area the unit's model was fitted on (its unit file's pressed_area_mm,
+  // widened by sim::kPressedAreaMarginMm): the model, and so the uncertainty, are extrapolated.
+  kEstimateExtrapolated = 1u << 7,
 };
 
 // Why a sample was rejected (when kEstimateRejected is set).

@@ -4,12 +4,14 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "skinbus/common/result.h"
 #include "skinbus/estimators/bias_correction.h"
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/estimators/refiner.h"
+#include "skinbus/sim/pressed_area.h"
 
 namespace skinbus::estimators {
 
@@ -57,6 +59,11 @@ namespace skinbus::estimators {
 //
 // The indenter the fits assume: the design file's (indenter.tip_radius_mm, the tip the unit was
 // calibrated with); `options.physics.tip_radius_mm` is replaced by it.
+//
+// With a pressed area (`pressed_area`: the unit file's, sim::UnitFileNote, which the path
+// version sets), every refined contact placed outside it (widened by sim::kPressedAreaMarginMm)
+// carries kEstimateExtrapolated: the unit's model was not fitted there, and its uncertainty is
+// the model's.
 struct RefinerOptions {
   PhysicsOptions physics;
   int max_contacts = 1;  // 1 to kMaxContacts
@@ -64,6 +71,7 @@ struct RefinerOptions {
   std::string proposer;    // "" none
   std::string correction;  // "" none
   bool search_when_poor = true;
+  std::optional<sim::PressedArea> pressed_area;  // none: nothing is flagged extrapolated
 };
 Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& unit_path,
                                                              const std::string& design_path,

@@ -35,6 +35,9 @@ enum BodyContactFlag : uint32_t {
   // The contact's shear force was estimated (a refinement with the skin map's refine_shear):
   // shear_n and shear_uncertainty_n hold it. Without it both are 0.
   kContactShear = 1u << 9,
+  // The refined contact lies outside the area its unit was pressed on for calibration (the unit
+  // file's pressed_area_mm): its place and uncertainty come from a model extrapolated there.
+  kContactExtrapolated = 1u << 10,
 };
 
 // One contact in the robot's base frame.

@@ -5,6 +5,10 @@
 
 namespace skinbus::sim {
 
+// How far beyond a unit's pressed area a press still counts as inside it (mm): a press on the
+// area's edge grid spreads over millimetres, and its tip's place is known to about that.
+inline constexpr double kPressedAreaMarginMm = 1.0;
+
 // The smallest rectangle in surface coordinates (mm) holding every press.
 struct PressedArea {
   double u_min_mm = 0, u_max_mm = 0, v_min_mm = 0, v_max_mm = 0;
