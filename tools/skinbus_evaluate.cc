@@ -256,14 +256,13 @@ int main(int argc, char** argv) {
     }
   };
   table(nullptr);
-  // Presses beyond the area the unit was pressed on (more than a millimetre): there the fit is
+  // Presses beyond the area the unit was pressed on (more than the margin): there the fit is
   // extrapolated, so they are shown apart as well.
-  constexpr double kAreaMarginMm = 1.0;
   if (const std::optional<sim::PressedArea>& area = note.pressed_area; area) {
     std::vector<char> inside(n);
     std::size_t outside = 0;
     for (std::size_t r = 0; r < n; ++r) {
-      inside[r] = area->contains(data->u_mm[r], data->v_mm[r], kAreaMarginMm) ? 1 : 0;
+      inside[r] = area->contains(data->u_mm[r], data->v_mm[r], sim::kPressedAreaMarginMm) ? 1 : 0;
       outside += inside[r] == 0 ? 1 : 0;
     }
     if (outside > 0) {
@@ -273,7 +272,7 @@ int main(int argc, char** argv) {
           "is extrapolated (a field correction only as its edge's value). The presses inside "
           "it:\n\n",
           outside, n, area->u_min_mm, area->u_max_mm, area->v_min_mm, area->v_max_mm,
-          kAreaMarginMm);
+          sim::kPressedAreaMarginMm);
       table(&inside);
       for (char& k : inside) k = k != 0 ? 0 : 1;
       std::printf("\nThe presses outside it:\n\n");
