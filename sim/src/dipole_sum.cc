@@ -204,30 +204,38 @@ __attribute__((always_inline)) inline void press_poses_body(
   }
 }
 
-// Channels a pass of the row sums: their sums stay in registers over every term (one 512-bit
-// or two 256-bit vectors an output), each term's row read once.
-constexpr std::size_t kRowBlock = 8;
-typedef double RowBlock __attribute__((vector_size(kRowBlock * sizeof(double))));
-
-template <int kOuts>
+// The row sums, a block of kLanes x kVectors channels a pass: the block's sums stay in registers
+// over every term (kOuts x kVectors vectors of kLanes doubles), each term's row read once. Each
+// build takes vectors of its own width (one 512-bit vector a block for AVX-512, two 256-bit ones
+// for AVX2, two 128-bit ones for the baseline): a vector wider than the build's registers is
+// split by the compiler through the stack, at a fraction of the speed.
+template <int kLanes, int kVectors, int kOuts>
 __attribute__((always_inline)) inline void row_sums_outs(std::size_t n, const int* index,
                                                          const double* weight,
                                                          const double* __restrict rows,
                                                          std::size_t nc, double* __restrict out) {
+  typedef double Vec __attribute__((vector_size(kLanes * sizeof(double))));
+  constexpr std::size_t kBlock = static_cast<std::size_t>(kLanes) * kVectors;
   std::size_t c0 = 0;
-  for (; c0 + kRowBlock <= nc; c0 += kRowBlock) {
-    RowBlock acc[kOuts] = {};
+  for (; c0 + kBlock <= nc; c0 += kBlock) {
+    Vec acc[kOuts][kVectors] = {};
     for (std::size_t t = 0; t < n; ++t) {
-      RowBlock r;
-      std::memcpy(&r, rows + static_cast<std::size_t>(index[t]) * nc + c0, sizeof r);
-      for (int k = 0; k < kOuts; ++k) acc[k] += weight[t * kOuts + static_cast<std::size_t>(k)] * r;
+      const double* row = rows + static_cast<std::size_t>(index[t]) * nc + c0;
+      Vec r[kVectors];
+      for (int v = 0; v < kVectors; ++v) std::memcpy(&r[v], row + v * kLanes, sizeof(Vec));
+      for (int k = 0; k < kOuts; ++k) {
+        const double w = weight[t * kOuts + static_cast<std::size_t>(k)];
+        for (int v = 0; v < kVectors; ++v) acc[k][v] += w * r[v];
+      }
     }
     for (int k = 0; k < kOuts; ++k) {
-      RowBlock o;
-      double* at = out + static_cast<std::size_t>(k) * nc + c0;
-      std::memcpy(&o, at, sizeof o);
-      o += acc[k];
-      std::memcpy(at, &o, sizeof o);
+      for (int v = 0; v < kVectors; ++v) {
+        Vec o;
+        double* at = out + static_cast<std::size_t>(k) * nc + c0 + v * kLanes;
+        std::memcpy(&o, at, sizeof o);
+        o += acc[k][v];
+        std::memcpy(at, &o, sizeof o);
+      }
     }
   }
   for (std::size_t t = 0; c0 < nc && t < n; ++t) {  // the last channels, fewer than a block
@@ -240,14 +248,15 @@ __attribute__((always_inline)) inline void row_sums_outs(std::size_t n, const in
   }
 }
 
+template <int kLanes, int kVectors>
 __attribute__((always_inline)) inline void row_sums_body(std::size_t n, const int* index,
                                                          const double* weight, int outs,
                                                          const double* __restrict rows,
                                                          std::size_t nc, double* __restrict out) {
   if (outs == 1) {
-    row_sums_outs<1>(n, index, weight, rows, nc, out);
+    row_sums_outs<kLanes, kVectors, 1>(n, index, weight, rows, nc, out);
   } else {
-    row_sums_outs<4>(n, index, weight, rows, nc, out);
+    row_sums_outs<kLanes, kVectors, 4>(n, index, weight, rows, nc, out);
   }
 }
 
@@ -281,7 +290,7 @@ void press_poses_baseline(SKINBUS_PRESS_POSES_PARAMS) {
   press_poses_body(SKINBUS_PRESS_POSES_ARGS);
 }
 void row_sums_baseline(SKINBUS_ROW_SUMS_PARAMS) {
-  row_sums_body(SKINBUS_ROW_SUMS_ARGS);
+  row_sums_body<2, 2>(SKINBUS_ROW_SUMS_ARGS);
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -307,10 +316,10 @@ __attribute__((target("avx512f"))) void press_poses_avx512(SKINBUS_PRESS_POSES_P
   press_poses_body(SKINBUS_PRESS_POSES_ARGS);
 }
 __attribute__((target("avx2,fma"))) void row_sums_avx2(SKINBUS_ROW_SUMS_PARAMS) {
-  row_sums_body(SKINBUS_ROW_SUMS_ARGS);
+  row_sums_body<4, 2>(SKINBUS_ROW_SUMS_ARGS);
 }
 __attribute__((target("avx512f"))) void row_sums_avx512(SKINBUS_ROW_SUMS_PARAMS) {
-  row_sums_body(SKINBUS_ROW_SUMS_ARGS);
+  row_sums_body<8, 1>(SKINBUS_ROW_SUMS_ARGS);
 }
 #endif
 

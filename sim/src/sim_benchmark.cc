@@ -1,5 +1,6 @@
 // Simulator throughput on one core: the forward model, a full measurement, an idle patch, the
-// Jacobian, and generating the seed protocol's dataset. The field model's benchmarks
+// Jacobian, a field correction's sums on each instruction set, and generating the seed
+// protocol's dataset. The field model's benchmarks
 // (BM_ForwardModel, BM_FieldJacobian) take the patch of `--design FILE` (docs/design_file.md;
 // default: the built-in design), every other the built-in design.
 //
@@ -12,6 +13,8 @@
 #include <cstring>
 #include <vector>
 
+#include "dipole_sum.h"
+#include "skinbus/common/isa.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/design_file.h"
 
@@ -100,6 +103,33 @@ void BM_FieldJacobian(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_FieldJacobian)->Arg(0)->Arg(1);
+
+// A field correction's sums with their derivatives (FieldCorrection::sums_with_derivatives: 48
+// terms, 4 outputs, 48 channels) on each build this CPU has: arg 0 the baseline, 1 AVX2, 2
+// AVX-512 (skipped without). Each build should reach its vector width's rate: a build that falls
+// far behind a narrower one is miscompiled (a vector wider than its registers, spilled).
+void BM_RowSums(benchmark::State& state) {
+  const Isa isas[] = {Isa::kPortable, Isa::kAvx2, Isa::kAvx512};
+  const Isa isa = isas[state.range(0)];
+  const detail::RowSums fn = detail::row_sums_for(isa);
+  if (fn == nullptr) {
+    state.SkipWithError("this CPU or build lacks the instruction set");
+    return;
+  }
+  constexpr std::size_t kTerms = 48, kChannels = 48, kRows = 24 * 24 * 3;
+  Rng rng(5);
+  std::vector<double> rows(kRows * kChannels), weight(4 * kTerms), out(4 * kChannels);
+  for (double& r : rows) r = rng.uniform(-1, 1);
+  for (double& w : weight) w = rng.uniform(-1, 1);
+  std::vector<int> index(kTerms);
+  for (std::size_t t = 0; t < kTerms; ++t) index[t] = static_cast<int>((t * 37) % kRows);
+  for (auto _ : state) {
+    fn(kTerms, index.data(), weight.data(), 4, rows.data(), kChannels, out.data());
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.SetLabel(isa_name(isa));
+}
+BENCHMARK(BM_RowSums)->Arg(0)->Arg(1)->Arg(2);
 
 void BM_SeedProtocolDataset(benchmark::State& state) {
   for (auto _ : state) {
