@@ -346,6 +346,17 @@ SKINBUS_MAX_ISA=avx2 "$bin/skinbus-bench" refine --design "$here/../docs/benchma
   awk -F'|' '$2 == " 0x1 " && $3 == " 1-4 " && $8 + 0 > 0 && $8 + 0 < 1.5 {found = 1} END {exit !found}' "$work/refine.md" &&
   grep -q "^| 0x1 | 27 | " "$work/refine.md" &&
   ok "skinbus-bench refine --design" || { bad "skinbus-bench refine --design"; cat "$work/refine.md"; }
+# A unit file (the corrected 'odd' unit above) refined in the host: pressed on its own model, one
+# unit, within its bound; a corrupt unit file named.
+"$bin/skinbus-bench" refine --unit "$work/id/odd_fc.json" --uids 7 --presses 3 --samples 9 \
+  --half-extent 50 >"$work/refine_unit.md" 2>&1 &&
+  grep -q "the unit $work/id/odd_fc.json on the built-in design" "$work/refine_unit.md" &&
+  awk -F'|' '$2 == " 0x7 " && $3 == " 1-4 " && $8 + 0 > 0 && $8 + 0 < 1.5 {found = 1} END {exit !found}' "$work/refine_unit.md" &&
+  [[ $(grep -c '^| 0x' "$work/refine_unit.md") == 5 ]] &&
+  ok "skinbus-bench refine --unit" || { bad "skinbus-bench refine --unit"; cat "$work/refine_unit.md"; }
+"$bin/skinbus-bench" refine --unit "$work/id/bad.json" --presses 1 --samples 3 >/dev/null 2>"$work/refine_bad.txt"; rc=$?
+[[ $rc != 0 ]] && grep -q "bad.json: magnets\[0\].v_mm is missing" "$work/refine_bad.txt" &&
+  ok "skinbus-bench refine --unit names a corrupt unit file" || { bad "skinbus-bench refine --unit, corrupt file (rc $rc)"; cat "$work/refine_bad.txt"; }
 "$bin/skinbus-bench" refine --design "$here/../docs/benchmarks/design_8x8_5x5_sensors.yaml" \
   2>"$work/refine_err.txt" >/dev/null; rc=$?
 [[ $rc != 0 ]] && grep -q "25 sensors; the host refines patches that send 16" "$work/refine_err.txt" &&

@@ -211,6 +211,12 @@ void add_refine_options(CLI::App* sub, host_bench::RefineBenchArgs& a) {
                   "presses uniform within +-this of the patch centre, mm")
       ->capture_default_str()
       ->check(CLI::Range(1.0, 500.0));
+  sub->add_option("--unit", a.unit_path,
+                  "a unit file (skinbus-identify's, with its field correction if any) on --design "
+                  "instead of fabricated units: its model is pressed and refined on (the cost of "
+                  "refining such a unit; --uids' first seeds the noise); keep --half-extent "
+                  "within the area it was pressed on")
+      ->check(CLI::ExistingFile);
   sub->add_option("--basin-check", a.basin_check_mm,
                   "search a single refined press again from the start table once it is this "
                   "deep and at each doubling of its depth (the host's refine_basin_check_mm), "

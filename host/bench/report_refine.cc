@@ -21,6 +21,7 @@
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
+#include "skinbus/sim/unit_parameters.h"
 
 namespace skinbus::host_bench {
 
@@ -176,10 +177,11 @@ Status bench_refine(const RefineBenchArgs& a) {
       "Physics refinement in the host: %d presses per unit held %d samples at 41.7 Hz (a ramp "
       "over the first third, then a 0.1 mm/sample drift), uniform within +-%.0f mm, 1-4 mm deep "
       "(%g mm tips); the network %s alone and refined by Levenberg-Marquardt on the unit's "
-      "model; fabricated units of %s; seed %llu; the field evaluation on %s (SKINBUS_MAX_ISA "
+      "model; %s%s; seed %llu; the field evaluation on %s (SKINBUS_MAX_ISA "
       "caps it and the network's kernels).\n\n",
       a.presses, a.samples_per_press, a.half_extent_mm, design.indenter_tip_radius_mm,
       a.model_path.empty() ? kShippedModel : a.model_path.c_str(),
+      a.unit_path.empty() ? "fabricated units of " : ("the unit " + a.unit_path + " on ").c_str(),
       a.design_path.empty() ? "the built-in design" : a.design_path.c_str(),
       static_cast<unsigned long long>(a.seed), isa_name(sim::field_isa()));
   std::printf(
@@ -190,9 +192,19 @@ Status bench_refine(const RefineBenchArgs& a) {
       "uid,depth_bin,samples,network_xy_mm,network_x_crlb,refined_xy_mm,refined_x_crlb,"
       "network_depth_mm,refined_depth_mm\n";
   std::string cost_rows;
-  for (std::size_t ui = 0; ui < a.uids.size(); ++ui) {
+  // A unit file is one unit: pressed once, its noise seeded by the first UID.
+  const std::size_t units =
+      a.unit_path.empty() ? a.uids.size() : std::min<std::size_t>(1, a.uids.size());
+  for (std::size_t ui = 0; ui < units; ++ui) {
     const uint64_t uid = a.uids[ui];
-    auto unit = sim::PatchModel::fabricated(design, uid, sim::FabricationVariation{});
+    Result<sim::PatchModel> unit = make_error(ErrorCode::kInternal, "no unit");
+    if (a.unit_path.empty()) {
+      unit = sim::PatchModel::fabricated(design, uid, sim::FabricationVariation{});
+    } else {
+      auto params = sim::read_unit_parameters(a.unit_path);  // names the file
+      if (!params.ok()) return params.error();
+      unit = sim::PatchModel::of_unit_file(design, *params);
+    }
     if (!unit.ok()) return unit.error();
     const std::vector<Sample> session = make_session(*unit, a, a.seed + ui);
     const Outcome net = run(*unit, session, uid, model, false, 0, 0);

@@ -58,6 +58,10 @@ struct RefineBenchArgs {
   std::string csv;
   std::string design_path;  // "" the built-in design; it must have the bus's 16 sensors
   std::string model_path;   // the network refined from; "" the shipped seed CNN
+  // A unit file (skinbus-identify's, e.g. with a field correction) instead of fabricated units:
+  // its model (sim::PatchModel::of_unit_file on the design) is both the unit pressed and the one
+  // refined on; `uids`' first seeds its noise. "" fabricated units.
+  std::string unit_path;
   double basin_check_mm = host::AggregatorOptions{}.refine_basin_check_mm;  // 0: no checks
 };
 
