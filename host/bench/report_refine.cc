@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -192,19 +193,18 @@ Status bench_refine(const RefineBenchArgs& a) {
       "uid,depth_bin,samples,network_xy_mm,network_x_crlb,refined_xy_mm,refined_x_crlb,"
       "network_depth_mm,refined_depth_mm\n";
   std::string cost_rows;
-  // A unit file is one unit: pressed once, its noise seeded by the first UID.
-  const std::size_t units =
-      a.unit_path.empty() ? a.uids.size() : std::min<std::size_t>(1, a.uids.size());
+  // A unit file is one unit, read once: pressed once, its noise seeded by the first UID.
+  std::optional<sim::UnitParameters> file_unit;
+  if (!a.unit_path.empty()) {
+    auto params = sim::read_unit_parameters(a.unit_path);  // names the file
+    if (!params.ok()) return params.error();
+    file_unit = std::move(*params);
+  }
+  const std::size_t units = file_unit ? std::min<std::size_t>(1, a.uids.size()) : a.uids.size();
   for (std::size_t ui = 0; ui < units; ++ui) {
     const uint64_t uid = a.uids[ui];
-    Result<sim::PatchModel> unit = make_error(ErrorCode::kInternal, "no unit");
-    if (a.unit_path.empty()) {
-      unit = sim::PatchModel::fabricated(design, uid, sim::FabricationVariation{});
-    } else {
-      auto params = sim::read_unit_parameters(a.unit_path);  // names the file
-      if (!params.ok()) return params.error();
-      unit = sim::PatchModel::of_unit_file(design, *params);
-    }
+    auto unit = file_unit ? sim::PatchModel::of_unit_file(design, *file_unit)
+                          : sim::PatchModel::fabricated(design, uid, sim::FabricationVariation{});
     if (!unit.ok()) return unit.error();
     const std::vector<Sample> session = make_session(*unit, a, a.seed + ui);
     const Outcome net = run(*unit, session, uid, model, false, 0, 0);
