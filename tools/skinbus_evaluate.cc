@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "skinbus/estimators/bias_correction.h"
+#include "skinbus/estimators/creep.h"
 #include "skinbus/estimators/evaluation.h"
 #include "skinbus/estimators/model_file.h"
 #include "skinbus/estimators/network_runtime.h"
@@ -40,7 +41,9 @@ int main(int argc, char** argv) {
       "the host's rule for keeping a refined contact, docs/aggregator.md), per depth bin, next to\n"
       "the Cramer-Rao bound of the identified unit at the same presses (ambient field estimated).\n"
       "Prints a Markdown table. The samples go to the network as they are in the file (tared; no\n"
-      "common-mode removal) and are refined cold (no warm start from a previous sample).\n"
+      "common-mode removal) and are refined cold (no warm start from a previous sample). A unit\n"
+      "whose creep identification found (the unit file's creep) has its lag undone along each\n"
+      "press of several rows, in the file's order and times, as the host undoes it.\n"
       "When the unit file says where the unit was pressed (pressed_area_mm: skinbus-identify\n"
       "writes it) and some presses lie more than 1 mm outside it, the table is given again for\n"
       "the presses inside and for those outside: out there the fit is extrapolated.\n\n"
@@ -165,6 +168,9 @@ int main(int argc, char** argv) {
         noise.xy_ut, noise.z_ut, true);
     if (b.identifiable) bound[r] = b.sd_xy_mm;
   }
+  // A unit whose creep identification found: its lag undone along the recording's ramps, as the
+  // host undoes it along a press (a press of one row is a static one).
+  estimators::undo_creep(estimators::CreepLaw::of(unit->design()), *data, ref);
   if (!fit_path.empty()) {
     // Scaled to the presses' extent: the correction interpolates over what the recording covers.
     estimators::BiasCorrectionOptions base;

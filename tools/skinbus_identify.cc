@@ -185,10 +185,13 @@ int main(int argc, char** argv) {
   sim::UnitParameters refused;
   Result<estimators::IdentifiedUnit> id =
       estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr, &refused);
-  // What the fit leaves, learned from the same presses (--field-correction).
+  // What the fit leaves, learned from the same presses (--field-correction), at the bends the
+  // unit's creep gives when it has one.
   auto learn = [&](const sim::UnitParameters& unit) -> std::optional<sim::UnitParameters> {
     Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, unit);
     if (!model.ok()) return std::nullopt;
+    const sim::Dataset bent =
+        estimators::bent_dataset(estimators::CreepLaw::of(model->design()), *presses);
     std::fprintf(stderr, "skinbus-identify: learning the field correction (seconds) ...\n");
     estimators::FieldCorrectionOptions fo;
     fo.noise = opt.noise;
@@ -197,7 +200,7 @@ int main(int argc, char** argv) {
     estimators::FieldCorrectionReport report;
     const auto t_fit = std::chrono::steady_clock::now();
     Result<sim::FieldCorrection> fc =
-        estimators::fit_field_correction(*model, *presses, opt.tip_radius_mm, fo, &report);
+        estimators::fit_field_correction(*model, bent, opt.tip_radius_mm, fo, &report);
     if (!fc.ok()) {
       std::printf("field correction not learned: %s\n", fc.error().message.c_str());
       return std::nullopt;
@@ -253,6 +256,7 @@ int main(int argc, char** argv) {
           g.spread_mm, design.spread_mm, g.lateral_mm, design.lateral_mm, g.magnet_height_offset_mm,
           g.sensor_height_offset_mm, g.moment_scale, g.rms, g.starts);
     }
+    if (id->creep.presses > 0) std::printf("%s\n", id->creep.summary_text().c_str());
     if (id->masked_values > 0) {
       std::printf("%d field value(s) not finite (dead channels): left out of the fit\n",
                   id->masked_values);
@@ -287,9 +291,10 @@ int main(int argc, char** argv) {
   if (held_out && unit.field_correction != nullptr) {
     Result<sim::PatchModel> corrected = sim::PatchModel::of_unit_file(design, unit);
     if (corrected.ok()) {
-      const estimators::FitQuality q =
-          estimators::fit_quality(*corrected, *held_out, opt.tip_radius_mm,
-                                  estimators::ChannelNoise::of(design), opt.depth_bin_edges_mm);
+      const estimators::FitQuality q = estimators::fit_quality(
+          *corrected,
+          estimators::bent_dataset(estimators::CreepLaw::of(corrected->design()), *held_out),
+          opt.tip_radius_mm, estimators::ChannelNoise::of(design), opt.depth_bin_edges_mm);
       std::printf(
           "held out, with the field correction (%d samples): residual RMS %.3f noise units\n",
           q.rows, q.rms);

@@ -140,9 +140,11 @@ struct Row {
 
 using Estimator = std::function<ContactEstimate(const double* field)>;
 
-ErrorSummary run_on(const sim::Dataset& d, const Estimator& est) {
+// `est` on every row of `d`, with an identified unit's creep law undone along its ramps.
+ErrorSummary run_on(const sim::Dataset& d, const Estimator& est, const CreepLaw& creep) {
   std::vector<ContactEstimate> out(d.rows());
   for (std::size_t r = 0; r < d.rows(); ++r) out[r] = est(d.field(r));
+  undo_creep(creep, d, out);
   return summarize_errors(out, {d.u_mm, d.v_mm, d.depth_mm, d.force_n});
 }
 
@@ -227,12 +229,12 @@ Status bench_budget(const BudgetBenchArgs& a) {
     depth_efficient_mm *= std::sqrt(2 / M_PI) / static_cast<double>(bounds.size());
     const std::array<double, kDepthBins> crlb = mean_per_bin(xy_bounds, unit->off_grid.depth_mm);
     auto add_row = [&](const std::string& pipeline, const Estimator& est, double setup_s,
-                       double residual) {
+                       double residual, const CreepLaw& creep = {}) {
       std::fprintf(stderr, "skinbus-bench:   %s\n", pipeline.c_str());
       Row r{name,
             pipeline,
-            run_on(unit->off_grid, est),
-            run_on(unit->grid_test, est),
+            run_on(unit->off_grid, est, creep),
+            run_on(unit->grid_test, est, creep),
             crlb,
             setup_s,
             residual,
@@ -277,6 +279,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
     // the truth is known). From the grid presses and from 361 presses at Halton positions.
     std::optional<PhysicsEstimator> grid_lm;
     double grid_id_s = 0, grid_residual = -1;
+    CreepLaw grid_creep;
     auto physics_pipeline = [&](const std::string& plan, const sim::Dataset& presses) -> Status {
       const auto t0 = Clock::now();
       IdentificationOptions id_options;
@@ -290,6 +293,11 @@ Status bench_budget(const BudgetBenchArgs& a) {
                    "skinbus-bench:   identified from %s in %.1f s: residual %.3f (fit) / %.3f "
                    "(held out) noise units; nominal model %.3f\n",
                    plan.c_str(), id_s, id->fit.rms, id->held_out.rms, id->nominal_held_out.rms);
+      if (id->creep.kept || id->creep.presses > 0) {
+        std::fprintf(stderr, "skinbus-bench:   %s\n", id->creep.summary_text().c_str());
+      }
+      // The identified creep (none unless the ramps showed one), undone along the test ramps.
+      const CreepLaw creep = CreepLaw::of(id->model.design());
       Result<PhysicsEstimator> lm = PhysicsEstimator::create(id->model, physics_options);
       if (!lm.ok()) return lm.error();
       add_row(
@@ -297,15 +305,15 @@ Status bench_budget(const BudgetBenchArgs& a) {
           [&](const double* f) {
             return lm->estimate({f, nc}).contact;
           },
-          id_s, id->held_out.rms);
+          id_s, id->held_out.rms, creep);
       if (plan == "grid") {
         // What the class misses in the field, learned from the same presses and added to the
         // identified model (used only where it lowers the residual at press places held out of
         // its fit), then inverted like the identified model.
         const auto tf = Clock::now();
         FieldCorrectionReport fr;
-        Result<sim::FieldCorrection> fc =
-            fit_field_correction(id->model, presses, tip_mm, FieldCorrectionOptions{}, &fr);
+        Result<sim::FieldCorrection> fc = fit_field_correction(
+            id->model, bent_dataset(creep, presses), tip_mm, FieldCorrectionOptions{}, &fr);
         if (!fc.ok()) return with_context(fc.error(), "field correction");
         sim::UnitParameters p = id->parameters;
         if (fr.helps) p.field_correction = std::make_shared<const sim::FieldCorrection>(*fc);
@@ -322,17 +330,24 @@ Status bench_budget(const BudgetBenchArgs& a) {
               return flm->estimate({f, nc}).contact;
             },
             id_s + fc_s,
-            fit_quality(*corrected, unit->off_grid, tip_mm, ChannelNoise::of(*base), {}).rms);
+            fit_quality(*corrected, bent_dataset(creep, unit->off_grid), tip_mm,
+                        ChannelNoise::of(*base), {})
+                .rms,
+            creep);
       }
       const auto t1 = Clock::now();
+      // Every third sample of the presses, estimated as the test presses are (the creep undone
+      // along each press).
+      sim::Dataset third;
+      third.sensors = presses.sensors;
       std::vector<ContactEstimate> est;
-      std::vector<double> tu, tv, td;
       for (std::size_t r = 0; r < presses.rows(); r += 3) {
+        third.append(presses.press[r], presses.t_s[r], presses.u_mm[r], presses.v_mm[r],
+                     presses.depth_mm[r], presses.force_n[r], presses.field(r));
         est.push_back(lm->estimate({presses.field(r), nc}).contact);
-        tu.push_back(presses.u_mm[r]);
-        tv.push_back(presses.v_mm[r]);
-        td.push_back(presses.depth_mm[r]);
       }
+      undo_creep(creep, third, est);
+      const std::vector<double>&tu = third.u_mm, &tv = third.v_mm, &td = third.depth_mm;
       BiasCorrectionOptions bo;
       bo.half_u_mm = bo.half_v_mm = kHalfExtentMm;
       Result<BiasCorrection> bias = BiasCorrection::fit(est, tu, tv, td, bo);
@@ -347,7 +362,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
           [&](const double* f) {
             return bias->apply(lm->estimate({f, nc}).contact);
           },
-          id_s + fit_s, id->held_out.rms);
+          id_s + fit_s, id->held_out.rms, creep);
       if (plan == "grid") {
         // The correction is used only when it lowers the error on the unit's own presses that
         // it was not fitted on (five folds of press places, each among fitted ones); otherwise it
@@ -375,10 +390,11 @@ Status bench_budget(const BudgetBenchArgs& a) {
               const ContactEstimate e = lm->estimate({f, nc}).contact;
               return gate ? chosen_bias->apply(e) : e;
             },
-            id_s + (gate ? fit_s : 0.0), id->held_out.rms);
+            id_s + (gate ? fit_s : 0.0), id->held_out.rms, creep);
         grid_lm.emplace(std::move(lm.value()));
         grid_id_s = id_s;
         grid_residual = id->held_out.rms;
+        grid_creep = creep;
       }
       return Status::Ok();
     };
@@ -399,7 +415,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
             if (!g.valid()) return grid_lm->estimate({f, nc}).contact;
             return grid_lm->refine({f, nc}, {}, g).contact;
           },
-          grid_id_s, grid_residual);
+          grid_id_s, grid_residual, grid_creep);
     }
   }
   std::printf(

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "skinbus/estimators/contact_proposal.h"
+#include "skinbus/estimators/creep.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/unit_parameters.h"
@@ -44,7 +45,18 @@ class PhysicsRefiner : public ContactRefiner {
     return from(estimator_.search_lm(field_ut, channel_ok, kSearchStarts));
   }
 
-  std::unique_ptr<Memory> make_memory() const override { return std::make_unique<WarmMemory>(); }
+  std::unique_ptr<Memory> make_memory() const override {
+    auto m = std::make_unique<WarmMemory>();
+    m->creep = CreepCompensator(CreepLaw::of(estimator_.model().design()));
+    return m;
+  }
+
+  double press_depth_mm(const ContactEstimate& refined, double t_s, bool same_press,
+                        Memory* memory) const override {
+    auto* kept = dynamic_cast<WarmMemory*>(memory);
+    return kept != nullptr ? kept->creep.depth_mm(t_s, refined.depth_mm, same_press)
+                           : refined.depth_mm;
+  }
 
   RefinedContacts refine_contacts(std::span<const double> field_ut,
                                   std::span<const uint8_t> channel_ok, const ContactEstimate& start,
@@ -105,6 +117,7 @@ class PhysicsRefiner : public ContactRefiner {
  private:
   struct WarmMemory : Memory {
     WarmJacobian warm;
+    CreepCompensator creep;  // the unit's identified creep (none: the bend is the depth)
   };
 
   // The fit from `start` (from `warm`'s Jacobian when near), searched again from the start table

@@ -12,6 +12,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <type_traits>
 
@@ -712,9 +713,14 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
   return q;
 }
 
-Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const sim::Dataset& presses,
-                                     const IdentificationOptions& opt, const sim::Dataset* held_out,
-                                     sim::UnitParameters* refused) {
+namespace {
+
+// identify_unit() without the creep: the static model class alone.
+Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
+                                         const sim::Dataset& presses,
+                                         const IdentificationOptions& opt,
+                                         const sim::Dataset* held_out,
+                                         sim::UnitParameters* refused) {
   const auto t0 = std::chrono::steady_clock::now();
   const sim::PatchDesign design = sim::class_design(design_in);
   if (Status s = sim::validate(design); !s.ok()) return s.error();
@@ -1017,7 +1023,8 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
                      iterations,
                      seconds,
                      static_cast<int>(masked_values),
-                     globals};
+                     globals,
+                     {}};
   out.fit = fit_quality(out.model, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
   if (!(out.fit.rms <= opt.max_residual)) {
     if (refused != nullptr) *refused = out.parameters;
@@ -1044,6 +1051,46 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design_in, const si
         fit_quality(nominal, *held_out, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm);
   }
   return out;
+}
+
+}  // namespace
+
+Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::Dataset& presses,
+                                     const IdentificationOptions& opt, const sim::Dataset* held_out,
+                                     sim::UnitParameters* refused) {
+  Result<IdentifiedUnit> id = identify_in_class(design, presses, opt, held_out, refused);
+  if (!id.ok() || !opt.fit_creep) return id;
+  if (opt.progress) opt.progress("fitting the lattice's creep to the ramps");
+  const auto t0 = std::chrono::steady_clock::now();
+  CreepFitOptions co;
+  co.tip_radius_mm = opt.tip_radius_mm;
+  co.noise = opt.noise;
+  co.min_depth_mm = opt.min_depth_mm;
+  Result<CreepFit> creep = fit_creep(id->model, presses, co);
+  if (!creep.ok()) return creep.error();
+  const double creep_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  id->creep = *creep;
+  id->solve_seconds += creep_s;
+  if (!creep->kept) return id;
+  // The static physics again, fitted to the bends the law gives rather than the press's depths
+  // (the lag no longer taken for static physics), and judged on the held-out presses likewise.
+  if (opt.progress) opt.progress("fitting every part again, to the bends the creep gives");
+  const sim::Dataset bent = bent_dataset(creep->law, presses);
+  std::optional<sim::Dataset> bent_held;
+  if (held_out != nullptr) bent_held = bent_dataset(creep->law, *held_out);
+  Result<IdentifiedUnit> again =
+      identify_in_class(design, bent, opt, bent_held ? &*bent_held : nullptr, refused);
+  if (!again.ok()) return again.error();
+  again->parameters.creep_fraction = creep->law.fraction;
+  again->parameters.creep_time_s = creep->law.time_s;
+  Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, again->parameters);
+  if (!model.ok()) return model.error();
+  again->model = std::move(*model);
+  again->creep = *creep;
+  again->iterations += id->iterations;
+  again->solve_seconds += id->solve_seconds;
+  return again;
 }
 
 }  // namespace skinbus::estimators

@@ -127,6 +127,9 @@ struct Aggregator::Impl {
     int since_search = 0;
     double shear_u_n = 0, shear_v_n = 0;
     double checked_depth_mm = 0;  // the press's depth at its last basin check; 0: none yet
+    // The last refined single contact's fitted depth (the plate's bend, which a creeping unit's
+    // published depth is not: ContactRefiner::press_depth_mm); NaN: none.
+    double bend_mm = std::numeric_limits<double>::quiet_NaN();
   };
   // The current contacts of each patch that has one, in its link's frame (position and normal;
   // flags without the kinematics ones): every publication places all of them with the pose at
@@ -736,7 +739,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           if (warm) {
             start.u_mm = last.u_mm;
             start.v_mm = last.v_mm;
-            start.depth_mm = last.depth_mm;
+            start.depth_mm = std::isfinite(mem.bend_mm) ? mem.bend_mm : last.depth_mm;
             start.shear_u_n = mem.shear_u_n;  // patch frame; 0 without a fitted shear
             start.shear_v_n = mem.shear_v_n;
             ++s.stats.refine_warm_starts;
@@ -857,6 +860,13 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             const bool shear = found == 1 && std::isfinite(refined_sigma_shear_n[0]);
             mem.shear_u_n = shear ? ests[0].shear_u_n : 0.0;
             mem.shear_v_n = shear ? ests[0].shear_v_n : 0.0;
+            // A single press's depth along its press (a creeping unit's lag undone); the fit's
+            // depth stays the next warm start.
+            mem.bend_mm = found == 1 ? ests[0].depth_mm : std::numeric_limits<double>::quiet_NaN();
+            if (found == 1) {
+              ests[0].depth_mm = refiner->press_depth_mm(
+                  ests[0], static_cast<double>(p.time_us) * 1e-6, prev.used, refiner_memory);
+            }
           } else {
             flags |= kContactUnrefined;
             ++s.stats.unrefined_poor_fit;

@@ -323,6 +323,14 @@ PatchDesign class_design(const PatchDesign& design) {
   return d;
 }
 
+Result<PatchModel> PatchModel::of_unit_file(const PatchDesign& design,
+                                            const UnitParameters& params) {
+  PatchDesign d = class_design(design);
+  d.creep_fraction = params.creep_fraction;
+  d.creep_time_s = params.creep_time_s;
+  return from_parameters(d, params);
+}
+
 Result<PatchModel> PatchModel::from_parameters(const PatchDesign& d, const UnitParameters& u) {
   if (Status s = validate(d); !s.ok()) return s.error();
   auto fail = [](const std::string& what) {

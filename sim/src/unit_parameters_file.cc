@@ -146,6 +146,21 @@ class Reader {
     }
     return std::make_shared<const FieldCorrection>(std::move(*made));
   }
+  // The optional `creep` object: {"fraction": f in [0, 1), "time_s": tau in (0, 3600]}.
+  void creep(const json& c, UnitParameters* p) {
+    if (!c.is_object()) {
+      fail("creep is not an object");
+      return;
+    }
+    p->creep_fraction = number(c, "fraction", "creep.");
+    p->creep_time_s = number(c, "time_s", "creep.");
+    if (ok() && !(p->creep_fraction >= 0 && p->creep_fraction < 1)) {
+      fail("creep.fraction must be in [0, 1)");
+    }
+    if (ok() && !(p->creep_time_s > 0 && p->creep_time_s <= 3600)) {
+      fail("creep.time_s must be in (0, 3600]");
+    }
+  }
   // The optional `pressed_area_mm` object: {"u": [min, max], "v": [min, max]}, finite, min <= max.
   PressedArea pressed_area(const json& a) {
     const std::string where = "pressed_area_mm";
@@ -206,6 +221,8 @@ std::string unit_parameters_json(const UnitParameters& p, const UnitFileNote& no
          {"gain", vec(s.gain)}});
   }
   j["sensors"] = std::move(sensors);
+  if (p.creep_fraction > 0)
+    j["creep"] = {{"fraction", p.creep_fraction}, {"time_s", p.creep_time_s}};
   if (const FieldCorrection* f = p.field_correction.get(); f != nullptr) {
     const FieldCorrection::Grid& g = f->grid();
     j["field_correction"] = {{"u0_mm", g.u0_mm},
@@ -257,6 +274,7 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote
     }
     p.sensors.push_back(sp);
   });
+  if (const auto c = j.find("creep"); r.ok() && c != j.end()) r.creep(*c, &p);
   if (const auto fc = j.find("field_correction"); r.ok() && fc != j.end()) {
     p.field_correction = r.field_correction(*fc);
   }

@@ -26,6 +26,23 @@ bool same_bits(double a, double b) {
   return std::memcmp(&a, &b, sizeof a) == 0;
 }
 
+// Each bad text in place of the whole `key` field of `good` (an object of numbers and arrays: its
+// first '}' closes it) is refused as a parse error naming what is wrong.
+using BadFields = std::vector<std::pair<std::string, std::string>>;  // {text, what the error says}
+void expect_each_named(const std::string& good, const std::string& key, const BadFields& bads) {
+  const std::size_t from = good.find("\"" + key + "\"");
+  ASSERT_NE(from, std::string::npos) << key;
+  const std::size_t to = good.find('}', from) + 1;
+  for (const auto& [bad, want] : bads) {
+    std::string t = good;
+    t.replace(from, to - from, bad);
+    auto e = parse_unit_parameters(t);
+    ASSERT_FALSE(e.ok()) << want;
+    EXPECT_EQ(e.error().code, ErrorCode::kParse);
+    EXPECT_NE(e.error().message.find(want), std::string::npos) << e.error().message;
+  }
+}
+
 TEST(UnitParametersFileTest, RoundTripIsExactAndRebuildsTheSameUnit) {
   const UnitParameters p = fabricated_unit();
   UnitFileNote note;
@@ -208,26 +225,47 @@ TEST(UnitParametersFileTest, ThePressedAreaRoundTripsAndBadOnesAreNamed) {
   ASSERT_TRUE(parse_unit_parameters(unit_parameters_json(p), &back).ok());
   EXPECT_FALSE(back.pressed_area.has_value());
 
-  // Each bad object in place of the whole pressed_area_mm field (arrays only: its first '}'
-  // closes it).
-  const std::string good = unit_parameters_json(p, note);
-  const std::size_t from = good.find("\"pressed_area_mm\"");
-  ASSERT_NE(from, std::string::npos);
-  const std::size_t to = good.find('}', from) + 1;
-  for (const auto& [bad, want] : std::vector<std::pair<std::string, std::string>>{
-           {"\"pressed_area_mm\": 3", "pressed_area_mm is not an object"},
-           {"\"pressed_area_mm\": {\"u\": [1]}", "pressed_area_mm.u must be"},
-           {"\"pressed_area_mm\": {\"u\": [1, 2], \"v\": [1, \"2\"]}", "pressed_area_mm.v must be"},
-           {"\"pressed_area_mm\": {\"u\": [2, 1], \"v\": [1, 2]}",
-            "pressed_area_mm.u must be finite"},
-       }) {
-    std::string t = good;
-    t.replace(from, to - from, bad);
-    auto e = parse_unit_parameters(t);
-    ASSERT_FALSE(e.ok()) << want;
-    EXPECT_EQ(e.error().code, ErrorCode::kParse);
-    EXPECT_NE(e.error().message.find(want), std::string::npos) << e.error().message;
-  }
+  expect_each_named(
+      unit_parameters_json(p, note), "pressed_area_mm",
+      {
+          {"\"pressed_area_mm\": 3", "pressed_area_mm is not an object"},
+          {"\"pressed_area_mm\": {\"u\": [1]}", "pressed_area_mm.u must be"},
+          {"\"pressed_area_mm\": {\"u\": [1, 2], \"v\": [1, \"2\"]}", "pressed_area_mm.v must be"},
+          {"\"pressed_area_mm\": {\"u\": [2, 1], \"v\": [1, 2]}",
+           "pressed_area_mm.u must be finite"},
+      });
+}
+
+// The identified creep travels bit for bit and becomes the model's design's; absent, none; a
+// malformed one is named.
+TEST(UnitParametersFileTest, TheCreepRoundTripsIntoTheModelAndBadOnesAreNamed) {
+  UnitParameters p = fabricated_unit();
+  EXPECT_EQ(unit_parameters_json(p).find("\"creep\""), std::string::npos);  // none: absent
+  p.creep_fraction = 0.2345678901234567;
+  p.creep_time_s = 0.4321;
+  auto back = parse_unit_parameters(unit_parameters_json(p));
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_TRUE(same_bits(back->creep_fraction, p.creep_fraction));
+  EXPECT_TRUE(same_bits(back->creep_time_s, p.creep_time_s));
+  PatchDesign creeping;  // a design's own creep is not the unit's: the file's replaces it
+  creeping.creep_fraction = 0.5;
+  auto model = PatchModel::of_unit_file(creeping, *back);
+  ASSERT_TRUE(model.ok()) << model.error().to_string();
+  EXPECT_TRUE(same_bits(model->design().creep_fraction, p.creep_fraction));
+  EXPECT_TRUE(same_bits(model->design().creep_time_s, p.creep_time_s));
+  auto plain = PatchModel::of_unit_file(creeping, fabricated_unit());
+  ASSERT_TRUE(plain.ok());
+  EXPECT_EQ(plain->design().creep_fraction, 0.0);
+
+  expect_each_named(
+      unit_parameters_json(p), "creep",
+      {
+          {"\"creep\": []", "creep is not an object"},
+          {"\"creep\": {\"time_s\": 1}", "creep.fraction is missing"},
+          {"\"creep\": {\"fraction\": 0.1, \"time_s\": \"1\"}", "creep.time_s is not a number"},
+          {"\"creep\": {\"fraction\": 1, \"time_s\": 1}", "creep.fraction must be in [0, 1)"},
+          {"\"creep\": {\"fraction\": 0.1, \"time_s\": 0}", "creep.time_s must be in (0, 3600]"},
+      });
 }
 
 TEST(UnitParametersFileTest, APlausibleFileWithTheWrongCountsIsRefusedByTheModel) {

@@ -60,6 +60,10 @@ namespace skinbus::estimators {
 // The indenter the fits assume: the design file's (indenter.tip_radius_mm, the tip the unit was
 // calibrated with); `options.physics.tip_radius_mm` is replaced by it.
 //
+// A unit whose creep identification found (its model's design's creep_fraction: a unit file's
+// `creep`) has it undone along each press by press_depth_mm() in the patch's memory
+// (CreepCompensator): the fits give the plate's bend, the host publishes the press's depth.
+//
 // With a pressed area (`pressed_area`: the unit file's, sim::UnitFileNote, which the path
 // version sets), every refined contact placed outside it (widened by sim::kPressedAreaMarginMm)
 // carries kEstimateExtrapolated: the unit's model was not fitted there, and its uncertainty is

@@ -80,6 +80,19 @@ class ContactRefiner {
     out.contacts[0] = refine(field_ut, channel_ok, start);
     return out;
   }
+  // The press's depth (mm) for a sample's single refined contact, at the patch's sample time
+  // `t_s` (s, increasing), `same_press`: the patch's previous sample was of this press. A refiner
+  // fits the plate's bend; on a unit whose lattice creeps (the physics refiner of a unit file
+  // with an identified creep, creep.h) the bend lags the press, and this undoes the lag along
+  // the press, in the patch's `memory`. By default, and without a memory, the contact's depth.
+  // The caller keeps the fitted depth (the bend) for its next warm start. Cost: an exp.
+  virtual double press_depth_mm(const ContactEstimate& refined, double t_s, bool same_press,
+                                Memory* memory) const {
+    (void)t_s;
+    (void)same_press;
+    (void)memory;
+    return refined.depth_mm;
+  }
   // One contact searched from the refiner's own starts rather than a given one (the physics
   // refiner: the nearest rows of its start table), for a caller that suspects the press it
   // follows sits in another minimum of the fit (a warm start carried from a press's shallow

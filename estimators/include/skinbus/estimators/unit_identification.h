@@ -56,6 +56,7 @@
 #include <vector>
 
 #include "skinbus/common/result.h"
+#include "skinbus/estimators/creep.h"
 #include "skinbus/estimators/lookup_estimator.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/patch_model.h"
@@ -140,6 +141,10 @@ struct IdentificationOptions {
   // Called with a line on each step (stage 1 per start, stage 2 at the start of each outer
   // iteration and every 5 of its iterations); may be empty.
   std::function<void(const std::string&)> progress;
+  // After the fit, a creep law (creep.h, fit_creep) from the presses' ramps; when one lowers the
+  // held-out presses' depth residual, the whole fit is made again on the bends it gives
+  // (creep_bend_mm) and the law kept in the parameters (about twice the time).
+  bool fit_creep = true;
 };
 
 struct IdentifiedUnit {
@@ -157,6 +162,11 @@ struct IdentifiedUnit {
   // dataset format allows NaN), counted over the rows considered. A row needs half its channels.
   int masked_values = 0;
   GlobalPhysics globals;  // stage 1's result (the design's own values when not fitted)
+  // The creep fit (fit_creep, on the first fit's model). When kept, the parameters carry its law
+  // (sim::UnitParameters::creep_fraction), the model's design too, and every other field above
+  // is the second fit's, on the bends (fit, held_out: residuals about the bends; iterations and
+  // solve_seconds: both fits and the creep's).
+  CreepFit creep;
 };
 
 // Fits the unit that produced `presses`. Errors: kInvalidArgument (design invalid, channel

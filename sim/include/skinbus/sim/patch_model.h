@@ -200,10 +200,9 @@ class PatchModel {
                                             const UnitParameters& params);
   // A unit file's model: from_parameters() on class_design(design), the model class identification
   // fits, which a unit file's parameters belong to (a design's physics outside the class are not
-  // added to them). Errors: as from_parameters().
-  static Result<PatchModel> of_unit_file(const PatchDesign& design, const UnitParameters& params) {
-    return from_parameters(class_design(design), params);
-  }
+  // added to them), with the unit's identified creep (UnitParameters::creep_fraction,
+  // creep_time_s) as its design's. Errors: as from_parameters().
+  static Result<PatchModel> of_unit_file(const PatchDesign& design, const UnitParameters& params);
 
   // The same unit with every magnet a uniformly magnetised disc of the design's diameter and
   // height instead of a point dipole: each magnet becomes kDiscPoints dipoles at a degree-3

@@ -53,6 +53,12 @@ struct UnitParameters {
   // What the unit's field does beyond the class (skinbus/sim/field_correction.h), learned from its
   // own presses; null: none. Its channels are the design's. Shared, never changed once made.
   std::shared_ptr<const FieldCorrection> field_correction;
+  // The creep the unit's ramps showed (estimators::fit_creep): under a press d(t) the plate bends
+  // by (1 - f) d + f q, q following d with time constant creep_time_s (PatchDesign::creep_fraction,
+  // the same law); f = creep_fraction, 0: none. PatchModel::of_unit_file() gives the model's
+  // design these values; the inversion fits the bend, estimators::CreepCompensator undoes it.
+  double creep_fraction = 0;
+  double creep_time_s = 0.3;
 };
 
 // ---- Unit files ------------------------------------------------------------------------------

@@ -1,0 +1,351 @@
+#include "skinbus/estimators/creep.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <utility>
+
+namespace skinbus::estimators {
+
+namespace {
+
+// One step of the law's lag to a sample at `t_s`, the depth taken linear between the press's
+// previous sample (depth d0) and this one (d1), exact for a ramp: q1 = e q0 + (g - e) d0 +
+// (1 - g) d1, e = exp(-h / tau), g = (tau / h)(1 - e). A press's first sample: q0 relaxed over
+// the time since the previous call (the indenter off the patch), e = g = 1 (q1 = q0). Updates
+// `last_t_s`.
+struct Step {
+  double e = 1, g = 1;
+  double lag(double q0, double d0, double d1) const { return e * q0 + (g - e) * d0 + (1 - g) * d1; }
+};
+Step advance(const CreepLaw& law, double t_s, bool same_press, double* lag_mm, double* last_t_s) {
+  Step s;
+  const double h = t_s - *last_t_s;  // NaN before the first sample
+  if (h > 0) {
+    const double x = h / law.time_s;
+    if (same_press) {
+      s.e = std::exp(-x);
+      s.g = -std::expm1(-x) / x;
+    } else {
+      *lag_mm *= std::exp(-x);
+    }
+  }
+  *last_t_s = t_s;
+  return s;
+}
+
+bool new_press(const sim::Dataset& d, std::size_t r) {
+  return r == 0 || d.press.empty() || d.press[r] < 0 || d.press[r] != d.press[r - 1];
+}
+
+// Solves the n x n system a x = b (row-major a, n <= 4) by Gaussian elimination with partial
+// pivoting; false when singular.
+bool solve(int n, double a[4][4], double b[4], double x[4]) {
+  for (int c = 0; c < n; ++c) {
+    int p = c;
+    for (int r = c + 1; r < n; ++r) {
+      if (std::fabs(a[r][c]) > std::fabs(a[p][c])) p = r;
+    }
+    if (!(std::fabs(a[p][c]) > 1e-12)) return false;
+    std::swap(a[p], a[c]);
+    std::swap(b[p], b[c]);
+    for (int r = c + 1; r < n; ++r) {
+      const double k = a[r][c] / a[c][c];
+      for (int j = c; j < n; ++j) a[r][j] -= k * a[c][j];
+      b[r] -= k * b[c];
+    }
+  }
+  for (int r = n - 1; r >= 0; --r) {
+    double v = b[r];
+    for (int j = r + 1; j < n; ++j) v -= a[r][j] * x[j];
+    x[r] = v / a[r][r];
+  }
+  return true;
+}
+
+// The regression of e = bend - depth on z = (1, d, d^2, x) over one fold: a static model's own
+// depth bias (a quadratic in the depth: the first fit took part of the lag for static physics)
+// and f times the law's lag term x. Its Gram matrix of (z, e).
+struct Sums {
+  double g[5][5] = {};
+  double n() const { return g[0][0]; }
+  void add(double d, double x, double e) {
+    const double z[5] = {1, d, d * d, x, e};
+    for (int i = 0; i < 5; ++i) {
+      for (int j = 0; j < 5; ++j) g[i][j] += z[i] * z[j];
+    }
+  }
+  Sums& operator+=(const Sums& o) {
+    for (int i = 0; i < 5; ++i) {
+      for (int j = 0; j < 5; ++j) g[i][j] += o.g[i][j];
+    }
+    return *this;
+  }
+  // The coefficients (bias c0..c2, fraction f in [0, 0.95]; f = 0 without the lag).
+  struct Coefficients {
+    double w[4] = {0, 0, 0, 0};
+    double fraction() const { return w[3]; }
+  };
+  Coefficients fit(bool with_lag) const {
+    Coefficients out;
+    double a[4][4], b[4], x[4] = {0, 0, 0, 0};
+    if (with_lag) {
+      for (int i = 0; i < 4; ++i) {
+        for (int j = 0; j < 4; ++j) a[i][j] = g[i][j];
+        b[i] = g[i][4];
+      }
+      if (solve(4, a, b, x)) out.w[3] = std::clamp(x[3], 0.0, 0.95);
+    }
+    for (int i = 0; i < 3; ++i) {  // the bias, given the fraction
+      for (int j = 0; j < 3; ++j) a[i][j] = g[i][j];
+      b[i] = g[i][4] - out.w[3] * g[i][3];
+    }
+    if (solve(3, a, b, x)) {
+      for (int i = 0; i < 3; ++i) out.w[i] = x[i];
+    }
+    return out;
+  }
+  // The squared residual of e - w . z.
+  double sse(const Coefficients& c) const {
+    double s = g[4][4];
+    for (int i = 0; i < 4; ++i) {
+      s -= 2 * c.w[i] * g[i][4];
+      for (int j = 0; j < 4; ++j) s += c.w[i] * c.w[j] * g[i][j];
+    }
+    return std::max(0.0, s);
+  }
+};
+
+}  // namespace
+
+double CreepCompensator::depth_mm(double t_s, double bend_mm, bool same_press) {
+  if (!std::isfinite(t_s) || !std::isfinite(bend_mm)) return bend_mm;
+  const Step st = advance(law_, t_s, same_press, &lag_mm_, &last_t_s_);
+  if (law_.none()) return bend_mm;
+  if (!same_press) last_depth_mm_ = 0;
+  // b1 = (1 - f g) d1 + f (e q0 + (g - e) d0), solved for d1.
+  const double f = law_.fraction;
+  const double depth =
+      (bend_mm - f * (st.e * lag_mm_ + (st.g - st.e) * last_depth_mm_)) / (1 - f * st.g);
+  lag_mm_ = st.lag(lag_mm_, last_depth_mm_, depth);
+  last_depth_mm_ = depth;
+  return depth;
+}
+
+sim::Dataset bent_dataset(const CreepLaw& law, const sim::Dataset& d) {
+  sim::Dataset bent = d;
+  if (!law.none()) bent.depth_mm = creep_bend_mm(law, d);
+  return bent;
+}
+
+void undo_creep(const CreepLaw& law, const sim::Dataset& d, std::span<ContactEstimate> estimates) {
+  if (law.none()) return;
+  CreepCompensator comp(law);
+  const std::size_t n = std::min(d.rows(), estimates.size());
+  for (std::size_t r = 0; r < n; ++r) {
+    ContactEstimate& e = estimates[r];
+    if (!e.valid() || (new_press(d, r) && (r + 1 == d.rows() || new_press(d, r + 1)))) continue;
+    e.depth_mm = comp.depth_mm(d.t_s[r], e.depth_mm, !new_press(d, r));
+  }
+}
+
+std::vector<double> creep_bend_mm(const CreepLaw& law, const sim::Dataset& d) {
+  std::vector<double> bend(d.rows(), std::numeric_limits<double>::quiet_NaN());
+  double lag = 0, last_depth = 0, last_t = std::numeric_limits<double>::quiet_NaN();
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    const double t = d.t_s[r], depth = d.depth_mm[r];
+    if (!std::isfinite(depth)) continue;
+    // A press of one sample is a static press, held till the lag caught up: bent by its depth.
+    if (law.none() || (new_press(d, r) && (r + 1 == d.rows() || new_press(d, r + 1)))) {
+      bend[r] = depth;
+      continue;
+    }
+    if (!std::isfinite(t)) continue;
+    const bool same = !new_press(d, r);
+    const Step st = advance(law, t, same, &lag, &last_t);
+    lag = st.lag(lag, same ? last_depth : 0.0, depth);
+    bend[r] = (1 - law.fraction) * depth + law.fraction * lag;
+    last_depth = depth;
+  }
+  return bend;
+}
+
+std::string CreepFit::summary_text() const {
+  char buf[256];
+  if (!kept) {
+    std::snprintf(buf, sizeof buf, "creep: none kept (%s)", why.c_str());
+  } else {
+    std::snprintf(buf, sizeof buf,
+                  "creep: %.3f of the bend lags the press by %.3f s; depth residual on held-out "
+                  "presses %.4f -> %.4f mm RMS (%d ramps, %d samples)",
+                  law.fraction, law.time_s, held_out_rms_before_mm, held_out_rms_after_mm, presses,
+                  rows);
+  }
+  return buf;
+}
+
+Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
+                           const CreepFitOptions& opt) {
+  const int nc = model.channel_count();
+  if (d.channels() != nc) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "creep fit: the dataset's channel count differs from the model's (" +
+                          std::to_string(nc) + ")");
+  }
+  CreepFit out;
+  const ChannelNoise noise =
+      opt.noise.xy_ut > 0 && opt.noise.z_ut > 0 ? opt.noise : ChannelNoise::of(model.design());
+
+  // Ramps: presses of at least 3 samples at increasing times. Each row's fold is its press's
+  // parity among them; -1: not in a ramp.
+  std::vector<int> fold(d.rows(), -1);
+  std::size_t candidates = 0;
+  for (std::size_t r = 0; r < d.rows();) {
+    std::size_t end = r + 1;
+    bool increasing = std::isfinite(d.t_s[r]);
+    while (end < d.rows() && !new_press(d, end)) {
+      increasing = increasing && d.t_s[end] > d.t_s[end - 1];
+      ++end;
+    }
+    if (increasing && end - r >= 3) {
+      for (std::size_t k = r; k < end; ++k) fold[k] = out.presses % 2;
+      ++out.presses;
+    }
+    r = end;
+  }
+  auto usable = [&](std::size_t r) {
+    if (fold[r] < 0 || !(d.depth_mm[r] >= opt.min_depth_mm) || !std::isfinite(d.depth_mm[r]) ||
+        !std::isfinite(d.u_mm[r]) || !std::isfinite(d.v_mm[r])) {
+      return false;
+    }
+    int known = 0;
+    for (int c = 0; c < nc; ++c) known += std::isfinite(d.field(r)[c]) ? 1 : 0;
+    return 2 * known >= nc;
+  };
+  for (std::size_t r = 0; r < d.rows(); ++r) candidates += usable(r) ? 1 : 0;
+  if (out.presses < 4 || candidates < 40) {
+    out.why = "no ramps: fewer than 4 presses of 3 or more samples in time order";
+    return out;
+  }
+
+  // Each inverted sample's bend: depth alone fitted by Gauss-Newton at the recorded place.
+  const std::size_t stride =
+      std::max<std::size_t>(1, (candidates + static_cast<std::size_t>(opt.max_rows) - 1) /
+                                   static_cast<std::size_t>(std::max(1, opt.max_rows)));
+  std::vector<double> bend(d.rows(), std::numeric_limits<double>::quiet_NaN());
+  std::vector<double> jac(static_cast<std::size_t>(nc) * 3), field(static_cast<std::size_t>(nc));
+  std::size_t seen = 0;
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    if (!usable(r) || seen++ % stride != 0) continue;
+    const double* y = d.field(r);
+    double b = d.depth_mm[r];
+    bool converged = false;
+    for (int it = 0; it < 10 && !converged; ++it) {
+      model.contact_jacobian({d.u_mm[r], d.v_mm[r], b, opt.tip_radius_mm}, jac, field);
+      double jj = 0, jr = 0;
+      for (int c = 0; c < nc; ++c) {
+        if (!std::isfinite(y[c])) continue;
+        const double w = 1 / (noise.sigma(c) * noise.sigma(c));
+        const double j = jac[static_cast<std::size_t>(c) * 3 + 2];
+        jj += w * j * j;
+        jr += w * j * (y[c] - field[static_cast<std::size_t>(c)]);
+      }
+      if (!(jj > 0)) break;
+      const double step = std::clamp(jr / jj, -1.0, 1.0);
+      b = std::max(0.0, b + step);
+      converged = std::fabs(step) < 1e-5;
+    }
+    if (converged && std::isfinite(b)) {
+      bend[r] = b;
+      ++out.rows;
+    }
+  }
+  if (out.rows < 40) {
+    out.why = "too few samples whose depth alone could be fitted";
+    return out;
+  }
+
+  // The regression's sums per fold at one time constant: the law's lag from the recorded depths.
+  auto sums_at = [&](double tau) {
+    std::array<Sums, 2> s;
+    const CreepLaw law{1, tau};  // the lag alone; the fraction is what is fitted
+    double lag = 0, last_depth = 0, last_t = std::numeric_limits<double>::quiet_NaN();
+    for (std::size_t r = 0; r < d.rows(); ++r) {
+      const double t = d.t_s[r], depth = d.depth_mm[r];
+      if (!std::isfinite(t) || !std::isfinite(depth)) continue;
+      const bool same = !new_press(d, r);
+      const Step st = advance(law, t, same, &lag, &last_t);
+      lag = st.lag(lag, same ? last_depth : 0.0, depth);
+      last_depth = depth;
+      const double x = lag - depth;  // bend - depth = f x
+      if (std::isfinite(bend[r])) {
+        s[static_cast<std::size_t>(fold[r])].add(depth, x, bend[r] - depth);
+      }
+    }
+    return s;
+  };
+  auto pooled = [](const std::array<Sums, 2>& s) {
+    Sums p = s[0];
+    p += s[1];
+    return p;
+  };
+  // The time constant of least squared residual for the rows `pick` selects (a fold, or both):
+  // a log grid, then golden section between the best point's neighbours.
+  auto best_tau = [&](auto pick) {
+    auto cost = [&](double log_tau) {
+      const Sums s = pick(sums_at(std::exp(log_tau)));
+      return s.sse(s.fit(true));
+    };
+    constexpr int kGrid = 40;
+    const double lo = std::log(opt.min_time_s), hi = std::log(opt.max_time_s);
+    int best = 0;
+    double best_cost = std::numeric_limits<double>::infinity();
+    for (int i = 0; i <= kGrid; ++i) {
+      const double c = cost(lo + (hi - lo) * i / kGrid);
+      if (c < best_cost) {
+        best_cost = c;
+        best = i;
+      }
+    }
+    double a = lo + (hi - lo) * std::max(0, best - 1) / kGrid;
+    double b = lo + (hi - lo) * std::min(kGrid, best + 1) / kGrid;
+    const double g = (std::sqrt(5.0) - 1) / 2;
+    for (int it = 0; it < 30; ++it) {
+      const double x1 = b - g * (b - a), x2 = a + g * (b - a);
+      if (cost(x1) < cost(x2)) {
+        b = x2;
+      } else {
+        a = x1;
+      }
+    }
+    return std::exp((a + b) / 2);
+  };
+
+  // Held out: each fold's law (its own tau, fraction and bias) on the other fold's rows; before:
+  // the fold's bias alone.
+  double before = 0, after = 0, n = 0;
+  for (std::size_t k = 0; k < 2; ++k) {
+    const double tau = best_tau([k](const std::array<Sums, 2>& s) { return s[k]; });
+    const std::array<Sums, 2> s = sums_at(tau);
+    const Sums& fit = s[k];
+    const Sums& held = s[1 - k];
+    before += held.sse(fit.fit(false));
+    after += held.sse(fit.fit(true));
+    n += held.n();
+  }
+  out.held_out_rms_before_mm = std::sqrt(before / n);
+  out.held_out_rms_after_mm = std::sqrt(after / n);
+  const double tau = best_tau([&pooled](const std::array<Sums, 2>& s) { return pooled(s); });
+  const double f = pooled(sums_at(tau)).fit(true).fraction();
+  if (!(after <= (1 - opt.min_gain) * before) || !(f > 0)) {
+    out.why = "it does not lower the depth residual of held-out presses by " +
+              std::to_string(static_cast<int>(std::lround(100 * opt.min_gain))) + " %";
+    return out;
+  }
+  out.law = {f, tau};
+  out.kept = true;
+  return out;
+}
+
+}  // namespace skinbus::estimators

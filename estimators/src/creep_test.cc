@@ -1,0 +1,142 @@
+#include "skinbus/estimators/creep.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <random>
+
+#include "skinbus/estimators/physics_estimator.h"
+#include "skinbus/sim/simulated_patch.h"
+
+namespace skinbus::estimators {
+namespace {
+
+// Ramps of a unit whose lattice creeps by `law` (the simulator's law), on a 7 x 7 grid.
+sim::Dataset creeping_ramps(const CreepLaw& law, uint64_t seed, sim::PatchModel* static_model) {
+  sim::PatchDesign design;
+  design.creep_fraction = law.fraction;
+  design.creep_time_s = law.time_s;
+  const sim::PatchModel unit = sim::PatchModel::nominal(design).value();
+  *static_model = sim::PatchModel::nominal(sim::class_design(design)).value();
+  sim::SimulatedPatch patch(unit, seed);
+  return sim::generate_ramp_dataset(patch, sim::plan_grid(7, 15), sim::RampProtocol{});
+}
+
+// The compensator undoes creep_bend_mm() exactly, along presses of any length at any times, for
+// random laws; with no law, or a non-finite bend, it hands the bend back.
+TEST(CreepTest, TheCompensatorUndoesTheLawAlongEveryPress) {
+  const uint64_t seed = std::random_device{}();
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u01(0, 1);
+  for (int trial = 0; trial < 20; ++trial) {
+    const CreepLaw law{0.9 * u01(rng), 0.02 + 3 * u01(rng)};
+    sim::Dataset d;
+    double t = 0;
+    for (int press = 0; press < 5; ++press) {
+      const int n = 1 + static_cast<int>(40 * u01(rng));
+      for (int k = 0; k < n; ++k) {
+        t += 0.001 + 0.1 * u01(rng);
+        d.press.push_back(press);
+        d.t_s.push_back(t);
+        d.depth_mm.push_back(4 * u01(rng));
+        d.u_mm.push_back(0);
+        d.v_mm.push_back(0);
+      }
+      t += 2 * u01(rng);
+    }
+    const std::vector<double> bend = creep_bend_mm(law, d);
+    CreepCompensator comp(law);
+    for (std::size_t r = 0; r < d.depth_mm.size(); ++r) {
+      const bool first = r == 0 || d.press[r] != d.press[r - 1];
+      const bool alone = first && (r + 1 == d.depth_mm.size() || d.press[r + 1] != d.press[r]);
+      if (alone) {  // a static press: bent by its depth, not given to the compensator
+        EXPECT_EQ(bend[r], d.depth_mm[r]);
+        continue;
+      }
+      EXPECT_NEAR(comp.depth_mm(d.t_s[r], bend[r], !first), d.depth_mm[r], 1e-9)
+          << "seed " << seed << " trial " << trial << " row " << r;
+    }
+  }
+  CreepCompensator none;
+  EXPECT_EQ(none.depth_mm(1.0, 2.5, false), 2.5);
+  CreepCompensator some({0.3, 0.5});
+  EXPECT_TRUE(std::isnan(some.depth_mm(1.0, std::numeric_limits<double>::quiet_NaN(), true)));
+  EXPECT_EQ(some.depth_mm(std::numeric_limits<double>::infinity(), 2.0, true), 2.0);
+}
+
+// On a unit that creeps, the fit finds the simulator's law from the ramps and the static model
+// (noise only between them), and it explains most of the depth residual of held-out presses;
+// undone along the ramps, the inversion's depth error falls to the noise's.
+TEST(CreepTest, TheFitFindsTheLawOfACreepingUnitAndUndoingItRemovesTheLag) {
+  const CreepLaw truth{0.25, 0.3};
+  sim::PatchModel model = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const sim::Dataset ramps = creeping_ramps(truth, 11, &model);
+  CreepFitOptions opt;
+  opt.max_rows = 2000;
+  const Result<CreepFit> fit = fit_creep(model, ramps, opt);
+  ASSERT_TRUE(fit.ok()) << fit.error().to_string();
+  std::printf("%s\n", fit->summary_text().c_str());
+  ASSERT_TRUE(fit->kept) << fit->why;
+  EXPECT_NEAR(fit->law.fraction, truth.fraction, 0.03);
+  EXPECT_NEAR(fit->law.time_s, truth.time_s, 0.06);
+  EXPECT_LT(fit->held_out_rms_after_mm, 0.5 * fit->held_out_rms_before_mm);
+
+  // The static inversion along fresh ramps, with and without the law undone.
+  sim::PatchModel unused = model;
+  const sim::Dataset test = creeping_ramps(truth, 12, &unused);
+  PhysicsOptions po;
+  Result<PhysicsEstimator> lm = PhysicsEstimator::create(model, po);
+  ASSERT_TRUE(lm.ok());
+  CreepCompensator comp(fit->law);
+  double raw = 0, undone = 0;
+  int n = 0;
+  for (std::size_t r = 0; r < test.rows(); r += 7) {
+    const std::size_t nc = static_cast<std::size_t>(test.channels());
+    ContactEstimate start;
+    start.u_mm = test.u_mm[r];
+    start.v_mm = test.v_mm[r];
+    start.depth_mm = test.depth_mm[r];
+    const ContactEstimate e = lm->refine_lm({test.field(r), nc}, {}, start).contact;
+    const bool same = r >= 7 && test.press[r] == test.press[r - 7];
+    const double depth = comp.depth_mm(test.t_s[r], e.depth_mm, same);
+    if (test.depth_mm[r] < 1) continue;
+    raw += std::fabs(e.depth_mm - test.depth_mm[r]);
+    undone += std::fabs(depth - test.depth_mm[r]);
+    ++n;
+  }
+  std::printf("depth mean error >= 1 mm over %d samples: %.4f mm as fitted, %.4f undone\n", n,
+              raw / n, undone / n);
+  EXPECT_LT(undone, 0.5 * raw);
+}
+
+// A unit that does not creep keeps no law: on ramps, none lowers the held-out residual enough;
+// on static presses (one sample each) there are no ramps to fit.
+TEST(CreepTest, AUnitThatDoesNotCreepKeepsNoLaw) {
+  sim::PatchModel model = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  const sim::Dataset ramps = creeping_ramps({0, 0.3}, 13, &model);
+  CreepFitOptions opt;
+  opt.max_rows = 2000;
+  const Result<CreepFit> fit = fit_creep(model, ramps, opt);
+  ASSERT_TRUE(fit.ok());
+  std::printf("%s (fraction %.4f)\n", fit->summary_text().c_str(), fit->law.fraction);
+  EXPECT_FALSE(fit->kept);
+  EXPECT_EQ(fit->law.fraction, 0.0);
+
+  sim::SimulatedPatch patch(model, 14);
+  const sim::Dataset statics = sim::generate_random_test_set(patch, 100, 50, 4, 15);
+  const Result<CreepFit> none = fit_creep(model, statics, opt);
+  ASSERT_TRUE(none.ok());
+  EXPECT_FALSE(none->kept);
+  EXPECT_NE(none->why.find("no ramps"), std::string::npos) << none->why;
+  for (double b : creep_bend_mm({0.3, 0.5}, statics)) EXPECT_TRUE(std::isfinite(b));
+
+  sim::Dataset other = ramps;
+  other.sensors.pop_back();
+  EXPECT_EQ(fit_creep(model, other, opt).error().code, ErrorCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace skinbus::estimators
