@@ -390,6 +390,30 @@ download_debs() {
         { cat "$CACHE/apt.log" >&2; die "cannot download $*"; }
 }
 
+# The version of the series package $1 (linux-source-6.1, linux-kbuild-6.1) to build with:
+# $KVER when the lists have it, else the newest of the same upstream version. Those two are the
+# series' packages, and a security update can rebuild them (6.1.192-3) while the flavour's image
+# and headers stay at theirs (6.1.192-2): the same sources. Nothing known: $KVER.
+series_version() {
+    local v
+    v=$(apt-cache madison "$1" 2>/dev/null | awk -F'|' -v kver="$KVER" -v up="${KVER%-*}-" '
+        { gsub(/ /, "", $2) }
+        $2 == kver { exact = 1 }
+        index($2, up) == 1 { print $2 }
+        END { if (exact) print "EXACT" }' | sort -V)
+    if [[ -z $v ]] || grep -qx EXACT <<<"$v"; then
+        echo "$KVER"
+    else
+        tail -n 1 <<<"$v"
+    fi
+}
+
+# The packages build_ctucanfd needs for kernel $1 (series $2, flavour $3), with versions.
+ctucanfd_debs() {
+    echo "linux-source-$2=$(series_version "linux-source-$2")" "linux-headers-$1=$KVER" \
+        "linux-headers-${1%-"$3"}-common=$KVER" "linux-kbuild-$2=$(series_version "linux-kbuild-$2")"
+}
+
 # The driver of QEMU's ctucan_pci device (drivers/net/can/ctucanfd: ctucanfd.ko and
 # ctucanfd_pci.ko). Debian's kernel does not build it (CONFIG_CAN_CTUCANFD_PCI is not
 # set), so build it out of tree, exactly for the cached kernel, from Debian's own
@@ -398,15 +422,19 @@ download_debs() {
 # are unsigned: the kernel loads them and marks itself tainted. They go into the
 # kernel's lib/modules/$kv/extra, so modprobe finds them and a new kernel drops them.
 build_ctucanfd() {
-    local kv=$1 series flavour tmp hdr log=$CACHE/ctucanfd.log m
+    local kv=$1 series flavour tmp hdr log=$CACHE/ctucanfd.log m debs
     [[ $kv =~ ^([0-9]+\.[0-9]+)\.[0-9]+-[0-9]+-([a-z0-9]+)$ ]] ||
         die "cannot tell the kernel series and flavour from '$kv'"
     series=${BASH_REMATCH[1]} flavour=${BASH_REMATCH[2]}
-    note "building the CTU CAN FD driver for $kv from Debian's linux-source-$series $KVER"
+    note "building the CTU CAN FD driver for $kv from Debian's linux-source-$series"
     tmp=$(mktemp -d "$CACHE/tmp.ctucanfd.XXXXXX")
     : >"$CACHE/apt.log"
-    (cd "$tmp" && download_debs "linux-source-$series=$KVER" "linux-headers-$kv=$KVER" \
-        "linux-headers-${kv%-"$flavour"}-common=$KVER" "linux-kbuild-$series=$KVER")
+    read -ra debs <<<"$(ctucanfd_debs "$kv" "$series" "$flavour")"
+    if ! (cd "$tmp" && apt-get download -q=2 "${debs[@]}") >>"$CACHE/apt.log" 2>&1; then
+        apt_update  # the versions may have moved on: choose them again from fresh lists
+        read -ra debs <<<"$(ctucanfd_debs "$kv" "$series" "$flavour")"
+        (cd "$tmp" && download_debs "${debs[@]}")
+    fi
     mkdir "$tmp/root" "$tmp/src"
     for m in "$tmp"/linux-headers-*.deb "$tmp"/linux-kbuild-*.deb; do
         dpkg -x "$m" "$tmp/root"
