@@ -196,6 +196,32 @@ read -r xy_plain d_plain <<<"$(sums "$work/id/eval_odd.txt")"
 awk -v a="$xy_fc" -v b="$xy_plain" -v c="$d_fc" -v d="$d_plain" 'BEGIN { exit !(a > 0 && a < 0.8 * b && c < 0.8 * d) }' &&
   ok "refined on the corrected unit: XY $xy_fc mm and depth $d_fc mm summed over 1-4 mm, against $xy_plain and $d_plain uncorrected" ||
   { bad "refinement on the corrected unit"; cat "$work/id/eval_odd_fc.txt" "$work/id/eval_odd.txt"; }
+# A lattice that creeps (a quarter of its bend lags the press by 0.3 s): identification finds the
+# law in the grid's ramps and writes it in the unit file; skinbus-evaluate undoes it along
+# held-out ramps and places their depth nearer than the same unit file without its creep.
+sed -e 's/^  creep_fraction: 0 /  creep_fraction: 0.25 /' "$here/../sim/designs/nominal.yaml" >"$work/id/creep.yaml"
+creep=(--design "$work/id/creep.yaml" --fabricated --uid 0x5B07 --speed 4 --grid 9 --pitch 15)
+"$bin/skinbus-dataset" --plan grid "${creep[@]}" -o "$work/id/creep.csv" 2>/dev/null
+"$bin/skinbus-dataset" --plan random --count 12 --seed 5 "${creep[@]}" -o "$work/id/creep_held.csv" 2>/dev/null
+"$bin/skinbus-identify" "$work/id/creep.csv" -o "$work/id/creep.json" >"$work/id/creep.txt" 2>&1; rc=$?
+python3 - "$work/id/creep.json" "$work/id/creep_none.json" <<'PY' >"$work/id/creep_law.txt"; rc_law=$?
+import json, sys
+unit = json.load(open(sys.argv[1]))
+law = unit.pop("creep", {"fraction": 0, "time_s": 0})
+print(f"{law['fraction']:.3f} of the bend lagging by {law['time_s']:.3f} s")
+json.dump(unit, open(sys.argv[2], "w"))
+sys.exit(0 if 0.18 < law["fraction"] < 0.32 and 0.2 < law["time_s"] < 0.4 else 1)
+PY
+for f in creep creep_none; do
+  "$bin/skinbus-evaluate" "$work/id/creep_held.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+    --unit "$work/id/$f.json" >"$work/id/eval_$f.txt" 2>&1 || true
+done
+read -r _ d_creep <<<"$(sums "$work/id/eval_creep.txt")"
+read -r _ d_none <<<"$(sums "$work/id/eval_creep_none.txt")"
+[[ $rc == 0 && $rc_law == 0 ]] && grep -q "^creep: .* lags the press" "$work/id/creep.txt" &&
+  awk -v a="$d_creep" -v b="$d_none" 'BEGIN { exit !(a > 0 && a < 0.7 * b) }' &&
+  ok "a creeping unit's law identified ($(cat "$work/id/creep_law.txt")) and undone: depth $d_creep mm summed over 1-4 mm, against $d_none without it" ||
+  { bad "creep identified and undone (rc $rc, $rc_law)"; cat "$work/id/creep.txt" "$work/id/creep_law.txt" "$work/id/eval_creep.txt" "$work/id/eval_creep_none.txt"; }
 # A unit file belongs to the model class it was identified in: given the design file that names
 # the unit's physics outside it (odd.yaml), skinbus-evaluate and skinbus-dataset --unit model the
 # same unit as with the built-in design, not the class's parameters with those physics on top.

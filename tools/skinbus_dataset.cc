@@ -102,8 +102,8 @@ int main(int argc, char** argv) {
   app.add_option("--unit", unit_path,
                  "unit file (skinbus-identify): simulate that identified unit instead of the "
                  "nominal or a --fabricated one, in the model class it was identified in (the "
-                 "design's anisotropy, crushing top, in-plane drag and creep are not added; an "
-                 "--anisotropy given is)")
+                 "design's anisotropy, crushing top, in-plane drag and creep are not added; the "
+                 "unit file's identified creep and an --anisotropy given are)")
       ->check(CLI::ExistingFile);
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);

@@ -64,6 +64,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!same(back->spread_mm, p->spread_mm) || !same(back->lateral_mm, p->lateral_mm)) {
     fail("lattice numbers changed");
   }
+  // The creep: a law travels bit for bit; none (fraction 0) is not written, its time with it.
+  if (!same(back->creep_fraction, p->creep_fraction) ||
+      (p->creep_fraction > 0 && !same(back->creep_time_s, p->creep_time_s))) {
+    fail("the creep changed");
+  }
+  if (!(p->creep_fraction >= 0 && p->creep_fraction < 1) ||
+      !(p->creep_time_s > 0 && p->creep_time_s <= 3600)) {
+    fail("a creep out of range was taken");
+  }
   if (back->magnets.size() != p->magnets.size() || back->sensors.size() != p->sensors.size()) {
     fail("counts changed");
   }

@@ -99,7 +99,9 @@ struct PatchDesign {
   // follows d with time constant creep_time_s (dq/dt = (d - q) / tau); f = creep_fraction, 0:
   // none. It acts where the simulator steps time, in the ramps of sim::generate_ramp_dataset
   // (loading bends the plate less than the press is deep, unloading more); a static press is
-  // the relaxed state. Outside the class, identification fits 0.
+  // the relaxed state. Not in the static class (class_design: 0); identification fits it from a
+  // recording's ramps after the static fit (estimators/creep.h) and a unit file carries it
+  // (UnitParameters::creep_fraction, given to the model's design by of_unit_file()).
   double creep_fraction = 0;
   double creep_time_s = 0.3;
   // Shear: a tangential force F at a contact moves the surface layer in-plane, along F, by
@@ -129,9 +131,10 @@ struct PatchDesign {
   int channel_count() const { return 3 * sensor_count(); }
 };
 
-// The model class identification fits (estimators/unit_identification.h) and unit files belong
-// to: `design` without the physics no fit takes up (anisotropy, a crushing top, in-plane drag,
-// creep: all 0). A simulated unit may have them (the design's values, applied by
+// The static model class identification fits (estimators/unit_identification.h) and unit files
+// belong to: `design` without the physics no fit takes up (anisotropy, a crushing top, in-plane
+// drag: all 0) and without creep, which identification fits apart and a unit file carries
+// (PatchModel::of_unit_file). A simulated unit may have them (the design's values, applied by
 // PatchModel::from_parameters()); the model of an identified unit does not.
 PatchDesign class_design(const PatchDesign& design);
 
