@@ -1058,16 +1058,35 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
 Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::Dataset& presses,
                                      const IdentificationOptions& opt, const sim::Dataset* held_out,
                                      sim::UnitParameters* refused) {
-  Result<IdentifiedUnit> id = identify_in_class(design, presses, opt, held_out, refused);
-  if (!id.ok() || !opt.fit_creep) return id;
+  sim::UnitParameters first_refused;
+  Result<IdentifiedUnit> id = identify_in_class(design, presses, opt, held_out, &first_refused);
+  const bool was_refused = !id.ok() && !first_refused.magnets.empty();
+  if (was_refused && refused != nullptr) *refused = first_refused;
+  if (!opt.fit_creep || (!id.ok() && (!was_refused || refused == nullptr))) return id;
+  // The creep, on the fit's model, or on the refused fit's (the class's nearest model of a unit
+  // with physics outside it, which may creep as well).
   if (opt.progress) opt.progress("fitting the lattice's creep to the ramps");
   const auto t0 = std::chrono::steady_clock::now();
+  Result<sim::PatchModel> static_model = id.ok()
+                                             ? Result<sim::PatchModel>(id->model)
+                                             : sim::PatchModel::of_unit_file(design, first_refused);
+  if (!static_model.ok()) return id;
   CreepFitOptions co;
   co.tip_radius_mm = opt.tip_radius_mm;
   co.noise = opt.noise;
   co.min_depth_mm = opt.min_depth_mm;
-  Result<CreepFit> creep = fit_creep(id->model, presses, co);
+  Result<CreepFit> creep = fit_creep(*static_model, presses, co);
   if (!creep.ok()) return creep.error();
+  if (opt.progress) opt.progress(creep->summary_text());
+  if (!id.ok()) {
+    // A refused fit carries the law (for its field correction and the presses simulated from
+    // it); the static fit is not made again: it would be refused again, for what is not creep.
+    if (creep->kept) {
+      refused->creep_fraction = creep->law.fraction;
+      refused->creep_time_s = creep->law.time_s;
+    }
+    return id;
+  }
   const double creep_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   id->creep = *creep;
@@ -1079,9 +1098,17 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::
   const sim::Dataset bent = bent_dataset(creep->law, presses);
   std::optional<sim::Dataset> bent_held;
   if (held_out != nullptr) bent_held = bent_dataset(creep->law, *held_out);
+  sim::UnitParameters again_refused;
   Result<IdentifiedUnit> again =
-      identify_in_class(design, bent, opt, bent_held ? &*bent_held : nullptr, refused);
-  if (!again.ok()) return again.error();
+      identify_in_class(design, bent, opt, bent_held ? &*bent_held : nullptr, &again_refused);
+  if (!again.ok()) {
+    if (refused != nullptr && !again_refused.magnets.empty()) {
+      again_refused.creep_fraction = creep->law.fraction;
+      again_refused.creep_time_s = creep->law.time_s;
+      *refused = again_refused;
+    }
+    return again.error();
+  }
   again->parameters.creep_fraction = creep->law.fraction;
   again->parameters.creep_time_s = creep->law.time_s;
   Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, again->parameters);

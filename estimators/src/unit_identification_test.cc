@@ -427,6 +427,19 @@ TEST(UnitIdentificationTest, ACreepingUnitsLawIsFoundAndItsRampsExplained) {
   print_quality("without the creep, held out (ramps)", plain->held_out);
   EXPECT_EQ(plain->parameters.creep_fraction, 0.0);
   EXPECT_GT(plain->held_out.rms, kModelMissesResidual);
+
+  // Held to a residual the static fit exceeds, the fit is refused, and the refused parameters
+  // carry the law found on them (their field correction and simulated presses then creep too).
+  opt.fit_creep = true;
+  opt.max_residual = plain->fit.rms - 1e-3;
+  sim::UnitParameters refused;
+  const Result<IdentifiedUnit> held =
+      identify_unit(sim::PatchDesign{}, data.train, opt, nullptr, &refused);
+  ASSERT_FALSE(held.ok());
+  EXPECT_EQ(held.error().code, ErrorCode::kNotConverged);
+  EXPECT_EQ(refused.spread_mm, plain->parameters.spread_mm);
+  EXPECT_NEAR(refused.creep_fraction, creeping.creep_fraction, 0.04);
+  EXPECT_NEAR(refused.creep_time_s, creeping.creep_time_s, 0.08);
 }
 
 // A lattice that bends more on the way up than on the way down (creep, hysteresis): the ramps'

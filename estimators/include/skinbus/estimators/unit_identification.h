@@ -143,7 +143,8 @@ struct IdentificationOptions {
   std::function<void(const std::string&)> progress;
   // After the fit, a creep law (creep.h, fit_creep) from the presses' ramps; when one lowers the
   // held-out presses' depth residual, the whole fit is made again on the bends it gives
-  // (creep_bend_mm) and the law kept in the parameters (about twice the time).
+  // (creep_bend_mm) and the law kept in the parameters (about twice the time). A fit refused for
+  // its residual gets the law fitted on it, in the refused parameters, without a second fit.
   bool fit_creep = true;
 };
 
