@@ -120,9 +120,8 @@ struct Sums {
 }  // namespace
 
 double CreepCompensator::depth_mm(double t_s, double bend_mm, bool same_press) {
-  if (!std::isfinite(t_s) || !std::isfinite(bend_mm)) return bend_mm;
+  if (law_.none() || !std::isfinite(t_s) || !std::isfinite(bend_mm)) return bend_mm;
   const Step st = advance(law_, t_s, same_press, &lag_mm_, &last_t_s_);
-  if (law_.none()) return bend_mm;
   if (!same_press) last_depth_mm_ = 0;
   // b1 = (1 - f g) d1 + f (e q0 + (g - e) d0), solved for d1.
   const double f = law_.fraction;
