@@ -222,6 +222,15 @@ read -r _ d_none <<<"$(sums "$work/id/eval_creep_none.txt")"
   awk -v a="$d_creep" -v b="$d_none" 'BEGIN { exit !(a > 0 && a < 0.7 * b) }' &&
   ok "a creeping unit's law identified ($(cat "$work/id/creep_law.txt")) and undone: depth $d_creep mm summed over 1-4 mm, against $d_none without it" ||
   { bad "creep identified and undone (rc $rc, $rc_law)"; cat "$work/id/creep.txt" "$work/id/creep_law.txt" "$work/id/eval_creep.txt" "$work/id/eval_creep_none.txt"; }
+# skinbus-dataset --unit simulates the unit file's creep: its ramps differ from the same file's
+# without it; its static presses (the relaxed state) do not.
+for f in creep creep_none; do
+  "$bin/skinbus-dataset" --plan grid --grid 3 --pitch 30 --speed 4 --unit "$work/id/$f.json" -o "$work/id/sim_$f.csv" 2>/dev/null
+  "$bin/skinbus-dataset" --plan random-test --count 5 --unit "$work/id/$f.json" -o "$work/id/static_$f.csv" 2>/dev/null
+done
+! cmp -s <(grep -v '^#' "$work/id/sim_creep.csv") <(grep -v '^#' "$work/id/sim_creep_none.csv") &&
+  cmp -s <(grep -v '^#' "$work/id/static_creep.csv") <(grep -v '^#' "$work/id/static_creep_none.csv") &&
+  ok "skinbus-dataset --unit simulates the unit's creep on ramps" || bad "skinbus-dataset --unit and the unit's creep"
 # A unit file belongs to the model class it was identified in: given the design file that names
 # the unit's physics outside it (odd.yaml), skinbus-evaluate and skinbus-dataset --unit model the
 # same unit as with the built-in design, not the class's parameters with those physics on top.

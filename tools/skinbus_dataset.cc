@@ -129,8 +129,11 @@ int main(int argc, char** argv) {
       }
       Result<UnitParameters> params = read_unit_parameters(unit_path);  // names the file
       if (!params.ok()) return params.error();
-      // The unit file's model class; an --anisotropy given is put on top of it.
+      // The unit file's model class with its identified creep (PatchModel::of_unit_file); an
+      // --anisotropy given is put on top of it.
       PatchDesign unit_design = class_design(design);
+      unit_design.creep_fraction = params->creep_fraction;
+      unit_design.creep_time_s = params->creep_time_s;
       if (anisotropy_given->count() > 0) unit_design.anisotropy = anisotropy;
       Result<PatchModel> m = PatchModel::from_parameters(unit_design, *params);
       if (!m.ok()) return make_error(m.error().code, unit_path + ": " + m.error().message);
