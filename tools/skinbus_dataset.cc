@@ -8,10 +8,11 @@
 #include <chrono>
 #include <cstdio>
 #include <string>
+#include <utility>
 
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/design_file.h"
-#include "skinbus/sim/unit_parameters.h"
+#include "skinbus/sim/unit_model.h"
 #include "tool_util.h"
 
 int main(int argc, char** argv) {
@@ -127,17 +128,12 @@ int main(int argc, char** argv) {
         return fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
                           : PatchModel::nominal(design);
       }
-      Result<UnitParameters> params = read_unit_parameters(unit_path);  // names the file
-      if (!params.ok()) return params.error();
-      // The unit file's model class with its identified creep (PatchModel::of_unit_file); an
-      // --anisotropy given is put on top of it.
-      PatchDesign unit_design = class_design(design);
-      unit_design.creep_fraction = params->creep_fraction;
-      unit_design.creep_time_s = params->creep_time_s;
-      if (anisotropy_given->count() > 0) unit_design.anisotropy = anisotropy;
-      Result<PatchModel> m = PatchModel::from_parameters(unit_design, *params);
-      if (!m.ok()) return make_error(m.error().code, unit_path + ": " + m.error().message);
-      return m;
+      // The unit file's model class with its identified creep; an --anisotropy given is put on
+      // top of it.
+      Result<UnitModel> unit =
+          read_unit_model(unit_path, design, anisotropy_given->count() > 0 ? anisotropy : 0);
+      if (!unit.ok()) return unit.error();
+      return std::move(unit->model);
     };
     Result<PatchModel> model = make_model();
     if (model.ok() && discs) model = PatchModel::with_disc_magnets(model.value());

@@ -23,7 +23,7 @@
 #include "skinbus/sim/crlb.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/design_file.h"
-#include "skinbus/sim/unit_parameters.h"
+#include "skinbus/sim/unit_model.h"
 #include "tool_util.h"
 
 namespace {
@@ -103,17 +103,16 @@ int main(int argc, char** argv) {
   // The unit once: the refiner fits it, the bound is its.
   auto design = sim::read_design_or_builtin(design_path);
   if (!design.ok()) return tools::report_error(kTool, design.error());
-  sim::UnitFileNote note;
-  auto params = sim::read_unit_parameters(unit_path, &note);
-  if (!params.ok()) return tools::report_error(kTool, params.error());
+  auto read = sim::read_unit_model(unit_path, *design);
+  if (!read.ok()) return tools::fail(kTool, read.error().message, 1);
+  const sim::UnitFileNote& note = read->note;
   if (!note.refused.empty()) {  // measured as asked; the host refuses to refine on it
     std::fprintf(stderr,
                  "%s: %s is a fit identification refused (%s): skinbus-host will not "
                  "refine on it\n",
                  kTool, unit_path.c_str(), note.refused.c_str());
   }
-  auto unit = sim::PatchModel::of_unit_file(*design, *params);
-  if (!unit.ok()) return tools::fail(kTool, unit_path + ": " + unit.error().message, 1);
+  const sim::PatchModel* const unit = &read->model;
   if (Status s = sim::check_sensor_layout(*data, *unit); !s.ok()) {
     return tools::fail(kTool, test_path + ": " + s.error().message, 2);
   }

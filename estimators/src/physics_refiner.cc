@@ -10,7 +10,7 @@
 #include "skinbus/estimators/creep.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/design_file.h"
-#include "skinbus/sim/unit_parameters.h"
+#include "skinbus/sim/unit_model.h"
 
 namespace skinbus::estimators {
 
@@ -215,26 +215,22 @@ Result<std::unique_ptr<ContactRefiner>> make_physics_refiner(const std::string& 
                                                              const RefinerOptions& options) {
   auto design = sim::read_design_or_builtin(design_path);
   if (!design.ok()) return design.error();
-  sim::UnitFileNote note;
-  auto params = sim::read_unit_parameters(unit_path, &note);
-  if (!params.ok()) return params.error();
-  if (!note.refused.empty()) {
+  auto unit = sim::read_unit_model(unit_path, *design);
+  if (!unit.ok()) {
+    return make_error(unit.error().code,
+                      unit.error().message + " (design " +
+                          (design_path.empty() ? std::string("built in") : design_path) + ")");
+  }
+  if (!unit->note.refused.empty()) {
     return make_error(ErrorCode::kInvalidArgument,
                       "unit file " + unit_path +
-                          " is a fit identification refused, not for refinement (" + note.refused +
-                          ")");
-  }
-  auto model = sim::PatchModel::of_unit_file(*design, *params);
-  if (!model.ok()) {
-    return make_error(model.error().code,
-                      "unit " + unit_path + " on design " +
-                          (design_path.empty() ? std::string("(built-in)") : design_path) + ": " +
-                          model.error().message);
+                          " is a fit identification refused, not for refinement (" +
+                          unit->note.refused + ")");
   }
   RefinerOptions with_tip = options;
   with_tip.physics.tip_radius_mm = design->indenter_tip_radius_mm;
-  with_tip.pressed_area = note.pressed_area;
-  return make_physics_refiner(*model, with_tip);
+  with_tip.pressed_area = unit->note.pressed_area;
+  return make_physics_refiner(unit->model, with_tip);
 }
 
 }  // namespace skinbus::estimators

@@ -22,7 +22,7 @@
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
-#include "skinbus/sim/unit_parameters.h"
+#include "skinbus/sim/unit_model.h"
 
 namespace skinbus::host_bench {
 
@@ -194,16 +194,16 @@ Status bench_refine(const RefineBenchArgs& a) {
       "network_depth_mm,refined_depth_mm\n";
   std::string cost_rows;
   // A unit file is one unit, read once: pressed once, its noise seeded by the first UID.
-  std::optional<sim::UnitParameters> file_unit;
+  std::optional<sim::PatchModel> file_unit;
   if (!a.unit_path.empty()) {
-    auto params = sim::read_unit_parameters(a.unit_path);  // names the file
-    if (!params.ok()) return params.error();
-    file_unit = std::move(*params);
+    auto loaded = sim::read_unit_model(a.unit_path, design);  // names the file
+    if (!loaded.ok()) return loaded.error();
+    file_unit = std::move(loaded->model);
   }
   const std::size_t units = file_unit ? std::min<std::size_t>(1, a.uids.size()) : a.uids.size();
   for (std::size_t ui = 0; ui < units; ++ui) {
     const uint64_t uid = a.uids[ui];
-    auto unit = file_unit ? sim::PatchModel::of_unit_file(design, *file_unit)
+    auto unit = file_unit ? Result<sim::PatchModel>(*file_unit)
                           : sim::PatchModel::fabricated(design, uid, sim::FabricationVariation{});
     if (!unit.ok()) return unit.error();
     const std::vector<Sample> session = make_session(*unit, a, a.seed + ui);

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/unit_model.h"
 #include "skinbus/sim/unit_parameters.h"
 
 namespace skinbus::sim {
@@ -266,6 +267,41 @@ TEST(UnitParametersFileTest, TheCreepRoundTripsIntoTheModelAndBadOnesAreNamed) {
           {"\"creep\": {\"fraction\": 1, \"time_s\": 1}", "creep.fraction must be in [0, 1)"},
           {"\"creep\": {\"fraction\": 0.1, \"time_s\": 0}", "creep.time_s must be in (0, 3600]"},
       });
+}
+
+// read_unit_model: the file modelled on its design's class with the file's creep and its note;
+// an anisotropy asked for on top; a file that does not fit the design, or none, named.
+TEST(UnitParametersFileTest, AUnitFileIsModelledOnItsDesignsClassWithItsCreep) {
+  UnitParameters p = fabricated_unit();
+  p.creep_fraction = 0.2;
+  p.creep_time_s = 0.5;
+  const std::string path = ::testing::TempDir() + "/unit_model_test.json";
+  ASSERT_TRUE(write_unit_parameters(p, path, {"test", {}, PressedArea{-1, 1, -2, 2}}).ok());
+  PatchDesign design;
+  design.anisotropy = 0.1;  // outside the class: not added to an identified unit
+  design.tip_crush_mm = 10;
+  auto unit = read_unit_model(path, design);
+  ASSERT_TRUE(unit.ok()) << unit.error().to_string();
+  EXPECT_EQ(unit->model.design().anisotropy, 0.0);
+  EXPECT_EQ(unit->model.design().tip_crush_mm, 0.0);
+  EXPECT_EQ(unit->model.design().creep_fraction, 0.2);
+  EXPECT_EQ(unit->model.design().creep_time_s, 0.5);
+  EXPECT_EQ(unit->note.source, "test");
+  ASSERT_TRUE(unit->note.pressed_area.has_value());
+  auto on_top = read_unit_model(path, design, 0.05);
+  ASSERT_TRUE(on_top.ok());
+  EXPECT_EQ(on_top->model.design().anisotropy, 0.05);
+  EXPECT_EQ(on_top->model.design().creep_fraction, 0.2);
+  UnitParameters fewer = p;
+  fewer.magnets.pop_back();
+  ASSERT_TRUE(write_unit_parameters(fewer, path).ok());
+  auto wrong = read_unit_model(path, design);
+  ASSERT_FALSE(wrong.ok());
+  EXPECT_EQ(wrong.error().message.rfind(path + ": ", 0), 0u) << wrong.error().message;
+  std::remove(path.c_str());
+  auto missing = read_unit_model(path, design);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().message.find(path), std::string::npos);
 }
 
 TEST(UnitParametersFileTest, APlausibleFileWithTheWrongCountsIsRefusedByTheModel) {
