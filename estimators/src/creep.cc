@@ -39,6 +39,11 @@ bool new_press(const sim::Dataset& d, std::size_t r) {
   return r == 0 || d.press.empty() || d.press[r] < 0 || d.press[r] != d.press[r - 1];
 }
 
+// A press of one row: a static press, held till the lag caught up (bent by its depth).
+bool static_press(const sim::Dataset& d, std::size_t r) {
+  return new_press(d, r) && (r + 1 == d.rows() || new_press(d, r + 1));
+}
+
 // Solves the n x n system a x = b (row-major a, n <= 4) by Gaussian elimination with partial
 // pivoting; false when singular.
 bool solve(int n, double a[4][4], double b[4], double x[4]) {
@@ -144,7 +149,7 @@ void undo_creep(const CreepLaw& law, const sim::Dataset& d, std::span<ContactEst
   const std::size_t n = std::min(d.rows(), estimates.size());
   for (std::size_t r = 0; r < n; ++r) {
     ContactEstimate& e = estimates[r];
-    if (!e.valid() || (new_press(d, r) && (r + 1 == d.rows() || new_press(d, r + 1)))) continue;
+    if (!e.valid() || static_press(d, r)) continue;
     e.depth_mm = comp.depth_mm(d.t_s[r], e.depth_mm, !new_press(d, r));
   }
 }
@@ -155,8 +160,7 @@ std::vector<double> creep_bend_mm(const CreepLaw& law, const sim::Dataset& d) {
   for (std::size_t r = 0; r < d.rows(); ++r) {
     const double t = d.t_s[r], depth = d.depth_mm[r];
     if (!std::isfinite(depth)) continue;
-    // A press of one sample is a static press, held till the lag caught up: bent by its depth.
-    if (law.none() || (new_press(d, r) && (r + 1 == d.rows() || new_press(d, r + 1)))) {
+    if (law.none() || static_press(d, r)) {
       bend[r] = depth;
       continue;
     }
@@ -265,22 +269,15 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
     return out;
   }
 
-  // The regression's sums per fold at one time constant: the law's lag from the recorded depths.
+  // The regression's sums per fold at one time constant: the law's lag from the recorded depths
+  // (the bend of a law whose whole bend lags, creep_bend_mm; bend - depth = f x).
   auto sums_at = [&](double tau) {
     std::array<Sums, 2> s;
-    const CreepLaw law{1, tau};  // the lag alone; the fraction is what is fitted
-    double lag = 0, last_depth = 0, last_t = std::numeric_limits<double>::quiet_NaN();
+    const std::vector<double> lag = creep_bend_mm({1, tau}, d);
     for (std::size_t r = 0; r < d.rows(); ++r) {
-      const double t = d.t_s[r], depth = d.depth_mm[r];
-      if (!std::isfinite(t) || !std::isfinite(depth)) continue;
-      const bool same = !new_press(d, r);
-      const Step st = advance(law, t, same, &lag, &last_t);
-      lag = st.lag(lag, same ? last_depth : 0.0, depth);
-      last_depth = depth;
-      const double x = lag - depth;  // bend - depth = f x
-      if (std::isfinite(bend[r])) {
-        s[static_cast<std::size_t>(fold[r])].add(depth, x, bend[r] - depth);
-      }
+      if (!std::isfinite(bend[r]) || !std::isfinite(lag[r])) continue;
+      const double depth = d.depth_mm[r];
+      s[static_cast<std::size_t>(fold[r])].add(depth, lag[r] - depth, bend[r] - depth);
     }
     return s;
   };

@@ -1067,15 +1067,18 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::
   // with physics outside it, which may creep as well).
   if (opt.progress) opt.progress("fitting the lattice's creep to the ramps");
   const auto t0 = std::chrono::steady_clock::now();
-  Result<sim::PatchModel> static_model = id.ok()
-                                             ? Result<sim::PatchModel>(id->model)
-                                             : sim::PatchModel::of_unit_file(design, first_refused);
-  if (!static_model.ok()) return id;
+  std::optional<sim::PatchModel> refused_model;
+  if (!id.ok()) {
+    Result<sim::PatchModel> m = sim::PatchModel::of_unit_file(design, first_refused);
+    if (!m.ok()) return id;
+    refused_model.emplace(std::move(*m));
+  }
+  const sim::PatchModel& static_model = id.ok() ? id->model : *refused_model;
   CreepFitOptions co;
   co.tip_radius_mm = opt.tip_radius_mm;
   co.noise = opt.noise;
   co.min_depth_mm = opt.min_depth_mm;
-  Result<CreepFit> creep = fit_creep(*static_model, presses, co);
+  Result<CreepFit> creep = fit_creep(static_model, presses, co);
   if (!creep.ok()) return creep.error();
   if (opt.progress) opt.progress(creep->summary_text());
   if (!id.ok()) {
