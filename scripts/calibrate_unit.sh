@@ -27,7 +27,9 @@
 #                          simulated presses of the identified unit, each a ramp sampled at 8 Hz;
 #                          about 15 s an epoch on two cores, --epochs (30) at most; from
 #                          scratch when the patch has another sensor count than the shipped
-#                          model's 16, and an MLP when its sensors form no grid)
+#                          model's 16; when its sensors form no grid, an MLP (512-512-256) on
+#                          four times as many simulated presses, its epochs cheap: --epochs
+#                          (400) at most, 8 minutes at most unless --epochs is given)
 #   train.log            its training
 #   correction.json      the unit's learned correction of the refined estimate (skinbus-evaluate
 #                        --fit-correction on PRESSES.csv), written only if it lowers the error on
@@ -56,7 +58,7 @@ usage() {
   sed -n '6,9p' "$0" | sed 's/^# //' >&2
   exit 2
 }
-presses="" out="" held="" design="" node=1 uid="" link="LINK" epochs=30 synthetic=2000 base_given=0
+presses="" out="" held="" design="" node=1 uid="" link="LINK" epochs="" synthetic=2000 base_given=0
 max_residual=()
 base=$root/estimators/models/nominal_seed_cnn
 while (($#)); do
@@ -71,7 +73,7 @@ while (($#)); do
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
     --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
-    -h | --help) sed -n '2,51p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,53p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -114,23 +116,29 @@ fi
 grep -i "residual\|note:" "$out/identify.log" | head -4 >&2 || true
 
 from_refused=0  # the network route, started from the refused fit's simulated presses
+simulated_unit=""  # the unit file synthetic.csv simulates
+mlp=0  # the sensors form no grid: every network is an MLP
+most_epochs() { if ((mlp)); then echo "${epochs:-400}"; else echo "${epochs:-30}"; fi; }
+simulate() {  # COUNT: synthetic.csv, COUNT ramps of $simulated_unit at Halton points, 8 Hz
+  "$bin/skinbus-dataset" --plan halton --count "$1" --rate 8 --unit "$simulated_unit" \
+    "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
+    failed "the synthetic presses" "$out/dataset.log"
+}
 if ((network_route)); then
   train_set=$presses
   test_set=$held
   if [[ -f $out/refused_fit.json ]]; then
     from_refused=1
     step 2 "simulating $synthetic presses of the refused fit (the class's nearest model of the unit, to start its network from; never refined on)"
-    "$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 \
-      --unit "$out/refused_fit.json" "${design_opt[@]}" -o "$out/synthetic.csv" \
-      >"$out/dataset.log" 2>&1 || failed "the synthetic presses" "$out/dataset.log"
+    simulated_unit=$out/refused_fit.json
+    simulate "$synthetic"
   else
     step 2 "no presses simulated: identification kept no fit to simulate"
   fi
 else
   step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8 Hz)"
-  "$bin/skinbus-dataset" --plan halton --count "$synthetic" --rate 8 --unit "$out/unit.json" \
-    "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
-    failed "the synthetic presses" "$out/dataset.log"
+  simulated_unit=$out/unit.json
+  simulate "$synthetic"
   "$bin/skinbus-dataset" --plan random-test --count 500 --seed 7 --unit "$out/unit.json" \
     "${design_opt[@]}" -o "$out/synthetic_test.csv" >>"$out/dataset.log" 2>&1 ||
     failed "the synthetic test presses" "$out/dataset.log"
@@ -154,7 +162,7 @@ from="from $(basename "$base")"
 on="simulated presses of the identified unit"
 ((network_route)) && on="the unit's own presses"
 ((from_refused)) && on="the refused fit's simulated presses"
-step 3 "training the unit's network on $on ($epochs epochs at most, $from)"
+step 3 "training the unit's network on $on ($(most_epochs) epochs at most, $from)"
 base_opt=()
 # Fine-tuning starts from a trained network: a smaller step than training from scratch.
 [[ -n $base && $base != none ]] && base_opt=(--base "$base" --lr 3e-4)
@@ -163,15 +171,27 @@ test_opt=()
 train() {  # DATASET OUTPUT LOG [skinbus-train options...]
   local data=$1 output=$2 log=$3
   shift 3
-  "$bin/skinbus-train" "$data" -o "$output" "${test_opt[@]}" --epochs "$epochs" "$@" \
-    >"$log" 2>&1
+  # An MLP's epoch costs a fraction of the CNN's: more of them, within about the CNN's time.
+  local budget=(--epochs "$(most_epochs)")
+  ((mlp)) && [[ -z $epochs ]] && budget+=(--max-minutes 8)
+  "$bin/skinbus-train" "$data" -o "$output" "${test_opt[@]}" "${budget[@]}" "$@" >"$log" 2>&1
 }
 train_or_mlp() {  # DATASET OUTPUT LOG [skinbus-train options...]
-  if ! train "$@"; then
+  if ((mlp)) || ! train "$@"; then
     # The seed CNN places each sensor in a grid cell; sensors that form no grid need the MLP.
-    grep -q "use an MLP" "$3" || failed "training" "$3"
-    echo "calibrate_unit: the sensors do not form a grid: training an MLP instead (--arch mlp)" >&2
-    train "$1" "$2" "$3" --arch mlp || failed "training" "$3"
+    # Without the CNN's shared filters it needs more presses: simulated ones are cheap.
+    ((mlp)) || grep -q "use an MLP" "$3" || failed "training" "$3"
+    if ((!mlp)); then
+      mlp=1
+      echo "calibrate_unit: the sensors do not form a grid: training an MLP instead (--arch" \
+        "mlp --hidden 512,512,256, $(most_epochs) epochs at most$([[ -z $epochs ]] &&
+          echo ", 8 minutes at most"))" >&2
+    fi
+    if [[ $1 == "$out/synthetic.csv" && -n $simulated_unit ]]; then
+      echo "calibrate_unit: [2/5] ... simulating $((4 * synthetic)) presses for the MLP" >&2
+      simulate $((4 * synthetic))
+    fi
+    train "$1" "$2" "$3" --arch mlp --hidden 512,512,256 || failed "training" "$3"
   fi
   tail -1 "$3" >&2
 }
@@ -184,11 +204,11 @@ if ((from_refused)); then
   train_or_mlp "$out/synthetic.csv" "$out/network_refused_fit" "$out/train_refused_fit.log" \
     "${base_opt[@]}"
   echo "calibrate_unit: [3/5] ... then on the unit's own presses, from that network" \
-    "($epochs epochs at most)" >&2
+    "($(most_epochs) epochs at most)" >&2
   train "$train_set" "$out/network_from_refused" "$out/train_from_refused.log" \
     --base "$out/network_refused_fit" --lr 3e-4 || failed "training" "$out/train_from_refused.log"
   tail -1 "$out/train_from_refused.log" >&2
-  echo "calibrate_unit: [3/5] ... and on the unit's own presses alone ($epochs epochs at most," \
+  echo "calibrate_unit: [3/5] ... and on the unit's own presses alone ($(most_epochs) epochs at most," \
     "$from), to choose between the two by held-out error" >&2
   train_or_mlp "$train_set" "$out/network_own" "$out/train_own.log" "${base_opt[@]}"
   # The score each training kept its epoch by (its metadata's val_score: XY of the held-out
