@@ -250,6 +250,48 @@ rows() { grep -v '^#' "$1"; }
 row=$(grep "^| 2-3 |" "$work/id/eval.txt" || true)
 [[ $rc == 0 ]] && awk -F'|' '{exit !($5 + 0 < $4 + 0)}' <<<"$row" &&
   ok "skinbus-evaluate: refined below the network ($row)" || { bad "skinbus-evaluate (rc $rc)"; cat "$work/id/eval.txt"; }
+# A dead sensor (sensor 5 NaN in every row): the network cannot read a sample, and the host's
+# way fits it on the channels left; before, no press had a contact.
+kill_sensor5() {  # IN OUT VALUE: sensor 5's three columns set to VALUE in every row
+  python3 - "$@" <<'PY'
+import sys
+out = []
+cols = None
+for line in open(sys.argv[1]):
+    f = line.rstrip("\n").split(",")
+    if line.startswith("press,"):
+        cols = [i for i, c in enumerate(f) if c.startswith("s05_")]
+    elif cols and not line.startswith("#"):
+        for i in cols:
+            f[i] = sys.argv[3]
+    out.append(",".join(f))
+open(sys.argv[2], "w").write("\n".join(out) + "\n")
+PY
+}
+kill_sensor5 "$work/id/test_unit.csv" "$work/id/test_dead.csv" nan
+"$bin/skinbus-evaluate" "$work/id/test_dead.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+  --unit "$work/id/unit.json" >"$work/id/eval_dead.txt" 2>&1; rc=$?
+fitted=$(sed -n 's/.*(of those, 150 the network could not read for a dead or saturated channel, \([0-9]*\) of them fitted on the channels left).*/\1/p' "$work/id/eval_dead.txt")
+row=$(grep "^| 2-3 |" "$work/id/eval_dead.txt" || true)
+[[ $rc == 0 && -n $fitted ]] && ((fitted > 120)) && awk -F'|' '{exit !($5 + 0 > 0 && $5 + 0 < 1)}' <<<"$row" &&
+  ok "skinbus-evaluate: a dead sensor's presses fitted on the channels left ($fitted of 150; $row)" ||
+  { bad "skinbus-evaluate with a dead sensor (rc $rc)"; cat "$work/id/eval_dead.txt"; }
+# A stuck sensor (sensor 5 at 0 in every row, tared): identification and evaluation name it and
+# leave it out as dead; before, the fit moved the sensor 5 mm to explain it.
+kill_sensor5 "$work/id/unit.csv" "$work/id/unit_stuck.csv" 0
+kill_sensor5 "$work/id/test_unit.csv" "$work/id/test_stuck.csv" 0
+"$bin/skinbus-identify" "$work/id/unit_stuck.csv" -o "$work/id/unit_stuck.json" \
+  >"$work/id/fit_stuck.txt" 2>"$work/id/fit_stuck.err"; rc=$?
+res=$(sed -n 's/^fit (.*): residual RMS \([0-9.]*\) noise units.*/\1/p' "$work/id/fit_stuck.txt")
+"$bin/skinbus-evaluate" "$work/id/test_stuck.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
+  --unit "$work/id/unit_stuck.json" >"$work/id/eval_stuck.txt" 2>"$work/id/eval_stuck.err"; rc2=$?
+stuck="s05_bx_ut, s05_by_ut, s05_bz_ut hold one value in every row (a stuck sensor): left out as dead"
+[[ $rc == 0 && $rc2 == 0 && -n $res ]] && awk -v r="$res" 'BEGIN { exit !(r < 1.15) }' &&
+  grep -qF "unit_stuck.csv: $stuck" "$work/id/fit_stuck.err" &&
+  grep -qF "test_stuck.csv: $stuck" "$work/id/eval_stuck.err" &&
+  grep -q "of them fitted on the channels left" "$work/id/eval_stuck.txt" &&
+  ok "a stuck sensor named and left out by skinbus-identify (residual $res) and skinbus-evaluate" ||
+  { bad "a stuck sensor (rc $rc, $rc2, residual $res)"; cat "$work/id/fit_stuck.err" "$work/id/eval_stuck.err"; }
 # The unit file says where the unit was pressed (its 9 x 9 grid at 15 mm: +-60 mm); presses
 # beyond it (the random ones reach +-67.5 mm) are shown apart, those on the grid are not.
 area=$(python3 -c 'import json,sys; a=json.load(open(sys.argv[1]))["pressed_area_mm"]; print(a["u"] + a["v"])' "$work/id/unit.json" 2>&1)

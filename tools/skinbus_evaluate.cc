@@ -96,6 +96,9 @@ int main(int argc, char** argv) {
 
   Result<sim::Dataset> data = sim::read_dataset_csv(test_path);
   if (!data.ok()) return tools::report_error(kTool, data.error());
+  if (const std::string note = sim::leave_out_stuck_channels(&*data); !note.empty()) {
+    std::fprintf(stderr, "%s: %s: %s\n", kTool, test_path.c_str(), note.c_str());
+  }
   auto model = estimators::read_model(model_path);
   if (!model.ok()) return tools::report_error(kTool, model.error());
   auto runtime = estimators::NetworkRuntime::create(*model);
@@ -144,7 +147,7 @@ int main(int argc, char** argv) {
   const std::size_t n = data->rows();
   std::vector<estimators::ContactEstimate> net(n), ref(n);
   std::vector<double> bound(n, std::nan(""));
-  std::size_t attempted = 0, kept_network = 0;
+  std::size_t attempted = 0, kept_network = 0, without_network = 0, fitted_without_network = 0;
   double refine_us = 0;
   for (std::size_t r = 0; r < n; ++r) {
     const std::span<const double> f(data->field(r), static_cast<std::size_t>(nc));
@@ -160,6 +163,19 @@ int main(int argc, char** argv) {
         ref[r] = e.contact;
       } else {
         ++kept_network;
+      }
+    } else if (!net[r].valid() && host::channels_left_out(net[r].reason)) {
+      // A dead or saturated sensor (a value that is not finite): the network cannot read the
+      // sample; the host fits it on the channels left, from the refiner's own starts.
+      ++without_network;
+      const auto t0 = std::chrono::steady_clock::now();
+      const std::optional<estimators::RefinedEstimate> e =
+          host::refine_without_network(**refiner, f, {}, nullptr, host_rule);
+      refine_us +=
+          std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+      if (e) {
+        ref[r] = e->contact;
+        ++fitted_without_network;
       }
     }
     const sim::CrlbPoint b = sim::crlb_at(
@@ -217,12 +233,15 @@ int main(int argc, char** argv) {
   }
   std::printf(
       "%zu presses of %s; network %s (%s); unit %s%s%s; %zu refined, %zu kept the network's "
-      "answer (the host's rule), %zu without a network contact; %.0f us a refinement on "
-      "average\n\n",
+      "answer (the host's rule), %zu without a network contact (of those, %zu the network could "
+      "not read for a dead or saturated channel, %zu of them fitted on the channels left); %.0f "
+      "us a refinement on average\n\n",
       n, test_path.c_str(), model_path.c_str(), runtime->kernel_name(), unit_path.c_str(),
       correction_path.empty() ? "" : ", refined estimates corrected by ", correction_path.c_str(),
-      attempted - kept_network, kept_network, n - attempted,
-      attempted > 0 ? refine_us / static_cast<double>(attempted) : 0.0);
+      attempted - kept_network, kept_network, n - attempted, without_network,
+      fitted_without_network,
+      attempted + without_network > 0 ? refine_us / static_cast<double>(attempted + without_network)
+                                      : 0.0);
   // The table over the rows `keep` marks (all: every row).
   auto table = [&](const std::vector<char>* keep) {
     std::vector<estimators::ContactEstimate> a, b;

@@ -548,19 +548,21 @@ int main(int argc, char** argv) {
                    s.model_runs, s.rejected, s.publications, s.unknown_joints,
                    s.joint_states_out_of_order, s.kinematics_uncovered);
       if (s.refined + s.unrefined_budget + s.unrefined_poor_fit > 0) {
-        std::fprintf(stderr,
-                     "skinbus-host: refined %" PRIu64 " (%.0f us each, %" PRIu64
-                     " from the previous contact, %" PRIu64
-                     " of those made again from the "
-                     "network's answer, %" PRIu64 " searched again as the press deepened, %" PRIu64
-                     " of those moved, %" PRIu64 " with two or more presses, %" PRIu64
-                     " with three, %" PRIu64 " counted from a proposer), unrefined %" PRIu64
-                     " over the budget and %" PRIu64 " poor fits (%" PRIu64
-                     " of them held several presses unpublished)\n",
-                     s.refined, s.refined > 0 ? s.refine_us / static_cast<double>(s.refined) : 0.0,
-                     s.refine_warm_starts, s.refine_restarts, s.refine_basin_checks,
-                     s.refine_basin_moves, s.refined_pairs, s.refined_triples, s.proposed,
-                     s.unrefined_budget, s.unrefined_poor_fit, s.held_pairs);
+        std::fprintf(
+            stderr,
+            "skinbus-host: refined %" PRIu64 " (%.0f us each, %" PRIu64
+            " from the previous contact, %" PRIu64
+            " of those made again from the "
+            "network's answer, %" PRIu64 " searched again as the press deepened, %" PRIu64
+            " of those moved, %" PRIu64 " with two or more presses, %" PRIu64
+            " with three, %" PRIu64 " counted from a proposer, %" PRIu64
+            " fitted without the network for a dead or saturated sensor), unrefined %" PRIu64
+            " over the budget and %" PRIu64 " poor fits (%" PRIu64
+            " of them held several presses unpublished)\n",
+            s.refined, s.refined > 0 ? s.refine_us / static_cast<double>(s.refined) : 0.0,
+            s.refine_warm_starts, s.refine_restarts, s.refine_basin_checks, s.refine_basin_moves,
+            s.refined_pairs, s.refined_triples, s.proposed, s.refined_without_network,
+            s.unrefined_budget, s.unrefined_poor_fit, s.held_pairs);
       }
       if (out.latency_us.count() > 0) {
         std::fprintf(stderr,

@@ -127,6 +127,9 @@ int main(int argc, char** argv) {
   if (!presses.ok()) {
     return skinbus::tools::fail("skinbus-identify", presses.error().to_string(), kExitFailed);
   }
+  if (const std::string note = sim::leave_out_stuck_channels(&*presses); !note.empty()) {
+    std::fprintf(stderr, "skinbus-identify: %s: %s\n", presses_path.c_str(), note.c_str());
+  }
   std::string tip_from = "--tip-radius";
   if (tip_given->count() == 0) {
     Result<double> tip = sim::presses_tip_radius_mm(*presses, design, &tip_from);
@@ -151,6 +154,9 @@ int main(int argc, char** argv) {
       return skinbus::tools::fail("skinbus-identify", h.error().to_string(), kExitFailed);
     }
     held_out = std::move(h).value();
+    if (const std::string note = sim::leave_out_stuck_channels(&*held_out); !note.empty()) {
+      std::fprintf(stderr, "skinbus-identify: %s: %s\n", held_out_path.c_str(), note.c_str());
+    }
     // One tip for both: held-out presses made with another indenter would be judged wrongly.
     Result<std::optional<double>> held_tip = sim::recorded_tip_radius_mm(*held_out);
     if (!held_tip.ok()) {

@@ -373,11 +373,9 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
   if (masked_rows == static_cast<int>(data.rows())) {
     const auto worst = std::max_element(nan_rows_of_channel.begin(), nan_rows_of_channel.end());
     const int c = static_cast<int>(worst - nan_rows_of_channel.begin());
-    char name[32];
-    std::snprintf(name, sizeof name, "s%02d_b%c_ut", c / 3, "xyz"[c % 3]);
     return make_error(ErrorCode::kInvalidArgument,
-                      "every row has a NaN field value (channel " + std::string(name) + " in " +
-                          std::to_string(*worst) +
+                      "every row has a NaN field value (channel " + sim::field_column_name(c) +
+                          " in " + std::to_string(*worst) +
                           " rows): a network cannot be trained without that channel");
   }
   // Split by press location: every row of a press takes its press's location (its first row's

@@ -367,6 +367,29 @@ bool refinement_accepted(const estimators::RefinedEstimate& r,
               o.refine_max_shift_mm);
 }
 
+bool channels_left_out(estimators::RejectReason reason) {
+  using estimators::RejectReason;
+  return reason == RejectReason::kDead || reason == RejectReason::kSaturated ||
+         reason == RejectReason::kNonFinite;
+}
+
+std::optional<estimators::RefinedEstimate> refine_without_network(
+    const estimators::ContactRefiner& refiner, std::span<const double> field_ut,
+    std::span<const uint8_t> channel_ok, const estimators::ContactEstimate* start,
+    const AggregatorOptions& o) {
+  estimators::ContactEstimate held;  // what the search may leave out: the failed fit's basin
+  held.flags = estimators::kEstimateRejected;
+  if (start != nullptr) {
+    const estimators::RefinedEstimate r = refiner.refine(field_ut, channel_ok, *start);
+    if (refinement_accepted(r, nullptr, o)) return r;
+    if (r.contact.valid()) held = r.contact;
+    held.flags |= estimators::kEstimateRejected;
+  }
+  const estimators::RefinedEstimate r = refiner.search(field_ut, channel_ok, held);
+  if (refinement_accepted(r, nullptr, o)) return r;
+  return std::nullopt;
+}
+
 void Aggregator::on_frame(int bus, const bus::CanFrame& frame, uint64_t rx_us) {
   Impl& s = *impl_;
   if (bus < 0 || bus >= static_cast<int>(s.reassemblers.size())) return;
@@ -692,7 +715,84 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       ContactEstimate est = m.out[static_cast<std::size_t>(b)];
       Impl::Pending& p = s.pending[k];
       s.processed_rx.push_back(p.rx_us);
-      if (!est.valid()) {
+      const std::size_t entry = p.placement != nullptr
+                                    ? static_cast<std::size_t>(p.placement - s.map->patches.data())
+                                    : 0;
+      const estimators::ContactRefiner* refiner =
+          p.placement != nullptr ? s.refiners[entry].get() : nullptr;
+      estimators::ContactRefiner::Memory* refiner_memory =
+          p.placement != nullptr ? s.refiner_memories[entry].get() : nullptr;
+      Impl::Current& prev = s.current[k];
+      Impl::RefineMemory& mem = prev.refine;
+      const std::size_t row = static_cast<std::size_t>(b) * kChannels;
+      const std::span<const double> field(m.fields.data() + row, kChannels);
+      const std::span<const uint8_t> field_ok(m.ok.data() + row, kChannels);
+      int count = 1;
+      ContactEstimate ests[kMaxContacts] = {est};
+      double refined_sigma_mm[kMaxContacts], refined_sigma_shear_n[kMaxContacts];
+      std::fill_n(refined_sigma_mm, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
+      std::fill_n(refined_sigma_shear_n, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
+      // A refined fit published: its contacts, and what the patch's next sample starts from.
+      auto take_refined = [&](const estimators::RefinedContacts& rc) {
+        const int found = std::clamp(rc.count, 1, kMaxContacts);
+        count = found;
+        for (int j = 0; j < found; ++j) {
+          ests[j] = rc.contacts[j].contact;
+          refined_sigma_mm[j] = rc.contacts[j].sigma_uv_mm;
+          refined_sigma_shear_n[j] = rc.contacts[j].sigma_shear_n;
+        }
+        ++s.stats.refined;
+        if (found >= 2) ++s.stats.refined_pairs;
+        if (found == 3) ++s.stats.refined_triples;
+        // What the next sample starts from: the presses when several (kept over unrefined
+        // samples until a refined one finds a single press), the single contact's shear.
+        mem.held = found >= 2 ? found : 0;
+        for (int j = 0; j < found; ++j) mem.previous[j] = ests[j];
+        const bool shear = found == 1 && std::isfinite(refined_sigma_shear_n[0]);
+        mem.shear_u_n = shear ? ests[0].shear_u_n : 0.0;
+        mem.shear_v_n = shear ? ests[0].shear_v_n : 0.0;
+        // A single press's depth along its press (a creeping unit's lag undone); the fit's
+        // depth stays the next warm start.
+        mem.bend_mm = found == 1 ? ests[0].depth_mm : std::numeric_limits<double>::quiet_NaN();
+        if (found == 1) {
+          ests[0].depth_mm = refiner->press_depth_mm(ests[0], static_cast<double>(p.time_us) * 1e-6,
+                                                     prev.used, refiner_memory);
+        }
+      };
+      // A patch whose sensor is dead, stuck or saturated gives samples the network cannot read;
+      // with a refiner they are fitted on the channels left (from the press's previous refined
+      // contact, else from the refiner's own starts), within the call's budget, and published
+      // flagged kContactMaskedChannels. Without one, or with no fit accepted, they are rejected.
+      bool without_network = false;
+      if (!est.valid() && refiner != nullptr && channels_left_out(est.reason) &&
+          refine_spent_us < static_cast<double>(s.options.refine_budget_us)) {
+        const auto t0 = std::chrono::steady_clock::now();
+        const PatchContact& last = prev.contacts[0];
+        ContactEstimate start;
+        const bool warm = prev.used && prev.count == 1 && (last.flags & kContactUnrefined) == 0;
+        if (warm) {
+          start.u_mm = last.u_mm;
+          start.v_mm = last.v_mm;
+          start.depth_mm = std::isfinite(mem.bend_mm) ? mem.bend_mm : last.depth_mm;
+        }
+        const std::optional<estimators::RefinedEstimate> r =
+            refine_without_network(*refiner, field, field_ok, warm ? &start : nullptr, s.options);
+        const double us =
+            std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
+                .count();
+        refine_spent_us += us;
+        s.stats.refine_us += us;
+        if (r) {
+          estimators::RefinedContacts rc;
+          rc.count = 1;
+          rc.contacts[0] = *r;
+          take_refined(rc);
+          ests[0].flags |= estimators::kEstimateMasked;
+          ++s.stats.refined_without_network;
+          without_network = true;
+        }
+      }
+      if (!est.valid() && !without_network) {
         ++s.stats.rejected;
         s.estimate_outcome(p, reject_reason_name(est.reason), now_us);
         continue;
@@ -704,27 +804,12 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       uint32_t flags = amb_flags[static_cast<std::size_t>(b)];
       // Physics refinement of the network's answer, within the call's budget: one contact, or
       // with the entry's max_contacts 2 or 3, up to that many.
-      int count = 1;
-      ContactEstimate ests[kMaxContacts] = {est};
-      double refined_sigma_mm[kMaxContacts], refined_sigma_shear_n[kMaxContacts];
-      std::fill_n(refined_sigma_mm, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
-      std::fill_n(refined_sigma_shear_n, kMaxContacts, std::numeric_limits<double>::quiet_NaN());
-      const std::size_t entry = p.placement != nullptr
-                                    ? static_cast<std::size_t>(p.placement - s.map->patches.data())
-                                    : 0;
-      const estimators::ContactRefiner* refiner =
-          p.placement != nullptr ? s.refiners[entry].get() : nullptr;
-      estimators::ContactRefiner::Memory* refiner_memory =
-          p.placement != nullptr ? s.refiner_memories[entry].get() : nullptr;
-      Impl::Current& prev = s.current[k];
-      Impl::RefineMemory& mem = prev.refine;
-      if (refiner != nullptr) {
+      if (refiner != nullptr && !without_network) {
         if (refine_spent_us >= static_cast<double>(s.options.refine_budget_us)) {
           flags |= kContactUnrefined;
           ++s.stats.unrefined_budget;
         } else {
           const auto t0 = std::chrono::steady_clock::now();
-          const std::size_t row = static_cast<std::size_t>(b) * kChannels;
           // Warm start: the patch's previous refined contact (the same press, moved little in
           // one period: a press ends with a sample without contact), whatever the network says
           // (a network trained on another design can be centimetres off for a whole press); the
@@ -757,8 +842,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
                   : 1.5 * mem.searched_chi2;
           auto refine_from = [&](const ContactEstimate& from) {
             return refiner->refine_contacts(
-                std::span<const double>(m.fields.data() + row, kChannels),
-                std::span<const uint8_t>(m.ok.data() + row, kChannels), from,
+                field, field_ok, from,
                 std::span<const ContactEstimate>(mem.previous, static_cast<std::size_t>(mem.held)),
                 search_above, refiner_memory);
           };
@@ -817,9 +901,7 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
             // An accepted warm fit stands for its basin: the search looks elsewhere.
             estimators::ContactEstimate held = single.contact;
             if (!ok) held.flags |= estimators::kEstimateRejected;
-            const estimators::RefinedEstimate other =
-                refiner->search(std::span<const double>(m.fields.data() + row, kChannels),
-                                std::span<const uint8_t>(m.ok.data() + row, kChannels), held);
+            const estimators::RefinedEstimate other = refiner->search(field, field_ok, held);
             if (refinement_accepted(other, &est, s.options) &&
                 (!ok || other.reduced_chi2 < single.reduced_chi2)) {
               const double moved_mm = std::hypot(other.contact.u_mm - single.contact.u_mm,
@@ -842,31 +924,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           const double us = elapsed_us();
           refine_spent_us += us;
           s.stats.refine_us += us;
-          const int found = std::clamp(rc.count, 1, kMaxContacts);
           if (ok) {
-            count = found;
-            for (int j = 0; j < found; ++j) {
-              ests[j] = rc.contacts[j].contact;
-              refined_sigma_mm[j] = rc.contacts[j].sigma_uv_mm;
-              refined_sigma_shear_n[j] = rc.contacts[j].sigma_shear_n;
-            }
-            ++s.stats.refined;
-            if (found >= 2) ++s.stats.refined_pairs;
-            if (found == 3) ++s.stats.refined_triples;
-            // What the next sample starts from: the presses when several (kept over unrefined
-            // samples until a refined one finds a single press), the single contact's shear.
-            mem.held = found >= 2 ? found : 0;
-            for (int j = 0; j < found; ++j) mem.previous[j] = ests[j];
-            const bool shear = found == 1 && std::isfinite(refined_sigma_shear_n[0]);
-            mem.shear_u_n = shear ? ests[0].shear_u_n : 0.0;
-            mem.shear_v_n = shear ? ests[0].shear_v_n : 0.0;
-            // A single press's depth along its press (a creeping unit's lag undone); the fit's
-            // depth stays the next warm start.
-            mem.bend_mm = found == 1 ? ests[0].depth_mm : std::numeric_limits<double>::quiet_NaN();
-            if (found == 1) {
-              ests[0].depth_mm = refiner->press_depth_mm(
-                  ests[0], static_cast<double>(p.time_us) * 1e-6, prev.used, refiner_memory);
-            }
+            take_refined(rc);
           } else {
             flags |= kContactUnrefined;
             ++s.stats.unrefined_poor_fit;

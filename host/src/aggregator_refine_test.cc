@@ -89,7 +89,8 @@ struct RunResult {
 
 // Each press as its own sample (with a release between), through an aggregator with `o`.
 RunResult run(const std::vector<Press>& ps, bool with_unit, AggregatorOptions o,
-              bool refine_shear = false, int max_contacts = 1, const std::string& correction = "") {
+              bool refine_shear = false, int max_contacts = 1, const std::string& correction = "",
+              uint16_t fault_mask = 0) {
   RunResult out;
   const body_map::SkinMap map =
       one_patch_map(with_unit, refine_shear, max_contacts, "", correction);
@@ -103,7 +104,8 @@ RunResult run(const std::vector<Press>& ps, bool with_unit, AggregatorOptions o,
   const std::vector<double> released(bus::kChannelCount, 0.0);
   for (const Press& p : ps) {
     for (bool contact : {true, false}) {
-      node.sample(agg, t += test_support::kPeriodUs, contact ? p.tared_ut : released, contact);
+      node.sample(agg, t += test_support::kPeriodUs, contact ? p.tared_ut : released, contact,
+                  fault_mask);
       ContactArray arr;
       if (agg.process(t + 100, &arr) && contact) {
         EXPECT_EQ(arr.contacts.size(), 1u);
@@ -181,10 +183,10 @@ struct Stream {
   }
   bool ok() const { return agg != nullptr; }
   // Whether the aggregator published (into `out`).
-  bool sample(std::span<const sim::Contact> presses, ContactArray* out) {
+  bool sample(std::span<const sim::Contact> presses, ContactArray* out, uint16_t fault_mask = 0) {
     patch.measure(presses, env, field);
     for (std::size_t c = 0; c < field.size(); ++c) field[c] -= base[c];
-    node.sample(*agg, t += test_support::kPeriodUs, field, true);
+    node.sample(*agg, t += test_support::kPeriodUs, field, true, fault_mask);
     return agg->process(t + 100, out);
   }
 
@@ -230,6 +232,58 @@ TEST_F(AggregatorRefineTest, RefinedContactsReachTheUnitsBoundWithTheFitsUncerta
   // The mean error of a 2-D Gaussian is ~0.89 of its RMS: at the bound, ~0.9x the mean bound.
   EXPECT_LT(err_ref / bound, 1.2);
   EXPECT_LT(err_ref, err_net);
+}
+
+// A sensor the patch node flags dead (or stuck, or saturated): the network cannot read the
+// patch's samples, so without a refiner nothing is published. With one, each sample is fitted
+// on the 45 channels left and published flagged kContactMaskedChannels, near the unit's bound:
+// a press's first sample from the refiner's own starts, the next ones from the press's last
+// contact.
+TEST_F(AggregatorRefineTest, SamplesWithADeadSensorAreFittedOnTheChannelsLeft) {
+  const uint64_t seed = 81;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const uint16_t dead = 1u << 5;
+  const std::vector<Press> ps = presses(*unit_, 30, seed);
+  const RunResult network = run(ps, false, options_, false, 1, "", dead);
+  EXPECT_TRUE(network.contacts.empty());
+  EXPECT_EQ(network.stats.rejected, ps.size());
+  const RunResult refined = run(ps, true, options_, false, 1, "", dead);
+  ASSERT_EQ(refined.contacts.size(), ps.size());
+  EXPECT_EQ(refined.stats.refined_without_network, ps.size());
+  EXPECT_EQ(refined.stats.rejected, 0u);
+  const estimators::ChannelNoise noise = estimators::ChannelNoise::of(unit_->design());
+  double err = 0, bound = 0;
+  for (std::size_t i = 0; i < ps.size(); ++i) {
+    const sim::Contact& c = ps[i].truth;
+    const BodyContact& r = refined.contacts[i];
+    EXPECT_NE(r.flags & kContactMaskedChannels, 0u) << i;
+    EXPECT_EQ(r.flags & kContactUnrefined, 0u) << i;
+    EXPECT_TRUE(std::isfinite(r.uncertainty_mm)) << i;
+    err += std::hypot(r.u_mm - c.u_mm, r.v_mm - c.v_mm);
+    bound += sim::crlb_at(*unit_, c, noise.xy_ut, noise.z_ut, true).sd_xy_mm;
+  }
+  std::printf("dead sensor 5: XY mean %.3f mm against the all-channel bound's mean %.3f mm\n",
+              err / static_cast<double>(ps.size()), bound / static_cast<double>(ps.size()));
+  EXPECT_LT(err / bound, 1.5);
+
+  // One press held over 20 samples, the sensor dead throughout: fitted warm after the first.
+  Stream st(*unit_, options_, false, 1, seed + 1);
+  ASSERT_TRUE(st.ok());
+  const sim::Contact press{12, -20, 2.5, 5.0};
+  int published = 0;
+  double press_err = 0;
+  for (int i = 0; i < 20; ++i) {
+    ContactArray out;
+    if (!st.sample(std::span<const sim::Contact>(&press, 1), &out, dead)) continue;
+    ASSERT_EQ(out.contacts.size(), 1u);
+    EXPECT_NE(out.contacts[0].flags & kContactMaskedChannels, 0u);
+    press_err += std::hypot(out.contacts[0].u_mm - press.u_mm, out.contacts[0].v_mm - press.v_mm);
+    ++published;
+  }
+  EXPECT_EQ(published, 20);
+  EXPECT_EQ(st.agg->stats().refined_without_network, 20u);
+  EXPECT_GE(st.agg->stats().refine_us, 0.0);
+  EXPECT_LT(press_err / std::max(published, 1), 1.0);
 }
 
 // A unit whose physics the model class lacks (its lattice's top crushes under the tip: the

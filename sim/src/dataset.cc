@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <sstream>
 #include <string_view>
@@ -27,6 +28,46 @@ void Dataset::append(int64_t press_id, double t, double u, double v, double dept
   depth_mm.push_back(depth);
   force_n.push_back(force);
   field_ut.insert(field_ut.end(), f, f + channels());
+}
+
+std::string field_column_name(int channel) {
+  char name[32];
+  std::snprintf(name, sizeof name, "s%02d_b%c_ut", channel / 3, "xyz"[channel % 3]);
+  return name;
+}
+
+std::vector<int> stuck_channels(const Dataset& d) {
+  std::vector<int> stuck;
+  const int nc = d.channels();
+  for (int c = 0; c < nc; ++c) {
+    std::size_t seen = 0;
+    double value = 0;
+    bool same = true;
+    for (std::size_t r = 0; r < d.rows() && same; ++r) {
+      const double x = d.field(r)[c];
+      if (!std::isfinite(x)) continue;
+      same = seen == 0 || x == value;
+      value = x;
+      ++seen;
+    }
+    if (same && seen >= kMinStuckRows) stuck.push_back(c);
+  }
+  return stuck;
+}
+
+std::string leave_out_stuck_channels(Dataset* d) {
+  const std::vector<int> stuck = stuck_channels(*d);
+  if (stuck.empty()) return "";
+  const std::size_t nc = static_cast<std::size_t>(d->channels());
+  std::string names;
+  for (int c : stuck) {
+    for (std::size_t r = 0; r < d->rows(); ++r) {
+      d->field_ut[r * nc + static_cast<std::size_t>(c)] = std::numeric_limits<double>::quiet_NaN();
+    }
+    names += (names.empty() ? "" : ", ") + field_column_name(c);
+  }
+  return names + (stuck.size() == 1 ? " holds" : " hold") +
+         " one value in every row (a stuck sensor): left out as dead";
 }
 
 std::optional<PressedArea> pressed_area(const Dataset& d) {
@@ -298,13 +339,7 @@ Status write_dataset_csv(const Dataset& d, const std::string& path) {
   }
   for (const char* c : kStandardColumns)
     s += std::string(c) + (std::strcmp(c, "force_n") ? "," : "");
-  char name[32];
-  for (std::size_t i = 0; i < d.sensors.size(); ++i) {
-    for (char a : {'x', 'y', 'z'}) {
-      std::snprintf(name, sizeof name, ",s%02zu_b%c_ut", i, a);
-      s += name;
-    }
-  }
+  for (int c = 0; c < d.channels(); ++c) s += "," + field_column_name(c);
   for (const std::string& e : d.extra_columns) s += "," + e;
   s += "\n";
   const int nc = d.channels();

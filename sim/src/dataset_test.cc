@@ -130,6 +130,48 @@ TEST(DatasetTest, RampDatasetKeepsContactSamplesOnly) {
   EXPECT_EQ(dataset_fingerprint(d), dataset_fingerprint(e));
 }
 
+// A channel stuck at one value over a simulated unit's presses (a chip that stopped converting)
+// is found and left out as dead, named; a live channel never is (its noise), nor a channel over
+// too few rows to tell, and a dead one (NaN) stays as it is.
+TEST(DatasetTest, AStuckChannelIsFoundAndLeftOutAsDead) {
+  SimulatedPatch p = make_patch();
+  Dataset d = generate_ramp_dataset(p, plan_grid(3, 30), RampProtocol{});
+  EXPECT_TRUE(stuck_channels(d).empty());
+  EXPECT_EQ(leave_out_stuck_channels(&d), "");
+  const std::size_t nc = static_cast<std::size_t>(d.channels());
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    for (std::size_t c : {9, 10, 11}) d.field_ut[r * nc + c] = 0;  // sensor 3 stuck at its tare
+    d.field_ut[r * nc + 20] = r % 7 == 0 ? std::nan("") : 4.5;     // one reading, some rows dead
+    d.field_ut[r * nc + 30] = std::nan("");                        // dead throughout
+  }
+  EXPECT_EQ(stuck_channels(d), (std::vector<int>{9, 10, 11, 20}));
+  const Dataset before = d;
+  EXPECT_EQ(leave_out_stuck_channels(&d),
+            "s03_bx_ut, s03_by_ut, s03_bz_ut, s06_bz_ut hold one value in every row (a stuck "
+            "sensor): left out as dead");
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    for (std::size_t c = 0; c < nc; ++c) {
+      const bool left_out = c == 9 || c == 10 || c == 11 || c == 20 || c == 30;
+      if (left_out) {
+        EXPECT_TRUE(std::isnan(d.field_ut[r * nc + c]));
+      } else {
+        EXPECT_EQ(d.field_ut[r * nc + c], before.field_ut[r * nc + c]);
+      }
+    }
+  }
+  EXPECT_TRUE(stuck_channels(d).empty());
+  // Fewer rows than kMinStuckRows: nothing can be told.
+  Dataset few;
+  few.sensors.resize(1);
+  const double field[3] = {0, 0, 0};
+  for (std::size_t r = 0; r + 1 < kMinStuckRows; ++r) few.append(0, 0, 0, 0, 1, 0, field);
+  EXPECT_TRUE(stuck_channels(few).empty());
+  few.append(0, 0, 0, 0, 1, 0, field);
+  EXPECT_EQ(stuck_channels(few).size(), 3u);
+  EXPECT_EQ(field_column_name(0), "s00_bx_ut");
+  EXPECT_EQ(field_column_name(47), "s15_bz_ut");
+}
+
 // The tip a recording's presses were made with: its protocol header's, written by every
 // generator and read back through the CSV, else the design's indenter; a bad value is an error.
 TEST(DatasetTest, TheRecordingsTipIsReadFromItsProtocolHeader) {

@@ -62,6 +62,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -198,6 +199,23 @@ struct AggregatorOptions {
 bool refinement_accepted(const estimators::RefinedEstimate& refined,
                          const estimators::ContactEstimate* network, const AggregatorOptions& o);
 
+// Whether the network's rejection `reason` is of channels left out (a dead or stuck sensor the
+// patch node flags, a saturated one, a value that is not finite), which a refiner fits without:
+// the physics model leaves a channel out of the fit where a network cannot.
+bool channels_left_out(estimators::RejectReason reason);
+
+// The contact of a sample the network could not read because channels were left out
+// (channels_left_out), fitted by `refiner` on the channels left (`channel_ok`: 0 for those left
+// out, empty: the non-finite ones): from `start` when given (the press's previous refined
+// contact), and when that fit is not accepted, from the refiner's own starts
+// (ContactRefiner::search). Accepted by refinement_accepted with no network answer to stay near.
+// Its contact is flagged kEstimateMasked. Empty when no fit is accepted. Cost: one refine(),
+// or that and a search (several).
+std::optional<estimators::RefinedEstimate> refine_without_network(
+    const estimators::ContactRefiner& refiner, std::span<const double> field_ut,
+    std::span<const uint8_t> channel_ok, const estimators::ContactEstimate* start,
+    const AggregatorOptions& o);
+
 struct AggregatorStats {
   uint64_t frames = 0;
   uint64_t samples = 0;          // complete samples received
@@ -219,6 +237,10 @@ struct AggregatorStats {
   // Physics refinement: estimates refined; published unrefined because the period's budget was
   // spent, or because the fit was poor (or failed); the time spent refining (us).
   uint64_t refined = 0, unrefined_budget = 0, unrefined_poor_fit = 0;
+  // Of the refined, samples the network could not read for channels left out (a dead, stuck or
+  // saturated sensor), fitted on the channels left (refine_without_network); the samples with
+  // such channels that no fit explained go to `rejected`, as without a refiner.
+  uint64_t refined_without_network = 0;
   uint64_t refine_warm_starts = 0;  // refinements started from the previous refined contact
   uint64_t refine_restarts = 0;     // of those, rejected and refined again from the network's
   // Searches of a deepening press for another minimum (refine_basin_check_mm), and of those the

@@ -45,6 +45,20 @@ struct Dataset {
 // The area of `d`'s rows whose u and v are finite; none when no row has both.
 std::optional<PressedArea> pressed_area(const Dataset& d);
 
+// The name of field channel `channel` in the CSV format: "s03_bx_ut" for channel 9.
+std::string field_column_name(int channel);
+
+// The channels of `d` stuck at one value: the same finite value in every row that has one, over
+// at least kMinStuckRows such rows. A live Hall channel shows its noise from sample to sample;
+// a chip that stopped converting repeats one reading (tared: 0). Ascending.
+inline constexpr std::size_t kMinStuckRows = 16;
+std::vector<int> stuck_channels(const Dataset& d);
+
+// Sets the stuck channels of `d` to NaN in every row: the format's dead channel, which
+// identification leaves out of its fit and evaluation fits without (docs/dataset_format.md).
+// Returns a note naming them for the user ("" when none).
+std::string leave_out_stuck_channels(Dataset* d);
+
 // Where a robot presses. Positions in the patch frame, mm.
 struct PressPoint {
   double u_mm = 0, v_mm = 0;
