@@ -3,9 +3,12 @@
 // - a dataset that reads has rows, every column name once (u_mm and x_mm count as one), finite
 //   positions and depths, no infinite field value, and at most the reader's bounds;
 // - written and read again, it reads the same; written and read once more, every number is the
-//   same bit for bit (the writer keeps 9 significant digits, so the first round may round).
+//   same bit for bit (the writer keeps 9 significant digits, so the first round may round);
+// - its stuck channels (sim::leave_out_stuck_channels) are read as dead and named, the rest of
+//   the dataset unchanged, and none is stuck after.
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -93,6 +96,21 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size) {
   if (!sim::write_dataset_csv(*once, out).ok()) fail("a dataset that read does not write (2)");
   Result<sim::Dataset> twice = sim::read_dataset_csv(out);
   if (!twice.ok() || !same(*once, *twice)) fail("the second round trip changed a number");
+  const std::vector<int> stuck = sim::stuck_channels(*twice);
+  sim::Dataset left = *twice;
+  const std::string note = sim::leave_out_stuck_channels(&left);
+  if (stuck.empty() != note.empty()) fail("stuck channels and their note disagree");
+  for (int c : stuck) {
+    if (note.find(sim::field_column_name(c)) == std::string::npos) fail("a stuck channel unnamed");
+  }
+  const std::size_t nc = static_cast<std::size_t>(left.channels());
+  for (std::size_t i = 0; i < left.field_ut.size(); ++i) {
+    const bool is_stuck =
+        std::find(stuck.begin(), stuck.end(), static_cast<int>(i % nc)) != stuck.end();
+    if (is_stuck ? !std::isnan(left.field_ut[i]) : !same(left.field_ut[i], twice->field_ut[i]))
+      fail("leaving out the stuck channels changed another value or kept one");
+  }
+  if (!sim::stuck_channels(left).empty()) fail("a channel still stuck after leaving it out");
   std::remove(in.c_str());
   std::remove(out.c_str());
   return 0;
