@@ -263,6 +263,20 @@ int main(int argc, char** argv) {
           g.sensor_height_offset_mm, g.moment_scale, g.rms, g.starts);
     }
     if (id->creep.presses > 0) std::printf("%s\n", id->creep.summary_text().c_str());
+    if (!id->chip_turns.empty()) {
+      // One line for all: the design file is the likelier culprit than the unit.
+      std::string turns;
+      for (const estimators::ChipTurn& t : id->chip_turns) {
+        char buf[64];
+        std::snprintf(buf, sizeof buf, "%s%d (%g deg%s)", turns.empty() ? "" : ", ", t.sensor,
+                      t.yaw_deg, t.upside_down ? ", upside down" : "");
+        turns += buf;
+      }
+      std::printf(
+          "chips turned from the design file, fitted so: sensors %s; check the design file's "
+          "sensor yaw_deg (docs/design_file.md)\n",
+          turns.c_str());
+    }
     if (id->masked_values > 0) {
       std::printf("%d field value(s) not finite (dead channels): left out of the fit\n",
                   id->masked_values);

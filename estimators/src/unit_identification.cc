@@ -716,6 +716,112 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
 namespace {
 
 // identify_unit() without the creep: the static model class alone.
+// "sensor 3 turned 90 degrees, sensor 5 upside down" for a refusal's message.
+std::string turns_text(const std::vector<ChipTurn>& turns) {
+  std::string out;
+  for (const ChipTurn& t : turns) out += (out.empty() ? "" : "; ") + t.text();
+  return out;
+}
+
+// Row-major product a b of two 3x3 matrices.
+sim::Mat3 mat_product(const sim::Mat3& a, const sim::Mat3& b) {
+  sim::Mat3 out;
+  for (int i = 0; i < 3; ++i) out.r[i] = b.apply_transposed(a.r[i]);
+  return out;
+}
+
+// The turns find_chip_turns tries, in the surface frame: about the normal by 90 n degrees, then
+// (upside down) over about u.
+sim::Mat3 chip_turn(int quarter_turns, bool upside_down) {
+  const sim::Mat3 yaw = sim::rotation_from_vector({0, 0, quarter_turns * M_PI / 2});
+  if (!upside_down) return yaw;
+  const sim::Mat3 over = sim::rotation_from_vector({M_PI, 0, 0});
+  return mat_product(yaw, over);
+}
+
+// IdentificationOptions::find_chip_turns: per sensor, the nominal model's readings at the
+// fitting rows against the recorded ones, whitened, under each turn C of the chip: its mounting
+// M C reads T p with T = M C M^T (p: the reading as drawn). Each turn's residual at its best
+// scale s >= 0 is |y|^2 - s^2 |p|^2 with s = max(0, y.Tp) / |p|^2, so the design's globals
+// being off costs every turn alike.
+std::vector<ChipTurn> find_chip_turns(const sim::PatchModel& nominal,
+                                      const std::vector<Sample>& samples, double tip_mm,
+                                      const std::vector<double>& inv_sigma) {
+  const sim::UnitParameters drawn = nominal.parameters();
+  const std::size_t ns = drawn.sensors.size();
+  const std::size_t nc = 3 * ns;
+  std::vector<double> p(nc);
+  std::vector<std::array<double, 9>> yp(ns);  // sum over rows of y p^T
+  std::vector<double> yy(ns, 0.0), pp(ns, 0.0);
+  std::vector<int> rows(ns, 0);
+  for (const Sample& smp : samples) {
+    const sim::Contact c{smp.u, smp.v, smp.depth, tip_mm};
+    nominal.contact_field_ut(std::span<const sim::Contact>(&c, 1), p);
+    for (std::size_t k = 0; k < ns; ++k) {
+      double y[3], q[3];
+      bool known = true;
+      for (std::size_t a = 0; a < 3; ++a) {
+        const std::size_t ch = 3 * k + a;
+        y[a] = smp.field[ch] * inv_sigma[ch];
+        q[a] = p[ch] * inv_sigma[ch];
+        known = known && std::isfinite(y[a]) && std::isfinite(q[a]);
+      }
+      if (!known) continue;
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) yp[k][static_cast<std::size_t>(3 * i + j)] += y[i] * q[j];
+        yy[k] += y[i] * y[i];
+        pp[k] += q[i] * q[i];
+      }
+      ++rows[k];
+    }
+  }
+  std::vector<ChipTurn> turns;
+  for (std::size_t k = 0; k < ns; ++k) {
+    if (rows[k] == 0 || !(pp[k] > 0)) continue;
+    const sim::Mat3& m = drawn.sensors[k].mounting;
+    auto rms = [&](const sim::Mat3& c) {
+      // T = M C M^T, and y.Tp = sum_ij T_ij (y p^T)_ij.
+      const sim::Mat3 mc = mat_product(m, c);
+      double ip = 0;
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+          const Vec3<double> col{m.r[j].x, m.r[j].y, m.r[j].z};
+          const double t_ij = mc.r[i].x * col.x + mc.r[i].y * col.y + mc.r[i].z * col.z;
+          ip += t_ij * yp[k][static_cast<std::size_t>(3 * i + j)];
+        }
+      }
+      const double s = std::fmax(0.0, ip) / pp[k];
+      return std::sqrt(std::fmax(0.0, yy[k] - s * s * pp[k]) / (3.0 * rows[k]));
+    };
+    const double as_drawn = rms(sim::Mat3{});
+    ChipTurn best{static_cast<int>(k), 0, false, as_drawn, as_drawn};
+    for (int q = 0; q < 4; ++q) {
+      for (bool over : {false, true}) {
+        if (q == 0 && !over) continue;
+        const double r = rms(chip_turn(q, over));
+        if (r < best.rms) best = {static_cast<int>(k), 90.0 * q, over, r, as_drawn};
+      }
+    }
+    if ((best.yaw_deg != 0 || best.upside_down) && as_drawn > 2 && best.rms < 0.25 * as_drawn) {
+      turns.push_back(best);
+    }
+  }
+  return turns;
+}
+
+}  // namespace
+
+std::string ChipTurn::text() const {
+  char buf[200];
+  std::snprintf(buf, sizeof buf,
+                "sensor %d reads as its chip turned %g degrees about the normal%s from the design "
+                "file (residual %.1f noise units so, %.1f as drawn): fitted so turned",
+                sensor, yaw_deg, upside_down ? " and upside down" : "", rms, rms_as_drawn);
+  return buf;
+}
+
+namespace {
+
 Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
                                          const sim::Dataset& presses,
                                          const IdentificationOptions& opt,
@@ -832,8 +938,20 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   std::vector<double> inv_sigma;
   for (int c = 0; c < nc; ++c) inv_sigma.push_back(1 / noise.sigma(c));
 
-  // Stage 1: the design's global physics, from several spread lengths; the best start wins.
+  // A chip mounted turned from the design file (find_chip_turns) is fitted so turned.
   sim::UnitParameters start = nominal.parameters();
+  std::vector<ChipTurn> chip_turns;
+  if (opt.find_chip_turns) {
+    chip_turns = find_chip_turns(nominal, samples, opt.tip_radius_mm, inv_sigma);
+    for (const ChipTurn& t : chip_turns) {
+      sim::SensorParameters& sp = start.sensors[static_cast<std::size_t>(t.sensor)];
+      sp.mounting =
+          mat_product(sp.mounting, chip_turn(static_cast<int>(t.yaw_deg / 90), t.upside_down));
+      if (opt.progress) opt.progress(t.text());
+    }
+  }
+
+  // Stage 1: the design's global physics, from several spread lengths; the best start wins.
   GlobalPhysics globals{start.spread_mm, start.lateral_mm, 0, 0, 1, 0, 0};
   int iterations = 0;
   if (opt.fit_globals) {
@@ -1024,7 +1142,9 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
                      seconds,
                      static_cast<int>(masked_values),
                      globals,
+                     {},
                      {}};
+  out.chip_turns = chip_turns;
   out.fit = fit_quality(out.model, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
   if (!(out.fit.rms <= opt.max_residual)) {
     if (refused != nullptr) *refused = out.parameters;
@@ -1038,9 +1158,10 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
     }
     return errorf(ErrorCode::kNotConverged,
                   "identification: the design's model class does not explain these presses: "
-                  "residual %.2f noise units (limit %.2f; by depth %s) with the globals %s; check "
-                  "the design file's magnets, sensors and lattice",
-                  out.fit.rms, opt.max_residual, bins.c_str(), describe(globals).c_str());
+                  "residual %.2f noise units (limit %.2f; by depth %s) with the globals %s%s; "
+                  "check the design file's magnets, sensors and lattice",
+                  out.fit.rms, opt.max_residual, bins.c_str(), describe(globals).c_str(),
+                  chip_turns.empty() ? "" : (", and " + turns_text(chip_turns)).c_str());
   }
   out.nominal_fit =
       fit_quality(nominal, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);

@@ -113,6 +113,20 @@ struct GlobalPriors {
   double moment_rel_sd = 0.3, moment_min = 0.3, moment_max = 3.0;
 };
 
+// A chip whose readings the design's nominal model explains far better turned from the design
+// file's mounting by a quarter turn or more about the surface normal, or upside down: an assembly
+// error, or a design file whose sensors' yaw_deg follows another convention. Identification fits
+// the chip so turned (its unit file's mounting) and says so.
+struct ChipTurn {
+  int sensor = 0;
+  double yaw_deg = 0;        // turned this far about the normal from the design (90, 180, 270)
+  bool upside_down = false;  // and turned over about the surface's u axis
+  // RMS residual per channel (noise units) of the nominal model's readings, each at its best
+  // scale (the design's globals may be off): turned so, and as the design file mounts it.
+  double rms = 0, rms_as_drawn = 0;
+  std::string text() const;  // "sensor 3: ... turned 90 degrees ..." for reports
+};
+
 struct IdentificationOptions {
   double tip_radius_mm = 5.0;  // the indenter's round tip (sim::RampProtocol's default)
   int depths_per_press = 4;    // samples kept per press
@@ -146,6 +160,11 @@ struct IdentificationOptions {
   // (creep_bend_mm) and the law kept in the parameters (about twice the time). A fit refused for
   // its residual gets the law fitted on it, in the refused parameters, without a second fit.
   bool fit_creep = true;
+  // Before the fit, every chip's mounting is tried turned about the normal by 0, 90, 180 and 270
+  // degrees, upright and upside down, against the nominal model's readings at the fitting rows;
+  // a turn is taken (IdentifiedUnit::chip_turns) when it leaves under a quarter of the residual
+  // as drawn and that residual is clearly above the noise (2 noise units RMS).
+  bool find_chip_turns = true;
 };
 
 struct IdentifiedUnit {
@@ -168,6 +187,8 @@ struct IdentifiedUnit {
   // is the second fit's, on the bends (fit, held_out: residuals about the bends; iterations and
   // solve_seconds: both fits and the creep's).
   CreepFit creep;
+  // The chips fitted turned from the design file's mounting (find_chip_turns), by sensor.
+  std::vector<ChipTurn> chip_turns;
 };
 
 // Fits the unit that produced `presses`. Errors: kInvalidArgument (design invalid, channel
