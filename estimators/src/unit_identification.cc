@@ -715,8 +715,7 @@ FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, d
 
 namespace {
 
-// identify_unit() without the creep: the static model class alone.
-// "sensor 3 turned 90 degrees, sensor 5 upside down" for a refusal's message.
+// Every turn's text (ChipTurn::text), for a refusal's message.
 std::string turns_text(const std::vector<ChipTurn>& turns) {
   std::string out;
   for (const ChipTurn& t : turns) out += (out.empty() ? "" : "; ") + t.text();
@@ -784,11 +783,8 @@ std::vector<ChipTurn> find_chip_turns(const sim::PatchModel& nominal,
       const sim::Mat3 mc = mat_product(m, c);
       double ip = 0;
       for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) {
-          const Vec3<double> col{m.r[j].x, m.r[j].y, m.r[j].z};
-          const double t_ij = mc.r[i].x * col.x + mc.r[i].y * col.y + mc.r[i].z * col.z;
-          ip += t_ij * yp[k][static_cast<std::size_t>(3 * i + j)];
-        }
+        for (int j = 0; j < 3; ++j)
+          ip += sim::dot(mc.r[i], m.r[j]) * yp[k][static_cast<std::size_t>(3 * i + j)];
       }
       const double s = std::fmax(0.0, ip) / pp[k];
       return std::sqrt(std::fmax(0.0, yy[k] - s * s * pp[k]) / (3.0 * rows[k]));
@@ -822,6 +818,7 @@ std::string ChipTurn::text() const {
 
 namespace {
 
+// identify_unit() without the creep: the static model class alone.
 Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
                                          const sim::Dataset& presses,
                                          const IdentificationOptions& opt,
