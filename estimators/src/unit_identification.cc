@@ -660,6 +660,39 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
 
 }  // namespace
 
+double RecordedNoise::residual(const ChannelNoise& design) const {
+  const double xy = xy_ratio(design), z = z_ratio(design);
+  return std::sqrt((2 * xy * xy + z * z) / 3);
+}
+
+RecordedNoise recorded_noise(const sim::Dataset& d) {
+  const int nc = d.channels();
+  double sum[2] = {0, 0};  // squared second differences: x and y, z
+  int64_t count[2] = {0, 0};
+  RecordedNoise out;
+  for (std::size_t r = 1; r + 1 < d.rows(); ++r) {
+    if (d.press.size() != d.rows() || d.press[r] < 0 || d.press[r - 1] != d.press[r] ||
+        d.press[r + 1] != d.press[r]) {
+      continue;
+    }
+    const double down = d.depth_mm[r] - d.depth_mm[r - 1], next = d.depth_mm[r + 1] - d.depth_mm[r];
+    if (!(down * next > 0)) continue;  // the turn, a hold, or a depth that is not finite
+    const double *a = d.field(r - 1), *b = d.field(r), *c = d.field(r + 1);
+    for (int ch = 0; ch < nc; ++ch) {
+      const double d2 = a[ch] - 2 * b[ch] + c[ch];
+      if (!std::isfinite(d2)) continue;
+      const int kind = ch % 3 == 2 ? 1 : 0;
+      sum[kind] += d2 * d2;
+      ++count[kind];
+    }
+    ++out.triples;
+  }
+  if (count[0] == 0 || count[1] == 0) return RecordedNoise{};
+  out.noise.xy_ut = std::sqrt(sum[0] / (6.0 * static_cast<double>(count[0])));
+  out.noise.z_ut = std::sqrt(sum[1] / (6.0 * static_cast<double>(count[1])));
+  return out;
+}
+
 FitQuality fit_quality(const sim::PatchModel& model, const sim::Dataset& data, double tip_radius_mm,
                        const ChannelNoise& noise, std::span<const double> edges,
                        std::span<const std::size_t> rows) {

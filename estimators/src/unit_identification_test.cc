@@ -14,6 +14,7 @@
 
 #include "skinbus/estimators/physics_estimator.h"
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/rng.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::estimators {
@@ -170,6 +171,38 @@ TEST(UnitIdentificationTest, FabricatedUnitIsIdentifiedDownToTheNoise) {
       n, err_id / n, err_nom / n, chi_id / n, chi_nom / n);
   EXPECT_LT(err_id, 0.7 * err_nom);
   EXPECT_LT(chi_id / n, 1.5);
+}
+
+// The chips' noise read off a recording's ramps: the design's on a simulated unit, 1.5x when
+// the recording carries 1.5x the noise, none from static presses (no consecutive samples).
+TEST(UnitIdentificationTest, TheRecordedNoiseIsReadOffTheRamps) {
+  const sim::PatchDesign design;
+  const uint64_t seed = 4545;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value();
+  UnitData data = press_unit(unit, 7, 20, seed);
+  const ChannelNoise chip = ChannelNoise::of(design);
+  const RecordedNoise as_made = recorded_noise(data.train);
+  std::printf("recorded %.3f / %.3f uT against %.3f / %.3f (%lld differences)\n",
+              as_made.noise.xy_ut, as_made.noise.z_ut, chip.xy_ut, chip.z_ut,
+              static_cast<long long>(as_made.triples));
+  EXPECT_GT(as_made.triples, 1000);
+  EXPECT_NEAR(as_made.xy_ratio(chip), 1.0, 0.05);
+  EXPECT_NEAR(as_made.z_ratio(chip), 1.0, 0.05);
+  EXPECT_NEAR(as_made.residual(chip), 1.0, 0.05);
+  sim::Rng rng(seed);
+  const std::size_t nc = static_cast<std::size_t>(data.train.channels());
+  for (std::size_t i = 0; i < data.train.field_ut.size(); ++i) {
+    const double sd = (i % nc) % 3 == 2 ? chip.z_ut : chip.xy_ut;
+    data.train.field_ut[i] += sd * std::sqrt(1.5 * 1.5 - 1) * rng.normal();
+  }
+  const RecordedNoise noisier = recorded_noise(data.train);
+  EXPECT_NEAR(noisier.xy_ratio(chip), 1.5, 0.075);
+  EXPECT_NEAR(noisier.z_ratio(chip), 1.5, 0.075);
+  EXPECT_NEAR(noisier.residual(chip), 1.5, 0.075);
+  EXPECT_EQ(recorded_noise(data.test).triples, 0);
+  EXPECT_EQ(recorded_noise(data.test).noise.xy_ut, 0);
 }
 
 TEST(UnitIdentificationTest, AnisotropicUnitIsOutsideTheModelClass) {

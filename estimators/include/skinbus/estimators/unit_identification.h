@@ -50,6 +50,7 @@
 // docs/benchmarks/designs.md). Single-threaded (Eigen's sparse Cholesky; no BLAS threads).
 #pragma once
 
+#include <cstdint>
 #include <functional>
 #include <span>
 #include <string>
@@ -81,6 +82,23 @@ struct FitQuality {
   double rms = 0;  // residual RMS over every channel of every row, noise units
   std::vector<DepthBinResidual> bins;
 };
+
+// The chips' noise as a recording of ramps shows it, whatever their settings say: from the
+// second differences of each press's consecutive samples (the field changes smoothly along a
+// ramp, so a second difference is noise, of variance 6 sigma^2; the samples at the ramp's turn,
+// where the depth changes direction, are left out), RMS over the sensors, per kind of axis.
+// `triples`: how many differences it rests on (0: no three consecutive samples of a press, and
+// the noise returned is 0). Cost: one pass over the rows.
+struct RecordedNoise {
+  ChannelNoise noise{0, 0};
+  int64_t triples = 0;
+  // How much larger than `design` (per kind of axis), and the RMS of that over the channels
+  // (x, y and z alike): the residual in `design`'s noise units that noise alone leaves.
+  double xy_ratio(const ChannelNoise& design) const { return noise.xy_ut / design.xy_ut; }
+  double z_ratio(const ChannelNoise& design) const { return noise.z_ut / design.z_ut; }
+  double residual(const ChannelNoise& design) const;
+};
+RecordedNoise recorded_noise(const sim::Dataset& d);
 
 // Residual of `model` against every row of `data` with depth > 0 and finite positions (or only
 // the rows listed in `rows`, when not empty): (data - model) / sigma per channel, channels
