@@ -771,15 +771,16 @@ sim::Mat3 chip_turn(int quarter_turns, bool upside_down) {
   return mat_product(yaw, over);
 }
 
-// IdentificationOptions::find_chip_turns: per sensor, the nominal model's readings at the
+// IdentificationOptions::find_chip_turns: per sensor (`drawn`: the nominal model's parameters,
+// their mountings as the design file draws them), the nominal model's readings at the
 // fitting rows against the recorded ones, whitened, under each turn C of the chip: its mounting
 // M C reads T p with T = M C M^T (p: the reading as drawn). Each turn's residual at its best
 // scale s >= 0 is |y|^2 - s^2 |p|^2 with s = max(0, y.Tp) / |p|^2, so the design's globals
 // being off costs every turn alike.
 std::vector<ChipTurn> find_chip_turns(const sim::PatchModel& nominal,
+                                      const sim::UnitParameters& drawn,
                                       const std::vector<Sample>& samples, double tip_mm,
                                       const std::vector<double>& inv_sigma) {
-  const sim::UnitParameters drawn = nominal.parameters();
   const std::size_t ns = drawn.sensors.size();
   const std::size_t nc = 3 * ns;
   std::vector<double> p(nc);
@@ -972,7 +973,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   sim::UnitParameters start = nominal.parameters();
   std::vector<ChipTurn> chip_turns;
   if (opt.find_chip_turns) {
-    chip_turns = find_chip_turns(nominal, samples, opt.tip_radius_mm, inv_sigma);
+    chip_turns = find_chip_turns(nominal, start, samples, opt.tip_radius_mm, inv_sigma);
     for (const ChipTurn& t : chip_turns) {
       sim::SensorParameters& sp = start.sensors[static_cast<std::size_t>(t.sensor)];
       sp.mounting =
