@@ -277,6 +277,21 @@ int main(int argc, char** argv) {
           "sensor yaw_deg (docs/design_file.md)\n",
           turns.c_str());
     }
+    if (!id->uncovered_magnets.empty()) {
+      std::string list;
+      for (int m : id->uncovered_magnets) {
+        const sim::MagnetParameters& mp = id->parameters.magnets[static_cast<std::size_t>(m)];
+        char buf[64];
+        std::snprintf(buf, sizeof buf, "%s%d (%.1f, %.1f mm)", list.empty() ? "" : ", ", m, mp.u_mm,
+                      mp.v_mm);
+        list += buf;
+      }
+      std::printf(
+          "magnets too few presses reach (fewer than %d within %g mm), held at the design with "
+          "the globals found: %s; contacts near them rest on the design file, not on this unit: "
+          "press there too for a full fit\n",
+          opt.min_presses_per_magnet, opt.coverage_radius_mm, list.c_str());
+    }
     if (id->masked_values > 0) {
       std::printf("%d field value(s) not finite (dead channels): left out of the fit\n",
                   id->masked_values);

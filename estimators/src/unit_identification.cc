@@ -943,20 +943,34 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
                                                   " mm), need at least " +
                                                   std::to_string(opt.min_presses));
   }
+  // Magnets too few presses reach are held at the design (with the globals found).
+  std::vector<int> uncovered;
+  std::string uncovered_text;
   for (std::size_t m = 0; m < nominal.magnets().size(); ++m) {
     const auto& mg = nominal.magnets()[m];
     int near = 0;
     for (const auto& [u, v] : press_uv) {
       if (std::hypot(u - mg.u, v - mg.v) <= opt.coverage_radius_mm) ++near;
     }
-    if (near < opt.min_presses_per_magnet) {
-      return make_error(ErrorCode::kDegenerate,
-                        "identification: the presses do not cover the patch: magnet " +
-                            std::to_string(m) + " at (" + std::to_string(mg.u) + ", " +
-                            std::to_string(mg.v) + ") mm has " + std::to_string(near) +
-                            " presses within " + std::to_string(opt.coverage_radius_mm) +
-                            " mm, need " + std::to_string(opt.min_presses_per_magnet));
+    if (near >= opt.min_presses_per_magnet) continue;
+    uncovered.push_back(static_cast<int>(m));
+    if (uncovered.size() <= 4) {
+      char buf[96];
+      std::snprintf(buf, sizeof buf, "%smagnet %zu at (%.1f, %.1f) mm has %d",
+                    uncovered_text.empty() ? "" : "; ", m, mg.u, mg.v, near);
+      uncovered_text += buf;
     }
+  }
+  if (static_cast<double>(uncovered.size()) >
+      opt.max_uncovered_share * static_cast<double>(nominal.magnets().size())) {
+    return errorf(
+        ErrorCode::kDegenerate,
+        "identification: the presses do not cover the patch: %zu of %zu magnets have "
+        "fewer than %d presses within %g mm (%s%s): more than the %g %% that may be held at "
+        "the design",
+        uncovered.size(), nominal.magnets().size(), opt.min_presses_per_magnet,
+        opt.coverage_radius_mm, uncovered_text.c_str(), uncovered.size() > 4 ? "; ..." : "",
+        100 * opt.max_uncovered_share);
   }
 
   // The fitting samples (their near magnets are found in stage 2) and the channels' weights.
@@ -1093,6 +1107,9 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
                                                {sp, sp, sp, sr, sr, sr, sg, sg, sg}),
                              nullptr, x);
   }
+  for (int m : uncovered) {
+    problem.SetParameterBlockConstant(&mags[static_cast<std::size_t>(m) * kMagnetBlock]);
+  }
   problem.SetParameterLowerBound(global.data(), 0, 0.2 * start.spread_mm);
   problem.SetParameterLowerBound(global.data(), 1, 0.0);
 
@@ -1174,8 +1191,10 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
                      static_cast<int>(masked_values),
                      globals,
                      {},
+                     {},
                      {}};
   out.chip_turns = chip_turns;
+  out.uncovered_magnets = uncovered;
   out.fit = fit_quality(out.model, presses, opt.tip_radius_mm, noise, opt.depth_bin_edges_mm, rows);
   if (!(out.fit.rms <= opt.max_residual)) {
     if (refused != nullptr) *refused = out.parameters;

@@ -618,6 +618,41 @@ TEST(UnitIdentificationTest, TheWrongDesignIsRefusedNamingWhy) {
   EXPECT_NE(progress.front().find("globals from spread"), std::string::npos) << progress.front();
 }
 
+// A recording that leaves one magnet unpressed (a hole in a random plan, a corner the robot did not
+// reach): that magnet is held at the design with the globals found, named, and the rest of the
+// unit is fitted to its noise; before, the whole recording was refused.
+TEST(UnitIdentificationTest, AMagnetNoPressReachedIsHeldAtTheDesign) {
+  const sim::PatchDesign design;
+  const uint64_t seed = 4545;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value();
+  const sim::PatchModel nominal = sim::PatchModel::nominal(design).value();
+  const sim::MagnetParameters corner = nominal.parameters().magnets.front();
+  std::vector<sim::PressPoint> holed;
+  for (const sim::PressPoint& p : sim::plan_grid(13, 11.25)) {
+    if (std::hypot(p.u_mm - corner.u_mm, p.v_mm - corner.v_mm) > 16) holed.push_back(p);
+  }
+  sim::SimulatedPatch patch(unit, seed);
+  sim::RampProtocol ramp;
+  ramp.speed_mm_per_s = 4.0;
+  const sim::Dataset presses = sim::generate_ramp_dataset(patch, holed, ramp);
+  IdentificationOptions opt;
+  opt.depths_per_press = 3;
+  opt.fit_creep = false;
+  const Result<IdentifiedUnit> id = identify_unit(design, presses, opt);
+  ASSERT_TRUE(id.ok()) << id.error().to_string();
+  print_quality("fit", id->fit);
+  EXPECT_EQ(id->uncovered_magnets, std::vector<int>{0});
+  EXPECT_LT(id->fit.rms, 1.1);
+  // Held: where the design draws it, at the globals' height; every covered magnet moved.
+  const sim::MagnetParameters& held = id->parameters.magnets.front();
+  EXPECT_EQ(held.u_mm, corner.u_mm);
+  EXPECT_EQ(held.v_mm, corner.v_mm);
+  EXPECT_DOUBLE_EQ(held.h_mm, corner.h_mm + id->globals.magnet_height_offset_mm);
+  EXPECT_NE(id->parameters.magnets[1].u_mm, nominal.parameters().magnets[1].u_mm);
+}
+
 TEST(UnitIdentificationTest, DegenerateInputIsRefused) {
   const sim::PatchDesign design;
   const sim::PatchModel unit =
@@ -641,6 +676,7 @@ TEST(UnitIdentificationTest, DegenerateInputIsRefused) {
   ASSERT_FALSE(r2.ok());
   EXPECT_EQ(r2.error().code, ErrorCode::kDegenerate);
   EXPECT_NE(r2.error().message.find("do not cover"), std::string::npos) << r2.error().message;
+  std::printf("%s\n", r2.error().message.c_str());
   // Another sensor count.
   sim::PatchDesign small;
   small.sensors_u = 2;

@@ -156,11 +156,15 @@ struct IdentificationOptions {
   int outer_iterations = 2;  // refreshes of the far magnets' frozen contribution
   double function_tolerance = 1e-6;
   double derivative_reach = 4.0;  // spread lengths: magnets nearer a press get derivatives
-  // Degenerate input: fewer presses, or a magnet with fewer presses than
-  // min_presses_per_magnet within coverage_radius_mm, gives kDegenerate.
+  // Degenerate input: fewer presses than min_presses gives kDegenerate. A magnet with fewer
+  // presses than min_presses_per_magnet within coverage_radius_mm (a hole in a random plan, a
+  // corner not reached) is not fitted: it is held at the design with the globals found
+  // (IdentifiedUnit::uncovered_magnets). More than max_uncovered_share of the magnets so gives
+  // kDegenerate: the presses do not cover the patch.
   int min_presses = 20;
   int min_presses_per_magnet = 2;
   double coverage_radius_mm = 15;
+  double max_uncovered_share = 0.25;
   std::vector<double> depth_bin_edges_mm = {0, 1, 2, 3, 4, 9};
   // Stage 1 (fit_globals): the globals from each of these spread starts (x the design's); the
   // lowest cost wins. false: start stage 2 from the design as it is.
@@ -207,11 +211,14 @@ struct IdentifiedUnit {
   CreepFit creep;
   // The chips fitted turned from the design file's mounting (find_chip_turns), by sensor.
   std::vector<ChipTurn> chip_turns;
+  // The magnets too few presses reached to fit (min_presses_per_magnet): held at the design with
+  // the globals found. Contacts near them rest on the design's drawing, not on the unit.
+  std::vector<int> uncovered_magnets;
 };
 
 // Fits the unit that produced `presses`. Errors: kInvalidArgument (design invalid, channel
-// count differs), kDegenerate (too few presses, a magnet without presses near it; the message
-// says which), kNotConverged (the solver failed or hit its iteration limit without
+// count differs), kDegenerate (too few presses, or too many magnets without presses near them;
+// the message says which), kNotConverged (the solver failed or hit its iteration limit without
 // converging, or the fit leaves more than options.max_residual: refused). When the fit is
 // refused for its residual and `refused` is not null, the refused fit is stored there: the
 // class's nearest model of the unit, for simulating training presses (never to refine on).
