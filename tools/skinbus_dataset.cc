@@ -91,7 +91,8 @@ int main(int argc, char** argv) {
   app.add_option("--radius", radius, "cylinder skin radius, mm")->capture_default_str();
   CLI::Option* anisotropy_given =
       app.add_option("--anisotropy", anisotropy,
-                     "lattice anisotropy (physics outside the nominal model class)")
+                     "lattice anisotropy: the spread along u is l (1 + a), along v l (1 - a); "
+                     "with --unit, added to the unit's own")
           ->capture_default_str();
   app.add_option("--seed", seed, "seed of random plans")->capture_default_str();
   app.add_option("--points", points_path, "list plan: file of press points");
@@ -104,7 +105,8 @@ int main(int argc, char** argv) {
                  "unit file (skinbus-identify): simulate that identified unit instead of the "
                  "nominal or a --fabricated one, in the model class it was identified in (the "
                  "design's anisotropy, crushing top, in-plane drag and creep are not added; the "
-                 "unit file's identified creep and an --anisotropy given are)")
+                 "unit file's identified anisotropy and creep are, and an --anisotropy given on "
+                 "top)")
       ->check(CLI::ExistingFile);
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);

@@ -73,7 +73,7 @@ int main(int argc, char** argv) {
          "--design", design_path,
          "the unit's design file (default: the built-in design); the unit's model is its class "
          "(the design's anisotropy, crushing top, in-plane drag and creep are not added to an "
-         "identified unit; the unit file's own creep is)")
+         "identified unit; the unit file's own anisotropy and creep are)")
       ->check(CLI::ExistingFile);
   CLI::Option* tip_given =
       app.add_option("--tip-radius", tip_radius_mm,

@@ -42,8 +42,9 @@ void print_quality(const char* what, const estimators::FitQuality& nominal,
 int main(int argc, char** argv) {
   CLI::App app{
       "skinbus-identify: fit one patch unit's physical parameters (magnet positions, moments and\n"
-      "tilts, sensor positions, mountings and gains, the lattice's spread; 440 numbers for the\n"
-      "standard patch) from that unit's own presses with Ceres, and write them as a unit file\n"
+      "tilts, sensor positions, mountings and gains, the lattice's spread along u and v and its\n"
+      "lateral coupling; 441 numbers for the standard patch) from that unit's own presses with "
+      "Ceres, and write them as a unit file\n"
       "(docs/physics_estimator.md, \"Unit files\").\n\n"
       "Input: a dataset in the project's CSV format (docs/dataset_format.md) of presses at known\n"
       "positions and depths, e.g. an indentation robot's ramp protocol: 361 presses on the\n"
@@ -51,7 +52,7 @@ int main(int argc, char** argv) {
       "cannot explain); at least ~20 presses spread over the patch.\n"
       "The fit reports its residual in sensor-noise units, overall and per depth bin: about 1\n"
       "means the model explains the unit down to the noise; clearly above 1 (> 1.1) means the\n"
-      "unit has physics the model class does not contain (e.g. an anisotropic lattice): learn\n"
+      "unit has physics the model class does not contain (e.g. a top that crushes): learn\n"
       "its field correction too (--field-correction: a smooth correction of the modelled\n"
       "field, from the same presses; a few seconds) and the learned correction on top\n"
       "(docs/physics_estimator.md, docs/models.md).\n\n"
@@ -92,7 +93,7 @@ int main(int argc, char** argv) {
   app.add_flag("--keep-globals", keep_globals,
                "start every part from the design file as it is, without first fitting the "
                "design's global physics (spread, lateral coupling, magnet and sensor heights, "
-               "moment scale)");
+               "moment scale, anisotropy)");
   app.add_option("--max-residual", opt.max_residual,
                  "refuse a fit leaving more than this residual (RMS, noise units)")
       ->capture_default_str();
@@ -256,11 +257,14 @@ int main(int argc, char** argv) {
     if (opt.fit_globals) {
       const estimators::GlobalPhysics& g = id->globals;
       std::printf(
-          "globals: spread %.2f mm (design %.2f), lateral %.2f mm (design %.2f), magnet heights "
-          "%+.2f mm, sensor heights %+.2f mm, moments x%.3f; residual %.3f noise units with these "
-          "alone (%d starts)\n",
-          g.spread_mm, design.spread_mm, g.lateral_mm, design.lateral_mm, g.magnet_height_offset_mm,
-          g.sensor_height_offset_mm, g.moment_scale, g.rms, g.starts);
+          "globals: spread %.2f mm (design %.2f), anisotropy %.3f (design %.3f: along u %.2f mm, "
+          "along v %.2f mm), lateral %.2f mm (design %.2f), magnet heights %+.2f mm, sensor "
+          "heights %+.2f mm, moments x%.3f; residual %.3f noise units with these alone (%d "
+          "starts)\n",
+          g.spread_mm, design.spread_mm, g.anisotropy, design.anisotropy,
+          g.spread_mm * (1 + g.anisotropy), g.spread_mm * (1 - g.anisotropy), g.lateral_mm,
+          design.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm, g.moment_scale,
+          g.rms, g.starts);
     }
     if (id->creep.presses > 0) std::printf("%s\n", id->creep.summary_text().c_str());
     if (!id->chip_turns.empty()) {

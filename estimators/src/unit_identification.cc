@@ -28,7 +28,7 @@ using sim::Vec3;
 
 constexpr int kMagnetBlock = 6;  // u, v, h, moment x, y, z (in units of the nominal moment)
 constexpr int kSensorBlock = 9;  // u, v, h, rotation vector (3), gain (3)
-constexpr int kGlobalBlock = 2;  // spread, lateral
+constexpr int kGlobalBlock = 3;  // spread, lateral, anisotropy
 constexpr int kMagnetVars = kMagnetBlock + kGlobalBlock + 3;  // + sensor position
 using JetM = ceres::Jet<double, kMagnetVars>;
 constexpr int kOutVars = 12;  // rotation (3), gain (3), field in 3D (3), sensor position (3)
@@ -60,17 +60,17 @@ struct MagnetPose {
 };
 
 template <typename T>
-MagnetPose<T> magnet_pose(const Context& ctx, const Sample& smp, const T* mag, const T& spread,
-                          const T& lateral) {
+MagnetPose<T> magnet_pose(const Context& ctx, const Sample& smp, const T* mag, const T& spread_u,
+                          const T& spread_v, const T& lateral) {
   MagnetPose<T> out;
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
   const Vec3<T> m_loc{mag[3] * ctx.moment_scale, mag[4] * ctx.moment_scale,
                       mag[5] * ctx.moment_scale};
   out.moved =
-      ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
+      ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread_u, spread_v, lateral,
                              std::span<const sim::ContactT<T>>(&c, 1), &out.pos, &out.moment);
   if (out.moved) {
-    ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread, spread, lateral,
+    ctx.shape->magnet_pose(mag[0], mag[1], mag[2], m_loc, spread_u, spread_v, lateral,
                            std::span<const sim::ContactT<T>>(), &out.rest_pos, &out.rest_moment);
   }
   return out;
@@ -129,7 +129,7 @@ T variable(double x, int j) {
 }
 
 // The sample's near magnets posed at lattice `g` and magnet blocks `mags` (jets: variables 0-5
-// the magnet's block, 6-7 the lattice).
+// the magnet's block, 6-8 the lattice).
 template <typename T>
 const std::vector<MagnetPose<T>>& near_poses(const Context& ctx, const Sample& smp, const double* g,
                                              double const* const* mags,
@@ -140,11 +140,13 @@ const std::vector<MagnetPose<T>>& near_poses(const Context& ctx, const Sample& s
     kept->asked.insert(kept->asked.end(), mags[i], mags[i] + kMagnetBlock);
   if (kept->current()) return kept->made;
   kept->made.resize(nm);
-  const T spread = variable<T>(g[0], kMagnetBlock), lateral = variable<T>(g[1], kMagnetBlock + 1);
+  const T spread = variable<T>(g[0], kMagnetBlock), lateral = variable<T>(g[1], kMagnetBlock + 1),
+          anisotropy = variable<T>(g[2], kMagnetBlock + 2);
+  const T spread_u = spread * (1.0 + anisotropy), spread_v = spread * (1.0 - anisotropy);
   for (std::size_t i = 0; i < nm; ++i) {
     T mag[kMagnetBlock];
     for (int j = 0; j < kMagnetBlock; ++j) mag[j] = variable<T>(mags[i][j], j);
-    kept->made[i] = magnet_pose<T>(ctx, smp, mag, spread, lateral);
+    kept->made[i] = magnet_pose<T>(ctx, smp, mag, spread_u, spread_v, lateral);
   }
   return kept->made;
 }
@@ -171,8 +173,8 @@ Vec3<double> near_term(const MagnetPose<double>& pose, const Vec3<double>& spos,
 
 // near_term() with derivatives: its rest field as jets (made once a sensor and magnet), its
 // field under the press in closed form (sim::dipole_field_gradient_ut, made once a block) and
-// chained by hand. The pose's jets have their derivatives in variables 0-7 alone, the sensor
-// position's in 8-10 alone (SensorResidual's variables).
+// chained by hand. The pose's jets have their derivatives in variables 0-8 alone, the sensor
+// position's in 9-11 alone (SensorResidual's variables).
 Vec3<JetM> near_term(const MagnetPose<JetM>& pose, const Vec3<JetM>& spos, const double* s,
                      const double* mag, const double* g, Kept<Vec3<JetM>>* rest) {
   if (!pose.moved) return Vec3<JetM>{JetM(0.0), JetM(0.0), JetM(0.0)};
@@ -233,7 +235,7 @@ Vec3<T> sensor_reading(const Context& ctx, int k, const T* rot, const T* gain, c
   return {out[0], out[1], out[2]};
 }
 
-// Whitened residuals of one sensor's 3 channels for one sample. Parameter blocks: lattice (2),
+// Whitened residuals of one sensor's 3 channels for one sample. Parameter blocks: lattice (3),
 // the sensor (9), the sample's near magnets (6 each).
 class SensorResidual final : public ceres::CostFunction {
  public:
@@ -277,7 +279,7 @@ class SensorResidual final : public ceres::CostFunction {
       return std::isfinite(residuals[0]) && std::isfinite(residuals[1]) &&
              std::isfinite(residuals[2]);
     }
-    // Field in 3D with its derivatives: lattice (2), sensor position (3), magnets (6 each).
+    // Field in 3D with its derivatives: lattice (3), sensor position (3), magnets (6 each).
     if (nm > kMaxNear) return false;
     // Summed: the lattice's and the sensor position's; set below: each near magnet's.
     double dacc[3][kGlobalBlock + 3 + kMagnetBlock * kMaxNear];
@@ -400,11 +402,11 @@ class StageProgress final : public ceres::IterationCallback {
 };
 
 // ---- Stage 1: the design's global physics --------------------------------------------------
-// Five numbers that a design file may have wrong for a whole unit and that the per-magnet and
+// Six numbers that a design file may have wrong for a whole unit and that the per-magnet and
 // per-sensor parameters, held to the fabrication spread, cannot absorb: the spread length, the
 // lateral coupling, a height offset common to every magnet, a height offset common to every
-// sensor (negative: deeper) and a scale of every moment.
-constexpr int kGlobals = 5;
+// sensor (negative: deeper), a scale of every moment and the lattice's anisotropy.
+constexpr int kGlobals = 6;
 using JetG = ceres::Jet<double, kGlobals>;
 
 // What every sample's residuals share under the globals: each sensor's position and local
@@ -458,8 +460,9 @@ const GlobalTerms<T>& global_terms(const GlobalContext& ctx, const double* gv, c
     T h;
     Vec3<T> m_loc, rest_pos, rest_moment;
     magnet_globals(mp, g, &h, &m_loc);
-    ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
-                           std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
+    ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0] * (1.0 + g[5]),
+                           g[0] * (1.0 - g[5]), g[1], std::span<const sim::ContactT<T>>(),
+                           &rest_pos, &rest_moment);
     for (std::size_t k = 0; k < ns; ++k)
       t.rest[m * ns + k] = sim::dipole_field_ut(rest_moment, t.spos[k] - rest_pos);
   }
@@ -481,8 +484,9 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
     T h;
     Vec3<T> m_loc, pos, moment;
     magnet_globals(mp, g, &h, &m_loc);
-    if (!ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0], g[0], g[1],
-                                std::span<const sim::ContactT<T>>(&c, 1), &pos, &moment)) {
+    if (!ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0] * (1.0 + g[5]),
+                                g[0] * (1.0 - g[5]), g[1], std::span<const sim::ContactT<T>>(&c, 1),
+                                &pos, &moment)) {
       continue;  // beyond the plate's reach: this magnet does not move
     }
     for (std::size_t k = 0; k < ns; ++k)
@@ -563,14 +567,16 @@ ceres::Solver::Options solver_options(const IdentificationOptions& opt,
 
 std::string describe(const GlobalPhysics& g) {
   char buf[160];
-  std::snprintf(buf, sizeof buf,
-                "spread %.2f mm, lateral %.2f mm, magnets %.2f mm, sensors %.2f mm, moments x%.3f",
-                g.spread_mm, g.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm,
-                g.moment_scale);
+  std::snprintf(
+      buf, sizeof buf,
+      "spread %.2f mm, anisotropy %.3f, lateral %.2f mm, magnets %.2f mm, sensors %.2f mm, "
+      "moments x%.3f",
+      g.spread_mm, g.anisotropy, g.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm,
+      g.moment_scale);
   return buf;
 }
 
-// Stage 1 (see the header): the five globals by Levenberg-Marquardt from each spread start,
+// Stage 1 (see the header): the six globals by Levenberg-Marquardt from each spread start,
 // under broad priors about the design; the lowest cost wins. Refuses a fit that ends at a bound.
 Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::UnitParameters& design,
                                   std::span<const Sample> samples,
@@ -583,16 +589,21 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
   for (const sim::SensorParameters& sp : design.sensors)
     top_sensor_mm = std::fmax(top_sensor_mm, sp.h_mm);
   const GlobalPriors& pr = opt.global_priors;
-  const double l0 = design.spread_mm, lat0 = design.lateral_mm;
-  const double centre[kGlobals] = {l0, lat0, 0, 0, 1};
-  const double lo[kGlobals] = {pr.spread_min_rel * l0, 0, -pr.height_max_mm, -pr.height_max_mm,
-                               pr.moment_min};
-  const double hi[kGlobals] = {pr.spread_max_rel * l0, pr.lateral_max_mm, pr.height_max_mm,
-                               std::fmin(pr.height_max_mm, -top_sensor_mm - 0.5), pr.moment_max};
+  const double l0 = design.spread_mm, lat0 = design.lateral_mm, a0 = design.anisotropy;
+  const double centre[kGlobals] = {l0, lat0, 0, 0, 1, a0};
+  const double lo[kGlobals] = {pr.spread_min_rel * l0, 0,
+                               -pr.height_max_mm,      -pr.height_max_mm,
+                               pr.moment_min,          -pr.anisotropy_max};
+  const double hi[kGlobals] = {
+      pr.spread_max_rel * l0, pr.lateral_max_mm,
+      pr.height_max_mm,       std::fmin(pr.height_max_mm, -top_sensor_mm - 0.5),
+      pr.moment_max,          pr.anisotropy_max};
   const double inv_sd[kGlobals] = {inv(pr.spread_rel_sd, l0), 1 / pr.lateral_sd_mm,
-                                   1 / pr.height_sd_mm, 1 / pr.height_sd_mm, 1 / pr.moment_rel_sd};
-  const char* names[kGlobals] = {"the spread length", "the lateral coupling", "the magnets' height",
-                                 "the sensors' height", "the moments' scale"};
+                                   1 / pr.height_sd_mm,       1 / pr.height_sd_mm,
+                                   1 / pr.moment_rel_sd,      1 / pr.anisotropy_sd};
+  const char* names[kGlobals] = {"the spread length",   "the lateral coupling",
+                                 "the magnets' height", "the sensors' height",
+                                 "the moments' scale",  "the anisotropy"};
 
   const ceres::Solver::Options so = solver_options(opt, ceres::DENSE_NORMAL_CHOLESKY);
 
@@ -601,7 +612,8 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
   std::array<double, kGlobals> best_x{};
   int starts = 0;
   for (double f : opt.spread_starts) {
-    std::array<double, kGlobals> x = {std::clamp(f * l0, lo[0], hi[0]), lat0, 0, 0, 1};
+    std::array<double, kGlobals> x = {std::clamp(f * l0, lo[0], hi[0]), lat0, 0, 0, 1,
+                                      std::clamp(a0, lo[5], hi[5])};
     ceres::Problem::Options po;
     po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
     ceres::Problem problem(po);
@@ -624,7 +636,7 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
     const double rms =
         std::sqrt(2 * summary.final_cost /
                   static_cast<double>(samples.size() * static_cast<std::size_t>(nc)));
-    const GlobalPhysics found{x[0], x[1], x[2], x[3], x[4], rms, 0};
+    const GlobalPhysics found{x[0], x[1], x[2], x[3], x[4], x[5], rms, 0};
     if (opt.progress) {
       char head[64], tail[64];
       std::snprintf(head, sizeof head, "globals from spread %.1f mm: ", f * l0);
@@ -997,7 +1009,8 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   }
 
   // Stage 1: the design's global physics, from several spread lengths; the best start wins.
-  GlobalPhysics globals{start.spread_mm, start.lateral_mm, 0, 0, 1, 0, 0};
+  start.anisotropy = design_in.anisotropy;  // the design's, the fit's start
+  GlobalPhysics globals{start.spread_mm, start.lateral_mm, 0, 0, 1, start.anisotropy, 0, 0};
   int iterations = 0;
   if (opt.fit_globals) {
     Result<GlobalPhysics> g = fit_globals(nominal, start, samples, inv_sigma, opt, &iterations);
@@ -1005,6 +1018,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
     globals = g.value();
     start.spread_mm = globals.spread_mm;
     start.lateral_mm = globals.lateral_mm;
+    start.anisotropy = globals.anisotropy;
     for (sim::MagnetParameters& mp : start.magnets) {
       mp.h_mm += globals.magnet_height_offset_mm;
       mp.moment_am2 = mp.moment_am2 * globals.moment_scale;
@@ -1018,7 +1032,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   const double moment_scale = sim::cylinder_moment_am2(
       design.remanence_t, design.magnet_diameter_mm, design.magnet_height_mm);
   const std::size_t nm = start.magnets.size(), ns = start.sensors.size();
-  std::vector<double> global = {start.spread_mm, start.lateral_mm};
+  std::vector<double> global = {start.spread_mm, start.lateral_mm, start.anisotropy};
   std::vector<double> mags(nm * kMagnetBlock), sens(ns * kSensorBlock);
   for (std::size_t m = 0; m < nm; ++m) {
     const sim::MagnetParameters& mp = start.magnets[m];
@@ -1045,7 +1059,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   }
 
   // Each sample's near magnets.
-  const double reach = opt.derivative_reach * start.spread_mm;
+  const double reach = opt.derivative_reach * start.spread_mm * (1 + std::fabs(start.anisotropy));
   for (Sample& s : samples) {
     for (std::size_t m = 0; m < nm; ++m) {
       if (std::hypot(mags[m * kMagnetBlock] - s.u, mags[m * kMagnetBlock + 1] - s.v) < reach)
@@ -1088,7 +1102,8 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   const sim::FabricationVariation& pv = opt.prior;
   problem.AddResidualBlock(
       new PriorResidual(global, {inv(pv.spread_rel_sd, start.spread_mm),
-                                 inv(pv.lateral_rel_sd, std::fmax(start.lateral_mm, 1e-3))}),
+                                 inv(pv.lateral_rel_sd, std::fmax(start.lateral_mm, 1e-3)),
+                                 inv(pv.spread_rel_sd, 1)}),
       nullptr, global.data());
   for (std::size_t m = 0; m < nm; ++m) {
     double* x = &mags[m * kMagnetBlock];
@@ -1112,6 +1127,8 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   }
   problem.SetParameterLowerBound(global.data(), 0, 0.2 * start.spread_mm);
   problem.SetParameterLowerBound(global.data(), 1, 0.0);
+  problem.SetParameterLowerBound(global.data(), 2, -opt.global_priors.anisotropy_max);
+  problem.SetParameterUpperBound(global.data(), 2, opt.global_priors.anisotropy_max);
 
   ceres::Solver::Options so = solver_options(opt, ceres::SPARSE_NORMAL_CHOLESKY);
   StageProgress shown(opt.progress, problem.NumResiduals(), opt.outer_iterations);
@@ -1135,7 +1152,8 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
           continue;
         }
         const MagnetPose<double> pose =
-            magnet_pose<double>(ctx, s, &mags[m * kMagnetBlock], global[0], global[1]);
+            magnet_pose<double>(ctx, s, &mags[m * kMagnetBlock], global[0] * (1 + global[2]),
+                                global[0] * (1 - global[2]), global[1]);
         if (!pose.moved) continue;
         for (std::size_t k = 0; k < ns; ++k) s.far[k] = s.far[k] + magnet_term(pose, sensor_pos[k]);
       }
@@ -1156,6 +1174,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   sim::UnitParameters fitted = start;
   fitted.spread_mm = global[0];
   fitted.lateral_mm = global[1];
+  fitted.anisotropy = global[2];
   for (std::size_t m = 0; m < nm; ++m) {
     const double* x = &mags[m * kMagnetBlock];
     fitted.magnets[m] = {x[0], x[1], x[2], Vec3<double>{x[3], x[4], x[5]} * moment_scale};

@@ -1,7 +1,7 @@
 // Per-unit parameters and identification: the exact round trip of a unit's parameters, a
 // fabricated unit identified from its own simulated presses (held-out residual near the noise,
-// better inversion than with the nominal model), an anisotropic unit the model class cannot
-// contain, and degenerate input.
+// better inversion than with the nominal model), an anisotropic lattice fitted along u and v, a
+// unit the model class cannot contain (a top that crushes), and degenerate input.
 #include "skinbus/estimators/unit_identification.h"
 
 #include <gtest/gtest.h>
@@ -140,6 +140,7 @@ TEST(UnitIdentificationTest, FabricatedUnitIsIdentifiedDownToTheNoise) {
   print_quality("held out, nominal", id->nominal_held_out);
   EXPECT_LT(id->fit.rms, 1.1);
   EXPECT_LT(id->held_out.rms, 1.2);
+  EXPECT_NEAR(id->parameters.anisotropy, 0, 0.01);  // an isotropic lattice is found so
   // Most held-out channels see little of a press, so the nominal model's misfit shows most in
   // the deep bin.
   EXPECT_GT(id->nominal_held_out.rms, id->held_out.rms + 0.2);
@@ -205,27 +206,63 @@ TEST(UnitIdentificationTest, TheRecordedNoiseIsReadOffTheRamps) {
   EXPECT_EQ(recorded_noise(data.test).noise.xy_ut, 0);
 }
 
-TEST(UnitIdentificationTest, AnisotropicUnitIsOutsideTheModelClass) {
-  sim::PatchDesign design;
-  design.anisotropy = 0.05;
+// A lattice that spreads a press 10 % further along u than along v (printed stiffer one way),
+// drawn isotropic in its design file: the anisotropy is found and the unit identified to its
+// noise. Before the class had it, the same unit was left at 1.2-1.4 noise units held out.
+TEST(UnitIdentificationTest, AnAnisotropicLatticeIsFittedAlongUAndV) {
+  const sim::PatchDesign drawn;
+  sim::PatchDesign built = drawn;
+  built.anisotropy = 0.05;
   const uint64_t seed = 99;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
   const sim::PatchModel unit =
-      sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value();
+      sim::PatchModel::fabricated(built, seed, sim::FabricationVariation{}).value();
+  const UnitData data = press_unit(unit, 13, 11.25, seed);
+  IdentificationOptions opt;
+  opt.depths_per_press = 3;
+  const Result<IdentifiedUnit> id = identify_unit(drawn, data.train, opt, &data.test);
+  ASSERT_TRUE(id.ok()) << id.error().to_string();
+  std::printf("identified in %.1f s: anisotropy %.4f (globals stage %.4f), spread %.3f mm\n",
+              id->solve_seconds, id->parameters.anisotropy, id->globals.anisotropy,
+              id->parameters.spread_mm);
+  print_quality("held out, identified", id->held_out);
+  print_quality("held out, nominal", id->nominal_held_out);
+  EXPECT_NEAR(id->parameters.anisotropy, 0.05, 0.01);
+  EXPECT_NEAR(id->model.spread_u_mm() / id->model.spread_v_mm(), 1.05 / 0.95, 0.02);
+  EXPECT_LT(id->held_out.rms, 1.08);
+  for (const DepthBinResidual& b : id->held_out.bins) {
+    if (b.rows > 0) {
+      EXPECT_LT(b.rms, 1.12) << b.depth_lo_mm;
+    }
+  }
+}
+
+// A lattice whose top crushes under the tip (a deformation law the class does not have): the
+// residual says so, and held to a limit below it the fit is refused and kept apart.
+TEST(UnitIdentificationTest, AUnitOutsideTheClassIsFlaggedAndItsRefusedFitKeptApart) {
+  sim::PatchDesign built;
+  built.tip_crush_mm = 12;
+  const sim::PatchDesign design;
+  const uint64_t seed = 99;
+  std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
+  const sim::PatchModel unit =
+      sim::PatchModel::fabricated(built, seed, sim::FabricationVariation{}).value();
   const UnitData data = press_unit(unit, 13, 11.25, seed);
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   const Result<IdentifiedUnit> id = identify_unit(design, data.train, opt, &data.test);
   ASSERT_TRUE(id.ok()) << id.error().to_string();
   std::printf("identified in %.1f s\n", id->solve_seconds);
+  print_quality("fit", id->fit);
   print_quality("held out, identified", id->held_out);
   print_quality("held out, nominal", id->nominal_held_out);
-  EXPECT_EQ(id->model.spread_u_mm(), id->model.spread_v_mm());  // isotropic class
   // The fabricated unit of the test above reaches 1.00; most channels see little of a press, so
-  // the misfit shows most in the deep bin.
+  // the misfit shows most in a depth bin of its own.
   EXPECT_GT(id->held_out.rms, 1.15);
   EXPECT_GT(id->fit.rms, 1.15);
-  EXPECT_GT(id->held_out.bins[3].rms, 1.3);
+  double worst_bin = 0;
+  for (const DepthBinResidual& b : id->held_out.bins) worst_bin = std::fmax(worst_bin, b.rms);
+  EXPECT_GT(worst_bin, 1.3);
 
   // Held to a residual it exceeds, the same fit is refused, and kept apart when asked: the
   // same parameters, bit for bit (the class's nearest model, for simulating training presses).
@@ -478,11 +515,11 @@ TEST(UnitIdentificationTest, WithoutTheGlobalsStageTheFitStaysPoorer) {
   }
 }
 
-// A unit outside the model class (a lattice spreading 10 % longer along u than v), its globals
-// off as well: identified and its residual says the class misses something.
+// A unit outside the model class (a top that crushes under the tip), its globals off as well:
+// identified and its residual says the class misses something.
 TEST(UnitIdentificationTest, OutsideTheClassWithItsGlobalsOffIsFlagged) {
   OffDesignCase c = off_design_cases()[0];
-  c.truth.anisotropy = 0.1;
+  c.truth.tip_crush_mm = 12;
   const sim::PatchModel unit =
       sim::PatchModel::fabricated(c.truth, 314, sim::FabricationVariation{}).value();
   const UnitData data = press_unit(unit, 13, 11.25, 314);
@@ -492,8 +529,7 @@ TEST(UnitIdentificationTest, OutsideTheClassWithItsGlobalsOffIsFlagged) {
   if (refused_clearly(id)) return;
   print_quality("held out, identified", id->held_out);
   EXPECT_GT(id->held_out.rms, kModelMissesResidual);
-  const double mean_spread = 0.5 * (unit.spread_u_mm() + unit.spread_v_mm());
-  EXPECT_NEAR(id->parameters.spread_mm, mean_spread, 0.1 * mean_spread);
+  EXPECT_NEAR(id->parameters.spread_mm, unit.spread_mm(), 0.1 * unit.spread_mm());
 }
 
 // A unit whose lattice creeps (its plate lags the press: PatchDesign::creep_fraction), pressed

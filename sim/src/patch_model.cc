@@ -316,7 +316,7 @@ Result<PatchModel> PatchModel::build(const PatchDesign& d, uint64_t seed,
 
 PatchDesign class_design(const PatchDesign& design) {
   PatchDesign d = design;
-  d.anisotropy = 0;      // one isotropic spread,
+  d.anisotropy = 0;      // the unit's own anisotropy in its parameters,
   d.tip_crush_mm = 0;    // the plate bent by the whole depth,
   d.inplane_drag = 0;    // in-plane motion by the slope alone,
   d.creep_fraction = 0;  // no lag
@@ -347,6 +347,9 @@ Result<PatchModel> PatchModel::from_parameters(const PatchDesign& d, const UnitP
   };
   if (!std::isfinite(u.spread_mm) || !(u.spread_mm > 0)) return fail("spread_mm must be > 0");
   if (!std::isfinite(u.lateral_mm) || !(u.lateral_mm >= 0)) return fail("lateral_mm must be >= 0");
+  if (!std::isfinite(u.anisotropy) || !(std::fabs(u.anisotropy + d.anisotropy) < 0.5)) {
+    return fail("anisotropy, with the design's, must be in (-0.5, 0.5)");
+  }
   for (std::size_t i = 0; i < u.magnets.size(); ++i) {
     const MagnetParameters& m = u.magnets[i];
     if (!std::isfinite(m.u_mm) || !std::isfinite(m.v_mm) || !std::isfinite(m.h_mm) ||
@@ -379,6 +382,7 @@ Result<PatchModel> PatchModel::from_parameters(const PatchDesign& d, const UnitP
 UnitParameters PatchModel::parameters() const {
   UnitParameters u;
   u.spread_mm = spread_;
+  u.anisotropy = anisotropy_;
   u.lateral_mm = lateral_;
   u.field_correction = correction_;
   for (const Magnet& m : magnets_) u.magnets.push_back({m.u, m.v, m.h, m.m_loc});
@@ -390,8 +394,9 @@ Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParamete
   PatchModel p;
   p.design_ = d;
   p.spread_ = u.spread_mm;
-  p.spread_u_ = u.spread_mm * (1 + d.anisotropy);
-  p.spread_v_ = u.spread_mm * (1 - d.anisotropy);
+  p.anisotropy_ = u.anisotropy;
+  p.spread_u_ = u.spread_mm * (1 + d.anisotropy + u.anisotropy);
+  p.spread_v_ = u.spread_mm * (1 - d.anisotropy - u.anisotropy);
   p.lateral_ = u.lateral_mm;
   p.correction_ = u.field_correction;
   for (const MagnetParameters& m : u.magnets) {

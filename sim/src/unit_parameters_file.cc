@@ -204,6 +204,7 @@ std::string unit_parameters_json(const UnitParameters& p, const UnitFileNote& no
   }
   j["units"] = {{"length", "mm"}, {"moment", "A m^2"}};
   j["spread_mm"] = p.spread_mm;
+  if (p.anisotropy != 0) j["anisotropy"] = p.anisotropy;
   j["lateral_mm"] = p.lateral_mm;
   json magnets = json::array();
   for (const MagnetParameters& m : p.magnets) {
@@ -252,6 +253,10 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote
   Reader r;
   UnitParameters p;
   p.spread_mm = r.number(j, "spread_mm", "");
+  if (j.contains("anisotropy")) {  // optional: 0 when absent (a file written before the field)
+    p.anisotropy = r.number(j, "anisotropy", "");
+    if (r.ok() && !(std::fabs(p.anisotropy) < 0.5)) r.fail("anisotropy must be in (-0.5, 0.5)");
+  }
   p.lateral_mm = r.number(j, "lateral_mm", "");
   r.each_object(j, "magnets", [&](const json& m, const std::string& where) {
     MagnetParameters mp;

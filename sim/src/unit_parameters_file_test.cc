@@ -269,6 +269,45 @@ TEST(UnitParametersFileTest, TheCreepRoundTripsIntoTheModelAndBadOnesAreNamed) {
       });
 }
 
+// The lattice's anisotropy identification found: absent when 0, exact, the model's spreads along u
+// and v from it (a design's adds to it only where a simulation asks, read_unit_model), and bad
+// values named.
+TEST(UnitParametersFileTest, TheAnisotropyRoundTripsIntoTheModelAndBadOnesAreNamed) {
+  UnitParameters p = fabricated_unit();
+  EXPECT_EQ(unit_parameters_json(p).find("\"anisotropy\""), std::string::npos);
+  p.anisotropy = 0.0712345678901234;
+  const std::string text = unit_parameters_json(p);
+  auto back = parse_unit_parameters(text);
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_TRUE(same_bits(back->anisotropy, p.anisotropy));
+  PatchDesign drawn;
+  drawn.anisotropy = 0.1;  // the drawing's: the class takes the unit's own
+  auto model = PatchModel::of_unit_file(drawn, *back);
+  ASSERT_TRUE(model.ok()) << model.error().to_string();
+  EXPECT_EQ(model->spread_u_mm(), p.spread_mm * (1 + 0.0 + p.anisotropy));
+  EXPECT_EQ(model->spread_v_mm(), p.spread_mm * (1 - 0.0 - p.anisotropy));
+  EXPECT_TRUE(same_bits(model->parameters().anisotropy, p.anisotropy));
+  const std::string path = ::testing::TempDir() + "/unit_anisotropy_test.json";
+  ASSERT_TRUE(write_unit_parameters(p, path).ok());
+  auto on_top = read_unit_model(path, drawn, 0.05);
+  ASSERT_TRUE(on_top.ok()) << on_top.error().to_string();
+  EXPECT_EQ(on_top->model.spread_u_mm(), p.spread_mm * (1 + 0.05 + p.anisotropy));
+  EXPECT_FALSE(read_unit_model(path, drawn, 0.45).ok());  // 0.52 in all: named by the model
+
+  const std::string field = "\"anisotropy\": 0.0712345678901234";
+  const std::size_t at = text.find(field);
+  ASSERT_NE(at, std::string::npos) << text;
+  for (const auto& [bad, want] : std::vector<std::pair<std::string, std::string>>{
+           {"\"anisotropy\": 0.5", "anisotropy must be in (-0.5, 0.5)"},
+           {"\"anisotropy\": \"0.1\"", "anisotropy is not a number"}}) {
+    std::string t = text;
+    t.replace(at, field.size(), bad);
+    auto e = parse_unit_parameters(t);
+    ASSERT_FALSE(e.ok()) << want;
+    EXPECT_NE(e.error().message.find(want), std::string::npos) << e.error().message;
+  }
+}
+
 // read_unit_model: the file modelled on its design's class with the file's creep and its note;
 // an anisotropy asked for on top; a file that does not fit the design, or none, named.
 TEST(UnitParametersFileTest, AUnitFileIsModelledOnItsDesignsClassWithItsCreep) {
@@ -278,7 +317,7 @@ TEST(UnitParametersFileTest, AUnitFileIsModelledOnItsDesignsClassWithItsCreep) {
   const std::string path = ::testing::TempDir() + "/unit_model_test.json";
   ASSERT_TRUE(write_unit_parameters(p, path, {"test", {}, PressedArea{-1, 1, -2, 2}}).ok());
   PatchDesign design;
-  design.anisotropy = 0.1;  // outside the class: not added to an identified unit
+  design.anisotropy = 0.1;  // the drawing's: an identified unit's own is in its file
   design.tip_crush_mm = 10;
   auto unit = read_unit_model(path, design);
   ASSERT_TRUE(unit.ok()) << unit.error().to_string();

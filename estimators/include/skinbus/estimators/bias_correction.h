@@ -1,6 +1,6 @@
 // skinbus/estimators/bias_correction.h: a learned correction on top of an estimator: the systematic
-// error an estimator leaves on one unit (physics its model does not contain, e.g. an anisotropic
-// lattice), learned from that unit's own presses where the truth is known.
+// error an estimator leaves on one unit (physics its model does not contain, e.g. a lattice whose
+// top crushes under the tip), learned from that unit's own presses where the truth is known.
 //
 // The correction is a smooth function of the estimate: for each of u, v and depth, a tensor
 // product of Legendre polynomials in u/half_u, v/half_v (degree `degree_uv` for u and v,

@@ -10,15 +10,16 @@
 //
 // Unknowns (sim::UnitParameters): per magnet its rest position (u, v, h) and moment vector
 // (strength and tilt); per sensor its position, a small mounting rotation and per-axis gain;
-// the lattice's isotropic spread length and lateral coupling: 6 x 49 + 9 x 16 + 2 = 440 for
-// the standard patch. The design's anisotropy is NOT fitted (the identified model has
-// anisotropy 0): the model class is the nominal one, so a unit whose lattice spreads unequally
-// along u and v is left with a residual above the noise, which fit quality reports.
+// the lattice's spread length, its anisotropy (spread along u and along v: l (1 + a), l (1 - a))
+// and its lateral coupling: 6 x 49 + 9 x 16 + 3 = 441 for the standard patch. Physics outside
+// the class (a crushing top, another in-plane law, discs rather than dipoles) is left in the
+// residual, which fit quality reports.
 //
 // Method, in two stages, both least squares with Ceres (Levenberg-Marquardt), residuals whitened
 // by the sensor noise:
 // 1. The globals (GlobalPhysics: spread length, lateral coupling, one height offset for every
-//    magnet, one for every sensor, one scale of every moment), 5 unknowns over every fitting row,
+//    magnet, one for every sensor, one scale of every moment, the anisotropy), 6 unknowns over
+//    every fitting row,
 //    from several spread lengths (the lowest cost wins), under broad priors about the design
 //    (GlobalPriors). A design file is a drawing, not the unit: a lattice printed softer or
 //    magnets set deeper is off by more than fabrication scatter, and the per-part parameters,
@@ -29,7 +30,7 @@
 //    spread (sim::FabricationVariation), fixes the directions the data cannot see (e.g. all
 //    moments up and all gains down together). A fit that leaves more than max_residual noise
 //    units is refused with its residual per depth bin.
-// One residual block per (sample, sensor) touches that sensor, the two lattice parameters and
+// One residual block per (sample, sensor) touches that sensor, the three lattice parameters and
 // only the magnets within derivative_reach spread lengths of the press, so the Jacobian stays
 // sparse. Derivatives are exact: forward-mode jets through sim's own templates
 // (PatchModel::magnet_pose, sim::dipole_field_ut), the field of a pressed magnet's pose in closed
@@ -116,6 +117,7 @@ struct GlobalPhysics {
   double magnet_height_offset_mm = 0;  // added to every magnet's height
   double sensor_height_offset_mm = 0;  // added to every sensor's height (negative: deeper)
   double moment_scale = 1;             // every magnet's moment times this
+  double anisotropy = 0;               // the lattice's (sim::UnitParameters::anisotropy)
   double rms = 0;                      // residual with these globals alone, noise units
   int starts = 0;                      // starts tried
 };
@@ -129,6 +131,7 @@ struct GlobalPriors {
   double lateral_sd_mm = 2.0, lateral_max_mm = 10.0;
   double height_sd_mm = 2.0, height_max_mm = 5.0;  // each offset
   double moment_rel_sd = 0.3, moment_min = 0.3, moment_max = 3.0;
+  double anisotropy_sd = 0.2, anisotropy_max = 0.45;  // about the design's, absolute
 };
 
 // A chip whose readings the design's nominal model explains far better turned from the design

@@ -84,11 +84,13 @@ struct PatchDesign {
   // Lattice mechanics.
   double spread_mm = 10;    // plate-on-foundation length l
   double lateral_mm = 2.0;  // in-plane motion of a magnet = -lateral * surface slope
-  double anisotropy = 0;    // l_u = l (1 + a), l_v = l (1 - a); the nominal model has 0
+  // l_u = l (1 + a), l_v = l (1 - a) (a lattice printed stiffer one way); identification
+  // starts from it and fits the unit's own (UnitParameters::anisotropy).
+  double anisotropy = 0;
   // A lattice whose top layer crushes under the tip: a press d deep bends the plate by
-  // d / (1 + d / tip_crush_mm) only, the rest taken up under the tip (0: none). Like
-  // anisotropy, physics outside the class identification fits (it fits 0): a stand-in for a
-  // unit whose deformation law under the tip is not the model's.
+  // d / (1 + d / tip_crush_mm) only, the rest taken up under the tip (0: none). Physics outside
+  // the class identification fits (it fits 0): a stand-in for a unit whose deformation law under
+  // the tip is not the model's.
   double tip_crush_mm = 0;
   // Another in-plane motion law: the surface layer is dragged toward a press, a magnet moving by
   // inplane_drag x its deflection by that press x its distance to it over the spread length
@@ -132,8 +134,9 @@ struct PatchDesign {
 };
 
 // The static model class identification fits (estimators/unit_identification.h) and unit files
-// belong to: `design` without the physics no fit takes up (anisotropy, a crushing top, in-plane
-// drag: all 0) and without creep, which identification fits apart and a unit file carries
+// belong to: `design` without the physics no fit takes up (a crushing top, in-plane drag: 0),
+// its anisotropy 0 (a unit's own is in its parameters, UnitParameters::anisotropy) and without
+// creep, which identification fits apart and a unit file carries
 // (PatchModel::of_unit_file). A simulated unit may have them (the design's values, applied by
 // PatchModel::from_parameters()); the model of an identified unit does not.
 PatchDesign class_design(const PatchDesign& design);
@@ -196,7 +199,8 @@ class PatchModel {
   // A unit from its explicit parameters (skinbus/sim/unit_parameters.h): `params` must have
   // design.magnet_count() magnets and design.sensor_count() sensors, finite values, spread > 0,
   // lateral >= 0, finite non-zero gains and orthonormal mounting rotations; the error names the
-  // entry that is not. The design's anisotropy is applied on top of the isotropic spread.
+  // entry that is not. The design's anisotropy is added to the parameters' own (their sum within
+  // (-0.5, 0.5)).
   // from_parameters(m.design(), m.parameters()) rebuilds m exactly (bit for bit). Cost: the rest
   // field table, magnets x sensors dipole evaluations.
   static Result<PatchModel> from_parameters(const PatchDesign& design,
@@ -350,6 +354,7 @@ class PatchModel {
 
   PatchDesign design_;
   double spread_ = 10, spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
+  double anisotropy_ = 0;  // the parameters' own (UnitParameters::anisotropy), without the design's
   std::vector<Magnet> magnets_;
   std::vector<Sensor> sensors_;
   std::vector<Vec3<double>> rest_;  // [magnet * sensors + sensor]: rest field in 3D, uT

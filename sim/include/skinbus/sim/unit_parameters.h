@@ -7,10 +7,10 @@
 // trip is exact). Per-unit identification (estimators/unit_identification.h) fits them from a
 // unit's own presses.
 //
-// The model class: one isotropic spread length. A design's `anisotropy` (different spread along
-// u and v) is applied on top of `spread_mm` by from_parameters(), exactly as PatchModel builds a
-// fabricated unit, but identification never fits it: a unit with anisotropy carries physics the
-// identified class does not contain.
+// The model class: a spread length along u and one along v (`spread_mm` and `anisotropy`: l_u =
+// l (1 + a), l_v = l (1 - a)), which identification fits. A design's `anisotropy` is added to the
+// unit's by from_parameters(): PatchModel builds a fabricated unit so (its parameters carry 0, the
+// design the lattice's), and a simulation may put an identified unit on another lattice so.
 //
 // Plain data; copying costs (magnets + sensors) small structs.
 #pragma once
@@ -46,7 +46,8 @@ struct SensorParameters {
 };
 
 struct UnitParameters {
-  double spread_mm = 10;  // isotropic plate-on-foundation length l (mm), > 0
+  double spread_mm = 10;  // plate-on-foundation length l (mm), > 0: the mean of u's and v's
+  double anisotropy = 0;  // l_u = l (1 + a), l_v = l (1 - a); with the design's, |sum| < 0.5
   double lateral_mm = 2;  // in-plane motion of a magnet = -lateral * surface slope (mm), >= 0
   std::vector<MagnetParameters> magnets;  // design order: u index fastest
   std::vector<SensorParameters> sensors;  // design order: u index fastest

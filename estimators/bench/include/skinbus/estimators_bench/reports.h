@@ -64,11 +64,12 @@ double fma_peak_gflops(estimators::RuntimeIsa isa);
 struct BudgetBenchArgs {
   std::vector<std::string> units = {"nominal", "fabricated", "anisotropic"};
   uint64_t uid = 0x5B00000000000001ull;  // as skinbus-dataset's default
-  // Units outside the model class, each fabricated: "anisotropic" (this anisotropy),
-  // "crushing" (PatchDesign::tip_crush_mm), "discs" (PatchModel::with_disc_magnets),
-  // "dragging" (PatchDesign::inplane_drag), "creeping" (PatchDesign::creep_fraction, with
-  // creep_time_s; its test presses are ramps, as the presses it is calibrated on: a static press
-  // is the relaxed state).
+  // Units off the nominal model, each fabricated: "anisotropic" (this anisotropy, which
+  // identification fits since 2026-11-28), and outside the class: "crushing"
+  // (PatchDesign::tip_crush_mm), "discs" (PatchModel::with_disc_magnets), "dragging"
+  // (PatchDesign::inplane_drag), "creeping" (PatchDesign::creep_fraction, with creep_time_s; its
+  // test presses are ramps, as the presses it is calibrated on: a static press is the relaxed
+  // state).
   double anisotropy = 0.05;
   double tip_crush_mm = 20;
   double inplane_drag = 0.15;
@@ -91,7 +92,7 @@ struct FinetuneBenchArgs {
   std::string base_path;
   std::vector<int> points = {10, 20, 40, 80, 160};
   uint64_t uid = 0x5B00000000000007ull;
-  double anisotropy = 0;        // of the new unit's lattice (0.05: physics outside the model class)
+  double anisotropy = 0;        // of the new unit's lattice (0.05: physics the nominal model lacks)
   std::string plan = "halton";  // press positions: halton | grid (round(sqrt(n))^2 points)
   int epochs = 30;
   double learning_rate = 3e-4;
