@@ -28,7 +28,7 @@ using sim::Vec3;
 
 constexpr int kMagnetBlock = 6;  // u, v, h, moment x, y, z (in units of the nominal moment)
 constexpr int kSensorBlock = 9;  // u, v, h, rotation vector (3), gain (3)
-constexpr int kGlobalBlock = 3;  // spread, lateral, anisotropy
+constexpr int kGlobalBlock = 2;  // spread, lateral
 constexpr int kMagnetVars = kMagnetBlock + kGlobalBlock + 3;  // + sensor position
 using JetM = ceres::Jet<double, kMagnetVars>;
 constexpr int kOutVars = 12;  // rotation (3), gain (3), field in 3D (3), sensor position (3)
@@ -47,6 +47,7 @@ struct Context {
   const sim::PatchModel* shape;  // nominal model of the design: surface and depth limit only
   double moment_scale;           // nominal moment, A m^2
   double tip_mm;
+  double anisotropy;                  // the lattice's, stage 1's (held in stage 2)
   std::vector<sim::Mat3> mounting0;   // per sensor: mounting at the start of the fit
   std::span<const double> inv_sigma;  // per channel
 };
@@ -129,7 +130,7 @@ T variable(double x, int j) {
 }
 
 // The sample's near magnets posed at lattice `g` and magnet blocks `mags` (jets: variables 0-5
-// the magnet's block, 6-8 the lattice).
+// the magnet's block, 6-7 the lattice).
 template <typename T>
 const std::vector<MagnetPose<T>>& near_poses(const Context& ctx, const Sample& smp, const double* g,
                                              double const* const* mags,
@@ -140,9 +141,8 @@ const std::vector<MagnetPose<T>>& near_poses(const Context& ctx, const Sample& s
     kept->asked.insert(kept->asked.end(), mags[i], mags[i] + kMagnetBlock);
   if (kept->current()) return kept->made;
   kept->made.resize(nm);
-  const T spread = variable<T>(g[0], kMagnetBlock), lateral = variable<T>(g[1], kMagnetBlock + 1),
-          anisotropy = variable<T>(g[2], kMagnetBlock + 2);
-  const T spread_u = spread * (1.0 + anisotropy), spread_v = spread * (1.0 - anisotropy);
+  const T spread = variable<T>(g[0], kMagnetBlock), lateral = variable<T>(g[1], kMagnetBlock + 1);
+  const T spread_u = spread * (1.0 + ctx.anisotropy), spread_v = spread * (1.0 - ctx.anisotropy);
   for (std::size_t i = 0; i < nm; ++i) {
     T mag[kMagnetBlock];
     for (int j = 0; j < kMagnetBlock; ++j) mag[j] = variable<T>(mags[i][j], j);
@@ -173,8 +173,8 @@ Vec3<double> near_term(const MagnetPose<double>& pose, const Vec3<double>& spos,
 
 // near_term() with derivatives: its rest field as jets (made once a sensor and magnet), its
 // field under the press in closed form (sim::dipole_field_gradient_ut, made once a block) and
-// chained by hand. The pose's jets have their derivatives in variables 0-8 alone, the sensor
-// position's in 9-11 alone (SensorResidual's variables).
+// chained by hand. The pose's jets have their derivatives in variables 0-7 alone, the sensor
+// position's in 8-10 alone (SensorResidual's variables).
 Vec3<JetM> near_term(const MagnetPose<JetM>& pose, const Vec3<JetM>& spos, const double* s,
                      const double* mag, const double* g, Kept<Vec3<JetM>>* rest) {
   if (!pose.moved) return Vec3<JetM>{JetM(0.0), JetM(0.0), JetM(0.0)};
@@ -235,7 +235,7 @@ Vec3<T> sensor_reading(const Context& ctx, int k, const T* rot, const T* gain, c
   return {out[0], out[1], out[2]};
 }
 
-// Whitened residuals of one sensor's 3 channels for one sample. Parameter blocks: lattice (3),
+// Whitened residuals of one sensor's 3 channels for one sample. Parameter blocks: lattice (2),
 // the sensor (9), the sample's near magnets (6 each).
 class SensorResidual final : public ceres::CostFunction {
  public:
@@ -279,7 +279,7 @@ class SensorResidual final : public ceres::CostFunction {
       return std::isfinite(residuals[0]) && std::isfinite(residuals[1]) &&
              std::isfinite(residuals[2]);
     }
-    // Field in 3D with its derivatives: lattice (3), sensor position (3), magnets (6 each).
+    // Field in 3D with its derivatives: lattice (2), sensor position (3), magnets (6 each).
     if (nm > kMaxNear) return false;
     // Summed: the lattice's and the sensor position's; set below: each near magnet's.
     double dacc[3][kGlobalBlock + 3 + kMagnetBlock * kMaxNear];
@@ -1032,7 +1032,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   const double moment_scale = sim::cylinder_moment_am2(
       design.remanence_t, design.magnet_diameter_mm, design.magnet_height_mm);
   const std::size_t nm = start.magnets.size(), ns = start.sensors.size();
-  std::vector<double> global = {start.spread_mm, start.lateral_mm, start.anisotropy};
+  std::vector<double> global = {start.spread_mm, start.lateral_mm};
   std::vector<double> mags(nm * kMagnetBlock), sens(ns * kSensorBlock);
   for (std::size_t m = 0; m < nm; ++m) {
     const sim::MagnetParameters& mp = start.magnets[m];
@@ -1044,7 +1044,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
     x[4] = mp.moment_am2.y / moment_scale;
     x[5] = mp.moment_am2.z / moment_scale;
   }
-  Context ctx{&nominal, moment_scale, opt.tip_radius_mm, {}, inv_sigma};
+  Context ctx{&nominal, moment_scale, opt.tip_radius_mm, start.anisotropy, {}, inv_sigma};
   for (std::size_t k = 0; k < ns; ++k) {
     const sim::SensorParameters& sp = start.sensors[k];
     double* x = &sens[k * kSensorBlock];
@@ -1102,8 +1102,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   const sim::FabricationVariation& pv = opt.prior;
   problem.AddResidualBlock(
       new PriorResidual(global, {inv(pv.spread_rel_sd, start.spread_mm),
-                                 inv(pv.lateral_rel_sd, std::fmax(start.lateral_mm, 1e-3)),
-                                 inv(pv.spread_rel_sd, 1)}),
+                                 inv(pv.lateral_rel_sd, std::fmax(start.lateral_mm, 1e-3))}),
       nullptr, global.data());
   for (std::size_t m = 0; m < nm; ++m) {
     double* x = &mags[m * kMagnetBlock];
@@ -1127,8 +1126,6 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   }
   problem.SetParameterLowerBound(global.data(), 0, 0.2 * start.spread_mm);
   problem.SetParameterLowerBound(global.data(), 1, 0.0);
-  problem.SetParameterLowerBound(global.data(), 2, -opt.global_priors.anisotropy_max);
-  problem.SetParameterUpperBound(global.data(), 2, opt.global_priors.anisotropy_max);
 
   ceres::Solver::Options so = solver_options(opt, ceres::SPARSE_NORMAL_CHOLESKY);
   StageProgress shown(opt.progress, problem.NumResiduals(), opt.outer_iterations);
@@ -1152,8 +1149,8 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
           continue;
         }
         const MagnetPose<double> pose =
-            magnet_pose<double>(ctx, s, &mags[m * kMagnetBlock], global[0] * (1 + global[2]),
-                                global[0] * (1 - global[2]), global[1]);
+            magnet_pose<double>(ctx, s, &mags[m * kMagnetBlock], global[0] * (1 + ctx.anisotropy),
+                                global[0] * (1 - ctx.anisotropy), global[1]);
         if (!pose.moved) continue;
         for (std::size_t k = 0; k < ns; ++k) s.far[k] = s.far[k] + magnet_term(pose, sensor_pos[k]);
       }
@@ -1174,7 +1171,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   sim::UnitParameters fitted = start;
   fitted.spread_mm = global[0];
   fitted.lateral_mm = global[1];
-  fitted.anisotropy = global[2];
+  fitted.anisotropy = start.anisotropy;
   for (std::size_t m = 0; m < nm; ++m) {
     const double* x = &mags[m * kMagnetBlock];
     fitted.magnets[m] = {x[0], x[1], x[2], Vec3<double>{x[3], x[4], x[5]} * moment_scale};

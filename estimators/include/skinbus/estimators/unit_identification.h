@@ -11,9 +11,10 @@
 // Unknowns (sim::UnitParameters): per magnet its rest position (u, v, h) and moment vector
 // (strength and tilt); per sensor its position, a small mounting rotation and per-axis gain;
 // the lattice's spread length, its anisotropy (spread along u and along v: l (1 + a), l (1 - a))
-// and its lateral coupling: 6 x 49 + 9 x 16 + 3 = 441 for the standard patch. Physics outside
-// the class (a crushing top, another in-plane law, discs rather than dipoles) is left in the
-// residual, which fit quality reports.
+// and its lateral coupling: 6 x 49 + 9 x 16 + 3 = 441 for the standard patch (the anisotropy is
+// fitted in stage 1 and held in stage 2: freed there, it moved the fit of an isotropic unit).
+// Physics outside the class (a crushing top, another in-plane law, discs rather than dipoles) is
+// left in the residual, which fit quality reports.
 //
 // Method, in two stages, both least squares with Ceres (Levenberg-Marquardt), residuals whitened
 // by the sensor noise:
@@ -30,7 +31,7 @@
 //    spread (sim::FabricationVariation), fixes the directions the data cannot see (e.g. all
 //    moments up and all gains down together). A fit that leaves more than max_residual noise
 //    units is refused with its residual per depth bin.
-// One residual block per (sample, sensor) touches that sensor, the three lattice parameters and
+// One residual block per (sample, sensor) touches that sensor, the two lattice parameters and
 // only the magnets within derivative_reach spread lengths of the press, so the Jacobian stays
 // sparse. Derivatives are exact: forward-mode jets through sim's own templates
 // (PatchModel::magnet_pose, sim::dipole_field_ut), the field of a pressed magnet's pose in closed
