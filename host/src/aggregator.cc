@@ -759,6 +759,23 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
                                                      prev.used, refiner_memory);
         }
       };
+      // Warm start (options.refine_warm_start_mm > 0): the patch's previous refined contact (the
+      // same press, moved little in one period: a press ends with a sample without contact), its
+      // depth the bend the creep left, its shear. False, `start` untouched, on a press's first
+      // sample or after an unrefined one.
+      const auto warm_start = [&](ContactEstimate* start) {
+        const PatchContact& last = prev.contacts[0];
+        if (!(s.options.refine_warm_start_mm > 0) || !prev.used ||
+            (last.flags & kContactUnrefined) != 0) {
+          return false;
+        }
+        start->u_mm = last.u_mm;
+        start->v_mm = last.v_mm;
+        start->depth_mm = std::isfinite(mem.bend_mm) ? mem.bend_mm : last.depth_mm;
+        start->shear_u_n = mem.shear_u_n;  // patch frame; 0 without a fitted shear
+        start->shear_v_n = mem.shear_v_n;
+        return true;
+      };
       // A patch whose sensor is dead, stuck or saturated gives samples the network cannot read;
       // with a refiner they are fitted on the channels left (from the press's previous refined
       // contact, else from the refiner's own starts), within the call's budget, and published
@@ -767,14 +784,8 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
       if (!est.valid() && refiner != nullptr && channels_left_out(est.reason) &&
           refine_spent_us < static_cast<double>(s.options.refine_budget_us)) {
         const auto t0 = std::chrono::steady_clock::now();
-        const PatchContact& last = prev.contacts[0];
         ContactEstimate start;
-        const bool warm = prev.used && prev.count == 1 && (last.flags & kContactUnrefined) == 0;
-        if (warm) {
-          start.u_mm = last.u_mm;
-          start.v_mm = last.v_mm;
-          start.depth_mm = std::isfinite(mem.bend_mm) ? mem.bend_mm : last.depth_mm;
-        }
+        const bool warm = prev.count == 1 && warm_start(&start);
         const std::optional<estimators::RefinedEstimate> r =
             refine_without_network(*refiner, field, field_ok, warm ? &start : nullptr, s.options);
         const double us =
@@ -810,25 +821,14 @@ bool Aggregator::process(uint64_t now_us, ContactArray* out) {
           ++s.stats.unrefined_budget;
         } else {
           const auto t0 = std::chrono::steady_clock::now();
-          // Warm start: the patch's previous refined contact (the same press, moved little in
-          // one period: a press ends with a sample without contact), whatever the network says
-          // (a network trained on another design can be centimetres off for a whole press); the
-          // network's answer on a press's first sample or after an unrefined one. A previous
-          // pair is tried again first. A single warm fit the host's rule rejects is made again
-          // from the network's answer when that is refine_warm_start_mm or more away and the
-          // budget is not spent.
-          const PatchContact& last = prev.contacts[0];
-          const bool warm = s.options.refine_warm_start_mm > 0 && prev.used &&
-                            (last.flags & kContactUnrefined) == 0;
+          // Warm start (warm_start) whatever the network says (a network trained on another
+          // design can be centimetres off for a whole press); else the network's answer. A
+          // previous pair is tried again first. A single warm fit the host's rule rejects is
+          // made again from the network's answer when that is refine_warm_start_mm or more away
+          // and the budget is not spent.
           ContactEstimate start = est;
-          if (warm) {
-            start.u_mm = last.u_mm;
-            start.v_mm = last.v_mm;
-            start.depth_mm = std::isfinite(mem.bend_mm) ? mem.bend_mm : last.depth_mm;
-            start.shear_u_n = mem.shear_u_n;  // patch frame; 0 without a fitted shear
-            start.shear_v_n = mem.shear_v_n;
-            ++s.stats.refine_warm_starts;
-          }
+          const bool warm = warm_start(&start);
+          if (warm) ++s.stats.refine_warm_starts;
           // A search for a second press from nothing: the first time this press's single fit
           // leaves more than noise, then when that fit gets 1.5x worse than at the last search
           // (a finger added), or every kSearchEverySamples samples; and on every sample whose

@@ -239,6 +239,32 @@ TEST_F(AggregatorRefineTest, RefinedContactsReachTheUnitsBoundWithTheFitsUncerta
 // on the 45 channels left and published flagged kContactMaskedChannels, near the unit's bound:
 // a press's first sample from the refiner's own starts, the next ones from the press's last
 // contact.
+// The physics refiner, counting the fits asked of it from a given start and by search.
+class CountingRefiner : public estimators::ContactRefiner {
+ public:
+  CountingRefiner(std::unique_ptr<estimators::ContactRefiner> inner, int* refines, int* searches)
+      : inner_(std::move(inner)), refines_(refines), searches_(searches) {}
+  int channel_count() const override { return inner_->channel_count(); }
+  std::unique_ptr<Memory> make_memory() const override { return inner_->make_memory(); }
+  estimators::RefinedEstimate refine(std::span<const double> field_ut,
+                                     std::span<const uint8_t> channel_ok,
+                                     const estimators::ContactEstimate& start) const override {
+    ++*refines_;
+    return inner_->refine(field_ut, channel_ok, start);
+  }
+  estimators::RefinedEstimate search(std::span<const double> field_ut,
+                                     std::span<const uint8_t> channel_ok,
+                                     const estimators::ContactEstimate& held) const override {
+    ++*searches_;
+    return inner_->search(field_ut, channel_ok, held);
+  }
+
+ private:
+  std::unique_ptr<estimators::ContactRefiner> inner_;
+  int* refines_;
+  int* searches_;
+};
+
 TEST_F(AggregatorRefineTest, SamplesWithADeadSensorAreFittedOnTheChannelsLeft) {
   const uint64_t seed = 81;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
@@ -284,6 +310,37 @@ TEST_F(AggregatorRefineTest, SamplesWithADeadSensorAreFittedOnTheChannelsLeft) {
   EXPECT_EQ(st.agg->stats().refined_without_network, 20u);
   EXPECT_GE(st.agg->stats().refine_us, 0.0);
   EXPECT_LT(press_err / std::max(published, 1), 1.0);
+
+  // The same press, counted: warm from its previous contact after the first sample; with warm
+  // starts off (refine_warm_start_mm 0), every sample from the refiner's search, as the network's
+  // path does, and still published.
+  for (const double warm_mm : {3.0, 0.0}) {
+    int refines = 0, searches = 0;
+    AggregatorOptions o = options_;
+    o.refine_warm_start_mm = warm_mm;
+    o.refiner_factory =
+        [&](const RefinerRequest&) -> Result<std::unique_ptr<estimators::ContactRefiner>> {
+      auto inner = estimators::make_physics_refiner(*unit_);
+      if (!inner.ok()) return inner.error();
+      return std::unique_ptr<estimators::ContactRefiner>(
+          new CountingRefiner(std::move(*inner), &refines, &searches));
+    };
+    Stream counted(*unit_, o, false, 1, seed + 1);
+    ASSERT_TRUE(counted.ok());
+    for (int i = 0; i < 20; ++i) {
+      ContactArray out;
+      counted.sample(std::span<const sim::Contact>(&press, 1), &out, dead);
+    }
+    std::printf("warm starts at %g mm: %d fits from a start, %d searches\n", warm_mm, refines,
+                searches);
+    EXPECT_EQ(counted.agg->stats().refined_without_network, 20u) << warm_mm;
+    if (warm_mm > 0) {
+      EXPECT_GE(refines, 19) << "warm after the first sample";
+    } else {
+      EXPECT_EQ(refines, 0);
+      EXPECT_EQ(searches, 20);
+    }
+  }
 }
 
 // A unit whose physics the model class lacks (its lattice's top crushes under the tip: the
