@@ -6,6 +6,7 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <memory>
 #include <optional>
@@ -259,12 +260,19 @@ int main(int argc, char** argv) {
       std::printf(
           "globals: spread %.2f mm (design %.2f), anisotropy %.3f (design %.3f: along u %.2f mm, "
           "along v %.2f mm), lateral %.2f mm (design %.2f), magnet heights %+.2f mm, sensor "
-          "heights %+.2f mm, moments x%.3f; residual %.3f noise units with these alone (%d "
-          "starts)\n",
+          "heights %+.2f mm, moments x%.3f, the presses' frame (%+.2f, %+.2f) mm and %+.2f deg "
+          "from the design's; residual %.3f noise units with these alone (%d starts)\n",
           g.spread_mm, design.spread_mm, g.anisotropy, design.anisotropy,
           g.spread_mm * (1 + g.anisotropy), g.spread_mm * (1 - g.anisotropy), g.lateral_mm,
           design.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm, g.moment_scale,
-          g.rms, g.starts);
+          g.frame_du_mm, g.frame_dv_mm, g.frame_yaw_deg, g.rms, g.starts);
+      if (std::hypot(g.frame_du_mm, g.frame_dv_mm) > 0.5 || std::fabs(g.frame_yaw_deg) > 0.5) {
+        std::printf(
+            "the presses were made in a frame off the design's (the indenter's origin or axes "
+            "off the patch's): the unit file's parts, and the contacts refined on it, are in the "
+            "presses' frame; a patch pose calibrated from touches (skinbus-calibrate) takes the "
+            "difference up\n");
+      }
     }
     if (id->creep.presses > 0) std::printf("%s\n", id->creep.summary_text().c_str());
     if (!id->chip_turns.empty()) {

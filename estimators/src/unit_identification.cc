@@ -402,11 +402,13 @@ class StageProgress final : public ceres::IterationCallback {
 };
 
 // ---- Stage 1: the design's global physics --------------------------------------------------
-// Six numbers that a design file may have wrong for a whole unit and that the per-magnet and
+// Nine numbers that a design file may have wrong for a whole unit and that the per-magnet and
 // per-sensor parameters, held to the fabrication spread, cannot absorb: the spread length, the
 // lateral coupling, a height offset common to every magnet, a height offset common to every
-// sensor (negative: deeper), a scale of every moment and the lattice's anisotropy.
-constexpr int kGlobals = 6;
+// sensor (negative: deeper), a scale of every moment, the lattice's anisotropy, and the frame
+// the presses were made in against the design's (u and v shift, mm; turn, rad).
+constexpr int kGlobals = 9;
+constexpr double kRadPerDeg = M_PI / 180;
 using JetG = ceres::Jet<double, kGlobals>;
 
 // What every sample's residuals share under the globals: each sensor's position and local
@@ -432,11 +434,26 @@ struct GlobalContext {
   GlobalShared* shared;
 };
 
-// Magnet `mp`'s height and moment under globals `g`.
+// A part's (u, v) in the presses' frame under globals `g` (GlobalPhysics::frame_*).
 template <typename T>
-void magnet_globals(const sim::MagnetParameters& mp, const T* g, T* h, Vec3<T>* m_loc) {
+void in_press_frame(const T* g, double u, double v, T* pu, T* pv) {
+  using std::cos;
+  using std::sin;
+  const T c = cos(g[8]), s = sin(g[8]);
+  *pu = c * u - s * v + g[6];
+  *pv = s * u + c * v + g[7];
+}
+
+// Magnet `mp`'s place, height and moment under globals `g` (the moment turned with the frame).
+template <typename T>
+void magnet_globals(const sim::MagnetParameters& mp, const T* g, T* u, T* v, T* h, Vec3<T>* m_loc) {
+  using std::cos;
+  using std::sin;
+  in_press_frame(g, mp.u_mm, mp.v_mm, u, v);
   *h = T(mp.h_mm) + g[2];
-  *m_loc = Vec3<T>{g[4] * mp.moment_am2.x, g[4] * mp.moment_am2.y, g[4] * mp.moment_am2.z};
+  const T c = cos(g[8]), s = sin(g[8]);
+  *m_loc = Vec3<T>{g[4] * (c * mp.moment_am2.x - s * mp.moment_am2.y),
+                   g[4] * (s * mp.moment_am2.x + c * mp.moment_am2.y), g[4] * mp.moment_am2.z};
 }
 
 // The shared terms under globals `g` (values `gv`), from `kept` when made at the same.
@@ -449,20 +466,27 @@ const GlobalTerms<T>& global_terms(const GlobalContext& ctx, const double* gv, c
   const std::size_t ns = d.sensors.size();
   GlobalTerms<T>& t = kept->made;
   for (auto* v : {&t.spos, &t.tu, &t.tv, &t.n}) v->resize(ns);
+  using std::cos;
+  using std::sin;
+  const T c = cos(g[8]), s = sin(g[8]);
   for (std::size_t k = 0; k < ns; ++k) {
     const sim::SensorParameters& sp = d.sensors[k];
-    t.spos[k] = ctx.shape->surface_point<T>(T(sp.u_mm), T(sp.v_mm), T(sp.h_mm) + g[3], &t.tu[k],
-                                            &t.tv[k], &t.n[k]);
+    T u, v;
+    in_press_frame(g, sp.u_mm, sp.v_mm, &u, &v);
+    Vec3<T> tu, tv;
+    t.spos[k] = ctx.shape->surface_point<T>(u, v, T(sp.h_mm) + g[3], &tu, &tv, &t.n[k]);
+    // The chip turned with the frame: its axes' surface components turned about the normal.
+    t.tu[k] = tu * c + tv * s;
+    t.tv[k] = tv * c - tu * s;
   }
   t.rest.resize(d.magnets.size() * ns);
   for (std::size_t m = 0; m < d.magnets.size(); ++m) {
     const sim::MagnetParameters& mp = d.magnets[m];
-    T h;
+    T u, v, h;
     Vec3<T> m_loc, rest_pos, rest_moment;
-    magnet_globals(mp, g, &h, &m_loc);
-    ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0] * (1.0 + g[5]),
-                           g[0] * (1.0 - g[5]), g[1], std::span<const sim::ContactT<T>>(),
-                           &rest_pos, &rest_moment);
+    magnet_globals(mp, g, &u, &v, &h, &m_loc);
+    ctx.shape->magnet_pose(u, v, h, m_loc, g[0] * (1.0 + g[5]), g[0] * (1.0 - g[5]), g[1],
+                           std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
     for (std::size_t k = 0; k < ns; ++k)
       t.rest[m * ns + k] = sim::dipole_field_ut(rest_moment, t.spos[k] - rest_pos);
   }
@@ -481,12 +505,11 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
   for (std::size_t m = 0; m < d.magnets.size(); ++m) {
     const sim::MagnetParameters& mp = d.magnets[m];
-    T h;
+    T u, v, h;
     Vec3<T> m_loc, pos, moment;
-    magnet_globals(mp, g, &h, &m_loc);
-    if (!ctx.shape->magnet_pose(T(mp.u_mm), T(mp.v_mm), h, m_loc, g[0] * (1.0 + g[5]),
-                                g[0] * (1.0 - g[5]), g[1], std::span<const sim::ContactT<T>>(&c, 1),
-                                &pos, &moment)) {
+    magnet_globals(mp, g, &u, &v, &h, &m_loc);
+    if (!ctx.shape->magnet_pose(u, v, h, m_loc, g[0] * (1.0 + g[5]), g[0] * (1.0 - g[5]), g[1],
+                                std::span<const sim::ContactT<T>>(&c, 1), &pos, &moment)) {
       continue;  // beyond the plate's reach: this magnet does not move
     }
     for (std::size_t k = 0; k < ns; ++k)
@@ -566,17 +589,17 @@ ceres::Solver::Options solver_options(const IdentificationOptions& opt,
 }
 
 std::string describe(const GlobalPhysics& g) {
-  char buf[160];
+  char buf[224];
   std::snprintf(
       buf, sizeof buf,
       "spread %.2f mm, anisotropy %.3f, lateral %.2f mm, magnets %.2f mm, sensors %.2f mm, "
-      "moments x%.3f",
+      "moments x%.3f, presses' frame (%+.2f, %+.2f) mm %+.2f deg",
       g.spread_mm, g.anisotropy, g.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm,
-      g.moment_scale);
+      g.moment_scale, g.frame_du_mm, g.frame_dv_mm, g.frame_yaw_deg);
   return buf;
 }
 
-// Stage 1 (see the header): the six globals by Levenberg-Marquardt from each spread start,
+// Stage 1 (see the header): the nine globals by Levenberg-Marquardt from each spread start,
 // under broad priors about the design; the lowest cost wins. Refuses a fit that ends at a bound.
 Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::UnitParameters& design,
                                   std::span<const Sample> samples,
@@ -590,20 +613,39 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
     top_sensor_mm = std::fmax(top_sensor_mm, sp.h_mm);
   const GlobalPriors& pr = opt.global_priors;
   const double l0 = design.spread_mm, lat0 = design.lateral_mm, a0 = design.anisotropy;
-  const double centre[kGlobals] = {l0, lat0, 0, 0, 1, a0};
-  const double lo[kGlobals] = {pr.spread_min_rel * l0, 0,
-                               -pr.height_max_mm,      -pr.height_max_mm,
-                               pr.moment_min,          -pr.anisotropy_max};
-  const double hi[kGlobals] = {
-      pr.spread_max_rel * l0, pr.lateral_max_mm,
-      pr.height_max_mm,       std::fmin(pr.height_max_mm, -top_sensor_mm - 0.5),
-      pr.moment_max,          pr.anisotropy_max};
-  const double inv_sd[kGlobals] = {inv(pr.spread_rel_sd, l0), 1 / pr.lateral_sd_mm,
-                                   1 / pr.height_sd_mm,       1 / pr.height_sd_mm,
-                                   1 / pr.moment_rel_sd,      1 / pr.anisotropy_sd};
-  const char* names[kGlobals] = {"the spread length",   "the lateral coupling",
-                                 "the magnets' height", "the sensors' height",
-                                 "the moments' scale",  "the anisotropy"};
+  const double yaw_max = pr.frame_yaw_max_deg * kRadPerDeg;
+  const double centre[kGlobals] = {l0, lat0, 0, 0, 1, a0, 0, 0, 0};
+  const double lo[kGlobals] = {pr.spread_min_rel * l0,
+                               0,
+                               -pr.height_max_mm,
+                               -pr.height_max_mm,
+                               pr.moment_min,
+                               -pr.anisotropy_max,
+                               -pr.frame_shift_max_mm,
+                               -pr.frame_shift_max_mm,
+                               -yaw_max};
+  const double hi[kGlobals] = {pr.spread_max_rel * l0,
+                               pr.lateral_max_mm,
+                               pr.height_max_mm,
+                               std::fmin(pr.height_max_mm, -top_sensor_mm - 0.5),
+                               pr.moment_max,
+                               pr.anisotropy_max,
+                               pr.frame_shift_max_mm,
+                               pr.frame_shift_max_mm,
+                               yaw_max};
+  const double inv_sd[kGlobals] = {
+      inv(pr.spread_rel_sd, l0), 1 / pr.lateral_sd_mm,     1 / pr.height_sd_mm,
+      1 / pr.height_sd_mm,       1 / pr.moment_rel_sd,     1 / pr.anisotropy_sd,
+      1 / pr.frame_shift_sd_mm,  1 / pr.frame_shift_sd_mm, 1 / (pr.frame_yaw_sd_deg * kRadPerDeg)};
+  const char* names[kGlobals] = {"the spread length",
+                                 "the lateral coupling",
+                                 "the magnets' height",
+                                 "the sensors' height",
+                                 "the moments' scale",
+                                 "the anisotropy",
+                                 "the presses' frame's u shift",
+                                 "the presses' frame's v shift",
+                                 "the presses' frame's turn"};
 
   const ceres::Solver::Options so = solver_options(opt, ceres::DENSE_NORMAL_CHOLESKY);
 
@@ -613,7 +655,7 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
   int starts = 0;
   for (double f : opt.spread_starts) {
     std::array<double, kGlobals> x = {std::clamp(f * l0, lo[0], hi[0]), lat0, 0, 0, 1,
-                                      std::clamp(a0, lo[5], hi[5])};
+                                      std::clamp(a0, lo[5], hi[5]),     0,    0, 0};
     ceres::Problem::Options po;
     po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
     ceres::Problem problem(po);
@@ -636,7 +678,8 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
     const double rms =
         std::sqrt(2 * summary.final_cost /
                   static_cast<double>(samples.size() * static_cast<std::size_t>(nc)));
-    const GlobalPhysics found{x[0], x[1], x[2], x[3], x[4], x[5], rms, 0};
+    const GlobalPhysics found{x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8] / kRadPerDeg,
+                              rms,  0};
     if (opt.progress) {
       char head[64], tail[64];
       std::snprintf(head, sizeof head, "globals from spread %.1f mm: ", f * l0);
@@ -1010,7 +1053,8 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
 
   // Stage 1: the design's global physics, from several spread lengths; the best start wins.
   start.anisotropy = design_in.anisotropy;  // the design's, the fit's start
-  GlobalPhysics globals{start.spread_mm, start.lateral_mm, 0, 0, 1, start.anisotropy, 0, 0};
+  GlobalPhysics globals{
+      start.spread_mm, start.lateral_mm, 0, 0, 1, start.anisotropy, 0, 0, 0, 0, 0};
   int iterations = 0;
   if (opt.fit_globals) {
     Result<GlobalPhysics> g = fit_globals(nominal, start, samples, inv_sigma, opt, &iterations);
@@ -1019,11 +1063,31 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
     start.spread_mm = globals.spread_mm;
     start.lateral_mm = globals.lateral_mm;
     start.anisotropy = globals.anisotropy;
+    // Every part in the presses' frame, as stage 1 placed it.
+    const double frame[kGlobals] = {0,
+                                    0,
+                                    0,
+                                    0,
+                                    1,
+                                    0,
+                                    globals.frame_du_mm,
+                                    globals.frame_dv_mm,
+                                    globals.frame_yaw_deg * kRadPerDeg};
+    const double cy = std::cos(frame[8]), sy = std::sin(frame[8]);
     for (sim::MagnetParameters& mp : start.magnets) {
+      double h;
+      Vec3<double> m_loc;
+      magnet_globals(mp, frame, &mp.u_mm, &mp.v_mm, &h, &m_loc);
       mp.h_mm += globals.magnet_height_offset_mm;
-      mp.moment_am2 = mp.moment_am2 * globals.moment_scale;
+      mp.moment_am2 = m_loc * globals.moment_scale;
     }
-    for (sim::SensorParameters& sp : start.sensors) sp.h_mm += globals.sensor_height_offset_mm;
+    for (sim::SensorParameters& sp : start.sensors) {
+      in_press_frame(frame, sp.u_mm, sp.v_mm, &sp.u_mm, &sp.v_mm);
+      sp.h_mm += globals.sensor_height_offset_mm;
+      for (Vec3<double>& e : sp.mounting.r) {
+        e = Vec3<double>{cy * e.x - sy * e.y, sy * e.x + cy * e.y, e.z};
+      }
+    }
   }
   if (opt.progress) opt.progress("fitting every magnet and sensor");
 

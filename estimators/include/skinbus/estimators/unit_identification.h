@@ -19,8 +19,8 @@
 // Method, in two stages, both least squares with Ceres (Levenberg-Marquardt), residuals whitened
 // by the sensor noise:
 // 1. The globals (GlobalPhysics: spread length, lateral coupling, one height offset for every
-//    magnet, one for every sensor, one scale of every moment, the anisotropy), 6 unknowns over
-//    every fitting row,
+//    magnet, one for every sensor, one scale of every moment, the anisotropy, and the presses'
+//    frame against the design's: a shift and a turn), 9 unknowns over every fitting row,
 //    from several spread lengths (the lowest cost wins), under broad priors about the design
 //    (GlobalPriors). A design file is a drawing, not the unit: a lattice printed softer or
 //    magnets set deeper is off by more than fabrication scatter, and the per-part parameters,
@@ -119,8 +119,13 @@ struct GlobalPhysics {
   double sensor_height_offset_mm = 0;  // added to every sensor's height (negative: deeper)
   double moment_scale = 1;             // every magnet's moment times this
   double anisotropy = 0;               // the lattice's (sim::UnitParameters::anisotropy)
-  double rms = 0;                      // residual with these globals alone, noise units
-  int starts = 0;                      // starts tried
+  // The presses' frame against the design's (an indentation robot's origin and axes off the
+  // patch's): every part's (u, v) turned by frame_yaw_deg about the design's origin (u toward v),
+  // then moved by (frame_du_mm, frame_dv_mm); the chips and the moments turn with them. The unit
+  // file's parts are in the presses' frame, as the contacts refined on it are.
+  double frame_du_mm = 0, frame_dv_mm = 0, frame_yaw_deg = 0;
+  double rms = 0;  // residual with these globals alone, noise units
+  int starts = 0;  // starts tried
 };
 
 // Broad priors and hard bounds of the first stage, about the design's values: wide enough for a
@@ -132,7 +137,9 @@ struct GlobalPriors {
   double lateral_sd_mm = 2.0, lateral_max_mm = 10.0;
   double height_sd_mm = 2.0, height_max_mm = 5.0;  // each offset
   double moment_rel_sd = 0.3, moment_min = 0.3, moment_max = 3.0;
-  double anisotropy_sd = 0.2, anisotropy_max = 0.45;  // about the design's, absolute
+  double anisotropy_sd = 0.2, anisotropy_max = 0.45;      // about the design's, absolute
+  double frame_shift_sd_mm = 3, frame_shift_max_mm = 15;  // the presses' frame, each axis
+  double frame_yaw_sd_deg = 3, frame_yaw_max_deg = 20;
 };
 
 // A chip whose readings the design's nominal model explains far better turned from the design
