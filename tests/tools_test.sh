@@ -153,6 +153,18 @@ residual() { sed -n 's/^fit (.*): residual RMS \([0-9.]*\) .*/\1/p' "$1"; }
 [[ $rc == 2 ]] && grep -q "test_unit.csv: pressed with a 5 mm tip, the fit with 2.5 mm" "$work/id/tipmix.txt" &&
   [[ ! -e $work/id/tipmix.json ]] && ok "held-out presses of another indenter: refused" ||
   { bad "identify with held-out presses of another tip (rc $rc)"; cat "$work/id/tipmix.txt"; }
+# Presses recorded in a frame off the patch's (an indenter's origin 2 mm and -1.5 mm off, its axes
+# turned 4 degrees): skinbus-identify finds the frame and fits the unit to its noise.
+"$bin/skinbus-dataset" --plan grid --grid 13 --pitch 10 --fabricated --uid 0x5B07 --press-frame 2,-1.5,4 \
+  -o "$work/id/frame.csv" 2>/dev/null
+"$bin/skinbus-identify" "$work/id/frame.csv" -o "$work/id/frame.json" >"$work/id/frame.txt" 2>&1; rc=$?
+frame_line=$(grep -o "the presses' frame ([^)]*) mm and [^ ]* deg" "$work/id/frame.txt" | head -1)
+fit_rms=$(sed -n 's/^fit ([0-9]* samples): residual RMS \([0-9.]*\) .*/\1/p' "$work/id/frame.txt")
+read -r f_du f_dv f_yaw <<<"$(sed 's/[^-+0-9.]/ /g' <<<"$frame_line")"
+[[ $rc == 0 ]] && awk -v u="$f_du" -v v="$f_dv" -v y="$f_yaw" -v r="$fit_rms" \
+  'BEGIN { d = u - 2; e = v + 1.5; f = y - 4; exit !(d * d < 0.0225 && e * e < 0.0225 && f * f < 0.04 && r > 0 && r < 1.06) }' &&
+  ok "presses in a frame off the patch's: $frame_line found, residual $fit_rms" ||
+  { bad "identify presses in a frame off the patch's (rc $rc)"; cat "$work/id/frame.txt"; }
 # The field correction: a unit whose physics the class does not contain (a crushing top and
 # in-plane drag, not fitted, on an anisotropic lattice, fitted) identified with --field-correction
 # carries a correction that brings its simulated fields nearer the unit's; one the class

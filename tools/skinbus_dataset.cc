@@ -6,9 +6,11 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/design_file.h"
@@ -108,6 +110,14 @@ int main(int argc, char** argv) {
                  "unit file's identified anisotropy and creep are, and an --anisotropy given on "
                  "top)")
       ->check(CLI::ExistingFile);
+  std::vector<double> press_frame;
+  app.add_option("--press-frame", press_frame,
+                 "DU,DV,YAW: record the presses as an indentation robot whose frame is off the "
+                 "patch's does: each press's u_mm, v_mm turned by YAW degrees (u toward v) and "
+                 "moved by (DU, DV) mm; where the unit is pressed does not change "
+                 "(skinbus-identify finds such a frame)")
+      ->delimiter(',')
+      ->expected(3);
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
 
@@ -169,6 +179,15 @@ int main(int argc, char** argv) {
                                    pr.tare_samples, pr.tip_radius_mm);
     } else {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
+    }
+    if (press_frame.size() == 3) {
+      const double c = std::cos(press_frame[2] * M_PI / 180),
+                   s = std::sin(press_frame[2] * M_PI / 180);
+      for (std::size_t r = 0; r < d.rows(); ++r) {
+        const double u = d.u_mm[r], v = d.v_mm[r];
+        d.u_mm[r] = c * u - s * v + press_frame[0];
+        d.v_mm[r] = s * u + c * v + press_frame[1];
+      }
     }
     d.meta["plan"] = plan;
     char uid_text[32];
