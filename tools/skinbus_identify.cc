@@ -44,8 +44,8 @@ int main(int argc, char** argv) {
   CLI::App app{
       "skinbus-identify: fit one patch unit's physical parameters (magnet positions, moments and\n"
       "tilts, sensor positions, mountings and gains, the lattice's spread along u and v and its\n"
-      "lateral coupling; 441 numbers for the standard patch) from that unit's own presses with "
-      "Ceres, and write them as a unit file\n"
+      "lateral coupling; 441 numbers for the standard patch, placed in the frame the presses\n"
+      "were made in) from that unit's own presses with Ceres, and write them as a unit file\n"
       "(docs/physics_estimator.md, \"Unit files\").\n\n"
       "Input: a dataset in the project's CSV format (docs/dataset_format.md) of presses at known\n"
       "positions and depths, e.g. an indentation robot's ramp protocol: 361 presses on the\n"

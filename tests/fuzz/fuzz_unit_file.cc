@@ -64,6 +64,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!same(back->spread_mm, p->spread_mm) || !same(back->lateral_mm, p->lateral_mm)) {
     fail("lattice numbers changed");
   }
+  // The anisotropy: its value travels (0 is not written, so -0 comes back +0).
+  if (!(back->anisotropy == p->anisotropy) || !(std::fabs(p->anisotropy) < 0.5)) {
+    fail("the anisotropy changed, or one out of range was taken");
+  }
   // The creep: a law travels bit for bit; none (fraction 0) is not written, its time with it.
   if (!same(back->creep_fraction, p->creep_fraction) ||
       (p->creep_fraction > 0 && !same(back->creep_time_s, p->creep_time_s))) {
