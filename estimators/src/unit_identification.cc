@@ -412,11 +412,14 @@ constexpr double kRadPerDeg = M_PI / 180;
 using JetG = ceres::Jet<double, kGlobals>;
 
 // What every sample's residuals share under the globals: each sensor's position and local
-// surface frame, and the rest field of every magnet at every sensor (magnet-major). The samples'
-// blocks share it (GlobalShared), made once an evaluation rather than once a sample.
+// surface frame, each magnet's place, height and moment, and the rest field of every magnet at
+// every sensor (magnet-major). The samples' blocks share it (GlobalShared), made once an
+// evaluation rather than once a sample.
 template <typename T>
 struct GlobalTerms {
   std::vector<Vec3<T>> spos, tu, tv, n;  // by sensor
+  std::vector<T> mu, mv, mh;             // by magnet (magnet_globals)
+  std::vector<Vec3<T>> m_loc;            // by magnet
   std::vector<Vec3<T>> rest;             // magnet m at sensor k: [m * sensors + k]
 };
 
@@ -479,14 +482,16 @@ const GlobalTerms<T>& global_terms(const GlobalContext& ctx, const double* gv, c
     t.tu[k] = tu * c + tv * s;
     t.tv[k] = tv * c - tu * s;
   }
-  t.rest.resize(d.magnets.size() * ns);
-  for (std::size_t m = 0; m < d.magnets.size(); ++m) {
-    const sim::MagnetParameters& mp = d.magnets[m];
-    T u, v, h;
-    Vec3<T> m_loc, rest_pos, rest_moment;
-    magnet_globals(mp, g, &u, &v, &h, &m_loc);
-    ctx.shape->magnet_pose(u, v, h, m_loc, g[0] * (1.0 + g[5]), g[0] * (1.0 - g[5]), g[1],
-                           std::span<const sim::ContactT<T>>(), &rest_pos, &rest_moment);
+  const std::size_t nm = d.magnets.size();
+  t.rest.resize(nm * ns);
+  for (auto* v : {&t.mu, &t.mv, &t.mh}) v->resize(nm);
+  t.m_loc.resize(nm);
+  for (std::size_t m = 0; m < nm; ++m) {
+    magnet_globals(d.magnets[m], g, &t.mu[m], &t.mv[m], &t.mh[m], &t.m_loc[m]);
+    Vec3<T> rest_pos, rest_moment;
+    ctx.shape->magnet_pose(t.mu[m], t.mv[m], t.mh[m], t.m_loc[m], g[0] * (1.0 + g[5]),
+                           g[0] * (1.0 - g[5]), g[1], std::span<const sim::ContactT<T>>(),
+                           &rest_pos, &rest_moment);
     for (std::size_t k = 0; k < ns; ++k)
       t.rest[m * ns + k] = sim::dipole_field_ut(rest_moment, t.spos[k] - rest_pos);
   }
@@ -504,12 +509,10 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
   for (std::size_t k = 0; k < ns; ++k) acc[k] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
   for (std::size_t m = 0; m < d.magnets.size(); ++m) {
-    const sim::MagnetParameters& mp = d.magnets[m];
-    T u, v, h;
-    Vec3<T> m_loc, pos, moment;
-    magnet_globals(mp, g, &u, &v, &h, &m_loc);
-    if (!ctx.shape->magnet_pose(u, v, h, m_loc, g[0] * (1.0 + g[5]), g[0] * (1.0 - g[5]), g[1],
-                                std::span<const sim::ContactT<T>>(&c, 1), &pos, &moment)) {
+    Vec3<T> pos, moment;
+    if (!ctx.shape->magnet_pose(t.mu[m], t.mv[m], t.mh[m], t.m_loc[m], g[0] * (1.0 + g[5]),
+                                g[0] * (1.0 - g[5]), g[1], std::span<const sim::ContactT<T>>(&c, 1),
+                                &pos, &moment)) {
       continue;  // beyond the plate's reach: this magnet does not move
     }
     for (std::size_t k = 0; k < ns; ++k)
@@ -586,6 +589,19 @@ ceres::Solver::Options solver_options(const IdentificationOptions& opt,
   so.logging_type = ceres::SILENT;
   so.minimizer_progress_to_stdout = false;
   return so;
+}
+
+// `g` as stage 1's unknowns (the turn in radians).
+std::array<double, kGlobals> global_vector(const GlobalPhysics& g) {
+  return {g.spread_mm,
+          g.lateral_mm,
+          g.magnet_height_offset_mm,
+          g.sensor_height_offset_mm,
+          g.moment_scale,
+          g.anisotropy,
+          g.frame_du_mm,
+          g.frame_dv_mm,
+          g.frame_yaw_deg * kRadPerDeg};
 }
 
 std::string describe(const GlobalPhysics& g) {
@@ -1063,28 +1079,19 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
     start.spread_mm = globals.spread_mm;
     start.lateral_mm = globals.lateral_mm;
     start.anisotropy = globals.anisotropy;
-    // Every part in the presses' frame, as stage 1 placed it.
-    const double frame[kGlobals] = {0,
-                                    0,
-                                    0,
-                                    0,
-                                    1,
-                                    0,
-                                    globals.frame_du_mm,
-                                    globals.frame_dv_mm,
-                                    globals.frame_yaw_deg * kRadPerDeg};
-    const double cy = std::cos(frame[8]), sy = std::sin(frame[8]);
+    // Every part as stage 1 placed it: in the presses' frame, at the heights and moments found.
+    const std::array<double, kGlobals> found = global_vector(globals);
     for (sim::MagnetParameters& mp : start.magnets) {
-      double h;
-      Vec3<double> m_loc;
-      magnet_globals(mp, frame, &mp.u_mm, &mp.v_mm, &h, &m_loc);
-      mp.h_mm += globals.magnet_height_offset_mm;
-      mp.moment_am2 = m_loc * globals.moment_scale;
+      sim::MagnetParameters placed;
+      magnet_globals(mp, found.data(), &placed.u_mm, &placed.v_mm, &placed.h_mm,
+                     &placed.moment_am2);
+      mp = placed;
     }
+    const double cy = std::cos(found[8]), sy = std::sin(found[8]);
     for (sim::SensorParameters& sp : start.sensors) {
-      in_press_frame(frame, sp.u_mm, sp.v_mm, &sp.u_mm, &sp.v_mm);
-      sp.h_mm += globals.sensor_height_offset_mm;
-      for (Vec3<double>& e : sp.mounting.r) {
+      in_press_frame(found.data(), sp.u_mm, sp.v_mm, &sp.u_mm, &sp.v_mm);
+      sp.h_mm += found[3];
+      for (Vec3<double>& e : sp.mounting.r) {  // the chip turned with the frame
         e = Vec3<double>{cy * e.x - sy * e.y, sy * e.x + cy * e.y, e.z};
       }
     }
