@@ -6,7 +6,6 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
-#include <cmath>
 #include <cstdio>
 #include <string>
 #include <utility>
@@ -181,13 +180,7 @@ int main(int argc, char** argv) {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
     }
     if (press_frame.size() == 3) {
-      const double c = std::cos(press_frame[2] * M_PI / 180),
-                   s = std::sin(press_frame[2] * M_PI / 180);
-      for (std::size_t r = 0; r < d.rows(); ++r) {
-        const double u = d.u_mm[r], v = d.v_mm[r];
-        d.u_mm[r] = c * u - s * v + press_frame[0];
-        d.v_mm[r] = s * u + c * v + press_frame[1];
-      }
+      record_in_press_frame(&d, press_frame[0], press_frame[1], press_frame[2]);
     }
     d.meta["plan"] = plan;
     char uid_text[32];

@@ -254,13 +254,7 @@ TEST(UnitIdentificationTest, ThePressesFrameOffTheDesignsIsFound) {
   UnitData data = press_unit(unit, 13, 11.25, seed);
   const double du = 3, dv = -2, yaw_deg = 5;
   const double c = std::cos(yaw_deg * M_PI / 180), s = std::sin(yaw_deg * M_PI / 180);
-  for (sim::Dataset* d : {&data.train, &data.test}) {
-    for (std::size_t r = 0; r < d->rows(); ++r) {
-      const double u = d->u_mm[r], v = d->v_mm[r];
-      d->u_mm[r] = c * u - s * v + du;
-      d->v_mm[r] = s * u + c * v + dv;
-    }
-  }
+  for (sim::Dataset* d : {&data.train, &data.test}) sim::record_in_press_frame(d, du, dv, yaw_deg);
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   opt.fit_creep = false;

@@ -604,6 +604,15 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
   return d;
 }
 
+void record_in_press_frame(Dataset* d, double du_mm, double dv_mm, double yaw_deg) {
+  const double c = std::cos(yaw_deg * M_PI / 180), s = std::sin(yaw_deg * M_PI / 180);
+  for (std::size_t r = 0; r < d->rows(); ++r) {
+    const double u = d->u_mm[r], v = d->v_mm[r];
+    d->u_mm[r] = c * u - s * v + du_mm;
+    d->v_mm[r] = s * u + c * v + dv_mm;
+  }
+}
+
 uint64_t dataset_fingerprint(const Dataset& d) {
   uint64_t h = 1469598103934665603ull;
   auto mix = [&](double x) {

@@ -59,6 +59,12 @@ std::vector<int> stuck_channels(const Dataset& d);
 // Returns a note naming them for the user ("" when none).
 std::string leave_out_stuck_channels(Dataset* d);
 
+// Writes the presses of `d` as an indentation robot whose frame is off the patch's records them:
+// each row's (u_mm, v_mm) turned by yaw_deg about the patch's origin (u toward v), then moved by
+// (du_mm, dv_mm). The fields are untouched: where the unit was pressed does not change
+// (identification finds such a frame, estimators::GlobalPhysics::frame_*).
+void record_in_press_frame(Dataset* d, double du_mm, double dv_mm, double yaw_deg);
+
 // Where a robot presses. Positions in the patch frame, mm.
 struct PressPoint {
   double u_mm = 0, v_mm = 0;
