@@ -104,6 +104,12 @@ UnitData press_unit(const sim::PatchModel& unit, int grid_n, double pitch_mm, ui
   return d;
 }
 
+// A fabricated unit built to `design`, pressed on a 13 x 13 grid and at random held-out places.
+UnitData press_built(const sim::PatchDesign& design, uint64_t seed) {
+  return press_unit(sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value(),
+                    13, 11.25, seed);
+}
+
 void print_quality(const char* what, const FitQuality& q) {
   std::printf("%s: rows %d, RMS %.3f noise units; by depth:", what, q.rows, q.rms);
   for (const DepthBinResidual& b : q.bins) {
@@ -218,9 +224,7 @@ TEST(UnitIdentificationTest, AnAnisotropicLatticeIsFittedAlongUAndV) {
   built.anisotropy = 0.05;
   const uint64_t seed = 99;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(built, seed, sim::FabricationVariation{}).value();
-  const UnitData data = press_unit(unit, 13, 11.25, seed);
+  const UnitData data = press_built(built, seed);
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   const Result<IdentifiedUnit> id = identify_unit(drawn, data.train, opt, &data.test);
@@ -284,9 +288,7 @@ TEST(UnitIdentificationTest, AUnitOutsideTheClassIsFlaggedAndItsRefusedFitKeptAp
   const sim::PatchDesign design;
   const uint64_t seed = 99;
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
-  const sim::PatchModel unit =
-      sim::PatchModel::fabricated(built, seed, sim::FabricationVariation{}).value();
-  const UnitData data = press_unit(unit, 13, 11.25, seed);
+  const UnitData data = press_built(built, seed);
   IdentificationOptions opt;
   opt.depths_per_press = 3;
   const Result<IdentifiedUnit> id = identify_unit(design, data.train, opt, &data.test);
@@ -449,12 +451,6 @@ TEST(UnitIdentificationTest, DenserGridWithItsGlobalsOff) {
 }
 TEST(UnitIdentificationTest, SunkenMagnetsAndLongerSpreadWithItsGlobalsOff) {
   expect_identified_despite_its_design(off_design_cases()[2], 313);
-}
-
-// A fabricated unit built to `design`, pressed on a 13 x 13 grid and at random held-out places.
-UnitData press_built(const sim::PatchDesign& design, uint64_t seed) {
-  return press_unit(sim::PatchModel::fabricated(design, seed, sim::FabricationVariation{}).value(),
-                    13, 11.25, seed);
 }
 
 // Chips mounted turned from the design file (an assembly error, or a design file whose sensors'
