@@ -117,6 +117,12 @@ int main(int argc, char** argv) {
                  "(skinbus-identify finds such a frame)")
       ->delimiter(',')
       ->expected(3);
+  double press_depth_zero_mm = 0;
+  app.add_option("--press-depth-zero", press_depth_zero_mm,
+                 "MM: record the presses as an indenter whose zero is off the surface does: each "
+                 "press's depth_mm read MM deeper (negative: shallower) than it pressed "
+                 "(skinbus-identify finds such a zero)")
+      ->check(CLI::Range(-3.0, 3.0));
   app.add_option("-o,--output", out_path, "output CSV file")->required();
   CLI11_PARSE(app, argc, argv);
 
@@ -179,8 +185,14 @@ int main(int argc, char** argv) {
     } else {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
     }
-    if (press_frame.size() == 3) {
-      record_in_press_frame(&d, press_frame[0], press_frame[1], press_frame[2]);
+    if (press_frame.size() == 3 || press_depth_zero_mm != 0) {
+      PressFrame f{.depth_zero_mm = press_depth_zero_mm};
+      if (press_frame.size() == 3) {
+        f.du_mm = press_frame[0];
+        f.dv_mm = press_frame[1];
+        f.yaw_deg = press_frame[2];
+      }
+      record_in_press_frame(&d, f);
     }
     d.meta["plan"] = plan;
     char uid_text[32];

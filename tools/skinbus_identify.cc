@@ -94,7 +94,13 @@ int main(int argc, char** argv) {
   app.add_flag("--keep-globals", keep_globals,
                "start every part from the design file as it is, without first fitting the "
                "design's global physics (spread, lateral coupling, magnet and sensor heights, "
-               "moment scale, anisotropy)");
+               "moment scale, anisotropy, the presses' frame and depth zero)");
+  bool hold_depth_zero = false;
+  app.add_flag("--hold-depth-zero", hold_depth_zero,
+               "the presses read depth 0 where the tip met the surface (an indenter whose zero "
+               "was measured): hold the depth zero there rather than fit it. Fitted, a lattice "
+               "whose physics the model lacks near the surface (a top that crushes) may move it "
+               "a few tenths of a millimetre");
   app.add_option("--max-residual", opt.max_residual,
                  "refuse a fit leaving more than this residual (RMS, noise units)")
       ->capture_default_str();
@@ -113,6 +119,7 @@ int main(int argc, char** argv) {
                "--max-residual");
   CLI11_PARSE(app, argc, argv);
   opt.fit_globals = !keep_globals;
+  if (hold_depth_zero) opt.global_priors.depth_zero_sd_mm = 0;
   opt.progress = [](const std::string& line) {
     std::fprintf(stderr, "skinbus-identify: %s\n", line.c_str());
   };
@@ -261,17 +268,25 @@ int main(int argc, char** argv) {
           "globals: spread %.2f mm (design %.2f), anisotropy %.3f (design %.3f: along u %.2f mm, "
           "along v %.2f mm), lateral %.2f mm (design %.2f), magnet heights %+.2f mm, sensor "
           "heights %+.2f mm, moments x%.3f, the presses' frame (%+.2f, %+.2f) mm and %+.2f deg "
-          "from the design's; residual %.3f noise units with these alone (%d starts)\n",
+          "from the design's, their depth zero %+.3f mm; residual %.3f noise units with these "
+          "alone (%d starts)\n",
           g.spread_mm, design.spread_mm, g.anisotropy, design.anisotropy,
           g.spread_mm * (1 + g.anisotropy), g.spread_mm * (1 - g.anisotropy), g.lateral_mm,
           design.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm, g.moment_scale,
-          g.frame_du_mm, g.frame_dv_mm, g.frame_yaw_deg, g.rms, g.starts);
+          g.frame_du_mm, g.frame_dv_mm, g.frame_yaw_deg, g.depth_zero_mm, g.rms, g.starts);
       if (std::hypot(g.frame_du_mm, g.frame_dv_mm) > 0.5 || std::fabs(g.frame_yaw_deg) > 0.5) {
         std::printf(
             "the presses were made in a frame off the design's (the indenter's origin or axes "
             "off the patch's): the unit file's parts, and the contacts refined on it, are in the "
             "presses' frame; a patch pose calibrated from touches (skinbus-calibrate) takes the "
             "difference up\n");
+      }
+      if (std::fabs(g.depth_zero_mm) > 0.05) {
+        std::printf(
+            "the presses read %+.2f mm where the tip met the surface (the indenter's zero off "
+            "the surface): the unit, and the contacts refined on it, read depth as they did "
+            "(depth_zero_mm in the unit file)\n",
+            g.depth_zero_mm);
       }
     }
     if (id->creep.presses > 0) std::printf("%s\n", id->creep.summary_text().c_str());

@@ -207,6 +207,14 @@ bool begin_fit(std::span<const double> field_ut, std::span<const uint8_t> channe
   return true;
 }
 
+// An estimate flagged against the model's patch and depth range, in the depth its contacts read
+// (sim::PatchModel::depth_zero_mm() at the surface).
+void flag_model_range(ContactEstimate& e, const sim::PatchModel& model) {
+  const double dz = model.depth_zero_mm();
+  flag_range(e, model.design().size_u_mm / 2, model.design().size_v_mm / 2,
+             model.max_depth_mm() + dz, kRangeMarginMm, kRangeMarginDepthMm - dz);
+}
+
 // The end every single-contact fit shares: the contact at `x` (u, v, depth) with the ambient
 // offset `b` and the shear force `shear` (N; null: not fitted), its chi-square (noise units) and
 // iterations, its reduced chi-square over the unknowns fitted (the shear's only when given), and
@@ -242,7 +250,7 @@ void finish_fit(const sim::PatchModel& model, const PhysicsOptions& options, con
     if (in.ok[i]) energy += contact_field[i] * contact_field[i] * in.inv_sigma[i] * in.inv_sigma[i];
   }
   if (!(energy >= options.no_contact_snr * options.no_contact_snr)) e.flags |= kEstimateNoContact;
-  flag_range(e, model.design().size_u_mm / 2, model.design().size_v_mm / 2, model.max_depth_mm());
+  flag_model_range(e, model);
   bool finite = std::isfinite(chi2);
   for (int k = 0; k < 3; ++k) finite = finite && std::isfinite(x[k]) && std::isfinite(b[k]);
   finite = finite && std::isfinite(e.shear_u_n) && std::isfinite(e.shear_v_n);
@@ -253,17 +261,17 @@ void finish_fit(const sim::PatchModel& model, const PhysicsOptions& options, con
   }
 }
 
-// A contact's bounds: (u, v) within the patch extent plus the margin, depth in
-// [kMinDepthMm, the deepest press].
+// A contact's bounds: (u, v) within the patch extent plus the margin, depth from kMinDepthMm
+// into the lattice to the deepest press (in the depth its contacts read).
 void contact_bounds(const sim::PatchModel& model, const PhysicsOptions& options, double lo[3],
                     double hi[3]) {
   const double half_u = model.design().size_u_mm / 2, half_v = model.design().size_v_mm / 2;
   lo[0] = -half_u - options.uv_margin_mm;
   lo[1] = -half_v - options.uv_margin_mm;
-  lo[2] = kMinDepthMm;
+  lo[2] = model.depth_zero_mm() + kMinDepthMm;
   hi[0] = half_u + options.uv_margin_mm;
   hi[1] = half_v + options.uv_margin_mm;
-  hi[2] = model.max_depth_mm();
+  hi[2] = model.depth_zero_mm() + model.max_depth_mm();
 }
 
 // Levenberg-Marquardt as every fit here runs it: dense QR, one thread, silent.
@@ -1070,7 +1078,6 @@ ContactCountEstimate PhysicsEstimator::count_more(std::span<const double> field_
   prepare_fit(field_ut, channel_ok, nc, options_, &in);
   const uint8_t* ok = in.ok;
   const double* y = in.y;
-  const double half_u = model_.design().size_u_mm / 2, half_v = model_.design().size_v_mm / 2;
   bool& tried = K == 2 ? out.pair_tried : out.triple_tried;
   int& iterations = K == 2 ? out.pair_iterations : out.triple_iterations;
   tried = true;
@@ -1199,7 +1206,7 @@ ContactCountEstimate PhysicsEstimator::count_more(std::span<const double> field_
     e.force_n = model_.force_n(e.depth_mm);
     e.flags = out.single.contact.flags & kEstimateMasked;
     if (!best.converged) e.flags |= kEstimateNotConverged;
-    flag_range(e, half_u, half_v, model_.max_depth_mm());
+    flag_model_range(e, model_);
   }
   // Kept only when better than both the fit of one fewer (kept or not) and the single fit by the
   // information criterion's price (min_chi2_drop for the 3 unknowns a contact adds, 5 with its

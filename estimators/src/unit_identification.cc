@@ -402,12 +402,13 @@ class StageProgress final : public ceres::IterationCallback {
 };
 
 // ---- Stage 1: the design's global physics --------------------------------------------------
-// Nine numbers that a design file may have wrong for a whole unit and that the per-magnet and
+// Ten numbers that a design file may have wrong for a whole unit and that the per-magnet and
 // per-sensor parameters, held to the fabrication spread, cannot absorb: the spread length, the
 // lateral coupling, a height offset common to every magnet, a height offset common to every
-// sensor (negative: deeper), a scale of every moment, the lattice's anisotropy, and the frame
-// the presses were made in against the design's (u and v shift, mm; turn, rad).
-constexpr int kGlobals = 9;
+// sensor (negative: deeper), a scale of every moment, the lattice's anisotropy, the frame the
+// presses were made in against the design's (u and v shift, mm; turn, rad), and the depth they
+// read at the surface (mm).
+constexpr int kGlobals = 10;
 constexpr double kRadPerDeg = M_PI / 180;
 using JetG = ceres::Jet<double, kGlobals>;
 
@@ -507,7 +508,7 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
   const std::size_t ns = d.sensors.size();
   Vec3<T> acc[sim::kMaxSensors];
   for (std::size_t k = 0; k < ns; ++k) acc[k] = Vec3<T>{T(0.0), T(0.0), T(0.0)};
-  const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
+  const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth) - g[9], ctx.tip_mm};
   for (std::size_t m = 0; m < d.magnets.size(); ++m) {
     Vec3<T> pos, moment;
     if (!ctx.shape->magnet_pose(t.mu[m], t.mv[m], t.mh[m], t.m_loc[m], g[0] * (1.0 + g[5]),
@@ -601,21 +602,22 @@ std::array<double, kGlobals> global_vector(const GlobalPhysics& g) {
           g.anisotropy,
           g.frame_du_mm,
           g.frame_dv_mm,
-          g.frame_yaw_deg * kRadPerDeg};
+          g.frame_yaw_deg * kRadPerDeg,
+          g.depth_zero_mm};
 }
 
 std::string describe(const GlobalPhysics& g) {
-  char buf[224];
+  char buf[256];
   std::snprintf(
       buf, sizeof buf,
       "spread %.2f mm, anisotropy %.3f, lateral %.2f mm, magnets %.2f mm, sensors %.2f mm, "
-      "moments x%.3f, presses' frame (%+.2f, %+.2f) mm %+.2f deg",
+      "moments x%.3f, presses' frame (%+.2f, %+.2f) mm %+.2f deg, depth zero %+.3f mm",
       g.spread_mm, g.anisotropy, g.lateral_mm, g.magnet_height_offset_mm, g.sensor_height_offset_mm,
-      g.moment_scale, g.frame_du_mm, g.frame_dv_mm, g.frame_yaw_deg);
+      g.moment_scale, g.frame_du_mm, g.frame_dv_mm, g.frame_yaw_deg, g.depth_zero_mm);
   return buf;
 }
 
-// Stage 1 (see the header): the nine globals by Levenberg-Marquardt from each spread start,
+// Stage 1 (see the header): the ten globals by Levenberg-Marquardt from each spread start,
 // under broad priors about the design; the lowest cost wins. Refuses a fit that ends at a bound.
 Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::UnitParameters& design,
                                   std::span<const Sample> samples,
@@ -630,7 +632,7 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
   const GlobalPriors& pr = opt.global_priors;
   const double l0 = design.spread_mm, lat0 = design.lateral_mm, a0 = design.anisotropy;
   const double yaw_max = pr.frame_yaw_max_deg * kRadPerDeg;
-  const double centre[kGlobals] = {l0, lat0, 0, 0, 1, a0, 0, 0, 0};
+  const double centre[kGlobals] = {l0, lat0, 0, 0, 1, a0, 0, 0, 0, 0};
   const double lo[kGlobals] = {pr.spread_min_rel * l0,
                                0,
                                -pr.height_max_mm,
@@ -639,7 +641,8 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
                                -pr.anisotropy_max,
                                -pr.frame_shift_max_mm,
                                -pr.frame_shift_max_mm,
-                               -yaw_max};
+                               -yaw_max,
+                               -pr.depth_zero_max_mm};
   const double hi[kGlobals] = {pr.spread_max_rel * l0,
                                pr.lateral_max_mm,
                                pr.height_max_mm,
@@ -648,11 +651,13 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
                                pr.anisotropy_max,
                                pr.frame_shift_max_mm,
                                pr.frame_shift_max_mm,
-                               yaw_max};
+                               yaw_max,
+                               pr.depth_zero_max_mm};
   const double inv_sd[kGlobals] = {
-      inv(pr.spread_rel_sd, l0), 1 / pr.lateral_sd_mm,     1 / pr.height_sd_mm,
-      1 / pr.height_sd_mm,       1 / pr.moment_rel_sd,     1 / pr.anisotropy_sd,
-      1 / pr.frame_shift_sd_mm,  1 / pr.frame_shift_sd_mm, 1 / (pr.frame_yaw_sd_deg * kRadPerDeg)};
+      inv(pr.spread_rel_sd, l0),  1 / pr.lateral_sd_mm,     1 / pr.height_sd_mm,
+      1 / pr.height_sd_mm,        1 / pr.moment_rel_sd,     1 / pr.anisotropy_sd,
+      1 / pr.frame_shift_sd_mm,   1 / pr.frame_shift_sd_mm, 1 / (pr.frame_yaw_sd_deg * kRadPerDeg),
+      inv(pr.depth_zero_sd_mm, 1)};
   const char* names[kGlobals] = {"the spread length",
                                  "the lateral coupling",
                                  "the magnets' height",
@@ -661,7 +666,8 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
                                  "the anisotropy",
                                  "the presses' frame's u shift",
                                  "the presses' frame's v shift",
-                                 "the presses' frame's turn"};
+                                 "the presses' frame's turn",
+                                 "the presses' depth zero"};
 
   const ceres::Solver::Options so = solver_options(opt, ceres::DENSE_NORMAL_CHOLESKY);
 
@@ -671,7 +677,7 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
   int starts = 0;
   for (double f : opt.spread_starts) {
     std::array<double, kGlobals> x = {std::clamp(f * l0, lo[0], hi[0]), lat0, 0, 0, 1,
-                                      std::clamp(a0, lo[5], hi[5]),     0,    0, 0};
+                                      std::clamp(a0, lo[5], hi[5]),     0,    0, 0, 0};
     ceres::Problem::Options po;
     po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
     ceres::Problem problem(po);
@@ -695,7 +701,7 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
         std::sqrt(2 * summary.final_cost /
                   static_cast<double>(samples.size() * static_cast<std::size_t>(nc)));
     const GlobalPhysics found{x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8] / kRadPerDeg,
-                              rms,  0};
+                              x[9], rms,  0};
     if (opt.progress) {
       char head[64], tail[64];
       std::snprintf(head, sizeof head, "globals from spread %.1f mm: ", f * l0);
@@ -950,7 +956,9 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   if (!nominal_r.ok()) return nominal_r.error();
   const sim::PatchModel& nominal = nominal_r.value();
 
-  // Rows to fit: per press, the samples nearest to evenly spaced fractions of its deepest one.
+  // Rows to fit: per press, the samples nearest to evenly spaced fractions of its deepest one,
+  // and for stage 1 the one nearest half the first fraction (the onset, where the depth the
+  // presses read at the surface shows best against what the lattice's physics do deeper down).
   // A ramp passes each fraction twice, pressing and releasing; a lattice that creeps or has
   // hysteresis bends differently on the two ways, and rows all from one way would let the fit
   // absorb that way's lag as the unit's static physics. So the fractions below the deepest are
@@ -976,7 +984,7 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
     const int64_t id = presses.press.empty() || presses.press[r] < 0 ? lone-- : presses.press[r];
     by_press[id].push_back(r);
   }
-  std::vector<std::size_t> rows;
+  std::vector<std::size_t> rows, onset_rows;
   std::vector<std::pair<double, double>> press_uv;
   for (const auto& [id, rs] : by_press) {
     std::size_t peak = 0;  // the deepest row's place in rs (the first of equals)
@@ -986,8 +994,10 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
     const double deepest = presses.depth_mm[rs[peak]];
     const bool both_ways = peak > 0 && peak + 1 < rs.size();
     std::vector<std::size_t> picked;
-    for (int k = 1; k <= opt.depths_per_press; ++k) {
-      const double target = deepest * k / opt.depths_per_press;
+    std::size_t onset = 0;
+    // k = 0: half the first fraction, the press's onset, for stage 1 alone (onset_rows).
+    for (int k = 0; k <= opt.depths_per_press; ++k) {
+      const double target = deepest * std::fmax(k, 0.5) / opt.depths_per_press;
       std::size_t from = 0, to = rs.size();  // the rows [from, to) of rs to pick from
       if (both_ways && k < opt.depths_per_press) {
         const bool releasing = (k + press_uv.size()) % 2 == 0;
@@ -1000,8 +1010,14 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
         if (std::fabs(presses.depth_mm[r] - target) < std::fabs(presses.depth_mm[best] - target))
           best = r;
       }
-      if (std::find(picked.begin(), picked.end(), best) == picked.end()) picked.push_back(best);
+      if (k == 0) {
+        onset = best;
+      } else if (std::find(picked.begin(), picked.end(), best) == picked.end()) {
+        picked.push_back(best);
+      }
     }
+    // The onset row, unless a fraction's too (a press too shallow to tell them apart).
+    if (std::find(picked.begin(), picked.end(), onset) == picked.end()) onset_rows.push_back(onset);
     rows.insert(rows.end(), picked.begin(), picked.end());
     press_uv.emplace_back(presses.u_mm[rs.front()], presses.v_mm[rs.front()]);
   }
@@ -1044,13 +1060,18 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
         100 * opt.max_uncovered_share);
   }
 
-  // The fitting samples (their near magnets are found in stage 2) and the channels' weights.
+  // The fitting samples (their near magnets are found in stage 2), stage 1's with the onsets
+  // too, and the channels' weights.
+  auto samples_of = [&](std::span<const std::size_t> rs, std::vector<Sample>* out) {
+    for (std::size_t r : rs) {
+      out->push_back(
+          {presses.u_mm[r], presses.v_mm[r], presses.depth_mm[r], presses.field(r), {}, {}});
+    }
+  };
   std::vector<Sample> samples;
-  samples.reserve(rows.size());
-  for (std::size_t r : rows) {
-    samples.push_back(
-        {presses.u_mm[r], presses.v_mm[r], presses.depth_mm[r], presses.field(r), {}, {}});
-  }
+  samples_of(rows, &samples);
+  std::vector<Sample> with_onsets = samples;
+  samples_of(onset_rows, &with_onsets);
   std::vector<double> inv_sigma;
   for (int c = 0; c < nc; ++c) inv_sigma.push_back(1 / noise.sigma(c));
 
@@ -1069,16 +1090,22 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
 
   // Stage 1: the design's global physics, from several spread lengths; the best start wins.
   start.anisotropy = design_in.anisotropy;  // the design's, the fit's start
-  GlobalPhysics globals{
-      start.spread_mm, start.lateral_mm, 0, 0, 1, start.anisotropy, 0, 0, 0, 0, 0};
+  GlobalPhysics globals;
+  globals.spread_mm = start.spread_mm;
+  globals.lateral_mm = start.lateral_mm;
+  globals.anisotropy = start.anisotropy;
   int iterations = 0;
   if (opt.fit_globals) {
-    Result<GlobalPhysics> g = fit_globals(nominal, start, samples, inv_sigma, opt, &iterations);
+    Result<GlobalPhysics> g = fit_globals(nominal, start, with_onsets, inv_sigma, opt, &iterations);
     if (!g.ok()) return g.error();
     globals = g.value();
     start.spread_mm = globals.spread_mm;
     start.lateral_mm = globals.lateral_mm;
     start.anisotropy = globals.anisotropy;
+    // Stage 2 fits the parts to how far each sample pressed into the lattice; the unit reads
+    // depth as the presses did (sim::UnitParameters::depth_zero_mm).
+    start.depth_zero_mm = globals.depth_zero_mm;
+    for (Sample& smp : samples) smp.depth -= globals.depth_zero_mm;
     // Every part as stage 1 placed it: in the presses' frame, at the heights and moments found.
     const std::array<double, kGlobals> found = global_vector(globals);
     for (sim::MagnetParameters& mp : start.magnets) {

@@ -604,12 +604,13 @@ Result<Dataset> read_dataset_csv(const std::string& path) {
   return d;
 }
 
-void record_in_press_frame(Dataset* d, double du_mm, double dv_mm, double yaw_deg) {
-  const double c = std::cos(yaw_deg * M_PI / 180), s = std::sin(yaw_deg * M_PI / 180);
+void record_in_press_frame(Dataset* d, const PressFrame& f) {
+  const double c = std::cos(f.yaw_deg * M_PI / 180), s = std::sin(f.yaw_deg * M_PI / 180);
   for (std::size_t r = 0; r < d->rows(); ++r) {
     const double u = d->u_mm[r], v = d->v_mm[r];
-    d->u_mm[r] = c * u - s * v + du_mm;
-    d->v_mm[r] = s * u + c * v + dv_mm;
+    d->u_mm[r] = c * u - s * v + f.du_mm;
+    d->v_mm[r] = s * u + c * v + f.dv_mm;
+    d->depth_mm[r] += f.depth_zero_mm;
   }
 }
 

@@ -31,7 +31,7 @@ struct SinglePress {
   SinglePress(const PatchModel& model, const Contact& c, const PatchModel::PressTerms<Dual<3>>& t)
       : u(c.u_mm),
         v(c.v_mm),
-        pressing(c.depth_mm > 0),
+        pressing(model.presses(c)),
         inv_lu(1 / model.spread_u_mm()),
         inv_lv(1 / model.spread_v_mm()),
         inv_lu2(inv_lu * inv_lu),
@@ -350,6 +350,10 @@ Result<PatchModel> PatchModel::from_parameters(const PatchDesign& d, const UnitP
   if (!std::isfinite(u.anisotropy) || !(std::fabs(u.anisotropy + d.anisotropy) < 0.5)) {
     return fail("anisotropy, with the design's, must be in (-0.5, 0.5)");
   }
+  if (!(std::fabs(u.depth_zero_mm) <= 0.2 * d.thickness_mm)) {
+    return fail("depth_zero_mm must be within +-20 % of the lattice's thickness (+-" +
+                std::to_string(0.2 * d.thickness_mm) + " mm)");
+  }
   for (std::size_t i = 0; i < u.magnets.size(); ++i) {
     const MagnetParameters& m = u.magnets[i];
     if (!std::isfinite(m.u_mm) || !std::isfinite(m.v_mm) || !std::isfinite(m.h_mm) ||
@@ -383,6 +387,7 @@ UnitParameters PatchModel::parameters() const {
   UnitParameters u;
   u.spread_mm = spread_;
   u.anisotropy = anisotropy_;
+  u.depth_zero_mm = depth_zero_;
   u.lateral_mm = lateral_;
   u.field_correction = correction_;
   for (const Magnet& m : magnets_) u.magnets.push_back({m.u, m.v, m.h, m.m_loc});
@@ -395,6 +400,7 @@ Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParamete
   p.design_ = d;
   p.spread_ = u.spread_mm;
   p.anisotropy_ = u.anisotropy;
+  p.depth_zero_ = u.depth_zero_mm;
   p.spread_u_ = u.spread_mm * (1 + d.anisotropy + u.anisotropy);
   p.spread_v_ = u.spread_mm * (1 - d.anisotropy - u.anisotropy);
   p.lateral_ = u.lateral_mm;
@@ -569,7 +575,7 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
     } else {
       bool reached = false;  // magnet_pose() would say so, after the magnet's rest pose in jets
       for (const Contact& c : contacts)
-        reached = reached || (c.depth_mm > 0 && magnet_in_reach(m, c.u_mm, c.v_mm));
+        reached = reached || (presses(c) && magnet_in_reach(m, c.u_mm, c.v_mm));
       if (!reached) continue;
       Vec3<D> pos, mom;
       if (!magnet_pose(D(m.u), D(m.v), D(m.h), lift<D>(m.m_loc), lu, lv, lat, jets, terms, &pos,
@@ -659,7 +665,7 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
   std::size_t n_held = 0, first_unheld = contacts.size();
   for (std::size_t j = 0; j < contacts.size(); ++j) {
     const Contact& c = contacts[j];
-    if (!(c.depth_mm > 0)) continue;
+    if (!presses(c)) continue;
     if (n_held == kTermsHeld) {
       first_unheld = j;
       break;
@@ -761,7 +767,7 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
     for (std::size_t j = 0; j < n_held; ++j) add(*held[j].c, &held[j].t, held[j].shear);
     for (std::size_t j = first_unheld; j < contacts.size(); ++j) {
       const Contact& c = contacts[j];
-      if (c.depth_mm > 0) add(c, nullptr, c.shear_u_n != 0 || c.shear_v_n != 0);
+      if (presses(c)) add(c, nullptr, c.shear_u_n != 0 || c.shear_v_n != 0);
     }
     if (!moved) continue;
     const double mu = m.m_loc.x - pu * m.m_loc.z, mv = m.m_loc.y - pv * m.m_loc.z, mz = m.m_loc.z;
@@ -779,9 +785,9 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
 }
 
 double PatchModel::force_n(double depth_mm) const {
-  if (!(depth_mm > 0)) return 0;
-  return design_.stiffness_n_per_mm * depth_mm +
-         design_.stiffening_n_per_mm3 * depth_mm * depth_mm * depth_mm;
+  const double d = depth_mm - depth_zero_;  // into the lattice
+  if (!(d > 0)) return 0;
+  return design_.stiffness_n_per_mm * d + design_.stiffening_n_per_mm3 * d * d * d;
 }
 
 }  // namespace skinbus::sim

@@ -206,6 +206,7 @@ std::string unit_parameters_json(const UnitParameters& p, const UnitFileNote& no
   j["spread_mm"] = p.spread_mm;
   if (p.anisotropy != 0) j["anisotropy"] = p.anisotropy;
   j["lateral_mm"] = p.lateral_mm;
+  if (p.depth_zero_mm != 0) j["depth_zero_mm"] = p.depth_zero_mm;
   json magnets = json::array();
   for (const MagnetParameters& m : p.magnets) {
     magnets.push_back(
@@ -258,6 +259,9 @@ Result<UnitParameters> parse_unit_parameters(std::string_view text, UnitFileNote
     if (r.ok() && !(std::fabs(p.anisotropy) < 0.5)) r.fail("anisotropy must be in (-0.5, 0.5)");
   }
   p.lateral_mm = r.number(j, "lateral_mm", "");
+  if (j.contains("depth_zero_mm")) {  // optional: 0 when absent (a file written before the field)
+    p.depth_zero_mm = r.number(j, "depth_zero_mm", "");
+  }
   r.each_object(j, "magnets", [&](const json& m, const std::string& where) {
     MagnetParameters mp;
     r.position(m, where, &mp);

@@ -308,6 +308,47 @@ TEST(UnitParametersFileTest, TheAnisotropyRoundTripsIntoTheModelAndBadOnesAreNam
   }
 }
 
+// The presses' depth zero identification found: absent when 0, exact, and the model reads depth
+// from it: a contact depth_zero_mm deeper gives the field, the Jacobian and the force of the same
+// unit without one; a contact at the zero presses nothing; one out of range is named.
+TEST(UnitParametersFileTest, TheDepthZeroRoundTripsAndTheModelPressesFromIt) {
+  UnitParameters p = fabricated_unit();
+  EXPECT_EQ(unit_parameters_json(p).find("\"depth_zero_mm\""), std::string::npos);
+  const PatchModel plain = PatchModel::from_parameters(PatchDesign{}, p).value();
+  p.depth_zero_mm = -0.2468013579;
+  auto back = parse_unit_parameters(unit_parameters_json(p));
+  ASSERT_TRUE(back.ok()) << back.error().to_string();
+  EXPECT_TRUE(same_bits(back->depth_zero_mm, p.depth_zero_mm));
+  auto model = PatchModel::of_unit_file(PatchDesign{}, *back);
+  ASSERT_TRUE(model.ok()) << model.error().to_string();
+  EXPECT_TRUE(same_bits(model->parameters().depth_zero_mm, p.depth_zero_mm));
+  const double dz = p.depth_zero_mm;
+  const int nc = plain.channel_count();
+  for (const double depth_mm : {0.3, 1.7, 3.9}) {
+    const Contact c{4.2, -7.5, depth_mm, 5};
+    const Contact read{c.u_mm, c.v_mm, depth_mm + dz, 5};
+    std::vector<double> want(nc), got(nc), jw(3 * nc), jg(3 * nc);
+    plain.contact_field_ut(std::span<const Contact>(&c, 1), want);
+    model->contact_field_ut(std::span<const Contact>(&read, 1), got);
+    for (int i = 0; i < nc; ++i) EXPECT_NEAR(got[i], want[i], 1e-9 * (1 + std::fabs(want[i])));
+    plain.contact_jacobian(c, jw, want);
+    model->contact_jacobian(read, jg, got);
+    for (int i = 0; i < 3 * nc; ++i) EXPECT_NEAR(jg[i], jw[i], 1e-7 * (1 + std::fabs(jw[i])));
+    EXPECT_NEAR(model->force_n(depth_mm + dz), plain.force_n(depth_mm), 1e-12);
+  }
+  const Contact at_zero{0, 0, dz, 5};
+  EXPECT_FALSE(model->presses(at_zero));
+  std::vector<double> touched(nc, 1.0);
+  model->contact_field_ut(std::span<const Contact>(&at_zero, 1), touched);
+  EXPECT_EQ(touched, std::vector<double>(nc, 0.0));  // no field change
+  EXPECT_EQ(model->force_n(dz), 0);
+
+  p.depth_zero_mm = 3.5;  // beyond 20 % of the built-in design's 15 mm lattice
+  auto far = PatchModel::from_parameters(PatchDesign{}, p);
+  ASSERT_FALSE(far.ok());
+  EXPECT_NE(far.error().message.find("depth_zero_mm"), std::string::npos) << far.error().message;
+}
+
 // read_unit_model: the file modelled on its design's class with the file's creep and its note;
 // an anisotropy asked for on top; a file that does not fit the design, or none, named.
 TEST(UnitParametersFileTest, AUnitFileIsModelledOnItsDesignsClassWithItsCreep) {

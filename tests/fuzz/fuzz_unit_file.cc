@@ -68,6 +68,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!(back->anisotropy == p->anisotropy) || !(std::fabs(p->anisotropy) < 0.5)) {
     fail("the anisotropy changed, or one out of range was taken");
   }
+  // The presses' depth zero travels (0 is not written, so -0 comes back +0).
+  if (!(back->depth_zero_mm == p->depth_zero_mm) || !std::isfinite(p->depth_zero_mm)) {
+    fail("the depth zero changed, or a non-finite one was taken");
+  }
   // The creep: a law travels bit for bit; none (fraction 0) is not written, its time with it.
   if (!same(back->creep_fraction, p->creep_fraction) ||
       (p->creep_fraction > 0 && !same(back->creep_time_s, p->creep_time_s))) {

@@ -101,7 +101,8 @@ SampleCheck check_sample(std::span<const double> field_ut, std::span<uint8_t> ch
 // Flags an estimate against the patch extent (half sizes, mm, plus `margin_mm`) and the depth
 // range [0, max_depth_mm] (a small negative depth within `margin_depth_mm` is not flagged).
 // Non-finite outputs are turned into a rejection (kNonFinite): no NaN leaves an estimator.
+constexpr double kRangeMarginMm = 2.0, kRangeMarginDepthMm = 0.2;
 void flag_range(ContactEstimate& e, double half_u_mm, double half_v_mm, double max_depth_mm,
-                double margin_mm = 2.0, double margin_depth_mm = 0.2);
+                double margin_mm = kRangeMarginMm, double margin_depth_mm = kRangeMarginDepthMm);
 
 }  // namespace skinbus::estimators

@@ -20,12 +20,13 @@
 // by the sensor noise:
 // 1. The globals (GlobalPhysics: spread length, lateral coupling, one height offset for every
 //    magnet, one for every sensor, one scale of every moment, the anisotropy, and the presses'
-//    frame against the design's: a shift and a turn), 9 unknowns over every fitting row,
-//    from several spread lengths (the lowest cost wins), under broad priors about the design
-//    (GlobalPriors). A design file is a drawing, not the unit: a lattice printed softer or
-//    magnets set deeper is off by more than fabrication scatter, and the per-part parameters,
-//    held to that scatter, then settle in a poor minimum. A global that runs to its bound is
-//    refused, naming it.
+//    frame against the design's: a shift and a turn, and the depth the presses read at the
+//    surface), 10 unknowns over every fitting row and each press's onset (the sample nearest
+//    half the first fraction, where the depth zero shows), from several spread lengths (the lowest
+//    cost wins), under broad priors about the design (GlobalPriors). A design file is a drawing,
+//    not the unit: a lattice printed softer or magnets set deeper is off by more than fabrication
+//    scatter, and the per-part parameters, held to that scatter, then settle in a poor minimum. A
+//    global that runs to its bound is refused, naming it.
 // 2. Every parameter (maximum a posteriori, sparse normal Cholesky): a Gaussian prior per
 //    parameter, centred on the design with stage 1's globals and as wide as the fabrication
 //    spread (sim::FabricationVariation), fixes the directions the data cannot see (e.g. all
@@ -44,7 +45,7 @@
 // noise; clearly above 1: the model class misses something), overall and per depth bin, on the
 // fitting rows and on held-out rows.
 //
-// Cost: stage 1, a dense 5-unknown fit per spread start, each evaluation moving every magnet a
+// Cost: stage 1, a dense 10-unknown fit per spread start, each evaluation moving every magnet a
 // press reaches for every row; stage 2, a sparse Levenberg-Marquardt over every sample's
 // residuals, a few iterations. For the seed's 361 presses on one core: 5-11 s on units of the
 // model class (16 sensors, 49-81 magnets), about a minute where 57 iterations cannot explain a
@@ -124,6 +125,10 @@ struct GlobalPhysics {
   // then moved by (frame_du_mm, frame_dv_mm); the chips and the moments turn with them. The unit
   // file's parts are in the presses' frame, as the contacts refined on it are.
   double frame_du_mm = 0, frame_dv_mm = 0, frame_yaw_deg = 0;
+  // The depth the presses read when the tip met the surface (an indenter whose zero is off the
+  // surface: positive, it read deep): sim::UnitParameters::depth_zero_mm. The unit reads depth as
+  // the presses did, as it reads (u, v) in their frame.
+  double depth_zero_mm = 0;
   double rms = 0;  // residual with these globals alone, noise units
   int starts = 0;  // starts tried
 };
@@ -140,6 +145,7 @@ struct GlobalPriors {
   double anisotropy_sd = 0.2, anisotropy_max = 0.45;      // about the design's, absolute
   double frame_shift_sd_mm = 3, frame_shift_max_mm = 15;  // the presses' frame, each axis
   double frame_yaw_sd_deg = 3, frame_yaw_max_deg = 20;
+  double depth_zero_sd_mm = 0.5, depth_zero_max_mm = 2;  // the presses' depth zero; sd 0 holds it
 };
 
 // A chip whose readings the design's nominal model explains far better turned from the design

@@ -59,11 +59,18 @@ std::vector<int> stuck_channels(const Dataset& d);
 // Returns a note naming them for the user ("" when none).
 std::string leave_out_stuck_channels(Dataset* d);
 
-// Writes the presses of `d` as an indentation robot whose frame is off the patch's records them:
-// each row's (u_mm, v_mm) turned by yaw_deg about the patch's origin (u toward v), then moved by
-// (du_mm, dv_mm). The fields are untouched: where the unit was pressed does not change
-// (identification finds such a frame, estimators::GlobalPhysics::frame_*).
-void record_in_press_frame(Dataset* d, double du_mm, double dv_mm, double yaw_deg);
+// An indentation robot's frame against the patch's: its origin and axes in the surface, and the
+// depth it reads where its tip meets the surface.
+struct PressFrame {
+  double du_mm = 0, dv_mm = 0, yaw_deg = 0;
+  double depth_zero_mm = 0;  // positive: the robot reads deep
+};
+
+// Writes the presses of `d` as a robot in frame `f` records them: each row's (u_mm, v_mm) turned
+// by yaw_deg about the patch's origin (u toward v), then moved by (du_mm, dv_mm), and its
+// depth_mm read depth_zero_mm deeper. The fields are untouched: where and how deep the unit was
+// pressed does not change (identification finds such a frame, estimators::GlobalPhysics).
+void record_in_press_frame(Dataset* d, const PressFrame& f);
 
 // Where a robot presses. Positions in the patch frame, mm.
 struct PressPoint {

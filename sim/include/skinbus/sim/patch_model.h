@@ -234,6 +234,14 @@ class PatchModel {
   double spread_u_mm() const { return spread_u_; }
   double spread_v_mm() const { return spread_v_; }
   double lateral_mm() const { return lateral_; }
+  // The depth a contact reads when its tip meets the surface (UnitParameters::depth_zero_mm; 0
+  // for a design's units): a contact presses depth_mm - depth_zero_mm() into the lattice.
+  double depth_zero_mm() const { return depth_zero_; }
+  // True when contact `c` presses the lattice: deeper than depth_zero_mm() (false for NaN).
+  template <typename T>
+  bool presses(const ContactT<T>& c) const {
+    return value_of(c.depth_mm) > depth_zero_;
+  }
   // The unit's learned field correction (UnitParameters::field_correction), added to every
   // pressing contact's field change by contact_field_ut() and contact_field_jacobian_ut(); null:
   // none.
@@ -298,7 +306,8 @@ class PatchModel {
     return design_.inplane_drag * amp * shape * offset_mm / spread_mm;
   }
 
-  // Normal force for a press of `depth_mm` (N); 0 for depth <= 0.
+  // Normal force for a press of `depth_mm` (N; the contact's depth, depth_zero_mm() at the
+  // surface); 0 for a contact that does not press.
   double force_n(double depth_mm) const;
   // Deepest press the lattice takes (densified beyond): 60 % of its thickness. Deeper presses
   // act as this depth.
@@ -324,7 +333,8 @@ class PatchModel {
                        static_cast<const PressTerms<T>*>(nullptr), pos, moment);
   }
 
-  // What of one press is the same at every magnet: its depth held to [0, max_depth_mm()], the
+  // What of one press is the same at every magnet: how far it presses into the lattice (its depth
+  // less depth_zero_mm()) held to [0, max_depth_mm()], the
   // tip's squared contact radius (mm^2), that over spread_u x spread_v (capped at
   // kMaxTipContact2) and the deflection's amplitude under the tip (mm: the plate depth over the
   // kernel's value at the tip's edge). For depth <= 0 or NaN (no press) only depth_mm is set.
@@ -354,6 +364,7 @@ class PatchModel {
 
   PatchDesign design_;
   double spread_ = 10, spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
+  double depth_zero_ = 0;  // UnitParameters::depth_zero_mm
   double anisotropy_ = 0;  // the parameters' own (UnitParameters::anisotropy), without the design's
   std::vector<Magnet> magnets_;
   std::vector<Sensor> sensors_;
@@ -409,7 +420,7 @@ PatchModel::PressTerms<T> PatchModel::press_terms(const ContactT<T>& c, const T&
   using std::sqrt;
   PressTerms<T> t;
   // A lattice compresses so far and no further: depth is held to [0, max_depth_mm()].
-  t.depth_mm = c.depth_mm;
+  t.depth_mm = c.depth_mm - T(depth_zero_);
   if (!(value_of(t.depth_mm) > 0)) return t;  // no press (or NaN): nothing moves
   if (value_of(t.depth_mm) > max_depth_mm()) t.depth_mm = T(max_depth_mm());
   const T& depth = t.depth_mm;
@@ -448,7 +459,7 @@ bool PatchModel::magnet_pose(const T& u, const T& v, const T& h, const Vec3<T>& 
   for (std::size_t j = 0; j < contacts.size(); ++j) {
     const ContactT<T>& c = contacts[j];
     // Pressing or not is the contact's depth alone: test it before computing the terms.
-    if (!(value_of(c.depth_mm) > 0)) continue;
+    if (!presses(c)) continue;
     const T du = u - c.u_mm, dv = v - c.v_mm;
     const double sdu = value_of(du) / lu, sdv = value_of(dv) / lv;
     const double s2 = sdu * sdu + sdv * sdv;

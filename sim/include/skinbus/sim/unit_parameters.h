@@ -49,6 +49,12 @@ struct UnitParameters {
   double spread_mm = 10;  // plate-on-foundation length l (mm), > 0: the mean of u's and v's
   double anisotropy = 0;  // l_u = l (1 + a), l_v = l (1 - a); with the design's, |sum| < 0.5
   double lateral_mm = 2;  // in-plane motion of a magnet = -lateral * surface slope (mm), >= 0
+  // The depth the presses read when the tip meets the surface (mm; an indenter whose zero is not
+  // the surface's: positive, it reads deep): a contact's depth_mm presses depth_mm - depth_zero_mm
+  // into the lattice. Identification finds the zero of the presses it was given, and the unit
+  // then reads depth as they did: its contacts, simulated presses and force are in the presses'
+  // depth, as its (u, v) are in their frame. |depth_zero_mm| <= 0.2 x the lattice's thickness.
+  double depth_zero_mm = 0;
   std::vector<MagnetParameters> magnets;  // design order: u index fastest
   std::vector<SensorParameters> sensors;  // design order: u index fastest
   // What the unit's field does beyond the class (skinbus/sim/field_correction.h), learned from its
