@@ -691,6 +691,9 @@ Result<GlobalPhysics> fit_globals(const sim::PatchModel& nominal, const sim::Uni
       problem.SetParameterLowerBound(x.data(), j, lo[j]);
       problem.SetParameterUpperBound(x.data(), j, hi[j]);
     }
+    if (!(pr.depth_zero_sd_mm > 0)) {  // held: the presses read 0 at the surface
+      problem.SetManifold(x.data(), new ceres::SubsetManifold(kGlobals, {9}));
+    }
     ceres::Solver::Summary summary;
     ceres::Solve(so, &problem, &summary);
     *iterations += static_cast<int>(summary.iterations.size()) - 1;

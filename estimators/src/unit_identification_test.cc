@@ -288,6 +288,16 @@ TEST(UnitIdentificationTest, ThePressesFrameAndDepthZeroOffTheDesignsAreFound) {
   const sim::SensorParameters t0 = unit.parameters().sensors.front();
   EXPECT_NEAR(s0.u_mm, c * t0.u_mm - s * t0.v_mm + du, 0.5);
   EXPECT_NEAR(s0.v_mm, s * t0.u_mm + c * t0.v_mm + dv, 0.5);
+
+  // Held at the surface (a robot whose zero was measured: GlobalPriors::depth_zero_sd_mm 0), the
+  // zero stays exactly 0 and the same presses show what it misses.
+  opt.global_priors.depth_zero_sd_mm = 0;
+  const Result<IdentifiedUnit> held = identify_unit(design, data.train, opt, &data.test);
+  ASSERT_TRUE(held.ok()) << held.error().to_string();
+  print_quality("held out, zero held", held->held_out);
+  EXPECT_EQ(held->globals.depth_zero_mm, 0.0);
+  EXPECT_EQ(held->parameters.depth_zero_mm, 0.0);
+  EXPECT_GT(held->held_out.rms, id->held_out.rms + 0.05);
 }
 
 // A lattice whose top crushes under the tip (a deformation law the class does not have): the
