@@ -116,7 +116,10 @@ int main(int argc, char** argv) {
                "out of its fit; docs/physics_estimator.md, \"The field correction\") and put it "
                "in the unit file when it lowers the held-out residual. A fit refused for its "
                "residual is kept when the correction brings the held-out residual within "
-               "--max-residual");
+               "--max-residual. When the class leaves physics and the depth zero was fitted "
+               "off the surface, the fit is made again with the zero held there, and the one "
+               "whose correction explains held-out places better is kept (a crushing top can "
+               "pass for an indenter's zero)");
   CLI11_PARSE(app, argc, argv);
   opt.fit_globals = !keep_globals;
   if (hold_depth_zero) opt.global_priors.depth_zero_sd_mm = 0;
@@ -202,7 +205,9 @@ int main(int argc, char** argv) {
       estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr, &refused);
   // What the fit leaves, learned from the same presses (--field-correction), at the bends the
   // unit's creep gives when it has one.
-  auto learn = [&](const sim::UnitParameters& unit) -> std::optional<sim::UnitParameters> {
+  auto fit_correction =
+      [&](const sim::UnitParameters& unit,
+          estimators::FieldCorrectionReport* report) -> std::optional<sim::FieldCorrection> {
     Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, unit);
     if (!model.ok()) return std::nullopt;
     const sim::Dataset bent =
@@ -212,14 +217,53 @@ int main(int argc, char** argv) {
     fo.noise = opt.noise;
     fo.min_depth_mm = opt.min_depth_mm;
     fo.depth_bin_edges_mm = opt.depth_bin_edges_mm;
-    estimators::FieldCorrectionReport report;
-    const auto t_fit = std::chrono::steady_clock::now();
     Result<sim::FieldCorrection> fc =
-        estimators::fit_field_correction(*model, bent, opt.tip_radius_mm, fo, &report);
+        estimators::fit_field_correction(*model, bent, opt.tip_radius_mm, fo, report);
     if (!fc.ok()) {
       std::printf("field correction not learned: %s\n", fc.error().message.c_str());
       return std::nullopt;
     }
+    return std::move(*fc);
+  };
+  // A unit the class leaves physics in, its depth zero fitted off the surface: a crushing top or
+  // another law near the surface can pass for an indenter's zero, and the field correction may
+  // take it up the better. Both fits are corrected; the lower residual at held-out places wins.
+  const double zero_mm = id.ok() ? id->parameters.depth_zero_mm : refused.depth_zero_mm;
+  const bool outside =
+      id.ok() ? (held_out ? id->held_out.rms : id->fit.rms) > estimators::kModelMissesResidual
+              : !refused.magnets.empty();
+  if (field_correction && outside && std::fabs(zero_mm) > 0.05) {
+    estimators::FieldCorrectionReport fitted, held;
+    const bool fitted_ok = fit_correction(id.ok() ? id->parameters : refused, &fitted).has_value();
+    std::fprintf(stderr,
+                 "skinbus-identify: the class leaves physics and the depth zero is %+.2f mm: "
+                 "fitting again with it held at the surface, to compare the two corrected\n",
+                 zero_mm);
+    estimators::IdentificationOptions held_opt = opt;
+    held_opt.global_priors.depth_zero_sd_mm = 0;
+    sim::UnitParameters held_refused;
+    Result<estimators::IdentifiedUnit> held_id = estimators::identify_unit(
+        design, *presses, held_opt, held_out ? &*held_out : nullptr, &held_refused);
+    const bool held_ok =
+        (held_id.ok() || !held_refused.magnets.empty()) &&
+        fit_correction(held_id.ok() ? held_id->parameters : held_refused, &held).has_value();
+    const bool take_held = held_ok && (!fitted_ok || held.rms_held_out < fitted.rms_held_out);
+    std::printf(
+        "depth zero: corrected residual at held-out places %.3f with it fitted (%+.2f mm), %.3f "
+        "with it held at the surface: %s\n",
+        fitted_ok ? fitted.rms_held_out : NAN, zero_mm, held_ok ? held.rms_held_out : NAN,
+        take_held ? "held (the class's misfit near the surface, not the indenter's zero)"
+                  : "fitted");
+    if (take_held) {
+      id = std::move(held_id);
+      refused = std::move(held_refused);
+    }
+  }
+  auto learn = [&](const sim::UnitParameters& unit) -> std::optional<sim::UnitParameters> {
+    estimators::FieldCorrectionReport report;
+    const auto t_fit = std::chrono::steady_clock::now();
+    std::optional<sim::FieldCorrection> fc = fit_correction(unit, &report);
+    if (!fc) return std::nullopt;
     std::printf("%s\nfield correction learned and checked in %.1f s\n",
                 report.summary_text().c_str(),
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count());
