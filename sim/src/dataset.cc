@@ -634,6 +634,34 @@ uint64_t dataset_fingerprint(const Dataset& d) {
 }
 
 Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tolerance_mm) {
+  // The surface the recording names (its `geometry:` header, when it has one): a cylinder's
+  // presses read on a flat design (or on another radius) are placed on the wrong surface.
+  if (const auto it = d.meta.find("geometry"); it != d.meta.end()) {
+    const std::string& g = it->second;
+    const PatchDesign& des = model.design();
+    const bool cylinder = g.rfind("cylinder", 0) == 0, flat = g.rfind("flat", 0) == 0;
+    double radius_mm = std::nan("");
+    if (const std::size_t at = g.find("radius_mm="); at != std::string::npos) {
+      radius_mm = std::strtod(g.c_str() + at + 10, nullptr);
+    }
+    const bool design_cylinder = des.surface == SurfaceKind::kCylinder;
+    char text[256];
+    if ((cylinder && !design_cylinder) || (flat && design_cylinder)) {
+      std::snprintf(text, sizeof text,
+                    "the recording's geometry header says %s, the design a %s surface: give the "
+                    "patch's own design file",
+                    g.c_str(), design_cylinder ? "cylinder" : "flat");
+      return make_error(ErrorCode::kInvalidArgument, text);
+    }
+    if (cylinder && std::isfinite(radius_mm) &&
+        std::fabs(radius_mm - des.radius_mm) > 0.02 * des.radius_mm) {
+      std::snprintf(text, sizeof text,
+                    "the recording's geometry header says a cylinder of radius %g mm, the design "
+                    "%g mm: give the patch's own design file",
+                    radius_mm, des.radius_mm);
+      return make_error(ErrorCode::kInvalidArgument, text);
+    }
+  }
   if (!d.sensor_layout_known) return Status::Ok();
   const auto& sensors = model.sensors();
   if (d.sensors.size() != sensors.size()) {

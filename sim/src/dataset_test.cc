@@ -249,6 +249,26 @@ TEST(DatasetTest, ARecordingsSensorLayoutIsCheckedAgainstTheDesign) {
   EXPECT_FALSE(check_sensor_layout(*back, *PatchModel::nominal(more)).ok());
   swapped.sensor_layout_known = false;  // a lab recording without `sensor <i>:` lines
   EXPECT_TRUE(check_sensor_layout(swapped, nominal).ok());
+
+  // The surface: a cylinder's recording against the flat design and the reverse, or another
+  // radius, is named; the same cylinder passes.
+  PatchDesign limb;
+  limb.surface = SurfaceKind::kCylinder;
+  limb.radius_mm = 45;
+  const PatchModel on_limb = *PatchModel::nominal(limb);
+  SimulatedPatch limb_patch(on_limb, 2);
+  const Dataset rolled = generate_ramp_dataset(limb_patch, plan_grid(2, 30), RampProtocol{});
+  EXPECT_TRUE(check_sensor_layout(rolled, on_limb).ok());
+  const Status flat_design = check_sensor_layout(rolled, nominal);
+  ASSERT_FALSE(flat_design.ok());
+  EXPECT_NE(flat_design.error().message.find("cylinder radius_mm=45"), std::string::npos)
+      << flat_design.error().message;
+  EXPECT_FALSE(check_sensor_layout(*back, on_limb).ok());
+  limb.radius_mm = 60;
+  const Status other = check_sensor_layout(rolled, *PatchModel::nominal(limb));
+  ASSERT_FALSE(other.ok());
+  EXPECT_NE(other.error().message.find("radius 45 mm, the design 60 mm"), std::string::npos)
+      << other.error().message;
 }
 
 // Creep (PatchDesign::creep_fraction): the plate lags the press, so a ramp bends it less than

@@ -140,6 +140,9 @@ uint64_t dataset_fingerprint(const Dataset& d);
 // same index. kInvalidArgument naming the first that is not (a recording whose sensors are
 // listed in another order than the design file's, or of another patch); Ok when the recording
 // gives no positions. The depths are not compared (identification fits the sensors' height).
+// First, the surface its `geometry:` header names, when it has one: a cylinder against a flat
+// design or the reverse, or a cylinder whose radius is more than 2 % off the design's, is named
+// (surface coordinates read the same on both; the fields do not).
 // Cost: one pass over the sensors.
 Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tolerance_mm = 3.0);
 
