@@ -204,27 +204,35 @@ int main(int argc, char** argv) {
   Result<estimators::IdentifiedUnit> id =
       estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr, &refused);
   // What the fit leaves, learned from the same presses (--field-correction), at the bends the
-  // unit's creep gives when it has one.
-  auto fit_correction =
-      [&](const sim::UnitParameters& unit,
-          estimators::FieldCorrectionReport* report) -> std::optional<sim::FieldCorrection> {
+  // unit's creep gives when it has one; its check and how long it took.
+  struct Learned {
+    std::optional<sim::FieldCorrection> fc;
+    estimators::FieldCorrectionReport report;
+    double seconds = 0;
+  };
+  auto fit_correction = [&](const sim::UnitParameters& unit) {
+    Learned out;
     Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, unit);
-    if (!model.ok()) return std::nullopt;
+    if (!model.ok()) return out;
     const sim::Dataset bent =
         estimators::bent_dataset(estimators::CreepLaw::of(model->design()), *presses);
     std::fprintf(stderr, "skinbus-identify: learning the field correction (seconds) ...\n");
+    const auto t_fit = std::chrono::steady_clock::now();
     estimators::FieldCorrectionOptions fo;
     fo.noise = opt.noise;
     fo.min_depth_mm = opt.min_depth_mm;
     fo.depth_bin_edges_mm = opt.depth_bin_edges_mm;
     Result<sim::FieldCorrection> fc =
-        estimators::fit_field_correction(*model, bent, opt.tip_radius_mm, fo, report);
+        estimators::fit_field_correction(*model, bent, opt.tip_radius_mm, fo, &out.report);
+    out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count();
     if (!fc.ok()) {
       std::printf("field correction not learned: %s\n", fc.error().message.c_str());
-      return std::nullopt;
+      return out;
     }
-    return std::move(*fc);
+    out.fc = std::move(*fc);
+    return out;
   };
+  std::optional<Learned> chosen;  // the kept fit's, when the depth zero's comparison learned it
   // A unit the class leaves physics in, its depth zero fitted off the surface: a crushing top or
   // another law near the surface can pass for an indenter's zero, and the field correction may
   // take it up the better. Both fits are corrected; the lower residual at held-out places wins.
@@ -233,8 +241,8 @@ int main(int argc, char** argv) {
       id.ok() ? (held_out ? id->held_out.rms : id->fit.rms) > estimators::kModelMissesResidual
               : !refused.magnets.empty();
   if (field_correction && outside && std::fabs(zero_mm) > 0.05) {
-    estimators::FieldCorrectionReport fitted, held;
-    const bool fitted_ok = fit_correction(id.ok() ? id->parameters : refused, &fitted).has_value();
+    Learned fitted = fit_correction(id.ok() ? id->parameters : refused), held;
+    const bool fitted_ok = fitted.fc.has_value();
     std::fprintf(stderr,
                  "skinbus-identify: the class leaves physics and the depth zero is %+.2f mm: "
                  "fitting again with it held at the surface, to compare the two corrected\n",
@@ -244,32 +252,34 @@ int main(int argc, char** argv) {
     sim::UnitParameters held_refused;
     Result<estimators::IdentifiedUnit> held_id = estimators::identify_unit(
         design, *presses, held_opt, held_out ? &*held_out : nullptr, &held_refused);
-    const bool held_ok =
-        (held_id.ok() || !held_refused.magnets.empty()) &&
-        fit_correction(held_id.ok() ? held_id->parameters : held_refused, &held).has_value();
-    const bool take_held = held_ok && (!fitted_ok || held.rms_held_out < fitted.rms_held_out);
+    if (held_id.ok() || !held_refused.magnets.empty())
+      held = fit_correction(held_id.ok() ? held_id->parameters : held_refused);
+    const bool held_ok = held.fc.has_value();
+    const bool take_held =
+        held_ok && (!fitted_ok || held.report.rms_held_out < fitted.report.rms_held_out);
     std::printf(
         "depth zero: corrected residual at held-out places %.3f with it fitted (%+.2f mm), %.3f "
         "with it held at the surface: %s\n",
-        fitted_ok ? fitted.rms_held_out : NAN, zero_mm, held_ok ? held.rms_held_out : NAN,
+        fitted_ok ? fitted.report.rms_held_out : NAN, zero_mm,
+        held_ok ? held.report.rms_held_out : NAN,
         take_held ? "held (the class's misfit near the surface, not the indenter's zero)"
                   : "fitted");
     if (take_held) {
       id = std::move(held_id);
       refused = std::move(held_refused);
     }
+    chosen = take_held ? std::move(held) : std::move(fitted);
   }
+  // `unit` with its correction when it helps (the comparison's, for the fit it kept).
   auto learn = [&](const sim::UnitParameters& unit) -> std::optional<sim::UnitParameters> {
-    estimators::FieldCorrectionReport report;
-    const auto t_fit = std::chrono::steady_clock::now();
-    std::optional<sim::FieldCorrection> fc = fit_correction(unit, &report);
-    if (!fc) return std::nullopt;
+    Learned l = chosen ? std::move(*chosen) : fit_correction(unit);
+    chosen.reset();
+    if (!l.fc) return std::nullopt;
     std::printf("%s\nfield correction learned and checked in %.1f s\n",
-                report.summary_text().c_str(),
-                std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count());
-    if (!report.helps || report.rms_held_out > opt.max_residual) return std::nullopt;
+                l.report.summary_text().c_str(), l.seconds);
+    if (!l.report.helps || l.report.rms_held_out > opt.max_residual) return std::nullopt;
     sim::UnitParameters corrected = unit;
-    corrected.field_correction = std::make_shared<const sim::FieldCorrection>(std::move(*fc));
+    corrected.field_correction = std::make_shared<const sim::FieldCorrection>(std::move(*l.fc));
     return corrected;
   };
   if (!id.ok()) std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());
