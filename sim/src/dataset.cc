@@ -641,8 +641,8 @@ Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tol
     const PatchDesign& des = model.design();
     const bool cylinder = g.rfind("cylinder", 0) == 0, flat = g.rfind("flat", 0) == 0;
     double radius_mm = std::nan("");
-    if (const std::size_t at = g.find("radius_mm="); at != std::string::npos) {
-      radius_mm = std::strtod(g.c_str() + at + 10, nullptr);
+    if (const std::optional<std::string_view> r = header_field(d, "geometry", "radius_mm")) {
+      radius_mm = std::strtod(std::string(*r).c_str(), nullptr);
     }
     const bool design_cylinder = des.surface == SurfaceKind::kCylinder;
     char text[256];
@@ -684,21 +684,27 @@ Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tol
   return Status::Ok();
 }
 
-Result<std::optional<double>> recorded_tip_radius_mm(const Dataset& d) {
-  const auto it = d.meta.find("protocol");
-  if (it == d.meta.end()) return std::optional<double>{};
-  // Key=value fields apart by white space; the key starts the line or follows white space.
-  const std::string& line = it->second;
-  constexpr std::string_view kKey = "tip_radius_mm=";
+std::optional<std::string_view> header_field(const Dataset& d, std::string_view meta_key,
+                                             std::string_view key) {
+  const auto it = d.meta.find(std::string(meta_key));
+  if (it == d.meta.end()) return std::nullopt;
+  const std::string_view line = it->second;
+  const std::string tag = std::string(key) + "=";
   std::size_t at = 0;
-  while ((at = line.find(kKey, at)) != std::string::npos && at > 0 &&
+  while ((at = line.find(tag, at)) != std::string_view::npos && at > 0 &&
          std::isspace(static_cast<unsigned char>(line[at - 1])) == 0) {
-    at += kKey.size();
+    at += tag.size();
   }
-  if (at == std::string::npos) return std::optional<double>{};
-  const std::size_t begin = at + kKey.size();
+  if (at == std::string_view::npos) return std::nullopt;
+  const std::size_t begin = at + tag.size();
   const std::size_t end = std::min(line.find_first_of(" \t\r", begin), line.size());
-  const std::string text = line.substr(begin, end - begin);
+  return line.substr(begin, end - begin);
+}
+
+Result<std::optional<double>> recorded_tip_radius_mm(const Dataset& d) {
+  const std::optional<std::string_view> field = header_field(d, "protocol", "tip_radius_mm");
+  if (!field) return std::optional<double>{};
+  const std::string text(*field);
   double tip = std::nan("");
   const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), tip);
   if (ec != std::errc() || ptr != text.data() + text.size() || !std::isfinite(tip) || tip < 0 ||

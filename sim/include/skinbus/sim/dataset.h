@@ -12,6 +12,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "skinbus/common/result.h"
@@ -145,6 +146,12 @@ uint64_t dataset_fingerprint(const Dataset& d);
 // (surface coordinates read the same on both; the fields do not).
 // Cost: one pass over the sensors.
 Status check_sensor_layout(const Dataset& d, const PatchModel& model, double tolerance_mm = 3.0);
+
+// The text of field `key` (`key=value`, fields apart by white space, the key starting the line or
+// following white space) in header `meta_key` of `d`; nullopt when the header or the field is
+// absent. The view is into d.meta. Cost: one scan of the header line.
+std::optional<std::string_view> header_field(const Dataset& d, std::string_view meta_key,
+                                             std::string_view key);
 
 // The indenter tip a recording says its presses were made with: the `tip_radius_mm=` field of its
 // `protocol:` header (every generator above writes it; a lab's recording may). nullopt when the
