@@ -135,6 +135,7 @@ struct Row {
   double residual = -1;  // identification residual RMS, noise units (held out), -1: none
   // An efficient estimator's off-grid depth mean: sqrt(2/pi) x the depth CRLB, mean over presses.
   double depth_efficient_mm = 0;
+  std::array<double, kDepthBins> depth_efficient_bin_mm{};  // the same, per bin
   bool goal = false;
 };
 
@@ -220,14 +221,17 @@ Status bench_budget(const BudgetBenchArgs& a) {
     // estimator's depth mean (sqrt(2/pi) x the depth bound, mean over the presses).
     const std::vector<sim::CrlbPoint> bounds =
         crlb_points_per_row(unit->truth, unit->off_grid, static_cast<int>(unit->off_grid.rows()));
-    std::vector<double> xy_bounds;
+    std::vector<double> xy_bounds, depth_efficient;
     double depth_efficient_mm = 0;
     for (const sim::CrlbPoint& b : bounds) {
       xy_bounds.push_back(b.sd_xy_mm);
-      depth_efficient_mm += b.sd_depth_mm;
+      depth_efficient.push_back(std::sqrt(2 / M_PI) * b.sd_depth_mm);
+      depth_efficient_mm += depth_efficient.back();
     }
-    depth_efficient_mm *= std::sqrt(2 / M_PI) / static_cast<double>(bounds.size());
+    depth_efficient_mm /= static_cast<double>(bounds.size());
     const std::array<double, kDepthBins> crlb = mean_per_bin(xy_bounds, unit->off_grid.depth_mm);
+    const std::array<double, kDepthBins> depth_efficient_bin =
+        mean_per_bin(depth_efficient, unit->off_grid.depth_mm);
     auto add_row = [&](const std::string& pipeline, const Estimator& est, double setup_s,
                        double residual, const CreepLaw& creep = {}) {
       std::fprintf(stderr, "skinbus-bench:   %s\n", pipeline.c_str());
@@ -239,6 +243,7 @@ Status bench_budget(const BudgetBenchArgs& a) {
             setup_s,
             residual,
             depth_efficient_mm,
+            depth_efficient_bin,
             false};
       r.goal = goal_met(r);
       rows.push_back(std::move(r));
@@ -423,7 +428,9 @@ Status bench_budget(const BudgetBenchArgs& a) {
       "off-grid presses and %d per grid point, random depths to 4 mm. x CRLB: mean XY "
       "error / mean CRLB RMS XY bound of the bin (the unit's true model); x efficient: depth "
       "mean / an efficient estimator's (sqrt(2/pi) x the depth CRLB, mean over the presses). "
-      "Goal (off-grid): XY mean <= %.1fx CRLB in every bin >= 1 mm (%.1fx on units whose "
+      "An estimate that found nothing pressed (too light a press) is scored as no contact: its "
+      "press's whole depth in the depth mean, in no XY mean (counts in the CSV). Goal (off-grid): "
+      "XY mean <= %.1fx CRLB in every bin >= 1 mm (%.1fx on units whose "
       "physics are outside the model class: every unit but nominal and fabricated) and depth "
       "mean <= %.2f mm.\n\n",
       a.test_count, a.grid_test_per_point, kGoalInClass, kGoalOutsideClass, kGoalDepthMm);
@@ -462,18 +469,26 @@ Status bench_budget(const BudgetBenchArgs& a) {
       return errorf(ErrorCode::kIo, "cannot write %s", a.csv.c_str());
     }
     f << "unit,pipeline,setup_s,residual_noise_units,off_grid_xy_deep_mm,off_grid_depth_mm,grid_xy_"
-         "deep_mm,grid_depth_mm,goal,depth_efficient_mm";
+         "deep_mm,grid_depth_mm,goal,depth_efficient_mm,off_grid_no_contact";
     for (int b = 0; b < kDepthBins; ++b)
       f << ",xy_mm_" << depth_bin_name(b) << ",crlb_mm_" << depth_bin_name(b);
+    for (int b = 0; b < kDepthBins; ++b)
+      f << ",depth_mm_" << depth_bin_name(b) << ",depth_efficient_mm_" << depth_bin_name(b)
+        << ",no_contact_" << depth_bin_name(b);
     f << "\n";
     for (const Row& r : rows) {
       f << r.unit << ",\"" << r.pipeline << "\"," << r.setup_s << ',' << r.residual << ','
         << xy_mean_from_bin(r.off_grid) << ',' << r.off_grid.all.depth_mean_mm << ','
         << xy_mean_from_bin(r.grid) << ',' << r.grid.all.depth_mean_mm << ',' << (r.goal ? 1 : 0)
-        << ',' << r.depth_efficient_mm;
+        << ',' << r.depth_efficient_mm << ',' << r.off_grid.all.no_contact;
       for (int b = 0; b < kDepthBins; ++b) {
         const auto i = static_cast<std::size_t>(b);
         f << ',' << r.off_grid.bins[i].xy_mean_mm << ',' << r.crlb[i];
+      }
+      for (int b = 0; b < kDepthBins; ++b) {
+        const auto i = static_cast<std::size_t>(b);
+        f << ',' << r.off_grid.bins[i].depth_mean_mm << ',' << r.depth_efficient_bin_mm[i] << ','
+          << r.off_grid.bins[i].no_contact;
       }
       f << "\n";
     }

@@ -12,21 +12,23 @@ namespace {
 struct Accumulator {
   std::vector<double> xy;
   double depth = 0, force = 0;
-  int rejected = 0, flagged = 0;
+  int rejected = 0, no_contact = 0, flagged = 0;
 
   ErrorStats finish() {
     ErrorStats s;
     s.count = static_cast<int>(xy.size());
     s.rejected = rejected;
+    s.no_contact = no_contact;
     s.flagged = flagged;
-    if (xy.empty()) {  // nothing to average: not a perfect score
-      s.xy_mean_mm = s.xy_p95_mm = s.depth_mean_mm = s.force_mean_n = std::nan("");
+    const double scored = static_cast<double>(xy.size()) + no_contact;
+    // Nothing to average is not a perfect score.
+    s.depth_mean_mm = scored > 0 ? depth / scored : std::nan("");
+    s.force_mean_n = scored > 0 ? force / scored : std::nan("");
+    if (xy.empty()) {
+      s.xy_mean_mm = s.xy_p95_mm = std::nan("");
       return s;
     }
-    const double n = static_cast<double>(xy.size());
     s.xy_mean_mm = mean(xy);
-    s.depth_mean_mm = depth / n;
-    s.force_mean_n = force / n;
     s.xy_p95_mm = quantile(std::move(xy), 0.95);
     return s;
   }
@@ -52,6 +54,7 @@ double xy_mean_from_bin(const ErrorSummary& s, int first_bin) {
   int n = 0;
   for (int b = std::max(first_bin, 0); b < kDepthBins; ++b) {
     const ErrorStats& st = s.bins[static_cast<std::size_t>(b)];
+    if (st.count == 0) continue;  // its mean is NaN
     sum += st.xy_mean_mm * st.count;
     n += st.count;
   }
@@ -71,6 +74,12 @@ ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const 
       if (a == nullptr) continue;
       if (!e.valid()) {
         ++a->rejected;
+        continue;
+      }
+      if ((e.flags & kEstimateNoContact) != 0) {
+        ++a->no_contact;
+        a->depth += std::fabs(truth.depth_mm[i]);
+        a->force += std::fabs(truth.force_n[i]);
         continue;
       }
       if ((e.flags & ~static_cast<uint32_t>(kEstimateMasked)) != 0) ++a->flagged;

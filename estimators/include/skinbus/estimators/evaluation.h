@@ -21,9 +21,14 @@ std::string depth_bin_name(int bin);  // "0-0.5", ...
 int depth_bin(double depth_mm);       // -1 for depth < 0
 
 struct ErrorStats {
-  int count = 0;     // estimates compared
-  int rejected = 0;  // truth rows the estimator gave no estimate for (not in the means)
-  int flagged = 0;   // estimates with any flag other than kEstimateMasked
+  int count = 0;     // estimates that placed a contact: those in the XY means
+  int rejected = 0;  // truth rows the estimator gave no estimate for (in no mean)
+  // Estimates that found nothing pressed (kEstimateNoContact: the estimate's fields are a fit to
+  // noise, and the host publishes no contact for them). They count in the depth and force means
+  // as depth 0 and force 0, what a consumer is told, and in no XY mean: a press the estimator
+  // misses costs its whole depth.
+  int no_contact = 0;
+  int flagged = 0;  // placed estimates with any flag other than kEstimateMasked
   double xy_mean_mm = 0, xy_p95_mm = 0, depth_mean_mm = 0, force_mean_n = 0;
 };
 
@@ -41,7 +46,8 @@ struct Truth {
 double xy_mean_from_bin(const ErrorSummary& s, int first_bin = 2);
 
 // Compares `estimates` with `truth` (same length; only the common length is compared). Rejected
-// estimates are counted, not averaged. Statistics of an empty set are NaN, never 0.
+// estimates are counted, not averaged; those that found nothing pressed are scored as such
+// (ErrorStats::no_contact). Statistics of an empty set are NaN, never 0.
 ErrorSummary summarize_errors(std::span<const ContactEstimate> estimates, const Truth& truth);
 
 // Which estimate is which press, for several contacts of one sample: the order of `estimates`
