@@ -444,11 +444,12 @@ Status bench_budget(const BudgetBenchArgs& a) {
   for (int b = 0; b < kDepthBins; ++b)
     std::printf(" off-grid XY %s mm (x CRLB) |", depth_bin_name(b).c_str());
   std::printf(
-      " off-grid XY mean, >= 1 mm deep | off-grid depth mean (x efficient) | grid-point XY mean, "
+      " off-grid XY mean, >= 1 mm deep | off-grid depth mean (x efficient) | off-grid presses "
+      "found empty (>= 1 mm deep) | grid-point XY mean, "
       ">= 1 mm "
       "deep | grid-point depth mean | goal |\n|---|---|---:|---:|");
   for (int b = 0; b < kDepthBins; ++b) std::printf("---:|");
-  std::printf("---:|---:|---:|---:|---|\n");
+  std::printf("---:|---:|---:|---:|---:|---|\n");
   for (const Row& r : rows) {
     std::printf("| %s | %s | %.1f | %s |", r.unit.c_str(), r.pipeline.c_str(), r.setup_s,
                 residual_text(r.residual).c_str());
@@ -457,11 +458,16 @@ Status bench_budget(const BudgetBenchArgs& a) {
       std::printf(" %.3f (%.2f) |", r.off_grid.bins[i].xy_mean_mm,
                   r.crlb[i] > 0 ? r.off_grid.bins[i].xy_mean_mm / r.crlb[i] : 0.0);
     }
+    int empty_deep = 0;  // presses >= 1 mm the estimator found nothing at
+    for (int b = 2; b < kDepthBins; ++b) {
+      empty_deep += r.off_grid.bins[static_cast<std::size_t>(b)].no_contact;
+    }
     std::printf(
-        " %.3f | %.3f (%.2f) | %.3f | %.3f | %s |\n", xy_mean_from_bin(r.off_grid),
+        " %.3f | %.3f (%.2f) | %d (%d) | %.3f | %.3f | %s |\n", xy_mean_from_bin(r.off_grid),
         r.off_grid.all.depth_mean_mm,
         r.depth_efficient_mm > 0 ? r.off_grid.all.depth_mean_mm / r.depth_efficient_mm : 0.0,
-        xy_mean_from_bin(r.grid), r.grid.all.depth_mean_mm, r.goal ? "met" : "not met");
+        r.off_grid.all.no_contact, empty_deep, xy_mean_from_bin(r.grid), r.grid.all.depth_mean_mm,
+        r.goal ? "met" : "not met");
   }
   if (!a.csv.empty()) {
     std::ofstream f(a.csv);

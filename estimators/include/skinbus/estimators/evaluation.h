@@ -24,8 +24,8 @@ struct ErrorStats {
   int count = 0;     // estimates that placed a contact: those in the XY means
   int rejected = 0;  // truth rows the estimator gave no estimate for (in no mean)
   // Estimates that found nothing pressed (kEstimateNoContact: the estimate's fields are a fit to
-  // noise, and the host publishes no contact for them). They count in the depth and force means
-  // as depth 0 and force 0, what a consumer is told, and in no XY mean: a press the estimator
+  // noise, and the host never publishes an estimate so flagged). They count in the depth and force
+  // means as depth 0 and force 0, what a consumer is told, and in no XY mean: a press the estimator
   // misses costs its whole depth.
   int no_contact = 0;
   int flagged = 0;  // placed estimates with any flag other than kEstimateMasked
