@@ -73,7 +73,8 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
                   "simulated units: nominal, fabricated, and outside the model class "
                   "anisotropic, crushing (the top crushes under the tip), discs (finite "
                   "magnets), dragging (another in-plane motion law), creeping (the lattice "
-                  "lags the press; tested on ramps)")
+                  "lags the press; tested on ramps), slow-creeping (creeping with a second, "
+                  "slower lag: identification fits one)")
       ->delimiter(',')
       ->capture_default_str();
   sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")
@@ -95,6 +96,13 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
       ->capture_default_str()
       ->check(CLI::Range(0.0, 0.99));
   sub->add_option("--creep-time", a.creep_time_s, "... with this time constant, s")
+      ->capture_default_str()
+      ->check(CLI::Range(0.001, 3600.0));
+  sub->add_option("--slow-creep", a.creep_slow_fraction,
+                  "the 'slow-creeping' unit: a further part of the bend lags the press ...")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 0.99));
+  sub->add_option("--slow-creep-time", a.creep_slow_time_s, "... with this slower time constant, s")
       ->capture_default_str()
       ->check(CLI::Range(0.001, 3600.0));
   sub->add_option("--seed-model", a.seed_models,

@@ -43,8 +43,9 @@ struct Unit {
 };
 
 // The units `--units` names.
-constexpr std::array<const char*, 7> kUnitNames = {
-    "nominal", "fabricated", "anisotropic", "crushing", "discs", "dragging", "creeping"};
+constexpr std::array<const char*, 8> kUnitNames = {"nominal",  "fabricated",   "anisotropic",
+                                                   "crushing", "discs",        "dragging",
+                                                   "creeping", "slow-creeping"};
 bool known_unit(const std::string& name) {
   return std::find(kUnitNames.begin(), kUnitNames.end(), name) != kUnitNames.end();
 }
@@ -94,9 +95,13 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   } else if (name == "dragging") {
     design.inplane_drag = a.inplane_drag;
     model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
-  } else if (name == "creeping") {
+  } else if (name == "creeping" || name == "slow-creeping") {
     design.creep_fraction = a.creep_fraction;
     design.creep_time_s = a.creep_time_s;
+    if (name == "slow-creeping") {
+      design.creep_slow_fraction = a.creep_slow_fraction;
+      design.creep_slow_time_s = a.creep_slow_time_s;
+    }
     model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
   }
   if (!model.ok()) return model.error();
@@ -107,7 +112,7 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   sim::SimulatedPatch patch(model.value(), sim::unit_noise_seed(a.uid, 1));
   u.presses = sim::generate_ramp_dataset(patch, sim::plan_grid(kGrid, kPitchMm), ramps(design));
   sim::SimulatedPatch test_patch(model.value(), sim::unit_noise_seed(a.uid, 2));
-  if (name == "creeping") {
+  if (design.creep_fraction > 0) {
     // Creep shows where the press moves: ramps at random places (as many as the off-grid test's
     // presses over 8, every few samples kept to about the same count of rows) and at the grid's.
     u.off_grid = every_kth(

@@ -5,6 +5,7 @@
 #include "skinbus/common/text_file.h"
 
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <cerrno>
 #include <charconv>
@@ -211,22 +212,30 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
   const double dt = 1.0 / pr.rate_hz;
   const double ramp_s = pr.max_depth_mm / pr.speed_mm_per_s;
   constexpr double kMoveS = 1.0;  // a second to move to the next point
-  // Creep (PatchDesign::creep_fraction): the lagging part q of the lattice's bend follows the
-  // press with its time constant; the plate bends by (1 - f) d + f q. Stepped at the sample
-  // rate (exactly for a depth held over each step), relaxing while the indenter moves on.
+  // Creep (PatchDesign::creep_fraction, creep_slow_fraction): each lagging part q of the
+  // lattice's bend follows the press with its time constant; the plate bends by
+  // (1 - f - f_s) d + f q + f_s q_s. Stepped at the sample rate (exactly for a depth held over
+  // each step), relaxing while the indenter moves on.
   const PatchDesign& design = patch.model().design();
-  const double creep = design.creep_fraction;
-  const double relax_step = 1 - std::exp(-dt / design.creep_time_s);
-  const double relax_move = std::exp(-kMoveS / design.creep_time_s);
-  double lag_mm = 0;
+  struct Lag {
+    double fraction, relax_step, relax_move, mm = 0;
+  };
+  std::array<Lag, 2> lags = {
+      Lag{design.creep_fraction, 1 - std::exp(-dt / design.creep_time_s),
+          std::exp(-kMoveS / design.creep_time_s)},
+      Lag{design.creep_slow_fraction, 1 - std::exp(-dt / design.creep_slow_time_s),
+          std::exp(-kMoveS / design.creep_slow_time_s)}};
   double t = 0;
   for (std::size_t k = 0; k < plan.size(); ++k) {
     // Down, then up, sampled at the rate; the sample times start half a period in.
     for (double tp = dt / 2; tp < 2 * ramp_s; tp += dt) {
       const double depth = pr.speed_mm_per_s * (tp < ramp_s ? tp : 2 * ramp_s - tp);
-      lag_mm += (depth - lag_mm) * relax_step;
+      double bent = depth;
+      for (Lag& lag : lags) {
+        lag.mm += (depth - lag.mm) * lag.relax_step;
+        bent += lag.fraction * (lag.mm - depth);
+      }
       if (!(depth > pr.min_depth_mm)) continue;
-      const double bent = creep > 0 ? (1 - creep) * depth + creep * lag_mm : depth;
       const Contact c{plan[k].u_mm, plan[k].v_mm, bent, pr.tip_radius_mm};
       patch.measure(std::span<const Contact>(&c, 1), env, m);
       for (int i = 0; i < nc; ++i) tared[i] = m[i] - baseline[i];
@@ -234,7 +243,7 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
                tared.data());
     }
     t += 2 * ramp_s + kMoveS;
-    lag_mm *= relax_move;
+    for (Lag& lag : lags) lag.mm *= lag.relax_move;
   }
   return d;
 }

@@ -319,6 +319,70 @@ TEST(DatasetTest, CreepBendsThePlateLessLoadingThanUnloading) {
   EXPECT_EQ(generate_ramp_dataset(still, plan_grid(3, 30), pr).field_ut, a.field_ut);
 }
 
+// A second, slower lag (PatchDesign::creep_slow_fraction) is the same law with its own time
+// constant, added: alone it is the first lag's twin, and with the first the plate bends by both.
+TEST(DatasetTest, ASlowSecondLagIsTheSameLawAdded) {
+  RampProtocol pr;
+  auto ramps = [&](double f, double tau, double f_slow, double tau_slow) {
+    PatchDesign d;
+    d.creep_fraction = f;
+    d.creep_time_s = tau;
+    d.creep_slow_fraction = f_slow;
+    d.creep_slow_time_s = tau_slow;
+    SimulatedPatch p(*PatchModel::nominal(d), 1);
+    return generate_ramp_dataset(p, plan_grid(3, 30), pr);
+  };
+  const Dataset fast = ramps(0.2, 0.3, 0, 3);
+  EXPECT_EQ(ramps(0, 3, 0.2, 0.3).field_ut, fast.field_ut);  // twins
+  const Dataset both = ramps(0.2, 0.3, 0.15, 3), slow = ramps(0, 0.3, 0.15, 3);
+  const Dataset plain = ramps(0, 0.3, 0, 3);
+  ASSERT_EQ(both.rows(), fast.rows());
+  EXPECT_EQ(both.depth_mm, fast.depth_mm);
+  // Over the rows >= 1 mm: the field's change from the plain unit's against the two lags' own
+  // changes summed. The field is nearly linear in a small change of the bend, so the sum holds to
+  // a few percent of the change (4.3 % measured); were either lag left out of the pair, it would
+  // miss by that lag's whole share (a third or more).
+  const auto nc = static_cast<std::size_t>(both.channels());
+  double change = 0, miss = 0;
+  int rows = 0;
+  for (std::size_t r = 0; r < both.rows(); ++r) {
+    if (both.depth_mm[r] < 1.0) continue;
+    ++rows;
+    for (std::size_t c = 0; c < nc; ++c) {
+      const std::size_t i = r * nc + c;
+      const double d_both = both.field_ut[i] - plain.field_ut[i];
+      const double d_fast = fast.field_ut[i] - plain.field_ut[i];
+      const double d_slow = slow.field_ut[i] - plain.field_ut[i];
+      change += d_both * d_both;
+      miss += (d_both - d_fast - d_slow) * (d_both - d_fast - d_slow);
+    }
+  }
+  const double ratio = std::sqrt(miss / change);
+  std::printf("%d rows: the lags' summed changes miss the pair's by %.2f %% (RMS)\n", rows,
+              100 * ratio);
+  EXPECT_GT(rows, 100);
+  EXPECT_GT(change, 0);
+  EXPECT_LT(ratio, 0.1);
+  // Each lag on its own makes every loading row >= 1 mm weaker, and the pair weaker still.
+  int loading = 0, ordered = 0;
+  auto norm = [nc](const Dataset& d, std::size_t r) {
+    double n = 0;
+    for (std::size_t c = 0; c < nc; ++c) n += d.field_ut[r * nc + c] * d.field_ut[r * nc + c];
+    return n;
+  };
+  for (std::size_t r = 1; r + 1 < both.rows(); ++r) {
+    if (both.depth_mm[r] < 1.0 || both.press[r - 1] != both.press[r] ||
+        both.press[r + 1] != both.press[r] || !(both.depth_mm[r + 1] > both.depth_mm[r])) {
+      continue;
+    }
+    ++loading;
+    const double p = norm(plain, r), b = norm(both, r);
+    ordered += norm(fast, r) < p && norm(slow, r) < p && b < norm(fast, r) && b < norm(slow, r);
+  }
+  EXPECT_GT(loading, 300);
+  EXPECT_GE(ordered, loading * 95 / 100) << ordered << " of " << loading;
+}
+
 TEST(DatasetTest, CsvRoundTrip) {
   SimulatedPatch p = make_patch();
   Dataset d = generate_random_test_set(p, 50, 65, 4, 9);

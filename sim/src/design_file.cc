@@ -146,7 +146,8 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
   if (const YAML::Node l = root["lattice"]; l && !r.error) {
     r.only(l, "lattice",
            {"spread_mm", "lateral_mm", "anisotropy", "tip_crush_mm", "inplane_drag",
-            "creep_fraction", "creep_time_s", "shear_stiffness_n_per_mm", "shear_spread_mm"});
+            "creep_fraction", "creep_time_s", "creep_slow_fraction", "creep_slow_time_s",
+            "shear_stiffness_n_per_mm", "shear_spread_mm"});
     r.get_double(l, "spread_mm", "lattice.", 1e-3, kMaxLengthMm, &d.spread_mm);
     r.get_double(l, "lateral_mm", "lattice.", 0, kMaxLengthMm, &d.lateral_mm);
     r.get_double(l, "anisotropy", "lattice.", -0.499, 0.499, &d.anisotropy);
@@ -154,6 +155,8 @@ Result<PatchDesign> parse_root(const YAML::Node& root) {
     r.get_double(l, "inplane_drag", "lattice.", 0, 1, &d.inplane_drag);
     r.get_double(l, "creep_fraction", "lattice.", 0, 0.999, &d.creep_fraction);
     r.get_double(l, "creep_time_s", "lattice.", 1e-3, 3600, &d.creep_time_s);
+    r.get_double(l, "creep_slow_fraction", "lattice.", 0, 0.999, &d.creep_slow_fraction);
+    r.get_double(l, "creep_slow_time_s", "lattice.", 1e-3, 3600, &d.creep_slow_time_s);
     r.get_double(l, "shear_stiffness_n_per_mm", "lattice.", 1e-6, 1e6, &d.shear_stiffness_n_per_mm);
     r.get_double(l, "shear_spread_mm", "lattice.", 1e-3, kMaxLengthMm, &d.shear_spread_mm);
   }
@@ -259,6 +262,10 @@ std::string design_to_yaml(const PatchDesign& d) {
     << "  creep_fraction: " << yaml_number(d.creep_fraction)
     << "   # this part of the bend lags the press (0: no creep) ...\n"
     << "  creep_time_s: " << yaml_number(d.creep_time_s) << "   # ... with this time constant\n"
+    << "  creep_slow_fraction: " << yaml_number(d.creep_slow_fraction)
+    << "   # a further part lags (the simulator's alone) ...\n"
+    << "  creep_slow_time_s: " << yaml_number(d.creep_slow_time_s)
+    << "   # ... with this slower time constant\n"
     << "  shear_stiffness_n_per_mm: " << yaml_number(d.shear_stiffness_n_per_mm)
     << "   # in-plane shift under a tangential force F: F / this\n"
     << "  shear_spread_mm: " << yaml_number(d.shear_spread_mm)

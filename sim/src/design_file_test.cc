@@ -71,6 +71,8 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     d.inplane_drag = u01(rng) < 0.5 ? 0.0 : 0.3 * u01(rng);
     d.creep_fraction = u01(rng) < 0.5 ? 0.0 : 0.5 * u01(rng);
     d.creep_time_s = 0.05 + u01(rng);
+    d.creep_slow_fraction = u01(rng) < 0.5 ? 0.0 : 0.4 * u01(rng);
+    d.creep_slow_time_s = 1 + 10 * u01(rng);
     d.stiffness_n_per_mm = 0.5 + 3 * u01(rng);
     d.shear_stiffness_n_per_mm = 0.3 + 3 * u01(rng);
     d.shear_spread_mm = 2 + 12 * u01(rng);
@@ -89,6 +91,8 @@ TEST(DesignFile, RandomDesignsRoundTripExactly) {
     EXPECT_EQ(back->inplane_drag, d.inplane_drag) << "seed " << seed;
     EXPECT_EQ(back->creep_fraction, d.creep_fraction) << "seed " << seed;
     EXPECT_EQ(back->creep_time_s, d.creep_time_s) << "seed " << seed;
+    EXPECT_EQ(back->creep_slow_fraction, d.creep_slow_fraction) << "seed " << seed;
+    EXPECT_EQ(back->creep_slow_time_s, d.creep_slow_time_s) << "seed " << seed;
     EXPECT_EQ(back->indenter_tip_radius_mm, d.indenter_tip_radius_mm) << "seed " << seed;
   }
 }
@@ -200,6 +204,9 @@ TEST(DesignFile, EveryBadSettingIsNamedWithItsLine) {
       {head + "lattice:\n  inplane_drag: 2\n", "lattice.inplane_drag (line 4)"},
       {head + "lattice:\n  creep_fraction: 1\n", "lattice.creep_fraction (line 4)"},
       {head + "lattice:\n  creep_time_s: 0\n", "lattice.creep_time_s (line 4)"},
+      {head + "lattice:\n  creep_slow_time_s: -1\n", "lattice.creep_slow_time_s (line 4)"},
+      {head + "lattice:\n  creep_fraction: 0.6\n  creep_slow_fraction: 0.5\n",
+       "creep_fraction + creep_slow_fraction < 1"},
       {head + "force_law:\n  stiffness_n_per_mm: nan\n", "force_law.stiffness_n_per_mm (line 4)"},
       {head + "indenter:\n  tip_radius_mm: 60\n", "indenter.tip_radius_mm (line 4): 60 is outside"},
       {head + "indenter:\n  radius_mm: 4\n", "indenter.radius_mm (line 4): unknown setting"},

@@ -188,6 +188,11 @@ Status validate(const PatchDesign& d) {
     return bad("creep_fraction must be in [0, 1)");
   if (!positive(d.creep_time_s) || d.creep_time_s > 3600)
     return bad("creep_time_s must be in (0, 3600]");
+  if (!std::isfinite(d.creep_slow_fraction) || d.creep_slow_fraction < 0 ||
+      d.creep_fraction + d.creep_slow_fraction >= 1)
+    return bad("creep_slow_fraction must be >= 0, and creep_fraction + creep_slow_fraction < 1");
+  if (!positive(d.creep_slow_time_s) || d.creep_slow_time_s > 3600)
+    return bad("creep_slow_time_s must be in (0, 3600]");
   if (!std::isfinite(d.stiffness_n_per_mm) || d.stiffness_n_per_mm <= 0)
     return bad("stiffness_n_per_mm must be > 0");
   if (!positive(d.shear_stiffness_n_per_mm)) return bad("shear_stiffness_n_per_mm must be > 0");
@@ -320,6 +325,7 @@ PatchDesign class_design(const PatchDesign& design) {
   d.tip_crush_mm = 0;    // the plate bent by the whole depth,
   d.inplane_drag = 0;    // in-plane motion by the slope alone,
   d.creep_fraction = 0;  // no lag
+  d.creep_slow_fraction = 0;
   return d;
 }
 

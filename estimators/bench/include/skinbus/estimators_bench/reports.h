@@ -69,11 +69,13 @@ struct BudgetBenchArgs {
   // (PatchDesign::tip_crush_mm), "discs" (PatchModel::with_disc_magnets), "dragging"
   // (PatchDesign::inplane_drag), "creeping" (PatchDesign::creep_fraction, with creep_time_s; its
   // test presses are ramps, as the presses it is calibrated on: a static press is the relaxed
-  // state).
+  // state), "slow-creeping" (the same with a second, slower lag: creep_slow_fraction, which no
+  // estimator's class has).
   double anisotropy = 0.05;
   double tip_crush_mm = 20;
   double inplane_drag = 0.15;
   double creep_fraction = 0.25, creep_time_s = 0.3;
+  double creep_slow_fraction = 0.1, creep_slow_time_s = 3;
   std::vector<std::string> seed_models;  // "unit=path": seed CNN trained on that unit's grid
   int test_count = 2000;                 // off-grid test presses
   int grid_test_per_point = 3;           // test presses at every grid point
