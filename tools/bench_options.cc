@@ -74,7 +74,7 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
                   "anisotropic, crushing (the top crushes under the tip), discs (finite "
                   "magnets), dragging (another in-plane motion law), creeping (the lattice "
                   "lags the press; tested on ramps), slow-creeping (creeping with a second, "
-                  "slower lag: identification fits one)")
+                  "slower lag, which identification finds when held-out presses show it)")
       ->delimiter(',')
       ->capture_default_str();
   sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")

@@ -10,20 +10,19 @@ namespace skinbus::estimators {
 
 namespace {
 
-// One step of the law's lag to a sample at `t_s`, the depth taken linear between the press's
-// previous sample (depth d0) and this one (d1), exact for a ramp: q1 = e q0 + (g - e) d0 +
-// (1 - g) d1, e = exp(-h / tau), g = (tau / h)(1 - e). A press's first sample: q0 relaxed over
-// the time since the previous call (the indenter off the patch), e = g = 1 (q1 = q0). Updates
-// `last_t_s`.
+// One step of a lag of time constant `time_s` to a sample `h` seconds after the previous one
+// (NaN before the first), the depth taken linear between the press's previous sample (depth d0)
+// and this one (d1), exact for a ramp: q1 = e q0 + (g - e) d0 + (1 - g) d1, e = exp(-h / tau),
+// g = (tau / h)(1 - e). A press's first sample: q0 relaxed over the time since the previous
+// call (the indenter off the patch), e = g = 1 (q1 = q0).
 struct Step {
   double e = 1, g = 1;
   double lag(double q0, double d0, double d1) const { return e * q0 + (g - e) * d0 + (1 - g) * d1; }
 };
-Step advance(const CreepLaw& law, double t_s, bool same_press, double* lag_mm, double* last_t_s) {
+Step advance(double time_s, double h, bool same_press, double* lag_mm) {
   Step s;
-  const double h = t_s - *last_t_s;  // NaN before the first sample
   if (h > 0) {
-    const double x = h / law.time_s;
+    const double x = h / time_s;
     if (same_press) {
       s.e = std::exp(-x);
       s.g = -std::expm1(-x) / x;
@@ -31,7 +30,6 @@ Step advance(const CreepLaw& law, double t_s, bool same_press, double* lag_mm, d
       *lag_mm *= std::exp(-x);
     }
   }
-  *last_t_s = t_s;
   return s;
 }
 
@@ -44,9 +42,10 @@ bool static_press(const sim::Dataset& d, std::size_t r) {
   return new_press(d, r) && (r + 1 == d.rows() || new_press(d, r + 1));
 }
 
-// Solves the n x n system a x = b (row-major a, n <= 4) by Gaussian elimination with partial
+// Solves the n x n system a x = b (row-major a, n <= N) by Gaussian elimination with partial
 // pivoting; false when singular.
-bool solve(int n, double a[4][4], double b[4], double x[4]) {
+template <int N>
+bool solve(int n, double (&a)[N][N], double (&b)[N], double (&x)[N]) {
   for (int c = 0; c < n; ++c) {
     int p = c;
     for (int r = c + 1; r < n; ++r) {
@@ -122,17 +121,81 @@ struct Sums {
   }
 };
 
+// The time constants searched: this many log-spaced steps over the options' range.
+constexpr int kTauGrid = 40;
+
+// The minimum of `cost` over [a, b] by golden section (`iterations` steps): the interval's middle.
+template <typename Cost>
+double golden_min(const Cost& cost, double a, double b, int iterations) {
+  const double g = (std::sqrt(5.0) - 1) / 2;
+  for (int it = 0; it < iterations; ++it) {
+    const double x1 = b - g * (b - a), x2 = a + g * (b - a);
+    if (cost(x1) < cost(x2)) {
+      b = x2;
+    } else {
+      a = x1;
+    }
+  }
+  return (a + b) / 2;
+}
+
+// The same regression with two lags: e on z = (1, d, d^2, x, x_s), the fast lag's term and the
+// slow one's.
+struct Sums2 {
+  double g[6][6] = {};
+  void add(const double z[6]) {
+    for (int i = 0; i < 6; ++i) {
+      for (int j = 0; j < 6; ++j) g[i][j] += z[i] * z[j];
+    }
+  }
+  Sums2& operator+=(const Sums2& o) {
+    for (int i = 0; i < 6; ++i) {
+      for (int j = 0; j < 6; ++j) g[i][j] += o.g[i][j];
+    }
+    return *this;
+  }
+  // (c0, c1, c2, f, f_s); false unless both fractions are positive and sum to at most 0.95.
+  bool fit(double w[5]) const {
+    double a[5][5], b[5], x[5] = {0, 0, 0, 0, 0};
+    for (int i = 0; i < 5; ++i) {
+      for (int j = 0; j < 5; ++j) a[i][j] = g[i][j];
+      b[i] = g[i][5];
+    }
+    if (!solve(5, a, b, x) || !(x[3] > 0) || !(x[4] > 0) || !(x[3] + x[4] <= 0.95)) return false;
+    for (int i = 0; i < 5; ++i) w[i] = x[i];
+    return true;
+  }
+  double sse(const double w[5]) const {
+    double s = g[5][5];
+    for (int i = 0; i < 5; ++i) {
+      s -= 2 * w[i] * g[i][5];
+      for (int j = 0; j < 5; ++j) s += w[i] * w[j] * g[i][j];
+    }
+    return std::max(0.0, s);
+  }
+  double cost() const {  // the least squared residual; infinite without a valid fit
+    double w[5];
+    return fit(w) ? sse(w) : std::numeric_limits<double>::infinity();
+  }
+};
+
 }  // namespace
 
 double CreepCompensator::depth_mm(double t_s, double bend_mm, bool same_press) {
   if (law_.none() || !std::isfinite(t_s) || !std::isfinite(bend_mm)) return bend_mm;
-  const Step st = advance(law_, t_s, same_press, &lag_mm_, &last_t_s_);
+  const double h = t_s - last_t_s_;  // NaN before the first sample
+  const Step st = advance(law_.time_s, h, same_press, &lag_mm_);
+  const Step ss = advance(law_.slow_time_s, h, same_press, &slow_lag_mm_);
+  last_t_s_ = t_s;
   if (!same_press) last_depth_mm_ = 0;
-  // b1 = (1 - f g) d1 + f (e q0 + (g - e) d0), solved for d1.
-  const double f = law_.fraction;
-  const double depth =
-      (bend_mm - f * (st.e * lag_mm_ + (st.g - st.e) * last_depth_mm_)) / (1 - f * st.g);
-  lag_mm_ = st.lag(lag_mm_, last_depth_mm_, depth);
+  // b1 = (1 - f g - f_s g_s) d1 + f (e q0 + (g - e) d0) + f_s (e_s q_s0 + (g_s - e_s) d0), solved
+  // for d1.
+  const double f = law_.fraction, fs = law_.slow_fraction, d0 = last_depth_mm_;
+  const double depth = (bend_mm - f * (st.e * lag_mm_ + (st.g - st.e) * d0) -
+                        fs * (ss.e * slow_lag_mm_ + (ss.g - ss.e) * d0)) /
+                       (1 - f * st.g - fs * ss.g);
+  lag_mm_ = st.lag(lag_mm_, d0, depth);
+  slow_lag_mm_ = ss.lag(slow_lag_mm_, d0, depth);
   last_depth_mm_ = depth;
   return depth;
 }
@@ -156,7 +219,8 @@ void undo_creep(const CreepLaw& law, const sim::Dataset& d, std::span<ContactEst
 
 std::vector<double> creep_bend_mm(const CreepLaw& law, const sim::Dataset& d) {
   std::vector<double> bend(d.rows(), std::numeric_limits<double>::quiet_NaN());
-  double lag = 0, last_depth = 0, last_t = std::numeric_limits<double>::quiet_NaN();
+  double lag = 0, slow_lag = 0, last_depth = 0, last_t = std::numeric_limits<double>::quiet_NaN();
+  const double f = law.fraction, fs = law.slow_fraction;
   for (std::size_t r = 0; r < d.rows(); ++r) {
     const double t = d.t_s[r], depth = d.depth_mm[r];
     if (!std::isfinite(depth)) continue;
@@ -166,18 +230,34 @@ std::vector<double> creep_bend_mm(const CreepLaw& law, const sim::Dataset& d) {
     }
     if (!std::isfinite(t)) continue;
     const bool same = !new_press(d, r);
-    const Step st = advance(law, t, same, &lag, &last_t);
-    lag = st.lag(lag, same ? last_depth : 0.0, depth);
-    bend[r] = (1 - law.fraction) * depth + law.fraction * lag;
+    const double h = t - last_t;
+    last_t = t;
+    const double d0 = same ? last_depth : 0.0;
+    const Step st = advance(law.time_s, h, same, &lag);  // relaxes `lag` between presses
+    lag = st.lag(lag, d0, depth);
+    bend[r] = (1 - f) * depth + f * lag;
+    if (fs > 0) {
+      const Step ss = advance(law.slow_time_s, h, same, &slow_lag);
+      slow_lag = ss.lag(slow_lag, d0, depth);
+      bend[r] += fs * (slow_lag - depth);
+    }
     last_depth = depth;
   }
   return bend;
 }
 
 std::string CreepFit::summary_text() const {
-  char buf[256];
+  char buf[320];
   if (!kept) {
     std::snprintf(buf, sizeof buf, "creep: none kept (%s)", why.c_str());
+  } else if (law.slow_fraction > 0) {
+    std::snprintf(buf, sizeof buf,
+                  "creep: %.3f of the bend lags the press by %.3f s and %.3f by %.3f s; depth "
+                  "residual on held-out presses %.4f -> %.4f mm RMS (one lag: %.4f; %d ramps, %d "
+                  "samples)",
+                  law.fraction, law.time_s, law.slow_fraction, law.slow_time_s,
+                  held_out_rms_before_mm, held_out_rms_after_mm, held_out_rms_one_lag_mm, presses,
+                  rows);
   } else {
     std::snprintf(buf, sizeof buf,
                   "creep: %.3f of the bend lags the press by %.3f s; depth residual on held-out "
@@ -293,29 +373,18 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
       const Sums s = pick(sums_at(std::exp(log_tau)));
       return s.sse(s.fit(true));
     };
-    constexpr int kGrid = 40;
     const double lo = std::log(opt.min_time_s), hi = std::log(opt.max_time_s);
     int best = 0;
     double best_cost = std::numeric_limits<double>::infinity();
-    for (int i = 0; i <= kGrid; ++i) {
-      const double c = cost(lo + (hi - lo) * i / kGrid);
+    for (int i = 0; i <= kTauGrid; ++i) {
+      const double c = cost(lo + (hi - lo) * i / kTauGrid);
       if (c < best_cost) {
         best_cost = c;
         best = i;
       }
     }
-    double a = lo + (hi - lo) * std::max(0, best - 1) / kGrid;
-    double b = lo + (hi - lo) * std::min(kGrid, best + 1) / kGrid;
-    const double g = (std::sqrt(5.0) - 1) / 2;
-    for (int it = 0; it < 30; ++it) {
-      const double x1 = b - g * (b - a), x2 = a + g * (b - a);
-      if (cost(x1) < cost(x2)) {
-        b = x2;
-      } else {
-        a = x1;
-      }
-    }
-    return std::exp((a + b) / 2);
+    return std::exp(golden_min(cost, lo + (hi - lo) * std::max(0, best - 1) / kTauGrid,
+                               lo + (hi - lo) * std::min(kTauGrid, best + 1) / kTauGrid, 30));
   };
 
   // Held out: each fold's law (its own tau, fraction and bias) on the other fold's rows; before:
@@ -331,16 +400,109 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
     n += held.n();
   }
   out.held_out_rms_before_mm = std::sqrt(before / n);
-  out.held_out_rms_after_mm = std::sqrt(after / n);
+  out.held_out_rms_after_mm = out.held_out_rms_one_lag_mm = std::sqrt(after / n);
   const double tau = best_tau([&pooled](const std::array<Sums, 2>& s) { return pooled(s); });
   const double f = pooled(sums_at(tau)).fit(true).fraction();
+  const std::string gain = std::to_string(static_cast<int>(std::lround(100 * opt.min_gain))) + " %";
   if (!(after <= (1 - opt.min_gain) * before) || !(f > 0)) {
-    out.why = "it does not lower the depth residual of held-out presses by " +
-              std::to_string(static_cast<int>(std::lround(100 * opt.min_gain))) + " %";
+    out.why = "it does not lower the depth residual of held-out presses by " + gain;
     return out;
   }
   out.law = {f, tau};
   out.kept = true;
+  if (!opt.slow_lag) return out;
+
+  // Two lags: the rows with a bend, and each grid time constant's lag term at them.
+  std::vector<std::size_t> rows;
+  for (std::size_t r = 0; r < d.rows(); ++r) {
+    if (std::isfinite(bend[r])) rows.push_back(r);
+  }
+  const double lo = std::log(opt.min_time_s), hi = std::log(opt.max_time_s);
+  auto lag_terms = [&](double tau_s) {  // the lag's term x = q - d at `rows`; NaN: none
+    const std::vector<double> q = creep_bend_mm({1, tau_s}, d);
+    std::vector<double> x(rows.size());
+    for (std::size_t i = 0; i < rows.size(); ++i) x[i] = q[rows[i]] - d.depth_mm[rows[i]];
+    return x;
+  };
+  std::vector<std::vector<double>> grid_terms(kTauGrid + 1);
+  for (int i = 0; i <= kTauGrid; ++i) {
+    grid_terms[static_cast<std::size_t>(i)] = lag_terms(std::exp(lo + (hi - lo) * i / kTauGrid));
+  }
+  auto sums2 = [&](const std::vector<double>& x, const std::vector<double>& xs) {
+    std::array<Sums2, 2> s;
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      const std::size_t r = rows[i];
+      if (!std::isfinite(x[i]) || !std::isfinite(xs[i])) continue;
+      const double depth = d.depth_mm[r];
+      const double z[6] = {1, depth, depth * depth, x[i], xs[i], bend[r] - depth};
+      s[static_cast<std::size_t>(fold[r])].add(z);
+    }
+    return s;
+  };
+  // The pair of times of least squared residual for the rows `pick` selects: the grid's pairs
+  // (the slow time longer), then each time refined by golden section with the other held (and
+  // still the shorter, or longer). {0, 0}: no pair fits.
+  auto best_pair = [&](auto pick) {
+    int bi = -1, bj = -1;
+    double best_cost = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < kTauGrid; ++i) {
+      for (int j = i + 1; j <= kTauGrid; ++j) {
+        const double c = pick(sums2(grid_terms[static_cast<std::size_t>(i)],
+                                    grid_terms[static_cast<std::size_t>(j)]))
+                             .cost();
+        if (c < best_cost) {
+          best_cost = c;
+          bi = i;
+          bj = j;
+        }
+      }
+    }
+    if (bi < 0) return std::array<double, 2>{0, 0};
+    std::array<double, 2> log_tau = {lo + (hi - lo) * bi / kTauGrid,
+                                     lo + (hi - lo) * bj / kTauGrid};
+    std::array<std::vector<double>, 2> terms = {grid_terms[static_cast<std::size_t>(bi)],
+                                                grid_terms[static_cast<std::size_t>(bj)]};
+    for (std::size_t which = 0; which < 2; ++which) {
+      auto cost = [&](double lt) {
+        if (which == 0 ? !(lt < log_tau[1]) : !(lt > log_tau[0])) {
+          return std::numeric_limits<double>::infinity();
+        }
+        std::array<std::vector<double>, 2> t = terms;
+        t[which] = lag_terms(std::exp(lt));
+        return pick(sums2(t[0], t[1])).cost();
+      };
+      const double step = (hi - lo) / kTauGrid;
+      const double mid = golden_min(cost, log_tau[which] - step, log_tau[which] + step, 20);
+      if (cost(mid) <= cost(log_tau[which])) {
+        log_tau[which] = mid;
+        terms[which] = lag_terms(std::exp(mid));
+      }
+    }
+    return std::array<double, 2>{std::exp(log_tau[0]), std::exp(log_tau[1])};
+  };
+  // Held out as one lag was: each fold's pair on the other fold's rows.
+  double after2 = 0;
+  for (std::size_t k = 0; k < 2; ++k) {
+    const std::array<double, 2> taus =
+        best_pair([k](const std::array<Sums2, 2>& s) { return s[k]; });
+    double w[5];
+    const std::array<Sums2, 2> s =
+        taus[0] > 0 ? sums2(lag_terms(taus[0]), lag_terms(taus[1])) : std::array<Sums2, 2>{};
+    if (!(taus[0] > 0) || !s[k].fit(w)) return out;  // no pair explains this fold: one lag
+    after2 += s[1 - k].sse(w);
+  }
+  if (!(after2 <= (1 - opt.min_gain) * after)) return out;
+  const std::array<double, 2> taus = best_pair([](const std::array<Sums2, 2>& s) {
+    Sums2 p = s[0];
+    p += s[1];
+    return p;
+  });
+  std::array<Sums2, 2> s = sums2(lag_terms(taus[0]), lag_terms(taus[1]));
+  s[0] += s[1];
+  double w[5];
+  if (!(taus[0] > 0) || !s[0].fit(w)) return out;
+  out.law = {w[3], taus[0], w[4], taus[1]};
+  out.held_out_rms_after_mm = std::sqrt(after2 / n);
   return out;
 }
 

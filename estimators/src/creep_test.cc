@@ -63,14 +63,16 @@ DepthErrors depth_errors(const sim::PatchModel& model, const CreepLaw& law,
 }
 
 // The compensator undoes creep_bend_mm() exactly, along presses of any length at any times, for
-// random laws; with no law, or a non-finite bend, it hands the bend back.
+// random laws of one lag or two; with no law, or a non-finite bend, it hands the bend back.
 TEST(CreepTest, TheCompensatorUndoesTheLawAlongEveryPress) {
   const uint64_t seed = std::random_device{}();
   std::printf("seed %llu\n", static_cast<unsigned long long>(seed));
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u01(0, 1);
   for (int trial = 0; trial < 20; ++trial) {
-    const CreepLaw law{0.9 * u01(rng), 0.02 + 3 * u01(rng)};
+    // Half the laws with a second, slower lag.
+    const double f = 0.9 * u01(rng), fs = u01(rng) < 0.5 ? 0.0 : (0.95 - f) * u01(rng);
+    const CreepLaw law{f, 0.02 + 3 * u01(rng), fs, 0.5 + 10 * u01(rng)};
     sim::Dataset d;
     double t = 0;
     for (int press = 0; press < 5; ++press) {
@@ -127,12 +129,11 @@ TEST(CreepTest, TheFitFindsTheLawOfACreepingUnitAndUndoingItRemovesTheLag) {
   EXPECT_LT(e.undone_mm, 0.5 * e.raw_mm);
 }
 
-// A unit whose lattice also relaxes with a second, ten times slower lag (outside the class: the
-// fit has one time constant) gets one law that takes most of both: kept, its fraction between
-// the fast lag's and the two's, its time constant longer than the fast one's; what it cannot
-// take stays in the held-out residual, said rather than hidden, and undone along fresh ramps it
-// still takes away most of the depth error.
-TEST(CreepTest, ASecondSlowerLagIsTakenInPartAndTheRestIsLeftInTheResidual) {
+// A unit whose lattice also relaxes with a second, ten times slower lag: the fit finds both
+// lags, because the pair lowers the residual of presses held out of the fit below what one lag
+// leaves; undone along fresh ramps, the depth error falls to about a unit's with one lag (one
+// lag alone left 0.086 mm here against that unit's 0.031). A unit with one lag keeps one.
+TEST(CreepTest, ASecondSlowerLagIsFoundWhenHeldOutPressesShowIt) {
   const CreepLaw fast{0.25, 0.3}, slow{0.1, 3};
   sim::PatchModel model = sim::PatchModel::nominal(sim::PatchDesign{}).value();
   CreepFitOptions opt;
@@ -142,14 +143,23 @@ TEST(CreepTest, ASecondSlowerLagIsTakenInPartAndTheRestIsLeftInTheResidual) {
   ASSERT_TRUE(one.ok() && fit.ok());
   std::printf("one lag:  %s\ntwo lags: %s\n", one->summary_text().c_str(),
               fit->summary_text().c_str());
-  ASSERT_TRUE(fit->kept) << fit->why;
-  EXPECT_GT(fit->law.fraction, fast.fraction);
-  EXPECT_LT(fit->law.fraction, fast.fraction + slow.fraction);
-  EXPECT_GT(fit->law.time_s, fast.time_s);
-  EXPECT_GT(fit->held_out_rms_after_mm, one->held_out_rms_after_mm);
-  EXPECT_LT(fit->held_out_rms_after_mm, 0.5 * fit->held_out_rms_before_mm);
+  ASSERT_TRUE(one->kept && fit->kept) << one->why << fit->why;
+  EXPECT_EQ(one->law.slow_fraction, 0.0);
+  EXPECT_NEAR(fit->law.fraction, fast.fraction, 0.03);
+  EXPECT_NEAR(fit->law.time_s, fast.time_s, 0.06);
+  EXPECT_NEAR(fit->law.slow_fraction, slow.fraction, 0.03);
+  EXPECT_NEAR(fit->law.slow_time_s, slow.time_s, 1.0);
+  EXPECT_LT(fit->held_out_rms_after_mm, fit->held_out_rms_one_lag_mm);
   const DepthErrors e = depth_errors(model, fit->law, creeping_ramps(fast, 12, &model, slow));
-  EXPECT_LT(e.undone_mm, 0.5 * e.raw_mm);
+  const DepthErrors e1 = depth_errors(model, one->law, creeping_ramps(fast, 12, &model));
+  EXPECT_LT(e.undone_mm, 1.3 * e1.undone_mm);
+  // Without the search for a second lag, one lag, and what it cannot take is left.
+  opt.slow_lag = false;
+  const Result<CreepFit> only = fit_creep(model, creeping_ramps(fast, 11, &model, slow), opt);
+  ASSERT_TRUE(only.ok() && only->kept);
+  EXPECT_EQ(only->law.slow_fraction, 0.0);
+  EXPECT_GT(depth_errors(model, only->law, creeping_ramps(fast, 12, &model, slow)).undone_mm,
+            2 * e.undone_mm);
 }
 
 // A unit that does not creep keeps no law: on ramps, none lowers the held-out residual enough;

@@ -1372,10 +1372,7 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::
   if (!id.ok()) {
     // A refused fit carries the law (for its field correction and the presses simulated from
     // it); the static fit is not made again: it would be refused again, for what is not creep.
-    if (creep->kept) {
-      refused->creep_fraction = creep->law.fraction;
-      refused->creep_time_s = creep->law.time_s;
-    }
+    if (creep->kept) creep->law.write_to(refused);
     return id;
   }
   const double creep_s =
@@ -1394,14 +1391,12 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::
       identify_in_class(design, bent, opt, bent_held ? &*bent_held : nullptr, &again_refused);
   if (!again.ok()) {
     if (refused != nullptr && !again_refused.magnets.empty()) {
-      again_refused.creep_fraction = creep->law.fraction;
-      again_refused.creep_time_s = creep->law.time_s;
+      creep->law.write_to(&again_refused);
       *refused = again_refused;
     }
     return again.error();
   }
-  again->parameters.creep_fraction = creep->law.fraction;
-  again->parameters.creep_time_s = creep->law.time_s;
+  creep->law.write_to(&again->parameters);
   Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, again->parameters);
   if (!model.ok()) return model.error();
   again->model = std::move(*model);

@@ -263,7 +263,7 @@ std::string design_to_yaml(const PatchDesign& d) {
     << "   # this part of the bend lags the press (0: no creep) ...\n"
     << "  creep_time_s: " << yaml_number(d.creep_time_s) << "   # ... with this time constant\n"
     << "  creep_slow_fraction: " << yaml_number(d.creep_slow_fraction)
-    << "   # a further part lags (the simulator's alone) ...\n"
+    << "   # a further part lags the press (0: none) ...\n"
     << "  creep_slow_time_s: " << yaml_number(d.creep_slow_time_s)
     << "   # ... with this slower time constant\n"
     << "  shear_stiffness_n_per_mm: " << yaml_number(d.shear_stiffness_n_per_mm)

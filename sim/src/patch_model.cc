@@ -334,6 +334,8 @@ Result<PatchModel> PatchModel::of_unit_file(const PatchDesign& design,
   PatchDesign d = class_design(design);
   d.creep_fraction = params.creep_fraction;
   d.creep_time_s = params.creep_time_s;
+  d.creep_slow_fraction = params.creep_slow_fraction;
+  d.creep_slow_time_s = params.creep_slow_time_s;
   return from_parameters(d, params);
 }
 

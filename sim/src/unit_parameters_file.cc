@@ -146,7 +146,8 @@ class Reader {
     }
     return std::make_shared<const FieldCorrection>(std::move(*made));
   }
-  // The optional `creep` object: {"fraction": f in [0, 1), "time_s": tau in (0, 3600]}.
+  // The optional `creep` object: {"fraction": f in [0, 1), "time_s": tau in (0, 3600]}, and
+  // optionally a second, slower lag: "slow_fraction" f_s >= 0 (f + f_s < 1), "slow_time_s".
   void creep(const json& c, UnitParameters* p) {
     if (!c.is_object()) {
       fail("creep is not an object");
@@ -159,6 +160,15 @@ class Reader {
     }
     if (ok() && !(p->creep_time_s > 0 && p->creep_time_s <= 3600)) {
       fail("creep.time_s must be in (0, 3600]");
+    }
+    if (!ok() || !c.contains("slow_fraction")) return;
+    p->creep_slow_fraction = number(c, "slow_fraction", "creep.");
+    p->creep_slow_time_s = number(c, "slow_time_s", "creep.");
+    if (ok() && !(p->creep_slow_fraction >= 0 && p->creep_fraction + p->creep_slow_fraction < 1)) {
+      fail("creep.slow_fraction must be >= 0, and fraction + slow_fraction < 1");
+    }
+    if (ok() && !(p->creep_slow_time_s > 0 && p->creep_slow_time_s <= 3600)) {
+      fail("creep.slow_time_s must be in (0, 3600]");
     }
   }
   // The optional `pressed_area_mm` object: {"u": [min, max], "v": [min, max]}, finite, min <= max.
@@ -223,8 +233,13 @@ std::string unit_parameters_json(const UnitParameters& p, const UnitFileNote& no
          {"gain", vec(s.gain)}});
   }
   j["sensors"] = std::move(sensors);
-  if (p.creep_fraction > 0)
+  if (p.creep_fraction > 0 || p.creep_slow_fraction > 0) {
     j["creep"] = {{"fraction", p.creep_fraction}, {"time_s", p.creep_time_s}};
+    if (p.creep_slow_fraction > 0) {
+      j["creep"]["slow_fraction"] = p.creep_slow_fraction;
+      j["creep"]["slow_time_s"] = p.creep_slow_time_s;
+    }
+  }
   if (const FieldCorrection* f = p.field_correction.get(); f != nullptr) {
     const FieldCorrection::Grid& g = f->grid();
     j["field_correction"] = {{"u0_mm", g.u0_mm},

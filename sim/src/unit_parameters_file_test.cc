@@ -257,6 +257,19 @@ TEST(UnitParametersFileTest, TheCreepRoundTripsIntoTheModelAndBadOnesAreNamed) {
   auto plain = PatchModel::of_unit_file(creeping, fabricated_unit());
   ASSERT_TRUE(plain.ok());
   EXPECT_EQ(plain->design().creep_fraction, 0.0);
+  // A second, slower lag: absent unless there is one; exact; the model's design's.
+  EXPECT_EQ(unit_parameters_json(p).find("slow_fraction"), std::string::npos);
+  UnitParameters two = p;
+  two.creep_slow_fraction = 0.0987654321012345;
+  two.creep_slow_time_s = 2.71828;
+  auto back2 = parse_unit_parameters(unit_parameters_json(two));
+  ASSERT_TRUE(back2.ok()) << back2.error().to_string();
+  EXPECT_TRUE(same_bits(back2->creep_slow_fraction, two.creep_slow_fraction));
+  EXPECT_TRUE(same_bits(back2->creep_slow_time_s, two.creep_slow_time_s));
+  auto model2 = PatchModel::of_unit_file(creeping, *back2);
+  ASSERT_TRUE(model2.ok()) << model2.error().to_string();
+  EXPECT_TRUE(same_bits(model2->design().creep_slow_fraction, two.creep_slow_fraction));
+  EXPECT_TRUE(same_bits(model2->design().creep_slow_time_s, two.creep_slow_time_s));
 
   expect_each_named(
       unit_parameters_json(p), "creep",
@@ -266,6 +279,14 @@ TEST(UnitParametersFileTest, TheCreepRoundTripsIntoTheModelAndBadOnesAreNamed) {
           {"\"creep\": {\"fraction\": 0.1, \"time_s\": \"1\"}", "creep.time_s is not a number"},
           {"\"creep\": {\"fraction\": 1, \"time_s\": 1}", "creep.fraction must be in [0, 1)"},
           {"\"creep\": {\"fraction\": 0.1, \"time_s\": 0}", "creep.time_s must be in (0, 3600]"},
+          {"\"creep\": {\"fraction\": 0.1, \"time_s\": 1, \"slow_fraction\": 0.1}",
+           "creep.slow_time_s is missing"},
+          {"\"creep\": {\"fraction\": 0.5, \"time_s\": 1, \"slow_fraction\": 0.5, "
+           "\"slow_time_s\": 3}",
+           "fraction + slow_fraction < 1"},
+          {"\"creep\": {\"fraction\": 0.1, \"time_s\": 1, \"slow_fraction\": 0.1, "
+           "\"slow_time_s\": -3}",
+           "creep.slow_time_s must be in (0, 3600]"},
       });
 }
 

@@ -72,13 +72,19 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!(back->depth_zero_mm == p->depth_zero_mm) || !std::isfinite(p->depth_zero_mm)) {
     fail("the depth zero changed, or a non-finite one was taken");
   }
-  // The creep: a law travels bit for bit; none (fraction 0) is not written, its time with it.
+  // The creep: a law travels bit for bit; none (both fractions 0) is not written, its times with
+  // it, nor is a second lag's time without the lag.
+  const bool creeps = p->creep_fraction > 0 || p->creep_slow_fraction > 0;
   if (!same(back->creep_fraction, p->creep_fraction) ||
-      (p->creep_fraction > 0 && !same(back->creep_time_s, p->creep_time_s))) {
+      !same(back->creep_slow_fraction, p->creep_slow_fraction) ||
+      (creeps && !same(back->creep_time_s, p->creep_time_s)) ||
+      (p->creep_slow_fraction > 0 && !same(back->creep_slow_time_s, p->creep_slow_time_s))) {
     fail("the creep changed");
   }
   if (!(p->creep_fraction >= 0 && p->creep_fraction < 1) ||
-      !(p->creep_time_s > 0 && p->creep_time_s <= 3600)) {
+      !(p->creep_time_s > 0 && p->creep_time_s <= 3600) ||
+      !(p->creep_slow_fraction >= 0 && p->creep_fraction + p->creep_slow_fraction < 1) ||
+      !(p->creep_slow_time_s > 0 && p->creep_slow_time_s <= 3600)) {
     fail("a creep out of range was taken");
   }
   if (back->magnets.size() != p->magnets.size() || back->sensors.size() != p->sensors.size()) {

@@ -16,6 +16,10 @@
 // with e = exp(-h / tau) and g = (tau / h)(1 - e): q_k = e q_{k-1} + (g - e) d_{k-1} + (1 - g) d_k
 // and b_k = (1 - f) d_k + f q_k. Between presses (the indenter off the patch, depth 0) q relaxes
 // by exp(-gap / tau), and a press's first sample takes q_k = q_{k-1}.
+//
+// A lattice relaxes over more than one time: the law may have a second, slower lag of the same
+// kind (f_s, tau_s, its own q_s): b = (1 - f - f_s) d + f q + f_s q_s. The fit takes it only when
+// presses held out of the fit say it explains what one lag leaves.
 #pragma once
 
 #include <cstdint>
@@ -29,17 +33,30 @@
 #include "skinbus/estimators/lookup_estimator.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/unit_parameters.h"
 
 namespace skinbus::estimators {
 
 struct CreepLaw {
-  double fraction = 0;  // f in [0, 1): 0, no creep
+  double fraction = 0;  // f in [0, 1): 0, no first lag
   double time_s = 0.3;  // tau > 0
-  bool none() const { return !(fraction > 0); }
-  // The law of a model's design (sim::PatchDesign::creep_fraction, creep_time_s): a unit file's
-  // identified creep (sim::PatchModel::of_unit_file), or a simulated unit's.
+  // The second, slower lag (f_s >= 0, f + f_s < 1; tau_s > 0): 0, none.
+  double slow_fraction = 0;
+  double slow_time_s = 3;
+  bool none() const { return !(fraction > 0) && !(slow_fraction > 0); }
+  // The law of a model's design (sim::PatchDesign::creep_fraction, creep_time_s,
+  // creep_slow_fraction, creep_slow_time_s): a unit file's identified creep
+  // (sim::PatchModel::of_unit_file), or a simulated unit's.
   static CreepLaw of(const sim::PatchDesign& design) {
-    return {design.creep_fraction, design.creep_time_s};
+    return {design.creep_fraction, design.creep_time_s, design.creep_slow_fraction,
+            design.creep_slow_time_s};
+  }
+  // Writes the law into a unit's parameters (sim::UnitParameters::creep_fraction, ...).
+  void write_to(sim::UnitParameters* unit) const {
+    unit->creep_fraction = fraction;
+    unit->creep_time_s = time_s;
+    unit->creep_slow_fraction = slow_fraction;
+    unit->creep_slow_time_s = slow_time_s;
   }
 };
 
@@ -58,13 +75,14 @@ class CreepCompensator {
   double depth_mm(double t_s, double bend_mm, bool same_press);
   // Forgets every press (a patch re-tared, a unit swapped).
   void reset() {
-    lag_mm_ = last_depth_mm_ = 0;
+    lag_mm_ = slow_lag_mm_ = last_depth_mm_ = 0;
     last_t_s_ = std::numeric_limits<double>::quiet_NaN();
   }
 
  private:
   CreepLaw law_;
   double lag_mm_ = 0;         // q
+  double slow_lag_mm_ = 0;    // q_s
   double last_depth_mm_ = 0;  // the press's previous depth (0 before its first sample)
   double last_t_s_ = std::numeric_limits<double>::quiet_NaN();
 };
@@ -87,11 +105,12 @@ void undo_creep(const CreepLaw& law, const sim::Dataset& d, std::span<ContactEst
 
 // What fit_creep() found.
 struct CreepFit {
-  CreepLaw law;       // fraction 0: none kept
+  CreepLaw law;       // none() when none kept; slow_fraction 0 when one lag was kept
   bool kept = false;  // the law lowers the depth residual of presses held out of its fit
   // The depth residual (RMS, mm) of the static inversions about the recorded depths, without the
-  // law and with it, on presses held out of the fit (two folds: odd and even presses).
-  double held_out_rms_before_mm = 0, held_out_rms_after_mm = 0;
+  // law and with it, on presses held out of the fit (two folds: odd and even presses); with one
+  // lag alone (the law's when it has one).
+  double held_out_rms_before_mm = 0, held_out_rms_after_mm = 0, held_out_rms_one_lag_mm = 0;
   int presses = 0, rows = 0;  // ramps used, samples inverted
   std::string why;            // when not kept: why (no ramps, no gain on held-out presses, ...)
   std::string summary_text() const;
@@ -104,15 +123,20 @@ struct CreepFitOptions {
   int max_rows = 6000;                        // samples inverted at most (evenly over the presses)
   double min_time_s = 0.01, max_time_s = 30;  // tau searched over this range
   double min_gain = 0.01;                     // held-out mean square must fall by this share
+  bool slow_lag = true;  // try a second, slower lag (kept when it gains min_gain over one)
 };
 
 // Fits a creep law to a unit's ramps: each sample's bend by a one-unknown fit of `model` (the
 // unit's static model, e.g. identified) at the recorded place, then f and tau by least squares
 // of bend - depth against the law's lag (linear in f; tau over a log grid, then refined). Kept
 // when it lowers the held-out depth residual by options.min_gain (each fold's law judged on the
-// other's presses). A recording without ramps (static presses, no times) keeps none, saying so.
+// other's presses). Then, with options.slow_lag, two lags (f, tau, f_s, tau_s > tau: the pair of
+// times over the grid's pairs, then refined one at a time), kept instead when they lower the
+// held-out residual one lag leaves by min_gain again. A recording without ramps (static presses,
+// no times) keeps none, saying so.
 // Errors: kInvalidArgument (channel count differs from the model's). Single-threaded; cost: a
-// few field evaluations per inverted sample (about a second for 6000), allocates.
+// few field evaluations per inverted sample (about a second for 6000) and the pairs' search
+// (about as long again), allocates.
 Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& presses,
                            const CreepFitOptions& options = {});
 

@@ -106,10 +106,11 @@ struct PatchDesign {
   // (UnitParameters::creep_fraction, given to the model's design by of_unit_file()).
   double creep_fraction = 0;
   double creep_time_s = 0.3;
-  // A second, slower lag (the simulator's alone: outside every estimator's class, identification
-  // fits one time constant): a further creep_slow_fraction of the bend follows d with
-  // creep_slow_time_s, so the plate bends by (1 - f - f_s) d + f q + f_s q_s. A real lattice
-  // relaxes over a spectrum of times; this is its simplest such unit. 0: none; f + f_s < 1.
+  // A second, slower lag of the same law: a further creep_slow_fraction of the bend follows d
+  // with creep_slow_time_s, so the plate bends by (1 - f - f_s) d + f q + f_s q_s. A real lattice
+  // relaxes over a spectrum of times; this is its simplest such unit. Identification fits one lag
+  // or two (estimators/creep.h) and a unit file carries them (UnitParameters). 0: none;
+  // f + f_s < 1.
   double creep_slow_fraction = 0;
   double creep_slow_time_s = 3;
   // Shear: a tangential force F at a contact moves the surface layer in-plane, along F, by

@@ -66,6 +66,10 @@ struct UnitParameters {
   // design these values; the inversion fits the bend, estimators::CreepCompensator undoes it.
   double creep_fraction = 0;
   double creep_time_s = 0.3;
+  // A second, slower lag the ramps showed (PatchDesign::creep_slow_fraction, the same law): the
+  // plate bends by (1 - f - f_s) d + f q + f_s q_s; f_s = creep_slow_fraction, 0: none.
+  double creep_slow_fraction = 0;
+  double creep_slow_time_s = 3;
 };
 
 // ---- Unit files ------------------------------------------------------------------------------

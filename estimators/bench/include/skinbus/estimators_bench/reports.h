@@ -69,8 +69,8 @@ struct BudgetBenchArgs {
   // (PatchDesign::tip_crush_mm), "discs" (PatchModel::with_disc_magnets), "dragging"
   // (PatchDesign::inplane_drag), "creeping" (PatchDesign::creep_fraction, with creep_time_s; its
   // test presses are ramps, as the presses it is calibrated on: a static press is the relaxed
-  // state), "slow-creeping" (the same with a second, slower lag: creep_slow_fraction, which no
-  // estimator's class has).
+  // state), "slow-creeping" (the same with a second, slower lag: creep_slow_fraction, which
+  // identification fits as a second lag when held-out presses show it).
   double anisotropy = 0.05;
   double tip_crush_mm = 20;
   double inplane_drag = 0.15;
