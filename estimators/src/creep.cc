@@ -403,9 +403,9 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
   out.held_out_rms_after_mm = out.held_out_rms_one_lag_mm = std::sqrt(after / n);
   const double tau = best_tau([&pooled](const std::array<Sums, 2>& s) { return pooled(s); });
   const double f = pooled(sums_at(tau)).fit(true).fraction();
-  const std::string gain = std::to_string(static_cast<int>(std::lround(100 * opt.min_gain))) + " %";
   if (!(after <= (1 - opt.min_gain) * before) || !(f > 0)) {
-    out.why = "it does not lower the depth residual of held-out presses by " + gain;
+    out.why = "it does not lower the depth residual of held-out presses by " +
+              std::to_string(static_cast<int>(std::lround(100 * opt.min_gain))) + " %";
     return out;
   }
   out.law = {f, tau};
