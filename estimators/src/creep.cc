@@ -68,24 +68,38 @@ bool solve(int n, double (&a)[N][N], double (&b)[N], double (&x)[N]) {
   return true;
 }
 
-// The regression of e = bend - depth on z = (1, d, d^2, x) over one fold: a static model's own
-// depth bias (a quadratic in the depth: the first fit took part of the lag for static physics)
-// and f times the law's lag term x. Its Gram matrix of (z, e).
-struct Sums {
-  double g[5][5] = {};
+// The Gram matrix of (z, e) over rows, for a regression of e on the N - 1 terms z (z[0] = 1:
+// its first entry counts the rows), and the squared residual of e - w . z.
+template <int N>
+struct Gram {
+  double g[N][N] = {};
   double n() const { return g[0][0]; }
-  void add(double d, double x, double e) {
-    const double z[5] = {1, d, d * d, x, e};
-    for (int i = 0; i < 5; ++i) {
-      for (int j = 0; j < 5; ++j) g[i][j] += z[i] * z[j];
+  void add(const double (&z)[N]) {
+    for (int i = 0; i < N; ++i) {
+      for (int j = 0; j < N; ++j) g[i][j] += z[i] * z[j];
     }
   }
-  Sums& operator+=(const Sums& o) {
-    for (int i = 0; i < 5; ++i) {
-      for (int j = 0; j < 5; ++j) g[i][j] += o.g[i][j];
+  Gram& operator+=(const Gram& o) {
+    for (int i = 0; i < N; ++i) {
+      for (int j = 0; j < N; ++j) g[i][j] += o.g[i][j];
     }
     return *this;
   }
+  double sse(const double (&w)[N - 1]) const {
+    double s = g[N - 1][N - 1];
+    for (int i = 0; i < N - 1; ++i) {
+      s -= 2 * w[i] * g[i][N - 1];
+      for (int j = 0; j < N - 1; ++j) s += w[i] * w[j] * g[i][j];
+    }
+    return std::max(0.0, s);
+  }
+};
+
+// The regression of e = bend - depth on z = (1, d, d^2, x) over one fold: a static model's own
+// depth bias (a quadratic in the depth: the first fit took part of the lag for static physics)
+// and f times the law's lag term x.
+struct Sums : Gram<5> {
+  void add(double d, double x, double e) { Gram<5>::add({1, d, d * d, x, e}); }
   // The coefficients (bias c0..c2, fraction f in [0, 0.95]; f = 0 without the lag).
   struct Coefficients {
     double w[4] = {0, 0, 0, 0};
@@ -110,15 +124,7 @@ struct Sums {
     }
     return out;
   }
-  // The squared residual of e - w . z.
-  double sse(const Coefficients& c) const {
-    double s = g[4][4];
-    for (int i = 0; i < 4; ++i) {
-      s -= 2 * c.w[i] * g[i][4];
-      for (int j = 0; j < 4; ++j) s += c.w[i] * c.w[j] * g[i][j];
-    }
-    return std::max(0.0, s);
-  }
+  double sse(const Coefficients& c) const { return Gram<5>::sse(c.w); }
 };
 
 // The time constants searched: this many log-spaced steps over the options' range.
@@ -141,21 +147,9 @@ double golden_min(const Cost& cost, double a, double b, int iterations) {
 
 // The same regression with two lags: e on z = (1, d, d^2, x, x_s), the fast lag's term and the
 // slow one's.
-struct Sums2 {
-  double g[6][6] = {};
-  void add(const double z[6]) {
-    for (int i = 0; i < 6; ++i) {
-      for (int j = 0; j < 6; ++j) g[i][j] += z[i] * z[j];
-    }
-  }
-  Sums2& operator+=(const Sums2& o) {
-    for (int i = 0; i < 6; ++i) {
-      for (int j = 0; j < 6; ++j) g[i][j] += o.g[i][j];
-    }
-    return *this;
-  }
+struct Sums2 : Gram<6> {
   // (c0, c1, c2, f, f_s); false unless both fractions are positive and sum to at most 0.95.
-  bool fit(double w[5]) const {
+  bool fit(double (&w)[5]) const {
     double a[5][5], b[5], x[5] = {0, 0, 0, 0, 0};
     for (int i = 0; i < 5; ++i) {
       for (int j = 0; j < 5; ++j) a[i][j] = g[i][j];
@@ -164,14 +158,6 @@ struct Sums2 {
     if (!solve(5, a, b, x) || !(x[3] > 0) || !(x[4] > 0) || !(x[3] + x[4] <= 0.95)) return false;
     for (int i = 0; i < 5; ++i) w[i] = x[i];
     return true;
-  }
-  double sse(const double w[5]) const {
-    double s = g[5][5];
-    for (int i = 0; i < 5; ++i) {
-      s -= 2 * w[i] * g[i][5];
-      for (int j = 0; j < 5; ++j) s += w[i] * w[j] * g[i][j];
-    }
-    return std::max(0.0, s);
   }
   double cost() const {  // the least squared residual; infinite without a valid fit
     double w[5];
