@@ -428,19 +428,28 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
   // The pair of times of least squared residual for the rows `pick` selects: the grid's pairs
   // (the slow time longer), then each time refined by golden section with the other held (and
   // still the shorter, or longer). {0, 0}: no pair fits.
+  // The grid's pairs' sums, once for the three searches (each fold's, and both folds').
+  struct GridPair {
+    int i, j;
+    std::array<Sums2, 2> sums;
+  };
+  std::vector<GridPair> grid_pairs;
+  for (int i = 0; i < kTauGrid; ++i) {
+    for (int j = i + 1; j <= kTauGrid; ++j) {
+      grid_pairs.push_back({i, j,
+                            sums2(grid_terms[static_cast<std::size_t>(i)],
+                                  grid_terms[static_cast<std::size_t>(j)])});
+    }
+  }
   auto best_pair = [&](auto pick) {
     int bi = -1, bj = -1;
     double best_cost = std::numeric_limits<double>::infinity();
-    for (int i = 0; i < kTauGrid; ++i) {
-      for (int j = i + 1; j <= kTauGrid; ++j) {
-        const double c = pick(sums2(grid_terms[static_cast<std::size_t>(i)],
-                                    grid_terms[static_cast<std::size_t>(j)]))
-                             .cost();
-        if (c < best_cost) {
-          best_cost = c;
-          bi = i;
-          bj = j;
-        }
+    for (const GridPair& gp : grid_pairs) {
+      const double c = pick(gp.sums).cost();
+      if (c < best_cost) {
+        best_cost = c;
+        bi = gp.i;
+        bj = gp.j;
       }
     }
     if (bi < 0) return std::array<double, 2>{0, 0};
