@@ -112,7 +112,7 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   sim::SimulatedPatch patch(model.value(), sim::unit_noise_seed(a.uid, 1));
   u.presses = sim::generate_ramp_dataset(patch, sim::plan_grid(kGrid, kPitchMm), ramps(design));
   sim::SimulatedPatch test_patch(model.value(), sim::unit_noise_seed(a.uid, 2));
-  if (design.creep_fraction > 0) {
+  if (!CreepLaw::of(design).none()) {
     // Creep shows where the press moves: ramps at random places (as many as the off-grid test's
     // presses over 8, every few samples kept to about the same count of rows) and at the grid's.
     u.off_grid = every_kth(
