@@ -8,7 +8,9 @@
 #include <cstdint>
 #include <cstdio>
 #include <map>
+#include <memory>
 #include <optional>
+#include <string>
 #include <utility>
 
 #include "skinbus/common/error_format.h"
@@ -381,6 +383,87 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
   rep.helps = rep.rms_held_out <= (1 - opt.min_gain) * rep.rms_model;
   if (report != nullptr) *report = std::move(rep);
   return FieldCorrection::make(g, nc, std::move(out));
+}
+
+}  // namespace skinbus::estimators
+
+namespace skinbus::estimators {
+
+std::string CreepAndCorrection::summary_text() const {
+  std::string s = "creep with the field correction:";
+  char buf[160];
+  for (std::size_t i = 0; i < candidates.size(); ++i) {
+    const Candidate& c = candidates[i];
+    s += i == 0 ? " " : ", ";
+    s += c.what;
+    if (!c.law.none()) {
+      std::snprintf(buf, sizeof buf, " (%.3f of the bend lags by %.3f s", c.law.fraction,
+                    c.law.time_s);
+      s += buf;
+      if (c.law.slow_fraction > 0) {
+        std::snprintf(buf, sizeof buf, ", %.3f by %.3f s", c.law.slow_fraction, c.law.slow_time_s);
+        s += buf;
+      }
+      s += ")";
+    }
+    std::snprintf(buf, sizeof buf, " %.3f", c.held_out_rms);
+    s += buf;
+  }
+  s += " noise units at held-out places";
+  if (!candidates.empty()) s += ": " + candidates[static_cast<std::size_t>(chosen)].what + " kept";
+  return s;
+}
+
+Result<CreepAndCorrection> fit_creep_and_correction(
+    const sim::PatchDesign& design, const sim::UnitParameters& unit, const sim::Dataset& presses,
+    double tip_radius_mm, const FieldCorrectionOptions& correction_options,
+    const CreepFitOptions& creep_options, int rounds) {
+  // The unit's static model: no creep, no correction; each candidate adds its own.
+  sim::UnitParameters plain = unit;
+  plain.field_correction.reset();
+  CreepLaw{}.write_to(&plain);
+  CreepAndCorrection out;
+  // Learns the correction at `law`'s bends, adds the candidate and keeps it if it is the best;
+  // the correction is returned for the next round's creep fit.
+  auto add = [&](std::string what, const CreepLaw& law) -> Result<sim::FieldCorrection> {
+    sim::UnitParameters u = plain;
+    law.write_to(&u);
+    Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, u);
+    if (!model.ok()) return model.error();
+    FieldCorrectionReport report;
+    Result<sim::FieldCorrection> fc = fit_field_correction(
+        *model, bent_dataset(law, presses), tip_radius_mm, correction_options, &report);
+    if (!fc.ok()) return fc.error();
+    out.candidates.push_back({std::move(what), law, report.rms_held_out});
+    if (out.correction == nullptr || report.rms_held_out < out.report.rms_held_out) {
+      out.chosen = static_cast<int>(out.candidates.size()) - 1;
+      out.law = law;
+      out.report = std::move(report);
+      out.correction = std::make_shared<const sim::FieldCorrection>(*fc);
+    }
+    return fc;
+  };
+  const CreepLaw own = CreepLaw::of(unit);
+  if (!own.none()) {
+    if (Result<sim::FieldCorrection> fc = add("identified", own); !fc.ok()) return fc.error();
+  }
+  // One lag a round (see the header).
+  CreepFitOptions round_options = creep_options;
+  round_options.slow_lag = false;
+  Result<sim::FieldCorrection> previous = add("none", CreepLaw{});
+  if (!previous.ok()) return previous.error();
+  for (int r = 1; r <= rounds; ++r) {
+    sim::UnitParameters corrected = plain;
+    corrected.field_correction = std::make_shared<const sim::FieldCorrection>(*previous);
+    Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, corrected);
+    if (!model.ok()) return model.error();
+    Result<CreepFit> creep = fit_creep(*model, presses, round_options);
+    if (!creep.ok()) return creep.error();
+    if (!creep->kept) break;
+    previous = add("round " + std::to_string(r), creep->law);
+    if (!previous.ok()) return previous.error();
+  }
+  return out;
 }
 
 }  // namespace skinbus::estimators

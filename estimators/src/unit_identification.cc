@@ -1343,6 +1343,14 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
 
 }  // namespace
 
+CreepFitOptions creep_fit_options(const IdentificationOptions& options) {
+  CreepFitOptions co;
+  co.tip_radius_mm = options.tip_radius_mm;
+  co.noise = options.noise;
+  co.min_depth_mm = options.min_depth_mm;
+  return co;
+}
+
 Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::Dataset& presses,
                                      const IdentificationOptions& opt, const sim::Dataset* held_out,
                                      sim::UnitParameters* refused) {
@@ -1362,11 +1370,7 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::
     refused_model.emplace(std::move(*m));
   }
   const sim::PatchModel& static_model = id.ok() ? id->model : *refused_model;
-  CreepFitOptions co;
-  co.tip_radius_mm = opt.tip_radius_mm;
-  co.noise = opt.noise;
-  co.min_depth_mm = opt.min_depth_mm;
-  Result<CreepFit> creep = fit_creep(static_model, presses, co);
+  Result<CreepFit> creep = fit_creep(static_model, presses, creep_fit_options(opt));
   if (!creep.ok()) return creep.error();
   if (opt.progress) opt.progress(creep->summary_text());
   if (!id.ok()) {

@@ -51,6 +51,11 @@ struct CreepLaw {
     return {design.creep_fraction, design.creep_time_s, design.creep_slow_fraction,
             design.creep_slow_time_s};
   }
+  // The law of a unit's parameters (sim::UnitParameters::creep_fraction, ...).
+  static CreepLaw of(const sim::UnitParameters& unit) {
+    return {unit.creep_fraction, unit.creep_time_s, unit.creep_slow_fraction,
+            unit.creep_slow_time_s};
+  }
   // Writes the law into a unit's parameters (sim::UnitParameters::creep_fraction, ...).
   void write_to(sim::UnitParameters* unit) const {
     unit->creep_fraction = fraction;

@@ -24,14 +24,17 @@
 // seconds on one core, memory (folds + 3) x that matrix (about 14 MB each at 6 mm knots).
 #pragma once
 
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "skinbus/common/result.h"
+#include "skinbus/estimators/creep.h"
 #include "skinbus/estimators/lookup_estimator.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/field_correction.h"
 #include "skinbus/sim/patch_model.h"
+#include "skinbus/sim/unit_parameters.h"
 
 namespace skinbus::estimators {
 
@@ -88,5 +91,46 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model,
                                                   const sim::Dataset& presses, double tip_radius_mm,
                                                   const FieldCorrectionOptions& options,
                                                   FieldCorrectionReport* report);
+
+// The creep and the field correction of a unit whose model class leaves physics, found in turn.
+// A creep fitted on the class's model alone (identify_unit) can take that physics for lag: a top
+// that crushes under the tip bends less the deeper it is pressed, as a slow lag's bends on the
+// way down do. The candidates, each a law and the correction learned at the bends it gives:
+// - the unit's own law (as identified), when it has one;
+// - no creep: the correction learned on the presses as recorded, where a ramp's two ways,
+//   pressing and releasing, weigh alike and a lag only spreads the residual;
+// - round r = 1..rounds: a one-lag law fitted (fit_creep without its second lag: on a corrected
+//   model, its pairs' search can take one lag for a fast and a slow one) on the unit's model
+//   corrected by the previous round's correction (round 1: the no-creep one's), and the
+//   correction learned again at its bends; rounds stop early when no law is kept there.
+// The candidate whose correction leaves the lowest residual at held-out places
+// (FieldCorrectionReport::rms_held_out: the whole model, law and correction, predicting fields
+// at press places its correction never saw) is chosen.
+struct CreepAndCorrection {
+  struct Candidate {
+    std::string what;  // "identified", "none", "round 1", ...
+    CreepLaw law;
+    double held_out_rms = 0;  // noise units
+  };
+  std::vector<Candidate> candidates;
+  int chosen = 0;  // index into candidates
+  CreepLaw law;    // the chosen law (none(): no creep)
+  // The chosen correction (as sim::UnitParameters::field_correction holds it) and its report.
+  std::shared_ptr<const sim::FieldCorrection> correction;
+  FieldCorrectionReport report;
+  // "creep with the field correction: identified (F of the bend lags by T s) 1.423, none 2.496,
+  // round 1 (...) 1.400 noise units at held-out places: round 1 kept".
+  std::string summary_text() const;
+};
+
+// `unit`: the identified parameters (its own field correction is not used; its creep is the
+// first candidate). Errors: those of fit_field_correction for the candidates (a candidate whose
+// law is not kept by fit_creep just ends the rounds); kInvalidArgument for a channel count other
+// than the unit's. Cost: 2 + rounds corrections and `rounds` creep fits (each a few seconds for
+// the seed's 361 ramps); allocates.
+Result<CreepAndCorrection> fit_creep_and_correction(
+    const sim::PatchDesign& design, const sim::UnitParameters& unit, const sim::Dataset& presses,
+    double tip_radius_mm, const FieldCorrectionOptions& correction_options,
+    const CreepFitOptions& creep_options, int rounds = 2);
 
 }  // namespace skinbus::estimators

@@ -245,4 +245,8 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::
                                      const sim::Dataset* held_out = nullptr,
                                      sim::UnitParameters* refused = nullptr);
 
+// The creep fit's options for a unit identified with `options` (its tip, noise and shallowest
+// depth): what identify_unit fits the creep with.
+CreepFitOptions creep_fit_options(const IdentificationOptions& options);
+
 }  // namespace skinbus::estimators
