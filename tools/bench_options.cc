@@ -74,7 +74,9 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
                   "anisotropic, crushing (the top crushes under the tip), discs (finite "
                   "magnets), dragging (another in-plane motion law), creeping (the lattice "
                   "lags the press; tested on ramps), slow-creeping (creeping with a second, "
-                  "slower lag, which identification finds when held-out presses show it)")
+                  "slower lag, which identification finds when held-out presses show it), "
+                  "crushing-creeping (both: a crushing top on a creeping lattice; tested on "
+                  "ramps)")
       ->delimiter(',')
       ->capture_default_str();
   sub->add_option("--uid", a.uid, "hardware UID of the fabricated units (as skinbus-dataset)")
@@ -82,7 +84,8 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
   sub->add_option("--anisotropy", a.anisotropy, "lattice anisotropy of the 'anisotropic' unit")
       ->capture_default_str();
   sub->add_option("--tip-crush", a.tip_crush_mm,
-                  "the 'crushing' unit: the plate bends d / (1 + d / this) under a press d "
+                  "the 'crushing' and 'crushing-creeping' units: the plate bends d / (1 + d / "
+                  "this) under a press d "
                   "deep, mm")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
@@ -92,7 +95,7 @@ void add_budget_options(CLI::App* sub, estimators_bench::BudgetBenchArgs& a) {
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1.0));
   sub->add_option("--creep", a.creep_fraction,
-                  "the 'creeping' unit: this part of the plate's bend lags the press ...")
+                  "the 'creeping' units: this part of the plate's bend lags the press ...")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 0.99));
   sub->add_option("--creep-time", a.creep_time_s, "... with this time constant, s")

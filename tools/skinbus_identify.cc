@@ -12,6 +12,7 @@
 #include <optional>
 #include <string>
 
+#include "skinbus/estimators/creep.h"
 #include "skinbus/estimators/field_correction_fit.h"
 #include "skinbus/estimators/unit_identification.h"
 #include "skinbus/sim/dataset.h"
@@ -119,7 +120,10 @@ int main(int argc, char** argv) {
                "--max-residual. When the class leaves physics and the depth zero was fitted "
                "off the surface, the fit is made again with the zero held there, and the one "
                "whose correction explains held-out places better is kept (a crushing top can "
-               "pass for an indenter's zero)");
+               "pass for an indenter's zero). When the class leaves physics, the creep is "
+               "chosen with the correction too (the identified law, none, or one fitted on the "
+               "corrected model: the one whose correction explains held-out places best; a "
+               "crushing top can pass for a slow lag)");
   CLI11_PARSE(app, argc, argv);
   opt.fit_globals = !keep_globals;
   if (hold_depth_zero) opt.global_priors.depth_zero_sd_mm = 0;
@@ -203,46 +207,67 @@ int main(int argc, char** argv) {
   sim::UnitParameters refused;
   Result<estimators::IdentifiedUnit> id =
       estimators::identify_unit(design, *presses, opt, held_out ? &*held_out : nullptr, &refused);
+  // The class leaves physics in the unit (the fit's residual, or the fit was refused for it).
+  const bool outside =
+      id.ok() ? (held_out ? id->held_out.rms : id->fit.rms) > estimators::kModelMissesResidual
+              : !refused.magnets.empty();
   // What the fit leaves, learned from the same presses (--field-correction), at the bends the
-  // unit's creep gives when it has one; its check and how long it took.
+  // unit's creep gives when it has one; its check and how long it took. On a unit the class
+  // leaves physics in, the creep is chosen with it (estimators::fit_creep_and_correction: the
+  // creep fitted on the class alone may hold some of that physics).
   struct Learned {
-    std::optional<sim::FieldCorrection> fc;
+    std::shared_ptr<const sim::FieldCorrection> fc;
     estimators::FieldCorrectionReport report;
+    std::optional<estimators::CreepLaw> law;  // the creep chosen with it
+    std::string creep_text;
     double seconds = 0;
   };
   auto fit_correction = [&](const sim::UnitParameters& unit) {
     Learned out;
-    Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, unit);
-    if (!model.ok()) return out;
-    const sim::Dataset bent =
-        estimators::bent_dataset(estimators::CreepLaw::of(model->design()), *presses);
-    std::fprintf(stderr, "skinbus-identify: learning the field correction (seconds) ...\n");
-    const auto t_fit = std::chrono::steady_clock::now();
     estimators::FieldCorrectionOptions fo;
     fo.noise = opt.noise;
     fo.min_depth_mm = opt.min_depth_mm;
     fo.depth_bin_edges_mm = opt.depth_bin_edges_mm;
-    Result<sim::FieldCorrection> fc =
-        estimators::fit_field_correction(*model, bent, opt.tip_radius_mm, fo, &out.report);
-    out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count();
-    if (!fc.ok()) {
-      std::printf("field correction not learned: %s\n", fc.error().message.c_str());
+    const auto t_fit = std::chrono::steady_clock::now();
+    auto done = [&](const Status& st) {
+      out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count();
+      if (!st.ok()) {
+        std::printf("field correction not learned: %s\n", st.error().message.c_str());
+        out.fc.reset();
+      }
       return out;
+    };
+    if (outside) {
+      std::fprintf(stderr,
+                   "skinbus-identify: learning the field correction, and the creep with it "
+                   "(seconds) ...\n");
+      Result<estimators::CreepAndCorrection> both = estimators::fit_creep_and_correction(
+          design, unit, *presses, opt.tip_radius_mm, fo, estimators::creep_fit_options(opt));
+      if (!both.ok()) return done(both.error());
+      out.fc = both->correction;
+      out.report = std::move(both->report);
+      out.law = both->law;
+      out.creep_text = both->summary_text();
+      return done(Status{});
     }
-    out.fc = std::move(*fc);
-    return out;
+    Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, unit);
+    if (!model.ok()) return out;
+    std::fprintf(stderr, "skinbus-identify: learning the field correction (seconds) ...\n");
+    Result<sim::FieldCorrection> fc = estimators::fit_field_correction(
+        *model, estimators::bent_dataset(estimators::CreepLaw::of(unit), *presses),
+        opt.tip_radius_mm, fo, &out.report);
+    if (!fc.ok()) return done(fc.error());
+    out.fc = std::make_shared<const sim::FieldCorrection>(std::move(*fc));
+    return done(Status{});
   };
   std::optional<Learned> chosen;  // the kept fit's, when the depth zero's comparison learned it
   // A unit the class leaves physics in, its depth zero fitted off the surface: a crushing top or
   // another law near the surface can pass for an indenter's zero, and the field correction may
   // take it up the better. Both fits are corrected; the lower residual at held-out places wins.
   const double zero_mm = id.ok() ? id->parameters.depth_zero_mm : refused.depth_zero_mm;
-  const bool outside =
-      id.ok() ? (held_out ? id->held_out.rms : id->fit.rms) > estimators::kModelMissesResidual
-              : !refused.magnets.empty();
   if (field_correction && outside && std::fabs(zero_mm) > 0.05) {
     Learned fitted = fit_correction(id.ok() ? id->parameters : refused), held;
-    const bool fitted_ok = fitted.fc.has_value();
+    const bool fitted_ok = (fitted.fc != nullptr);
     std::fprintf(stderr,
                  "skinbus-identify: the class leaves physics and the depth zero is %+.2f mm: "
                  "fitting again with it held at the surface, to compare the two corrected\n",
@@ -254,7 +279,7 @@ int main(int argc, char** argv) {
         design, *presses, held_opt, held_out ? &*held_out : nullptr, &held_refused);
     if (held_id.ok() || !held_refused.magnets.empty())
       held = fit_correction(held_id.ok() ? held_id->parameters : held_refused);
-    const bool held_ok = held.fc.has_value();
+    const bool held_ok = (held.fc != nullptr);
     const bool take_held =
         held_ok && (!fitted_ok || held.report.rms_held_out < fitted.report.rms_held_out);
     std::printf(
@@ -275,11 +300,13 @@ int main(int argc, char** argv) {
     Learned l = chosen ? std::move(*chosen) : fit_correction(unit);
     chosen.reset();
     if (!l.fc) return std::nullopt;
+    if (!l.creep_text.empty()) std::printf("%s\n", l.creep_text.c_str());
     std::printf("%s\nfield correction learned and checked in %.1f s\n",
                 l.report.summary_text().c_str(), l.seconds);
     if (!l.report.helps || l.report.rms_held_out > opt.max_residual) return std::nullopt;
     sim::UnitParameters corrected = unit;
-    corrected.field_correction = std::make_shared<const sim::FieldCorrection>(std::move(*l.fc));
+    corrected.field_correction = std::move(l.fc);
+    if (l.law) l.law->write_to(&corrected);
     return corrected;
   };
   if (!id.ok()) std::fprintf(stderr, "skinbus-identify: %s\n", id.error().to_string().c_str());

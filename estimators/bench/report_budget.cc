@@ -43,9 +43,9 @@ struct Unit {
 };
 
 // The units `--units` names.
-constexpr std::array<const char*, 8> kUnitNames = {"nominal",  "fabricated",   "anisotropic",
-                                                   "crushing", "discs",        "dragging",
-                                                   "creeping", "slow-creeping"};
+constexpr std::array<const char*, 9> kUnitNames = {
+    "nominal",  "fabricated", "anisotropic",   "crushing",         "discs",
+    "dragging", "creeping",   "slow-creeping", "crushing-creeping"};
 bool known_unit(const std::string& name) {
   return std::find(kUnitNames.begin(), kUnitNames.end(), name) != kUnitNames.end();
 }
@@ -95,9 +95,10 @@ Result<Unit> make_unit(const std::string& name, const BudgetBenchArgs& a,
   } else if (name == "dragging") {
     design.inplane_drag = a.inplane_drag;
     model = sim::PatchModel::fabricated(design, a.uid, sim::FabricationVariation{});
-  } else if (name == "creeping" || name == "slow-creeping") {
+  } else if (name == "creeping" || name == "slow-creeping" || name == "crushing-creeping") {
     design.creep_fraction = a.creep_fraction;
     design.creep_time_s = a.creep_time_s;
+    if (name == "crushing-creeping") design.tip_crush_mm = a.tip_crush_mm;
     if (name == "slow-creeping") {
       design.creep_slow_fraction = a.creep_slow_fraction;
       design.creep_slow_time_s = a.creep_slow_time_s;
@@ -319,14 +320,33 @@ Status bench_budget(const BudgetBenchArgs& a) {
       if (plan == "grid") {
         // What the class misses in the field, learned from the same presses and added to the
         // identified model (used only where it lowers the residual at press places held out of
-        // its fit), then inverted like the identified model.
+        // its fit), then inverted like the identified model. On a unit the class leaves physics
+        // in, the creep is chosen with it, as skinbus-identify does.
         const auto tf = Clock::now();
         FieldCorrectionReport fr;
-        Result<sim::FieldCorrection> fc = fit_field_correction(
-            id->model, bent_dataset(creep, presses), tip_mm, FieldCorrectionOptions{}, &fr);
-        if (!fc.ok()) return with_context(fc.error(), "field correction");
+        std::shared_ptr<const sim::FieldCorrection> fc;
+        CreepLaw fc_creep = creep;
+        if (id->held_out.rms > kModelMissesResidual) {
+          Result<CreepAndCorrection> both = fit_creep_and_correction(
+              *base, id->parameters, presses, tip_mm, {}, creep_fit_options(id_options));
+          if (!both.ok()) return with_context(both.error(), "field correction");
+          std::fprintf(stderr, "skinbus-bench:   %s\n", both->summary_text().c_str());
+          fc = both->correction;
+          fr = both->report;
+          fc_creep = both->law;
+        } else {
+          Result<sim::FieldCorrection> f = fit_field_correction(
+              id->model, bent_dataset(creep, presses), tip_mm, FieldCorrectionOptions{}, &fr);
+          if (!f.ok()) return with_context(f.error(), "field correction");
+          fc = std::make_shared<const sim::FieldCorrection>(std::move(*f));
+        }
         sim::UnitParameters p = id->parameters;
-        if (fr.helps) p.field_correction = std::make_shared<const sim::FieldCorrection>(*fc);
+        if (fr.helps) {
+          p.field_correction = fc;
+          fc_creep.write_to(&p);
+        } else {
+          fc_creep = creep;
+        }
         Result<sim::PatchModel> corrected = sim::PatchModel::from_parameters(id->model.design(), p);
         if (!corrected.ok()) return corrected.error();
         Result<PhysicsEstimator> flm = PhysicsEstimator::create(*corrected, physics_options);
@@ -340,10 +360,10 @@ Status bench_budget(const BudgetBenchArgs& a) {
               return flm->estimate({f, nc}).contact;
             },
             id_s + fc_s,
-            fit_quality(*corrected, bent_dataset(creep, unit->off_grid), tip_mm,
+            fit_quality(*corrected, bent_dataset(fc_creep, unit->off_grid), tip_mm,
                         ChannelNoise::of(*base), {})
                 .rms,
-            creep);
+            fc_creep);
       }
       const auto t1 = Clock::now();
       // Every third sample of the presses, estimated as the test presses are (the creep undone

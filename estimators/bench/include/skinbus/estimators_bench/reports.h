@@ -70,7 +70,9 @@ struct BudgetBenchArgs {
   // (PatchDesign::inplane_drag), "creeping" (PatchDesign::creep_fraction, with creep_time_s; its
   // test presses are ramps, as the presses it is calibrated on: a static press is the relaxed
   // state), "slow-creeping" (the same with a second, slower lag: creep_slow_fraction, which
-  // identification fits as a second lag when held-out presses show it).
+  // identification fits as a second lag when held-out presses show it), "crushing-creeping" (a
+  // crushing top on a creeping lattice: a creep fitted on the class alone takes part of the crush
+  // for lag).
   double anisotropy = 0.05;
   double tip_crush_mm = 20;
   double inplane_drag = 0.15;
