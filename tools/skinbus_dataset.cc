@@ -44,7 +44,7 @@ int main(int argc, char** argv) {
       "    --uid's)\n"};
   std::string plan = "grid", out_path, points_path;
   int grid = 19, count = 361;
-  double pitch = 7.5, jitter = 0.5, max_depth = 4.0, speed = 2.0, rate = 41.7;
+  double pitch = 7.5, jitter = 0.5, max_depth = 4.0, speed = 2.0, rate = 41.7, hold_s = 0;
   uint64_t uid = 0x5B00000000000001ull, seed = 1;
   bool fabricated = false, cylinder = false;
   double radius = 45, anisotropy = 0;
@@ -69,6 +69,12 @@ int main(int argc, char** argv) {
   app.add_option("--speed", speed, "ramp speed, mm/s")
       ->capture_default_str()
       ->check(CLI::Range(0.01, 100.0));
+  app.add_option("--hold", hold_s,
+                 "ramp plans: hold each press this long at --max-depth before releasing, s (a "
+                 "lattice that relaxes slower than a ramp lasts shows it only there; written to "
+                 "the protocol header)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 600.0));
   app.add_option("--rate", rate, "sample rate, Hz")
       ->capture_default_str()
       ->check(CLI::Range(1.0, 1000.0));
@@ -161,6 +167,7 @@ int main(int argc, char** argv) {
     RampProtocol pr;
     pr.max_depth_mm = max_depth;
     pr.speed_mm_per_s = speed;
+    pr.hold_s = hold_s;
     pr.rate_hz = rate;
     pr.tip_radius_mm = tip_given->count() > 0 ? tip_radius : design.indenter_tip_radius_mm;
     if (plan == "grid") {

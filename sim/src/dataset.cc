@@ -205,12 +205,19 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
   std::snprintf(buf, sizeof buf,
                 "ramp max_depth_mm=%g speed_mm_per_s=%g rate_hz=%g tip_radius_mm=%g presses=%zu",
                 pr.max_depth_mm, pr.speed_mm_per_s, pr.rate_hz, pr.tip_radius_mm, plan.size());
-  d.meta["protocol"] = buf;
+  std::string protocol = buf;
+  if (pr.hold_s > 0) {
+    std::snprintf(buf, sizeof buf, " hold_s=%g", pr.hold_s);
+    protocol += buf;
+  }
+  d.meta["protocol"] = protocol;
   const int nc = patch.channel_count();
   std::vector<double> baseline(nc), m(nc), tared(nc);
   patch.tare(env, pr.tare_samples, baseline);
   const double dt = 1.0 / pr.rate_hz;
   const double ramp_s = pr.max_depth_mm / pr.speed_mm_per_s;
+  const double hold_s = std::max(0.0, pr.hold_s);
+  const double press_s = 2 * ramp_s + hold_s;
   constexpr double kMoveS = 1.0;  // a second to move to the next point
   // Creep (PatchDesign::creep_fraction, creep_slow_fraction): each lagging part q of the
   // lattice's bend follows the press with its time constant; the plate bends by
@@ -227,9 +234,11 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
           std::exp(-kMoveS / design.creep_slow_time_s)}};
   double t = 0;
   for (std::size_t k = 0; k < plan.size(); ++k) {
-    // Down, then up, sampled at the rate; the sample times start half a period in.
-    for (double tp = dt / 2; tp < 2 * ramp_s; tp += dt) {
-      const double depth = pr.speed_mm_per_s * (tp < ramp_s ? tp : 2 * ramp_s - tp);
+    // Down, held, then up, sampled at the rate; the sample times start half a period in.
+    for (double tp = dt / 2; tp < press_s; tp += dt) {
+      const double depth = tp < ramp_s            ? pr.speed_mm_per_s * tp
+                           : tp < ramp_s + hold_s ? pr.max_depth_mm
+                                                  : pr.speed_mm_per_s * (press_s - tp);
       double bent = depth;
       for (Lag& lag : lags) {
         lag.mm += (depth - lag.mm) * lag.relax_step;
@@ -242,7 +251,7 @@ Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoin
       d.append(static_cast<int64_t>(k), t + tp, c.u_mm, c.v_mm, depth, patch.model().force_n(depth),
                tared.data());
     }
-    t += 2 * ramp_s + kMoveS;
+    t += press_s + kMoveS;
     for (Lag& lag : lags) lag.mm *= lag.relax_move;
   }
   return d;

@@ -319,6 +319,58 @@ TEST(DatasetTest, CreepBendsThePlateLessLoadingThanUnloading) {
   EXPECT_EQ(generate_ramp_dataset(still, plan_grid(3, 30), pr).field_ut, a.field_ut);
 }
 
+// A press held at its deepest (RampProtocol::hold_s): its rows stay at the deepest for the hold,
+// in time order, and the lattice's lag relaxes there: the field comes to a unit's that does not
+// creep (the same noise draws), where it was apart at the hold's start.
+TEST(DatasetTest, AHeldPressStaysAtItsDeepestWhileTheLatticeRelaxes) {
+  RampProtocol pr;
+  pr.hold_s = 2;
+  auto press = [&](double f) {
+    PatchDesign d;
+    d.creep_fraction = f;
+    d.creep_time_s = 0.5;
+    SimulatedPatch p(*PatchModel::nominal(d), 1);
+    return generate_ramp_dataset(p, plan_grid(1, 10), pr);
+  };
+  const Dataset creeping = press(0.3), plain = press(0);
+  EXPECT_NE(creeping.meta.at("protocol").find(" hold_s=2"), std::string::npos);
+  ASSERT_EQ(creeping.rows(), plain.rows());
+  std::vector<std::size_t> held;
+  for (std::size_t r = 0; r < creeping.rows(); ++r) {
+    if (r > 0) {
+      EXPECT_GT(creeping.t_s[r], creeping.t_s[r - 1]);
+    }
+    if (creeping.depth_mm[r] == pr.max_depth_mm) held.push_back(r);
+  }
+  // 2 s at 41.7 Hz, in one run of rows.
+  ASSERT_GE(held.size(), 82u);
+  EXPECT_LE(held.size(), 84u);
+  EXPECT_EQ(held.back() - held.front() + 1, held.size());
+  const auto nc = static_cast<std::size_t>(creeping.channels());
+  auto apart = [&](std::size_t r) {
+    double s2 = 0;
+    for (std::size_t c = 0; c < nc; ++c) {
+      const double x = creeping.field_ut[r * nc + c] - plain.field_ut[r * nc + c];
+      s2 += x * x;
+    }
+    return std::sqrt(s2);
+  };
+  std::printf(
+      "field apart from the unit that does not creep: %.2f uT at the hold's start, %.3f uT "
+      "at its end\n",
+      apart(held.front()), apart(held.back()));
+  // The lag left falls from 0.3 mm to 0.3 exp(-4) mm over the hold; what is left apart at its
+  // end is the chips' quantisation (a step or two of 0.15-0.24 uT).
+  EXPECT_GT(apart(held.front()), 1.0);
+  EXPECT_LT(apart(held.back()), 0.3 * apart(held.front()));
+  // Without a hold, the protocol is as it was: no hold in the header, the hold's rows fewer.
+  pr.hold_s = 0;
+  const Dataset ramp = press(0.3);
+  EXPECT_EQ(ramp.meta.at("protocol").find("hold_s"), std::string::npos);
+  EXPECT_NEAR(static_cast<double>(creeping.rows() - ramp.rows()), static_cast<double>(held.size()),
+              1.0);
+}
+
 // A second, slower lag (PatchDesign::creep_slow_fraction) is the same law with its own time
 // constant, added: alone it is the first lag's twin, and with the first the plate bends by both.
 TEST(DatasetTest, ASlowSecondLagIsTheSameLawAdded) {

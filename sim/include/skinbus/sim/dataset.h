@@ -89,10 +89,12 @@ std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t s
 // '#' lines and a header line naming the columns are skipped. Errors name the line.
 Result<std::vector<PressPoint>> plan_from_file(const std::string& path);
 
-// A press-and-release depth ramp, as an indentation robot runs it.
+// A press-and-release depth ramp, as an indentation robot runs it: down at speed_mm_per_s to
+// max_depth_mm, held there hold_s, up at the same speed.
 struct RampProtocol {
   double max_depth_mm = 4.0;
   double speed_mm_per_s = 2.0;  // down and up
+  double hold_s = 0;            // at the deepest (a lattice that relaxes shows it there)
   double rate_hz = 41.7;        // sampling
   double tip_radius_mm = 5.0;   // the indenter\'s round tip (assumption: a 10 mm probe)
   double min_depth_mm = 1e-9;   // only samples deeper than this are kept ("contact samples")
