@@ -385,10 +385,6 @@ Result<sim::FieldCorrection> fit_field_correction(const sim::PatchModel& model_i
   return FieldCorrection::make(g, nc, std::move(out));
 }
 
-}  // namespace skinbus::estimators
-
-namespace skinbus::estimators {
-
 std::string CreepAndCorrection::summary_text() const {
   std::string s = "creep with the field correction:";
   char buf[160];
