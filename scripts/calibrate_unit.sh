@@ -24,7 +24,8 @@
 #   identify.log         its fit: residuals in noise units, overall and per depth bin
 #   network.safetensors  the unit's network (skinbus-train: fine-tuned from --base, the shipped
 #   network.json           model by default ('none': trained from scratch), on --synthetic (2000)
-#                          simulated presses of the identified unit, each a ramp sampled at 8 Hz;
+#                          simulated presses of the identified unit, each a ramp sampled at 8 Hz
+#                          as deep as the deepest of PRESSES.csv;
 #                          about 15 s an epoch on two cores, --epochs (30) at most; from
 #                          scratch when the patch has another sensor count than the shipped
 #                          model's 16; when its sensors form no grid, an MLP (512-512-256) on
@@ -119,9 +120,14 @@ from_refused=0  # the network route, started from the refused fit's simulated pr
 simulated_unit=""  # the unit file synthetic.csv simulates
 mlp=0  # the sensors form no grid: every network is an MLP
 most_epochs() { if ((mlp)); then echo "${epochs:-400}"; else echo "${epochs:-30}"; fi; }
+# The simulated presses go as deep as the lab's deepest (to 0.1 mm; 4 mm when the recording says
+# no depth): a network trained shallower than the unit is pressed misplaces the deepest presses.
+deepest_mm=$(awk -F, '/^#/ {next} !n {for (i = 1; i <= NF; i++) c[$i] = i; n = 1; next}
+  c["depth_mm"] && $c["depth_mm"] + 0 > d {d = $c["depth_mm"] + 0}
+  END {printf "%.1f", (d < 1 ? 4 : (d > 9 ? 9 : d))}' "$presses")
 simulate() {  # COUNT: synthetic.csv, COUNT ramps of $simulated_unit at Halton points, 8 Hz
-  "$bin/skinbus-dataset" --plan halton --count "$1" --rate 8 --unit "$simulated_unit" \
-    "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
+  "$bin/skinbus-dataset" --plan halton --count "$1" --rate 8 --max-depth "$deepest_mm" \
+    --unit "$simulated_unit" "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
     failed "the synthetic presses" "$out/dataset.log"
 }
 if ((network_route)); then
@@ -136,11 +142,12 @@ if ((network_route)); then
     step 2 "no presses simulated: identification kept no fit to simulate"
   fi
 else
-  step 2 "simulating $synthetic presses of the identified unit (ramps sampled at 8 Hz)"
+  step 2 "simulating $synthetic presses of the identified unit (ramps to $deepest_mm mm sampled at 8 Hz)"
   simulated_unit=$out/unit.json
   simulate "$synthetic"
-  "$bin/skinbus-dataset" --plan random-test --count 500 --seed 7 --unit "$out/unit.json" \
-    "${design_opt[@]}" -o "$out/synthetic_test.csv" >>"$out/dataset.log" 2>&1 ||
+  "$bin/skinbus-dataset" --plan random-test --count 500 --seed 7 --max-depth "$deepest_mm" \
+    --unit "$out/unit.json" "${design_opt[@]}" -o "$out/synthetic_test.csv" \
+    >>"$out/dataset.log" 2>&1 ||
     failed "the synthetic test presses" "$out/dataset.log"
   train_set=$out/synthetic.csv
   test_set=${held:-$out/synthetic_test.csv}

@@ -2,7 +2,8 @@
 # The one-command unit calibration (scripts/calibrate_unit.sh) on a patch of another design than
 # the built-in one, as a user brings it: 8 x 8 checkerboard magnets at 16 mm, 5 x 5 sensors at
 # 25 mm (75 channels, not the shipped network's 48), a thinner lattice, a shorter spread, and a
-# 4 mm indenter said only in the design file (the lab recording's protocol header is dropped).
+# 4 mm indenter said only in the design file (the lab recording's protocol header is dropped),
+# pressed to 4.5 mm (the simulated presses go as deep).
 # Small synthetic set and few epochs: the network is poor, the refinement must not be.
 # Checked: the unit is identified with the design's indenter near its noise; the network is
 # trained from scratch for the 75 channels (said on standard error) and reads them; the
@@ -21,7 +22,8 @@ e2e_init "$@"
 
 cp "$src/docs/benchmarks/design_8x8_5x5_sensors.yaml" design.yaml # docs/benchmarks/designs.md
 uid=0x5b0000000000002a
-"$bin/skinbus-dataset" --plan grid --design design.yaml --fabricated --uid $uid -o recorded.csv
+"$bin/skinbus-dataset" --plan grid --design design.yaml --fabricated --uid $uid --max-depth 4.5 \
+  -o recorded.csv
 grep -q "^# protocol: .* tip_radius_mm=4 " recorded.csv || fail_with_logs "the design's indenter not pressed with"
 grep -v "^# protocol:" recorded.csv >lab.csv # a lab recording that does not say its tip
 "$bin/skinbus-dataset" --plan random-test --count 300 --seed 3 --design design.yaml --fabricated \
@@ -38,6 +40,10 @@ grep -q "the shipped network reads 16 sensors, this patch has 25: training from 
 grep -q "indenter tip radius 4 mm (the design's indenter)" cal/identify.log ||
   fail_with_logs "identification did not take the design's indenter"
 grep -q "design: .*design.yaml" cal/skin_map_entry.yaml || fail_with_logs "the entry names no design"
+# The lab pressed to 4.5 mm: the unit's network is trained as deep.
+grep -q "ramps to 4.5 mm" cal.err || fail_with_logs "the simulated presses not as deep as the lab's"
+grep -q "^# protocol: ramp max_depth_mm=4.5 " cal/synthetic.csv ||
+  fail_with_logs "synthetic.csv not pressed to the lab's depth"
 python3 - <<'PY' || fail_with_logs "the calibration's figures"
 import json, re, sys
 ok = True
