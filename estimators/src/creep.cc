@@ -347,11 +347,12 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
     }
     return s;
   };
-  auto pooled = [](const std::array<Sums, 2>& s) {
-    Sums p = s[0];
+  auto pooled = [](const auto& s) {  // both folds' sums (Sums, or the two lags' Sums2)
+    auto p = s[0];
     p += s[1];
     return p;
   };
+  const double lo = std::log(opt.min_time_s), hi = std::log(opt.max_time_s);
   // The time constant of least squared residual for the rows `pick` selects (a fold, or both):
   // a log grid, then golden section between the best point's neighbours.
   auto best_tau = [&](auto pick) {
@@ -359,7 +360,6 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
       const Sums s = pick(sums_at(std::exp(log_tau)));
       return s.sse(s.fit(true));
     };
-    const double lo = std::log(opt.min_time_s), hi = std::log(opt.max_time_s);
     int best = 0;
     double best_cost = std::numeric_limits<double>::infinity();
     for (int i = 0; i <= kTauGrid; ++i) {
@@ -387,7 +387,7 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
   }
   out.held_out_rms_before_mm = std::sqrt(before / n);
   out.held_out_rms_after_mm = out.held_out_rms_one_lag_mm = std::sqrt(after / n);
-  const double tau = best_tau([&pooled](const std::array<Sums, 2>& s) { return pooled(s); });
+  const double tau = best_tau(pooled);
   const double f = pooled(sums_at(tau)).fit(true).fraction();
   if (!(after <= (1 - opt.min_gain) * before) || !(f > 0)) {
     out.why = "it does not lower the depth residual of held-out presses by " +
@@ -403,7 +403,6 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
   for (std::size_t r = 0; r < d.rows(); ++r) {
     if (std::isfinite(bend[r])) rows.push_back(r);
   }
-  const double lo = std::log(opt.min_time_s), hi = std::log(opt.max_time_s);
   auto lag_terms = [&](double tau_s) {  // the lag's term x = q - d at `rows`; NaN: none
     const std::vector<double> q = creep_bend_mm({1, tau_s}, d);
     std::vector<double> x(rows.size());
@@ -425,9 +424,6 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
     }
     return s;
   };
-  // The pair of times of least squared residual for the rows `pick` selects: the grid's pairs
-  // (the slow time longer), then each time refined by golden section with the other held (and
-  // still the shorter, or longer). {0, 0}: no pair fits.
   // The grid's pairs' sums, once for the three searches (each fold's, and both folds').
   struct GridPair {
     int i, j;
@@ -441,6 +437,13 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
                                   grid_terms[static_cast<std::size_t>(j)])});
     }
   }
+  // The pair of times of least squared residual for the rows `pick` selects: the grid's pairs
+  // (the slow time longer), then each time refined by golden section with the other held (and
+  // still the shorter, or longer); with their lag terms. Times {0, 0}: no pair fits.
+  struct Pair {
+    std::array<double, 2> taus = {0, 0};
+    std::array<std::vector<double>, 2> terms;
+  };
   auto best_pair = [&](auto pick) {
     int bi = -1, bj = -1;
     double best_cost = std::numeric_limits<double>::infinity();
@@ -452,7 +455,7 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
         bj = gp.j;
       }
     }
-    if (bi < 0) return std::array<double, 2>{0, 0};
+    if (bi < 0) return Pair{};
     std::array<double, 2> log_tau = {lo + (hi - lo) * bi / kTauGrid,
                                      lo + (hi - lo) * bj / kTauGrid};
     std::array<std::vector<double>, 2> terms = {grid_terms[static_cast<std::size_t>(bi)],
@@ -473,30 +476,23 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
         terms[which] = lag_terms(std::exp(mid));
       }
     }
-    return std::array<double, 2>{std::exp(log_tau[0]), std::exp(log_tau[1])};
+    return Pair{{std::exp(log_tau[0]), std::exp(log_tau[1])}, std::move(terms)};
   };
   // Held out as one lag was: each fold's pair on the other fold's rows.
   double after2 = 0;
   for (std::size_t k = 0; k < 2; ++k) {
-    const std::array<double, 2> taus =
-        best_pair([k](const std::array<Sums2, 2>& s) { return s[k]; });
+    const Pair pair = best_pair([k](const std::array<Sums2, 2>& s) { return s[k]; });
+    if (!(pair.taus[0] > 0)) return out;  // no pair explains this fold: one lag
+    const std::array<Sums2, 2> s = sums2(pair.terms[0], pair.terms[1]);
     double w[5];
-    const std::array<Sums2, 2> s =
-        taus[0] > 0 ? sums2(lag_terms(taus[0]), lag_terms(taus[1])) : std::array<Sums2, 2>{};
-    if (!(taus[0] > 0) || !s[k].fit(w)) return out;  // no pair explains this fold: one lag
+    if (!s[k].fit(w)) return out;
     after2 += s[1 - k].sse(w);
   }
   if (!(after2 <= (1 - opt.min_gain) * after)) return out;
-  const std::array<double, 2> taus = best_pair([](const std::array<Sums2, 2>& s) {
-    Sums2 p = s[0];
-    p += s[1];
-    return p;
-  });
-  std::array<Sums2, 2> s = sums2(lag_terms(taus[0]), lag_terms(taus[1]));
-  s[0] += s[1];
+  const Pair pair = best_pair(pooled);
   double w[5];
-  if (!(taus[0] > 0) || !s[0].fit(w)) return out;
-  out.law = {w[3], taus[0], w[4], taus[1]};
+  if (!(pair.taus[0] > 0) || !pooled(sums2(pair.terms[0], pair.terms[1])).fit(w)) return out;
+  out.law = {w[3], pair.taus[0], w[4], pair.taus[1]};
   out.held_out_rms_after_mm = std::sqrt(after2 / n);
   return out;
 }
