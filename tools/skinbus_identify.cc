@@ -228,37 +228,23 @@ int main(int argc, char** argv) {
     fo.noise = opt.noise;
     fo.min_depth_mm = opt.min_depth_mm;
     fo.depth_bin_edges_mm = opt.depth_bin_edges_mm;
+    std::fprintf(stderr, "skinbus-identify: learning the field correction%s (seconds) ...\n",
+                 outside ? ", and the creep with it" : "");
     const auto t_fit = std::chrono::steady_clock::now();
-    auto done = [&](const Status& st) {
-      out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count();
-      if (!st.ok()) {
-        std::printf("field correction not learned: %s\n", st.error().message.c_str());
-        out.fc.reset();
-      }
+    Result<estimators::CreepAndCorrection> both = estimators::fit_creep_and_correction(
+        design, unit, *presses, opt.tip_radius_mm, fo, estimators::creep_fit_options(opt), outside);
+    out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fit).count();
+    if (!both.ok()) {
+      std::printf("field correction not learned: %s\n", both.error().message.c_str());
       return out;
-    };
+    }
+    out.fc = both->correction;
+    out.report = std::move(both->report);
     if (outside) {
-      std::fprintf(stderr,
-                   "skinbus-identify: learning the field correction, and the creep with it "
-                   "(seconds) ...\n");
-      Result<estimators::CreepAndCorrection> both = estimators::fit_creep_and_correction(
-          design, unit, *presses, opt.tip_radius_mm, fo, estimators::creep_fit_options(opt));
-      if (!both.ok()) return done(both.error());
-      out.fc = both->correction;
-      out.report = std::move(both->report);
       out.law = both->law;
       out.creep_text = both->summary_text();
-      return done(Status{});
     }
-    Result<sim::PatchModel> model = sim::PatchModel::of_unit_file(design, unit);
-    if (!model.ok()) return out;
-    std::fprintf(stderr, "skinbus-identify: learning the field correction (seconds) ...\n");
-    Result<sim::FieldCorrection> fc = estimators::fit_field_correction(
-        *model, estimators::bent_dataset(estimators::CreepLaw::of(unit), *presses),
-        opt.tip_radius_mm, fo, &out.report);
-    if (!fc.ok()) return done(fc.error());
-    out.fc = std::make_shared<const sim::FieldCorrection>(std::move(*fc));
-    return done(Status{});
+    return out;
   };
   std::optional<Learned> chosen;  // the kept fit's, when the depth zero's comparison learned it
   // A unit the class leaves physics in, its depth zero fitted off the surface: a crushing top or

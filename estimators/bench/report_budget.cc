@@ -323,29 +323,18 @@ Status bench_budget(const BudgetBenchArgs& a) {
         // its fit), then inverted like the identified model. On a unit the class leaves physics
         // in, the creep is chosen with it, as skinbus-identify does.
         const auto tf = Clock::now();
-        FieldCorrectionReport fr;
-        std::shared_ptr<const sim::FieldCorrection> fc;
-        CreepLaw fc_creep = creep;
-        if (id->held_out.rms > kModelMissesResidual) {
-          Result<CreepAndCorrection> both = fit_creep_and_correction(
-              *base, id->parameters, presses, tip_mm, {}, creep_fit_options(id_options));
-          if (!both.ok()) return with_context(both.error(), "field correction");
-          std::fprintf(stderr, "skinbus-bench:   %s\n", both->summary_text().c_str());
-          fc = both->correction;
-          fr = both->report;
-          fc_creep = both->law;
-        } else {
-          Result<sim::FieldCorrection> f = fit_field_correction(
-              id->model, bent_dataset(creep, presses), tip_mm, FieldCorrectionOptions{}, &fr);
-          if (!f.ok()) return with_context(f.error(), "field correction");
-          fc = std::make_shared<const sim::FieldCorrection>(std::move(*f));
-        }
+        const bool outside = id->held_out.rms > kModelMissesResidual;
+        Result<CreepAndCorrection> both = fit_creep_and_correction(
+            *base, id->parameters, presses, tip_mm, {}, creep_fit_options(id_options), outside);
+        if (!both.ok()) return with_context(both.error(), "field correction");
+        if (outside) std::fprintf(stderr, "skinbus-bench:   %s\n", both->summary_text().c_str());
+        const FieldCorrectionReport& fr = both->report;
         sim::UnitParameters p = id->parameters;
+        CreepLaw fc_creep = creep;
         if (fr.helps) {
-          p.field_correction = fc;
+          p.field_correction = both->correction;
+          fc_creep = both->law;
           fc_creep.write_to(&p);
-        } else {
-          fc_creep = creep;
         }
         Result<sim::PatchModel> corrected = sim::PatchModel::from_parameters(id->model.design(), p);
         if (!corrected.ok()) return corrected.error();

@@ -413,7 +413,7 @@ std::string CreepAndCorrection::summary_text() const {
 Result<CreepAndCorrection> fit_creep_and_correction(
     const sim::PatchDesign& design, const sim::UnitParameters& unit, const sim::Dataset& presses,
     double tip_radius_mm, const FieldCorrectionOptions& correction_options,
-    const CreepFitOptions& creep_options, int rounds) {
+    const CreepFitOptions& creep_options, bool choose_creep, int rounds) {
   // The unit's static model: no creep, no correction; each candidate adds its own.
   sim::UnitParameters plain = unit;
   plain.field_correction.reset();
@@ -440,6 +440,12 @@ Result<CreepAndCorrection> fit_creep_and_correction(
     return fc;
   };
   const CreepLaw own = CreepLaw::of(unit);
+  if (!choose_creep) {
+    if (Result<sim::FieldCorrection> fc = add(own.none() ? "none" : "identified", own); !fc.ok()) {
+      return fc.error();
+    }
+    return out;
+  }
   if (!own.none()) {
     if (Result<sim::FieldCorrection> fc = add("identified", own); !fc.ok()) return fc.error();
   }

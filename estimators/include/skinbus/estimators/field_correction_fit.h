@@ -124,13 +124,15 @@ struct CreepAndCorrection {
 };
 
 // `unit`: the identified parameters (its own field correction is not used; its creep is the
-// first candidate). Errors: those of fit_field_correction for the candidates (a candidate whose
-// law is not kept by fit_creep just ends the rounds); kInvalidArgument for a channel count other
-// than the unit's. Cost: 2 + rounds corrections and `rounds` creep fits (each a few seconds for
-// the seed's 361 ramps); allocates.
+// first candidate). With `choose_creep` false (a unit its class explains) the unit's own law is
+// the only candidate ("identified", or "none" when it has none): the correction learned at its
+// bends alone. Errors: those of fit_field_correction for the candidates (a candidate whose law is
+// not kept by fit_creep just ends the rounds); kInvalidArgument for a channel count other than
+// the unit's. Cost: 2 + rounds corrections and `rounds` creep fits (each a few seconds for the
+// seed's 361 ramps), one correction without choose_creep; allocates.
 Result<CreepAndCorrection> fit_creep_and_correction(
     const sim::PatchDesign& design, const sim::UnitParameters& unit, const sim::Dataset& presses,
     double tip_radius_mm, const FieldCorrectionOptions& correction_options,
-    const CreepFitOptions& creep_options, int rounds = 2);
+    const CreepFitOptions& creep_options, bool choose_creep = true, int rounds = 2);
 
 }  // namespace skinbus::estimators
