@@ -25,7 +25,8 @@
 #   network.safetensors  the unit's network (skinbus-train: fine-tuned from --base, the shipped
 #   network.json           model by default ('none': trained from scratch), on --synthetic (2000)
 #                          simulated presses of the identified unit, each a ramp sampled at 8 Hz
-#                          as deep as the deepest of PRESSES.csv;
+#                          as deep as the deepest of PRESSES.csv, over the design's whole surface
+#                          (and wherever PRESSES.csv reaches beyond it);
 #                          about 15 s an epoch on two cores, --epochs (30) at most; from
 #                          scratch when the patch has another sensor count than the shipped
 #                          model's 16; when its sensors form no grid, an MLP (512-512-256) on
@@ -74,7 +75,7 @@ while (($#)); do
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
     --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
-    -h | --help) sed -n '2,53p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,55p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -125,9 +126,12 @@ most_epochs() { if ((mlp)); then echo "${epochs:-400}"; else echo "${epochs:-30}
 deepest_mm=$(awk -F, '/^#/ {next} !n {for (i = 1; i <= NF; i++) c[$i] = i; n = 1; next}
   c["depth_mm"] && $c["depth_mm"] + 0 > d {d = $c["depth_mm"] + 0}
   END {printf "%.1f", (d < 1 ? 4 : (d > 9 ? 9 : d))}' "$presses")
+# They cover the patch's whole surface (and wherever the lab pressed beyond it): the robot is
+# touched anywhere on it, and a network trained on a smaller area misplaces presses outside it.
 simulate() {  # COUNT: synthetic.csv, COUNT ramps of $simulated_unit at Halton points, 8 Hz
   "$bin/skinbus-dataset" --plan halton --count "$1" --rate 8 --max-depth "$deepest_mm" \
-    --unit "$simulated_unit" "${design_opt[@]}" -o "$out/synthetic.csv" >"$out/dataset.log" 2>&1 ||
+    --area surface --unit "$simulated_unit" "${design_opt[@]}" -o "$out/synthetic.csv" \
+    >"$out/dataset.log" 2>&1 ||
     failed "the synthetic presses" "$out/dataset.log"
 }
 if ((network_route)); then
@@ -142,11 +146,11 @@ if ((network_route)); then
     step 2 "no presses simulated: identification kept no fit to simulate"
   fi
 else
-  step 2 "simulating $synthetic presses of the identified unit (ramps to $deepest_mm mm sampled at 8 Hz)"
+  step 2 "simulating $synthetic presses of the identified unit over its surface (ramps to $deepest_mm mm sampled at 8 Hz)"
   simulated_unit=$out/unit.json
   simulate "$synthetic"
   "$bin/skinbus-dataset" --plan random-test --count 500 --seed 7 --max-depth "$deepest_mm" \
-    --unit "$out/unit.json" "${design_opt[@]}" -o "$out/synthetic_test.csv" \
+    --area pressed --unit "$out/unit.json" "${design_opt[@]}" -o "$out/synthetic_test.csv" \
     >>"$out/dataset.log" 2>&1 ||
     failed "the synthetic test presses" "$out/dataset.log"
   train_set=$out/synthetic.csv

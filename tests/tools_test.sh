@@ -351,6 +351,38 @@ outside=$(sed -n 's/^\([0-9]*\) of the 150 presses lie outside the area the unit
   [[ $(grep -c '^| 2-3 |' "$work/id/eval_area.txt") == 3 ]] && ! grep -q "lie outside" "$work/id/eval.txt" &&
   ok "skinbus-evaluate shows the $outside of 150 presses outside the pressed area ($area) apart" ||
   { bad "skinbus-evaluate and the pressed area (rc $rc, area $area)"; cat "$work/id/eval_area.txt"; }
+# Simulated presses where the unit was pressed (its +-60 mm), over the design's surface (+-70 mm),
+# or over a rectangle given: a grid fills it at the pitch.
+extent() {  # CSV: "min_u max_u min_v max_v" of its presses
+  awk -F, '/^#/ {next} !n {for (i = 1; i <= NF; i++) c[$i] = i; n = 1; next}
+    {u = $c["u_mm"] + 0; v = $c["v_mm"] + 0
+     if (!r++) {a = b = u; e = f = v}
+     if (u < a) a = u; if (u > b) b = u; if (v < e) e = v; if (v > f) f = v}
+    END {printf "%.0f %.0f %.0f %.0f", a, b, e, f}' "$1"
+}
+"$bin/skinbus-dataset" --plan random-test --count 400 --unit "$work/id/unit.json" --area pressed \
+  -o "$work/id/area_pressed.csv" 2>"$work/id/area_pressed.txt" &&
+  "$bin/skinbus-dataset" --plan halton --count 200 --rate 4 --unit "$work/id/unit.json" \
+    --area surface -o "$work/id/area_surface.csv" 2>/dev/null &&
+  "$bin/skinbus-dataset" --plan grid --area=-30,45,0,15 --pitch 7.5 --speed 20 \
+    -o "$work/id/area_grid.csv" 2>/dev/null; rc=$?
+read -r -a pressed <<<"$(extent "$work/id/area_pressed.csv")"
+read -r -a surface <<<"$(extent "$work/id/area_surface.csv")"
+grid_points=$(awk -F, '/^#/ {next} !n {for (i = 1; i <= NF; i++) c[$i] = i; n = 1; next}
+  {p[$c["u_mm"] "," $c["v_mm"]]} END {print length(p)}' "$work/id/area_grid.csv")
+[[ $rc == 0 ]] && awk -v a="${pressed[*]}" -v s="${surface[*]}" 'BEGIN {
+    split(a, p, " "); split(s, q, " ")
+    exit !(p[1] >= -60 && p[2] <= 60 && p[3] >= -60 && p[4] <= 60 && p[1] < -55 && p[4] > 55 &&
+           q[1] < -65 && q[2] > 65 && q[3] < -65 && q[4] > 65 && q[1] >= -70 && q[4] <= 70) }' &&
+  grep -q "pressing u -60.0 .. 60.0, v -60.0 .. 60.0 mm (--area pressed)" "$work/id/area_pressed.txt" &&
+  [[ $grid_points == 33 && $(extent "$work/id/area_grid.csv") == "-30 45 0 15" ]] &&
+  ok "skinbus-dataset --area: where the unit was pressed (${pressed[*]}), its surface (${surface[*]}), a rectangle's grid ($grid_points points)" ||
+  { bad "skinbus-dataset --area (rc $rc; pressed ${pressed[*]}, surface ${surface[*]}, grid $grid_points)"; cat "$work/id/area_pressed.txt"; }
+"$bin/skinbus-dataset" --plan halton --area pressed -o "$work/id/x.csv" 2>"$work/id/area_no_unit.txt"; rc1=$?
+"$bin/skinbus-dataset" --plan halton --area=10,-10,0,5 -o "$work/id/x.csv" 2>"$work/id/area_bad.txt"; rc2=$?
+[[ $rc1 == 1 && $rc2 == 1 ]] && grep -q "needs a --unit whose file says where it was pressed" "$work/id/area_no_unit.txt" &&
+  grep -q "area '10,-10,0,5': give U0,U1,V0,V1 in mm with U0 < U1" "$work/id/area_bad.txt" &&
+  ok "skinbus-dataset: a bad --area named" || { bad "bad --area (rc $rc1 $rc2)"; cat "$work/id/area_no_unit.txt" "$work/id/area_bad.txt"; }
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/bad.json" >/dev/null 2>"$work/id/eval_bad.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "bad.json: magnets\[0\].v_mm is missing" "$work/id/eval_bad.txt" &&

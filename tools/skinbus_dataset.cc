@@ -6,7 +6,9 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -16,6 +18,46 @@
 #include "skinbus/sim/unit_model.h"
 #include "tool_util.h"
 
+namespace {
+
+// --area: "U0,U1,V0,V1", "surface" (the design's, and the --unit's pressed area if it reaches
+// beyond) or "pressed" (the --unit's, when its file says).
+skinbus::Result<skinbus::sim::PressedArea> parse_area(
+    const std::string& text, const skinbus::sim::PatchDesign& design,
+    const std::optional<skinbus::sim::PressedArea>& unit_area) {
+  using skinbus::ErrorCode;
+  using skinbus::make_error;
+  using skinbus::sim::PressedArea;
+  if (text == "surface") {  // widened to hold where the unit was pressed (a size left out)
+    PressedArea a{-design.size_u_mm / 2, design.size_u_mm / 2, -design.size_v_mm / 2,
+                  design.size_v_mm / 2};
+    if (unit_area) {
+      a = {std::fmin(a.u_min_mm, unit_area->u_min_mm), std::fmax(a.u_max_mm, unit_area->u_max_mm),
+           std::fmin(a.v_min_mm, unit_area->v_min_mm), std::fmax(a.v_max_mm, unit_area->v_max_mm)};
+    }
+    return a;
+  }
+  if (text == "pressed") {
+    if (unit_area) return *unit_area;
+    return make_error(ErrorCode::kInvalidArgument,
+                      "--area pressed needs a --unit whose file says where it was pressed "
+                      "(pressed_area_mm, written by skinbus-identify)");
+  }
+  double a[4];
+  char end = 0;
+  if (std::sscanf(text.c_str(), "%lf,%lf,%lf,%lf%c", &a[0], &a[1], &a[2], &a[3], &end) != 4 ||
+      !(a[0] < a[1] && a[2] < a[3]) || std::fabs(a[0]) > 1e4 || std::fabs(a[1]) > 1e4 ||
+      std::fabs(a[2]) > 1e4 || std::fabs(a[3]) > 1e4) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "--area '" + text +
+                          "': give U0,U1,V0,V1 in mm with U0 < U1 and V0 < V1, 'surface' or "
+                          "'pressed'");
+  }
+  return PressedArea{a[0], a[1], a[2], a[3]};
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   using namespace skinbus;
   using namespace skinbus::sim;
@@ -24,13 +66,15 @@ int main(int argc, char** argv) {
       "format\n"
       "(docs/dataset_format.md).\n\n"
       "Plans (where the simulated robot presses):\n"
-      "  grid         the seed's protocol: --grid N x N points at --pitch mm (19 x 19 at 7.5 mm)\n"
+      "  grid         the seed's protocol: --grid N x N points at --pitch mm (19 x 19 at 7.5 mm;\n"
+      "               with --area, the points at --pitch that fill that rectangle)\n"
       "  jittered     the same grid, each point moved by up to --jitter x pitch/2\n"
-      "  halton       --count points of a low-discrepancy sequence over the grid's extent\n"
-      "  random       --count uniformly random points over the grid's extent\n"
+      "  halton       --count points of a low-discrepancy sequence over the area (--area)\n"
+      "  random       --count uniformly random points over the area\n"
       "  random-test  the test split: --count static presses at random points and depths over\n"
-      "               the grid's extent (give the --grid and --pitch the unit was pressed on:\n"
-      "               outside that area its fit is extrapolated)\n"
+      "               the area\n"
+      "               The area: --area; else a --unit's, where it was pressed (beyond it its\n"
+      "               fit is extrapolated); else the grid's extent\n"
       "  grid-test    --count static presses at random depths at every grid point (the split\n"
       "               at the training grid's points)\n"
       "  list         the points in --points FILE (one 'u_mm,v_mm' per line)\n"
@@ -123,6 +167,15 @@ int main(int argc, char** argv) {
                  "(skinbus-identify finds such a frame)")
       ->delimiter(',')
       ->expected(3);
+  std::string area_text;
+  app.add_option("--area", area_text,
+                 "the rectangle pressed instead of the grid's (grid - 1) x pitch square: "
+                 "'U0,U1,V0,V1' (mm, patch frame), 'surface' (the design's whole surface, "
+                 "centred, widened to hold where a --unit was pressed) or 'pressed' (where the "
+                 "--unit was pressed: its file's pressed_area_mm; beyond it the identified model "
+                 "is extrapolated). Halton, "
+                 "random and random-test sample it; grid, jittered and grid-test press the "
+                 "--pitch points that fill it, centred");
   double press_depth_zero_mm = 0;
   app.add_option("--press-depth-zero", press_depth_zero_mm,
                  "MM: record the presses as an indenter whose zero is off the surface does: each "
@@ -146,6 +199,7 @@ int main(int argc, char** argv) {
     if (fabricated && !unit_path.empty()) {
       throw std::invalid_argument("--fabricated and --unit are exclusive: one unit at a time");
     }
+    std::optional<PressedArea> unit_area;  // where the --unit was pressed, when its file says
     auto make_model = [&]() -> Result<PatchModel> {
       if (unit_path.empty()) {
         return fabricated ? PatchModel::fabricated(design, uid, FabricationVariation{})
@@ -156,13 +210,36 @@ int main(int argc, char** argv) {
       Result<UnitModel> unit =
           read_unit_model(unit_path, design, anisotropy_given->count() > 0 ? anisotropy : 0);
       if (!unit.ok()) return unit.error();
+      unit_area = unit->note.pressed_area;
       return std::move(unit->model);
     };
     Result<PatchModel> model = make_model();
     if (model.ok() && discs) model = PatchModel::with_disc_magnets(model.value());
     if (!model.ok()) throw std::runtime_error(model.error().message);
     SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
-    const double half = (grid - 1) / 2.0 * pitch;
+    // The rectangle pressed (see --area). Grid plans fill a given one at --pitch, centred.
+    const bool area_given = !area_text.empty();
+    Result<PressedArea> area_read = area_given ? parse_area(area_text, design, unit_area)
+                                               : PressedArea::square((grid - 1) / 2.0 * pitch);
+    if (!area_read.ok()) throw std::invalid_argument(area_read.error().message);
+    const PressedArea area = area_read.value();
+    if (area_text == "surface" || area_text == "pressed") {
+      std::fprintf(stderr,
+                   "skinbus-dataset: pressing u %.1f .. %.1f, v %.1f .. %.1f mm (--area %s)\n",
+                   area.u_min_mm, area.u_max_mm, area.v_min_mm, area.v_max_mm, area_text.c_str());
+    }
+    auto grid_plan = [&](std::vector<PressPoint> points) {  // the grid's points, --area's centre
+      for (PressPoint& q : points) {
+        q.u_mm += (area.u_min_mm + area.u_max_mm) / 2;
+        q.v_mm += (area.v_min_mm + area.v_max_mm) / 2;
+      }
+      return points;
+    };
+    const auto fill = [&](double lo, double hi) {
+      return area_given ? static_cast<int>((hi - lo) / pitch + 1e-9) + 1 : grid;
+    };
+    const int grid_u = fill(area.u_min_mm, area.u_max_mm);
+    const int grid_v = fill(area.v_min_mm, area.v_max_mm);
     Dataset d;
     RampProtocol pr;
     pr.max_depth_mm = max_depth;
@@ -171,24 +248,25 @@ int main(int argc, char** argv) {
     pr.rate_hz = rate;
     pr.tip_radius_mm = tip_given->count() > 0 ? tip_radius : design.indenter_tip_radius_mm;
     if (plan == "grid") {
-      d = generate_ramp_dataset(patch, plan_grid(grid, pitch), pr);
+      d = generate_ramp_dataset(patch, grid_plan(plan_grid(grid_u, grid_v, pitch)), pr);
     } else if (plan == "jittered") {
-      d = generate_ramp_dataset(patch, plan_jittered_grid(grid, pitch, jitter, seed), pr);
+      d = generate_ramp_dataset(
+          patch, grid_plan(plan_jittered_grid(grid_u, grid_v, pitch, jitter, seed)), pr);
     } else if (plan == "halton") {
-      d = generate_ramp_dataset(patch, plan_halton(count, half, seed), pr);
+      d = generate_ramp_dataset(patch, plan_halton(count, area, seed), pr);
     } else if (plan == "random") {
-      d = generate_ramp_dataset(patch, plan_random(count, half, seed), pr);
+      d = generate_ramp_dataset(patch, plan_random(count, area, seed), pr);
     } else if (plan == "list") {
       if (points_path.empty()) throw std::invalid_argument("--plan list needs --points FILE");
       auto pts = plan_from_file(points_path);
       if (!pts.ok()) throw std::runtime_error(pts.error().message);
       d = generate_ramp_dataset(patch, *pts, pr);
     } else if (plan == "random-test") {
-      d = generate_random_test_set(patch, count, half, max_depth, seed, {}, pr.tare_samples,
+      d = generate_random_test_set(patch, count, area, max_depth, seed, {}, pr.tare_samples,
                                    pr.tip_radius_mm);
     } else if (plan == "grid-test") {
-      d = generate_static_test_set(patch, plan_grid(grid, pitch), count, max_depth, seed, {},
-                                   pr.tare_samples, pr.tip_radius_mm);
+      d = generate_static_test_set(patch, grid_plan(plan_grid(grid_u, grid_v, pitch)), count,
+                                   max_depth, seed, {}, pr.tare_samples, pr.tip_radius_mm);
     } else {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
     }

@@ -88,18 +88,19 @@ std::optional<PressedArea> pressed_area(const Dataset& d) {
   return a;
 }
 
-std::vector<PressPoint> plan_grid(int n, double pitch_mm) {
+std::vector<PressPoint> plan_grid(int n_u, int n_v, double pitch_mm) {
   std::vector<PressPoint> p;
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i < n; ++i)
-      p.push_back({(i - (n - 1) / 2.0) * pitch_mm, (j - (n - 1) / 2.0) * pitch_mm});
+  for (int j = 0; j < n_v; ++j) {
+    for (int i = 0; i < n_u; ++i)
+      p.push_back({(i - (n_u - 1) / 2.0) * pitch_mm, (j - (n_v - 1) / 2.0) * pitch_mm});
   }
   return p;
 }
 
-std::vector<PressPoint> plan_jittered_grid(int n, double pitch_mm, double jitter, uint64_t seed) {
+std::vector<PressPoint> plan_jittered_grid(int n_u, int n_v, double pitch_mm, double jitter,
+                                           uint64_t seed) {
   Rng rng(seed);
-  std::vector<PressPoint> p = plan_grid(n, pitch_mm);
+  std::vector<PressPoint> p = plan_grid(n_u, n_v, pitch_mm);
   for (PressPoint& q : p) {
     q.u_mm += rng.uniform(-1, 1) * jitter * pitch_mm / 2;
     q.v_mm += rng.uniform(-1, 1) * jitter * pitch_mm / 2;
@@ -108,6 +109,12 @@ std::vector<PressPoint> plan_jittered_grid(int n, double pitch_mm, double jitter
 }
 
 namespace {
+// The point of [lo, hi] at t in [-1, 1] (the centre plus t half-widths: on a square centred on
+// the patch, exactly t x the half extent).
+double along(double lo, double hi, double t) {
+  return (lo + hi) / 2 + t * ((hi - lo) / 2);
+}
+
 double radical_inverse(uint64_t i, unsigned base) {
   double f = 1, r = 0;
   while (i > 0) {
@@ -119,21 +126,22 @@ double radical_inverse(uint64_t i, unsigned base) {
 }
 }  // namespace
 
-std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t skip) {
+std::vector<PressPoint> plan_halton(int count, const PressedArea& area, uint64_t skip) {
   std::vector<PressPoint> p;
   for (int k = 0; k < count; ++k) {
     const uint64_t i = skip + static_cast<uint64_t>(k) + 1;
-    p.push_back({(2 * radical_inverse(i, 2) - 1) * half_extent_mm,
-                 (2 * radical_inverse(i, 3) - 1) * half_extent_mm});
+    p.push_back({along(area.u_min_mm, area.u_max_mm, 2 * radical_inverse(i, 2) - 1),
+                 along(area.v_min_mm, area.v_max_mm, 2 * radical_inverse(i, 3) - 1)});
   }
   return p;
 }
 
-std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t seed) {
+std::vector<PressPoint> plan_random(int count, const PressedArea& area, uint64_t seed) {
   Rng rng(seed);
   std::vector<PressPoint> p;
   for (int k = 0; k < count; ++k)
-    p.push_back({rng.uniform(-1, 1) * half_extent_mm, rng.uniform(-1, 1) * half_extent_mm});
+    p.push_back({along(area.u_min_mm, area.u_max_mm, rng.uniform(-1, 1)),
+                 along(area.v_min_mm, area.v_max_mm, rng.uniform(-1, 1))});
   return p;
 }
 
@@ -277,22 +285,28 @@ void static_presses(SimulatedPatch& patch, const Environment& env, int tare_samp
 
 }  // namespace
 
-Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
+Dataset generate_random_test_set(SimulatedPatch& patch, int count, const PressedArea& area,
                                  double max_depth_mm, uint64_t seed, const Environment& env,
                                  int tare_samples, double tip_radius_mm) {
   Dataset d;
   fill_layout(patch, &d);
-  char buf[160];
-  std::snprintf(
-      buf, sizeof buf,
-      "random_static count=%d half_extent_mm=%g max_depth_mm=%g tip_radius_mm=%g seed=%llu", count,
-      half_extent_mm, max_depth_mm, tip_radius_mm, static_cast<unsigned long long>(seed));
+  char extent[96];
+  if (area == PressedArea::square(area.u_max_mm)) {
+    std::snprintf(extent, sizeof extent, "half_extent_mm=%g", area.u_max_mm);
+  } else {
+    std::snprintf(extent, sizeof extent, "u_mm=%g..%g v_mm=%g..%g", area.u_min_mm, area.u_max_mm,
+                  area.v_min_mm, area.v_max_mm);
+  }
+  char buf[224];
+  std::snprintf(buf, sizeof buf,
+                "random_static count=%d %s max_depth_mm=%g tip_radius_mm=%g seed=%llu", count,
+                extent, max_depth_mm, tip_radius_mm, static_cast<unsigned long long>(seed));
   d.meta["protocol"] = buf;
   static_presses(
       patch, env, tare_samples, count, seed,
       [&](int, Rng& rng) {
-        const double u = rng.uniform(-1, 1) * half_extent_mm;
-        const double v = rng.uniform(-1, 1) * half_extent_mm;
+        const double u = along(area.u_min_mm, area.u_max_mm, rng.uniform(-1, 1));
+        const double v = along(area.v_min_mm, area.v_max_mm, rng.uniform(-1, 1));
         return Contact{u, v, max_depth_mm * (1 - rng.uniform()),  // depth in (0, max]
                        tip_radius_mm};
       },

@@ -89,6 +89,50 @@ TEST(DatasetTest, PressPlans) {
   EXPECT_EQ(empty, 0);
 }
 
+// A patch pressed over a rectangle off its centre: the plans fill that rectangle and no more, and
+// on the square centred on the patch they are the square plans to the bit.
+TEST(DatasetTest, PlansPressTheRectangleTheyAreGiven) {
+  const PressedArea area{-90, 70, -20, 40};
+  for (const auto& points :
+       {plan_halton(400, area), plan_random(400, area, 5), plan_grid(5, 3, 7.5)}) {
+    for (const PressPoint& p : points) EXPECT_TRUE(area.contains(p.u_mm, p.v_mm, 0));
+  }
+  const std::vector<PressPoint> h = plan_halton(400, area);
+  // Low discrepancy over the rectangle: each of its 8 x 3 cells of 20 x 20 mm holds a press.
+  for (int cu = 0; cu < 8; ++cu) {
+    for (int cv = 0; cv < 3; ++cv) {
+      bool any = false;
+      for (const PressPoint& p : h) {
+        any |= p.u_mm >= -90 + 20 * cu && p.u_mm < -70 + 20 * cu && p.v_mm >= -20 + 20 * cv &&
+               p.v_mm < 20 * cv;
+      }
+      EXPECT_TRUE(any) << "cell " << cu << ", " << cv;
+    }
+  }
+  const std::vector<PressPoint> g = plan_grid(5, 3, 7.5);
+  ASSERT_EQ(g.size(), 15u);
+  EXPECT_DOUBLE_EQ(g.front().u_mm, -15);
+  EXPECT_DOUBLE_EQ(g.front().v_mm, -7.5);
+  EXPECT_DOUBLE_EQ(g.back().u_mm, 15);
+  EXPECT_DOUBLE_EQ(g.back().v_mm, 7.5);
+  // The square centred on the patch is the square plans' own, bit for bit.
+  const auto same = [](const std::vector<PressPoint>& a, const std::vector<PressPoint>& b) {
+    bool equal = a.size() == b.size();
+    for (std::size_t i = 0; equal && i < a.size(); ++i)
+      equal = a[i].u_mm == b[i].u_mm && a[i].v_mm == b[i].v_mm;
+    return equal;
+  };
+  EXPECT_TRUE(same(plan_halton(100, PressedArea::square(67.5), 3), plan_halton(100, 67.5, 3)));
+  EXPECT_TRUE(same(plan_random(100, PressedArea::square(67.5), 9), plan_random(100, 67.5, 9)));
+
+  SimulatedPatch patch = make_patch();
+  const Dataset test = generate_random_test_set(patch, 200, area, 3.0, 4);
+  for (std::size_t r = 0; r < test.rows(); ++r)
+    EXPECT_TRUE(area.contains(test.u_mm[r], test.v_mm[r], 0)) << r;
+  EXPECT_NE(test.meta.at("protocol").find("u_mm=-90..70 v_mm=-20..40"), std::string::npos)
+      << test.meta.at("protocol");
+}
+
 // The area of a dataset's presses: every finite row's (u, v), and none without one.
 TEST(DatasetTest, ThePressedAreaHoldsEveryFiniteRow) {
   Dataset d;

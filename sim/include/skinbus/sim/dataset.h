@@ -77,14 +77,30 @@ void record_in_press_frame(Dataset* d, const PressFrame& f);
 struct PressPoint {
   double u_mm = 0, v_mm = 0;
 };
+// An n_u x n_v grid at `pitch_mm`, centred, u fastest.
+std::vector<PressPoint> plan_grid(int n_u, int n_v, double pitch_mm);
 // The seed's protocol: an n x n grid at `pitch_mm`, centred (19 x 19 at 7.5 mm).
-std::vector<PressPoint> plan_grid(int n, double pitch_mm);
-// The same grid, each point moved by up to +-jitter * pitch/2 (uniform), seeded.
-std::vector<PressPoint> plan_jittered_grid(int n, double pitch_mm, double jitter, uint64_t seed);
-// `count` points of the 2D Halton sequence (bases 2, 3) over the square +-half_extent_mm.
-std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t skip = 0);
-// `count` uniformly random points over the square +-half_extent_mm.
-std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t seed);
+inline std::vector<PressPoint> plan_grid(int n, double pitch_mm) {
+  return plan_grid(n, n, pitch_mm);
+}
+// The same grids, each point moved by up to +-jitter * pitch/2 (uniform), seeded.
+std::vector<PressPoint> plan_jittered_grid(int n_u, int n_v, double pitch_mm, double jitter,
+                                           uint64_t seed);
+inline std::vector<PressPoint> plan_jittered_grid(int n, double pitch_mm, double jitter,
+                                                  uint64_t seed) {
+  return plan_jittered_grid(n, n, pitch_mm, jitter, seed);
+}
+// `count` points of the 2D Halton sequence (bases 2, 3) over `area`.
+std::vector<PressPoint> plan_halton(int count, const PressedArea& area, uint64_t skip = 0);
+// `count` uniformly random points over `area`.
+std::vector<PressPoint> plan_random(int count, const PressedArea& area, uint64_t seed);
+// The same over the square +-half_extent_mm.
+inline std::vector<PressPoint> plan_halton(int count, double half_extent_mm, uint64_t skip = 0) {
+  return plan_halton(count, PressedArea::square(half_extent_mm), skip);
+}
+inline std::vector<PressPoint> plan_random(int count, double half_extent_mm, uint64_t seed) {
+  return plan_random(count, PressedArea::square(half_extent_mm), seed);
+}
 // A given list: a text file with one point per line, "u_mm,v_mm" (or separated by spaces);
 // '#' lines and a header line naming the columns are skipped. Errors name the line.
 Result<std::vector<PressPoint>> plan_from_file(const std::string& path);
@@ -108,11 +124,19 @@ struct RampProtocol {
 Dataset generate_ramp_dataset(SimulatedPatch& patch, const std::vector<PressPoint>& plan,
                               const RampProtocol& protocol, const Environment& env = {});
 
-// The super-resolution test split: `count` static presses at random positions over
-// +-half_extent_mm and random depths in (0, max_depth_mm], one sample each.
-Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
+// The super-resolution test split: `count` static presses at random positions over `area`
+// and random depths in (0, max_depth_mm], one sample each.
+Dataset generate_random_test_set(SimulatedPatch& patch, int count, const PressedArea& area,
                                  double max_depth_mm, uint64_t seed, const Environment& env = {},
                                  int tare_samples = 32, double tip_radius_mm = 5.0);
+// The same over the square +-half_extent_mm.
+inline Dataset generate_random_test_set(SimulatedPatch& patch, int count, double half_extent_mm,
+                                        double max_depth_mm, uint64_t seed,
+                                        const Environment& env = {}, int tare_samples = 32,
+                                        double tip_radius_mm = 5.0) {
+  return generate_random_test_set(patch, count, PressedArea::square(half_extent_mm), max_depth_mm,
+                                  seed, env, tare_samples, tip_radius_mm);
+}
 
 // Static presses at given points: `per_point` presses at each point of `points`, random depths
 // in (0, max_depth_mm], one sample each (e.g. the test split at the training grid's points).

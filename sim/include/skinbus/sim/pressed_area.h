@@ -12,6 +12,9 @@ inline constexpr double kPressedAreaMarginMm = 1.0;
 // The smallest rectangle in surface coordinates (mm) holding every press.
 struct PressedArea {
   double u_min_mm = 0, u_max_mm = 0, v_min_mm = 0, v_max_mm = 0;
+  // The square +-half_mm on each axis.
+  static PressedArea square(double half_mm) { return {-half_mm, half_mm, -half_mm, half_mm}; }
+  bool operator==(const PressedArea&) const = default;
   // True when (u, v) lies within the area widened by `margin_mm` on every side.
   bool contains(double u_mm, double v_mm, double margin_mm) const {
     return u_mm >= u_min_mm - margin_mm && u_mm <= u_max_mm + margin_mm &&
