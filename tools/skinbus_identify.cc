@@ -287,6 +287,17 @@ int main(int argc, char** argv) {
     chosen.reset();
     if (!l.fc) return std::nullopt;
     if (!l.creep_text.empty()) std::printf("%s\n", l.creep_text.c_str());
+    // A lag chosen on ramps alone, on a unit the class leaves physics in: a crushing top bends a
+    // ramp as a slower lag does, and ramps fit several laws alike (estimators::held_presses).
+    if (l.law && !l.law->none() && estimators::held_presses(*presses) == 0) {
+      std::printf(
+          "note: the lag (%.2f s) was chosen on ramps alone, on a unit with physics the class "
+          "lacks: a top that crushes bends a ramp as a slower lag does, and the ramps cannot "
+          "tell them apart, so a press held still may read too deep or too shallow. Record the "
+          "presses held 3 s at their deepest (skinbus-dataset --hold 3; "
+          "docs/guides/training.md)\n",
+          l.law->time_s);
+    }
     std::printf("%s\nfield correction learned and checked in %.1f s\n",
                 l.report.summary_text().c_str(), l.seconds);
     if (!l.report.helps || l.report.rms_held_out > opt.max_residual) return std::nullopt;

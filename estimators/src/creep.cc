@@ -232,6 +232,29 @@ std::vector<double> creep_bend_mm(const CreepLaw& law, const sim::Dataset& d) {
   return bend;
 }
 
+int held_presses(const sim::Dataset& d, double min_hold_s, double tolerance_mm) {
+  int held = 0;
+  for (std::size_t r = 0; r < d.rows();) {
+    std::size_t end = r + 1;
+    bool increasing = std::isfinite(d.t_s[r]);
+    double deepest = d.depth_mm[r];
+    while (end < d.rows() && !new_press(d, end)) {
+      increasing = increasing && d.t_s[end] > d.t_s[end - 1];
+      deepest = std::fmax(deepest, d.depth_mm[end]);
+      ++end;
+    }
+    double first = std::numeric_limits<double>::quiet_NaN(), last = first;
+    for (std::size_t k = r; increasing && k < end; ++k) {
+      if (!(d.depth_mm[k] >= deepest - tolerance_mm)) continue;
+      if (std::isnan(first)) first = d.t_s[k];
+      last = d.t_s[k];
+    }
+    held += increasing && end - r >= 3 && last - first >= min_hold_s ? 1 : 0;
+    r = end;
+  }
+  return held;
+}
+
 std::string CreepFit::summary_text() const {
   char buf[320];
   if (!kept) {

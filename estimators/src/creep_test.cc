@@ -164,6 +164,29 @@ TEST(CreepTest, ASecondSlowerLagIsFoundWhenHeldOutPressesShowIt) {
 
 // A unit that does not creep keeps no law: on ramps, none lowers the held-out residual enough;
 // on static presses (one sample each) there are no ramps to fit.
+// Presses held at their deepest are counted when held long enough, ramps and static presses
+// never; a press's rows out of time order are no press held.
+TEST(CreepTest, PressesHeldAtTheirDeepestAreCounted) {
+  sim::SimulatedPatch patch(sim::PatchModel::nominal(sim::PatchDesign{}).value(), 3);
+  const std::vector<sim::PressPoint> points = sim::plan_grid(3, 30);
+  sim::RampProtocol ramp;
+  ramp.speed_mm_per_s = 4;
+  EXPECT_EQ(held_presses(sim::generate_ramp_dataset(patch, points, ramp)), 0);
+  ramp.hold_s = 0.6;
+  const sim::Dataset short_holds = sim::generate_ramp_dataset(patch, points, ramp);
+  EXPECT_EQ(held_presses(short_holds), 0);
+  EXPECT_EQ(held_presses(short_holds, 0.5), 9);
+  ramp.hold_s = 2;
+  sim::Dataset held = sim::generate_ramp_dataset(patch, points, ramp);
+  EXPECT_EQ(held_presses(held), 9);
+  // The first press's rows out of time order: not counted.
+  for (std::size_t r = 1; r < held.rows() && held.press[r] == held.press[0]; ++r) {
+    held.t_s[r] = held.t_s[0] - static_cast<double>(r);
+  }
+  EXPECT_EQ(held_presses(held), 8);
+  EXPECT_EQ(held_presses(sim::generate_random_test_set(patch, 50, 40.0, 4.0, 5)), 0);
+}
+
 TEST(CreepTest, AUnitThatDoesNotCreepKeepsNoLaw) {
   sim::PatchModel model = sim::PatchModel::nominal(sim::PatchDesign{}).value();
   const sim::Dataset ramps = creeping_ramps({0, 0.3}, 13, &model);

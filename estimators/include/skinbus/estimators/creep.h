@@ -108,6 +108,13 @@ sim::Dataset bent_dataset(const CreepLaw& law, const sim::Dataset& d);
 // row is a static press and keeps its depth, as do rejected estimates. No law: nothing changes.
 void undo_creep(const CreepLaw& law, const sim::Dataset& d, std::span<ContactEstimate> estimates);
 
+// How many presses of `d` were held still at their deepest for at least `min_hold_s` (a press:
+// consecutive rows of one press number, times increasing; held: its rows within `tolerance_mm`
+// of its deepest depth span that long, as skinbus-dataset --hold's and a lab robot's holds do).
+// A lag slower than a ramp, or one a unit that also crushes shows on its ramps, is told apart
+// only by such holds: the bends along a ramp fit several laws alike. No allocation.
+int held_presses(const sim::Dataset& d, double min_hold_s = 1.0, double tolerance_mm = 0.02);
+
 // What fit_creep() found.
 struct CreepFit {
   CreepLaw law;       // none() when none kept; slow_fraction 0 when one lag was kept
