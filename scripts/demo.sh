@@ -197,7 +197,7 @@ if [[ -n $vcan ]]; then
   "$bin/skinbus-host" "${host_args[@]}" -i "$vcan" --duration $((duration + 2)) \
     >"$out/host.jsonl" 2>"$out/host.log" &
   host=$!
-  pids+=($host)
+  pids+=("$host")
   # The daemons start once the host has built its estimators (networks, refiners' start tables:
   # seconds on a slow or emulated CPU); started earlier, their first presses would be late.
   wait_for_line "patches in the map" "$out/host.log" "$host" 1200
@@ -213,7 +213,7 @@ else
   "$bin/skinbus-host" "${host_args[@]}" --replay - --live <"$fifo" >"$out/host.jsonl" \
     2>"$out/host.log" &
   host=$!
-  pids+=($host)
+  pids+=("$host")
   sleep 1
   # Every daemon writes whole lines into one pipe; tee keeps the bus log.
   # (-p: the host's pipe goes on if the web view goes away.)

@@ -196,7 +196,8 @@ struct IdentificationOptions {
   std::function<void(const std::string&)> progress;
   // After the fit, a creep law (creep.h, fit_creep) from the presses' ramps; when one lowers the
   // held-out presses' depth residual, the whole fit is made again on the bends it gives
-  // (creep_bend_mm) and the law kept in the parameters (about twice the time). A fit refused for
+  // (creep_bend_mm), its globals from the first fit's spread alone (not every spread start),
+  // and the law kept in the parameters (about 1.7 times the time). A fit refused for
   // its residual gets the law fitted on it, in the refused parameters, without a second fit.
   bool fit_creep = true;
   // Before the fit, every chip's mounting is tried turned about the normal by 0, 90, 180 and 270
