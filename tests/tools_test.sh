@@ -396,9 +396,12 @@ grid_points=$(awk -F, '/^#/ {next} !n {for (i = 1; i <= NF; i++) c[$i] = i; n = 
   { bad "skinbus-dataset --area (rc $rc; pressed ${pressed[*]}, surface ${surface[*]}, grid $grid_points)"; cat "$work/id/area_pressed.txt"; }
 "$bin/skinbus-dataset" --plan halton --area pressed -o "$work/id/x.csv" 2>"$work/id/area_no_unit.txt"; rc1=$?
 "$bin/skinbus-dataset" --plan halton --area=10,-10,0,5 -o "$work/id/x.csv" 2>"$work/id/area_bad.txt"; rc2=$?
-[[ $rc1 == 1 && $rc2 == 1 ]] && grep -q "needs a --unit whose file says where it was pressed" "$work/id/area_no_unit.txt" &&
+"$bin/skinbus-dataset" --plan grid --area=-500,500,0,5 --pitch 1 -o "$work/id/x.csv" 2>"$work/id/area_fine.txt"; rc3=$?
+[[ $rc1 == 1 && $rc2 == 1 && $rc3 == 1 ]] && grep -q "needs a --unit whose file says where it was pressed" "$work/id/area_no_unit.txt" &&
   grep -q "area '10,-10,0,5': give U0,U1,V0,V1 in mm with U0 < U1" "$work/id/area_bad.txt" &&
-  ok "skinbus-dataset: a bad --area named" || { bad "bad --area (rc $rc1 $rc2)"; cat "$work/id/area_no_unit.txt" "$work/id/area_bad.txt"; }
+  grep -q "1001 points a side (at most 200)" "$work/id/area_fine.txt" &&
+  ok "skinbus-dataset: a bad --area named" ||
+  { bad "bad --area (rc $rc1 $rc2 $rc3)"; cat "$work/id/area_no_unit.txt" "$work/id/area_bad.txt" "$work/id/area_fine.txt"; }
 "$bin/skinbus-evaluate" "$work/id/unit.csv" --model "$here/../estimators/models/nominal_seed_cnn" \
   --unit "$work/id/bad.json" >/dev/null 2>"$work/id/eval_bad.txt"; rc=$?
 [[ $rc != 0 ]] && grep -q "bad.json: magnets\[0\].v_mm is missing" "$work/id/eval_bad.txt" &&

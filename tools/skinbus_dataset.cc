@@ -73,8 +73,8 @@ int main(int argc, char** argv) {
       "  random       --count uniformly random points over the area\n"
       "  random-test  the test split: --count static presses at random points and depths over\n"
       "               the area\n"
-      "               The area: --area; else a --unit's, where it was pressed (beyond it its\n"
-      "               fit is extrapolated); else the grid's extent\n"
+      "               The area: --area (a rectangle, the design's surface, or where a --unit\n"
+      "               was pressed: beyond it its fit is extrapolated); else the grid's extent\n"
       "  grid-test    --count static presses at random depths at every grid point (the split\n"
       "               at the training grid's points)\n"
       "  list         the points in --points FILE (one 'u_mm,v_mm' per line)\n"
@@ -235,8 +235,15 @@ int main(int argc, char** argv) {
       }
       return points;
     };
-    const auto fill = [&](double lo, double hi) {
-      return area_given ? static_cast<int>((hi - lo) / pitch + 1e-9) + 1 : grid;
+    const bool gridded = plan == "grid" || plan == "jittered" || plan == "grid-test";
+    const auto fill = [&](double lo, double hi) {  // points a side, at most --grid's 200
+      const double n = area_given ? std::floor((hi - lo) / pitch + 1e-9) + 1 : grid;
+      if (gridded && n > 200) {
+        throw std::invalid_argument("--area at --pitch " + tools::format_g(pitch) +
+                                    " mm: " + tools::format_g(n) +
+                                    " points a side (at most 200): give a larger pitch");
+      }
+      return static_cast<int>(std::fmin(n, 200));
     };
     const int grid_u = fill(area.u_min_mm, area.u_max_mm);
     const int grid_v = fill(area.v_min_mm, area.v_max_mm);
