@@ -401,6 +401,27 @@ class StageProgress final : public ceres::IterationCallback {
   int residuals_, passes_;
 };
 
+// Stage 2 stops when it has stalled: the cost fell by less than kStallShare of itself over the
+// last kOver iterations (a fit the class cannot explain creeps on for tens of iterations, each
+// a second or more, moving nothing a residual shows).
+class StallStop final : public ceres::IterationCallback {
+ public:
+  static constexpr int kOver = 5;
+  static constexpr double kStallShare = 1e-4;
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& it) override {
+    if (it.iteration == 0) costs_.clear();
+    costs_.push_back(it.cost);
+    const std::size_t n = costs_.size();
+    if (n > kOver && costs_[n - 1 - kOver] - it.cost < kStallShare * it.cost) {
+      return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+    }
+    return ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  std::vector<double> costs_;
+};
+
 // ---- Stage 1: the design's global physics --------------------------------------------------
 // Ten numbers that a design file may have wrong for a whole unit and that the per-magnet and
 // per-sensor parameters, held to the fabrication spread, cannot absorb: the spread length, the
@@ -1231,6 +1252,8 @@ Result<IdentifiedUnit> identify_in_class(const sim::PatchDesign& design_in,
   ceres::Solver::Options so = solver_options(opt, ceres::SPARSE_NORMAL_CHOLESKY);
   StageProgress shown(opt.progress, problem.NumResiduals(), opt.outer_iterations);
   if (opt.progress) so.callbacks.push_back(&shown);
+  StallStop stall;
+  so.callbacks.push_back(&stall);
 
   for (int outer = 0; outer < opt.outer_iterations; ++outer) {
     shown.pass = outer + 1;
