@@ -270,7 +270,7 @@ else
 fi
 
 step 5 "writing the report and the skin-map entry"
-"$bin/skinbus-crlb" --depths 1.5 2.5 3.5 --ambient "${design_opt[@]}" >"$out/crlb.log" 2>&1 ||
+"$bin/skinbus-crlb" --depths 1.5 2.5 3.5 --ambient --area surface "${design_opt[@]}" >"$out/crlb.log" 2>&1 ||
   failed "the Cramer-Rao bound" "$out/crlb.log"
 # The network refined on the unit, as the host runs them, on the same presses.
 if ((!network_route)); then

@@ -409,6 +409,20 @@ grid_points=$(awk -F, '/^#/ {next} !n {for (i = 1; i <= NF; i++) c[$i] = i; n = 
 
 "$bin/skinbus-crlb" --depths 2 --step 10 --csv "$work/crlb.csv" >"$work/crlb.txt" &&
   grep -q "^| 2.0 |" "$work/crlb.txt" && ok "skinbus-crlb table" || bad "skinbus-crlb table"
+# The map over another area: a wider patch's surface (its points only), a rectangle; a bad one
+# named.
+sed -e 's/size_u_mm: 140/size_u_mm: 200/' "$here/../sim/designs/nominal.yaml" >"$work/wide.yaml"
+"$bin/skinbus-crlb" --depths 2 --step 10 --design "$work/wide.yaml" --area surface \
+  --csv "$work/crlb_wide.csv" >"$work/crlb_wide.txt" 2>&1; rc1=$?
+"$bin/skinbus-crlb" --depths 2 --step 10 --area=0,20,-5,5 >"$work/crlb_rect.txt" 2>&1; rc2=$?
+"$bin/skinbus-crlb" --area=5,0,0,1 >"$work/crlb_bad.txt" 2>&1; rc3=$?
+[[ $rc1 == 0 && $rc2 == 0 && $rc3 == 2 ]] &&
+  grep -q "over u -100.0 .. 100.0, v -70.0 .. 70.0 mm (step 10.0 mm)" "$work/crlb_wide.txt" &&
+  [[ $(grep -c '^2,' "$work/crlb_wide.csv") == 315 ]] &&
+  grep -q "over u 0.0 .. 20.0, v -5.0 .. 5.0 mm" "$work/crlb_rect.txt" &&
+  grep -q "area '5,0,0,1': give U0,U1,V0,V1" "$work/crlb_bad.txt" &&
+  ok "skinbus-crlb --area: a wider patch's surface (21 x 15 points), a rectangle, a bad area named" ||
+  { bad "skinbus-crlb --area (rc $rc1 $rc2 $rc3)"; cat "$work/crlb_wide.txt" "$work/crlb_bad.txt"; }
 if [[ -x /usr/bin/python3 ]] && /usr/bin/python3 -c "import matplotlib" 2>/dev/null; then
   "$here/../tools/plot_crlb.py" "$work/crlb.csv" "$work/crlb.png" && [[ -s $work/crlb.png ]] &&
     ok "CRLB map plotted" || bad "CRLB plot"

@@ -15,6 +15,7 @@
 
 #include "skinbus/mlx90393/measurement.h"
 #include "skinbus/sim/crlb.h"
+#include "skinbus/sim/dataset.h"
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/mlx90393.h"
 #include "tool_util.h"
@@ -112,10 +113,34 @@ std::string pair_report(const skinbus::sim::PatchModel& model, const std::vector
   return out;
 }
 
+// The map's points: `step` apart from the area's low corner, as many as fit in it.
+struct MapGrid {
+  MapGrid(const skinbus::sim::PressedArea& a, double step_mm)
+      : area(a),
+        step(step_mm),
+        nu(static_cast<int>(std::floor((a.u_max_mm - a.u_min_mm) / step_mm + 1e-9)) + 1),
+        nv(static_cast<int>(std::floor((a.v_max_mm - a.v_min_mm) / step_mm + 1e-9)) + 1) {}
+  skinbus::sim::PressedArea area;
+  double step;
+  int nu, nv;
+  double u(int i) const { return area.u_min_mm + i * step; }
+  double v(int j) const { return area.v_min_mm + j * step; }
+  std::string text() const {  // "+-67.5 mm (step 2.5 mm)" or "u -80 .. 80, v -20 .. 20 mm (...)"
+    char t[128];
+    if (area == skinbus::sim::PressedArea::square(area.u_max_mm)) {
+      std::snprintf(t, sizeof t, "+-%.1f mm (step %.1f mm)", area.u_max_mm, step);
+    } else {
+      std::snprintf(t, sizeof t, "u %.1f .. %.1f, v %.1f .. %.1f mm (step %.1f mm)", area.u_min_mm,
+                    area.u_max_mm, area.v_min_mm, area.v_max_mm, step);
+    }
+    return t;
+  }
+};
+
 // --shear: prints the table, returns the CSV.
 std::string shear_report(const skinbus::sim::PatchModel& model, const std::vector<double>& depths,
-                         double step, double extent, double tip_radius, double noise_xy,
-                         double noise_z, bool ambient) {
+                         const MapGrid& map, double tip_radius, double noise_xy, double noise_z,
+                         bool ambient) {
   using namespace skinbus::sim;
   std::string out;
   skinbus::tools::appendf(out,
@@ -128,10 +153,10 @@ std::string shear_report(const skinbus::sim::PatchModel& model, const std::vecto
   std::printf(
       "Cramer-Rao bound of a contact's shear force (u, v, depth, F_u, F_v unknown), %s design, "
       "noise %.2f / %.2f uT%s, tip %.1f mm, shear stiffness %.2f N/mm, spread %.1f mm, over "
-      "+-%.1f mm (step %.1f mm)\n\n",
+      "%s\n\n",
       model.design().magnet_list.empty() ? "grid" : "listed", noise_xy, noise_z,
       ambient ? ", ambient estimated" : "", tip_radius, model.design().shear_stiffness_n_per_mm,
-      model.design().shear_spread_mm, extent, step);
+      model.design().shear_spread_mm, map.text().c_str());
   std::printf(
       "| depth (mm) | normal force (N) | shear bound mean (N) | median | p95 | mean / normal "
       "force | XY bound, shear unknown (mm) | shear known (mm) | x known | points without "
@@ -139,10 +164,9 @@ std::string shear_report(const skinbus::sim::PatchModel& model, const std::vecto
   for (double depth : depths) {
     std::vector<double> sh, xy, known;
     int unident = 0;
-    const int n = static_cast<int>(std::floor(2 * extent / step + 1e-9)) + 1;
-    for (int j = 0; j < n; ++j) {
-      for (int i = 0; i < n; ++i) {
-        const double u = -extent + i * step, v = -extent + j * step;
+    for (int j = 0; j < map.nv; ++j) {
+      for (int i = 0; i < map.nu; ++i) {
+        const double u = map.u(i), v = map.v(j);
         const Contact c{u, v, depth, tip_radius};
         const CrlbShear p = crlb_shear_at(model, c, noise_xy, noise_z, ambient);
         const CrlbPoint k = crlb_at(model, c, noise_xy, noise_z, ambient);
@@ -204,8 +228,15 @@ int main(int argc, char** argv) {
   app.add_option("--step", step, "map grid step, mm")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 50.0));
-  app.add_option("--extent", extent, "map covers +-extent mm (67.5: the seed's press grid)")
-      ->capture_default_str();
+  CLI::Option* extent_given =
+      app.add_option("--extent", extent, "map covers +-extent mm (67.5: the seed's press grid)")
+          ->capture_default_str();
+  std::string area_text;
+  app.add_option("--area", area_text,
+                 "the map covers this rectangle instead of the +-extent square: 'U0,U1,V0,V1' "
+                 "(mm) or 'surface' (the design's whole surface: a patch that is not square, or "
+                 "larger than the seed's grid)")
+      ->excludes(extent_given);
   app.add_option("--noise-xy", noise_xy,
                  "noise RMS of x/y channels, uT (default: the sensor model's)");
   app.add_option("--noise-z", noise_z, "noise RMS of z channels, uT (default: the sensor model's)");
@@ -233,6 +264,14 @@ int main(int argc, char** argv) {
   const skinbus::Result<PatchDesign> design = read_design_or_builtin(design_path);
   if (!design.ok()) return skinbus::tools::fail("skinbus-crlb", design.error().to_string(), 2);
   if (tip_given->count() == 0) tip_radius = design->indenter_tip_radius_mm;
+  const skinbus::Result<skinbus::sim::PressedArea> area =
+      area_text.empty() ? skinbus::sim::PressedArea::square(extent)
+                        : skinbus::sim::parse_press_area(area_text, design.value());
+  if (!area.ok()) return skinbus::tools::fail("skinbus-crlb", area.error().message, 2);
+  const MapGrid map{*area, step};
+  if (map.nu > 2000 || map.nv > 2000) {
+    return skinbus::tools::fail("skinbus-crlb", "the map's area at --step is too many points", 2);
+  }
   auto model = PatchModel::nominal(design.value());
   if (!model.ok()) {
     return skinbus::tools::fail("skinbus-crlb", model.error().message, 1);
@@ -243,7 +282,7 @@ int main(int argc, char** argv) {
   if (pair || shear) {
     const std::string out =
         pair ? pair_report(*model, depths, separations, tip_radius, noise_xy, noise_z, ambient)
-             : shear_report(*model, depths, step, extent, tip_radius, noise_xy, noise_z, ambient);
+             : shear_report(*model, depths, map, tip_radius, noise_xy, noise_z, ambient);
     if (!csv.empty()) {
       try {
         skinbus::tools::write_output(csv, out, pair ? "CRLB pair table" : "CRLB shear table");
@@ -265,9 +304,9 @@ int main(int argc, char** argv) {
   }
   std::printf(
       "Cramer-Rao bound, nominal flat patch, noise %.2f uT (x, y) / %.2f uT (z)%s, tip radius %.1f "
-      "mm, "
-      "over +-%.1f mm (step %.1f mm)\n\n",
-      noise_xy, noise_z, ambient ? ", ambient field estimated too" : "", tip_radius, extent, step);
+      "mm, over %s\n\n",
+      noise_xy, noise_z, ambient ? ", ambient field estimated too" : "", tip_radius,
+      map.text().c_str());
   std::printf(
       "| depth (mm) | XY mean (mm) | XY median | XY p95 | depth mean (mm) | depth median | depth "
       "p95 | points without information |\n");
@@ -275,10 +314,9 @@ int main(int argc, char** argv) {
   for (double depth : depths) {
     std::vector<double> xy, dd;
     int unident = 0;
-    const int n = static_cast<int>(std::floor(2 * extent / step + 1e-9)) + 1;
-    for (int j = 0; j < n; ++j) {
-      for (int i = 0; i < n; ++i) {
-        const double u = -extent + i * step, v = -extent + j * step;
+    for (int j = 0; j < map.nv; ++j) {
+      for (int i = 0; i < map.nu; ++i) {
+        const double u = map.u(i), v = map.v(j);
         const CrlbPoint p =
             crlb_at(*model, Contact{u, v, depth, tip_radius}, noise_xy, noise_z, ambient);
         if (p.identifiable) {

@@ -18,46 +18,6 @@
 #include "skinbus/sim/unit_model.h"
 #include "tool_util.h"
 
-namespace {
-
-// --area: "U0,U1,V0,V1", "surface" (the design's, and the --unit's pressed area if it reaches
-// beyond) or "pressed" (the --unit's, when its file says).
-skinbus::Result<skinbus::sim::PressedArea> parse_area(
-    const std::string& text, const skinbus::sim::PatchDesign& design,
-    const std::optional<skinbus::sim::PressedArea>& unit_area) {
-  using skinbus::ErrorCode;
-  using skinbus::make_error;
-  using skinbus::sim::PressedArea;
-  if (text == "surface") {  // widened to hold where the unit was pressed (a size left out)
-    PressedArea a{-design.size_u_mm / 2, design.size_u_mm / 2, -design.size_v_mm / 2,
-                  design.size_v_mm / 2};
-    if (unit_area) {
-      a = {std::fmin(a.u_min_mm, unit_area->u_min_mm), std::fmax(a.u_max_mm, unit_area->u_max_mm),
-           std::fmin(a.v_min_mm, unit_area->v_min_mm), std::fmax(a.v_max_mm, unit_area->v_max_mm)};
-    }
-    return a;
-  }
-  if (text == "pressed") {
-    if (unit_area) return *unit_area;
-    return make_error(ErrorCode::kInvalidArgument,
-                      "--area pressed needs a --unit whose file says where it was pressed "
-                      "(pressed_area_mm, written by skinbus-identify)");
-  }
-  double a[4];
-  char end = 0;
-  if (std::sscanf(text.c_str(), "%lf,%lf,%lf,%lf%c", &a[0], &a[1], &a[2], &a[3], &end) != 4 ||
-      !(a[0] < a[1] && a[2] < a[3]) || std::fabs(a[0]) > 1e4 || std::fabs(a[1]) > 1e4 ||
-      std::fabs(a[2]) > 1e4 || std::fabs(a[3]) > 1e4) {
-    return make_error(ErrorCode::kInvalidArgument,
-                      "--area '" + text +
-                          "': give U0,U1,V0,V1 in mm with U0 < U1 and V0 < V1, 'surface' or "
-                          "'pressed'");
-  }
-  return PressedArea{a[0], a[1], a[2], a[3]};
-}
-
-}  // namespace
-
 int main(int argc, char** argv) {
   using namespace skinbus;
   using namespace skinbus::sim;
@@ -219,7 +179,7 @@ int main(int argc, char** argv) {
     SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
     // The rectangle pressed (see --area). Grid plans fill a given one at --pitch, centred.
     const bool area_given = !area_text.empty();
-    Result<PressedArea> area_read = area_given ? parse_area(area_text, design, unit_area)
+    Result<PressedArea> area_read = area_given ? parse_press_area(area_text, design, unit_area)
                                                : PressedArea::square((grid - 1) / 2.0 * pitch);
     if (!area_read.ok()) throw std::invalid_argument(area_read.error().message);
     const PressedArea area = area_read.value();

@@ -71,6 +71,37 @@ std::string leave_out_stuck_channels(Dataset* d) {
          " one value in every row (a stuck sensor): left out as dead";
 }
 
+Result<PressedArea> parse_press_area(std::string_view text, const PatchDesign& design,
+                                     const std::optional<PressedArea>& unit_area) {
+  if (text == "surface") {
+    PressedArea a{-design.size_u_mm / 2, design.size_u_mm / 2, -design.size_v_mm / 2,
+                  design.size_v_mm / 2};
+    if (unit_area) {
+      a = {std::fmin(a.u_min_mm, unit_area->u_min_mm), std::fmax(a.u_max_mm, unit_area->u_max_mm),
+           std::fmin(a.v_min_mm, unit_area->v_min_mm), std::fmax(a.v_max_mm, unit_area->v_max_mm)};
+    }
+    return a;
+  }
+  if (text == "pressed") {
+    if (unit_area) return *unit_area;
+    return make_error(ErrorCode::kInvalidArgument,
+                      "--area pressed needs a --unit whose file says where it was pressed "
+                      "(pressed_area_mm, written by skinbus-identify)");
+  }
+  const std::string s(text);
+  double a[4];
+  char end = 0;
+  if (std::sscanf(s.c_str(), "%lf,%lf,%lf,%lf%c", &a[0], &a[1], &a[2], &a[3], &end) != 4 ||
+      !(a[0] < a[1] && a[2] < a[3]) || std::fabs(a[0]) > 1e4 || std::fabs(a[1]) > 1e4 ||
+      std::fabs(a[2]) > 1e4 || std::fabs(a[3]) > 1e4) {
+    return make_error(ErrorCode::kInvalidArgument,
+                      "--area '" + s +
+                          "': give U0,U1,V0,V1 in mm with U0 < U1 and V0 < V1, 'surface' or "
+                          "'pressed'");
+  }
+  return PressedArea{a[0], a[1], a[2], a[3]};
+}
+
 std::optional<PressedArea> pressed_area(const Dataset& d) {
   std::optional<PressedArea> a;
   for (std::size_t r = 0; r < d.rows(); ++r) {

@@ -43,6 +43,13 @@ struct Dataset {
               const double* field);
 };
 
+// The area a tool's --area names: "U0,U1,V0,V1" (mm, U0 < U1, V0 < V1), "surface" (`design`'s
+// whole surface, centred, widened to hold `unit_area` if that reaches beyond) or "pressed"
+// (`unit_area`: where a unit was pressed, its file's pressed_area_mm). Errors:
+// kInvalidArgument naming the text, or "pressed" without a unit area.
+Result<PressedArea> parse_press_area(std::string_view text, const PatchDesign& design,
+                                     const std::optional<PressedArea>& unit_area = std::nullopt);
+
 // The area of `d`'s rows whose u and v are finite; none when no row has both.
 std::optional<PressedArea> pressed_area(const Dataset& d);
 
