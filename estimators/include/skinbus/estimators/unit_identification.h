@@ -169,7 +169,9 @@ struct IdentificationOptions {
   ChannelNoise noise{0, 0};    // 0: the design's sensor noise
   // Prior: 1 sd of every parameter about the nominal design (the expected fabrication spread).
   sim::FabricationVariation prior{};
-  int max_iterations = 40;   // Levenberg-Marquardt iterations per outer iteration
+  // Levenberg-Marquardt iterations per outer iteration, at most; a pass also ends at
+  // function_tolerance, or stalled (cost down less than 0.01 % of itself over 5 iterations).
+  int max_iterations = 40;
   int outer_iterations = 2;  // refreshes of the far magnets' frozen contribution
   double function_tolerance = 1e-6;
   double derivative_reach = 4.0;  // spread lengths: magnets nearer a press get derivatives
