@@ -35,7 +35,9 @@
 #   train.log            its training
 #   correction.json      the unit's learned correction of the refined estimate (skinbus-evaluate
 #                        --fit-correction on PRESSES.csv), written only if it lowers the error on
-#                        presses it was not fitted on (five folds of press places)
+#                        presses it was not fitted on (five folds of press places), and with
+#                        HELD.csv kept only if it does not raise the refined XY or depth mean there
+#                        by more than 1 % (else correction_not_kept.json, named in the report)
 #   report.md            the residuals, the network's errors per depth bin next to the design's
 #                        Cramer-Rao bound, the correction's held-out check, and the network refined
 #                        on the unit as the host runs them (skinbus-evaluate; with the correction
@@ -75,7 +77,7 @@ while (($#)); do
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
     --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
-    -h | --help) sed -n '2,55p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,57p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -96,8 +98,8 @@ failed() { echo "calibrate_unit: $1 failed; see $2" >&2; exit 1; }
 step 1 "identifying the unit's physics from $presses"
 held_opt=()
 [[ -n $held ]] && held_opt=(--held-out "$held")
-rm -f "$out/unit.json" "$out/refused_fit.json" "$out/correction.json" "$out/evaluate.log" \
-  "$out/evaluate_corrected.log" "$out/choice.log" "$out"/network_{refused_fit,from_refused,own}.* \
+rm -f "$out/unit.json" "$out/refused_fit.json" "$out/correction.json" \
+  "$out/correction_not_kept.json" "$out/evaluate.log" "$out/evaluate_corrected.log" "$out/choice.log" "$out"/network_{refused_fit,from_refused,own}.* \
   "$out"/train_{refused_fit,from_refused,own}.log
 # A unit the design's model class cannot explain (identification refuses it, naming why) is
 # calibrated by the network route instead: the unit's network trained on its own presses (alone,
@@ -283,6 +285,37 @@ if [[ -n $held && -f $out/correction.json ]]; then
   "$bin/skinbus-evaluate" "$test_set" --model "$out/network" --unit "$out/unit.json" \
     "${design_opt[@]}" --correction "$out/correction.json" >"$out/evaluate_corrected.log" 2>&1 ||
     failed "the corrected evaluation" "$out/evaluate_corrected.log"
+  # Kept only if the unit's own held-out presses agree: its check on PRESSES.csv's places can
+  # pass a correction that moves presses elsewhere on the patch the wrong way. The refined XY
+  # and depth means over every press at least 1 mm deep (the first table: every press).
+  read -r xy_plain xy_corr d_plain d_corr verdict < <(python3 - "$out/evaluate.log" \
+    "$out/evaluate_corrected.log" <<'PY'
+import re, sys
+row = re.compile(r"^\| \d+-\d+ \| (\d+) \| [0-9.]+ \| ([0-9.]+) \| [0-9.]+ \| [0-9.]+ \| "
+                 r"[0-9.]+ \| ([0-9.]+) \|")
+def means(path):
+    rows = []
+    for line in open(path):
+        m = row.match(line)
+        if m:
+            rows.append([float(g) for g in m.groups()])
+        elif rows:
+            break
+    n = sum(r[0] for r in rows)
+    if not n:
+        return float("nan"), float("nan")
+    return sum(r[0] * r[1] for r in rows) / n, sum(r[0] * r[2] for r in rows) / n
+(xy0, d0), (xy1, d1) = means(sys.argv[1]), means(sys.argv[2])
+keep = xy1 <= 1.01 * xy0 and d1 <= 1.01 * d0
+print(f"{xy0:.3f} {xy1:.3f} {d0:.3f} {d1:.3f} {'keep' if keep else 'drop'}")
+PY
+  )
+  if [[ $verdict != keep ]]; then
+    mv "$out/correction.json" "$out/correction_not_kept.json"
+    note="Not kept: on the held-out presses ($held) it moved the refined presses the wrong way (XY mean $xy_plain -> $xy_corr mm, depth mean $d_plain -> $d_corr mm, presses >= 1 mm deep); left in correction_not_kept.json, out of the skin-map entry."
+    echo "$note" >>"$out/correction.log"
+    echo "calibrate_unit: the learned correction is not kept: on the held-out presses it moved the refined presses the wrong way (XY mean $xy_plain -> $xy_corr mm, depth $d_plain -> $d_corr mm)" >&2
+  fi
 fi
 python3 - "$out" "$presses" "$test_set" "${held:+held-out lab presses}" "$network_route" <<'PY'
 import json, os, re, sys
@@ -338,13 +371,16 @@ with open(f"{out}/report.md", "w") as f:
             ", not at the test presses themselves.\n\n")
     f.write(f"## The learned correction ({presses})\n\n")
     f.write("".join(l for l in open(f"{out}/correction.log")
-                    if l.startswith(("Learned", "Written", "It helps", "The network route")))
+                    if l.startswith(("Learned", "Written", "It helps", "The network route",
+                                     "Not kept")))
             + "\n")
     if os.path.exists(f"{out}/evaluate.log"):
         f.write(f"## The network refined on the unit, as skinbus-host runs them ({test_set})\n\n")
         f.write(open(f"{out}/evaluate.log").read() + "\n")
     if os.path.exists(f"{out}/evaluate_corrected.log"):
-        f.write(f"## The same, corrected by the learned correction ({test_set})\n\n")
+        f.write(f"## The same, corrected by the learned correction ({test_set})\n\n"
+                if os.path.exists(f"{out}/correction.json") else
+                f"## The same with the learned correction not kept ({test_set})\n\n")
         f.write(open(f"{out}/evaluate_corrected.log").read() + "\n")
 PY
 design_line=""
