@@ -99,7 +99,8 @@ step 1 "identifying the unit's physics from $presses"
 held_opt=()
 [[ -n $held ]] && held_opt=(--held-out "$held")
 rm -f "$out/unit.json" "$out/refused_fit.json" "$out/correction.json" \
-  "$out/correction_not_kept.json" "$out/evaluate.log" "$out/evaluate_corrected.log" "$out/choice.log" "$out"/network_{refused_fit,from_refused,own}.* \
+  "$out/correction_not_kept.json" "$out/evaluate.log" "$out/evaluate_corrected.log" \
+  "$out/choice.log" "$out"/network_{refused_fit,from_refused,own}.* \
   "$out"/train_{refused_fit,from_refused,own}.log
 # A unit the design's model class cannot explain (identification refuses it, naming why) is
 # calibrated by the network route instead: the unit's network trained on its own presses (alone,
@@ -312,9 +313,11 @@ PY
   )
   if [[ $verdict != keep ]]; then
     mv "$out/correction.json" "$out/correction_not_kept.json"
-    note="Not kept: on the held-out presses ($held) it moved the refined presses the wrong way (XY mean $xy_plain -> $xy_corr mm, depth mean $d_plain -> $d_corr mm, presses >= 1 mm deep); left in correction_not_kept.json, out of the skin-map entry."
-    echo "$note" >>"$out/correction.log"
-    echo "calibrate_unit: the learned correction is not kept: on the held-out presses it moved the refined presses the wrong way (XY mean $xy_plain -> $xy_corr mm, depth $d_plain -> $d_corr mm)" >&2
+    why="on the held-out presses ($held) it moved the refined presses the wrong way (XY mean"
+    why+=" $xy_plain -> $xy_corr mm, depth mean $d_plain -> $d_corr mm, presses >= 1 mm deep)"
+    echo "Not kept: $why; left in correction_not_kept.json, out of the skin-map entry." \
+      >>"$out/correction.log"
+    echo "calibrate_unit: the learned correction is not kept: $why" >&2
   fi
 fi
 python3 - "$out" "$presses" "$test_set" "${held:+held-out lab presses}" "$network_route" <<'PY'

@@ -260,12 +260,7 @@ int main(int argc, char** argv) {
                  zero_mm);
     estimators::IdentificationOptions held_opt = opt;
     held_opt.global_priors.depth_zero_sd_mm = 0;
-    // One start, from the spread the first fit found (the same unit: its other starts found
-    // the same globals or worse).
-    if (const double l = (id.ok() ? id->parameters : refused).spread_mm;
-        l > 0 && design.spread_mm > 0) {
-      held_opt.spread_starts = {l / design.spread_mm};
-    }
+    held_opt.start_from_spread(design, (id.ok() ? id->parameters : refused).spread_mm);
     sim::UnitParameters held_refused;
     Result<estimators::IdentifiedUnit> held_id = estimators::identify_unit(
         design, *presses, held_opt, held_out ? &*held_out : nullptr, &held_refused);

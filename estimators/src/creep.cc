@@ -37,6 +37,22 @@ bool new_press(const sim::Dataset& d, std::size_t r) {
   return r == 0 || d.press.empty() || d.press[r] < 0 || d.press[r] != d.press[r - 1];
 }
 
+// The press that starts at row r: its rows [r, end), and whether it is a ramp (3 or more rows
+// at increasing times), as fit_creep and held_presses read a recording.
+struct PressRows {
+  std::size_t end;
+  bool ramp;
+};
+PressRows press_rows(const sim::Dataset& d, std::size_t r) {
+  std::size_t end = r + 1;
+  bool increasing = std::isfinite(d.t_s[r]);
+  while (end < d.rows() && !new_press(d, end)) {
+    increasing = increasing && d.t_s[end] > d.t_s[end - 1];
+    ++end;
+  }
+  return {end, increasing && end - r >= 3};
+}
+
 // A press of one row: a static press, held till the lag caught up (bent by its depth).
 bool static_press(const sim::Dataset& d, std::size_t r) {
   return new_press(d, r) && (r + 1 == d.rows() || new_press(d, r + 1));
@@ -235,22 +251,19 @@ std::vector<double> creep_bend_mm(const CreepLaw& law, const sim::Dataset& d) {
 int held_presses(const sim::Dataset& d, double min_hold_s, double tolerance_mm) {
   int held = 0;
   for (std::size_t r = 0; r < d.rows();) {
-    std::size_t end = r + 1;
-    bool increasing = std::isfinite(d.t_s[r]);
-    double deepest = d.depth_mm[r];
-    while (end < d.rows() && !new_press(d, end)) {
-      increasing = increasing && d.t_s[end] > d.t_s[end - 1];
-      deepest = std::fmax(deepest, d.depth_mm[end]);
-      ++end;
+    const PressRows p = press_rows(d, r);
+    if (p.ramp) {
+      double deepest = d.depth_mm[r];
+      for (std::size_t k = r + 1; k < p.end; ++k) deepest = std::fmax(deepest, d.depth_mm[k]);
+      double first = std::numeric_limits<double>::quiet_NaN(), last = first;
+      for (std::size_t k = r; k < p.end; ++k) {
+        if (!(d.depth_mm[k] >= deepest - tolerance_mm)) continue;
+        if (std::isnan(first)) first = d.t_s[k];
+        last = d.t_s[k];
+      }
+      held += last - first >= min_hold_s ? 1 : 0;
     }
-    double first = std::numeric_limits<double>::quiet_NaN(), last = first;
-    for (std::size_t k = r; increasing && k < end; ++k) {
-      if (!(d.depth_mm[k] >= deepest - tolerance_mm)) continue;
-      if (std::isnan(first)) first = d.t_s[k];
-      last = d.t_s[k];
-    }
-    held += increasing && end - r >= 3 && last - first >= min_hold_s ? 1 : 0;
-    r = end;
+    r = p.end;
   }
   return held;
 }
@@ -294,17 +307,12 @@ Result<CreepFit> fit_creep(const sim::PatchModel& model, const sim::Dataset& d,
   std::vector<int> fold(d.rows(), -1);
   std::size_t candidates = 0;
   for (std::size_t r = 0; r < d.rows();) {
-    std::size_t end = r + 1;
-    bool increasing = std::isfinite(d.t_s[r]);
-    while (end < d.rows() && !new_press(d, end)) {
-      increasing = increasing && d.t_s[end] > d.t_s[end - 1];
-      ++end;
-    }
-    if (increasing && end - r >= 3) {
-      for (std::size_t k = r; k < end; ++k) fold[k] = out.presses % 2;
+    const PressRows p = press_rows(d, r);
+    if (p.ramp) {
+      for (std::size_t k = r; k < p.end; ++k) fold[k] = out.presses % 2;
       ++out.presses;
     }
-    r = end;
+    r = p.end;
   }
   auto usable = [&](std::size_t r) {
     if (fold[r] < 0 || !(d.depth_mm[r] >= opt.min_depth_mm) || !std::isfinite(d.depth_mm[r]) ||

@@ -162,8 +162,6 @@ TEST(CreepTest, ASecondSlowerLagIsFoundWhenHeldOutPressesShowIt) {
             2 * e.undone_mm);
 }
 
-// A unit that does not creep keeps no law: on ramps, none lowers the held-out residual enough;
-// on static presses (one sample each) there are no ramps to fit.
 // Presses held at their deepest are counted when held long enough, ramps and static presses
 // never; a press's rows out of time order are no press held.
 TEST(CreepTest, PressesHeldAtTheirDeepestAreCounted) {
@@ -187,6 +185,8 @@ TEST(CreepTest, PressesHeldAtTheirDeepestAreCounted) {
   EXPECT_EQ(held_presses(sim::generate_random_test_set(patch, 50, 40.0, 4.0, 5)), 0);
 }
 
+// A unit that does not creep keeps no law: on ramps, none lowers the held-out residual enough;
+// on static presses (one sample each) there are no ramps to fit.
 TEST(CreepTest, AUnitThatDoesNotCreepKeepsNoLaw) {
   sim::PatchModel model = sim::PatchModel::nominal(sim::PatchDesign{}).value();
   const sim::Dataset ramps = creeping_ramps({0, 0.3}, 13, &model);

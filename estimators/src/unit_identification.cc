@@ -1413,12 +1413,9 @@ Result<IdentifiedUnit> identify_unit(const sim::PatchDesign& design, const sim::
   const sim::Dataset bent = bent_dataset(creep->law, presses);
   std::optional<sim::Dataset> bent_held;
   if (held_out != nullptr) bent_held = bent_dataset(creep->law, *held_out);
-  // Its globals start from the spread the first fit found (the bends move them little, and the
-  // first fit's other starts found the same or worse): one start, not the options' several.
+  // Its globals start from the spread the first fit found (the bends move them little).
   IdentificationOptions again_opt = opt;
-  if (opt.fit_globals && id->globals.spread_mm > 0 && design.spread_mm > 0) {
-    again_opt.spread_starts = {id->globals.spread_mm / design.spread_mm};
-  }
+  again_opt.start_from_spread(design, id->globals.spread_mm);
   sim::UnitParameters again_refused;
   Result<IdentifiedUnit> again =
       identify_in_class(design, bent, again_opt, bent_held ? &*bent_held : nullptr, &again_refused);

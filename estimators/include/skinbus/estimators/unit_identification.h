@@ -189,6 +189,14 @@ struct IdentificationOptions {
   // lowest cost wins. false: start stage 2 from the design as it is.
   bool fit_globals = true;
   std::vector<double> spread_starts = {1.0, 0.7, 1.4};
+  // For a later fit of a unit already fitted (a spread of `spread_mm` found on `design`): one
+  // start, from that spread (the first fit's other starts found the same globals or worse).
+  // Nothing changes without a spread or without fit_globals.
+  void start_from_spread(const sim::PatchDesign& design, double spread_mm) {
+    if (fit_globals && spread_mm > 0 && design.spread_mm > 0) {
+      spread_starts = {spread_mm / design.spread_mm};
+    }
+  }
   GlobalPriors global_priors{};
   // A fit leaving more than this (RMS, noise units, on the fitting rows) is refused: the model
   // class does not explain the unit (above kModelMissesResidual it is kept, with physics missed).
