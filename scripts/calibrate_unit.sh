@@ -26,8 +26,12 @@
 #   network.json           model by default ('none': trained from scratch), on --synthetic (2000)
 #                          simulated presses of the identified unit, each a ramp sampled at 8 Hz
 #                          as deep as the deepest of PRESSES.csv, over the design's whole surface
-#                          (and wherever PRESSES.csv reaches beyond it);
-#                          about 15 s an epoch on two cores, --epochs (30) at most; from
+#                          (and wherever PRESSES.csv reaches beyond it), no deeper than the
+#                          design's lattice compresses (0.6 x its thickness);
+#                          about 15 s an epoch on two cores, --epochs (30) at most; with a
+#                          --design and the shipped model, also from scratch, and the one with
+#                          the lower error on the simulated presses held out of training kept
+#                          (choice.log: the shipped model learned on the built-in patch); from
 #                          scratch when the patch has another sensor count than the shipped
 #                          model's 16; when its sensors form no grid, an MLP (512-512-256) on
 #                          four times as many simulated presses, its epochs cheap: --epochs
@@ -77,7 +81,7 @@ while (($#)); do
     --synthetic) synthetic=${2:?}; shift 2 ;;
     --base) base=${2:?}; base_given=1; shift 2 ;;
     --max-residual) max_residual=(--max-residual "${2:?}"); shift 2 ;;
-    -h | --help) sed -n '2,57p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,61p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "calibrate_unit: unknown option $1" >&2; usage ;;
     *) [[ -z $presses ]] || usage; presses=$1; shift ;;
   esac
@@ -100,8 +104,8 @@ held_opt=()
 [[ -n $held ]] && held_opt=(--held-out "$held")
 rm -f "$out/unit.json" "$out/refused_fit.json" "$out/correction.json" \
   "$out/correction_not_kept.json" "$out/evaluate.log" "$out/evaluate_corrected.log" \
-  "$out/choice.log" "$out"/network_{refused_fit,from_refused,own}.* \
-  "$out"/train_{refused_fit,from_refused,own}.log
+  "$out/choice.log" "$out"/network_{refused_fit,from_refused,own,finetuned,scratch}.* \
+  "$out"/train_{refused_fit,from_refused,own,finetuned,scratch}.log
 # A unit the design's model class cannot explain (identification refuses it, naming why) is
 # calibrated by the network route instead: the unit's network trained on its own presses (alone,
 # and after the refused fit's simulated ones when there is one: the better kept), no unit file,
@@ -118,6 +122,8 @@ if ! "$bin/skinbus-identify" "$presses" -o "$out/unit.json" "${design_opt[@]}" "
       echo ", alone and after the refused fit's simulated ones, the better kept"); no unit" \
     "file, no physics refinement)" >&2
 fi
+# Lab presses deeper than the design's lattice compresses in the model, left out of the fit.
+grep "deeper than .*: left out" "$out/identify.log" >&2 || true
 grep -i "residual\|note:" "$out/identify.log" | grep -v "^note: the lag" | head -4 >&2 || true
 # A lag chosen on ramps alone on a unit that crushes: the lab should record held presses.
 grep "^note: the lag" "$out/identify.log" >&2 || true
@@ -138,6 +144,8 @@ simulate() {  # COUNT: synthetic.csv, COUNT ramps of $simulated_unit at Halton p
     --area surface --unit "$simulated_unit" "${design_opt[@]}" -o "$out/synthetic.csv" \
     >"$out/dataset.log" 2>&1 ||
     failed "the synthetic presses" "$out/dataset.log"
+  # No deeper than the lattice compresses in the model (skinbus-dataset says so).
+  grep "lattice compresses no deeper" "$out/dataset.log" >&2 || true
 }
 if ((network_route)); then
   train_set=$presses
@@ -211,30 +219,28 @@ train_or_mlp() {  # DATASET OUTPUT LOG [skinbus-train options...]
   fi
   tail -1 "$3" >&2
 }
-if ((from_refused)); then
-  # Two ways, chosen by held-out error. First the refused fit's presses (what the class gets
-  # right of the unit), then the unit's own from that network (what it gets wrong); and the
-  # unit's own presses alone. Each keeps its best epoch on its validation split of the unit's
-  # press places; both trainings split the same presses with the same seed, so the two scores
-  # are on the same held-out places, and the lower one is kept.
-  train_or_mlp "$out/synthetic.csv" "$out/network_refused_fit" "$out/train_refused_fit.log" \
-    "${base_opt[@]}"
-  echo "calibrate_unit: [3/5] ... then on the unit's own presses, from that network" \
-    "($(most_epochs) epochs at most)" >&2
-  train "$train_set" "$out/network_from_refused" "$out/train_from_refused.log" \
-    --base "$out/network_refused_fit" --lr 3e-4 || failed "training" "$out/train_from_refused.log"
-  tail -1 "$out/train_from_refused.log" >&2
-  echo "calibrate_unit: [3/5] ... and on the unit's own presses alone ($(most_epochs) epochs at most," \
-    "$from), to choose between the two by held-out error" >&2
-  train_or_mlp "$train_set" "$out/network_own" "$out/train_own.log" "${base_opt[@]}"
-  # The score each training kept its epoch by (its metadata's val_score: XY of the held-out
-  # presses at least 1 mm deep plus their depth error, estimators/include/skinbus/estimators/
-  # training.h).
-  kept=$(python3 - "$out" <<'PY'
+adopt() {  # NAME: NAME's network and its training log become the unit's network
+  cp "$out/$1.safetensors" "$out/network.safetensors"
+  python3 - "$out" "$1" <<'PY' || failed "keeping $1" "$out/$1.json"
 import json, sys
-out = sys.argv[1]
-ways = (("network_from_refused", "the refused fit's simulated presses, then the unit's own"),
-        ("network_own", "the unit's own presses alone"))
+out, name = sys.argv[1:3]
+meta = json.load(open(f"{out}/{name}.json"))
+meta.update(name="network", weights="network.safetensors")
+json.dump(meta, open(f"{out}/network.json", "w"), indent=2)
+PY
+  cp "$out/train_${1#network_}.log" "$out/train.log"
+}
+# Keeps the better of two trained ways as network (choice.log): NAME1 WHAT1 NAME2 WHAT2, each
+# NAME's network and train_${NAME#network_}.log written. The score each training kept its epoch
+# by (its metadata's val_score: XY of the held-out presses at least 1 mm deep plus their depth
+# error, estimators/include/skinbus/estimators/training.h); both trainings split the same
+# presses with the same seed, so the two scores are on the same held-out places, and the lower
+# one is kept.
+keep_better() {
+  local kept
+  kept=$(python3 - "$out" "$@" <<'PY'
+import json, sys
+out, ways = sys.argv[1], list(zip(sys.argv[2::2], sys.argv[3::2]))
 rows, scores = [], {}
 for name, what in ways:
     m = json.load(open(f"{out}/{name}.json"))
@@ -246,16 +252,43 @@ with open(f"{out}/choice.log", "w") as f:
     f.write("| way | held-out XY, >= 1 mm deep (mm) | held-out depth (mm) | score |\n"
             "|---|---:|---:|---:|\n" + "\n".join(rows) + "\n\n")
     f.write(f"Kept: {best} (the lower score), as network.\n")
-meta = json.load(open(f"{out}/{best}.json"))
-meta.update(name="network", weights="network.safetensors")
-json.dump(meta, open(f"{out}/network.json", "w"), indent=2)
 print(best, "(held-out scores: " + ", ".join(f"{n} {s:.3f}" for n, s in scores.items()) + ")")
 PY
   ) || failed "the choice between the two ways" "$out/choice.log"
   echo "calibrate_unit: [3/5] kept $kept" >&2
-  kept=${kept%% *}
-  cp "$out/$kept.safetensors" "$out/network.safetensors"
-  cp "$out/train_${kept#network_}.log" "$out/train.log"
+  adopt "${kept%% *}"
+}
+if ((from_refused)); then
+  # Two ways, chosen by held-out error. First the refused fit's presses (what the class gets
+  # right of the unit), then the unit's own from that network (what it gets wrong); and the
+  # unit's own presses alone. Each keeps its best epoch on its validation split of the unit's
+  # press places.
+  train_or_mlp "$out/synthetic.csv" "$out/network_refused_fit" "$out/train_refused_fit.log" \
+    "${base_opt[@]}"
+  echo "calibrate_unit: [3/5] ... then on the unit's own presses, from that network" \
+    "($(most_epochs) epochs at most)" >&2
+  train "$train_set" "$out/network_from_refused" "$out/train_from_refused.log" \
+    --base "$out/network_refused_fit" --lr 3e-4 || failed "training" "$out/train_from_refused.log"
+  tail -1 "$out/train_from_refused.log" >&2
+  echo "calibrate_unit: [3/5] ... and on the unit's own presses alone ($(most_epochs) epochs at most," \
+    "$from), to choose between the two by held-out error" >&2
+  train_or_mlp "$train_set" "$out/network_own" "$out/train_own.log" "${base_opt[@]}"
+  keep_better network_from_refused "the refused fit's simulated presses, then the unit's own" \
+    network_own "the unit's own presses alone"
+elif ((!network_route && ${#design_opt[@]} && !base_given && ${#base_opt[@]})); then
+  # Another design than the shipped network's: its weights and scaling were learned on the
+  # built-in patch (140 mm, fields of hundreds of uT) and can be a worse start than none (a 48 mm
+  # fingertip read at thousands of uT: 0.39 mm fine-tuned, 0.11 mm from scratch, 30 epochs
+  # each). Both ways, the better by the simulated presses held out of training.
+  train_or_mlp "$train_set" "$out/network_finetuned" "$out/train_finetuned.log" "${base_opt[@]}"
+  if ((!mlp)); then
+    echo "calibrate_unit: [3/5] ... and from scratch ($(most_epochs) epochs at most), to choose" \
+      "between the two by held-out error" >&2
+    train_or_mlp "$train_set" "$out/network_scratch" "$out/train_scratch.log"
+    keep_better network_finetuned "fine-tuned $from" network_scratch "from scratch"
+  else
+    adopt network_finetuned  # an MLP (the sensors form no grid): from scratch already
+  fi
 else
   train_or_mlp "$train_set" "$out/network" "$out/train.log" "${base_opt[@]}"
 fi
@@ -359,9 +392,10 @@ with open(f"{out}/report.md", "w") as f:
                 "unit the class explains is calibrated better (refined on the identified "
                 "unit).\n\n")
     if choice:
-        f.write("## The way kept, by held-out error\n\nEach way's network on the unit's presses "
-                "it was not trained on (the same held-out press places for both: skinbus-train's "
-                "validation split), scored as training keeps its epochs:\n\n" + choice + "\n")
+        f.write("## The way kept, by held-out error\n\nEach way's network on the presses of "
+                "its training set held out of its training (the same press places for both: "
+                "skinbus-train's validation split), scored as training keeps its epochs:\n\n"
+                + choice + "\n")
     tested_on = held or ("simulated test presses of the identified unit" if not network_route
                          else "no presses it was not trained on: give --held-out to measure it")
     f.write(f"## The unit's network on {tested_on}" + (f" ({test_set})" if test_set else "")
@@ -372,6 +406,11 @@ with open(f"{out}/report.md", "w") as f:
             f"{metrics.get('test_depth_mean_mm', float('nan')):.3f} mm. The bound is the design's"
             " (nominal unit, ambient field estimated) averaged over the patch at 1.5, 2.5 and 3.5 mm"
             ", not at the test presses themselves.\n\n")
+    # Depths the design's lattice does not reach in the model: no bound, and presses there read
+    # as its deepest (skinbus-crlb says so).
+    f.write("".join(l.strip() + " Its row above is the network on presses deeper than the "
+                    "model takes, not a figure of the patch.\n\n"
+                    for l in open(f"{out}/crlb.log") if "lattice compresses" in l))
     f.write(f"## The learned correction ({presses})\n\n")
     f.write("".join(l for l in open(f"{out}/correction.log")
                     if l.startswith(("Learned", "Written", "It helps", "The network route",

@@ -423,6 +423,23 @@ sed -e 's/size_u_mm: 140/size_u_mm: 200/' "$here/../sim/designs/nominal.yaml" >"
   grep -q "area '5,0,0,1': give U0,U1,V0,V1" "$work/crlb_bad.txt" &&
   ok "skinbus-crlb --area: a wider patch's surface (21 x 15 points), a rectangle, a bad area named" ||
   { bad "skinbus-crlb --area (rc $rc1 $rc2 $rc3)"; cat "$work/crlb_wide.txt" "$work/crlb_bad.txt"; }
+# A 5 mm lattice compresses 3 mm in the model: presses asked deeper are made to 3 mm and said so,
+# the bound has no figure beyond (not a bound of 0), identification leaves deeper presses out.
+sed -e 's/thickness_mm: 15 /thickness_mm: 5 /' "$here/../sim/designs/nominal.yaml" >"$work/thin.yaml"
+"$bin/skinbus-dataset" --plan grid --grid 3 --pitch 30 --design "$work/thin.yaml" \
+  -o "$work/thin.csv" 2>"$work/thin_ds.txt"; rc1=$?
+"$bin/skinbus-crlb" --depths 2 3.5 --step 20 --design "$work/thin.yaml" >"$work/thin_crlb.txt" 2>&1; rc2=$?
+"$bin/skinbus-identify" "$work/id/few.csv" -o "$work/id/thin.json" --design "$work/thin.yaml" \
+  >/dev/null 2>"$work/thin_id.txt"
+deepest=$(grep -v '^#' "$work/thin.csv" | awk -F, 'NR == 1 {for (i = 1; i <= NF; i++) if ($i == "depth_mm") c = i; next}
+  $c > m {m = $c} END {print m}')
+[[ $rc1 == 0 && $rc2 == 0 ]] && awk -v m="$deepest" 'BEGIN {exit !(m > 2.9 && m <= 3.0)}' &&
+  grep -q "presses to 3.00 mm, not --max-depth 4: the design's 5 mm lattice compresses no deeper" "$work/thin_ds.txt" &&
+  grep -q "^| 2.0 | [0-9]" "$work/thin_crlb.txt" && grep -q "^| 3.5 | - | - |" "$work/thin_crlb.txt" &&
+  grep -q "^3.5 mm: deeper than the 5 mm lattice compresses (3.00 mm" "$work/thin_crlb.txt" &&
+  grep -q "few.csv: [0-9]* of [0-9]* samples ([0-9]* presses) deeper than 3.00 mm: left out, the deepest the design's 5 mm lattice" "$work/thin_id.txt" &&
+  ok "a 5 mm lattice: presses made to 3 mm (deepest $deepest), no bound beyond, deeper lab presses left out" ||
+  { bad "a 5 mm lattice's deepest press (rc $rc1 $rc2, deepest $deepest)"; cat "$work/thin_ds.txt" "$work/thin_crlb.txt" "$work/thin_id.txt"; }
 if [[ -x /usr/bin/python3 ]] && /usr/bin/python3 -c "import matplotlib" 2>/dev/null; then
   "$here/../tools/plot_crlb.py" "$work/crlb.csv" "$work/crlb.png" && [[ -s $work/crlb.png ]] &&
     ok "CRLB map plotted" || bad "CRLB plot"

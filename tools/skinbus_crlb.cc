@@ -311,6 +311,7 @@ int main(int argc, char** argv) {
       "| depth (mm) | XY mean (mm) | XY median | XY p95 | depth mean (mm) | depth median | depth "
       "p95 | points without information |\n");
   std::printf("|---|---|---|---|---|---|---|---|\n");
+  std::vector<double> deeper;  // depths beyond the lattice's
   for (double depth : depths) {
     std::vector<double> xy, dd;
     int unident = 0;
@@ -332,8 +333,22 @@ int main(int argc, char** argv) {
       }
     }
     const Stats a = stats_of(xy, unident), b = stats_of(dd, unident);
-    std::printf("| %.1f | %.3f | %.3f | %.3f | %.4f | %.4f | %.4f | %d |\n", depth, a.mean,
-                a.median, a.p95, b.mean, b.median, b.p95, unident);
+    if (xy.empty()) {  // no point bounded: no figure, rather than a bound of 0
+      std::printf("| %.1f | - | - | - | - | - | - | %d |\n", depth, unident);
+    } else {
+      std::printf("| %.1f | %.3f | %.3f | %.3f | %.4f | %.4f | %.4f | %d |\n", depth, a.mean,
+                  a.median, a.p95, b.mean, b.median, b.p95, unident);
+    }
+    if (depth > model->max_depth_mm()) deeper.push_back(depth);
+  }
+  if (!deeper.empty()) {
+    std::string deeper_text;
+    for (double d : deeper)
+      deeper_text += (deeper_text.empty() ? "" : ", ") + skinbus::tools::format_g(d);
+    std::printf(
+        "\n%s mm: deeper than the %g mm lattice compresses (%.2f mm, 0.6 x thickness_mm). The "
+        "model holds such presses there, so their field tells nothing of their depth.\n",
+        deeper_text.c_str(), model->design().thickness_mm, model->max_depth_mm());
   }
   if (want_csv) {
     try {

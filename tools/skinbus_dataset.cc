@@ -177,6 +177,16 @@ int main(int argc, char** argv) {
     if (model.ok() && discs) model = PatchModel::with_disc_magnets(model.value());
     if (!model.ok()) throw std::runtime_error(model.error().message);
     SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
+    // The lattice compresses no deeper than its model's limit, which holds deeper presses there:
+    // they are pressed to it, so that no row is labelled deeper than its field shows.
+    const double deepest_mm = patch.model().max_depth_mm() + patch.model().depth_zero_mm();
+    if (max_depth > deepest_mm) {
+      std::fprintf(stderr,
+                   "skinbus-dataset: presses to %.2f mm, not --max-depth %g: the design's %g mm "
+                   "lattice compresses no deeper (0.6 x thickness_mm)\n",
+                   deepest_mm, max_depth, design.thickness_mm);
+      max_depth = deepest_mm;
+    }
     // The rectangle pressed (see --area). Grid plans fill a given one at --pitch, centred.
     const bool area_given = !area_text.empty();
     Result<PressedArea> area_read = area_given ? parse_press_area(area_text, design, unit_area)

@@ -116,6 +116,16 @@ int main(int argc, char** argv) {
                  kTool, unit_path.c_str(), note.refused.c_str());
   }
   const sim::PatchModel* const unit = &read->model;
+  // Presses deeper than the unit's lattice compresses in its model: the refinement holds them at
+  // that depth, so they are not measured (skinbus-identify left them out of the fit too).
+  if (const std::string deeper =
+          sim::leave_out_rows_deeper_than(&*data, unit->max_depth_mm() + unit->depth_zero_mm());
+      !deeper.empty()) {
+    std::fprintf(stderr,
+                 "%s: %s: %s, the deepest the design's %g mm lattice compresses in the model (0.6 "
+                 "x thickness_mm)\n",
+                 kTool, test_path.c_str(), deeper.c_str(), design->thickness_mm);
+  }
   // The header lists the design's sensor places (the unit's are in the presses' frame, which
   // identification may have found shifted and turned from the design's).
   if (Result<sim::PatchModel> drawn = sim::PatchModel::nominal(*design); drawn.ok()) {
@@ -278,6 +288,7 @@ int main(int argc, char** argv) {
       const double mean_bound = count > 0 ? sum / count : std::nan("");
       const estimators::ErrorStats& x = sn.bins[static_cast<std::size_t>(bin)];
       const estimators::ErrorStats& y = sr.bins[static_cast<std::size_t>(bin)];
+      if (y.count == 0) continue;  // no press that deep (a lattice that compresses less)
       std::printf("| %s | %d | %.3f | %.3f | %.3f | %.2f | %.3f | %.3f |\n",
                   estimators::depth_bin_name(bin).c_str(), y.count, x.xy_mean_mm, y.xy_mean_mm,
                   mean_bound, y.xy_mean_mm / mean_bound, x.depth_mean_mm, y.depth_mean_mm);

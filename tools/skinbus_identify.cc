@@ -146,6 +146,17 @@ int main(int argc, char** argv) {
   if (const std::string note = sim::leave_out_stuck_channels(&*presses); !note.empty()) {
     std::fprintf(stderr, "skinbus-identify: %s: %s\n", presses_path.c_str(), note.c_str());
   }
+  // The model's lattice compresses no deeper than the design says: deeper presses it cannot
+  // explain (it holds them at that depth) are left out, and the user told why.
+  const auto leave_out_deeper = [&](sim::Dataset* d, const std::string& path) {
+    const std::string note = sim::leave_out_rows_deeper_than(d, design.max_depth_mm());
+    if (note.empty()) return;
+    std::fprintf(stderr,
+                 "skinbus-identify: %s: %s, the deepest the design's %g mm lattice compresses in "
+                 "the model (0.6 x thickness_mm): is thickness_mm the patch's?\n",
+                 path.c_str(), note.c_str(), design.thickness_mm);
+  };
+  leave_out_deeper(&*presses, presses_path);
   std::string tip_from = "--tip-radius";
   if (tip_given->count() == 0) {
     Result<double> tip = sim::presses_tip_radius_mm(*presses, design, &tip_from);
@@ -173,6 +184,7 @@ int main(int argc, char** argv) {
     if (const std::string note = sim::leave_out_stuck_channels(&*held_out); !note.empty()) {
       std::fprintf(stderr, "skinbus-identify: %s: %s\n", held_out_path.c_str(), note.c_str());
     }
+    leave_out_deeper(&*held_out, held_out_path);
     // One tip for both: held-out presses made with another indenter would be judged wrongly.
     Result<std::optional<double>> held_tip = sim::recorded_tip_radius_mm(*held_out);
     if (!held_tip.ok()) {
@@ -409,12 +421,12 @@ int main(int argc, char** argv) {
     const estimators::ChannelNoise chip = estimators::ChannelNoise::of(design);
     const estimators::RecordedNoise recorded = estimators::recorded_noise(*presses);
     double noise_alone = 1;  // the residual the recorded noise alone leaves, design noise units
-    if (recorded.triples > 0) {
+    if (recorded.windows > 0) {
       noise_alone = std::fmax(1.0, recorded.residual(chip));
       std::printf(
-          "noise along the ramps (%lld second differences of consecutive samples): %.3f uT (x, "
+          "noise along the ramps (%lld sixth differences of consecutive samples): %.3f uT (x, "
           "y), %.3f uT (z), %.2fx and %.2fx the design's chips (%.2f, %.2f uT)\n",
-          static_cast<long long>(recorded.triples), recorded.noise.xy_ut, recorded.noise.z_ut,
+          static_cast<long long>(recorded.windows), recorded.noise.xy_ut, recorded.noise.z_ut,
           recorded.xy_ratio(chip), recorded.z_ratio(chip), chip.xy_ut, chip.z_ut);
     }
     const double judged = held_out ? id->held_out.rms : id->fit.rms;

@@ -91,6 +91,10 @@ int main(int argc, char** argv) {
   app.add_option("--test", test_path, "test split to measure the kept model on")
       ->check(CLI::ExistingFile);
   app.add_option("--base", base_path, "fine-tune this model (keeps its architecture)");
+  app.add_flag("--renormalise", o.renormalise,
+               "with --base: normalise the inputs and outputs by this data's statistics, not the "
+               "base's (a patch whose fields or size are far from the base's: its weights then "
+               "meet inputs distributed as the ones they learned on)");
   app.add_option("--arch", arch, "cnn (the seed's, for sensors on a grid) | mlp")
       ->capture_default_str()
       ->check(CLI::IsMember({"cnn", "mlp"}));

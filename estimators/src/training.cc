@@ -415,7 +415,37 @@ Result<TrainResult> train_unguarded(const sim::Dataset& data, const TrainOptions
     }
   }
   // A new model's normalisation comes from the training split only.
-  if (base == nullptr) meta = make_meta(data, meta.architecture, o.name, train_rows);
+  if (base == nullptr) {
+    meta = make_meta(data, meta.architecture, o.name, train_rows);
+  } else {
+    // A base's weights and (unless renormalised) normalisation; the data's geometry: a base
+    // trained on another design would flag this patch's contacts by its own extent.
+    const ModelMeta own = make_meta(data, meta.architecture, o.name, train_rows);
+    if (meta.architecture.kind == ArchitectureKind::kCnn) {
+      Architecture a = meta.architecture;
+      if (Status s = fit_grid(own.sensors, a); !s.ok()) return s.error();
+      if (a.grid_rows != meta.architecture.grid_rows ||
+          a.grid_cols != meta.architecture.grid_cols) {
+        return make_error(
+            ErrorCode::kInvalidArgument,
+            "the base model's grid is " + std::to_string(meta.architecture.grid_rows) + " x " +
+                std::to_string(meta.architecture.grid_cols) + ", the data's sensors " +
+                std::to_string(a.grid_rows) + " x " + std::to_string(a.grid_cols));
+      }
+      meta.architecture.sensor_cell = a.sensor_cell;
+    }
+    meta.sensors = own.sensors;
+    meta.half_u_mm = own.half_u_mm;
+    meta.half_v_mm = own.half_v_mm;
+    meta.max_depth_mm = own.max_depth_mm;
+    if (o.renormalise) {
+      meta.input_mean = own.input_mean;
+      meta.input_scale = own.input_scale;
+      meta.output_mean = own.output_mean;
+      meta.output_scale = own.output_scale;
+      meta.info["normalisation"] = "the data's (renormalised)";
+    }
+  }
 
   torch::manual_seed(o.seed);
   torch::set_num_threads(std::max(o.threads, 1));

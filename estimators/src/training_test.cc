@@ -5,12 +5,14 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <map>
 #include <vector>
 
 #include "skinbus/estimators/contact_proposal.h"
 #include "skinbus/estimators/network_runtime.h"
 #include "skinbus/sim/dataset.h"
+#include "skinbus/sim/design_file.h"
 #include "skinbus/sim/simulated_patch.h"
 
 namespace skinbus::estimators {
@@ -215,6 +217,59 @@ TEST(Training, FineTuningNeverReturnsAWorseModelThanItsBase) {
   for (std::size_t i = 0; i < base->model.tensors.size(); ++i) {
     EXPECT_EQ(tuned->model.tensors[i].data, base->model.tensors[i].data);
   }
+}
+
+// A base trained on the built-in patch fine-tuned on a 48 mm fingertip read at thousands of uT:
+// the model's geometry is the fingertip's (the runtime flags contacts outside its extent: the
+// base's 140 mm would flag none), its scaling the base's unless renormalised, then the data's.
+// A base whose grid the data's sensors do not fill is refused.
+TEST(Training, FineTuningTakesTheDatasGeometryAndOnAskItsScaling) {
+  const sim::PatchModel nominal = sim::PatchModel::nominal(sim::PatchDesign{}).value();
+  TrainOptions o = quick_options();
+  o.architecture = seed_cnn(0.25, 0, 0);
+  o.max_epochs = 1;
+  Result<TrainResult> base = train_model(ramp_set(nominal, sim::plan_halton(30, 60), kSeed), o);
+  ASSERT_TRUE(base.ok()) << base.error().to_string();
+  const char* dir = std::getenv("SKINBUS_SOURCE_DIR");
+  Result<sim::PatchDesign> tip_file = sim::read_design_file(
+      std::string(dir != nullptr ? dir : ".") + "/docs/benchmarks/design_fingertip_4x4.yaml");
+  ASSERT_TRUE(tip_file.ok()) << tip_file.error().to_string();
+  sim::PatchDesign tip = tip_file.value();
+  const sim::Dataset data =
+      ramp_set(sim::PatchModel::nominal(tip).value(), sim::plan_halton(30, 20), kSeed + 1);
+  Result<TrainResult> kept = train_model(data, o, &base->model);
+  ASSERT_TRUE(kept.ok()) << kept.error().to_string();
+  const ModelMeta& b = base->model.meta;
+  const ModelMeta& k = kept->model.meta;
+  EXPECT_EQ(b.half_u_mm, 70);
+  EXPECT_EQ(k.half_u_mm, 24);
+  EXPECT_EQ(k.half_v_mm, 24);
+  ASSERT_EQ(k.sensors.size(), 16u);
+  EXPECT_EQ(k.sensors[5].u_mm, data.sensors[5].u_mm);
+  EXPECT_EQ(k.architecture.sensor_cell, b.architecture.sensor_cell);
+  EXPECT_EQ(k.input_scale, b.input_scale);
+  EXPECT_EQ(k.output_scale, b.output_scale);
+  o.renormalise = true;
+  Result<TrainResult> renormalised = train_model(data, o, &base->model);
+  ASSERT_TRUE(renormalised.ok()) << renormalised.error().to_string();
+  const ModelMeta& r = renormalised->model.meta;
+  std::printf("z scale of sensor 5: base %.1f uT, renormalised %.1f uT; u scale %.1f -> %.1f mm\n",
+              b.input_scale[17], r.input_scale[17], b.output_scale[0], r.output_scale[0]);
+  EXPECT_GT(r.input_scale[17], 5 * b.input_scale[17]);  // fields tens of times the built-in's
+  EXPECT_LT(r.output_scale[0], 0.5 * b.output_scale[0]);
+  EXPECT_EQ(r.half_u_mm, 24);
+  // Sensors in a 2 x 8 grid: not the base's 4 x 4.
+  tip.sensors_u = 8;
+  tip.sensors_v = 2;
+  tip.sensor_pitch_mm = 6;
+  Result<TrainResult> other =
+      train_model(ramp_set(sim::PatchModel::nominal(tip).value(), sim::plan_halton(10, 20), kSeed),
+                  o, &base->model);
+  ASSERT_FALSE(other.ok());
+  EXPECT_EQ(other.error().code, ErrorCode::kInvalidArgument);
+  EXPECT_NE(other.error().message.find("the base model's grid is 4 x 4, the data's sensors 2 x 8"),
+            std::string::npos)
+      << other.error().message;
 }
 
 // Without press numbers (an optional column; or a byte-order mark that hid it) the rows of one

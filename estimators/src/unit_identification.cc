@@ -767,30 +767,38 @@ double RecordedNoise::residual(const ChannelNoise& design) const {
 }
 
 RecordedNoise recorded_noise(const sim::Dataset& d) {
+  // Sixth differences: binomial weights, of variance 924 sigma^2 for noise alone.
+  constexpr int kSpan = 7;
+  constexpr double kWeight[kSpan] = {1, -6, 15, -20, 15, -6, 1};
+  constexpr double kVariance = 924;
   const int nc = d.channels();
-  double sum[2] = {0, 0};  // squared second differences: x and y, z
+  double sum[2] = {0, 0};  // squared differences: x and y, z
   int64_t count[2] = {0, 0};
   RecordedNoise out;
-  for (std::size_t r = 1; r + 1 < d.rows(); ++r) {
-    if (d.press.size() != d.rows() || d.press[r] < 0 || d.press[r - 1] != d.press[r] ||
-        d.press[r + 1] != d.press[r]) {
-      continue;
+  if (d.press.size() != d.rows()) return out;
+  for (std::size_t r = 0; r + kSpan <= d.rows(); ++r) {
+    // Rows of one press, over which the depth moves one way (not the turn, not a hold, every
+    // depth finite).
+    const double step = d.depth_mm[r + 1] - d.depth_mm[r];
+    bool one_way = d.press[r] >= 0;
+    for (std::size_t k = r; k + 1 < r + kSpan && one_way; ++k) {
+      one_way = d.press[k + 1] == d.press[r] && (d.depth_mm[k + 1] - d.depth_mm[k]) * step > 0;
     }
-    const double down = d.depth_mm[r] - d.depth_mm[r - 1], next = d.depth_mm[r + 1] - d.depth_mm[r];
-    if (!(down * next > 0)) continue;  // the turn, a hold, or a depth that is not finite
-    const double *a = d.field(r - 1), *b = d.field(r), *c = d.field(r + 1);
+    if (!one_way) continue;
     for (int ch = 0; ch < nc; ++ch) {
-      const double d2 = a[ch] - 2 * b[ch] + c[ch];
-      if (!std::isfinite(d2)) continue;
+      double dk = 0;
+      for (int k = 0; k < kSpan; ++k)
+        dk += kWeight[k] * d.field(r + static_cast<std::size_t>(k))[ch];
+      if (!std::isfinite(dk)) continue;
       const int kind = ch % 3 == 2 ? 1 : 0;
-      sum[kind] += d2 * d2;
+      sum[kind] += dk * dk;
       ++count[kind];
     }
-    ++out.triples;
+    ++out.windows;
   }
   if (count[0] == 0 || count[1] == 0) return RecordedNoise{};
-  out.noise.xy_ut = std::sqrt(sum[0] / (6.0 * static_cast<double>(count[0])));
-  out.noise.z_ut = std::sqrt(sum[1] / (6.0 * static_cast<double>(count[1])));
+  out.noise.xy_ut = std::sqrt(sum[0] / (kVariance * static_cast<double>(count[0])));
+  out.noise.z_ut = std::sqrt(sum[1] / (kVariance * static_cast<double>(count[1])));
   return out;
 }
 

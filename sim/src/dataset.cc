@@ -15,6 +15,7 @@
 #include <fstream>
 #include <limits>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <string_view>
 
@@ -69,6 +70,44 @@ std::string leave_out_stuck_channels(Dataset* d) {
   }
   return names + (stuck.size() == 1 ? " holds" : " hold") +
          " one value in every row (a stuck sensor): left out as dead";
+}
+
+std::string leave_out_rows_deeper_than(Dataset* d, double max_depth_mm) {
+  const std::size_t nc = static_cast<std::size_t>(d->channels());
+  const std::size_t ne = d->extra_columns.size();
+  std::size_t kept = 0;
+  std::set<int64_t> presses;
+  for (std::size_t r = 0; r < d->rows(); ++r) {
+    if (d->depth_mm[r] > max_depth_mm) {
+      if (d->press[r] >= 0) presses.insert(d->press[r]);
+      continue;
+    }
+    if (kept != r) {
+      d->press[kept] = d->press[r];
+      d->t_s[kept] = d->t_s[r];
+      d->u_mm[kept] = d->u_mm[r];
+      d->v_mm[kept] = d->v_mm[r];
+      d->depth_mm[kept] = d->depth_mm[r];
+      d->force_n[kept] = d->force_n[r];
+      std::copy_n(d->field_ut.begin() + static_cast<std::ptrdiff_t>(r * nc), nc,
+                  d->field_ut.begin() + static_cast<std::ptrdiff_t>(kept * nc));
+      std::copy_n(d->extra.begin() + static_cast<std::ptrdiff_t>(r * ne), ne,
+                  d->extra.begin() + static_cast<std::ptrdiff_t>(kept * ne));
+    }
+    ++kept;
+  }
+  const std::size_t left_out = d->rows() - kept;
+  if (left_out == 0) return "";
+  for (auto* column : {&d->t_s, &d->u_mm, &d->v_mm, &d->depth_mm, &d->force_n}) {
+    column->resize(kept);
+  }
+  d->press.resize(kept);
+  d->field_ut.resize(kept * nc);
+  d->extra.resize(kept * ne);
+  char text[160];
+  std::snprintf(text, sizeof text, "%zu of %zu samples (%zu presses) deeper than %.2f mm: left out",
+                left_out, kept + left_out, presses.size(), max_depth_mm);
+  return text;
 }
 
 Result<PressedArea> parse_press_area(std::string_view text, const PatchDesign& design,

@@ -216,6 +216,38 @@ TEST(DatasetTest, AStuckChannelIsFoundAndLeftOutAsDead) {
   EXPECT_EQ(field_column_name(47), "s15_bz_ut");
 }
 
+// Presses deeper than a model's lattice compresses are taken out whole-row: every column moves
+// with its row, the rest keep their order, and the note counts samples and presses.
+TEST(DatasetTest, RowsDeeperThanTheLatticeTakesAreLeftOut) {
+  Dataset d;
+  d.sensors.resize(1);
+  d.extra_columns = {"pose"};
+  const double depths[] = {1, 2, 3.5, 2.5, 4, 1.5, std::nan("")};
+  for (int r = 0; r < 7; ++r) {
+    const double field[3] = {10.0 * r, 10.0 * r + 1, 10.0 * r + 2};
+    d.append(r / 3, 0.1 * r, r, -r, depths[r], 0.5 * r, field);
+    d.extra.push_back(100 + r);
+  }
+  EXPECT_EQ(leave_out_rows_deeper_than(&d, 3.0),
+            "2 of 7 samples (2 presses) deeper than 3.00 mm: left out");
+  const std::vector<int> kept = {0, 1, 3, 5, 6};
+  ASSERT_EQ(d.rows(), kept.size());
+  ASSERT_EQ(d.field_ut.size(), 3 * kept.size());
+  ASSERT_EQ(d.extra.size(), kept.size());
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    const int r = kept[i];
+    EXPECT_EQ(d.press[i], r / 3);
+    EXPECT_EQ(d.t_s[i], 0.1 * r);
+    EXPECT_EQ(d.u_mm[i], r);
+    EXPECT_EQ(d.v_mm[i], -r);
+    EXPECT_EQ(d.force_n[i], 0.5 * r);
+    EXPECT_EQ(d.field(i)[2], 10.0 * r + 2);
+    EXPECT_EQ(d.extra[i], 100 + r);
+  }
+  EXPECT_TRUE(std::isnan(d.depth_mm.back()));  // an unknown depth is not known to be deeper
+  EXPECT_EQ(leave_out_rows_deeper_than(&d, 3.0), "");
+}
+
 // The tip a recording's presses were made with: its protocol header's, written by every
 // generator and read back through the CSV, else the design's indenter; a bad value is an error.
 TEST(DatasetTest, TheRecordingsTipIsReadFromItsProtocolHeader) {

@@ -69,6 +69,11 @@ struct TrainOptions {
   double max_seconds = 0;  // stop after this long (0: no limit); the best epoch so far is kept
   uint64_t seed = 1;
   int threads = 2;
+  // Fine-tuning: normalise inputs and outputs by the data's own statistics (make_meta) rather
+  // than the base's. For a patch whose fields or size are far from the base's training data (a
+  // fingertip read at thousands of uT, the base at hundreds): the inputs the base's weights meet
+  // are then distributed as the ones they were trained on.
+  bool renormalise = false;
   // Called after every epoch (progress display); may be empty.
   std::function<void(const EpochReport&)> progress;
 };
@@ -83,16 +88,18 @@ struct TrainResult {
 };
 
 // Trains a network on `data`. With `base` (fine-tuning), the base model's architecture and
-// normalisation are kept and its weights are the start (options.architecture is ignored); the
-// base itself is scored as epoch 0 and kept unless an epoch beats it, so fine-tuning on a few
-// presses never returns a model worse than its base on the new unit's validation presses.
+// normalisation (unless options.renormalise) are kept and its weights are the start
+// (options.architecture is ignored); the geometry is the data's (its sensors, and so the CNN's
+// cells, the patch's extent and deepest press: the runtime flags contacts by them); the base
+// itself is scored as epoch 0 and kept unless an epoch beats it, so fine-tuning on a few presses
+// never returns a model worse than its base on the new unit's validation presses.
 // Rows with a NaN field value are left out (counted in masked_rows); a NaN force is left out of
 // the loss. The split is by press location: a press's rows, or without press numbers the rows at
 // one (u, v), stay on one side.
 // Errors: kInvalidArgument for a dataset without rows (or none without a NaN field value) or with
 // fewer than 2 press locations, a
 // CNN asked for sensors that do not form a grid (use an MLP), or a base model with another
-// sensor count; kNotConverged if the loss becomes non-finite.
+// sensor count or grid; kNotConverged if the loss becomes non-finite.
 Result<TrainResult> train_model(const sim::Dataset& data, const TrainOptions& options,
                                 const ModelFile* base = nullptr);
 

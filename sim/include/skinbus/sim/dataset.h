@@ -67,6 +67,12 @@ std::vector<int> stuck_channels(const Dataset& d);
 // Returns a note naming them for the user ("" when none).
 std::string leave_out_stuck_channels(Dataset* d);
 
+// Removes the rows of `d` deeper than `max_depth_mm` (every column; the rows' order kept): the
+// presses a model cannot explain when its lattice compresses no deeper (PatchModel::max_depth_mm
+// plus its depth zero). Returns a note counting them for the user ("" when none). No row with a
+// depth that is not finite is removed.
+std::string leave_out_rows_deeper_than(Dataset* d, double max_depth_mm);
+
 // An indentation robot's frame against the patch's: its origin and axes in the surface, and the
 // depth it reads where its tip meets the surface.
 struct PressFrame {

@@ -138,6 +138,9 @@ struct PatchDesign {
     return sensor_list.empty() ? sensors_u * sensors_v : static_cast<int>(sensor_list.size());
   }
   int channel_count() const { return 3 * sensor_count(); }
+  // Deepest press the lattice takes (densified beyond): 60 % of its thickness. The model holds
+  // deeper presses at this depth.
+  double max_depth_mm() const { return 0.6 * thickness_mm; }
 };
 
 // The static model class identification fits (estimators/unit_identification.h) and unit files
@@ -316,9 +319,9 @@ class PatchModel {
   // Normal force for a press of `depth_mm` (N; the contact's depth, depth_zero_mm() at the
   // surface); 0 for a contact that does not press.
   double force_n(double depth_mm) const;
-  // Deepest press the lattice takes (densified beyond): 60 % of its thickness. Deeper presses
-  // act as this depth.
-  double max_depth_mm() const { return 0.6 * design_.thickness_mm; }
+  // Deepest press the lattice takes (PatchDesign::max_depth_mm). Deeper presses act as this
+  // depth.
+  double max_depth_mm() const { return design_.max_depth_mm(); }
 
   // 3D position and local frame (rows: t_u, t_v, normal) of surface point (u, v, h).
   template <typename T>
