@@ -408,8 +408,7 @@ with open(f"{out}/report.md", "w") as f:
             ", not at the test presses themselves.\n\n")
     # Depths the design's lattice does not reach in the model: no bound, and presses there read
     # as its deepest (skinbus-crlb says so).
-    f.write("".join(l.strip() + " Its row above is the network on presses deeper than the "
-                    "model takes, not a figure of the patch.\n\n"
+    f.write("".join(l.strip() + " A row there is not a figure of the patch.\n\n"
                     for l in open(f"{out}/crlb.log") if "lattice compresses" in l))
     f.write(f"## The learned correction ({presses})\n\n")
     f.write("".join(l for l in open(f"{out}/correction.log")

@@ -13,6 +13,7 @@
 #include <utility>
 #include <vector>
 
+#include "skinbus/bus/protocol.h"
 #include "skinbus/sim/dataset.h"
 #include "skinbus/sim/design_file.h"
 #include "skinbus/sim/unit_model.h"
@@ -177,16 +178,19 @@ int main(int argc, char** argv) {
     if (model.ok() && discs) model = PatchModel::with_disc_magnets(model.value());
     if (!model.ok()) throw std::runtime_error(model.error().message);
     SimulatedPatch patch(std::move(model).value(), unit_noise_seed(uid, 1));
-    // The lattice compresses no deeper than its model's limit, which holds deeper presses there:
-    // they are pressed to it, so that no row is labelled deeper than its field shows.
-    const double deepest_mm = patch.model().max_depth_mm() + patch.model().depth_zero_mm();
-    if (max_depth > deepest_mm) {
+    // The lattice compresses no deeper than its model's stop, which holds deeper presses there:
+    // they are pressed to 10 % short of it (PatchDesign::deepest_press_mm), so that no row is
+    // labelled deeper than its field shows.
+    const double deepest_mm =
+        patch.model().design().deepest_press_mm() + patch.model().depth_zero_mm();
+    if (max_depth > deepest_mm + 0.05) {  // not for an identified depth zero's hundredths
       std::fprintf(stderr,
                    "skinbus-dataset: presses to %.2f mm, not --max-depth %g: the design's %g mm "
-                   "lattice compresses no deeper (0.6 x thickness_mm)\n",
-                   deepest_mm, max_depth, design.thickness_mm);
-      max_depth = deepest_mm;
+                   "lattice stops a press at %.2f mm (0.6 x thickness_mm), and presses keep 10 %% "
+                   "short of that\n",
+                   deepest_mm, max_depth, design.thickness_mm, design.max_depth_mm());
     }
+    max_depth = std::fmin(max_depth, deepest_mm);
     // The rectangle pressed (see --area). Grid plans fill a given one at --pitch, centred.
     const bool area_given = !area_text.empty();
     Result<PressedArea> area_read = area_given ? parse_press_area(area_text, design, unit_area)
@@ -246,6 +250,44 @@ int main(int argc, char** argv) {
                                    max_depth, seed, {}, pr.tare_samples, pr.tip_radius_mm);
     } else {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
+    }
+    // What the patch's node sends: a sensor whose tared field leaves the bus's range is flagged
+    // saturated (docs/protocol.md), and the host reads it as dead: written as nan, as it reads.
+    {
+      const std::size_t nc = static_cast<std::size_t>(d.channels());
+      std::size_t hit = 0;
+      double peak_ut = 0;
+      int peak_channel = 0;
+      for (std::size_t r = 0; r < d.rows(); ++r) {
+        bool any = false;
+        for (std::size_t s0 = 0; s0 < nc; s0 += 3) {
+          bool sensor = false;
+          for (std::size_t c = s0; c < s0 + 3; ++c) {
+            const double v = d.field_ut[r * nc + c];
+            bool clipped = false;
+            bus::field_ut_to_lsb(v, &clipped);
+            if (!clipped || !std::isfinite(v)) continue;
+            sensor = true;
+            if (std::fabs(v) > peak_ut) {
+              peak_ut = std::fabs(v);
+              peak_channel = static_cast<int>(c);
+            }
+          }
+          if (!sensor) continue;
+          any = true;
+          for (std::size_t c = s0; c < s0 + 3; ++c) d.field_ut[r * nc + c] = std::nan("");
+        }
+        hit += any ? 1 : 0;
+      }
+      if (hit > 0) {
+        std::fprintf(stderr,
+                     "skinbus-dataset: %zu of %zu samples read a sensor beyond the bus's +-%.1f uT "
+                     "(%s to %.0f uT): written as nan, as its patch node flags it saturated and "
+                     "the host fits without it; weaker magnets, or magnets further from the "
+                     "sensors, keep presses within the range\n",
+                     hit, d.rows(), bus::kFieldMaxLsb * bus::kFieldUtPerLsb,
+                     field_column_name(peak_channel).c_str(), peak_ut);
+      }
     }
     if (press_frame.size() == 3 || press_depth_zero_mm != 0) {
       PressFrame f{.depth_zero_mm = press_depth_zero_mm};

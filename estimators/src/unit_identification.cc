@@ -58,12 +58,14 @@ template <typename T>
 struct MagnetPose {
   bool moved = false;  // within the plate's reach of the press (else its field does not change)
   Vec3<T> pos, moment, rest_pos, rest_moment;
+  double octupole_mm2 = 0;  // the magnet's shape (sim::PatchModel::octupole_mm2())
 };
 
 template <typename T>
 MagnetPose<T> magnet_pose(const Context& ctx, const Sample& smp, const T* mag, const T& spread_u,
                           const T& spread_v, const T& lateral) {
   MagnetPose<T> out;
+  out.octupole_mm2 = ctx.shape->octupole_mm2();
   const sim::ContactT<T> c{T(smp.u), T(smp.v), T(smp.depth), ctx.tip_mm};
   const Vec3<T> m_loc{mag[3] * ctx.moment_scale, mag[4] * ctx.moment_scale,
                       mag[5] * ctx.moment_scale};
@@ -81,8 +83,8 @@ MagnetPose<T> magnet_pose(const Context& ctx, const Sample& smp, const T* mag, c
 template <typename T>
 Vec3<T> magnet_term(const MagnetPose<T>& pose, const Vec3<T>& sensor_pos) {
   if (!pose.moved) return Vec3<T>{T(0.0), T(0.0), T(0.0)};
-  return sim::dipole_field_ut(pose.moment, sensor_pos - pose.pos) -
-         sim::dipole_field_ut(pose.rest_moment, sensor_pos - pose.rest_pos);
+  return sim::magnet_field_ut(pose.moment, sensor_pos - pose.pos, pose.octupole_mm2) -
+         sim::magnet_field_ut(pose.rest_moment, sensor_pos - pose.rest_pos, pose.octupole_mm2);
 }
 
 // What residual blocks share between evaluations, made anew when the parameters it depends on
@@ -159,7 +161,9 @@ const Vec3<T>& rest_field(const MagnetPose<T>& pose, const Vec3<T>& spos, const 
   rest->asked.assign(s, s + 3);
   rest->asked.insert(rest->asked.end(), mag, mag + kMagnetBlock);
   rest->asked.insert(rest->asked.end(), g, g + kGlobalBlock);
-  if (!rest->current()) rest->made = sim::dipole_field_ut(pose.rest_moment, spos - pose.rest_pos);
+  if (!rest->current()) {
+    rest->made = sim::magnet_field_ut(pose.rest_moment, spos - pose.rest_pos, pose.octupole_mm2);
+  }
   return rest->made;
 }
 
@@ -167,12 +171,12 @@ const Vec3<T>& rest_field(const MagnetPose<T>& pose, const Vec3<T>& spos, const 
 Vec3<double> near_term(const MagnetPose<double>& pose, const Vec3<double>& spos, const double* s,
                        const double* mag, const double* g, Kept<Vec3<double>>* rest) {
   if (!pose.moved) return Vec3<double>{};
-  return sim::dipole_field_ut(pose.moment, spos - pose.pos) -
+  return sim::magnet_field_ut(pose.moment, spos - pose.pos, pose.octupole_mm2) -
          rest_field(pose, spos, s, mag, g, rest);
 }
 
 // near_term() with derivatives: its rest field as jets (made once a sensor and magnet), its
-// field under the press in closed form (sim::dipole_field_gradient_ut, made once a block) and
+// field under the press in closed form (sim::magnet_field_gradient_ut, made once a block) and
 // chained by hand. The pose's jets have their derivatives in variables 0-7 alone, the sensor
 // position's in 8-10 alone (SensorResidual's variables).
 Vec3<JetM> near_term(const MagnetPose<JetM>& pose, const Vec3<JetM>& spos, const double* s,
@@ -184,8 +188,8 @@ Vec3<JetM> near_term(const MagnetPose<JetM>& pose, const Vec3<JetM>& spos, const
   const JetM* mp[3] = {&pose.moment.x, &pose.moment.y, &pose.moment.z};
   const Vec3<double> r{sp[0]->a - pp[0]->a, sp[1]->a - pp[1]->a, sp[2]->a - pp[2]->a};
   double d_dr[3][3], d_dm[3][3];
-  const Vec3<double> b =
-      sim::dipole_field_gradient_ut(Vec3<double>{mp[0]->a, mp[1]->a, mp[2]->a}, r, d_dr, d_dm);
+  const Vec3<double> b = sim::magnet_field_gradient_ut(Vec3<double>{mp[0]->a, mp[1]->a, mp[2]->a},
+                                                       r, pose.octupole_mm2, d_dr, d_dm);
   const double bv[3] = {b.x, b.y, b.z};
   Vec3<JetM> out;
   JetM* o[3] = {&out.x, &out.y, &out.z};
@@ -515,7 +519,8 @@ const GlobalTerms<T>& global_terms(const GlobalContext& ctx, const double* gv, c
                            g[0] * (1.0 - g[5]), g[1], std::span<const sim::ContactT<T>>(),
                            &rest_pos, &rest_moment);
     for (std::size_t k = 0; k < ns; ++k)
-      t.rest[m * ns + k] = sim::dipole_field_ut(rest_moment, t.spos[k] - rest_pos);
+      t.rest[m * ns + k] =
+          sim::magnet_field_ut(rest_moment, t.spos[k] - rest_pos, ctx.shape->octupole_mm2());
   }
   return t;
 }
@@ -538,7 +543,8 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
       continue;  // beyond the plate's reach: this magnet does not move
     }
     for (std::size_t k = 0; k < ns; ++k)
-      acc[k] = acc[k] + sim::dipole_field_ut(moment, t.spos[k] - pos) - t.rest[m * ns + k];
+      acc[k] = acc[k] + sim::magnet_field_ut(moment, t.spos[k] - pos, ctx.shape->octupole_mm2()) -
+               t.rest[m * ns + k];
   }
   for (std::size_t k = 0; k < ns; ++k) {
     const sim::SensorParameters& sp = d.sensors[k];

@@ -11,11 +11,79 @@ namespace {
 
 // The loop, inlined into one function per instruction set and vectorised by the compiler for
 // that set.
+// The octupole's terms at a sensor offset (x, y, z) from a magnet of moment m (sim::dipole.h,
+// magnet_field_gradient_ut()): k = K q / r^5 and the field's coefficients of the offset and of
+// the moment, c1 and c2, then (for jets) those of its derivatives, each times k.
+struct OctupoleTerms {
+  double x, y, z, c1, c2, a, bd, g1, a2, b2, g2;
+};
+__attribute__((always_inline)) inline OctupoleTerms octupole_terms(double x, double y, double z,
+                                                                   const double m[3], double kq,
+                                                                   double inv_m2, bool jet) {
+  OctupoleTerms t;
+  t.x = x, t.y = y, t.z = z;
+  const double inv_r = 1.0 / std::sqrt(x * x + y * y + z * z);
+  const double ir2 = inv_r * inv_r, ir4 = ir2 * ir2;
+  const double k = kq * ir4 * inv_r;
+  const double p = m[0] * x + m[1] * y + m[2] * z;
+  const double gp = inv_m2 * p, gp2 = gp * p, gp3 = gp2 * p;
+  const double c1 = 35.0 * gp3 * ir4 - 15.0 * p * ir2, c2 = 3.0 - 15.0 * gp2 * ir2;
+  t.c1 = k * c1;
+  t.c2 = k * c2;
+  if (jet) {
+    t.a = k * (105.0 * gp2 * ir4 - 15.0 * ir2);
+    t.bd = k * (-140.0 * gp3 * ir4 * ir2 + 30.0 * p * ir4 - 5.0 * c1 * ir2);
+    t.g1 = k * (-70.0 * inv_m2 * gp3 * ir4);
+    t.a2 = k * (-30.0 * gp * ir2);
+    t.b2 = k * (30.0 * gp2 * ir4 - 5.0 * c2 * ir2);
+    t.g2 = k * (30.0 * inv_m2 * gp2 * ir2);
+  }
+  return t;
+}
+
+// Adds the octupole of a magnet's shape (K q = `kq`, not 0) to a field sum and, for `unknowns`
+// > 0, to its jets (e = -dp, f = dm of each unknown):
+//   B' = k [d (A (m.e + d.f) + Bd (d.e) + G1 (m.f)) + m (A2 (m.e + d.f) + B2 (d.e) + G2 (m.f))
+//        + c1 e + c2 f].
+__attribute__((always_inline)) inline void octupole_sum(
+    std::size_t ns, const double p[3], const double m[3], double kq, int unknowns,
+    const double (*dp)[3], const double (*dm)[3], const double* __restrict sx,
+    const double* __restrict sy, const double* __restrict sz, double* __restrict ax,
+    double* __restrict ay, double* __restrict az, double* __restrict jx, double* __restrict jy,
+    double* __restrict jz) {
+  const double inv_m2 = 1.0 / (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+  for (std::size_t si = 0; si < ns; ++si) {
+    const OctupoleTerms t =
+        octupole_terms(sx[si] - p[0], sy[si] - p[1], sz[si] - p[2], m, kq, inv_m2, unknowns > 0);
+    ax[si] += t.c1 * t.x + t.c2 * m[0];
+    ay[si] += t.c1 * t.y + t.c2 * m[1];
+    az[si] += t.c1 * t.z + t.c2 * m[2];
+    for (int k = 0; k < unknowns; ++k) {
+      const double ex = -dp[k][0], ey = -dp[k][1], ez = -dp[k][2];
+      const double fx = dm[k][0], fy = dm[k][1], fz = dm[k][2];
+      const double me = m[0] * ex + m[1] * ey + m[2] * ez, mf = m[0] * fx + m[1] * fy + m[2] * fz;
+      const double de = t.x * ex + t.y * ey + t.z * ez, df = t.x * fx + t.y * fy + t.z * fz;
+      const double cd = t.a * (me + df) + t.bd * de + t.g1 * mf;
+      const double cm = t.a2 * (me + df) + t.b2 * de + t.g2 * mf;
+      const std::size_t at = static_cast<std::size_t>(k) * ns + si;
+      jx[at] += cd * t.x + cm * m[0] + t.c1 * ex + t.c2 * fx;
+      jy[at] += cd * t.y + cm * m[1] + t.c1 * ey + t.c2 * fy;
+      jz[at] += cd * t.z + cm * m[2] + t.c1 * ez + t.c2 * fz;
+    }
+  }
+}
+
 __attribute__((always_inline)) inline void dipole_sum_body(
     std::size_t ns, double px, double py, double pz, double mx, double my, double mz,
-    const double* __restrict sx, const double* __restrict sy, const double* __restrict sz,
-    const double* __restrict rx, const double* __restrict ry, const double* __restrict rz,
-    double* __restrict ax, double* __restrict ay, double* __restrict az) {
+    double octupole, const double* __restrict sx, const double* __restrict sy,
+    const double* __restrict sz, const double* __restrict rx, const double* __restrict ry,
+    const double* __restrict rz, double* __restrict ax, double* __restrict ay,
+    double* __restrict az) {
+  if (octupole != 0) {
+    const double p[3] = {px, py, pz}, m[3] = {mx, my, mz};
+    octupole_sum(ns, p, m, octupole, 0, nullptr, nullptr, sx, sy, sz, ax, ay, az, nullptr, nullptr,
+                 nullptr);
+  }
   for (std::size_t si = 0; si < ns; ++si) {
     const double dx = sx[si] - px, dy = sy[si] - py, dz = sz[si] - pz;
     const double r2 = dx * dx + dy * dy + dz * dz;
@@ -148,6 +216,10 @@ __attribute__((always_inline)) inline void dipole_sum_jet_any(std::size_t ns, co
                                                               const double* ry, const double* rz,
                                                               double* ax, double* ay, double* az,
                                                               double* jx, double* jy, double* jz) {
+  if (g.octupole != 0) {
+    octupole_sum(ns, g.p, g.m, g.octupole, g.unknowns, g.dp, g.dm, sx, sy, sz, ax, ay, az, jx, jy,
+                 jz);
+  }
   if (g.unknowns == 3) {
     dipole_sum_jet3_body(ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz);
   } else {
@@ -260,11 +332,12 @@ __attribute__((always_inline)) inline void row_sums_body(std::size_t n, const in
   }
 }
 
-#define SKINBUS_DIPOLE_SUM_PARAMS                                                               \
-  std::size_t ns, double px, double py, double pz, double mx, double my, double mz,             \
-      const double *sx, const double *sy, const double *sz, const double *rx, const double *ry, \
-      const double *rz, double *ax, double *ay, double *az
-#define SKINBUS_DIPOLE_SUM_ARGS ns, px, py, pz, mx, my, mz, sx, sy, sz, rx, ry, rz, ax, ay, az
+#define SKINBUS_DIPOLE_SUM_PARAMS                                                              \
+  std::size_t ns, double px, double py, double pz, double mx, double my, double mz,            \
+      double octupole, const double *sx, const double *sy, const double *sz, const double *rx, \
+      const double *ry, const double *rz, double *ax, double *ay, double *az
+#define SKINBUS_DIPOLE_SUM_ARGS \
+  ns, px, py, pz, mx, my, mz, octupole, sx, sy, sz, rx, ry, rz, ax, ay, az
 #define SKINBUS_DIPOLE_SUM_JET_PARAMS                                                           \
   std::size_t ns, const MagnetJet &g, const double *sx, const double *sy, const double *sz,     \
       const double *rx, const double *ry, const double *rz, double *ax, double *ay, double *az, \

@@ -14,10 +14,12 @@ namespace skinbus::sim::detail {
 // Adds, at each of `ns` sensors (positions sx/sy/sz, mm), the field of one displaced magnet
 // (position px/py/pz, moment mx/my/mz) minus its rest field (rx/ry/rz) to ax/ay/az, uT. No
 // allocation.
+// `octupole`: K q of the magnet's shape (kDipoleScale x octupole_mm2 / 2, sim::magnet_field_ut();
+// 0: a point dipole, the very bits of the dipole's loop).
 using DipoleSum = void (*)(std::size_t ns, double px, double py, double pz, double mx, double my,
-                           double mz, const double* sx, const double* sy, const double* sz,
-                           const double* rx, const double* ry, const double* rz, double* ax,
-                           double* ay, double* az);
+                           double mz, double octupole, const double* sx, const double* sy,
+                           const double* sz, const double* rx, const double* ry, const double* rz,
+                           double* ax, double* ay, double* az);
 
 // At most this many unknowns move a magnet in one jet (three contacts with their shear).
 inline constexpr int kMaxJetUnknowns = 15;
@@ -27,6 +29,7 @@ inline constexpr int kMaxJetUnknowns = 15;
 // by unknown k.
 struct MagnetJet {
   double p[3], m[3];
+  double octupole = 0;  // K q of its shape, as DipoleSum's (0: a point dipole)
   int unknowns = 0;
   double dp[kMaxJetUnknowns][3], dm[kMaxJetUnknowns][3];
 };

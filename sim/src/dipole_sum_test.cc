@@ -20,6 +20,10 @@
 namespace skinbus::sim::detail {
 namespace {
 
+// The built-in 3 x 1.5 mm disc's octupole (mm^2) and its K q, as PatchModel passes it.
+const double kOctupoleMm2 = cylinder_octupole_mm2(3.0, 1.5);
+const double kOctupole = 0.5 * kDipoleScale * kOctupoleMm2;
+
 TEST(DipoleSum, EveryBuildThisCpuHasMatchesTheBaseline) {
   std::mt19937_64 rng(test_seed("DipoleSum.EveryBuildThisCpuHasMatchesTheBaseline"));
   std::uniform_real_distribution<double> pos(-80.0, 80.0), mom(-0.05, 0.05), field(-500.0, 500.0);
@@ -36,9 +40,10 @@ TEST(DipoleSum, EveryBuildThisCpuHasMatchesTheBaseline) {
       for (double& x : base) x = field(rng);
       const double p[3] = {pos(rng), pos(rng), std::abs(pos(rng)) * 0.1};
       const double m[3] = {mom(rng), mom(rng), mom(rng)};
+      const double oct = ns % 2 == 0 ? 0.0 : kOctupole;  // point dipoles and discs
       want = got = base;
       auto call = [&](DipoleSum fn, std::vector<double>& a) {
-        fn(ns, p[0], p[1], p[2], m[0], m[1], m[2], s.data(), s.data() + ns, s.data() + 2 * ns,
+        fn(ns, p[0], p[1], p[2], m[0], m[1], m[2], oct, s.data(), s.data() + ns, s.data() + 2 * ns,
            r.data(), r.data() + ns, r.data() + 2 * ns, a.data(), a.data() + ns, a.data() + 2 * ns);
       };
       call(dipole_sum_for(Isa::kPortable), want);
@@ -52,7 +57,8 @@ TEST(DipoleSum, EveryBuildThisCpuHasMatchesTheBaseline) {
         const double dipole = 4 * kDipoleScale *
                               std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) /
                               (dist * dist * dist);
-        const double scale = std::abs(base[i]) + std::abs(r[i]) + dipole;
+        const double scale = std::abs(base[i]) + std::abs(r[i]) +
+                             dipole * (1 + 8 * std::abs(kOctupoleMm2) / (dist * dist));
         EXPECT_NEAR(got[i], want[i], 1e-14 * scale) << isa_name(isa) << ", " << ns << " sensors";
         if (std::abs(got[i] - want[i]) > 1e-14 * scale) break;
       }
@@ -78,6 +84,7 @@ TEST(DipoleSum, TheJetsFieldIsTheSumsAndEveryBuildMatchesTheBaseline) {
         for (double& x : r) x = 10 * unit(rng);
         MagnetJet g;
         g.unknowns = unknowns;
+        g.octupole = unknowns == 5 ? 0.0 : kOctupole;  // point dipoles and discs
         for (int c = 0; c < 3; ++c) {
           g.p[c] = c == 2 ? std::abs(pos(rng)) * 0.1 : pos(rng);
           g.m[c] = mom(rng);
@@ -91,10 +98,10 @@ TEST(DipoleSum, TheJetsFieldIsTheSumsAndEveryBuildMatchesTheBaseline) {
         const std::size_t nj = static_cast<std::size_t>(unknowns) * ns;
         std::vector<double> a(3 * ns, 0.0), j(3 * nj, 0.0), want(3 * ns, 0.0);
         auto sum_at = [&](const double* p, const double* m, std::vector<double>& into) {
-          dipole_sum_for(Isa::kPortable)(ns, p[0], p[1], p[2], m[0], m[1], m[2], s.data(),
-                                         s.data() + ns, s.data() + 2 * ns, r.data(), r.data() + ns,
-                                         r.data() + 2 * ns, into.data(), into.data() + ns,
-                                         into.data() + 2 * ns);
+          dipole_sum_for(Isa::kPortable)(ns, p[0], p[1], p[2], m[0], m[1], m[2], g.octupole,
+                                         s.data(), s.data() + ns, s.data() + 2 * ns, r.data(),
+                                         r.data() + ns, r.data() + 2 * ns, into.data(),
+                                         into.data() + ns, into.data() + 2 * ns);
         };
         f(ns, g, s.data(), s.data() + ns, s.data() + 2 * ns, r.data(), r.data() + ns,
           r.data() + 2 * ns, a.data(), a.data() + ns, a.data() + 2 * ns, j.data(), j.data() + nj,

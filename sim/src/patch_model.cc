@@ -403,7 +403,8 @@ UnitParameters PatchModel::parameters() const {
   return u;
 }
 
-Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParameters& u) {
+Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParameters& u,
+                                        bool point_magnets) {
   PatchModel p;
   p.design_ = d;
   p.spread_ = u.spread_mm;
@@ -445,6 +446,8 @@ Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParamete
     s.gain = sp.gain;
     p.sensors_.push_back(s);
   }
+  p.octupole_mm2_ =
+      point_magnets ? 0.0 : cylinder_octupole_mm2(d.magnet_diameter_mm, d.magnet_height_mm);
   // Rest field of every magnet at every sensor, in 3D.
   const std::size_t ns = p.sensors_.size();
   p.rest_.resize(p.magnets_.size() * ns);
@@ -454,7 +457,7 @@ Result<PatchModel> PatchModel::assemble(const PatchDesign& d, const UnitParamete
     p.magnet_pose<double>(m.u, m.v, m.h, m.m_loc, p.spread_u_, p.spread_v_, p.lateral_, {}, &pos,
                           &moment3);
     for (std::size_t si = 0; si < ns; ++si)
-      p.rest_[mi * ns + si] = dipole_field_ut(moment3, p.sensors_[si].pos - pos);
+      p.rest_[mi * ns + si] = magnet_field_ut(moment3, p.sensors_[si].pos - pos, p.octupole_mm2_);
   }
   for (const Sensor& s : p.sensors_) {
     p.sx_.push_back(s.pos.x);
@@ -477,19 +480,22 @@ Result<PatchModel> PatchModel::with_disc_magnets(const PatchModel& unit) {
     return make_error(ErrorCode::kInvalidArgument,
                       "disc magnets: " + std::to_string(n) + " cubature points, at most 4096");
   }
-  // Degree-3 cubature of a disc (weights 1/4 at the centre, 1/8 at 6 points on sqrt(2/3) r)
-  // times 2-point Gauss over the height (+-h / (2 sqrt 3)).
-  const double ring = std::sqrt(2.0 / 3.0) * 0.5 * d.magnet_diameter_mm;
-  const double dz = d.magnet_height_mm / (2 * std::sqrt(3.0));
+  // Across the disc: squared radius at the 2 Gauss points of [0, r^2] (weights 1/2), 8 angles
+  // (1/8 each); along the height: 3 Gauss points on [-h/2, h/2] (weights 5/18, 8/18, 5/18).
+  const double r = 0.5 * d.magnet_diameter_mm, half_h = 0.5 * d.magnet_height_mm;
   struct Point {
     double du, dv, dh, w;
   };
   std::vector<Point> pts;
-  for (double z : {-dz, dz}) {
-    pts.push_back({0, 0, z, 0.25 * 0.5});
-    for (int k = 0; k < 6; ++k) {
-      const double a = k * M_PI / 3;
-      pts.push_back({ring * std::cos(a), ring * std::sin(a), z, 0.125 * 0.5});
+  const double heights[3][2] = {
+      {-std::sqrt(0.6), 5.0 / 18}, {0.0, 8.0 / 18}, {std::sqrt(0.6), 5.0 / 18}};
+  for (const auto& [zh, wz] : heights) {
+    for (double t : {0.5 - 0.5 / std::sqrt(3.0), 0.5 + 0.5 / std::sqrt(3.0)}) {
+      const double rho = r * std::sqrt(t);
+      for (int k = 0; k < 8; ++k) {
+        const double a = k * M_PI / 4;
+        pts.push_back({rho * std::cos(a), rho * std::sin(a), zh * half_h, wz * 0.5 / 8});
+      }
     }
   }
   PatchDesign discs = d;
@@ -503,7 +509,7 @@ Result<PatchModel> PatchModel::with_disc_magnets(const PatchModel& unit) {
       q.magnets.push_back({m.u_mm + t.du, m.v_mm + t.dv, m.h_mm + t.dh, m.moment_am2 * t.w});
     }
   }
-  return from_parameters(discs, q);
+  return assemble(discs, q, /*point_magnets=*/true);  // the parameters are the unit's, checked
 }
 
 void PatchModel::rest_field_ut(std::span<double> out) const {
@@ -578,6 +584,7 @@ void PatchModel::field_jacobian(std::span<const Contact> contacts, int per_conta
     const Magnet& m = magnets_[mi];
     detail::MagnetJet& g = poses[held];
     g.unknowns = K;
+    g.octupole = 0.5 * kDipoleScale * octupole_mm2_;
     if (single) {
       if (!single_press_pose(*this, m, *press, &g)) continue;
     } else {
@@ -653,7 +660,8 @@ bool PatchModel::contact_field_jacobian_ut(std::span<const Contact> contacts, bo
 
 void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<double> out) const {
   const std::size_t ns = sensors_.size();
-  const detail::DipoleSum sum = detail::dipole_sum();        // AVX-512, AVX2 or baseline
+  const detail::DipoleSum sum = detail::dipole_sum();  // AVX-512, AVX2 or baseline
+  const double octupole = 0.5 * kDipoleScale * octupole_mm2_;
   double ax[kMaxSensors], ay[kMaxSensors], az[kMaxSensors];  // the first ns are read
   std::fill_n(ax, ns, 0.0);
   std::fill_n(ay, ns, 0.0);
@@ -695,7 +703,7 @@ void PatchModel::contact_field_ut(std::span<const Contact> contacts, std::span<d
     for (int i = 0; i < n_posed; ++i) {
       const std::size_t at = posed[i] * ns;
       const std::array<double, 6>& q = pose[i];
-      sum(ns, q[0], q[1], q[2], q[3], q[4], q[5], sx_.data(), sy_.data(), sz_.data(),
+      sum(ns, q[0], q[1], q[2], q[3], q[4], q[5], octupole, sx_.data(), sy_.data(), sz_.data(),
           rx_.data() + at, ry_.data() + at, rz_.data() + at, ax, ay, az);
     }
     n_posed = 0;

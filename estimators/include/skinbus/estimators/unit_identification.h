@@ -35,8 +35,8 @@
 // One residual block per (sample, sensor) touches that sensor, the two lattice parameters and
 // only the magnets within derivative_reach spread lengths of the press, so the Jacobian stays
 // sparse. Derivatives are exact: forward-mode jets through sim's own templates
-// (PatchModel::magnet_pose, sim::dipole_field_ut), the field of a pressed magnet's pose in closed
-// form (sim::dipole_field_gradient_ut); magnets beyond derivative_reach (moved by at
+// (PatchModel::magnet_pose, sim::magnet_field_ut), the field of a pressed magnet's pose in closed
+// form (sim::magnet_field_gradient_ut); magnets beyond derivative_reach (moved by at
 // most ~1 % of the depth) enter with their value, refreshed between outer iterations. What does
 // not depend on a block's own sensor or sample is made once an evaluation and shared: a sample's
 // magnet poses by its sensors' blocks, the magnets' rest fields by every sample's.

@@ -141,6 +141,10 @@ struct PatchDesign {
   // Deepest press the lattice takes (densified beyond): 60 % of its thickness. The model holds
   // deeper presses at this depth.
   double max_depth_mm() const { return 0.6 * thickness_mm; }
+  // The deepest press the tools make and fit: 10 % short of that stop, where a fitted depth zero
+  // of a few tenths of a millimetre does not take the model onto it (a fingertip's unit pressed
+  // to its stop, its zero fitted 0.01 mm off, was left at 1.3 noise units rather than 1.07).
+  double deepest_press_mm() const { return 0.9 * max_depth_mm(); }
 };
 
 // The static model class identification fits (estimators/unit_identification.h) and unit files
@@ -222,15 +226,18 @@ class PatchModel {
   static Result<PatchModel> of_unit_file(const PatchDesign& design, const UnitParameters& params);
 
   // The same unit with every magnet a uniformly magnetised disc of the design's diameter and
-  // height instead of a point dipole: each magnet becomes kDiscPoints dipoles at a degree-3
-  // cubature of its volume (over the disc: the centre with 1/4 of the moment and 6 points at
-  // sqrt(2/3) of the radius with 1/8 each; over the height: 2 Gauss points), placed in the local
-  // surface frame about the magnet's rest position, each moving with the lattice where it sits.
-  // Physics outside the point-dipole class of every estimator and of identification: a stand-in
-  // for a real magnet's finite size (the field differs by ~1 % at the sensors' distance). The
-  // result's design lists the cubature points as its magnets. Errors: as from_parameters(); more
-  // than 4096 points (kInvalidArgument). Cost: kDiscPoints x the field work of `unit`.
-  static constexpr int kDiscPoints = 14;
+  // height, its field summed over its volume rather than the model's dipole and octupole
+  // (magnet_field_ut()): each magnet becomes kDiscPoints point dipoles at a cubature exact for
+  // every polynomial of degree 7 across the disc and 5 along its height (2 radii, Gauss in the
+  // squared radius, times 8 angles; 3 Gauss points over the height), so its multipoles are the
+  // cylinder's to l = 5; placed in the local surface frame about the magnet's rest position, each
+  // moving with the lattice where it sits. Physics outside the class of every estimator and of
+  // identification (what the cylinder has beyond the octupole: about 1 % of the field 5 mm from a
+  // 3 x 1.5 mm disc, 0.01 % at 17.75 mm). Before 2026-11-29 a degree-3 cubature of 14 points, the
+  // model a point dipole. The result's design lists the cubature points as its magnets, its
+  // octupole 0. Errors: more than 4096 points (kInvalidArgument). Cost: kDiscPoints x the field
+  // work of `unit`.
+  static constexpr int kDiscPoints = 48;
   static Result<PatchModel> with_disc_magnets(const PatchModel& unit);
 
   // The unit's explicit parameters (what from_parameters() takes).
@@ -242,6 +249,10 @@ class PatchModel {
   int channel_count() const { return 3 * static_cast<int>(sensors_.size()); }
   double spread_mm() const { return spread_; }  // isotropic spread, before anisotropy
   double spread_u_mm() const { return spread_u_; }
+  // The octupole every magnet has beyond its dipole (sim::magnet_field_ut()): the design's
+  // cylinder's (sim::cylinder_octupole_mm2(magnet_diameter_mm, magnet_height_mm)), mm^2; 0 for
+  // with_disc_magnets()' cubature points.
+  double octupole_mm2() const { return octupole_mm2_; }
   double spread_v_mm() const { return spread_v_; }
   double lateral_mm() const { return lateral_; }
   // The depth a contact reads when its tip meets the surface (UnitParameters::depth_zero_mm; 0
@@ -366,7 +377,10 @@ class PatchModel {
   PatchModel() = default;
   static Result<PatchModel> build(const PatchDesign& design, uint64_t seed,
                                   const FabricationVariation& var);
-  static Result<PatchModel> assemble(const PatchDesign& design, const UnitParameters& params);
+  // `point_magnets`: every magnet a point dipole (with_disc_magnets()' cubature points), else each
+  // with the octupole of the design's cylinder.
+  static Result<PatchModel> assemble(const PatchDesign& design, const UnitParameters& params,
+                                     bool point_magnets = false);
   // contact_field_jacobian_ut() with K unknowns (contacts x per_contact).
   template <int K>
   void field_jacobian(std::span<const Contact> contacts, int per_contact, double* field,
@@ -374,7 +388,8 @@ class PatchModel {
 
   PatchDesign design_;
   double spread_ = 10, spread_u_ = 10, spread_v_ = 10, lateral_ = 2;
-  double depth_zero_ = 0;  // UnitParameters::depth_zero_mm
+  double depth_zero_ = 0;    // UnitParameters::depth_zero_mm
+  double octupole_mm2_ = 0;  // each magnet's shape: cylinder_octupole_mm2() of the design's
   double anisotropy_ = 0;  // the parameters' own (UnitParameters::anisotropy), without the design's
   std::vector<Magnet> magnets_;
   std::vector<Sensor> sensors_;
@@ -545,7 +560,7 @@ void PatchModel::contact_field_ut(std::span<const ContactT<T>> contacts, T* out)
       continue;
     }
     for (std::size_t si = 0; si < ns; ++si) {
-      const Vec3<T> b = dipole_field_ut(moment, lift<T>(sensors_[si].pos) - pos);
+      const Vec3<T> b = magnet_field_ut(moment, lift<T>(sensors_[si].pos) - pos, octupole_mm2_);
       const Vec3<double>& r = rest_[mi * ns + si];
       acc[si] = acc[si] + b - lift<T>(r);
     }
