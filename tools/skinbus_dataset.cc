@@ -19,6 +19,51 @@
 #include "skinbus/sim/unit_model.h"
 #include "tool_util.h"
 
+namespace {
+
+// What the patch's node sends: a sensor whose tared field leaves the bus's range is flagged
+// saturated (docs/protocol.md) and the host fits without it, so its channels are written as nan,
+// as the host reads them. Returns a note for the user ("" when none left the range).
+std::string leave_out_beyond_bus(skinbus::sim::Dataset* d) {
+  const std::size_t nc = static_cast<std::size_t>(d->channels());
+  std::size_t hit = 0;
+  double peak_ut = 0;
+  int peak_channel = 0;
+  for (std::size_t r = 0; r < d->rows(); ++r) {
+    bool any = false;
+    for (std::size_t s0 = 0; s0 < nc; s0 += 3) {
+      bool sensor = false;
+      for (std::size_t c = s0; c < s0 + 3; ++c) {
+        const double v = d->field_ut[r * nc + c];
+        bool clipped = false;
+        skinbus::bus::field_ut_to_lsb(v, &clipped);
+        if (!clipped || !std::isfinite(v)) continue;
+        sensor = true;
+        if (std::fabs(v) > peak_ut) {
+          peak_ut = std::fabs(v);
+          peak_channel = static_cast<int>(c);
+        }
+      }
+      if (!sensor) continue;
+      any = true;
+      for (std::size_t c = s0; c < s0 + 3; ++c) d->field_ut[r * nc + c] = std::nan("");
+    }
+    hit += any ? 1 : 0;
+  }
+  if (hit == 0) return "";
+  char text[400];
+  std::snprintf(text, sizeof text,
+                "%zu of %zu samples read a sensor beyond the bus's +-%.1f uT (%s to %.0f uT): "
+                "written as nan, as its patch node flags it saturated and the host fits without "
+                "it; weaker magnets, or magnets further from the sensors, keep presses within the "
+                "range",
+                hit, d->rows(), skinbus::bus::kFieldMaxLsb * skinbus::bus::kFieldUtPerLsb,
+                skinbus::sim::field_column_name(peak_channel).c_str(), peak_ut);
+  return text;
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   using namespace skinbus;
   using namespace skinbus::sim;
@@ -251,43 +296,8 @@ int main(int argc, char** argv) {
     } else {
       throw std::invalid_argument("unknown --plan '" + plan + "' (see --help)");
     }
-    // What the patch's node sends: a sensor whose tared field leaves the bus's range is flagged
-    // saturated (docs/protocol.md), and the host reads it as dead: written as nan, as it reads.
-    {
-      const std::size_t nc = static_cast<std::size_t>(d.channels());
-      std::size_t hit = 0;
-      double peak_ut = 0;
-      int peak_channel = 0;
-      for (std::size_t r = 0; r < d.rows(); ++r) {
-        bool any = false;
-        for (std::size_t s0 = 0; s0 < nc; s0 += 3) {
-          bool sensor = false;
-          for (std::size_t c = s0; c < s0 + 3; ++c) {
-            const double v = d.field_ut[r * nc + c];
-            bool clipped = false;
-            bus::field_ut_to_lsb(v, &clipped);
-            if (!clipped || !std::isfinite(v)) continue;
-            sensor = true;
-            if (std::fabs(v) > peak_ut) {
-              peak_ut = std::fabs(v);
-              peak_channel = static_cast<int>(c);
-            }
-          }
-          if (!sensor) continue;
-          any = true;
-          for (std::size_t c = s0; c < s0 + 3; ++c) d.field_ut[r * nc + c] = std::nan("");
-        }
-        hit += any ? 1 : 0;
-      }
-      if (hit > 0) {
-        std::fprintf(stderr,
-                     "skinbus-dataset: %zu of %zu samples read a sensor beyond the bus's +-%.1f uT "
-                     "(%s to %.0f uT): written as nan, as its patch node flags it saturated and "
-                     "the host fits without it; weaker magnets, or magnets further from the "
-                     "sensors, keep presses within the range\n",
-                     hit, d.rows(), bus::kFieldMaxLsb * bus::kFieldUtPerLsb,
-                     field_column_name(peak_channel).c_str(), peak_ut);
-      }
+    if (const std::string note = leave_out_beyond_bus(&d); !note.empty()) {
+      std::fprintf(stderr, "skinbus-dataset: %s\n", note.c_str());
     }
     if (press_frame.size() == 3 || press_depth_zero_mm != 0) {
       PressFrame f{.depth_zero_mm = press_depth_zero_mm};

@@ -437,6 +437,30 @@ constexpr int kGlobals = 10;
 constexpr double kRadPerDeg = M_PI / 180;
 using JetG = ceres::Jet<double, kGlobals>;
 
+// sim::magnet_field_ut() for stage 1's residuals: doubles as they are; jets through the field's
+// closed-form derivatives (sim::magnet_field_gradient_ut) chained with the jets of the offset and
+// the moment, rather than every one of the field's operations carried on ten derivatives.
+Vec3<double> stage1_field(const Vec3<double>& m, const Vec3<double>& r, double octupole_mm2) {
+  return sim::magnet_field_ut(m, r, octupole_mm2);
+}
+Vec3<JetG> stage1_field(const Vec3<JetG>& m, const Vec3<JetG>& r, double octupole_mm2) {
+  double d_dr[3][3], d_dm[3][3];
+  const Vec3<double> b =
+      sim::magnet_field_gradient_ut(Vec3<double>{m.x.a, m.y.a, m.z.a},
+                                    Vec3<double>{r.x.a, r.y.a, r.z.a}, octupole_mm2, d_dr, d_dm);
+  const JetG* mj[3] = {&m.x, &m.y, &m.z};
+  const JetG* rj[3] = {&r.x, &r.y, &r.z};
+  const double bv[3] = {b.x, b.y, b.z};
+  Vec3<JetG> out;
+  JetG* o[3] = {&out.x, &out.y, &out.z};
+  for (int i = 0; i < 3; ++i) {
+    o[i]->a = bv[i];
+    o[i]->v = d_dm[i][0] * mj[0]->v + d_dm[i][1] * mj[1]->v + d_dm[i][2] * mj[2]->v +
+              d_dr[i][0] * rj[0]->v + d_dr[i][1] * rj[1]->v + d_dr[i][2] * rj[2]->v;
+  }
+  return out;
+}
+
 // What every sample's residuals share under the globals: each sensor's position and local
 // surface frame, each magnet's place, height and moment, and the rest field of every magnet at
 // every sensor (magnet-major). The samples' blocks share it (GlobalShared), made once an
@@ -520,7 +544,7 @@ const GlobalTerms<T>& global_terms(const GlobalContext& ctx, const double* gv, c
                            &rest_pos, &rest_moment);
     for (std::size_t k = 0; k < ns; ++k)
       t.rest[m * ns + k] =
-          sim::magnet_field_ut(rest_moment, t.spos[k] - rest_pos, ctx.shape->octupole_mm2());
+          stage1_field(rest_moment, t.spos[k] - rest_pos, ctx.shape->octupole_mm2());
   }
   return t;
 }
@@ -543,7 +567,7 @@ void global_residuals(const GlobalContext& ctx, const Sample& smp, const T* g,
       continue;  // beyond the plate's reach: this magnet does not move
     }
     for (std::size_t k = 0; k < ns; ++k)
-      acc[k] = acc[k] + sim::magnet_field_ut(moment, t.spos[k] - pos, ctx.shape->octupole_mm2()) -
+      acc[k] = acc[k] + stage1_field(moment, t.spos[k] - pos, ctx.shape->octupole_mm2()) -
                t.rest[m * ns + k];
   }
   for (std::size_t k = 0; k < ns; ++k) {

@@ -73,6 +73,37 @@ __attribute__((always_inline)) inline void octupole_sum(
   }
 }
 
+// The loop with or without the octupole (kOctupole: `octupole` is not 0), fused into one pass a
+// sensor: the offset and distance made once for both.
+template <bool kOctupole>
+__attribute__((always_inline)) inline void dipole_sum_pass(
+    std::size_t ns, double px, double py, double pz, double mx, double my, double mz,
+    double octupole, const double* __restrict sx, const double* __restrict sy,
+    const double* __restrict sz, const double* __restrict rx, const double* __restrict ry,
+    const double* __restrict rz, double* __restrict ax, double* __restrict ay,
+    double* __restrict az) {
+  const double inv_m2 = kOctupole ? 1.0 / (mx * mx + my * my + mz * mz) : 0.0;
+  for (std::size_t si = 0; si < ns; ++si) {
+    const double dx = sx[si] - px, dy = sy[si] - py, dz = sz[si] - pz;
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    const double inv_r = 1.0 / std::sqrt(r2);
+    const double inv_r3 = inv_r * inv_r * inv_r;
+    const double md = mx * dx + my * dy + mz * dz;
+    double a = 3.0 * kDipoleScale * md * inv_r3 * inv_r * inv_r;
+    double b = kDipoleScale * inv_r3;
+    if constexpr (kOctupole) {  // B += c1 d + c2 m (sim::magnet_field_ut())
+      const double ir2 = inv_r * inv_r;
+      const double k = octupole * ir2 * ir2 * inv_r;
+      const double gp2 = inv_m2 * md * md;
+      a += k * (35.0 * gp2 * md * ir2 * ir2 - 15.0 * md * ir2);
+      b -= k * (3.0 - 15.0 * gp2 * ir2);
+    }
+    ax[si] += a * dx - b * mx - rx[si];
+    ay[si] += a * dy - b * my - ry[si];
+    az[si] += a * dz - b * mz - rz[si];
+  }
+}
+
 __attribute__((always_inline)) inline void dipole_sum_body(
     std::size_t ns, double px, double py, double pz, double mx, double my, double mz,
     double octupole, const double* __restrict sx, const double* __restrict sy,
@@ -80,20 +111,10 @@ __attribute__((always_inline)) inline void dipole_sum_body(
     const double* __restrict rz, double* __restrict ax, double* __restrict ay,
     double* __restrict az) {
   if (octupole != 0) {
-    const double p[3] = {px, py, pz}, m[3] = {mx, my, mz};
-    octupole_sum(ns, p, m, octupole, 0, nullptr, nullptr, sx, sy, sz, ax, ay, az, nullptr, nullptr,
-                 nullptr);
-  }
-  for (std::size_t si = 0; si < ns; ++si) {
-    const double dx = sx[si] - px, dy = sy[si] - py, dz = sz[si] - pz;
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    const double inv_r = 1.0 / std::sqrt(r2);
-    const double inv_r3 = inv_r * inv_r * inv_r;
-    const double a = 3.0 * kDipoleScale * (mx * dx + my * dy + mz * dz) * inv_r3 * inv_r * inv_r;
-    const double b = kDipoleScale * inv_r3;
-    ax[si] += a * dx - b * mx - rx[si];
-    ay[si] += a * dy - b * my - ry[si];
-    az[si] += a * dz - b * mz - rz[si];
+    dipole_sum_pass<true>(ns, px, py, pz, mx, my, mz, octupole, sx, sy, sz, rx, ry, rz, ax, ay, az);
+  } else {
+    dipole_sum_pass<false>(ns, px, py, pz, mx, my, mz, octupole, sx, sy, sz, rx, ry, rz, ax, ay,
+                           az);
   }
 }
 
@@ -170,14 +191,15 @@ __attribute__((always_inline)) inline void dipole_sum_jet_body(
 // single-contact fit), the same formulas fused into one pass a sensor: the three derivatives are
 // made while the sensor's offset and distance are in registers, not kept and read back per
 // unknown.
-__attribute__((always_inline)) inline void dipole_sum_jet3_body(
+template <bool kOctupole>
+__attribute__((always_inline)) inline void dipole_sum_jet3_pass(
     std::size_t ns, const MagnetJet& g, const double* __restrict sx, const double* __restrict sy,
     const double* __restrict sz, const double* __restrict rx, const double* __restrict ry,
     const double* __restrict rz, double* __restrict ax, double* __restrict ay,
     double* __restrict az, double* __restrict jx, double* __restrict jy, double* __restrict jz) {
   const double p[3] = {g.p[0], g.p[1], g.p[2]};
   const double mx = g.m[0], my = g.m[1], mz = g.m[2];
-  double ex[3], ey[3], ez[3], fx[3], fy[3], fz[3], me[3];
+  double ex[3], ey[3], ez[3], fx[3], fy[3], fz[3], me[3], mf[3];
   double* __restrict ox[3];
   double* __restrict oy[3];
   double* __restrict oz[3];
@@ -185,27 +207,63 @@ __attribute__((always_inline)) inline void dipole_sum_jet3_body(
     ex[k] = -g.dp[k][0], ey[k] = -g.dp[k][1], ez[k] = -g.dp[k][2];
     fx[k] = g.dm[k][0], fy[k] = g.dm[k][1], fz[k] = g.dm[k][2];
     me[k] = mx * ex[k] + my * ey[k] + mz * ez[k];
+    mf[k] = mx * fx[k] + my * fy[k] + mz * fz[k];
     ox[k] = jx + static_cast<std::size_t>(k) * ns;
     oy[k] = jy + static_cast<std::size_t>(k) * ns;
     oz[k] = jz + static_cast<std::size_t>(k) * ns;
   }
+  const double inv_m2 = kOctupole ? 1.0 / (mx * mx + my * my + mz * mz) : 0.0;
+  const double oq = kOctupole ? g.octupole / (3.0 * kDipoleScale) : 0.0;  // k = oq q (q: 3K/r^5)
   for (std::size_t si = 0; si < ns; ++si) {
     const JetTerms t = jet_terms(sx[si], sy[si], sz[si], p, g.m);
     const double x = t.x, y = t.y, z = t.z, q = t.q, a = t.a, b = t.b;
-    ax[si] += a * x - b * mx - rx[si];
-    ay[si] += a * y - b * my - ry[si];
-    az[si] += a * z - b * mz - rz[si];
     const double a5 = 5.0 * a * t.ir2, b3 = 3.0 * b * t.ir2;  // a' = q (dm.d + m.e) - a5 (d.e)
+    // The octupole's terms (octupole_terms()), 0 without one: B gains c1 d + c2 m.
+    double c1 = 0, c2 = 0, oa = 0, obd = 0, og1 = 0, oa2 = 0, ob2 = 0, og2 = 0;
+    if constexpr (kOctupole) {
+      const double ir2 = t.ir2, ir4 = ir2 * ir2, k = oq * q;
+      const double pm = mx * x + my * y + mz * z;
+      const double gp = inv_m2 * pm, gp2 = gp * pm, gp3 = gp2 * pm;
+      const double u1 = 35.0 * gp3 * ir4 - 15.0 * pm * ir2, u2 = 3.0 - 15.0 * gp2 * ir2;
+      c1 = k * u1;
+      c2 = k * u2;
+      oa = k * (105.0 * gp2 * ir4 - 15.0 * ir2);
+      obd = k * (-140.0 * gp3 * ir4 * ir2 + 30.0 * pm * ir4 - 5.0 * u1 * ir2);
+      og1 = k * (-70.0 * inv_m2 * gp3 * ir4);
+      oa2 = k * (-30.0 * gp * ir2);
+      ob2 = k * (30.0 * gp2 * ir4 - 5.0 * u2 * ir2);
+      og2 = k * (30.0 * inv_m2 * gp2 * ir2);
+    }
+    const double ac = a + c1, bc = b - c2;  // B = ac d - bc m
+    ax[si] += ac * x - bc * mx - rx[si];
+    ay[si] += ac * y - bc * my - ry[si];
+    az[si] += ac * z - bc * mz - rz[si];
 #pragma GCC unroll 3
     for (int k = 0; k < 3; ++k) {
       const double de = x * ex[k] + y * ey[k] + z * ez[k];
       const double fd = fx[k] * x + fy[k] * y + fz[k] * z;
-      const double da = q * (fd + me[k]) - a5 * de;
-      const double ndb = b3 * de;  // -b'
-      ox[k][si] += da * x + a * ex[k] + ndb * mx - b * fx[k];
-      oy[k][si] += da * y + a * ey[k] + ndb * my - b * fy[k];
-      oz[k][si] += da * z + a * ez[k] + ndb * mz - b * fz[k];
+      double da = q * (fd + me[k]) - a5 * de;
+      double ndb = b3 * de;  // -b'
+      if constexpr (kOctupole) {
+        da += oa * (me[k] + fd) + obd * de + og1 * mf[k];
+        ndb += oa2 * (me[k] + fd) + ob2 * de + og2 * mf[k];
+      }
+      ox[k][si] += da * x + ac * ex[k] + ndb * mx - bc * fx[k];
+      oy[k][si] += da * y + ac * ey[k] + ndb * my - bc * fy[k];
+      oz[k][si] += da * z + ac * ez[k] + ndb * mz - bc * fz[k];
     }
+  }
+}
+
+__attribute__((always_inline)) inline void dipole_sum_jet3_body(
+    std::size_t ns, const MagnetJet& g, const double* __restrict sx, const double* __restrict sy,
+    const double* __restrict sz, const double* __restrict rx, const double* __restrict ry,
+    const double* __restrict rz, double* __restrict ax, double* __restrict ay,
+    double* __restrict az, double* __restrict jx, double* __restrict jy, double* __restrict jz) {
+  if (g.octupole != 0) {
+    dipole_sum_jet3_pass<true>(ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz);
+  } else {
+    dipole_sum_jet3_pass<false>(ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz);
   }
 }
 
@@ -216,13 +274,13 @@ __attribute__((always_inline)) inline void dipole_sum_jet_any(std::size_t ns, co
                                                               const double* ry, const double* rz,
                                                               double* ax, double* ay, double* az,
                                                               double* jx, double* jy, double* jz) {
-  if (g.octupole != 0) {
-    octupole_sum(ns, g.p, g.m, g.octupole, g.unknowns, g.dp, g.dm, sx, sy, sz, ax, ay, az, jx, jy,
-                 jz);
-  }
   if (g.unknowns == 3) {
     dipole_sum_jet3_body(ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz);
   } else {
+    if (g.octupole != 0) {  // a pass of its own beside the kept terms' (several contacts)
+      octupole_sum(ns, g.p, g.m, g.octupole, g.unknowns, g.dp, g.dm, sx, sy, sz, ax, ay, az, jx, jy,
+                   jz);
+    }
     dipole_sum_jet_body(ns, g, sx, sy, sz, rx, ry, rz, ax, ay, az, jx, jy, jz);
   }
 }

@@ -6,7 +6,7 @@
 //     (skinbus/sim/plate_kernel.h), superposed over contacts
 //   -> each magnet moves down with the surface, in-plane toward the press (the surface layer
 //      bends: -lateral * slope) and tilts with the surface normal
-//   -> field at every sensor: exact dipole sum (skinbus/sim/dipole.h)
+//   -> field at every sensor: the sum of each magnet's dipole and octupole (skinbus/sim/dipole.h)
 //   -> sensor frame, per-unit sensor rotation and gain.
 //
 // Coordinates: the patch frame has its origin at the patch centre on the skin surface, u and v
