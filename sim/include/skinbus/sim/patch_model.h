@@ -215,7 +215,8 @@ class PatchModel {
   // lateral >= 0, finite non-zero gains and orthonormal mounting rotations; the error names the
   // entry that is not. The design's anisotropy is added to the parameters' own (their sum within
   // (-0.5, 0.5)).
-  // from_parameters(m.design(), m.parameters()) rebuilds m exactly (bit for bit). Cost: the rest
+  // from_parameters(m.design(), m.parameters()) rebuilds m exactly (bit for bit; not a
+  // with_disc_magnets() model, whose points would gain the octupole). Cost: the rest
   // field table, magnets x sensors dipole evaluations.
   static Result<PatchModel> from_parameters(const PatchDesign& design,
                                             const UnitParameters& params);
