@@ -11,34 +11,20 @@ namespace {
 
 // The loop, inlined into one function per instruction set and vectorised by the compiler for
 // that set.
-// The octupole's terms at a sensor offset (x, y, z) from a magnet of moment m (sim::dipole.h,
-// magnet_field_gradient_ut()): k = K q / r^5 and the field's coefficients of the offset and of
-// the moment, c1 and c2, then (for jets) those of its derivatives, each times k.
+// The octupole's coefficients at a sensor offset (x, y, z) from a magnet of moment m
+// (sim::octupole_coefficients(), k = K q / r^5 with K q = `kq`), the offset kept beside them.
 struct OctupoleTerms {
-  double x, y, z, c1, c2, a, bd, g1, a2, b2, g2;
+  double x, y, z;
+  OctupoleCoefficients o;
 };
 __attribute__((always_inline)) inline OctupoleTerms octupole_terms(double x, double y, double z,
                                                                    const double m[3], double kq,
-                                                                   double inv_m2, bool jet) {
-  OctupoleTerms t;
-  t.x = x, t.y = y, t.z = z;
+                                                                   double inv_m2) {
   const double inv_r = 1.0 / std::sqrt(x * x + y * y + z * z);
-  const double ir2 = inv_r * inv_r, ir4 = ir2 * ir2;
-  const double k = kq * ir4 * inv_r;
-  const double p = m[0] * x + m[1] * y + m[2] * z;
-  const double gp = inv_m2 * p, gp2 = gp * p, gp3 = gp2 * p;
-  const double c1 = 35.0 * gp3 * ir4 - 15.0 * p * ir2, c2 = 3.0 - 15.0 * gp2 * ir2;
-  t.c1 = k * c1;
-  t.c2 = k * c2;
-  if (jet) {
-    t.a = k * (105.0 * gp2 * ir4 - 15.0 * ir2);
-    t.bd = k * (-140.0 * gp3 * ir4 * ir2 + 30.0 * p * ir4 - 5.0 * c1 * ir2);
-    t.g1 = k * (-70.0 * inv_m2 * gp3 * ir4);
-    t.a2 = k * (-30.0 * gp * ir2);
-    t.b2 = k * (30.0 * gp2 * ir4 - 5.0 * c2 * ir2);
-    t.g2 = k * (30.0 * inv_m2 * gp2 * ir2);
-  }
-  return t;
+  const double ir2 = inv_r * inv_r;
+  return {
+      x, y, z,
+      octupole_coefficients(kq * ir2 * ir2 * inv_r, m[0] * x + m[1] * y + m[2] * z, ir2, inv_m2)};
 }
 
 // Adds the octupole of a magnet's shape (K q = `kq`, not 0) to a field sum and, for `unknowns`
@@ -54,21 +40,22 @@ __attribute__((always_inline)) inline void octupole_sum(
   const double inv_m2 = 1.0 / (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
   for (std::size_t si = 0; si < ns; ++si) {
     const OctupoleTerms t =
-        octupole_terms(sx[si] - p[0], sy[si] - p[1], sz[si] - p[2], m, kq, inv_m2, unknowns > 0);
-    ax[si] += t.c1 * t.x + t.c2 * m[0];
-    ay[si] += t.c1 * t.y + t.c2 * m[1];
-    az[si] += t.c1 * t.z + t.c2 * m[2];
+        octupole_terms(sx[si] - p[0], sy[si] - p[1], sz[si] - p[2], m, kq, inv_m2);
+    const OctupoleCoefficients& o = t.o;
+    ax[si] += o.c1 * t.x + o.c2 * m[0];
+    ay[si] += o.c1 * t.y + o.c2 * m[1];
+    az[si] += o.c1 * t.z + o.c2 * m[2];
     for (int k = 0; k < unknowns; ++k) {
       const double ex = -dp[k][0], ey = -dp[k][1], ez = -dp[k][2];
       const double fx = dm[k][0], fy = dm[k][1], fz = dm[k][2];
       const double me = m[0] * ex + m[1] * ey + m[2] * ez, mf = m[0] * fx + m[1] * fy + m[2] * fz;
       const double de = t.x * ex + t.y * ey + t.z * ez, df = t.x * fx + t.y * fy + t.z * fz;
-      const double cd = t.a * (me + df) + t.bd * de + t.g1 * mf;
-      const double cm = t.a2 * (me + df) + t.b2 * de + t.g2 * mf;
+      const double cd = o.a * (me + df) + o.bd * de + o.g1 * mf;
+      const double cm = o.a2 * (me + df) + o.b2 * de + o.g2 * mf;
       const std::size_t at = static_cast<std::size_t>(k) * ns + si;
-      jx[at] += cd * t.x + cm * m[0] + t.c1 * ex + t.c2 * fx;
-      jy[at] += cd * t.y + cm * m[1] + t.c1 * ey + t.c2 * fy;
-      jz[at] += cd * t.z + cm * m[2] + t.c1 * ez + t.c2 * fz;
+      jx[at] += cd * t.x + cm * m[0] + o.c1 * ex + o.c2 * fx;
+      jy[at] += cd * t.y + cm * m[1] + o.c1 * ey + o.c2 * fy;
+      jz[at] += cd * t.z + cm * m[2] + o.c1 * ez + o.c2 * fz;
     }
   }
 }
@@ -93,10 +80,10 @@ __attribute__((always_inline)) inline void dipole_sum_pass(
     double b = kDipoleScale * inv_r3;
     if constexpr (kOctupole) {  // B += c1 d + c2 m (sim::magnet_field_ut())
       const double ir2 = inv_r * inv_r;
-      const double k = octupole * ir2 * ir2 * inv_r;
-      const double gp2 = inv_m2 * md * md;
-      a += k * (35.0 * gp2 * md * ir2 * ir2 - 15.0 * md * ir2);
-      b -= k * (3.0 - 15.0 * gp2 * ir2);
+      const OctupoleCoefficients o =
+          octupole_coefficients(octupole * ir2 * ir2 * inv_r, md, ir2, inv_m2);
+      a += o.c1;
+      b -= o.c2;
     }
     ax[si] += a * dx - b * mx - rx[si];
     ay[si] += a * dy - b * my - ry[si];
@@ -218,23 +205,13 @@ __attribute__((always_inline)) inline void dipole_sum_jet3_pass(
     const JetTerms t = jet_terms(sx[si], sy[si], sz[si], p, g.m);
     const double x = t.x, y = t.y, z = t.z, q = t.q, a = t.a, b = t.b;
     const double a5 = 5.0 * a * t.ir2, b3 = 3.0 * b * t.ir2;  // a' = q (dm.d + m.e) - a5 (d.e)
-    // The octupole's terms (octupole_terms()), 0 without one: B gains c1 d + c2 m.
-    double c1 = 0, c2 = 0, oa = 0, obd = 0, og1 = 0, oa2 = 0, ob2 = 0, og2 = 0;
+    // The octupole's coefficients (sim::octupole_coefficients()), 0 without one: B gains
+    // c1 d + c2 m.
+    OctupoleCoefficients o{};
     if constexpr (kOctupole) {
-      const double ir2 = t.ir2, ir4 = ir2 * ir2, k = oq * q;
-      const double pm = mx * x + my * y + mz * z;
-      const double gp = inv_m2 * pm, gp2 = gp * pm, gp3 = gp2 * pm;
-      const double u1 = 35.0 * gp3 * ir4 - 15.0 * pm * ir2, u2 = 3.0 - 15.0 * gp2 * ir2;
-      c1 = k * u1;
-      c2 = k * u2;
-      oa = k * (105.0 * gp2 * ir4 - 15.0 * ir2);
-      obd = k * (-140.0 * gp3 * ir4 * ir2 + 30.0 * pm * ir4 - 5.0 * u1 * ir2);
-      og1 = k * (-70.0 * inv_m2 * gp3 * ir4);
-      oa2 = k * (-30.0 * gp * ir2);
-      ob2 = k * (30.0 * gp2 * ir4 - 5.0 * u2 * ir2);
-      og2 = k * (30.0 * inv_m2 * gp2 * ir2);
+      o = octupole_coefficients(oq * q, mx * x + my * y + mz * z, t.ir2, inv_m2);
     }
-    const double ac = a + c1, bc = b - c2;  // B = ac d - bc m
+    const double ac = a + o.c1, bc = b - o.c2;  // B = ac d - bc m
     ax[si] += ac * x - bc * mx - rx[si];
     ay[si] += ac * y - bc * my - ry[si];
     az[si] += ac * z - bc * mz - rz[si];
@@ -245,8 +222,8 @@ __attribute__((always_inline)) inline void dipole_sum_jet3_pass(
       double da = q * (fd + me[k]) - a5 * de;
       double ndb = b3 * de;  // -b'
       if constexpr (kOctupole) {
-        da += oa * (me[k] + fd) + obd * de + og1 * mf[k];
-        ndb += oa2 * (me[k] + fd) + ob2 * de + og2 * mf[k];
+        da += o.a * (me[k] + fd) + o.bd * de + o.g1 * mf[k];
+        ndb += o.a2 * (me[k] + fd) + o.b2 * de + o.g2 * mf[k];
       }
       ox[k][si] += da * x + ac * ex[k] + ndb * mx - bc * fx[k];
       oy[k][si] += da * y + ac * ey[k] + ndb * my - bc * fy[k];

@@ -92,16 +92,60 @@ Vec3<T> magnet_field_ut(const Vec3<T>& m_am2, const Vec3<T>& r_mm, double octupo
           dipole.z + c1 * r_mm.z + c2 * m_am2.z};
 }
 
+// The octupole's coefficients at an offset r from a magnet of moment m, each times
+// k = K q / r^5 (`k`), from p = m.r, `ir2` = 1 / r^2 and `inv_m2` = 1 / |m|^2: the field's, of r
+// (c1) and of m (c2), and those of its change (magnet_field_gradient_ut()). One set of formulas
+// for the closed form below and the vectorised sums (sim/src/dipole_sum.cc).
+struct OctupoleCoefficients {
+  double c1, c2, a, bd, g1, a2, b2, g2;
+};
+inline OctupoleCoefficients octupole_coefficients(double k, double p, double ir2, double inv_m2) {
+  const double ir4 = ir2 * ir2;
+  const double gp = inv_m2 * p, gp2 = gp * p, gp3 = gp2 * p;
+  const double u1 = 35.0 * gp3 * ir4 - 15.0 * p * ir2, u2 = 3.0 - 15.0 * gp2 * ir2;
+  OctupoleCoefficients o;
+  o.c1 = k * u1;
+  o.c2 = k * u2;
+  o.a = k * (105.0 * gp2 * ir4 - 15.0 * ir2);
+  o.bd = k * (-140.0 * gp3 * ir4 * ir2 + 30.0 * p * ir4 - 5.0 * u1 * ir2);
+  o.g1 = k * (-70.0 * inv_m2 * gp3 * ir4);
+  o.a2 = k * (-30.0 * gp * ir2);
+  o.b2 = k * (30.0 * gp2 * ir4 - 5.0 * u2 * ir2);
+  o.g2 = k * (30.0 * inv_m2 * gp2 * ir2);
+  return o;
+}
+
 // magnet_field_ut() and its derivatives in closed form, as dipole_field_gradient_ut() (the same
 // bits when `octupole_mm2` is 0). With c1, c2 the coefficients of r and m above (k = K q / r^5
 // folded in) and e a change of r, f of m, the octupole's change is
 //   k [r (A (m.e + r.f) + (Bd - 5 c1' / r^2) (r.e) + G1 (m.f)) + m (A2 (m.e + r.f) +
 //      (B2 - 5 c2' / r^2) (r.e) + G2 (m.f)) + c1' e + c2' f],
 // c1' = c1 / k, A = 105 g p^2 / r^4 - 15 / r^2, Bd = -140 g p^3 / r^6 + 30 p / r^4,
-// G1 = -70 g^2 p^3 / r^4, A2 = -30 g p / r^2, B2 = 30 g p^2 / r^4, G2 = 30 g^2 p^2 / r^2.
+// G1 = -70 g^2 p^3 / r^4, A2 = -30 g p / r^2, B2 = 30 g p^2 / r^4, G2 = 30 g^2 p^2 / r^2
+// (octupole_coefficients(): a, bd, g1, a2, b2, g2, the 5 c' / r^2 terms in bd and b2).
 inline Vec3<double> magnet_field_gradient_ut(const Vec3<double>& m_am2, const Vec3<double>& r_mm,
                                              double octupole_mm2, double d_dr[3][3],
-                                             double d_dm[3][3]);
+                                             double d_dm[3][3]) {
+  const Vec3<double> dipole = dipole_field_gradient_ut(m_am2, r_mm, d_dr, d_dm);
+  if (octupole_mm2 == 0) return dipole;
+  const double inv_r = 1.0 / std::sqrt(dot(r_mm, r_mm));
+  const double ir2 = inv_r * inv_r;
+  const OctupoleCoefficients o =
+      octupole_coefficients(0.5 * kDipoleScale * octupole_mm2 * ir2 * ir2 * inv_r, dot(m_am2, r_mm),
+                            ir2, 1.0 / dot(m_am2, m_am2));
+  const double r[3] = {r_mm.x, r_mm.y, r_mm.z}, m[3] = {m_am2.x, m_am2.y, m_am2.z};
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      const double diag = i == j ? 1.0 : 0.0;
+      d_dr[i][j] +=
+          r[i] * (o.a * m[j] + o.bd * r[j]) + m[i] * (o.a2 * m[j] + o.b2 * r[j]) + o.c1 * diag;
+      d_dm[i][j] +=
+          r[i] * (o.g1 * m[j] + o.a * r[j]) + m[i] * (o.g2 * m[j] + o.a2 * r[j]) + o.c2 * diag;
+    }
+  }
+  return {dipole.x + o.c1 * r_mm.x + o.c2 * m_am2.x, dipole.y + o.c1 * r_mm.y + o.c2 * m_am2.y,
+          dipole.z + o.c1 * r_mm.z + o.c2 * m_am2.z};
+}
 
 // Dipole moment of a uniformly magnetised cylinder: |m| = Br V / mu0 (A m^2).
 inline double cylinder_moment_am2(double remanence_t, double diameter_mm, double height_mm) {
@@ -116,39 +160,6 @@ inline double cylinder_axial_field_ut(double remanence_t, double diameter_mm, do
   const double r = diameter_mm / 2, h = height_mm / 2;
   const double a = z_mm + h, b = z_mm - h;
   return remanence_t / 2 * (a / std::sqrt(a * a + r * r) - b / std::sqrt(b * b + r * r)) * 1e6;
-}
-
-inline Vec3<double> magnet_field_gradient_ut(const Vec3<double>& m_am2, const Vec3<double>& r_mm,
-                                             double octupole_mm2, double d_dr[3][3],
-                                             double d_dm[3][3]) {
-  const Vec3<double> dipole = dipole_field_gradient_ut(m_am2, r_mm, d_dr, d_dm);
-  if (octupole_mm2 == 0) return dipole;
-  const double r2 = dot(r_mm, r_mm);
-  const double inv_r = 1.0 / std::sqrt(r2);
-  const double ir2 = inv_r * inv_r, ir4 = ir2 * ir2;
-  const double k = 0.5 * kDipoleScale * octupole_mm2 * ir4 * inv_r;
-  const double p = dot(m_am2, r_mm);
-  const double g = 1.0 / dot(m_am2, m_am2);
-  const double c1 = 35.0 * g * p * p * p * ir4 - 15.0 * p * ir2;
-  const double c2 = 3.0 - 15.0 * g * p * p * ir2;
-  const double a = 105.0 * g * p * p * ir4 - 15.0 * ir2;
-  const double bd = -140.0 * g * p * p * p * ir4 * ir2 + 30.0 * p * ir4 - 5.0 * c1 * ir2;
-  const double g1 = -70.0 * g * g * p * p * p * ir4;
-  const double a2 = -30.0 * g * p * ir2;
-  const double b2 = 30.0 * g * p * p * ir4 - 5.0 * c2 * ir2;
-  const double g2 = 30.0 * g * g * p * p * ir2;
-  const double r[3] = {r_mm.x, r_mm.y, r_mm.z}, m[3] = {m_am2.x, m_am2.y, m_am2.z};
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) {
-      const double diag = i == j ? 1.0 : 0.0;
-      d_dr[i][j] +=
-          k * (r[i] * (a * m[j] + bd * r[j]) + m[i] * (a2 * m[j] + b2 * r[j]) + c1 * diag);
-      d_dm[i][j] +=
-          k * (r[i] * (g1 * m[j] + a * r[j]) + m[i] * (g2 * m[j] + a2 * r[j]) + c2 * diag);
-    }
-  }
-  return {dipole.x + k * (c1 * r_mm.x + c2 * m_am2.x), dipole.y + k * (c1 * r_mm.y + c2 * m_am2.y),
-          dipole.z + k * (c1 * r_mm.z + c2 * m_am2.z)};
 }
 
 }  // namespace skinbus::sim
