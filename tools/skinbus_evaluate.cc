@@ -118,14 +118,10 @@ int main(int argc, char** argv) {
   const sim::PatchModel* const unit = &read->model;
   // Presses deeper than the unit's lattice compresses in its model: the refinement holds them at
   // that depth, so they are not measured (skinbus-identify left them out of the fit too).
-  if (const std::string deeper = sim::leave_out_rows_deeper_than(
-          &*data, unit->design().deepest_press_mm() + unit->depth_zero_mm());
+  if (const std::string deeper =
+          sim::leave_out_presses_past_the_lattice(&*data, unit->design(), unit->depth_zero_mm());
       !deeper.empty()) {
-    std::fprintf(stderr,
-                 "%s: %s: %s, 10 %% short of where the design's %g mm lattice stops a press in "
-                 "the model (%.2f mm, 0.6 x thickness_mm)\n",
-                 kTool, test_path.c_str(), deeper.c_str(), design->thickness_mm,
-                 design->max_depth_mm());
+    std::fprintf(stderr, "%s: %s: %s\n", kTool, test_path.c_str(), deeper.c_str());
   }
   // The header lists the design's sensor places (the unit's are in the presses' frame, which
   // identification may have found shifted and turned from the design's).

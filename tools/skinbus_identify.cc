@@ -149,13 +149,10 @@ int main(int argc, char** argv) {
   // The model's lattice compresses no deeper than the design says: deeper presses it cannot
   // explain (it holds them at that depth) are left out, and the user told why.
   const auto leave_out_deeper = [&](sim::Dataset* d, const std::string& path) {
-    const std::string note = sim::leave_out_rows_deeper_than(d, design.deepest_press_mm());
+    const std::string note = sim::leave_out_presses_past_the_lattice(d, design);
     if (note.empty()) return;
-    std::fprintf(stderr,
-                 "skinbus-identify: %s: %s, 10 %% short of where the design's %g mm lattice stops "
-                 "a press in the model (%.2f mm, 0.6 x thickness_mm): is thickness_mm the "
-                 "patch's?\n",
-                 path.c_str(), note.c_str(), design.thickness_mm, design.max_depth_mm());
+    std::fprintf(stderr, "skinbus-identify: %s: %s: is thickness_mm the patch's?\n", path.c_str(),
+                 note.c_str());
   };
   leave_out_deeper(&*presses, presses_path);
   std::string tip_from = "--tip-radius";

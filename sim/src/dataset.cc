@@ -110,6 +110,18 @@ std::string leave_out_rows_deeper_than(Dataset* d, double max_depth_mm) {
   return text;
 }
 
+std::string leave_out_presses_past_the_lattice(Dataset* d, const PatchDesign& design,
+                                               double depth_zero_mm) {
+  const std::string note = leave_out_rows_deeper_than(d, design.deepest_press_mm() + depth_zero_mm);
+  if (note.empty()) return note;
+  char why[160];
+  std::snprintf(why, sizeof why,
+                ", 10 %% short of where the design's %g mm lattice stops a press in the model "
+                "(%.2f mm, 0.6 x thickness_mm)",
+                design.thickness_mm, design.max_depth_mm());
+  return note + why;
+}
+
 Result<PressedArea> parse_press_area(std::string_view text, const PatchDesign& design,
                                      const std::optional<PressedArea>& unit_area) {
   if (text == "surface") {

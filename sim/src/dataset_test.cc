@@ -246,6 +246,15 @@ TEST(DatasetTest, RowsDeeperThanTheLatticeTakesAreLeftOut) {
   }
   EXPECT_TRUE(std::isnan(d.depth_mm.back()));  // an unknown depth is not known to be deeper
   EXPECT_EQ(leave_out_rows_deeper_than(&d, 3.0), "");
+  // The lattice's rule: a 5 mm lattice stops a press at 3 mm, the tools keep to 2.7 (plus a
+  // unit's depth zero), and say why.
+  PatchDesign thin;
+  thin.thickness_mm = 5;
+  EXPECT_EQ(leave_out_presses_past_the_lattice(&d, thin), "");  // 2.5 mm is within 2.7
+  EXPECT_EQ(leave_out_presses_past_the_lattice(&d, thin, -0.3),
+            "1 of 5 samples (1 presses) deeper than 2.40 mm: left out, 10 % short of where the "
+            "design's 5 mm lattice stops a press in the model (3.00 mm, 0.6 x thickness_mm)");
+  EXPECT_EQ(d.rows(), 4u);
 }
 
 // The tip a recording's presses were made with: its protocol header's, written by every

@@ -73,6 +73,12 @@ std::string leave_out_stuck_channels(Dataset* d);
 // depth that is not finite is removed.
 std::string leave_out_rows_deeper_than(Dataset* d, double max_depth_mm);
 
+// leave_out_rows_deeper_than() at the deepest press `design`'s lattice takes in the model
+// (PatchDesign::deepest_press_mm, plus a unit's `depth_zero_mm`), the note saying why ("" when
+// no row is deeper): the one rule skinbus-identify and skinbus-evaluate apply to a recording.
+std::string leave_out_presses_past_the_lattice(Dataset* d, const PatchDesign& design,
+                                               double depth_zero_mm = 0);
+
 // An indentation robot's frame against the patch's: its origin and axes in the surface, and the
 // depth it reads where its tip meets the surface.
 struct PressFrame {
